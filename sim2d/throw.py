@@ -41,9 +41,10 @@ a target point on the vertical target plane x = 2 m. Top view and side view::
 
 Gravity is deliberately *not* compensated: the robot aims straight at the target, so
 even an unclamped ball lands directly below its target, lower by
-``g/2 * (1.7 m / v_x)**2`` (0.29 m straight ahead, up to 0.40 m at the limits). Clamping and this drop make
-the target-to-hit mapping non-linear and part of the target area unreachable; the
-parameter network learns to correct for both (paper §IV-B, Fig. 4).
+``g/2 * (1.7 m / v_x)**2`` (0.29 m straight ahead, up to 0.40 m at the limits).
+Clamping and this drop make the target-to-hit mapping non-linear and part of the
+target area unreachable; the parameter network learns to correct for both (paper
+§IV-B, Fig. 4).
 
 Optional release noise (:class:`ReleaseNoise`) perturbs the ball's direction and
 speed at release, after the joint limits, with an explicit numpy ``Generator``.
