@@ -1,0 +1,159 @@
+"""Physically possible configurations of the can pyramid, found by simulation.
+
+A configuration (a subset of the ten cans, as a 10-bit mask; see :mod:`sim2d.cans`) is
+physically possible when, with its cans placed at their standard positions and
+simulated for ``SETTLE_TIME`` = 5 s, no can's centre ever moves more than
+``STABLE_TOLERANCE`` = 1 cm (DESIGN.md). All 2^10 subsets are simulated; none is
+decided by a rule. Every subset in which each upper can has both supporters stands;
+others can too, when the cans above pin a can that lost one supporter.
+
+The simulation is the can world's (same step, solver, friction) with sleeping switched
+off, so a slow creep is not mistaken for rest. A subset is rejected as soon as one can
+has moved more than the tolerance, which makes the 1024 runs take seconds.
+
+The result depends only on the physical constants, so it is cached on disk as JSON,
+keyed by a hash of :func:`sim2d.cans.physical_constants` and the two constants here.
+The cache directory is ``$EFFECT_NETWORKS_CACHE`` if set, else
+``~/.cache/effect-networks``.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import os
+import tempfile
+from functools import lru_cache
+from pathlib import Path
+
+from sim2d import cans
+
+__all__ = [
+    "SETTLE_TIME",
+    "STABLE_TOLERANCE",
+    "cache_dir",
+    "fully_supported",
+    "is_stable",
+    "settles",
+    "stable_configurations",
+]
+
+SETTLE_TIME = 5.0  # s (DESIGN.md)
+STABLE_TOLERANCE = 0.01  # m, the most a can of a standing configuration may move
+_CHECK_EVERY = 10  # steps between displacement checks
+
+
+def cache_dir() -> Path:
+    """Directory of the on-disk caches: ``$EFFECT_NETWORKS_CACHE`` or ~/.cache/effect-networks."""
+    env = os.environ.get("EFFECT_NETWORKS_CACHE")
+    return Path(env) if env else Path.home() / ".cache" / "effect-networks"
+
+
+def _cache_key() -> str:
+    constants = dict(
+        cans.physical_constants(), settle_time=SETTLE_TIME, stable_tolerance=STABLE_TOLERANCE
+    )
+    text = json.dumps(constants, sort_keys=True)
+    return hashlib.sha256(text.encode()).hexdigest()[:16]
+
+
+def fully_supported(mask: int) -> bool:
+    """Whether every upper can of a configuration has both its supporters (a rule, for tests)."""
+    for i in cans.mask_to_cans(mask):
+        below = cans.SUPPORTERS[i]
+        if below is not None and not all(mask >> j & 1 for j in below):
+            return False
+    return True
+
+
+def settles(mask: int) -> bool:
+    """Simulate one configuration for ``SETTLE_TIME``: does no can move more than 1 cm?
+
+    Parameters
+    ----------
+    mask : int
+        Any 10-bit configuration mask.
+    """
+    mask = cans._check_mask(mask, "mask")
+    space = cans._new_space()
+    space.sleep_time_threshold = math.inf
+    bodies = cans._add_cans(space, mask)
+    start = {i: tuple(cans._can_positions()[i]) for i in bodies}
+    limit = STABLE_TOLERANCE**2
+    for _ in range(round(SETTLE_TIME / cans.TIME_STEP) // _CHECK_EVERY):
+        for _ in range(_CHECK_EVERY):
+            space.step(cans.TIME_STEP)
+        for i, body in bodies.items():
+            dx = body.position.x - start[i][0]
+            dz = body.position.y - start[i][1]
+            if dx * dx + dz * dz > limit:
+                return False
+    return True
+
+
+def _compute(executor=None) -> tuple[int, ...]:
+    masks = range(1 << cans.N_CANS)
+    if executor is None:
+        flags = [settles(m) for m in masks]
+    else:
+        flags = list(executor.map(settles, masks, chunksize=64))
+    return tuple(m for m, ok in zip(masks, flags, strict=True) if ok)
+
+
+def stable_configurations(
+    *, cache: bool = True, path: str | os.PathLike | None = None, executor=None
+) -> tuple[int, ...]:
+    """All physically possible configurations, sorted.
+
+    Parameters
+    ----------
+    cache : bool
+        Read the result from, and write it to, the on-disk cache. With False, simulate
+        all 1024 subsets afresh (seconds) and leave the cache alone.
+    path : path-like, optional
+        Cache file to use instead of ``cache_dir() / "stable_configurations-<hash>.json"``.
+    executor : concurrent.futures.Executor, optional
+        Spreads the 1024 simulations; default: this process.
+
+    Returns
+    -------
+    tuple of int
+        Sorted configuration masks; deterministic for fixed constants.
+    """
+    if not cache:
+        return _compute(executor)
+    file = (
+        Path(path)
+        if path is not None
+        else cache_dir() / f"stable_configurations-{_cache_key()}.json"
+    )
+    if file.exists():
+        data = json.loads(file.read_text())
+        if data.get("key") == _cache_key():
+            return tuple(data["stable"])
+    stable = _compute(executor)
+    file.parent.mkdir(parents=True, exist_ok=True)
+    payload = {
+        "key": _cache_key(),
+        "constants": cans.physical_constants(),
+        "settle_time": SETTLE_TIME,
+        "stable_tolerance": STABLE_TOLERANCE,
+        "count": len(stable),
+        "stable": list(stable),
+    }
+    # Write to a temporary file and rename, so concurrent readers never see half a file.
+    with tempfile.NamedTemporaryFile("w", dir=file.parent, delete=False, suffix=".tmp") as tmp:
+        json.dump(payload, tmp, indent=1)
+    os.replace(tmp.name, file)
+    return stable
+
+
+@lru_cache(maxsize=1)
+def _stable_set() -> frozenset[int]:
+    return frozenset(stable_configurations())
+
+
+def is_stable(mask: int) -> bool:
+    """Whether a configuration is physically possible (uses the cached enumeration)."""
+    return cans._check_mask(mask, "mask") in _stable_set()
