@@ -1,0 +1,34 @@
+"""Effect networks as Pyro models: declarations, fitted parameters, the model function."""
+
+from models.declaration import (
+    ACTION,
+    Continuous,
+    Discrete,
+    EffectNetwork,
+    Parameter,
+    cluster_site,
+    end_site,
+    initial_site,
+    param_site,
+)
+from models.model import effect_model
+from models.params import LinearGaussian, NetworkParams, Softmax, Table, load, save
+
+__all__ = [
+    "ACTION",
+    "Continuous",
+    "Discrete",
+    "EffectNetwork",
+    "LinearGaussian",
+    "NetworkParams",
+    "Parameter",
+    "Softmax",
+    "Table",
+    "cluster_site",
+    "effect_model",
+    "end_site",
+    "initial_site",
+    "load",
+    "param_site",
+    "save",
+]
