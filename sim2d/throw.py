@@ -28,12 +28,16 @@ a target point on the vertical target plane x = 2 m. Top view and side view::
   elbow about that axis, which moves no hand and is held fixed.
 - The throw is a push (as in a shot put): the ball starts held at the shoulder, elbow
   fully flexed, so the fixed start point is S, and the hand moves straight out along
-  the shoulder-to-hand axis towards the target at the constant :data:`HAND_SPEED`.
-  Along that straight line only the elbow moves; the line's direction *is* the
-  shoulder's (yaw, pitch). The shoulder's joint limits :data:`YAW_LIMITS_DEG` and
+  the shoulder-to-hand axis towards the target at the constant :data:`HAND_SPEED`
+  (no acceleration phase is modelled). Along that straight line only the elbow
+  moves, extending from fully flexed (the point skeleton folds to a distance 0) to
+  108-120 deg of flexion at release, a shoulder-to-hand distance of 0.30-0.35 m; the
+  line's direction *is* the shoulder's (yaw, pitch). The shoulder's joint limits :data:`YAW_LIMITS_DEG` and
   :data:`PITCH_LIMITS_DEG` are therefore exactly the limits on the throw direction:
   a target outside that cone is thrown at along the nearest direction inside it (yaw
-  and pitch clipped separately), and the throw is *clamped*.
+  and pitch clipped separately), and the throw is *clamped*: 46 % of uniform targets.
+  Because the cone's apex is the shoulder, DESIGN's trial limits (yaw -15..25 deg,
+  pitch -20..12 deg) would clamp 57 % here; ours are a little wider.
 - The ball is released where the hand crosses x = :data:`RELEASE_X` = 0.3 m (paper:
   "released 30cm in front of the robot") with the hand's velocity, and flies
   ballistically (no drag) to the plane x = :data:`TARGET_PLANE_X`. The hit point is
@@ -42,9 +46,10 @@ a target point on the vertical target plane x = 2 m. Top view and side view::
 Gravity is deliberately *not* compensated: the robot aims straight at the target, so
 even an unclamped ball lands directly below its target, lower by
 ``g/2 * (1.7 m / v_x)**2`` (0.29 m straight ahead, up to 0.40 m at the limits).
-Clamping and this drop make the target-to-hit mapping non-linear and part of the
-target area unreachable; the parameter network learns to correct for both (paper
-§IV-B, Fig. 4).
+Clamping and this drop make the target-to-hit mapping non-linear and leave about half
+of the target area (50.5 %) out of reach of any hit; the parameter network learns to
+correct for both (paper §IV-B, Fig. 4). :func:`exact_target_for_hit` inverts the
+noise-free mapping in closed form, as a reference for what the network learns.
 
 Optional release noise (:class:`ReleaseNoise`) perturbs the ball's direction and
 speed at release, after the joint limits, with an explicit numpy ``Generator``.
