@@ -33,6 +33,7 @@ from pyro.ops.indexing import Vindex
 
 from models.declaration import (
     ACTION,
+    DTYPE,
     Continuous,
     Discrete,
     EffectNetwork,
@@ -174,8 +175,9 @@ def _discrete(site: str, fn: dist.Categorical, data: Mapping, masks: Mapping) ->
     if value is None or mask is None:
         return pyro.sample(site, fn, obs=value, infer=ENUM)
     latent = pyro.sample(site, fn, infer=ENUM)
-    agree = torch.where(latent == value, 0.0, -torch.inf)
-    pyro.factor(f"{site}.observed", torch.where(mask, agree, 0.0))
+    zero = torch.zeros((), dtype=DTYPE)
+    agree = torch.where(latent == value, zero, -torch.inf)
+    pyro.factor(f"{site}.observed", torch.where(mask, agree, zero))
     return latent
 
 

@@ -1,0 +1,176 @@
+"""Maximum likelihood: closed form equals sample statistics; the gradient route agrees."""
+
+import pytest
+import torch
+
+from inference import fit, fit_gradient
+from models import Continuous, Discrete, EffectNetwork, Parameter
+from models.declaration import DTYPE
+
+
+def tap_data(n=400, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    a = torch.randint(0, 2, (n,), generator=g)
+    vis0 = torch.randint(0, 2, (n,), generator=g)
+    pos0 = torch.randn(n, 1, generator=g, dtype=DTYPE)
+    force = torch.rand(n, 1, generator=g, dtype=DTYPE) * 10
+    force[a == 0] = float("nan")
+    vis1 = torch.where((a == 0) | (torch.rand(n, generator=g) < 0.2), 0, vis0)
+    pos1 = (
+        pos0
+        + torch.where(a[:, None] == 1, 0.3 * force.nan_to_num(), 0.0)
+        + 0.1 * torch.randn(n, 1, generator=g, dtype=DTYPE)
+    )
+    return {
+        "initial.visible": vis0,
+        "initial.pos": pos0,
+        "action": a,
+        "param.force": force,
+        "end.visible": vis1,
+        "end.pos": pos1,
+    }
+
+
+DISCRETE = EffectNetwork(
+    (Discrete("visible", (0, 1)), Discrete("colour", ("r", "g", "b"))), ("remove", "paint")
+)
+
+
+def discrete_data(n=3000, seed=1):
+    g = torch.Generator().manual_seed(seed)
+    a = torch.randint(0, 2, (n,), generator=g)
+    v0 = torch.randint(0, 2, (n,), generator=g)
+    c0 = torch.randint(0, 3, (n,), generator=g)
+    v1 = torch.where((a == 0) & (torch.rand(n, generator=g) < 0.9), 0, v0)
+    c1 = torch.where(a == 1, torch.randint(0, 3, (n,), generator=g), c0)
+    return {
+        "initial.visible": v0,
+        "initial.colour": c0,
+        "action": a,
+        "end.visible": v1,
+        "end.colour": c1,
+    }
+
+
+def test_tables_are_normalised_counts():
+    data = discrete_data()
+    params = fit(DISCRETE, data, pseudo_count=0.0).params
+    t = params["end.visible"].probs
+    for v0, c0, a in [(0, 0, 0), (1, 2, 1), (1, 1, 0)]:
+        rows = (
+            (data["initial.visible"] == v0) & (data["initial.colour"] == c0) & (data["action"] == a)
+        )
+        freq = torch.bincount(data["end.visible"][rows], minlength=2).to(DTYPE) / rows.sum()
+        torch.testing.assert_close(t[v0, c0, a], freq)
+        assert params["end.visible"].n[v0, c0, a] == rows.sum()
+
+
+def test_pseudo_count_policy():
+    data = {k: v[:5] for k, v in discrete_data().items()}
+    params = fit(DISCRETE, data, pseudo_count=1.0).params
+    t, n = params["end.colour"].probs, params["end.colour"].n
+    assert (n == 0).any()
+    torch.testing.assert_close(t[n == 0], torch.full_like(t[n == 0], 1 / 3))
+    seen = (n > 0).nonzero()[0].tolist()
+    assert (t[tuple(seen)] > 0).all()
+
+
+def test_linear_gaussian_is_least_squares_and_residual_covariance():
+    data = tap_data()
+    net = EffectNetwork(
+        (Discrete("visible", (0, 1)), Continuous("pos", 1)),
+        ("remove", "tap"),
+        (Parameter("force", 0.0, 10.0, 2, ("tap",), "pos"),),
+    )
+    params = fit(net, data, pseudo_count=0.0, min_variance=0.0, steps=50).params
+    cpd = params["end.pos"]
+    c = net.parameters[0].cluster_of(data["param.force"].nan_to_num())
+    rows = (data["initial.visible"] == 1) & (data["action"] == 1) & (c == 1)
+    x = torch.cat(
+        [
+            data["initial.pos"][rows],
+            data["param.force"][rows],
+            torch.ones(int(rows.sum()), 1, dtype=DTYPE),
+        ],
+        -1,
+    )
+    y = data["end.pos"][rows]
+    beta = torch.linalg.lstsq(x, y).solution
+    torch.testing.assert_close(cpd.weight[1, 1, 1], beta[:2].T, atol=1e-8, rtol=1e-6)
+    torch.testing.assert_close(cpd.bias[1, 1, 1], beta[2], atol=1e-8, rtol=1e-6)
+    resid = y - x @ beta
+    torch.testing.assert_close(
+        cpd.covariance[1, 1, 1], resid.T @ resid / rows.sum(), atol=1e-10, rtol=1e-6
+    )
+    # cluster Gaussian = sample mean and (biased) covariance of the parameter in its cell
+    f = data["param.force"][(data["action"] == 1) & (c == 0)]
+    torch.testing.assert_close(params["param.force"].bias[0], f.mean(0))
+    torch.testing.assert_close(
+        params["param.force"].covariance[0], f.var(0, unbiased=False)[None], rtol=1e-6, atol=1e-12
+    )
+
+
+def test_gradient_route_reaches_the_closed_form_optimum():
+    data = discrete_data()
+    closed = fit(DISCRETE, data).params
+    grad = fit_gradient(DISCRETE, data, steps=600, lr=0.1).params
+    for site in ("action", "end.visible", "end.colour"):
+        seen = closed[site].n > 20
+        torch.testing.assert_close(
+            grad[site].probs[seen], closed[site].probs[seen], atol=2e-3, rtol=0
+        )
+
+
+def test_gradient_route_for_gaussians():
+    net = EffectNetwork((Continuous("pos", 1),), ("stay", "move"))
+    g = torch.Generator().manual_seed(3)
+    n = 500
+    a = torch.randint(0, 2, (n,), generator=g)
+    x0 = torch.randn(n, 1, generator=g, dtype=DTYPE)
+    x1 = 0.5 * x0 + a[:, None] * 2.0 + 0.2 * torch.randn(n, 1, generator=g, dtype=DTYPE)
+    data = {"initial.pos": x0, "action": a, "end.pos": x1}
+    closed = fit(net, data, pseudo_count=0.0, min_variance=0.0).params["end.pos"]
+    grad = fit_gradient(net, data, steps=1500, lr=0.05).params["end.pos"]
+    torch.testing.assert_close(grad.weight, closed.weight, atol=1e-2, rtol=0)
+    torch.testing.assert_close(grad.bias, closed.bias, atol=1e-2, rtol=0)
+    torch.testing.assert_close(grad.covariance, closed.covariance, atol=1e-2, rtol=0)
+
+
+def test_missing_discrete_values_use_the_marginal_likelihood():
+    data = discrete_data(n=2000)
+    mask = torch.rand(2000, generator=torch.Generator().manual_seed(9)) > 0.3
+    full = fit(DISCRETE, data).params
+    gappy = fit(DISCRETE, data, masks={"end.colour": mask}, steps=400, lr=0.1)
+    assert len(gappy.losses) == 400
+    seen = full["end.visible"].n > 50
+    torch.testing.assert_close(
+        gappy.params["end.visible"].probs[seen], full["end.visible"].probs[seen], atol=0.05, rtol=0
+    )
+
+
+def test_too_few_samples_stay_positive_definite():
+    net = EffectNetwork((Continuous("pos", 3),), ("a", "b"))
+    data = {
+        "initial.pos": torch.randn(3, 3, dtype=DTYPE),
+        "action": torch.tensor([0, 0, 1]),
+        "end.pos": torch.randn(3, 3, dtype=DTYPE),
+    }
+    params = fit(net, data).params
+    assert (torch.linalg.eigvalsh(params["end.pos"].covariance) > 0).all()
+
+
+def test_fit_rejects_bad_data():
+    data = discrete_data(n=20)
+    with pytest.raises(ValueError, match="missing.*end.colour"):
+        fit(DISCRETE, {k: v for k, v in data.items() if k != "end.colour"})
+    with pytest.raises(ValueError, match="pseudo_count"):
+        fit(DISCRETE, data, pseudo_count=-1)
+    tap = tap_data(n=20)
+    tap["param.force"][tap["action"] == 1] = float("nan")
+    net = EffectNetwork(
+        (Discrete("visible", (0, 1)), Continuous("pos", 1)),
+        ("remove", "tap"),
+        (Parameter("force", 0.0, 10.0, 2, ("tap",), "pos"),),
+    )
+    with pytest.raises(ValueError, match="uses the parameter, but no value"):
+        fit(net, tap)

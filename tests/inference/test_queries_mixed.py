@@ -1,0 +1,127 @@
+"""Queries with continuous features and a parameter, against independent numerics."""
+
+import math
+
+import torch
+
+from inference import infer_action, infer_parameter, predict
+from models import Continuous, Discrete, EffectNetwork, Parameter
+from models.declaration import DTYPE
+from models.gaussian import condition_linear_gaussian
+from tests.helpers import random_params
+
+NET = EffectNetwork(
+    (Discrete("visible", (False, True)), Continuous("pos", 2)),
+    ("remove", "tap", "push"),
+    (Parameter("force", (0.0,), (10.0,), (3,), ("tap", "push"), "pos"),),
+)
+
+
+def normal_pdf(x, mean, cov):
+    d = x.shape[-1]
+    diff = x - mean
+    return math.exp(-0.5 * float(diff @ torch.linalg.solve(cov, diff))) / math.sqrt(
+        (2 * math.pi) ** d * float(torch.det(cov))
+    )
+
+
+def brute_action_posterior(params, vis0, pos0, pos1):
+    """p(action | initial, end.pos) by trapezoid integration over the 1-D force."""
+    theta = torch.linspace(-40, 50, 9001, dtype=DTYPE)
+    post = []
+    for a in range(3):
+        uses = a in (1, 2)
+        total = 0.0
+        for c in range(3) if uses else [0]:
+            pc = float(params["cluster.force"].probs[a, c])
+            cpd = params["end.pos"]
+            w, b, cov = cpd.weight[vis0, a, c], cpd.bias[vis0, a, c], cpd.covariance[vis0, a, c]
+            if not uses:
+                total += pc * normal_pdf(pos1, w[:, :2] @ pos0 + b, cov)
+                continue
+            m, s = params["param.force"].bias[c, 0], params["param.force"].covariance[c, 0, 0]
+            dens = torch.tensor(
+                [normal_pdf(pos1, w[:, :2] @ pos0 + w[:, 2] * t + b, cov) for t in theta.tolist()],
+                dtype=DTYPE,
+            )
+            prior = torch.exp(-0.5 * (theta - m) ** 2 / s) / torch.sqrt(2 * math.pi * s)
+            total += pc * float(torch.trapezoid(dens * prior, theta))
+        post.append(float(params["action"].probs[a]) * total)
+    post = torch.tensor(post, dtype=DTYPE)
+    return post / post.sum()
+
+
+def test_action_posterior_integrates_parameter_out():
+    params = random_params(NET, 5)
+    for seed in range(3):
+        g = torch.Generator().manual_seed(seed)
+        pos0 = torch.randn(2, generator=g, dtype=DTYPE)
+        pos1 = torch.randn(2, generator=g, dtype=DTYPE) * 2
+        got = infer_action(
+            NET,
+            params,
+            {"initial.visible": [True], "initial.pos": pos0[None], "end.pos": pos1[None]},
+        )
+        want = brute_action_posterior(params, 1, pos0, pos1)
+        torch.testing.assert_close(got.probs[0], want, atol=1e-6, rtol=1e-5)
+
+
+def test_predict_given_parameter_is_one_gaussian():
+    params = random_params(NET, 8)
+    pos0 = torch.tensor([[0.3, -0.2]], dtype=DTYPE)
+    force = torch.tensor([[7.5]], dtype=DTYPE)  # cluster 2
+    pred = predict(
+        NET,
+        params,
+        {"initial.visible": [False], "initial.pos": pos0, "action": ["tap"], "param.force": force},
+    )
+    mix = pred.continuous["pos"]
+    assert mix.weights.shape[1] == 1
+    cpd = params["end.pos"]
+    x = torch.cat([pos0[0], force[0]])
+    torch.testing.assert_close(mix.mean[0], cpd.weight[0, 1, 2] @ x + cpd.bias[0, 1, 2])
+    torch.testing.assert_close(mix.cov[0], cpd.covariance[0, 1, 2])
+
+
+def test_inverse_parameter_query_matches_joint_gaussian_conditioning():
+    params = random_params(NET, 13)
+    pos0 = torch.tensor([[0.1, 0.4]], dtype=DTYPE)
+    pos1 = torch.tensor([[3.0, 1.0]], dtype=DTYPE)
+    out = infer_parameter(
+        NET,
+        params,
+        "force",
+        {"initial.visible": [True], "initial.pos": pos0, "action": ["push"], "end.pos": pos1},
+    )
+    c = int(out.best_cluster[0])
+    # joint Gaussian of (theta, y) by hand, then the block formula
+    m, s = params["param.force"].bias[c], params["param.force"].covariance[c]
+    cpd = params["end.pos"]
+    w, b, r = cpd.weight[1, 2, c], cpd.bias[1, 2, c], cpd.covariance[1, 2, c]
+    wp = w[:, 2:]
+    mu_y = w[:, :2] @ pos0[0] + wp @ m + b
+    s_yy = wp @ s @ wp.T + r
+    s_ty = s @ wp.T
+    mean = m + s_ty @ torch.linalg.solve(s_yy, pos1[0] - mu_y)
+    cov = s - s_ty @ torch.linalg.solve(s_yy, s_ty.T)
+    torch.testing.assert_close(out.mean[0], mean)
+    torch.testing.assert_close(out.cov[0], cov)
+    assert abs(float(out.cluster_probs.sum()) - 1) < 1e-9
+
+
+def test_condition_linear_gaussian_batch_shapes():
+    g = torch.Generator().manual_seed(0)
+    mean = torch.randn(4, 3, generator=g, dtype=DTYPE)
+    a = torch.randn(4, 3, 3, generator=g, dtype=DTYPE)
+    cov = a @ a.mT + torch.eye(3, dtype=DTYPE)
+    w = torch.randn(4, 2, 3, generator=g, dtype=DTYPE)
+    m, c = condition_linear_gaussian(
+        mean,
+        cov,
+        w,
+        torch.zeros(4, 2, dtype=DTYPE),
+        torch.eye(2, dtype=DTYPE),
+        torch.ones(4, 2, dtype=DTYPE),
+    )
+    assert m.shape == (4, 3) and c.shape == (4, 3, 3)
+    assert (torch.linalg.eigvalsh(c) > 0).all()

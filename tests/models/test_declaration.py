@@ -1,0 +1,128 @@
+"""Declarations, evidence validation, and save/load."""
+
+import pytest
+import torch
+
+from inference import fit, infer_action
+from models import Continuous, Discrete, EffectNetwork, Parameter, load, save
+from tests.helpers import random_params
+
+NET = EffectNetwork(
+    (
+        Discrete("visible", (False, True), kind="object"),
+        Continuous("pos", 2),
+        Discrete("light", ("dark", "lit"), kind="world"),
+    ),
+    ("remove", "tap"),
+    (Parameter("force", (0.0,), (10.0,), (4,), ("tap",), "pos"),),
+)
+
+
+def test_fig1_structure():
+    for f in ("visible", "pos", "light"):
+        assert NET.discrete_parents(f)[:2] == ("initial.visible", "initial.light")
+        assert "action" in NET.discrete_parents(f)
+        assert NET.continuous_parents(f)[0] == "initial.pos"
+    assert NET.discrete_parents("pos")[-1] == "cluster.force"
+    assert NET.continuous_parents("pos")[-1] == "param.force"
+    assert "param.force" not in NET.continuous_parents("visible")
+
+
+def test_cluster_grid():
+    p = Parameter("t", (0.0, -1.0), (2.0, 1.0), (2, 4), ("a",), "x")
+    assert p.n_clusters == 8
+    x = torch.tensor([[0.1, -0.9], [1.9, 0.9], [5.0, -5.0]])
+    assert p.cluster_of(x).tolist() == [0, 7, 4]
+    assert p.cluster_centres().shape == (8, 2)
+    assert p.cluster_of(p.cluster_centres()).tolist() == list(range(8))
+
+
+@pytest.mark.parametrize(
+    ("evidence", "match"),
+    [
+        ({"initial.visible": ["maybe"]}, r"initial.visible.*'maybe' is not one of its states"),
+        ({"initial.pos": [[0.0, 1.0, 2.0]]}, r"initial.pos.*expected shape \(n, 2\)"),
+        ({"initial.pos": [[0.0, float("nan")]]}, r"initial.pos.*NaN or inf in row 0"),
+        ({"end.pos": [[0.0, float("inf")]]}, r"end.pos.*NaN or inf"),
+        ({"action": ["kick"]}, r"action.*'kick' is not one of its states"),
+        ({"initial.colour": [1]}, r"site 'initial.colour', which does not exist"),
+        ({"initial.visible": [True, False], "initial.light": ["lit"]}, "rows disagree"),
+        ({"initial.visible": torch.tensor([2])}, "state index 2 outside 0..1"),
+    ],
+)
+def test_bad_evidence_is_named(evidence, match):
+    with pytest.raises(ValueError, match=match):
+        NET.encode(evidence)
+
+
+def test_bad_declarations():
+    with pytest.raises(ValueError, match="at least two states"):
+        Discrete("x", (1,))
+    with pytest.raises(ValueError, match="kind"):
+        Continuous("x", 1, kind="thing")
+    with pytest.raises(ValueError, match="must be a continuous feature"):
+        EffectNetwork((Discrete("v", (0, 1)),), ("a",), (Parameter("f", 0.0, 1.0, 2, ("a",), "v"),))
+    with pytest.raises(ValueError, match="unknown actions"):
+        EffectNetwork((Continuous("x"),), ("a",), (Parameter("f", 0.0, 1.0, 2, ("b",), "x"),))
+    with pytest.raises(ValueError, match="low < high"):
+        Parameter("f", 1.0, 0.0, 2, ("a",), "x")
+    with pytest.raises(ValueError, match="distinct"):
+        EffectNetwork((Continuous("x"), Continuous("x")), ("a",))
+
+
+def test_query_errors():
+    params = random_params(NET, 0)
+    with pytest.raises(ValueError, match="evidence names the action"):
+        infer_action(NET, params, {"initial.pos": [[0.0, 0.0]], "action": ["tap"]})
+    with pytest.raises(ValueError, match="initial state of continuous features"):
+        infer_action(NET, params, {"initial.visible": [True]})
+
+
+def test_save_load_round_trip(tmp_path):
+    params = random_params(NET, 1)
+    path = save(tmp_path / "net.pt", NET, params)
+    net2, params2 = load(path)
+    assert net2 == NET
+    for site, cpd in params.cpds.items():
+        for name in cpd.__dataclass_fields__:
+            torch.testing.assert_close(getattr(params2[site], name), getattr(cpd, name))
+
+
+def test_load_refuses_corrupt_and_incompatible_files(tmp_path):
+    params = random_params(NET, 1)
+    path = save(tmp_path / "net.pt", NET, params)
+    bad = tmp_path / "bad.pt"
+    bad.write_bytes(path.read_bytes()[:200])
+    with pytest.raises(ValueError, match="not a readable effect-network file"):
+        load(bad)
+    payload = torch.load(path, weights_only=True)
+    payload["version"] = 99
+    torch.save(payload, tmp_path / "v99.pt")
+    with pytest.raises(ValueError, match="format version 99"):
+        load(tmp_path / "v99.pt")
+    payload["version"] = 1
+    payload["cpds"]["end.pos"]["bias"] = torch.zeros(3)
+    torch.save(payload, tmp_path / "shape.pt")
+    with pytest.raises(ValueError, match="end.pos"):
+        load(tmp_path / "shape.pt")
+    torch.save({"hello": 1}, tmp_path / "other.pt")
+    with pytest.raises(ValueError, match="not an effect-network file"):
+        load(tmp_path / "other.pt")
+
+
+def test_fitted_network_round_trips(tmp_path):
+    g = torch.Generator().manual_seed(0)
+    n = 100
+    data = {
+        "initial.visible": torch.randint(0, 2, (n,), generator=g),
+        "initial.pos": torch.randn(n, 2, generator=g),
+        "initial.light": torch.randint(0, 2, (n,), generator=g),
+        "action": torch.zeros(n, dtype=torch.long),
+        "param.force": torch.full((n, 1), float("nan")),
+        "end.visible": torch.randint(0, 2, (n,), generator=g),
+        "end.pos": torch.randn(n, 2, generator=g),
+        "end.light": torch.randint(0, 2, (n,), generator=g),
+    }
+    params = fit(NET, data, steps=5).params
+    net2, params2 = load(save(tmp_path / "fitted.pt", NET, params))
+    assert net2 == NET and set(params2.cpds) == set(params.cpds)
