@@ -130,7 +130,7 @@ def test_gradient_route_for_gaussians():
     x1 = 0.5 * x0 + a[:, None] * 2.0 + 0.2 * torch.randn(n, 1, generator=g, dtype=DTYPE)
     data = {"initial.pos": x0, "action": a, "end.pos": x1}
     closed = fit(net, data, pseudo_count=0.0, min_variance=0.0).params["end.pos"]
-    grad = fit_gradient(net, data, steps=1500, lr=0.05).params["end.pos"]
+    grad = fit_gradient(net, data, steps=300, lr=0.1).params["end.pos"]
     torch.testing.assert_close(grad.weight, closed.weight, atol=1e-2, rtol=0)
     torch.testing.assert_close(grad.bias, closed.bias, atol=1e-2, rtol=0)
     torch.testing.assert_close(grad.covariance, closed.covariance, atol=1e-2, rtol=0)

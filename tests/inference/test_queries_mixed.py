@@ -18,11 +18,11 @@ NET = EffectNetwork(
 
 
 def normal_pdf(x, mean, cov):
+    """Density of N(mean, cov) at x; mean may carry a leading batch dim."""
     d = x.shape[-1]
     diff = x - mean
-    return math.exp(-0.5 * float(diff @ torch.linalg.solve(cov, diff))) / math.sqrt(
-        (2 * math.pi) ** d * float(torch.det(cov))
-    )
+    quad = (diff * torch.linalg.solve(cov, diff.T).T).sum(-1)
+    return torch.exp(-0.5 * quad) / math.sqrt((2 * math.pi) ** d * float(torch.det(cov)))
 
 
 def brute_action_posterior(params, vis0, pos0, pos1):
@@ -37,13 +37,11 @@ def brute_action_posterior(params, vis0, pos0, pos1):
             cpd = params["end.pos"]
             w, b, cov = cpd.weight[vis0, a, c], cpd.bias[vis0, a, c], cpd.covariance[vis0, a, c]
             if not uses:
-                total += pc * normal_pdf(pos1, w[:, :2] @ pos0 + b, cov)
+                total += pc * float(normal_pdf(pos1, (w[:, :2] @ pos0 + b)[None], cov)[0])
                 continue
             m, s = params["param.force"].bias[c, 0], params["param.force"].covariance[c, 0, 0]
-            dens = torch.tensor(
-                [normal_pdf(pos1, w[:, :2] @ pos0 + w[:, 2] * t + b, cov) for t in theta.tolist()],
-                dtype=DTYPE,
-            )
+            means = (w[:, :2] @ pos0 + b)[None] + theta[:, None] * w[:, 2][None]
+            dens = normal_pdf(pos1, means, cov)
             prior = torch.exp(-0.5 * (theta - m) ** 2 / s) / torch.sqrt(2 * math.pi * s)
             total += pc * float(torch.trapezoid(dens * prior, theta))
         post.append(float(params["action"].probs[a]) * total)
