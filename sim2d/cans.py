@@ -542,10 +542,10 @@ def _play(config: int, position: np.ndarray, velocity: np.ndarray, frame_every: 
 
     ball = pymunk.Body(BALL_MASS, pymunk.moment_for_circle(BALL_MASS, 0.0, BALL_RADIUS))
     ball.position = tuple(position)
-    # pymunk moves each body with its old velocity, then adds gravity (semi-implicit
-    # Euler). Starting half a step of gravity early puts the positions at the step times
-    # exactly on the parabola of the physical state (position, velocity): leapfrog.
-    ball.velocity = (velocity[0], velocity[1] + 0.5 * GRAVITY * TIME_STEP)
+    # pymunk moves each body with its current velocity, then adds gravity. Starting with
+    # the mean velocity of the first step (half a step of gravity later) puts the
+    # positions at the step times exactly on the parabola of (position, velocity).
+    ball.velocity = (velocity[0], velocity[1] - 0.5 * GRAVITY * TIME_STEP)
     ball_shape = pymunk.Circle(ball, BALL_RADIUS)
     ball_shape.friction = _BALL_FRICTION
     ball_shape.elasticity = _BALL_ELASTICITY

@@ -1,0 +1,373 @@
+"""The can-tossing data set: every stable configuration x 195 fields x angles x repeats.
+
+Protocol (paper §IV-A, DESIGN.md): each physically possible configuration is hit at
+every field with every angle, ``repeats`` times, each repeat with its own seeded aim
+jitter (``jitter`` metres, normal per axis; the seed of throw (config, field, angle,
+repeat) is :func:`sim2d.cans.throw_seed` of the data set's ``seed``). Rows are ordered
+by configuration (ascending mask), field, angle, repeat.
+
+Unthrowable actions (:func:`sim2d.cans.is_throwable` False) are not simulated: their
+rows carry ``throwable = False``, ``end_config = start_config``, ``thrown_off = 0``,
+``hit_any_can = False`` and ``sim_time = 0``. Use ``throwable`` to drop them.
+
+File format (``.npz``, ``np.load(path)`` without pickles), one row per throw:
+
+=============  =======  ============================================================
+array          dtype    meaning
+=============  =======  ============================================================
+start_config   int16    configuration mask before the throw
+field          int16    field index, ``row * 15 + column``
+angle          int8     index into ``sim2d.cans.ANGLES``
+repeat         int8     repeat number
+seed           uint32   seed of the aim jitter
+end_config     int16    cans not thrown off
+thrown_off     int16    cans thrown off
+count_before   int8     number of cans before
+count_after    int8     number of cans after
+hit_any_can    bool     the ball touched a can
+touched        int16    mask of the cans the ball touched
+throwable      bool     the action can be thrown (else not simulated)
+timed_out      bool     the simulation hit the time cap
+sim_time       float32  simulated seconds
+metadata       str      0-d array, JSON: format version, constants, geometry, protocol
+=============  =======  ============================================================
+
+Generation is written in chunks to ``<path>.parts/`` (one ``.npz`` per chunk, each
+written atomically), so an interrupted run resumes where it stopped; the chunks are
+merged into ``path`` at the end and then removed.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import json
+import os
+import shutil
+import tempfile
+from dataclasses import dataclass
+from dataclasses import field as dataclass_field
+from pathlib import Path
+
+import numpy as np
+
+from sim2d import cans
+from sim2d.configurations import SETTLE_TIME, STABLE_TOLERANCE, stable_configurations
+
+__all__ = ["FORMAT_VERSION", "CanDataset", "generate_dataset", "load_dataset"]
+
+FORMAT_VERSION = 1
+_DTYPES = {
+    "start_config": np.int16,
+    "field": np.int16,
+    "angle": np.int8,
+    "repeat": np.int8,
+    "seed": np.uint32,
+    "end_config": np.int16,
+    "thrown_off": np.int16,
+    "count_before": np.int8,
+    "count_after": np.int8,
+    "hit_any_can": np.bool_,
+    "touched": np.int16,
+    "throwable": np.bool_,
+    "timed_out": np.bool_,
+    "sim_time": np.float32,
+}
+
+
+@dataclass(frozen=True)
+class CanDataset:
+    """The can-tossing data set as arrays of shape ``(n,)``, one entry per throw.
+
+    See the module docstring for each array's meaning; ``metadata`` is the decoded JSON.
+    """
+
+    start_config: np.ndarray
+    field: np.ndarray
+    angle: np.ndarray
+    repeat: np.ndarray
+    seed: np.ndarray
+    end_config: np.ndarray
+    thrown_off: np.ndarray
+    count_before: np.ndarray
+    count_after: np.ndarray
+    hit_any_can: np.ndarray
+    touched: np.ndarray
+    throwable: np.ndarray
+    timed_out: np.ndarray
+    sim_time: np.ndarray
+    metadata: dict = dataclass_field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.start_config)
+
+
+def _simulate_chunk(rows: np.ndarray, jitter: float, seed: int) -> dict[str, np.ndarray]:
+    """Simulate the throws ``rows`` (``(n, 4)`` int: config, field, angle, repeat).
+
+    Runs in a worker; the configurations were validated by the caller.
+    """
+    n = len(rows)
+    out = {name: np.zeros(n, dtype=dtype) for name, dtype in _DTYPES.items()}
+    throwable = {(f, a): cans.is_throwable(f, a) for f, a in {(r[1], r[2]) for r in rows.tolist()}}
+    for k, (config, fld, angle, repeat) in enumerate(rows.tolist()):
+        throw_seed = cans.throw_seed(seed, config, fld, angle, repeat)
+        out["start_config"][k] = config
+        out["field"][k] = fld
+        out["angle"][k] = angle
+        out["repeat"][k] = repeat
+        out["seed"][k] = throw_seed
+        out["count_before"][k] = config.bit_count()
+        if not throwable[fld, angle]:
+            out["end_config"][k] = config
+            out["count_after"][k] = config.bit_count()
+            continue
+        out["throwable"][k] = True
+        offset = cans._aim_offset(jitter, throw_seed)
+        position, velocity = cans.launch_state(fld, angle, offset=offset)
+        outcome, _ = cans._play(config, position, velocity)
+        out["end_config"][k] = outcome.end_config
+        out["thrown_off"][k] = outcome.thrown_off
+        out["count_after"][k] = outcome.count_after
+        out["hit_any_can"][k] = outcome.hit_any_can
+        out["touched"][k] = outcome.touched
+        out["timed_out"][k] = outcome.timed_out
+        out["sim_time"][k] = outcome.sim_time
+    return out
+
+
+def _rows(configs, angles, repeats) -> np.ndarray:
+    grid = np.meshgrid(configs, np.arange(cans.N_FIELDS), angles, np.arange(repeats), indexing="ij")
+    return np.stack([g.ravel() for g in grid], axis=1).astype(np.int64)
+
+
+def _metadata(configs, angles, repeats, jitter, seed, chunk_size) -> dict:
+    return {
+        "format_version": FORMAT_VERSION,
+        "producer": "sim2d.can_dataset.generate_dataset",
+        "constants": cans.physical_constants(),
+        "settle_time": SETTLE_TIME,
+        "stable_tolerance": STABLE_TOLERANCE,
+        "geometry": {
+            "can_positions": cans.can_positions().tolist(),
+            "field_centres": cans.field_centres().tolist(),
+            "supporters": [list(s) if s else None for s in cans.SUPPORTERS],
+            "top_three": list(cans.TOP_THREE),
+            "near_flank": list(cans.NEAR_FLANK),
+            "far_flank": list(cans.FAR_FLANK),
+            "field_index": "row * 15 + column; row 0 bottom, column 0 near side",
+        },
+        "configs": [int(c) for c in configs],
+        "angles": [int(a) for a in angles],
+        "repeats": int(repeats),
+        "jitter": float(jitter),
+        "jitter_rule": "normal(0, jitter) per axis added to the field centre, clipped at 3 sd",
+        "seed": int(seed),
+        "seed_rule": "throw seed = sim2d.cans.throw_seed(seed, config, field, angle, repeat)",
+        "unthrowable_rule": "not simulated; end_config = start_config, throwable = False",
+        "thrown_off_rule": "at rest moved > 1 cm vertically or > 10 cm horizontally, or left",
+        "row_order": "config (ascending), field, angle, repeat",
+        "chunk_size": int(chunk_size),
+    }
+
+
+def _save_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
+    """Write an .npz atomically (temporary file, then rename)."""
+    with tempfile.NamedTemporaryFile(dir=path.parent, delete=False, suffix=".tmp") as tmp:
+        np.savez(tmp, **arrays)
+    os.replace(tmp.name, path)
+
+
+def _check_args(configs, angles, repeats, jitter, chunk_size):
+    stable = stable_configurations()
+    if configs is None:
+        configs = stable
+    configs = sorted({cans._as_int(c, "configs") for c in configs})
+    bad = [c for c in configs if c not in stable]
+    if bad:
+        raise ValueError(
+            f"configs contains {bad[:5]}{'...' if len(bad) > 5 else ''}, not physically "
+            "possible; expected a subset of sim2d.configurations.stable_configurations()"
+        )
+    angles = sorted({cans._check_index(a, "angles", len(cans.ANGLES), "an angle") for a in angles})
+    if not angles:
+        raise ValueError("angles=() is empty; expected a subset of (0, 1, 2)")
+    repeats = cans._as_int(repeats, "repeats")
+    if not 1 <= repeats <= 127:
+        raise ValueError(f"repeats={repeats} is out of range; expected 1..127")
+    if not (np.isfinite(jitter) and 0 <= jitter <= cans.TABLE_CLEARANCE / 3):
+        raise ValueError(
+            f"jitter={jitter!r} is invalid; expected metres in [0, {cans.TABLE_CLEARANCE / 3:.4f}]"
+            " (larger aim errors could start a throwable parabola inside the table)"
+        )
+    chunk_size = cans._as_int(chunk_size, "chunk_size")
+    if chunk_size < 1:
+        raise ValueError(f"chunk_size={chunk_size} is invalid; expected >= 1")
+    return configs, angles, repeats, float(jitter), chunk_size
+
+
+def generate_dataset(
+    path,
+    *,
+    configs=None,
+    angles=(0, 1, 2),
+    repeats: int = 3,
+    jitter: float = 0.003,
+    seed: int = 0,
+    executor: concurrent.futures.Executor | None = None,
+    chunk_size: int = 1000,
+    progress: bool = True,
+) -> Path:
+    """Simulate the data set and save it as one ``.npz`` (format: module docstring).
+
+    Parameters
+    ----------
+    path : path-like
+        Output file. If it exists with the same protocol, nothing is recomputed.
+    configs : iterable of int, optional
+        Start configurations; default every stable configuration.
+    angles : iterable of int
+        Angle indices to throw with.
+    repeats : int
+        Throws per (configuration, field, angle), each with its own aim jitter.
+    jitter : float, metres
+        Standard deviation of the aim error per axis (at most 3.3 mm).
+    seed : int
+        Seed of the data set; the throws' seeds derive from it.
+    executor : concurrent.futures.Executor, optional
+        Anything with ``submit`` returning futures with ``result()`` (a Dask or Ray
+        executor will do). Default: a ProcessPoolExecutor with ``os.cpu_count()``
+        workers, shut down at the end.
+    chunk_size : int
+        Throws per chunk (the unit of work and of resumption).
+    progress : bool
+        Show a tqdm progress bar of throws.
+
+    Returns
+    -------
+    Path
+        ``path``.
+
+    Raises
+    ------
+    ValueError
+        For invalid arguments, or when ``<path>.parts/`` holds chunks of a different
+        protocol (delete it or choose another path).
+    """
+    configs, angles, repeats, jitter, chunk_size = _check_args(
+        configs, angles, repeats, jitter, chunk_size
+    )
+    seed = cans._as_int(seed, "seed")
+    path = Path(path)
+    metadata = _metadata(configs, angles, repeats, jitter, seed, chunk_size)
+    if path.exists():
+        try:
+            existing = load_dataset(path).metadata
+        except (ValueError, OSError, KeyError):
+            existing = None
+        if existing == metadata:
+            return path
+    parts = path.with_name(path.name + ".parts")
+    parts.mkdir(parents=True, exist_ok=True)
+    manifest = parts / "manifest.json"
+    if manifest.exists():
+        if json.loads(manifest.read_text()) != metadata:
+            raise ValueError(
+                f"{parts} holds chunks of a different data set (other constants or "
+                "arguments); delete that folder or choose another path"
+            )
+    else:
+        manifest.write_text(json.dumps(metadata))
+
+    rows = _rows(configs, angles, repeats)
+    starts = range(0, len(rows), chunk_size)
+    chunk_files = [parts / f"chunk-{k:06d}.npz" for k in range(len(starts))]
+    todo = [k for k, f in enumerate(chunk_files) if not f.exists()]
+
+    bar = None
+    if progress:
+        from tqdm.auto import tqdm
+
+        bar = tqdm(total=len(rows), unit="throw", desc="can data set", smoothing=0.05)
+        done = [k for k in range(len(starts)) if k not in set(todo)]
+        bar.update(sum(len(rows[starts[k] : starts[k] + chunk_size]) for k in done))
+
+    own_executor = executor is None and todo
+    if own_executor:
+        executor = concurrent.futures.ProcessPoolExecutor(max_workers=os.cpu_count())
+    futures = {}
+    try:
+        futures = {
+            executor.submit(
+                _simulate_chunk, rows[starts[k] : starts[k] + chunk_size], jitter, seed
+            ): k
+            for k in todo
+        }
+        if all(isinstance(f, concurrent.futures.Future) for f in futures):
+            finished = concurrent.futures.as_completed(futures)
+        else:
+            finished = iter(futures)
+        for future in finished:
+            k = futures[future]
+            result = future.result()
+            _save_npz(chunk_files[k], result)
+            if bar is not None:
+                bar.update(len(result["start_config"]))
+    except BaseException:
+        # Interrupted or a chunk failed: keep every chunk that did finish, drop the rest.
+        for future, k in futures.items():
+            if not chunk_files[k].exists() and _succeeded(future):
+                _save_npz(chunk_files[k], future.result())
+            future.cancel()
+        raise
+    finally:
+        if own_executor:
+            executor.shutdown(wait=True, cancel_futures=True)
+        if bar is not None:
+            bar.close()
+
+    merged = {}
+    pieces = [np.load(f) for f in chunk_files]
+    for name, dtype in _DTYPES.items():
+        merged[name] = np.concatenate([p[name] for p in pieces]).astype(dtype, copy=False)
+    for p in pieces:
+        p.close()
+    assert len(merged["start_config"]) == len(rows)
+    assert np.array_equal(merged["start_config"], rows[:, 0])
+    merged["metadata"] = np.array(json.dumps(metadata))
+    path.parent.mkdir(parents=True, exist_ok=True)
+    _save_npz(path, merged)
+    shutil.rmtree(parts)
+    return path
+
+
+def _succeeded(future) -> bool:
+    if not future.done() or future.cancelled():
+        return False
+    try:
+        future.result()
+    except BaseException:
+        return False
+    return True
+
+
+def load_dataset(path) -> CanDataset:
+    """Load a data set written by :func:`generate_dataset`.
+
+    Raises
+    ------
+    ValueError
+        If the file is not a can data set of this format version.
+    """
+    path = Path(path)
+    with np.load(path, allow_pickle=False) as data:
+        missing = [name for name in (*_DTYPES, "metadata") if name not in data.files]
+        if missing:
+            raise ValueError(f"path={str(path)!r} lacks arrays {missing}; expected a can data set")
+        metadata = json.loads(str(data["metadata"]))
+        if metadata.get("format_version") != FORMAT_VERSION:
+            raise ValueError(
+                f"path={str(path)!r} has format version {metadata.get('format_version')}; "
+                f"expected {FORMAT_VERSION}"
+            )
+        arrays = {name: data[name] for name in _DTYPES}
+    return CanDataset(**arrays, metadata=metadata)

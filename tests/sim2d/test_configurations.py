@@ -1,0 +1,90 @@
+"""Tests of the physics enumeration of stable configurations (sim2d/configurations.py)."""
+
+import itertools
+import json
+from concurrent.futures import ProcessPoolExecutor
+
+import pytest
+
+from sim2d import cans, configurations
+from sim2d.configurations import settles, stable_configurations
+
+# Written out by hand from the pyramid sketch, not taken from the code under test.
+RESTS_ON = {4: (0, 1), 5: (1, 2), 6: (2, 3), 7: (4, 5), 8: (5, 6), 9: (7, 8)}
+
+
+def fully_supported_by_hand(members: set[int]) -> bool:
+    return all(set(RESTS_ON[i]) <= members for i in members if i in RESTS_ON)
+
+
+def some_can_floats(members: set[int]) -> bool:
+    return any(not set(RESTS_ON[i]) & members for i in members if i in RESTS_ON)
+
+
+ALL_SUBSETS = [
+    set(c) for n in range(11) for c in itertools.combinations(range(10), n)
+]  # 1024 subsets
+
+
+def test_all_42_fully_supported_configurations_stand():
+    supported = [m for m in ALL_SUBSETS if fully_supported_by_hand(m)]
+    assert len(supported) == 42
+    stable = set(stable_configurations())
+    assert all(cans.cans_to_mask(m) in stable for m in supported)
+    assert 0 in stable and cans.FULL_PYRAMID in stable
+
+
+def test_no_configuration_with_an_unsupported_can_stands():
+    stable = set(stable_configurations())
+    floating = [cans.cans_to_mask(m) for m in ALL_SUBSETS if some_can_floats(m)]
+    assert floating and not stable & set(floating)
+
+
+def test_direct_simulation():
+    assert settles(cans.FULL_PYRAMID) and settles(0)
+    assert not settles(cans.cans_to_mask([9])), "a can in the air falls"
+    # a can that lost one supporter with nothing above it tips over
+    assert not settles(cans.cans_to_mask([0, 4]))
+
+
+def test_enumeration_result():
+    stable = stable_configurations()
+    assert list(stable) == sorted(set(stable))
+    assert 42 < len(stable) < 1024, "pinned cans add configurations beyond the 42"
+    assert all(configurations.is_stable(m) for m in stable)
+
+
+def test_enumeration_is_deterministic_serial_and_parallel():
+    serial = stable_configurations(cache=False)
+    with ProcessPoolExecutor(max_workers=2) as executor:
+        parallel = stable_configurations(cache=False, executor=executor)
+    assert serial == parallel == stable_configurations()
+
+
+def test_enumeration_is_cached(tmp_path, monkeypatch):
+    file = tmp_path / "stable.json"
+    first = stable_configurations(path=file)
+    assert json.loads(file.read_text())["stable"] == list(first)
+
+    def no_simulation(executor=None):
+        raise AssertionError("recomputed although cached")
+
+    monkeypatch.setattr(configurations, "_compute", no_simulation)
+    assert stable_configurations(path=file) == first
+    # a cache written under other constants is not trusted
+    data = json.loads(file.read_text())
+    data["key"] = "other constants"
+    file.write_text(json.dumps(data))
+    monkeypatch.setattr(configurations, "_compute", lambda executor=None: (0,))
+    assert stable_configurations(path=file) == (0,)
+
+
+def test_cache_key_follows_the_constants(monkeypatch):
+    key = configurations._cache_key()
+    monkeypatch.setattr(cans, "FRICTION_CAN_CAN", 0.5)
+    assert configurations._cache_key() != key
+
+
+def test_bad_mask():
+    with pytest.raises(ValueError, match=r"mask=-1 .*10-bit"):
+        settles(-1)
