@@ -1,6 +1,10 @@
 """Tests of the can world (sim2d/cans.py): geometry, physics invariants, outcomes, errors."""
 
+import importlib.util
 import math
+import subprocess
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -227,3 +231,27 @@ def test_play_ball_accepts_a_ball_where_a_missing_can_would_be():
     position = cans.can_positions()[9]  # can 9 is absent from the bottom row configuration
     o = cans.play_ball(BOTTOM_ROW, position, (7.0, 0.0))
     assert not o.hit_any_can and o.end_config == BOTTOM_ROW
+
+
+# --- layering and pictures ----------------------------------------------------------------
+
+
+def test_sim2d_can_world_imports_neither_torch_nor_pyro_nor_matplotlib():
+    code = (
+        "import sys, sim2d.cans, sim2d.configurations, sim2d.can_dataset, sim2d.render; "
+        "print(sorted(m for m in ('torch', 'pyro', 'matplotlib') if m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
+
+
+def test_example_runs_with_tiny_arguments(tmp_path):
+    spec = importlib.util.spec_from_file_location(
+        "can_world_example", Path(__file__).parents[2] / "examples" / "can_world.py"
+    )
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    files = module.main(["--out", str(tmp_path), "--frame-interval", "0.25"])
+    assert set(files) == {"pyramid", "throw", "gif"}
+    for path in files.values():
+        assert path.exists() and path.stat().st_size > 1000
