@@ -70,6 +70,7 @@ def enumerate_model(
     evidence: Mapping[str, torch.Tensor],
     *,
     keep: Iterable[str] = (),
+    trace_only: Iterable[str] = (),
     n_rows: int | None = None,
 ) -> Enumerated:
     """Trace the model with ``evidence`` and sum every observed or structural factor.
@@ -80,8 +81,12 @@ def enumerate_model(
         Encoded evidence (:meth:`EffectNetwork.encode`).
     keep
         Unobserved end sites to keep as enumerated targets (their factor is added).
+    trace_only
+        Unobserved continuous end sites to trace for their distribution (``fn``) without
+        adding their factor (the model draws a value for them that nothing uses).
     """
     keep = set(keep)
+    trace_only = set(trace_only)
     n = n_rows if n_rows is not None else next(iter(evidence.values())).shape[0]
     missing_initial = [
         s.name
@@ -93,7 +98,7 @@ def enumerate_model(
             f"queries need the initial state of continuous features; missing {missing_initial}"
         )
     trace = poutine.trace(poutine.enum(effect_model, first_available_dim=-2)).get_trace(
-        net, params, dict(evidence), n_rows=n
+        net, params, dict(evidence), n_rows=n, end_sites=set(evidence) | keep | trace_only
     )
     trace.compute_log_prob()
     total = None
@@ -103,8 +108,7 @@ def enumerate_model(
             continue
         if site["infer"].get("_enumerate_dim") is not None:
             dims[name] = site["infer"]["_enumerate_dim"]
-        spec_role = net.site(name).role if name in net._sites else None
-        if spec_role == "end" and name not in evidence and name not in keep:
+        if name in trace_only:
             continue
         lp = site["log_prob"]
         total = lp if total is None else total + lp

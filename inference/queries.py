@@ -115,13 +115,15 @@ def _prepare(
     return enc
 
 
-def _chunked(net, params, enc, keep, fn):
+def _chunked(net, params, enc, keep, fn, trace_only=()):
     """Run ``fn(enumerated, chunk_evidence)`` over row chunks and concatenate the results."""
     n = next(iter(enc.values())).shape[0]
     size = enumeration_size(net, enc, keep)
     outs = [
         fn(
-            enumerate_model(net, params, {k: v[s] for k, v in enc.items()}, keep=keep),
+            enumerate_model(
+                net, params, {k: v[s] for k, v in enc.items()}, keep=keep, trace_only=trace_only
+            ),
             {k: v[s] for k, v in enc.items()},
         )
         for s in row_chunks(n, size)
@@ -183,7 +185,7 @@ def _mixture(net, params, enc, site) -> GaussianMixture:
             cov.reshape(-1, n, *cov.shape[-2:]).transpose(0, 1),
         )
 
-    w, m, c = _chunked(net, params, enc, set(), fn)
+    w, m, c = _chunked(net, params, enc, set(), fn, trace_only={site})
     keep = w.sum(0) > 0  # drop components no row can reach
     return GaussianMixture(w[:, keep], m[:, keep], c[:, keep])
 

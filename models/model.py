@@ -23,7 +23,7 @@ equidistant grid (the rule that defines it).
 
 from __future__ import annotations
 
-from collections.abc import Mapping
+from collections.abc import Collection, Mapping
 
 import pyro
 import pyro.distributions as dist
@@ -54,6 +54,7 @@ def effect_model(
     *,
     n_rows: int | None = None,
     masks: Mapping[str, torch.Tensor] | None = None,
+    end_sites: Collection[str] | None = None,
 ) -> dict[str, torch.Tensor]:
     """Pyro model of an effect network.
 
@@ -70,6 +71,10 @@ def effect_model(
     masks
         Optional ``(n,)`` bool per discrete site: False where that row's value is missing
         (it is then enumerated for that row; used when fitting with gaps).
+    end_sites
+        End sites to sample (default: all). End sites have no children, so leaving out
+        one that is neither observed nor asked about changes no other site's marginal;
+        queries use this to skip work.
 
     Returns
     -------
@@ -125,6 +130,8 @@ def effect_model(
 
         for f in net.features:
             site = end_site(f.name)
+            if end_sites is not None and site not in end_sites:
+                continue
             index = [values[s] for s in net.discrete_parents(f.name)]
             cpd = params[site]
             p = net.parameter_of(f.name)

@@ -1,0 +1,46 @@
+"""The compiled tables answer exactly what the traced model answers."""
+
+import pytest
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from inference import infer_action
+from inference.compiled import compile_discrete
+from models import Continuous, EffectNetwork
+from tests.helpers import discrete_network, random_params
+
+
+@settings(max_examples=20, deadline=None)
+@given(
+    cards=st.lists(st.integers(2, 4), min_size=1, max_size=3),
+    n_actions=st.integers(2, 5),
+    seed=st.integers(0, 1000),
+    zero_n=st.sampled_from([0.0, 0.3]),
+    data=st.data(),
+)
+def test_compiled_equals_traced(cards, n_actions, seed, zero_n, data):
+    net = discrete_network(cards, n_actions)
+    params = random_params(net, seed, zero_n=zero_n)
+    compiled = compile_discrete(net, params)
+    g = torch.Generator().manual_seed(seed)
+    ev = {}
+    for i, k in enumerate(cards):
+        if data.draw(st.booleans()):
+            ev[f"initial.f{i}"] = torch.randint(0, k, (7,), generator=g)
+        if data.draw(st.booleans()):
+            ev[f"end.f{i}"] = torch.randint(0, k, (7,), generator=g)
+    if not ev:
+        ev["initial.f0"] = torch.randint(0, cards[0], (7,), generator=g)
+    a = compiled.infer_action(ev)
+    b = infer_action(net, params, ev)
+    torch.testing.assert_close(a.probs, b.probs, atol=1e-9, rtol=0)
+    torch.testing.assert_close(a.log_evidence, b.log_evidence, atol=1e-9, rtol=0)
+    torch.testing.assert_close(a.unseen, b.unseen, atol=1e-9, rtol=0)
+    assert torch.equal(a.best, b.best)
+
+
+def test_compile_refuses_continuous_networks():
+    net = EffectNetwork((Continuous("x"),), ("a", "b"))
+    with pytest.raises(ValueError, match="all-discrete"):
+        compile_discrete(net, random_params(net, 0))
