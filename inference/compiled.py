@@ -85,7 +85,11 @@ class CompiledNetwork:
                 ]
             )
             unseen = unseen.permute(*obs_axes, *latent_axes, *drop)
-            unseen = unseen.reshape(unseen.shape[: len(obs_axes) + len(latent_axes)]).contiguous()
+            unseen = (
+                unseen.reshape(unseen.shape[: len(obs_axes) + len(latent_axes)])
+                .to(DTYPE)
+                .contiguous()
+            )
         plan = _Plan(
             tuple(self.order[a] for a in obs_axes),
             tuple(self.order[a] for a in latent_axes),
@@ -117,7 +121,9 @@ class CompiledNetwork:
         index = tuple(enc[s] for s in plan.observed)
         total = plan.log_table[index]  # (n, latent sizes...)
         a = plan.latent.index(ACTION) + 1
-        total = total.movedim(a, -1).reshape(n, -1, len(self.net.actions))  # (n, others, A)
+        if len(plan.latent) > 1:
+            total = total.movedim(a, -1)
+        total = total.reshape(n, -1, len(self.net.actions))  # (n, others, A)
         if total.shape[1] == 1:
             log_joint = total[:, 0]
             log_evidence = log_joint.logsumexp(-1)
@@ -129,9 +135,12 @@ class CompiledNetwork:
         if plan.unseen is None:
             unseen_mass = torch.zeros_like(probs)
         else:
-            miss = plan.unseen[index].movedim(a, -1).reshape(n, -1, len(self.net.actions))
+            miss = plan.unseen[index]
+            if len(plan.latent) > 1:
+                miss = miss.movedim(a, -1)
+            miss = miss.reshape(n, -1, len(self.net.actions))
             if miss.shape[1] == 1:
-                unseen_mass = miss[:, 0].to(DTYPE)
+                unseen_mass = miss[:, 0]
             else:
                 joint = (total - log_evidence[:, None, None]).exp() * miss
                 unseen_mass = (joint.sum(1) / probs.clamp_min(1e-300)).clamp(0, 1)
@@ -140,7 +149,7 @@ class CompiledNetwork:
             score = score.masked_fill(
                 ~torch.as_tensor(allowed, dtype=torch.bool).expand_as(score), -1.0
             )
-        if avoid_unseen:
+        if avoid_unseen and bool((unseen_mass >= 0.5).any()):
             seen_score = score.masked_fill(unseen_mass >= 0.5, -1.0)
             score = torch.where(seen_score.max(-1, keepdim=True).values >= 0, seen_score, score)
         best = score.argmax(-1)

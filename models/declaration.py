@@ -371,11 +371,13 @@ class EffectNetwork:
             and value.dtype != torch.bool
         ):
             index = value.long().reshape(-1)
-            bad = (index < 0) | (index >= spec.size)
-            if bad.any():
-                raise ValueError(
-                    f"site {spec.name!r}: state index {int(index[bad][0])} outside 0..{spec.size - 1}"
-                )
+            if index.numel():
+                low, high = torch.aminmax(index)
+                if low < 0 or high >= spec.size:
+                    bad = index[(index < 0) | (index >= spec.size)][0]
+                    raise ValueError(
+                        f"site {spec.name!r}: state index {int(bad)} outside 0..{spec.size - 1}"
+                    )
             return index
         labels = self._labels(spec)
         lookup = {label: i for i, label in enumerate(labels)}
