@@ -1,0 +1,169 @@
+"""Speed of the throw network: fitting on 29,000 throws, and the inverse query.
+
+    python benchmarks/throw.py                  # 16 x 16 clusters (the example's choice)
+    python benchmarks/throw.py --bins 12 --threads 2 --profile
+
+Times the public API only: :func:`inference.fit` on the training rows, and
+:func:`inference.infer_parameter` (hit -> target: cluster posterior by enumeration, best
+cluster, Gaussian conditioning) batched over the test hits and one hit at a time. Each
+figure is the median over ``--repeats`` runs of ``time.perf_counter`` after one warm-up.
+Goals (issue 4): fit under 50 ms; batched inverse under 10 us per query; one query
+under 200 us. ``--profile`` prints where a query's time goes, stage by stage.
+"""
+
+from __future__ import annotations
+
+import argparse
+import cProfile
+import os
+import platform
+import pstats
+import statistics
+import time
+
+import numpy as np
+import pyro
+import torch
+
+from inference import fit, infer_parameter
+from models.throw_network import TARGET, throw_data, throw_network
+from sim2d.throw import sample_targets, throw
+
+GOALS_S = {"fit": 50e-3, "batched": 10e-6, "single": 200e-6}
+
+
+def median_seconds(fn, repeats: int) -> float:
+    """Median wall time of ``fn()`` over ``repeats`` calls, after one warm-up call."""
+    fn()
+    times = []
+    for _ in range(repeats):
+        start = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - start)
+    return statistics.median(times)
+
+
+def machine() -> str:
+    load = os.getloadavg() if hasattr(os, "getloadavg") else ("?",)
+    return (
+        f"{platform.processor() or platform.machine()}, {os.cpu_count()} cores, "
+        f"load average {load[0]:.2f}; Python {platform.python_version()}, torch "
+        f"{torch.__version__} ({torch.get_num_threads()} threads), pyro {pyro.__version__}"
+    )
+
+
+def measure(net, data, hits, repeats: int, singles: int) -> dict[str, float]:
+    """Seconds: one fit, one batched query per row, one single query."""
+    params = fit(net, data).params
+    fit_s = median_seconds(lambda: fit(net, data), repeats)
+    batched_s = median_seconds(
+        lambda: infer_parameter(net, params, TARGET, {"end.hit": hits}), repeats
+    )
+    one = [{"end.hit": hits[i : i + 1]} for i in range(min(singles, len(hits)))]
+
+    def single_queries():
+        for evidence in one:
+            infer_parameter(net, params, TARGET, evidence)
+
+    single_s = median_seconds(single_queries, repeats) / len(one)
+    return {"fit": fit_s, "batched": batched_s / len(hits), "single": single_s}
+
+
+#: Stages of one inverse query, as (file suffix, function) in the profile.
+STAGES = (
+    ("inference/queries.py", "infer_parameter", "the whole query"),
+    ("models/params.py", "check_params", "checking the parameters' shapes"),
+    ("models/declaration.py", "encode", "validating and encoding the evidence"),
+    ("inference/enumeration.py", "enumerate_model", "tracing the model, summing log-probs"),
+    ("models/model.py", "effect_model", "  running the Pyro model under trace+enum"),
+    ("torch/distributions/distribution.py", "__init__", "  building distributions (+checks)"),
+    ("pyro/poutine/trace_struct.py", "compute_log_prob", "  log-probabilities"),
+    ("inference/enumeration.py", "marginal", "cluster posterior from the log-weights"),
+    ("inference/queries.py", "_condition_on_cluster", "Gaussian conditioning, best cluster"),
+)
+
+
+def profile_queries(net, data, hits, batch: int, n: int) -> str:
+    """Where the time goes: cumulative time per stage of ``n`` queries of ``batch`` rows."""
+    params = fit(net, data).params
+    rows = [{"end.hit": hits[(i * batch) % len(hits) :][:batch]} for i in range(n)]
+    profiler = cProfile.Profile()
+    profiler.enable()
+    for evidence in rows:
+        infer_parameter(net, params, TARGET, evidence)
+    profiler.disable()
+    stats = pstats.Stats(profiler).stats  # (file, line, function) -> (cc, nc, tt, ct, callers)
+    lines = [f"profile of {n} calls of {batch} row(s) (cProfile adds overhead), us per row:"]
+    for suffix, function, label in STAGES:
+        cumulative = sum(
+            ct
+            for (file, _, name), (_, _, _, ct, _) in stats.items()
+            if name == function and file.endswith(suffix)
+        )
+        lines.append(f"  {label:44s} {1e6 * cumulative / (n * batch):8.1f}")
+    return "\n".join(lines)
+
+
+def report(label: str, seconds: dict[str, float]) -> None:
+    print(label)
+    for key, unit, scale, what in (
+        ("fit", "ms", 1e3, "fit, all training rows"),
+        ("batched", "us", 1e6, "inverse query, batched, per query"),
+        ("single", "us", 1e6, "inverse query, one at a time"),
+    ):
+        ok = "meets" if seconds[key] < GOALS_S[key] else "MISSES"
+        print(
+            f"  {what:36s} {scale * seconds[key]:10.1f} {unit}   goal < "
+            f"{scale * GOALS_S[key]:g} {unit}: {ok}"
+        )
+
+
+def main(argv: list[str] | None = None) -> dict[str, float]:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--n-train", type=int, default=29_000)
+    parser.add_argument("--n-test", type=int, default=1_000)
+    parser.add_argument("--bins", type=int, default=16, help="clusters per axis")
+    parser.add_argument("--repeats", type=int, default=7)
+    parser.add_argument("--singles", type=int, default=200, help="single queries per repeat")
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--threads", type=int, default=1, help="torch threads")
+    parser.add_argument(
+        "--also-without-validation",
+        action="store_true",
+        help="repeat with Pyro's argument checks off, to show what they cost",
+    )
+    parser.add_argument("--profile", action="store_true", help="profile the queries")
+    args = parser.parse_args(argv)
+
+    threads = torch.get_num_threads()
+    torch.set_num_threads(args.threads)
+    try:
+        rng = np.random.default_rng(args.seed)
+        targets = sample_targets(args.n_train + args.n_test, rng)
+        hits = throw(targets).hit
+        net = throw_network((args.bins, args.bins))
+        data = throw_data(net, targets[: args.n_train], hits[: args.n_train])
+        test = torch.as_tensor(hits[args.n_train :])
+        print(machine())
+        print(
+            f"{args.n_train} training rows, {args.n_test} test hits, "
+            f"{args.bins} x {args.bins} clusters; median of {args.repeats}"
+        )
+        seconds = measure(net, data, test, args.repeats, args.singles)
+        report("public API, default settings:", seconds)
+        if args.also_without_validation:
+            with pyro.validation_enabled(False):
+                report(
+                    "the same with Pyro's argument checks off (pyro.validation_enabled(False)):",
+                    measure(net, data, test, args.repeats, args.singles),
+                )
+        if args.profile:
+            print(profile_queries(net, data, test, len(test), 5))
+            print(profile_queries(net, data, test, 1, 300))
+        return seconds
+    finally:
+        torch.set_num_threads(threads)
+
+
+if __name__ == "__main__":
+    main()
