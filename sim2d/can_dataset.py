@@ -40,6 +40,7 @@ merged into ``path`` at the end and then removed.
 from __future__ import annotations
 
 import concurrent.futures
+import importlib.metadata
 import json
 import os
 import shutil
@@ -140,10 +141,18 @@ def _rows(configs, angles, repeats) -> np.ndarray:
     return np.stack([g.ravel() for g in grid], axis=1).astype(np.int64)
 
 
+def _package_version() -> str:
+    try:
+        return importlib.metadata.version("effect-networks")
+    except importlib.metadata.PackageNotFoundError:
+        return "unknown"
+
+
 def _metadata(configs, angles, repeats, jitter, seed, chunk_size) -> dict:
     return {
         "format_version": FORMAT_VERSION,
         "producer": "sim2d.can_dataset.generate_dataset",
+        "package_version": _package_version(),
         "constants": cans.physical_constants(),
         "settle_time": SETTLE_TIME,
         "stable_tolerance": STABLE_TOLERANCE,

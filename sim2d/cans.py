@@ -628,8 +628,8 @@ def _play(config: int, position: np.ndarray, velocity: np.ndarray, frame_every: 
 
 
 def _passed_every_can(ball: pymunk.Body, ball_in: bool, config: int) -> bool:
-    """Before any contact the cans stand still: has the ball passed them all for good?"""
-    if not ball_in or config == 0:
+    """Before any contact the cans stand still: can the ball no longer reach any of them?"""
+    if not ball_in or config == 0 or ball.is_sleeping:
         return True
     right = max(_can_positions()[i, 0] for i in mask_to_cans(config)) + CAN_WIDTH / 2
     return ball.position.x - BALL_RADIUS > right and ball.velocity.x >= 0.0
