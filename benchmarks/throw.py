@@ -3,9 +3,11 @@
     python benchmarks/throw.py                  # 16 x 16 clusters (the example's choice)
     python benchmarks/throw.py --bins 12 --threads 2 --profile
 
-Times the public API only: :func:`inference.fit` on the training rows, and
-:func:`inference.infer_parameter` (hit -> target: cluster posterior by enumeration, best
-cluster, Gaussian conditioning) batched over the test hits and one hit at a time. Each
+Times :func:`inference.fit` on the training rows, and the inverse query (hit -> target:
+cluster posterior by enumeration, best cluster, Gaussian conditioning) batched over the
+test hits and one hit at a time, both through the traced Pyro model
+(:func:`inference.infer_parameter`) and through its compiled tables
+(:func:`inference.compiled.compile_parameter_query`, the same numbers, tested equal). Each
 figure is the median over ``--repeats`` runs of ``time.perf_counter`` after one warm-up.
 Goals (issue 4): fit under 50 ms; batched inverse under 10 us per query; one query
 under 200 us. ``--profile`` prints where a query's time goes, stage by stage.
@@ -26,6 +28,7 @@ import pyro
 import torch
 
 from inference import fit, infer_parameter
+from inference.compiled import compile_parameter_query
 from models.throw_network import TARGET, throw_data, throw_network
 from sim2d.throw import sample_targets, throw
 
@@ -67,6 +70,22 @@ def measure(net, data, hits, repeats: int, singles: int) -> dict[str, float]:
 
     single_s = median_seconds(single_queries, repeats) / len(one)
     return {"fit": fit_s, "batched": batched_s / len(hits), "single": single_s}
+
+
+def measure_compiled(net, data, hits, repeats: int, singles: int) -> dict[str, float]:
+    """Seconds for the compiled query: build it once (as "fit"), then query it."""
+    params = fit(net, data).params
+    compile_s = median_seconds(lambda: compile_parameter_query(net, params, TARGET), repeats)
+    query = compile_parameter_query(net, params, TARGET)
+    batched_s = median_seconds(lambda: query.infer({"end.hit": hits}), repeats)
+    one = [{"end.hit": hits[i : i + 1]} for i in range(min(singles, len(hits)))]
+
+    def single_queries():
+        for evidence in one:
+            query.infer(evidence)
+
+    single_s = median_seconds(single_queries, repeats) / len(one)
+    return {"compile": compile_s, "batched": batched_s / len(hits), "single": single_s}
 
 
 #: Stages of one inverse query, as (file suffix, function) in the profile.
@@ -150,7 +169,20 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
             f"{args.bins} x {args.bins} clusters; median of {args.repeats}"
         )
         seconds = measure(net, data, test, args.repeats, args.singles)
-        report("public API, default settings:", seconds)
+        report("traced Pyro model (inference.infer_parameter):", seconds)
+        compiled = measure_compiled(net, data, test, args.repeats, args.singles)
+        print(
+            f"compiled query (inference.compiled.compile_parameter_query), built in {1e3 * compiled['compile']:.1f} ms:"
+        )
+        for key, what in (
+            ("batched", "inverse query, batched, per query"),
+            ("single", "inverse query, one at a time"),
+        ):
+            ok = "meets" if compiled[key] < GOALS_S[key] else "MISSES"
+            print(
+                f"  {what:36s} {1e6 * compiled[key]:10.1f} us   goal < {1e6 * GOALS_S[key]:g} us: {ok}"
+            )
+        seconds |= {f"compiled_{k}": v for k, v in compiled.items()}
         if args.also_without_validation:
             with pyro.validation_enabled(False):
                 report(

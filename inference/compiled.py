@@ -11,15 +11,24 @@ the two against each other.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import torch
 from pyro import poutine
 
-from inference.queries import ActionPosterior
-from models.declaration import ACTION, DTYPE, EffectNetwork
-from models.model import effect_model
+from inference.queries import ActionPosterior, ParameterPosterior
+from models.declaration import (
+    ACTION,
+    DTYPE,
+    EffectNetwork,
+    Parameter,
+    cluster_site,
+    end_site,
+    param_site,
+)
+from models.model import collapsed_tables, effect_model
 from models.params import NetworkParams, check_params
 
 
@@ -193,3 +202,120 @@ def compile_discrete(net: EffectNetwork, params: NetworkParams) -> CompiledNetwo
         shape = [net.site(s).size if s in parents else 1 for s in order]
         seen[spec.name] = n.reshape(shape)
     return CompiledNetwork(net, order, factors, seen)
+
+
+@dataclass(frozen=True)
+class CompiledParameterQuery:
+    """The inverse parameter query with its Gaussian tables precomputed.
+
+    Built from :func:`models.model.collapsed_tables` (the marginal of the affected feature
+    that the model itself samples when the parameter is unobserved) and the parameter's
+    cluster Gaussians: per parent configuration, the marginal's Cholesky factor and the
+    conditioning gain are computed once, so a query is gathers, one Gaussian log-density
+    per cluster and one matrix-vector product. Same results as
+    :func:`inference.infer_parameter`.
+    """
+
+    net: EffectNetwork
+    parameter: Parameter
+    parents: tuple[str, ...]  # discrete parents of the affected end site, cluster last
+    log_cluster: torch.Tensor  # (A, C)
+    offset: torch.Tensor  # (P..., d)
+    whiten: torch.Tensor  # (P..., d, d): inverse of the marginal's Cholesky factor
+    log_norm: torch.Tensor  # (P...): -log det L - d/2 log(2 pi)
+    w_x: torch.Tensor  # (P..., d, p - k)
+    gain: torch.Tensor  # (P..., k, d)
+    prior_mean: torch.Tensor  # (C, k)
+    post_cov: torch.Tensor  # (P..., k, k)
+    seen: torch.Tensor  # (P...) bool
+
+    def infer(self, evidence: Mapping[str, object]) -> ParameterPosterior:
+        """Same contract and result as :func:`inference.infer_parameter`."""
+        p = self.parameter
+        y_site = end_site(p.affects)
+        enc = self.net.encode(evidence)
+        if y_site not in enc:
+            raise ValueError(f"the query needs the observed end state {y_site!r}")
+        y = enc[y_site]
+        n = y.shape[0]
+        if ACTION not in enc:
+            if len(p.actions) != 1:
+                raise ValueError(f"give the action (one of {list(p.actions)}) that used {p.name!r}")
+            enc[ACTION] = torch.full((n,), self.net.action_index(p.actions[0]), dtype=torch.long)
+        not_using = ~self.net.uses_parameter(p)[enc[ACTION]]
+        if not_using.any():
+            row = int(not_using.nonzero()[0])
+            raise ValueError(
+                f"row {row}: action {self.net.actions[int(enc[ACTION][row])]!r} does not use {p.name!r}"
+            )
+        missing = [s for s in self.parents[:-1] if s not in enc]
+        if missing:
+            raise ValueError(
+                f"the query needs the discrete parents {missing} of {y_site!r} as evidence"
+            )
+        index = tuple(enc[s] for s in self.parents[:-1])  # (n,) each; the cluster axis stays
+        # Rows that share one parent configuration (one action, say) use the tables
+        # ungathered: the Gaussian then broadcasts one factor per cluster over the rows.
+        shared = n > 0 and all(bool((i == i[0]).all()) for i in index)
+        gather = tuple(i[:1] for i in index) if shared else index
+        loc = self.offset[gather]  # (n or 1, C, d)
+        others = [enc[s] for s in self.net.continuous_parents(p.affects)[:-1]]
+        x = torch.cat(others, -1) if others else None
+        if x is not None:
+            loc = loc + (self.w_x[gather] @ x[:, None, :, None]).squeeze(-1)
+        # log N(y; loc, L L^T) = log_norm - |L^-1 (y - loc)|^2 / 2, with L^-1 and log_norm
+        # precomputed from the model's own marginal Cholesky factor L
+        diff = y[:, None, :] - loc  # (n, C, d)
+        if shared:
+            z = torch.einsum("cij,ncj->nci", self.whiten[gather][0], diff)
+        else:
+            z = torch.einsum("ncij,ncj->nci", self.whiten[index], diff)
+        log_lik = self.log_norm[gather] - 0.5 * z.square().sum(-1)
+        log_post = log_lik + self.log_cluster[enc[ACTION]]
+        probs = log_post.softmax(-1)
+        best = probs.argmax(-1)
+        rows = torch.arange(n)
+        full = (*index, best)
+        resid = y - loc.expand(n, *loc.shape[1:])[rows, best]
+        mean = self.prior_mean[best] + (self.gain[full] @ resid[..., None]).squeeze(-1)
+        unseen = (~self.seen[full]).to(DTYPE)
+        return ParameterPosterior(probs, best, mean, self.post_cov[full], unseen)
+
+
+def compile_parameter_query(
+    net: EffectNetwork, params: NetworkParams, parameter: str
+) -> CompiledParameterQuery:
+    """Precompute :class:`CompiledParameterQuery` for ``parameter`` of ``net``."""
+    check_params(net, params)
+    p = next((q for q in net.parameters if q.name == parameter), None)
+    if p is None:
+        raise ValueError(
+            f"unknown parameter {parameter!r}; parameters: {[q.name for q in net.parameters]}"
+        )
+    offset, tril, w_x = collapsed_tables(net, params, p)
+    cpd = params[end_site(p.affects)]
+    prior = params[param_site(p.name)]
+    k = p.dim
+    w_p = cpd.weight[..., -k:]
+    # gain = S_c W_p^T (W_p S_c W_p^T + R)^-1, with the marginal's Cholesky factor
+    cross = prior.covariance @ w_p.mT  # (P..., k, d)
+    gain = torch.cholesky_solve(cross.mT, tril).mT
+    post_cov = prior.covariance - gain @ w_p @ prior.covariance
+    log_cluster = params[cluster_site(p.name)].probs.clamp_min(1e-300).log()
+    return CompiledParameterQuery(
+        net,
+        p,
+        net.discrete_parents(p.affects),
+        log_cluster,
+        offset,
+        torch.linalg.solve_triangular(
+            tril, torch.eye(tril.shape[-1], dtype=tril.dtype), upper=False
+        ),
+        -tril.diagonal(dim1=-2, dim2=-1).log().sum(-1)
+        - 0.5 * tril.shape[-1] * math.log(2 * math.pi),
+        w_x,
+        gain,
+        prior.bias,
+        0.5 * (post_cov + post_cov.mT),
+        cpd.n > 0,
+    )

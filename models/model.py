@@ -37,6 +37,7 @@ from models.declaration import (
     Continuous,
     Discrete,
     EffectNetwork,
+    Parameter,
     cluster_site,
     end_site,
     initial_site,
@@ -146,27 +147,21 @@ def effect_model(
                 values[site] = _discrete(site, fn, data, masks)
             else:
                 assert isinstance(f, Continuous) and isinstance(cpd, LinearGaussian)
-                weight = Vindex(cpd.weight)[(*index, slice(None), slice(None))]
-                loc = Vindex(cpd.bias)[(*index, slice(None))]
-                tril = Vindex(cpd.scale_tril)[(*index, slice(None), slice(None))]
                 parents = net.continuous_parents(f.name)
                 if p is not None and collapsed[p.name]:
-                    # Integrate param.p out: y = W_x x + W_p theta + b + e, theta ~ N(m_c, S_c).
-                    k = net.site(param_site(p.name)).size
-                    w_x, w_p = (
-                        weight[..., : weight.shape[-1] - k],
-                        weight[..., weight.shape[-1] - k :],
-                    )
-                    w_p = w_p * net.uses_parameter(p)[values[ACTION]][..., None, None]
-                    prior = params[param_site(p.name)]
-                    cluster = values[cluster_site(p.name)]
-                    m_c = Vindex(prior.bias)[cluster, :]
-                    s_c = Vindex(prior.covariance)[cluster, :, :]
+                    # Integrate param.p out, once per parent configuration (not per row):
+                    # y = W_x x + W_p theta + b + e, theta ~ N(m_c, S_c).
+                    offset, marginal_tril, w_x = collapsed_tables(net, params, p)
+                    loc = Vindex(offset)[(*index, slice(None))]
+                    tril = Vindex(marginal_tril)[(*index, slice(None), slice(None))]
                     x = _concat([values[s] for s in parents[:-1]])
-                    loc = loc + _linear(w_p, m_c) + (_linear(w_x, x) if x is not None else 0.0)
-                    cov = tril @ tril.mT + w_p @ s_c @ w_p.mT
-                    fn = dist.MultivariateNormal(loc, covariance_matrix=cov)
+                    if x is not None:
+                        loc = loc + _linear(Vindex(w_x)[(*index, slice(None), slice(None))], x)
+                    fn = dist.MultivariateNormal(loc, scale_tril=tril)
                 else:
+                    weight = Vindex(cpd.weight)[(*index, slice(None), slice(None))]
+                    loc = Vindex(cpd.bias)[(*index, slice(None))]
+                    tril = Vindex(cpd.scale_tril)[(*index, slice(None), slice(None))]
                     x = _concat([values[s] for s in parents])
                     if x is not None:
                         loc = loc + _linear(weight, x)
@@ -200,3 +195,24 @@ def _concat(parts: list[torch.Tensor]) -> torch.Tensor | None:
 def _linear(weight: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
     """``weight @ x`` over the last dims: ``(..., d, p) x (..., p) -> (..., d)``."""
     return (weight @ x.unsqueeze(-1)).squeeze(-1)
+
+
+def collapsed_tables(
+    net: EffectNetwork, params: NetworkParams, parameter: Parameter
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The affected feature's CPD with ``parameter`` integrated out, per configuration.
+
+    Returns ``offset`` ``(P..., d)`` (``b + W_p m_c``), ``scale_tril`` ``(P..., d, d)``
+    (Cholesky of ``R + W_p S_c W_p^T``) and ``w_x`` ``(P..., d, p - k)``, over the
+    affected end site's discrete parents ``P...`` (the action second to last, the cluster
+    last). For actions not using the parameter ``W_p`` counts as zero.
+    """
+    cpd = params[end_site(parameter.affects)]
+    prior = params[param_site(parameter.name)]
+    k = parameter.dim
+    q = cpd.weight.shape[-1]
+    w_x, w_p = cpd.weight[..., : q - k], cpd.weight[..., q - k :]  # (..., A, C, d, *)
+    w_p = w_p * net.uses_parameter(parameter).to(w_p.dtype)[:, None, None, None]
+    offset = cpd.bias + _linear(w_p, prior.bias)  # prior.bias (C, k) aligns with the cluster axis
+    cov = cpd.covariance + w_p @ prior.covariance @ w_p.mT
+    return offset, torch.linalg.cholesky(cov), w_x

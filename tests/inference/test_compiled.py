@@ -44,3 +44,47 @@ def test_compile_refuses_continuous_networks():
     net = EffectNetwork((Continuous("x"),), ("a", "b"))
     with pytest.raises(ValueError, match="all-discrete"):
         compile_discrete(net, random_params(net, 0))
+
+
+def test_compiled_parameter_query_equals_traced():
+    from inference import infer_parameter
+    from inference.compiled import compile_parameter_query
+    from tests.inference.test_queries_mixed import NET
+
+    params = random_params(NET, 21, zero_n=0.2)
+    query = compile_parameter_query(NET, params, "force")
+    g = torch.Generator().manual_seed(1)
+    n = 40
+    ev = {
+        "initial.visible": torch.randint(0, 2, (n,), generator=g),
+        "initial.pos": torch.randn(n, 2, generator=g, dtype=torch.float64),
+        "action": torch.randint(1, 3, (n,), generator=g),  # tap or push: both use the force
+        "end.pos": 3 * torch.randn(n, 2, generator=g, dtype=torch.float64),
+    }
+    a = query.infer(ev)
+    b = infer_parameter(NET, params, "force", ev)
+    torch.testing.assert_close(a.cluster_probs, b.cluster_probs, atol=1e-9, rtol=0)
+    assert torch.equal(a.best_cluster, b.best_cluster)
+    torch.testing.assert_close(a.mean, b.mean)
+    torch.testing.assert_close(a.cov, b.cov)
+    torch.testing.assert_close(a.unseen, b.unseen)
+
+
+def test_compiled_parameter_query_with_one_shared_configuration():
+    from inference import infer_parameter
+    from inference.compiled import compile_parameter_query
+    from tests.inference.test_queries_mixed import NET
+
+    params = random_params(NET, 4)
+    g = torch.Generator().manual_seed(2)
+    n = 30
+    ev = {
+        "initial.visible": torch.ones(n, dtype=torch.long),
+        "initial.pos": torch.randn(n, 2, generator=g, dtype=torch.float64),
+        "action": torch.full((n,), 2),
+        "end.pos": 3 * torch.randn(n, 2, generator=g, dtype=torch.float64),
+    }
+    a = compile_parameter_query(NET, params, "force").infer(ev)
+    b = infer_parameter(NET, params, "force", ev)
+    torch.testing.assert_close(a.cluster_probs, b.cluster_probs, atol=1e-9, rtol=0)
+    torch.testing.assert_close(a.mean, b.mean)
