@@ -99,6 +99,8 @@ class CompiledNetwork:
                 .to(DTYPE)
                 .contiguous()
             )
+        if unseen is not None and not bool(unseen.any()):
+            unseen = None  # every configuration this pattern touches was seen
         plan = _Plan(
             tuple(self.order[a] for a in obs_axes),
             tuple(self.order[a] for a in latent_axes),
@@ -136,7 +138,7 @@ class CompiledNetwork:
         if total.shape[1] == 1:
             log_joint = total[:, 0]
             log_evidence = log_joint.logsumexp(-1)
-            probs = (log_joint - log_evidence[:, None]).exp()
+            probs = log_joint.softmax(-1)
         else:
             log_marginal = total.logsumexp(1)
             log_evidence = log_marginal.logsumexp(-1)

@@ -372,7 +372,7 @@ class EffectNetwork:
         ):
             index = value.long().reshape(-1)
             if index.numel():
-                low, high = torch.aminmax(index)
+                low, high = (int(v) for v in torch.aminmax(index))
                 if low < 0 or high >= spec.size:
                     bad = index[(index < 0) | (index >= spec.size)][0]
                     raise ValueError(
