@@ -1,0 +1,111 @@
+"""Steps the can experiments share: the data set at a scale, and the can network per angle.
+
+Used by ``can_tossing.py``, ``combined.py`` and ``reproduce.py``; composes sim2d (data),
+models (the Fig. 2 network) and inference (fitting, compiled queries).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from inference import fit
+from inference.compiled import CompiledNetwork, compile_discrete
+from models import EffectNetwork, NetworkParams
+from models.can_network import can_network, can_rows, config_index
+from sim2d import cans
+from sim2d.can_dataset import CanDataset, generate_dataset, load_dataset
+from sim2d.configurations import stable_configurations
+
+#: Scales: how many start configurations (None: all) and repeats per throw.
+SCALES = {
+    "full": {"n_configs": None, "repeats": 3},
+    "quick": {"n_configs": 16, "repeats": 3},
+    "tiny": {"n_configs": 3, "repeats": 1},
+}
+
+
+def start_configurations(n_configs: int | None) -> list[int]:
+    """All stable configurations, or a spread of ``n_configs`` of them with the full pyramid."""
+    stable = list(stable_configurations())
+    if n_configs is None or n_configs >= len(stable):
+        return stable
+    by_count = sorted(stable, key=lambda m: (-bin(m).count("1"), m))  # full pyramid first
+    step = len(by_count) / n_configs
+    return sorted({by_count[int(i * step)] for i in range(n_configs)})
+
+
+def can_dataset(
+    data_dir: Path, scale: str, *, angles=(0, 1, 2), seed: int = 0, progress: bool = True
+) -> CanDataset:
+    """Generate (or reuse, or resume) the can data set at ``scale`` and load it."""
+    spec = SCALES[scale]
+    configs = start_configurations(spec["n_configs"])
+    name = "can_dataset.npz" if scale == "full" else f"can_dataset_{scale}.npz"
+    path = generate_dataset(
+        Path(data_dir) / name,
+        configs=configs,
+        angles=angles,
+        repeats=spec["repeats"],
+        seed=seed,
+        progress=progress,
+    )
+    return load_dataset(path)
+
+
+@dataclass(frozen=True)
+class CanModel:
+    """The can network fitted on one angle's data, with its compiled query tables."""
+
+    angle: int
+    net: EffectNetwork
+    params: NetworkParams
+    compiled: CompiledNetwork
+    throwable: torch.Tensor  # (195,) bool: fields the ball can reach at this angle
+
+    def best_fields(self, start: np.ndarray, desired_count: np.ndarray) -> np.ndarray:
+        """Best field per row for ``(start mask, desired end count)``, never an unthrowable one."""
+        post = self.compiled.infer_action(
+            {
+                "initial.config": config_index(self.net, start),
+                "initial.count": torch.as_tensor(np.array([bin(int(m)).count("1") for m in start])),
+                "end.count": torch.as_tensor(np.asarray(desired_count, dtype=np.int64)),
+            },
+            allowed=self.throwable,
+        )
+        return post.best.numpy()
+
+    def end_config_probs(self, start: int, fields: np.ndarray | None = None) -> torch.Tensor:
+        """``(n_fields, n_states)``: predicted end configuration for each field from ``start``."""
+        from inference import predict
+
+        fields = np.arange(len(self.net.actions)) if fields is None else np.asarray(fields)
+        n = len(fields)
+        ev = {
+            "initial.config": config_index(self.net, np.full(n, start)),
+            "initial.count": torch.full((n,), bin(int(start)).count("1")),
+            "action": torch.as_tensor(fields),
+        }
+        return predict(self.net, self.params, ev).discrete["config"]
+
+    @property
+    def states(self) -> tuple[int, ...]:
+        return tuple(int(s) for s in self.net.feature("config").states)
+
+
+def fit_can_network(data: CanDataset, angle: int) -> CanModel:
+    """Fit Fig. 2's network by maximum likelihood on the throwable throws at ``angle``."""
+    sel = (data.angle == angle) & data.throwable
+    if not sel.any():
+        raise ValueError(
+            f"the data set has no throwable throws at angle {angle} ({cans.ANGLE_NAMES[angle]})"
+        )
+    states = sorted(set(data.start_config.tolist()) | set(data.end_config[sel].tolist()))
+    net = can_network(states)
+    rows = can_rows(net, data.start_config[sel], data.field[sel], data.end_config[sel])
+    params = fit(net, rows).params
+    throwable = torch.tensor([cans.is_throwable(f, angle) for f in range(cans.N_FIELDS)])
+    return CanModel(angle, net, params, compile_discrete(net, params), throwable)
