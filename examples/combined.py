@@ -1,0 +1,390 @@
+r"""The paper's combined system: the throw network aims, the can network plans (§IV-C).
+
+Rudolph, Mühlig, Gienger & Böhme, "Learning the Consequences of Actions: Representing
+Effects as Feature Changes", §IV-C and Tables II-IV. Two networks trained apart are
+chained: the can network (Fig. 2) picks the field to hit, the throw network (Fig. 4)
+turns that hit point into the point the robot aims at, and the robot's throw is played
+through its kinematics into the can world.
+
+Set-up (DESIGN.md "Combined system"): the pyramid's near face stands at x = 2 m in the
+plane y = 0 on a table whose top is ``TABLE_TOP_Z`` above the robot's floor. A field's
+hit point is where the can network's training throw through that field crosses the near
+face (the can network was trained on that angle's parabolas). A throw whose hit point
+lies within the can depth (``|y| <= CAN_BAND``) enters the can world there with its
+in-plane velocity; otherwise it hits no can. The can network is trained on the angle
+whose direction is closest to the robot's measured impact direction.
+
+Intermediate states (recorded rule): after a throw the remaining cans are put back at
+their standard positions; if that set is not physically possible, the cans that cannot
+stand fall too: the state is the largest physically possible subset of the remaining
+cans (ties: the smallest mask).
+
+Planners (:mod:`inference.planning`): the paper's round planner, whose actions in a
+round are the fields whose most probable end configuration is the (intermediate) goal;
+and an exact planner that maximises the probability of reaching the goal within
+``--horizon`` throws under the learned models, with the throw's uncertainty (the throw
+network's predicted hit Gaussian) included; its success rate is measured by playing its
+policy ``--episodes`` times.
+
+    python examples/combined.py [--scale full|quick|tiny] [--noise] [--proposals can|combined]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from can_common import CanModel, can_dataset, fit_can_network  # noqa: E402
+from throwing import fit_throws, get_data  # noqa: E402
+
+from inference import predict  # noqa: E402
+from inference.compiled import compile_parameter_query  # noqa: E402
+from inference.planning import exact_plan, paper_planner  # noqa: E402
+from models.throw_network import TARGET  # noqa: E402
+from sim2d import cans  # noqa: E402
+from sim2d.configurations import stable_configurations  # noqa: E402
+from sim2d.throw import TARGET_AREA, ReleaseNoise, throw  # noqa: E402
+
+TABLE_TOP_Z = 0.75  # m in the robot's frame: a standard table; the pyramid (0.75-1.39 m) lies
+#                     inside the throw's reachable hits (0.35-1.63 m near y = 0)
+CAN_BAND = cans.CAN_WIDTH / 2 + cans.BALL_RADIUS  # m: |y| at which the ball still meets a can
+SCENARIOS = {
+    "top_three": cans.TOP_THREE,
+    "near_flank": cans.NEAR_FLANK,
+    "far_flank": cans.FAR_FLANK,
+}
+PAPER_RATES = {"top_three": 0.5713, "near_flank": 0.6857, "far_flank": 0.5771}
+TABLES = {"top_three": "Table II", "near_flank": "Table III", "far_flank": "Table IV"}
+
+
+def first_contact(state: int, field: int, angle: int) -> tuple[float, float]:
+    """Where the training throw through ``field`` first meets a can of ``state`` (can frame).
+
+    The ball's centre path is sampled every millimetre of x up to the field centre; a can
+    is met when the centre enters the can's box grown by the ball's radius. A path that
+    meets no can is matched at the field centre.
+    """
+    (x0, z0), (vx, vz) = cans.launch_state(field, angle)
+    x_end, z_end = cans.field_centres()[field]
+    x = np.arange(cans.PYRAMID_X - cans.BALL_RADIUS, x_end, 1e-3)
+    t = (x - x0) / vx
+    z = z0 + vz * t - 0.5 * cans.GRAVITY * t * t
+    inside = np.zeros(len(x), dtype=bool)
+    for cx, cz in cans.can_positions()[list(cans.mask_to_cans(state))]:
+        inside |= (np.abs(x - cx) <= cans.CAN_WIDTH / 2 + cans.BALL_RADIUS) & (
+            np.abs(z - cz) <= cans.CAN_HEIGHT / 2 + cans.BALL_RADIUS
+        )
+    if inside.any():
+        i = int(np.argmax(inside))
+        return float(x[i]), float(z[i])
+    return float(x_end), float(z_end)
+
+
+def settle(mask: int, stable: frozenset[int]) -> int:
+    """The recorded intermediate-state rule: the largest physically possible subset."""
+    if mask in stable:
+        return mask
+    subsets = [s for s in stable if s & ~mask == 0]
+    return min(subsets, key=lambda s: (-bin(s).count("1"), s))
+
+
+@dataclass
+class Robot:
+    """The throw side: the learned inverse (hit -> aim) and the kinematics that throw."""
+
+    query: object  # CompiledParameterQuery of the throw network
+    net: object
+    params: object
+    noise: ReleaseNoise | None
+    rng: np.random.Generator
+
+    def aim(self, hits: np.ndarray) -> np.ndarray:
+        aims = self.query.infer({"end.hit": torch.as_tensor(hits)}).mean.numpy()
+        return np.clip(aims, TARGET_AREA.low, TARGET_AREA.high)
+
+    def hit_distribution(self, aims: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The throw network's predicted hit for each aim: means ``(n, 2)``, covs ``(n, 2, 2)``."""
+        mix = predict(
+            self.net, self.params, {"action": ["throw"] * len(aims), "param.target": aims}
+        )
+        hit = mix.continuous["hit"]
+        return hit.mean.numpy(), hit.cov.numpy()
+
+
+@dataclass
+class World:
+    """Everything one throw needs: the can model, the robot, and the geometry between them."""
+
+    can: CanModel
+    robot: Robot
+    stable: frozenset[int]
+    _heights: dict = field(default_factory=dict)
+
+    def heights(self, state: int) -> np.ndarray:
+        """``(195,)`` near-face heights (can frame) to hit so that the robot's ball meets the
+        cans of ``state`` where the training throw through each field does (NaN: unthrowable).
+
+        Solved with the robot's own forward kinematics: a few fixed-point steps of
+        "aim, read the velocity at the plane, run it back from the contact point".
+        """
+        if state not in self._heights:
+            fields = np.flatnonzero(self.can.throwable.numpy())
+            contact = np.array([first_contact(state, f, self.can.angle) for f in fields])
+            z2 = contact[:, 1].copy()
+            for _ in range(4):
+                aims = self.robot.aim(np.stack([np.zeros_like(z2), z2 + TABLE_TOP_Z], -1))
+                v = throw(aims).velocity_at_plane
+                t = (contact[:, 0] - cans.PYRAMID_X) / v[:, 0]
+                z2 = contact[:, 1] - v[:, 2] * t + 0.5 * cans.GRAVITY * t * t
+            heights = np.full(cans.N_FIELDS, np.nan)
+            heights[fields] = z2
+            self._heights[state] = heights
+        return self._heights[state]
+
+    def play(self, state: int, field: int) -> int:
+        """Aim at ``field`` from ``state``, throw, play the ball into the cans; the next state."""
+        desired = np.array([[0.0, self.heights(state)[field] + TABLE_TOP_Z]])
+        result = throw(self.robot.aim(desired), rng=self.robot.rng, noise=self.robot.noise)
+        (y, z), (vx, _, vz) = result.hit[0], result.velocity_at_plane[0]
+        if abs(y) > CAN_BAND:
+            return state  # passes beside the pyramid
+        dt = (cans.PYRAMID_X - cans.ENTRY_X) / vx  # back to the entry line
+        z_entry = z - TABLE_TOP_Z - vz * dt - 0.5 * cans.GRAVITY * dt * dt
+        if z_entry < cans.BALL_RADIUS + 1e-3:
+            return state  # strikes the table top in front of the pyramid
+        outcome = cans.play_ball(state, (cans.ENTRY_X, z_entry), (vx, vz + cans.GRAVITY * dt))
+        return settle(outcome.end_config, self.stable)
+
+    def proposals(self, state: int, goal: int) -> list[int]:
+        """The paper's actions: fields whose most probable end configuration is ``goal``."""
+        states = self.can.states
+        if state not in states or goal not in states:
+            return []
+        probs = self.can.end_config_probs(state)
+        seen = self.can.params["end.config"].n[states.index(state), bin(state).count("1")] > 0
+        ok = (probs.argmax(-1) == states.index(goal)) & seen & self.can.throwable
+        return ok.nonzero().flatten().tolist()
+
+
+def build_world(args, data) -> tuple[World, dict]:
+    """Train both networks; choose the can network's angle by the robot's impact direction."""
+    rng = np.random.default_rng(args.seed)
+    noise = ReleaseNoise() if args.noise else None
+    targets, hits = get_data(args.n_throws, rng, noise)
+    net, params, _ = fit_throws((args.bins, args.bins), targets, hits)
+    robot = Robot(compile_parameter_query(net, params, TARGET), net, params, noise, rng)
+    # the robot's impact direction at the pyramid, throwing at every field height
+    probe = np.linspace(0.05, cans.PYRAMID_HEIGHT, 12) + TABLE_TOP_Z
+    v = throw(robot.aim(np.stack([np.zeros_like(probe), probe], -1))).velocity_at_plane
+    impact_deg = float(np.degrees(np.arctan2(v[:, 2], v[:, 0])).mean())
+    angle_deg = [math.degrees(math.atan2(vz, vx)) for vx, vz in cans.ANGLES]
+    angle = int(np.argmin([abs(a - impact_deg) for a in angle_deg]))
+    can = fit_can_network(data, angle)
+    why = {
+        "robot_impact_deg_mean": impact_deg,
+        "angle_deg": dict(zip(cans.ANGLE_NAMES, angle_deg, strict=True)),
+        "chosen_angle": cans.ANGLE_NAMES[angle],
+    }
+    return World(can, robot, frozenset(stable_configurations())), why
+
+
+def transition_model(world: World, states: list[int]) -> torch.Tensor:
+    """``T[s, f, s']``: the learned chance that aiming at field ``f`` from ``s`` gives ``s'``.
+
+    The hit's height is drawn from the throw network's predicted Gaussian and read as the
+    field whose matched near-face height (:meth:`World.heights`) is nearest to it; a hit
+    outside the can band leaves the state unchanged. States the can network never saw as
+    a start get no actions (their rows stay zero).
+    """
+    index = {s: i for i, s in enumerate(states)}
+    t = torch.zeros(len(states), cans.N_FIELDS, len(states), dtype=torch.float64)
+    can_states = world.can.states
+    settled_index = [index.get(settle(end, world.stable), -1) for end in can_states]
+    for s in states:
+        if s not in can_states:
+            continue
+        heights = world.heights(s)
+        fields = np.flatnonzero(world.can.throwable.numpy())
+        order = fields[np.argsort(heights[fields])]
+        edges = (heights[order][1:] + heights[order][:-1]) / 2
+        desired = np.stack([np.zeros(len(order)), heights[order] + TABLE_TOP_Z], -1)
+        mean, cov = world.robot.hit_distribution(world.robot.aim(desired))
+        # chance that the hit's height falls in each field's slice: (aimed, hit) over `order`
+        height = torch.distributions.Normal(
+            torch.as_tensor(mean[:, 1] - TABLE_TOP_Z)[:, None],
+            torch.as_tensor(np.sqrt(cov[:, 1, 1]))[:, None],
+        )
+        bounds = torch.as_tensor(np.concatenate([[-np.inf], edges, [np.inf]]))
+        p_field = height.cdf(bounds[None, 1:]) - height.cdf(bounds[None, :-1])
+        lateral = torch.distributions.Normal(
+            torch.as_tensor(mean[:, 0]), torch.as_tensor(np.sqrt(cov[:, 0, 0]))
+        )
+        p_band = lateral.cdf(torch.tensor(CAN_BAND)) - lateral.cdf(torch.tensor(-CAN_BAND))
+        probs = world.can.end_config_probs(s, order).double()  # (hit field, network state)
+        settled = torch.zeros(len(order), len(states), dtype=torch.float64)
+        for j, target in enumerate(settled_index):
+            if target >= 0:
+                settled[:, target] += probs[:, j]
+        outcome = p_band[:, None] * (p_field @ settled)  # (aimed, s')
+        outcome[:, index[s]] += 1 - p_band
+        t[index[s], torch.as_tensor(order)] = outcome
+    return t
+
+
+def run_scenario(world: World, name: str, args) -> dict:
+    removed = SCENARIOS[name]
+    start = cans.FULL_PYRAMID
+    goal = start & ~cans.cans_to_mask(removed)
+    to_set = lambda mask: frozenset(cans.mask_to_cans(mask))  # noqa: E731
+    to_mask = cans.cans_to_mask
+    # the learned transitions over every physically possible superset of the goal
+    states = sorted(s for s in world.stable if s & goal == goal)
+    t = transition_model(world, states)
+
+    def propose(s, g):
+        if args.proposals == "can":  # the paper's: the can network alone
+            return world.proposals(to_mask(s), to_mask(g))
+        # the combined model's most probable outcome of aiming at each field
+        s, g = to_mask(s), to_mask(g)
+        if s not in states or g not in states:
+            return []
+        row = t[states.index(s)]
+        failure = 1 - row.sum(-1)  # mass on states that lost a goal can
+        ok = (
+            (row.sum(-1) > 0)
+            & (row.argmax(-1) == states.index(g))
+            & (row[:, states.index(g)] > failure)
+        )
+        return ok.nonzero().flatten().tolist()
+
+    rounds, rate = paper_planner(
+        to_set(start), to_set(goal), propose, lambda s, f: to_set(world.play(to_mask(s), f))
+    )
+    names = {r.state: f"round {i + 1}" for i, r in enumerate(rounds)}
+    plan = exact_plan(t, states.index(goal), args.horizon, allowed=t.sum(-1) > 0)
+    successes = 0
+    for _ in range(args.episodes):
+        state = start
+        for h in range(args.horizon, 0, -1):
+            state = world.play(state, int(plan.policy[h, states.index(state)]))
+            if state == goal or state & goal != goal:
+                break
+        successes += state == goal
+    return {
+        "success_rate": rate,
+        "paper_success_rate": PAPER_RATES[name],
+        "rounds": [r.as_dict(names) for r in rounds],
+        "success_rate_exact_planner": successes / args.episodes,
+        "exact_planner_predicted": float(plan.value[args.horizon, states.index(start)]),
+        "exact_planner_first_field": int(plan.policy[args.horizon, states.index(start)]),
+    }
+
+
+def table_markdown(name: str, s: dict) -> str:
+    rows = s["rounds"]
+    head = "| round | " + " | ".join(str(i + 1) for i in range(len(rows))) + " |"
+    lines = [
+        f"**{TABLES[name]}: {name.replace('_', ' ')}** (paper: {100 * s['paper_success_rate']:.2f} %)",
+        "",
+        head,
+        "|---" * (len(rows) + 1) + "|",
+    ]
+    for key, label in (
+        ("cans_to_throw", "cans to throw"),
+        ("actions", "actions"),
+        ("success", "success (i)"),
+        ("fail_too_many", "fail (ii)"),
+        ("fail_no_hit", "fail (iii)"),
+    ):
+        lines.append(f"| {label} | " + " | ".join(str(r[key]) for r in rows) + " |")
+    inter = [", ".join(f"{k} ({t})" for t, k in r["intermediate"].items()) or "-" for r in rows]
+    lines.append("| interm. (iv) | " + " | ".join(inter) + " |")
+    lines.append(
+        "| success rate | " + " | ".join(f"{100 * r['success_rate']:.2f} %" for r in rows) + " |"
+    )
+    lines.append("")
+    lines.append(
+        f"Exact planner: {100 * s['success_rate_exact_planner']:.1f} % measured "
+        f"({100 * s['exact_planner_predicted']:.1f} % predicted by the models)."
+    )
+    return "\n".join(lines)
+
+
+def main(args: argparse.Namespace) -> dict:
+    torch.set_num_threads(1)
+    started = time.perf_counter()
+    data = can_dataset(Path(args.data_dir), args.scale, progress=not args.quiet)
+    world, why = build_world(args, data)
+    print(
+        f"robot impact direction {why['robot_impact_deg_mean']:.1f} deg; can network trained on "
+        f"{why['chosen_angle']} ({why['angle_deg'][why['chosen_angle']]:.1f} deg), the closest"
+    )
+    scenarios = {}
+    for name in tqdm(SCENARIOS, desc="scenarios", disable=args.quiet):
+        scenarios[name] = run_scenario(world, name, args)
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    result = {
+        "scenarios": scenarios,
+        "angle_choice": why,
+        "release_noise": args.noise,
+        "proposals": args.proposals,
+        "scale": args.scale,
+        "seconds": time.perf_counter() - started,
+    }
+    (out / "combined.json").write_text(json.dumps(result, indent=2))
+    markdown = "\n\n".join(table_markdown(n, s) for n, s in scenarios.items())
+    (out / "combined.md").write_text(markdown + "\n")
+    print(markdown)
+    print(f"\n{'scenario':<12}{'paper':>9}{'ours (paper planner)':>22}{'ours (exact planner)':>22}")
+    for n, s in scenarios.items():
+        print(
+            f"{n:<12}{100 * s['paper_success_rate']:>8.2f}%{100 * s['success_rate']:>21.2f}%{100 * s['success_rate_exact_planner']:>21.1f}%"
+        )
+    return result
+
+
+def parse_args(argv=None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--scale", choices=("full", "quick", "tiny"), default="full")
+    parser.add_argument("--data-dir", default="data")
+    parser.add_argument("--out", default="results")
+    parser.add_argument(
+        "--n-throws", type=int, default=29_000, help="throws to train the throw network"
+    )
+    parser.add_argument("--bins", type=int, default=16, help="throw-network clusters per axis")
+    parser.add_argument("--horizon", type=int, default=6, help="throws the exact planner may use")
+    parser.add_argument(
+        "--episodes", type=int, default=50, help="plays of the exact planner's policy"
+    )
+    parser.add_argument(
+        "--noise",
+        action="store_true",
+        help="throw with release noise (0.5 deg, 2 %%; default: none)",
+    )
+    parser.add_argument(
+        "--proposals",
+        choices=("combined", "can"),
+        default="can",
+        help="paper planner's actions: most probable outcome under the can and throw networks "
+        "together (aiming with the robot's scatter), or under the can network alone (the paper's)",
+    )
+    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--quiet", action="store_true")
+    return parser.parse_args(argv)
+
+
+if __name__ == "__main__":
+    main(parse_args())
