@@ -34,7 +34,16 @@ def test_first_contact_meets_the_first_can_on_the_path():
 
 def test_tiny_run_end_to_end(tmp_path):
     args = combined.parse_args(
-        ["--scale", "tiny", "--data-dir", str(tmp_path), "--out", str(tmp_path), "--n-throws", "3000"]
+        [
+            "--scale",
+            "tiny",
+            "--data-dir",
+            str(tmp_path),
+            "--out",
+            str(tmp_path),
+            "--n-throws",
+            "3000",
+        ]
         + ["--bins", "6", "--episodes", "2", "--horizon", "2", "--quiet"]
     )
     result = combined.main(args)
@@ -44,8 +53,8 @@ def test_tiny_run_end_to_end(tmp_path):
         assert 0.0 <= s["success_rate"] <= 1.0 and 0.0 <= s["success_rate_exact_planner"] <= 1.0
         assert 0.0 <= s["exact_planner_predicted"] <= 1.0 + 1e-9
         first = s["rounds"][0]
-        assert first["actions"] == first["success"] + first["fail_too_many"] + first["fail_no_hit"] + sum(
-            first["intermediate"].values()
-        )
+        assert first["actions"] == first["success"] + first["fail_too_many"] + first[
+            "fail_no_hit"
+        ] + sum(first["intermediate"].values())
     assert saved["angle_choice"]["chosen_angle"] in cans.ANGLE_NAMES
     assert (tmp_path / "combined.md").read_text().count("success rate") == 3
