@@ -145,5 +145,9 @@ def test_main_runs_at_tiny_scale(ex, tiny, tmp_path):
     assert saved["paper"]["n_cases"] == 8603
     assert set(saved["table_one"]) == {"counts", "actions"}
     assert 0.0 <= saved["emulation"]["same_end_config"] <= 1.0
+    imitation = saved["imitation"]
+    assert len(imitation["surprise"]) == imitation["n_throws"] == 30
+    # a throw that failed against the usual outcomes also failed against the unperturbed one
+    assert not np.any(np.array(imitation["failed_ordinary"]) & ~np.array(imitation["failed"]))
     assert (tmp_path / "out" / "can_tossing.md").read_text().count("\n| ") >= 9
     assert (tmp_path / "out" / "can_tossing_table1.png").stat().st_size > 10_000
