@@ -18,7 +18,7 @@ from dataclasses import dataclass, field
 import torch
 from pyro import poutine
 
-from inference.queries import ActionPosterior, ParameterPosterior
+from inference.queries import ActionPosterior, ParameterPosterior, first_best
 from models.declaration import (
     ACTION,
     DTYPE,
@@ -163,7 +163,7 @@ class CompiledNetwork:
         if avoid_unseen and bool((unseen_mass >= 0.5).any()):
             seen_score = score.masked_fill(unseen_mass >= 0.5, -1.0)
             score = torch.where(seen_score.max(-1, keepdim=True).values >= 0, seen_score, score)
-        best = score.argmax(-1)
+        best = first_best(score)
         names = tuple(self.net.actions[i] for i in best.tolist())
         return ActionPosterior(probs, best, names, log_evidence, unseen_mass)
 

@@ -105,6 +105,16 @@ class ParameterPosterior:
     unseen: torch.Tensor
 
 
+TIE_TOLERANCE = 1e-9  # relative: scores this close to the maximum count as tied
+
+
+def first_best(score: torch.Tensor) -> torch.Tensor:
+    """``(n,)`` index of the best score per row; among ties (within a relative
+    ``TIE_TOLERANCE`` of the maximum, so that rounding does not decide) the lowest index."""
+    top = score.max(-1, keepdim=True).values
+    return (score >= top - TIE_TOLERANCE * top.abs()).int().argmax(-1)
+
+
 def _prepare(
     net: EffectNetwork, params: NetworkParams, evidence: Mapping[str, object]
 ) -> dict[str, torch.Tensor]:
@@ -234,7 +244,7 @@ def infer_action(
     if avoid_unseen:
         seen_score = torch.where(unseen < 0.5, score, -1.0)
         score = torch.where((seen_score.max(-1, keepdim=True).values >= 0), seen_score, score)
-    best = score.argmax(-1)
+    best = first_best(score)
     return ActionPosterior(
         probs, best, tuple(net.actions[i] for i in best.tolist()), log_evidence, unseen
     )

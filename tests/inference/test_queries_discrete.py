@@ -178,3 +178,13 @@ def test_unseen_configuration_is_reported():
         net, params, {"initial.f0": torch.tensor([1, 0]), "action": torch.tensor([2, 2])}
     )
     assert pred.unseen.tolist() == [1.0, 0.0]
+
+
+def test_ties_go_to_the_lowest_index_whatever_the_rounding():
+    from inference.queries import first_best
+
+    score = torch.tensor(
+        [[0.2, 0.4, 0.4 * (1 + 1e-12), 0.1], [0.5, 0.5 * (1 - 1e-12), 0.0, 0.0]], dtype=DTYPE
+    )
+    assert first_best(score).tolist() == [1, 0]
+    assert first_best(torch.tensor([[0.1, 0.3, 0.2]], dtype=DTYPE)).tolist() == [1]
