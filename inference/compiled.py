@@ -135,10 +135,14 @@ class CompiledNetwork:
         if len(plan.latent) > 1:
             total = total.movedim(a, -1)
         total = total.reshape(n, -1, len(self.net.actions))  # (n, others, A)
+        top = None
         if total.shape[1] == 1:
             log_joint = total[:, 0]
-            log_evidence = log_joint.logsumexp(-1)
             probs = log_joint.softmax(-1)
+            # log p(e) = log p(a*, e) - log p(a* | e) at the most probable a*: exact, and
+            # cheaper than a second pass (logsumexp)
+            top, arg = probs.max(-1)
+            log_evidence = log_joint.gather(-1, arg[:, None]).squeeze(-1) - top.log()
         else:
             log_marginal = total.logsumexp(1)
             log_evidence = log_marginal.logsumexp(-1)
@@ -156,14 +160,16 @@ class CompiledNetwork:
                 joint = (total - log_evidence[:, None, None]).exp() * miss
                 unseen_mass = (joint.sum(1) / probs.clamp_min(1e-300)).clamp(0, 1)
         score = probs
+        if allowed is not None or plan.unseen is not None:
+            top = None  # the maximum of the score, not of probs
         if allowed is not None:
             score = score.masked_fill(
                 ~torch.as_tensor(allowed, dtype=torch.bool).expand_as(score), -1.0
             )
-        if avoid_unseen and bool((unseen_mass >= 0.5).any()):
+        if avoid_unseen and plan.unseen is not None and bool((unseen_mass >= 0.5).any()):
             seen_score = score.masked_fill(unseen_mass >= 0.5, -1.0)
             score = torch.where(seen_score.max(-1, keepdim=True).values >= 0, seen_score, score)
-        best = first_best(score)
+        best = first_best(score, top)
         names = tuple(self.net.actions[i] for i in best.tolist())
         return ActionPosterior(probs, best, names, log_evidence, unseen_mass)
 

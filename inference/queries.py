@@ -108,11 +108,12 @@ class ParameterPosterior:
 TIE_TOLERANCE = 1e-9  # relative: scores this close to the maximum count as tied
 
 
-def first_best(score: torch.Tensor) -> torch.Tensor:
+def first_best(score: torch.Tensor, top: torch.Tensor | None = None) -> torch.Tensor:
     """``(n,)`` index of the best score per row; among ties (within a relative
-    ``TIE_TOLERANCE`` of the maximum, so that rounding does not decide) the lowest index."""
-    top = score.max(-1, keepdim=True).values
-    return (score >= top - TIE_TOLERANCE * top.abs()).int().argmax(-1)
+    ``TIE_TOLERANCE`` of the maximum, so that rounding does not decide) the lowest index.
+    ``top``: the rows' maxima ``(n,)``, if already known."""
+    top = score.max(-1).values if top is None else top
+    return (score >= (top - TIE_TOLERANCE * top.abs())[:, None]).int().argmax(-1)
 
 
 def _prepare(

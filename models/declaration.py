@@ -370,7 +370,11 @@ class EffectNetwork:
             and not value.is_floating_point()
             and value.dtype != torch.bool
         ):
-            index = value.long().reshape(-1)
+            index = (
+                value
+                if value.dtype == torch.long and value.dim() == 1
+                else value.long().reshape(-1)
+            )
             if index.numel():
                 low, high = (int(v) for v in torch.aminmax(index))
                 if low < 0 or high >= spec.size:
