@@ -141,12 +141,7 @@ def fit_gradient(
     ``sites`` limits the fitted CPDs (the others stay at ``init``); ``init`` defaults to
     uniform tables, standard Gaussians and zero softmax weights.
     """
-    enc = (
-        data
-        if all(isinstance(v, torch.Tensor) for v in data.values())
-        and set(data) == {s.name for s in net.sites}
-        else _complete(net, data)
-    )
+    enc = _complete(net, data)  # idempotent on rows it already encoded
     n = _rows(enc)
     init = init or _default_params(net, enc, pseudo_count)
     sites = list(init.cpds) if sites is None else sites
@@ -346,9 +341,6 @@ def _closed_form(
         cpds[c_site] = Table(probs, table.n)
         cpds[p_site] = _linear_gaussian(
             enc[c_site][uses], None, enc[p_site][uses], (p.n_clusters,), alpha, min_variance
-        )
-        cpds[p_site] = LinearGaussian(
-            cpds[p_site].weight, cpds[p_site].bias, cpds[p_site].scale_tril, cpds[p_site].n
         )
     for f in net.features:
         site = end_site(f.name)
