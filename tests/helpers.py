@@ -2,6 +2,10 @@
 
 from __future__ import annotations
 
+import importlib
+import sys
+from pathlib import Path
+
 import torch
 
 from models import (
@@ -52,9 +56,19 @@ def random_params(net: EffectNetwork, seed: int, *, zero_n: float = 0.0) -> Netw
     return NetworkParams(cpds, 0.01)
 
 
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+
+
+def load_example(name: str):
+    """Import ``examples/<name>.py`` as a module (its sibling modules importable too)."""
+    if str(EXAMPLES) not in sys.path:
+        sys.path.insert(0, str(EXAMPLES))
+    return importlib.import_module(name)
+
+
 def discrete_network(cards: list[int], n_actions: int) -> EffectNetwork:
     feats = tuple(Discrete(f"f{i}", tuple(range(k))) for i, k in enumerate(cards))
     return EffectNetwork(feats, tuple(f"a{i}" for i in range(n_actions)))
 
 
-__all__ = ["Continuous", "discrete_network", "random_params"]
+__all__ = ["Continuous", "discrete_network", "load_example", "random_params"]

@@ -1,7 +1,6 @@
 """The can-tossing example: Table I's cases on a hand-made slice, its bookkeeping against
 independent re-throws, and the whole script at the tiny scale."""
 
-import importlib.util
 import json
 from pathlib import Path
 from types import SimpleNamespace
@@ -11,15 +10,9 @@ import pytest
 
 from inference.evaluation import ACCURACY_BINS
 from sim2d import cans
+from tests.helpers import load_example
 
 ROOT = Path(__file__).resolve().parents[2]
-
-
-def load_example(name):
-    spec = importlib.util.spec_from_file_location(name, ROOT / "examples" / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 @pytest.fixture(scope="module")

@@ -1,17 +1,16 @@
 """The combined example: its rules on hand-made cases, and an end-to-end run at tiny scale."""
 
 import json
-import sys
 from pathlib import Path
 
 import pytest
 
 from sim2d import cans
 from sim2d.configurations import stable_configurations
+from tests.helpers import load_example
 
 ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT / "examples"))
-import combined  # noqa: E402
+combined = load_example("combined")
 
 
 def test_settle_keeps_stable_sets_and_drops_unsupported_cans():

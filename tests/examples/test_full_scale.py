@@ -7,16 +7,15 @@ from pathlib import Path
 
 import pytest
 
+from tests.helpers import load_example
+
 ROOT = Path(__file__).resolve().parents[2]
-sys.path.insert(0, str(ROOT / "examples"))
 
 pytestmark = pytest.mark.slow
 
 
 def test_throwing_at_full_scale_beats_one_centimetre(tmp_path):
-    import throwing
-
-    result = throwing.main(["--out", str(tmp_path)])
+    result = load_example("throwing").main(["--out", str(tmp_path)])
     assert result["rms_y_m"] < 0.010 and result["rms_z_m"] < 0.010
     assert result["rms_y_m"] < result["rms_y_m_single_gaussian"]
 

@@ -1,24 +1,15 @@
 """examples/throwing.py runs end to end with tiny arguments."""
 
-import importlib.util
 import json
-from pathlib import Path
 
 import torch
 
-EXAMPLE = Path(__file__).resolve().parents[2] / "examples" / "throwing.py"
-
-
-def load_example():
-    spec = importlib.util.spec_from_file_location("throwing_example", EXAMPLE)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+from tests.helpers import load_example
 
 
 def test_throwing_example_runs_and_writes_its_results(tmp_path):
     threads = torch.get_num_threads()
-    summary = load_example().main(
+    summary = load_example("throwing").main(
         ["--n-train", "600", "--n-test", "60", "--bins", "1", "3", "--seed", "3"]
         + ["--out", str(tmp_path)]
     )

@@ -1,10 +1,8 @@
 """Tests of the can world (sim2d/cans.py): geometry, physics invariants, outcomes, errors."""
 
-import importlib.util
 import math
 import subprocess
 import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -13,6 +11,7 @@ from hypothesis import strategies as st
 
 from sim2d import cans
 from sim2d.configurations import stable_configurations
+from tests.helpers import load_example
 
 FULL = cans.FULL_PYRAMID
 BOTTOM_ROW = cans.cans_to_mask([0, 1, 2, 3])
@@ -246,12 +245,7 @@ def test_sim2d_can_world_imports_neither_torch_nor_pyro_nor_matplotlib():
 
 
 def test_example_runs_with_tiny_arguments(tmp_path):
-    spec = importlib.util.spec_from_file_location(
-        "can_world_example", Path(__file__).parents[2] / "examples" / "can_world.py"
-    )
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    files = module.main(["--out", str(tmp_path), "--frame-interval", "0.25"])
+    files = load_example("can_world").main(["--out", str(tmp_path), "--frame-interval", "0.25"])
     assert set(files) == {"pyramid", "throw", "gif"}
     for path in files.values():
         assert path.exists() and path.stat().st_size > 1000

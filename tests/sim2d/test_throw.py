@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import importlib.util
 import subprocess
 import sys
 from pathlib import Path
@@ -31,6 +30,7 @@ from sim2d.throw import (
     sample_targets,
     throw,
 )
+from tests.helpers import load_example
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -332,12 +332,9 @@ def test_sim2d_throw_imports_neither_torch_nor_pyro_nor_matplotlib():
 
 
 def test_example_runs_with_tiny_arguments(tmp_path):
-    spec = importlib.util.spec_from_file_location(
-        "throw_kinematics_example", ROOT / "examples" / "throw_kinematics.py"
+    summary = load_example("throw_kinematics").main(
+        ["--out", str(tmp_path), "--grid", "3", "--n", "500"]
     )
-    example = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(example)
-    summary = example.main(["--out", str(tmp_path), "--grid", "3", "--n", "500"])
     assert (tmp_path / "target_to_hit.png").stat().st_size > 0
     assert (tmp_path / "flight_paths.png").stat().st_size > 0
     assert 0.0 < summary["clamped_share"] < 1.0
