@@ -15,10 +15,10 @@ from __future__ import annotations
 
 import argparse
 import platform
-import statistics
 import time
 
 import torch
+from timing import median_seconds  # benchmarks/timing.py, beside this script
 
 from inference import fit, infer_action
 from inference.compiled import compile_discrete
@@ -40,17 +40,6 @@ def random_rows(n: int, seed: int) -> dict[str, torch.Tensor]:
         "end.config": torch.randint(0, 42, (n,), generator=g),
         "end.count": torch.randint(0, 11, (n,), generator=g),
     }
-
-
-def timed(fn, repeats: int) -> float:
-    """Median wall time of ``fn()`` in seconds."""
-    fn()  # warm-up
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - t0)
-    return statistics.median(times)
 
 
 def pgmpy_network(params):
@@ -83,7 +72,7 @@ def main(args: argparse.Namespace) -> dict[str, float]:
     torch.set_num_threads(args.threads)
     net = network()
     rows = random_rows(74_000, 0)
-    fit_s = timed(lambda: fit(net, rows), 7)
+    fit_s = median_seconds(lambda: fit(net, rows), 7)
     params = fit(net, rows).params
     compiled = compile_discrete(net, params)
     queries = random_rows(args.n_queries, 1)
@@ -102,12 +91,16 @@ def main(args: argparse.Namespace) -> dict[str, float]:
     n = args.n_queries
     figures = {
         "fit_74000_rows_ms": fit_s * 1e3,
-        "raw_gather_batched_us": timed(lambda: raw(evidence), 20) / n * 1e6,
-        "compiled_batched_us": timed(lambda: compiled.infer_action(evidence), 20) / n * 1e6,
-        "traced_batched_us": timed(lambda: infer_action(net, params, evidence), 5) / n * 1e6,
-        "raw_gather_single_us": timed(lambda: raw(one), 200) * 1e6,
-        "compiled_single_us": timed(lambda: compiled.infer_action(one), 200) * 1e6,
-        "traced_single_us": timed(lambda: infer_action(net, params, one), 50) * 1e6,
+        "raw_gather_batched_us": median_seconds(lambda: raw(evidence), 20) / n * 1e6,
+        "compiled_batched_us": median_seconds(lambda: compiled.infer_action(evidence), 20)
+        / n
+        * 1e6,
+        "traced_batched_us": median_seconds(lambda: infer_action(net, params, evidence), 5)
+        / n
+        * 1e6,
+        "raw_gather_single_us": median_seconds(lambda: raw(one), 200) * 1e6,
+        "compiled_single_us": median_seconds(lambda: compiled.infer_action(one), 200) * 1e6,
+        "traced_single_us": median_seconds(lambda: infer_action(net, params, one), 50) * 1e6,
     }
     ours = compiled.infer_action(evidence)
     ref, ref_best = raw(evidence)

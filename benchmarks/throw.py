@@ -20,12 +20,11 @@ import cProfile
 import os
 import platform
 import pstats
-import statistics
-import time
 
 import numpy as np
 import pyro
 import torch
+from timing import median_seconds  # benchmarks/timing.py, beside this script
 
 from inference import fit, infer_parameter
 from inference.compiled import compile_parameter_query
@@ -33,17 +32,6 @@ from models.throw_network import TARGET, throw_data, throw_network
 from sim2d.throw import sample_targets, throw
 
 GOALS_S = {"fit": 50e-3, "batched": 10e-6, "single": 200e-6}
-
-
-def median_seconds(fn, repeats: int) -> float:
-    """Median wall time of ``fn()`` over ``repeats`` calls, after one warm-up call."""
-    fn()
-    times = []
-    for _ in range(repeats):
-        start = time.perf_counter()
-        fn()
-        times.append(time.perf_counter() - start)
-    return statistics.median(times)
 
 
 def machine() -> str:
