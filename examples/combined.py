@@ -6,18 +6,13 @@ chained: the can network (Fig. 2) picks the field to hit, the throw network (Fig
 turns that hit point into the point the robot aims at, and the robot's throw is played
 through its kinematics into the can world.
 
-Set-up (DESIGN.md "Combined system"): the pyramid's near face stands at x = 2 m in the
-plane y = 0 on a table whose top is ``TABLE_TOP_Z`` above the robot's floor. A field's
-hit point is where the can network's training throw through that field crosses the near
-face (the can network was trained on that angle's parabolas). A throw whose hit point
-lies within the can depth (``|y| <= CAN_BAND``) enters the can world there with its
-in-plane velocity; otherwise it hits no can. The can network is trained on the angle
-whose direction is closest to the robot's measured impact direction.
-
-Intermediate states (recorded rule): after a throw the remaining cans are put back at
-their standard positions; if that set is not physically possible, the cans that cannot
-stand fall too: the state is the largest physically possible subset of the remaining
-cans (ties: the smallest mask).
+Set-up (:mod:`sim2d.combined`, DESIGN.md "Combined system"): the pyramid stands on a
+table ``--table-z`` above the robot's floor with its near face in the throw's target plane;
+a throw within the can depth enters the can world with its in-plane velocity, plus the can
+data set's aim jitter (``--jitter``); intermediate states follow the recorded settle rule.
+A field's hit point is where the can network's training throw through that field first
+meets the cans (the network was trained on that angle's parabolas). The can network is
+trained on the angle whose direction is closest to the robot's measured impact direction.
 
 Planners (:mod:`inference.planning`): the paper's round planner, whose actions in a
 round are the fields whose most probable end configuration is the (intermediate) goal;
@@ -27,6 +22,7 @@ network's predicted hit Gaussian) included; its success rate is measured by play
 policy ``--episodes`` times.
 
     python examples/combined.py [--scale full|quick|tiny] [--noise] [--proposals can|combined]
+                                [--table-z 0.75] [--jitter 0.003]
 """
 
 from __future__ import annotations
@@ -52,12 +48,10 @@ from inference.compiled import compile_parameter_query  # noqa: E402
 from inference.planning import exact_plan, paper_planner  # noqa: E402
 from models.throw_network import TARGET  # noqa: E402
 from sim2d import cans  # noqa: E402
+from sim2d.combined import CAN_BAND, TABLE_TOP_Z, first_contact, play_throw, settle  # noqa: E402
 from sim2d.configurations import stable_configurations  # noqa: E402
 from sim2d.throw import TARGET_AREA, ReleaseNoise, throw  # noqa: E402
 
-TABLE_TOP_Z = 0.75  # m in the robot's frame: a standard table; the pyramid (0.75-1.39 m) lies
-#                     inside the throw's reachable hits (0.35-1.63 m near y = 0)
-CAN_BAND = cans.CAN_WIDTH / 2 + cans.BALL_RADIUS  # m: |y| at which the ball still meets a can
 SCENARIOS = {
     "top_three": cans.TOP_THREE,
     "near_flank": cans.NEAR_FLANK,
@@ -65,37 +59,6 @@ SCENARIOS = {
 }
 PAPER_RATES = {"top_three": 0.5713, "near_flank": 0.6857, "far_flank": 0.5771}
 TABLES = {"top_three": "Table II", "near_flank": "Table III", "far_flank": "Table IV"}
-
-
-def first_contact(state: int, field: int, angle: int) -> tuple[float, float]:
-    """Where the training throw through ``field`` first meets a can of ``state`` (can frame).
-
-    The ball's centre path is sampled every millimetre of x up to the field centre; a can
-    is met when the centre enters the can's box grown by the ball's radius. A path that
-    meets no can is matched at the field centre.
-    """
-    (x0, z0), (vx, vz) = cans.launch_state(field, angle)
-    x_end, z_end = cans.field_centres()[field]
-    x = np.arange(cans.PYRAMID_X - cans.BALL_RADIUS, x_end, 1e-3)
-    t = (x - x0) / vx
-    z = z0 + vz * t - 0.5 * cans.GRAVITY * t * t
-    inside = np.zeros(len(x), dtype=bool)
-    for cx, cz in cans.can_positions()[list(cans.mask_to_cans(state))]:
-        inside |= (np.abs(x - cx) <= cans.CAN_WIDTH / 2 + cans.BALL_RADIUS) & (
-            np.abs(z - cz) <= cans.CAN_HEIGHT / 2 + cans.BALL_RADIUS
-        )
-    if inside.any():
-        i = int(np.argmax(inside))
-        return float(x[i]), float(z[i])
-    return float(x_end), float(z_end)
-
-
-def settle(mask: int, stable: frozenset[int]) -> int:
-    """The recorded intermediate-state rule: the largest physically possible subset."""
-    if mask in stable:
-        return mask
-    subsets = [s for s in stable if s & ~mask == 0]
-    return min(subsets, key=lambda s: (-bin(s).count("1"), s))
 
 
 @dataclass
@@ -128,6 +91,8 @@ class World:
     can: CanModel
     robot: Robot
     stable: frozenset[int]
+    table_z: float = TABLE_TOP_Z
+    jitter: float = 0.0  # m, the can data set's aim jitter added to every throw's entry height
     _heights: dict = field(default_factory=dict)
 
     def heights(self, state: int) -> np.ndarray:
@@ -142,7 +107,7 @@ class World:
             contact = np.array([first_contact(state, f, self.can.angle) for f in fields])
             z2 = contact[:, 1].copy()
             for _ in range(4):
-                aims = self.robot.aim(np.stack([np.zeros_like(z2), z2 + TABLE_TOP_Z], -1))
+                aims = self.robot.aim(np.stack([np.zeros_like(z2), z2 + self.table_z], -1))
                 v = throw(aims).velocity_at_plane
                 t = (contact[:, 0] - cans.PYRAMID_X) / v[:, 0]
                 z2 = contact[:, 1] - v[:, 2] * t + 0.5 * cans.GRAVITY * t * t
@@ -153,17 +118,18 @@ class World:
 
     def play(self, state: int, field: int) -> int:
         """Aim at ``field`` from ``state``, throw, play the ball into the cans; the next state."""
-        desired = np.array([[0.0, self.heights(state)[field] + TABLE_TOP_Z]])
+        desired = np.array([[0.0, self.heights(state)[field] + self.table_z]])
         result = throw(self.robot.aim(desired), rng=self.robot.rng, noise=self.robot.noise)
-        (y, z), (vx, _, vz) = result.hit[0], result.velocity_at_plane[0]
-        if abs(y) > CAN_BAND:
-            return state  # passes beside the pyramid
-        dt = (cans.PYRAMID_X - cans.ENTRY_X) / vx  # back to the entry line
-        z_entry = z - TABLE_TOP_Z - vz * dt - 0.5 * cans.GRAVITY * dt * dt
-        if z_entry < cans.BALL_RADIUS + 1e-3:
-            return state  # strikes the table top in front of the pyramid
-        outcome = cans.play_ball(state, (cans.ENTRY_X, z_entry), (vx, vz + cans.GRAVITY * dt))
-        return settle(outcome.end_config, self.stable)
+        seed = int(self.robot.rng.integers(2**32))
+        return play_throw(
+            state,
+            result.hit[0],
+            result.velocity_at_plane[0],
+            table_z=self.table_z,
+            jitter=self.jitter,
+            seed=seed,
+            stable=self.stable,
+        )
 
     def proposals(self, state: int, goal: int) -> list[int]:
         """The paper's actions: fields whose most probable end configuration is ``goal``."""
@@ -184,7 +150,7 @@ def build_world(args, data) -> tuple[World, dict]:
     net, params, _ = fit_throws((args.bins, args.bins), targets, hits)
     robot = Robot(compile_parameter_query(net, params, TARGET), net, params, noise, rng)
     # the robot's impact direction at the pyramid, throwing at every field height
-    probe = np.linspace(0.05, cans.PYRAMID_HEIGHT, 12) + TABLE_TOP_Z
+    probe = np.linspace(0.05, cans.PYRAMID_HEIGHT, 12) + args.table_z
     v = throw(robot.aim(np.stack([np.zeros_like(probe), probe], -1))).velocity_at_plane
     impact_deg = float(np.degrees(np.arctan2(v[:, 2], v[:, 0])).mean())
     angle_deg = [math.degrees(math.atan2(vz, vx)) for vx, vz in cans.ANGLES]
@@ -195,7 +161,9 @@ def build_world(args, data) -> tuple[World, dict]:
         "angle_deg": dict(zip(cans.ANGLE_NAMES, angle_deg, strict=True)),
         "chosen_angle": cans.ANGLE_NAMES[angle],
     }
-    return World(can, robot, frozenset(stable_configurations())), why
+    jitter = data.metadata["jitter"] if args.jitter is None else args.jitter
+    world = World(can, robot, frozenset(stable_configurations()), args.table_z, jitter)
+    return world, why | {"table_z": args.table_z, "jitter": jitter}
 
 
 def transition_model(world: World, states: list[int]) -> torch.Tensor:
@@ -217,11 +185,11 @@ def transition_model(world: World, states: list[int]) -> torch.Tensor:
         fields = np.flatnonzero(world.can.throwable.numpy())
         order = fields[np.argsort(heights[fields])]
         edges = (heights[order][1:] + heights[order][:-1]) / 2
-        desired = np.stack([np.zeros(len(order)), heights[order] + TABLE_TOP_Z], -1)
+        desired = np.stack([np.zeros(len(order)), heights[order] + world.table_z], -1)
         mean, cov = world.robot.hit_distribution(world.robot.aim(desired))
         # chance that the hit's height falls in each field's slice: (aimed, hit) over `order`
         height = torch.distributions.Normal(
-            torch.as_tensor(mean[:, 1] - TABLE_TOP_Z)[:, None],
+            torch.as_tensor(mean[:, 1] - world.table_z)[:, None],
             torch.as_tensor(np.sqrt(cov[:, 1, 1]))[:, None],
         )
         bounds = torch.as_tensor(np.concatenate([[-np.inf], edges, [np.inf]]))
@@ -327,7 +295,8 @@ def main(args: argparse.Namespace) -> dict:
     world, why = build_world(args, data)
     print(
         f"robot impact direction {why['robot_impact_deg_mean']:.1f} deg; can network trained on "
-        f"{why['chosen_angle']} ({why['angle_deg'][why['chosen_angle']]:.1f} deg), the closest"
+        f"{why['chosen_angle']} ({why['angle_deg'][why['chosen_angle']]:.1f} deg), the closest; "
+        f"table top {why['table_z']} m, aim jitter {1000 * why['jitter']:.1f} mm"
     )
     scenarios = {}
     for name in tqdm(SCENARIOS, desc="scenarios", disable=args.quiet):
@@ -380,6 +349,15 @@ def parse_args(argv=None) -> argparse.Namespace:
         default="can",
         help="paper planner's actions: most probable outcome under the can and throw networks "
         "together (aiming with the robot's scatter), or under the can network alone (the paper's)",
+    )
+    parser.add_argument(
+        "--table-z", type=float, default=TABLE_TOP_Z, help="table top above the floor, m"
+    )
+    parser.add_argument(
+        "--jitter",
+        type=float,
+        default=None,
+        help="aim jitter added to every throw's entry height, m (default: the data set's)",
     )
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--quiet", action="store_true")

@@ -3,32 +3,11 @@
 import json
 from pathlib import Path
 
-import pytest
-
 from sim2d import cans
-from sim2d.configurations import stable_configurations
 from tests.helpers import load_example
 
 ROOT = Path(__file__).resolve().parents[2]
 combined = load_example("combined")
-
-
-def test_settle_keeps_stable_sets_and_drops_unsupported_cans():
-    stable = frozenset(stable_configurations())
-    assert combined.settle(cans.FULL_PYRAMID, stable) == cans.FULL_PYRAMID
-    lone_top = cans.cans_to_mask([0, 1, 2, 3, 9])  # the top can with nothing under it
-    settled = combined.settle(lone_top, stable)
-    assert settled in stable and settled & ~lone_top == 0
-    assert settled == cans.cans_to_mask([0, 1, 2, 3])
-
-
-def test_first_contact_meets_the_first_can_on_the_path():
-    # a flat throw through row 1 of the near column meets can 0 at its near face
-    x, z = combined.first_contact(cans.FULL_PYRAMID, 1 * cans.N_COLUMNS + 0, 0)
-    cx, cz = cans.can_positions()[0]
-    assert x == pytest.approx(cx - cans.CAN_WIDTH / 2 - cans.BALL_RADIUS, abs=2e-3)
-    # with no cans the path is matched at the field centre
-    assert combined.first_contact(0, 100, 0) == pytest.approx(tuple(cans.field_centres()[100]))
 
 
 def test_tiny_run_end_to_end(tmp_path):

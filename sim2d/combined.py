@@ -1,0 +1,146 @@
+r"""The combined scene (paper §IV-C): the robot's throw played into the can pyramid.
+
+DESIGN.md "Combined system": the pyramid's near face stands at x = 2 m (the throw's target
+plane) in the plane y = 0, on a table whose top is ``table_z`` above the robot's floor. A
+throw whose hit point lies within the can depth (``|y| <= CAN_BAND``) enters the can world
+at its hit height with its in-plane velocity; otherwise it hits no can. The ball is run
+back ballistically from the plane to the can world's entry line (0.1 m in front of the
+near face) and played from there.
+
+Intermediate states (the recorded rule, DESIGN.md): after a throw the remaining cans are
+put back at their standard positions; if that set is not physically possible, the cans
+that cannot stand fall too: the state is the largest physically possible subset of the
+remaining cans (ties: the smallest mask).
+
+Everything here is physics and geometry; nothing is learned.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+
+import numpy as np
+
+from sim2d import cans
+from sim2d.configurations import stable_configurations
+from sim2d.throw import exact_target_for_hit, is_reachable_hit, throw
+
+#: m, the table top above the robot's floor: a standard table. The pyramid then spans
+#: 0.75-1.39 m, inside the throw's reachable hits (0.35-1.63 m near y = 0).
+TABLE_TOP_Z = 0.75
+#: m, the largest |y| of a hit at which the ball still meets a can (half a can + ball radius)
+CAN_BAND = cans.CAN_WIDTH / 2 + cans.BALL_RADIUS
+
+
+def settle(mask: int, stable: Iterable[int] | None = None) -> int:
+    """The recorded intermediate-state rule: the largest physically possible subset of ``mask``.
+
+    ``stable`` defaults to :func:`sim2d.configurations.stable_configurations`.
+    """
+    stable = frozenset(stable_configurations() if stable is None else stable)
+    if mask in stable:
+        return mask
+    subsets = [s for s in stable if s & ~mask == 0]
+    return min(subsets, key=lambda s: (-bin(s).count("1"), s))
+
+
+def first_contact(state: int, field: int, angle: int) -> tuple[float, float]:
+    """Where the training throw through ``field`` first meets a can of ``state`` (can frame).
+
+    The ball's centre path is sampled every millimetre of x up to the field centre; a can
+    is met when the centre enters the can's box grown by the ball's radius. A path that
+    meets no can is matched at the field centre.
+    """
+    (x0, z0), (vx, vz) = cans.launch_state(field, angle)
+    x_end, z_end = cans.field_centres()[field]
+    x = np.arange(cans.PYRAMID_X - cans.BALL_RADIUS, x_end, 1e-3)
+    t = (x - x0) / vx
+    z = z0 + vz * t - 0.5 * cans.GRAVITY * t * t
+    inside = np.zeros(len(x), dtype=bool)
+    for cx, cz in cans.can_positions()[list(cans.mask_to_cans(state))]:
+        inside |= (np.abs(x - cx) <= cans.CAN_WIDTH / 2 + cans.BALL_RADIUS) & (
+            np.abs(z - cz) <= cans.CAN_HEIGHT / 2 + cans.BALL_RADIUS
+        )
+    if inside.any():
+        i = int(np.argmax(inside))
+        return float(x[i]), float(z[i])
+    return float(x_end), float(z_end)
+
+
+def entry_state(hit, velocity, *, table_z: float = TABLE_TOP_Z):
+    """The can world's ball state for a throw crossing the plane x = 2 m, or None if it misses.
+
+    Parameters
+    ----------
+    hit : (2,) float
+        ``[y, z]`` where the ball crosses the plane, robot frame (metres).
+    velocity : (3,) float
+        ``(vx, vy, vz)`` there (m/s).
+    table_z : float
+        Height of the table top in the robot frame.
+
+    Returns
+    -------
+    ((x, z), (vx, vz)) or None
+        Position and velocity at the entry line in the can frame; None when the ball passes
+        beside the pyramid (``|y| > CAN_BAND``) or would have struck the table top in front
+        of it.
+    """
+    (y, z), (vx, _, vz) = np.asarray(hit, float), np.asarray(velocity, float)
+    if abs(y) > CAN_BAND:
+        return None
+    dt = (cans.PYRAMID_X - cans.ENTRY_X) / vx  # back to the entry line
+    z_entry = z - table_z - vz * dt - 0.5 * cans.GRAVITY * dt * dt
+    if z_entry < cans.BALL_RADIUS + 1e-3:
+        return None
+    return (cans.ENTRY_X, z_entry), (vx, vz + cans.GRAVITY * dt)
+
+
+def play_throw(
+    state: int,
+    hit,
+    velocity,
+    *,
+    table_z: float = TABLE_TOP_Z,
+    jitter: float = 0.0,
+    seed: int | None = None,
+    stable: Iterable[int] | None = None,
+) -> int:
+    """Play one robot throw into ``state``; the next state (after :func:`settle`).
+
+    ``jitter`` (metres) adds the can data set's aim jitter to the entry height (normal,
+    clipped at 3 sd, seeded by ``seed``), standing in for the paper's simulation deviations.
+    """
+    entry = entry_state(hit, velocity, table_z=table_z)
+    if entry is None:
+        return state
+    (x, z), v = entry
+    if jitter:
+        offset = np.random.default_rng(seed).normal(0.0, jitter)
+        z = max(z + float(np.clip(offset, -3 * jitter, 3 * jitter)), cans.BALL_RADIUS + 1e-3)
+    outcome = cans.play_ball(state, (x, z), v)
+    return settle(outcome.end_config, stable)
+
+
+def exact_throws(step: float = 0.002, *, table_z: float = TABLE_TOP_Z):
+    """The robot's noise-free throws at every reachable height of the pyramid's face.
+
+    Aimed with the exact inverse kinematics (:func:`sim2d.throw.exact_target_for_hit`) at
+    ``y = 0`` and heights from the table top to a ball radius above the pyramid, every
+    ``step`` metres; heights the arm cannot reach are left out.
+
+    Returns
+    -------
+    heights : (n,) float
+        Hit heights above the table top (can frame).
+    result : sim2d.throw.ThrowResult
+        The throws (``hit``, ``velocity_at_plane``, ...).
+    """
+    if not step > 0:
+        raise ValueError(f"step = {step!r}: expected a positive number of metres")
+    heights = np.arange(0.0, cans.PYRAMID_HEIGHT + cans.BALL_RADIUS, step)
+    hits = np.stack([np.zeros_like(heights), heights + table_z], -1)
+    ok = is_reachable_hit(hits)
+    if not ok.any():
+        raise ValueError(f"table_z = {table_z}: the robot reaches no height of the pyramid")
+    return heights[ok], throw(exact_target_for_hit(hits[ok]))
