@@ -16,7 +16,8 @@ functions that propose actions and play them.
 * :func:`exact_plan` -- beyond the paper: with learned transition probabilities
   ``P(next state | state, action)`` the probability of reaching the goal within ``H``
   actions is maximised by finite-horizon dynamic programming (every state, every
-  action, exact sums).
+  action, exact sums). :func:`policy_value` evaluates a fixed policy under another
+  transition model (e.g. a plan made on one half of some simulations, scored on the other).
 """
 
 from __future__ import annotations
@@ -186,3 +187,33 @@ def exact_plan(
         value[h, goal] = 1.0
         value[h] = value[h].clamp_min(0.0)
     return ExactPlan(value, policy)
+
+
+def policy_value(
+    transition: torch.Tensor, policy: torch.Tensor, goal: int, horizon: int
+) -> torch.Tensor:
+    """``value[h, s]``: the probability that following ``policy`` from ``s`` reaches the goal
+    within ``h`` actions, under ``transition[s, a, s'] = P(s' | s, a)``.
+
+    ``policy`` is ``(H + 1, S)`` as in :class:`ExactPlan` (``H >= horizon``); a state whose
+    entry is ``-1`` has no action and never reaches the goal. Use it to evaluate a plan made
+    on one transition model under another (e.g. held-out simulations).
+    """
+    if transition.dim() != 3 or transition.shape[0] != transition.shape[2]:
+        raise ValueError(f"transition must have shape (S, A, S), got {tuple(transition.shape)}")
+    s = transition.shape[0]
+    if policy.dim() != 2 or policy.shape[0] < horizon + 1 or policy.shape[1] != s:
+        raise ValueError(
+            f"policy must have shape (>= {horizon + 1}, {s}), got {tuple(policy.shape)}"
+        )
+    if not 0 <= goal < s:
+        raise ValueError(f"goal index {goal} outside 0..{s - 1}")
+    value = torch.zeros(horizon + 1, s, dtype=transition.dtype)
+    value[0, goal] = 1.0
+    rows = torch.arange(s)
+    for h in range(1, horizon + 1):
+        act = policy[h]
+        q = transition[rows, act.clamp_min(0)] @ value[h - 1]
+        value[h] = torch.where(act >= 0, q, torch.zeros_like(q))
+        value[h, goal] = 1.0
+    return value

@@ -14,6 +14,7 @@ from inference.planning import (
     classify,
     exact_plan,
     paper_planner,
+    policy_value,
     success_rates,
 )
 
@@ -133,3 +134,29 @@ def test_exact_plan_rejects_bad_input():
         exact_plan(torch.ones(2, 1, 2) / 2, 5, 1)
     with pytest.raises(ValueError, match="subset"):
         paper_planner(frozenset("a"), frozenset("b"), lambda s, g: [], lambda s, a: s)
+
+
+def test_policy_value_of_the_optimal_policy_is_the_optimum():
+    g = torch.Generator().manual_seed(1)
+    t = torch.rand(4, 3, 4, generator=g, dtype=torch.float64)
+    t = t / t.sum(-1, keepdim=True)
+    plan = exact_plan(t, 2, 3)
+    torch.testing.assert_close(policy_value(t, plan.policy, 2, 3), plan.value)
+
+
+def test_policy_value_on_a_hand_made_chain():
+    # 0 -a0-> 1 with 0.5 (else stays); 1 -a0-> 2 (goal) surely; a1 never moves
+    t = torch.zeros(3, 2, 3, dtype=torch.float64)
+    t[0, 0, 0] = t[0, 0, 1] = 0.5
+    t[1, 0, 2] = 1.0
+    t[:, 1] = torch.eye(3, dtype=torch.float64)
+    t[2, 0, 2] = 1.0
+    policy = torch.tensor([[-1, -1, -1], [0, 0, 0], [0, 0, 0], [0, 0, 0]])
+    value = policy_value(t, policy, 2, 3)
+    # from 0: reach 1 by step k then 2 at k+1: within 2 steps 0.5, within 3 steps 0.75
+    assert value[2, 0].item() == 0.5 and value[3, 0].item() == 0.75
+    no_action = policy.clone()
+    no_action[1:, 1] = -1  # state 1 has no action: 0 can never get through
+    assert policy_value(t, no_action, 2, 3)[3, 0].item() == 0.0
+    with pytest.raises(ValueError, match="policy must have shape"):
+        policy_value(t, policy[:2], 2, 3)
