@@ -23,7 +23,12 @@ and count, field, end configuration and count) is fitted by maximum likelihood o
 * Imitation: throws with a large aim error (``--aim-error`` m per axis); a throw failed
   when its end configuration differs from the unperturbed intended throw's. The
   surprise of the observed end state under the intended field
-  (:func:`inference.imitation_check`) should separate the two: ROC AUC.
+  (:func:`inference.imitation_check`) should separate the two: ROC AUC. The network's
+  table for one (configuration, field) rests on three jittered throws and misses
+  outcomes the field produces now and then; the pooled surprise scores the observed end
+  configuration under the intended field's predictive averaged over an aim error of
+  ``sigma`` fields (:func:`inference.evaluation.aim_pooled`), ``sigma`` chosen on a
+  separate validation draw of perturbed throws.
 
 Writes ``can_tossing.json``, ``can_tossing.md``, ``can_tossing_table1.png`` and
 ``can_tossing_roc.png`` to ``--out``::
@@ -49,9 +54,11 @@ from inference import imitation_check  # noqa: E402
 from inference.evaluation import (  # noqa: E402
     ACCURACY_BINS,
     accuracy_histogram,
+    aim_pooled,
     aim_robust_best,
     roc_auc,
     roc_curve,
+    tail_surprise,
 )
 from models.can_network import config_index, count  # noqa: E402
 from sim2d import cans  # noqa: E402
@@ -62,7 +69,9 @@ PAPER_PERCENT = dict(zip(ACCURACY_BINS, (0.41, 0.73, 3.59, 90.43, 3.12, 1.31, 0.
 PAPER_CASES = 8603
 # Seed purposes: every evaluation throw draws its aim jitter from SeedSequence([seed,
 # purpose]), never from the data set's per-throw seeds (SeedSequence of five numbers).
-TABLE_I, DEMO, REPLAY, PERTURB, PICK = 1, 2, 3, 4, 5
+TABLE_I, DEMO, REPLAY, PERTURB, PICK, VALIDATE = 1, 2, 3, 4, 5, 6
+#: Aim errors (in fields) the pooled imitation surprise chooses among; 0: no pooling.
+AIM_SIGMAS = (0.0, 0.25, 0.5, 0.75, 1.0, 1.5)
 
 
 def fresh_seeds(seed: int, purpose: int, n: int) -> np.ndarray:
@@ -216,16 +225,19 @@ def perturbed_aims(start, field, aim_error: float, rng) -> list[tuple[np.ndarray
     return states
 
 
-def imitation(model, data, n: int, aim_error: float, seed: int, n_ordinary: int = 8) -> dict:
-    """Surprise of perturbed throws' effects under the intended field, and its ROC.
+def perturbed_throws(
+    data, n: int, aim_error: float, seed: int, purpose: int, n_ordinary: int = 8
+) -> dict[str, np.ndarray]:
+    """``n`` throws aimed ``aim_error`` m off, with their failure labels, ``(n,)`` each.
 
-    Two labels: ``failed`` (the brief's): the end configuration differs from the
-    unperturbed intended throw's; ``failed_ordinary``: it differs from every outcome of
-    the intended throw executed as usual (unperturbed, and ``n_ordinary`` times with the
-    data set's aim jitter) -- the world is chaotic enough at a 3 mm jitter that the
-    unperturbed throw's outcome is often not the intended action's usual one.
+    ``start``, ``field`` (intended), ``observed`` (end configuration) and two labels:
+    ``failed``: the end configuration differs from the unperturbed intended throw's;
+    ``failed_ordinary``: it differs from every outcome of the intended throw executed as
+    usual (unperturbed, and ``n_ordinary`` times with the data set's aim jitter) -- the
+    world is chaotic enough at a 3 mm jitter that the unperturbed throw's outcome is often
+    not the intended action's usual one. ``purpose`` seeds the draw (``PERTURB``: test).
     """
-    rng = np.random.default_rng([seed, PERTURB])
+    rng = np.random.default_rng([seed, purpose])
     start, field = demonstrations(data, n, rng)
     nominal, observed = [], []
     for s, f, (pos, vel) in tqdm(
@@ -237,12 +249,61 @@ def imitation(model, data, n: int, aim_error: float, seed: int, n_ordinary: int 
         observed.append(cans.play_ball(int(s), pos, vel).end_config)
     nominal, observed = np.array(nominal), np.array(observed)
     failed = observed != nominal
-    seeds = fresh_seeds(seed, PERTURB, n * n_ordinary).reshape(n_ordinary, n)
+    seeds = fresh_seeds(seed, purpose, n * n_ordinary).reshape(n_ordinary, n)
     usual = [
         play(start, field, data.metadata["jitter"], k, f"ordinary throws {j + 1}/{n_ordinary}")
         for j, k in enumerate(seeds)
     ]
     failed_ordinary = failed & np.all([observed != u for u in usual], axis=0)
+    return {
+        "start": start,
+        "field": field,
+        "observed": observed,
+        "failed": failed,
+        "failed_ordinary": failed_ordinary,
+    }
+
+
+def pooled_surprise(model, throws: dict, sigma: float, tables: dict) -> np.ndarray:
+    """``(n,)`` surprise of each observed end configuration under the intended field's
+    predictive pooled over an aim error of ``sigma`` fields; an end configuration the
+    network has no state for was never seen: 1. ``tables`` caches
+    ``model.end_config_probs`` per start configuration."""
+    start, observed = throws["start"], throws["observed"]
+    surprise = np.ones(len(start))
+    known = np.isin(observed, model.states)
+    for s in np.unique(start[known]):
+        rows = known & (start == s)
+        if s not in tables:
+            tables[s] = model.end_config_probs(int(s))
+        pooled = aim_pooled(
+            tables[s],
+            (cans.N_ROWS, cans.N_COLUMNS),
+            throws["field"][rows],
+            allowed=model.throwable,
+            sigma=sigma,
+        )
+        surprise[rows] = tail_surprise(pooled, config_index(model.net, observed[rows])).numpy()
+    return surprise
+
+
+def auc_or_none(scores, positive) -> float | None:
+    """ROC AUC, or None where one class is empty."""
+    return roc_auc(scores, positive) if 0 < np.sum(positive) < len(positive) else None
+
+
+def imitation(model, data, n: int, aim_error: float, seed: int, n_ordinary: int = 8) -> dict:
+    """Surprise of perturbed throws' effects under the intended field, and its ROC.
+
+    Labels: :func:`perturbed_throws`. Scores: the network's surprise
+    (:func:`inference.imitation_check` on the observed end configuration and count), and
+    the pooled surprise (:func:`pooled_surprise`) with the aim error from ``AIM_SIGMAS``
+    that has the best ``failed_ordinary`` AUC on a validation draw (seed purpose
+    ``VALIDATE``; ties to the smaller aim error).
+    """
+    throws = perturbed_throws(data, n, aim_error, seed, PERTURB, n_ordinary)
+    start, field, observed = throws["start"], throws["field"], throws["observed"]
+    failed, failed_ordinary = throws["failed"], throws["failed_ordinary"]
     # An end configuration the network has no state for was never seen: surprise 1.
     known = np.isin(observed, model.states)
     surprise = np.ones(n)
@@ -253,17 +314,41 @@ def imitation(model, data, n: int, aim_error: float, seed: int, n_ordinary: int 
             "end.count": torch.as_tensor(count(observed[known])),
         }
         surprise[known] = imitation_check(model.net, model.params, ev).surprise.numpy()
+
+    tables: dict = {}
+    held_out = perturbed_throws(data, n, aim_error, seed, VALIDATE, n_ordinary)
+    validation = []
+    for sigma in AIM_SIGMAS:
+        scores = pooled_surprise(model, held_out, sigma, tables)
+        validation.append(
+            {
+                "sigma": sigma,
+                "auc": auc_or_none(scores, held_out["failed"]),
+                "auc_ordinary": auc_or_none(scores, held_out["failed_ordinary"]),
+            }
+        )
+    scored = [v for v in validation if v["auc_ordinary"] is not None]
+    sigma = max(scored, key=lambda v: v["auc_ordinary"])["sigma"] if scored else AIM_SIGMAS[0]
+    pooled = pooled_surprise(model, throws, sigma, tables)
     return {
         "n_throws": n,
         "aim_error_m": aim_error,
         "n_failed": int(failed.sum()),
         "n_unknown_end_config": int((~known).sum()),
-        "auc": roc_auc(surprise, failed) if 0 < failed.sum() < n else None,
+        "auc": auc_or_none(surprise, failed),
         "n_failed_ordinary": int(failed_ordinary.sum()),
-        "auc_ordinary": (
-            roc_auc(surprise, failed_ordinary) if 0 < failed_ordinary.sum() < n else None
-        ),
+        "auc_ordinary": auc_or_none(surprise, failed_ordinary),
+        "aim_sigma": sigma,
+        "auc_pooled": auc_or_none(pooled, failed),
+        "auc_ordinary_pooled": auc_or_none(pooled, failed_ordinary),
+        "validation": {
+            "n_throws": n,
+            "n_failed": int(held_out["failed"].sum()),
+            "n_failed_ordinary": int(held_out["failed_ordinary"].sum()),
+            "by_sigma": validation,
+        },
         "surprise": surprise.tolist(),
+        "pooled_surprise": pooled.tolist(),
         "failed": failed.tolist(),
         "failed_ordinary": failed_ordinary.tolist(),
     }
@@ -333,6 +418,7 @@ def markdown(r: dict) -> str:
             )
         lines.append(line)
     e, i = r["emulation"], r["imitation"]
+    v = i["validation"]
     lines += [
         f"- emulation ({e['n_demonstrations']} demonstrations): same end configuration "
         f"{100 * e['same_end_config']:.1f} %, same count {100 * e['same_count']:.1f} % "
@@ -343,9 +429,22 @@ def markdown(r: dict) -> str:
         + ("n/a (one class only)" if i["auc"] is None else f"{i['auc']:.3f}")
         + f"; against the intended throw's usual outcomes ({i['n_failed_ordinary']} failed): "
         + ("n/a" if i["auc_ordinary"] is None else f"{i['auc_ordinary']:.3f}"),
+        f"- imitation, pooled surprise (aim error {i['aim_sigma']:g} fields): ROC AUC "
+        + f"{_auc_text(i['auc_pooled'])}; against the usual outcomes "
+        + f"{_auc_text(i['auc_ordinary_pooled'])}. Aim error chosen on a validation draw "
+        + f"({v['n_throws']} throws, {v['n_failed']} / {v['n_failed_ordinary']} failed) by "
+        + "the second AUC: "
+        + ", ".join(
+            f"{b['sigma']:g}: {_auc_text(b['auc'])} / {_auc_text(b['auc_ordinary'])}"
+            for b in v["by_sigma"]
+        ),
         "",
     ]
     return "\n".join(lines)
+
+
+def _auc_text(auc: float | None) -> str:
+    return "n/a" if auc is None else f"{auc:.3f}"
 
 
 def plot_table_one(tables: dict, path: Path) -> None:
@@ -383,14 +482,23 @@ def plot_roc(result: dict, path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(5.6, 5.0))
-    for key, label in (
-        ("failed", "failed: not the unperturbed throw's outcome"),
-        ("failed_ordinary", "failed: none of the usual outcomes"),
+    for (key, label), colour in zip(
+        (
+            ("failed", "not the unperturbed throw's outcome"),
+            ("failed_ordinary", "none of the usual outcomes"),
+        ),
+        ("C0", "C1"),
+        strict=True,
     ):
-        auc = result["auc" if key == "failed" else "auc_ordinary"]
-        if auc is not None:
-            fpr, tpr = roc_curve(result["surprise"], result[key])
-            ax.plot(fpr, tpr, label=f"{label} (AUC {auc:.3f})")
+        suffix = "" if key == "failed" else "_ordinary"
+        for scores, style, name in (
+            ("surprise", "-", "surprise"),
+            ("pooled_surprise", "--", f"pooled, {result['aim_sigma']:g} fields"),
+        ):
+            auc = result[f"auc{suffix}" + ("_pooled" if scores == "pooled_surprise" else "")]
+            if auc is not None:
+                fpr, tpr = roc_curve(result[scores], result[key])
+                ax.plot(fpr, tpr, style, color=colour, label=f"failed: {label}; {name} ({auc:.3f})")
     ax.plot([0, 1], [0, 1], ":", color="0.5", label="chance")
     ax.set_xlabel("false-positive rate (successful throws flagged)")
     ax.set_ylabel("true-positive rate (failed throws flagged)")

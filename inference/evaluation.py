@@ -9,6 +9,12 @@
   aimed at: among the actions tied for the highest posterior, the one whose
   neighbourhood also succeeds (the expected success under a Gaussian aim error of
   ``sigma`` cells), instead of whichever the tie-break by index happens to give.
+* :func:`aim_pooled` -- the predictive of an action aimed at a grid cell when the
+  executed aim is off by a Gaussian error of ``sigma`` cells: the cells' predictives
+  averaged with Gaussian weights. It fills in outcomes that a table estimated from a few
+  throws per cell misses but the neighbouring cells produced.
+* :func:`tail_surprise` -- the imitation surprise of an observed outcome under a
+  discrete predictive: the probability of the outcomes strictly more likely than it.
 """
 
 from __future__ import annotations
@@ -169,3 +175,126 @@ def _grid_average(values, weights, grid_shape, sigma) -> torch.Tensor:
     num = torch.nn.functional.conv2d(v, kernel, padding=reach)
     den = torch.nn.functional.conv2d(w, kernel, padding=reach)
     return (num / den.clamp_min(1e-300)).reshape(values.shape)
+
+
+#: Log-scale margin of :func:`tail_surprise` (as in :func:`inference.imitation_check`):
+#: an outcome counts as more likely than the observed one only when its log-probability
+#: exceeds the observed one's by more than this, so that rounding does not decide.
+SURPRISE_LOG_TOLERANCE = 1e-9
+
+
+def aim_pooled(
+    probs,
+    grid_shape: tuple[int, int],
+    actions,
+    *,
+    allowed=None,
+    sigma: float,
+) -> torch.Tensor:
+    """Predictive of each requested action under a Gaussian aim error of ``sigma`` cells.
+
+    The actions are the cells of a ``grid_shape = (rows, columns)`` grid in row-major
+    order (action ``r * columns + c``). Aiming at action ``a`` executes cell ``b`` with
+    weight ``exp(-d(a, b)^2 / (2 sigma^2))`` (``d`` the Euclidean distance in cells;
+    only allowed cells can be executed), so the pooled predictive is::
+
+        pooled[a] = sum_b w(a, b) probs[b] / sum_b w(a, b)
+
+    All cells count, however far (no truncation). ``sigma = 0`` returns ``probs[a]``.
+
+    Parameters
+    ----------
+    probs : (A, K) or (B, A, K) float
+        Predictive over ``K`` outcomes for every action, ``A = rows * columns``; each row
+        non-negative and summing to 1. ``B``: a batch (one start state each, say).
+    grid_shape : (int, int)
+        ``(rows, columns)``.
+    actions : (n,) int
+        The aimed-at actions; each must be allowed. The same for every batch member.
+    allowed : (A,) bool, optional
+        Cells that can be executed (all by default).
+    sigma : float
+        Aim error in cells, ``>= 0``.
+
+    Returns
+    -------
+    torch.Tensor
+        ``(n, K)`` or ``(B, n, K)`` float64, each row summing to 1.
+    """
+    probs = torch.as_tensor(probs, dtype=torch.float64)
+    n_rows, n_cols = grid_shape
+    n_actions = n_rows * n_cols
+    if probs.dim() not in (2, 3) or probs.shape[-2] != n_actions:
+        raise ValueError(
+            f"probs must be (A, K) or (B, A, K) with A = {n_actions} for a {n_rows} x "
+            f"{n_cols} grid, got {tuple(probs.shape)}"
+        )
+    if not bool(torch.isfinite(probs).all()) or bool((probs < 0).any()):
+        raise ValueError("probs must be finite and non-negative")
+    if not torch.allclose(probs.sum(-1), torch.ones((), dtype=probs.dtype), atol=1e-6):
+        raise ValueError("every row of probs must sum to 1 (a predictive distribution)")
+    actions = torch.as_tensor(actions)
+    if actions.dim() != 1 or actions.is_floating_point():
+        raise ValueError(f"actions must be an (n,) integer array, got {tuple(actions.shape)}")
+    if len(actions) and not bool(((actions >= 0) & (actions < n_actions)).all()):
+        raise ValueError(f"actions must lie in 0..{n_actions - 1}, got {actions.tolist()}")
+    if allowed is None:
+        allowed = torch.ones(n_actions, dtype=torch.bool)
+    allowed = torch.as_tensor(allowed, dtype=torch.bool)
+    if allowed.shape != (n_actions,):
+        raise ValueError(f"allowed must be ({n_actions},) bool, got {tuple(allowed.shape)}")
+    if not bool(allowed[actions].all()):
+        bad = actions[~allowed[actions]].tolist()
+        raise ValueError(f"actions {bad} are not allowed: aim only at allowed cells")
+    if not (np.isfinite(sigma) and sigma >= 0):
+        raise ValueError(f"sigma must be a finite number of cells >= 0, got {sigma}")
+    if sigma == 0:
+        return probs[..., actions, :]
+    row, col = torch.arange(n_actions) // n_cols, torch.arange(n_actions) % n_cols
+    d2 = (row[actions, None] - row[None]) ** 2 + (col[actions, None] - col[None]) ** 2
+    # the aimed-at cell weighs 1 even where sigma**2 underflows (0 / 0)
+    gauss = torch.exp(-d2.to(torch.float64) / (2 * sigma**2))
+    weights = torch.where(d2 == 0, 1.0, gauss) * allowed  # (n, A)
+    return weights @ probs / weights.sum(-1, keepdim=True)
+
+
+def tail_surprise(probs, observed) -> torch.Tensor:
+    """Probability of the outcomes strictly more likely than the observed one.
+
+    The surprise of :func:`inference.imitation_check` for a discrete predictive given as
+    a table: near 1, the observed outcome is among the action's rare ones; an outcome of
+    probability 0 has surprise 1 (up to the mass of the other zero-probability outcomes).
+    "More likely" means a log-probability above the observed one's by more than
+    ``SURPRISE_LOG_TOLERANCE`` (``1e-9``), so outcomes equal up to rounding tie and do
+    not count.
+
+    Parameters
+    ----------
+    probs : (..., K) float
+        Predictive over ``K`` outcomes, non-negative.
+    observed : (...) int
+        Index of the observed outcome in ``0..K-1``, one per predictive.
+
+    Returns
+    -------
+    torch.Tensor
+        ``(...)`` float64 in [0, 1].
+    """
+    probs = torch.as_tensor(probs, dtype=torch.float64)
+    observed = torch.as_tensor(observed)
+    if probs.dim() < 1 or observed.shape != probs.shape[:-1]:
+        raise ValueError(
+            f"probs must be (..., K) and observed (...) with the same leading shape, got "
+            f"{tuple(probs.shape)} and {tuple(observed.shape)}"
+        )
+    if observed.is_floating_point():
+        raise ValueError("observed must hold integer outcome indices")
+    k = probs.shape[-1]
+    if observed.numel() and not bool(((observed >= 0) & (observed < k)).all()):
+        raise ValueError(f"observed outcomes must lie in 0..{k - 1}")
+    if not bool(torch.isfinite(probs).all()) or bool((probs < 0).any()):
+        raise ValueError("probs must be finite and non-negative")
+    log_p = probs.log()
+    log_obs = torch.gather(log_p, -1, observed[..., None])
+    more_likely = log_p > log_obs + SURPRISE_LOG_TOLERANCE
+    return (probs * more_likely).sum(-1).clamp(0, 1)

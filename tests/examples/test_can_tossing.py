@@ -8,7 +8,7 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
-from inference.evaluation import ACCURACY_BINS
+from inference.evaluation import ACCURACY_BINS, roc_auc
 from sim2d import cans
 from tests.helpers import load_example
 
@@ -142,5 +142,20 @@ def test_main_runs_at_tiny_scale(ex, tiny, tmp_path):
     assert len(imitation["surprise"]) == imitation["n_throws"] == 30
     # a throw that failed against the usual outcomes also failed against the unperturbed one
     assert not np.any(np.array(imitation["failed_ordinary"]) & ~np.array(imitation["failed"]))
+    # the pooled surprise: its aim error chosen on the validation draw, scores in [0, 1]
+    validation = imitation["validation"]
+    assert [v["sigma"] for v in validation["by_sigma"]] == list(ex.AIM_SIGMAS)
+    scored = [v for v in validation["by_sigma"] if v["auc_ordinary"] is not None]
+    best = max(scored, key=lambda v: v["auc_ordinary"])["sigma"] if scored else ex.AIM_SIGMAS[0]
+    assert imitation["aim_sigma"] == best
+    pooled = np.array(imitation["pooled_surprise"])
+    assert len(pooled) == 30 and np.all((pooled >= 0) & (pooled <= 1 + 1e-12))
+    for key, label in (("auc_pooled", "failed"), ("auc_ordinary_pooled", "failed_ordinary")):
+        positive = np.array(imitation[label])
+        if 0 < positive.sum() < len(positive):
+            assert imitation[key] == pytest.approx(roc_auc(pooled, positive))
+        else:
+            assert imitation[key] is None
+    assert "pooled surprise" in (tmp_path / "out" / "can_tossing.md").read_text()
     assert (tmp_path / "out" / "can_tossing.md").read_text().count("\n| ") >= 9
     assert (tmp_path / "out" / "can_tossing_table1.png").stat().st_size > 10_000
