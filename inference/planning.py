@@ -169,10 +169,7 @@ def exact_plan(
     The goal is absorbing and counts as reached; ``allowed`` ``(S, A)`` bool excludes
     actions (e.g. ones the model never saw from that state).
     """
-    if transition.dim() != 3 or transition.shape[0] != transition.shape[2]:
-        raise ValueError(f"transition must have shape (S, A, S), got {tuple(transition.shape)}")
-    if not 0 <= goal < transition.shape[0]:
-        raise ValueError(f"goal index {goal} outside 0..{transition.shape[0] - 1}")
+    _check_transition(transition, goal)
     if horizon < 1:
         raise ValueError(f"horizon must be >= 1, got {horizon}")
     s = transition.shape[0]
@@ -199,15 +196,12 @@ def policy_value(
     entry is ``-1`` has no action and never reaches the goal. Use it to evaluate a plan made
     on one transition model under another (e.g. held-out simulations).
     """
-    if transition.dim() != 3 or transition.shape[0] != transition.shape[2]:
-        raise ValueError(f"transition must have shape (S, A, S), got {tuple(transition.shape)}")
+    _check_transition(transition, goal)
     s = transition.shape[0]
     if policy.dim() != 2 or policy.shape[0] < horizon + 1 or policy.shape[1] != s:
         raise ValueError(
             f"policy must have shape (>= {horizon + 1}, {s}), got {tuple(policy.shape)}"
         )
-    if not 0 <= goal < s:
-        raise ValueError(f"goal index {goal} outside 0..{s - 1}")
     value = torch.zeros(horizon + 1, s, dtype=transition.dtype)
     value[0, goal] = 1.0
     rows = torch.arange(s)
@@ -217,3 +211,10 @@ def policy_value(
         value[h] = torch.where(act >= 0, q, torch.zeros_like(q))
         value[h, goal] = 1.0
     return value
+
+
+def _check_transition(transition: torch.Tensor, goal: int) -> None:
+    if transition.dim() != 3 or transition.shape[0] != transition.shape[2]:
+        raise ValueError(f"transition must have shape (S, A, S), got {tuple(transition.shape)}")
+    if not 0 <= goal < transition.shape[0]:
+        raise ValueError(f"goal index {goal} outside 0..{transition.shape[0] - 1}")

@@ -115,9 +115,8 @@ def play_throw(
     if entry is None:
         return state
     (x, z), v = entry
-    if jitter:
-        offset = np.random.default_rng(seed).normal(0.0, jitter)
-        z = max(z + float(np.clip(offset, -3 * jitter, 3 * jitter)), cans.BALL_RADIUS + 1e-3)
+    if jitter:  # the can world's own aim error (normal, clipped at 3 sd); its first axis
+        z = max(z + float(cans._aim_offset(jitter, seed)[0]), cans.BALL_RADIUS + 1e-3)
     outcome = cans.play_ball(state, (x, z), v)
     return settle(outcome.end_config, stable)
 
