@@ -22,7 +22,7 @@ from timing import median_seconds  # benchmarks/timing.py, beside this script
 
 from inference import fit, infer_action
 from inference.compiled import compile_discrete
-from models import Discrete, EffectNetwork
+from models import Discrete, EffectNetwork, Evidence
 
 
 def network() -> EffectNetwork:
@@ -32,14 +32,16 @@ def network() -> EffectNetwork:
     )
 
 
-def random_rows(n: int, seed: int) -> dict[str, torch.Tensor]:
+def random_rows(net: EffectNetwork, n: int, seed: int) -> Evidence:
     g = torch.Generator().manual_seed(seed)
-    return {
-        "initial.config": torch.randint(0, 42, (n,), generator=g),
-        "action": torch.randint(0, 195, (n,), generator=g),
-        "end.config": torch.randint(0, 42, (n,), generator=g),
-        "end.count": torch.randint(0, 11, (n,), generator=g),
-    }
+    return net.encode_indices(
+        {
+            "initial.config": torch.randint(0, 42, (n,), generator=g),
+            "action": torch.randint(0, 195, (n,), generator=g),
+            "end.config": torch.randint(0, 42, (n,), generator=g),
+            "end.count": torch.randint(0, 11, (n,), generator=g),
+        }
+    )
 
 
 def pgmpy_network(params):
@@ -71,13 +73,13 @@ def pgmpy_network(params):
 def main(args: argparse.Namespace) -> dict[str, float]:
     torch.set_num_threads(args.threads)
     net = network()
-    rows = random_rows(74_000, 0)
+    rows = random_rows(net, 74_000, 0)
     fit_s = median_seconds(lambda: fit(net, rows), 7)
     params = fit(net, rows).params
     compiled = compile_discrete(net, params)
-    queries = random_rows(args.n_queries, 1)
-    evidence = {"initial.config": queries["initial.config"], "end.count": queries["end.count"]}
-    one = {k: v[:1] for k, v in evidence.items()}
+    queries = random_rows(net, args.n_queries, 1)
+    evidence = queries.without("action", "end.config")
+    one = evidence.rows(slice(0, 1))
 
     # the raw gather: log p(a) + log p(count | config, a), normalised, argmax
     log_prior = params["action"].probs.log()

@@ -15,7 +15,7 @@ import torch
 from inference import fit
 from inference.compiled import CompiledNetwork, compile_discrete
 from models import EffectNetwork, NetworkParams
-from models.can_network import can_network, can_rows, config_index
+from models.can_network import can_network, can_rows
 from sim2d import cans
 from sim2d.can_dataset import CanDataset, generate_dataset, load_dataset
 from sim2d.configurations import stable_configurations
@@ -70,9 +70,9 @@ class CanModel:
         """Best field per row for ``(start mask, desired end count)``, never an unthrowable one."""
         post = self.compiled.infer_action(
             {
-                "initial.config": config_index(self.net, start),
-                "initial.count": torch.as_tensor(np.array([bin(int(m)).count("1") for m in start])),
-                "end.count": torch.as_tensor(np.asarray(desired_count, dtype=np.int64)),
+                "initial.config": start,
+                "initial.count": np.array([bin(int(m)).count("1") for m in start]),
+                "end.count": np.asarray(desired_count, dtype=np.int64),
             },
             allowed=self.throwable,
         )
@@ -85,9 +85,9 @@ class CanModel:
         fields = np.arange(len(self.net.actions)) if fields is None else np.asarray(fields)
         n = len(fields)
         ev = {
-            "initial.config": config_index(self.net, np.full(n, start)),
-            "initial.count": torch.full((n,), bin(int(start)).count("1")),
-            "action": torch.as_tensor(fields),
+            "initial.config": np.full(n, start),
+            "initial.count": np.full(n, bin(int(start)).count("1")),
+            "action": [self.net.actions[f] for f in fields],
         }
         return predict(self.net, self.params, ev).discrete["config"]
 

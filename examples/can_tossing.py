@@ -119,8 +119,8 @@ def choose(model: CanModel, evidence: dict, rule: str) -> np.ndarray:
 
 def start_evidence(model: CanModel, start: np.ndarray) -> dict:
     return {
-        "initial.config": config_index(model.net, start),
-        "initial.count": torch.as_tensor(count(start)),
+        "initial.config": start,
+        "initial.count": count(start),
     }
 
 
@@ -193,8 +193,8 @@ def emulation(model, data, n: int, seed: int, rule: str) -> dict:
     ev = start_evidence(model, start) | {"end.count": torch.as_tensor(count(shown))}
     fields = choose(model, ev, rule)  # count only: the fallback for unknown configurations
     if known.any():
-        ev_known = {k: v[known] for k, v in ev.items()}
-        ev_known["end.config"] = config_index(model.net, shown[known])
+        ev_known = model.net.encode(ev).rows(torch.as_tensor(known))
+        ev_known = ev_known | {"end.config": shown[known]}
         fields[known] = choose(model, ev_known, rule)
     seeds = fresh_seeds(seed, REPLAY, 2 * n)
     copied = play(start, fields, jitter, seeds[:n], "emulation")
@@ -309,9 +309,9 @@ def imitation(model, data, n: int, aim_error: float, seed: int, n_ordinary: int 
     surprise = np.ones(n)
     if known.any():
         ev = start_evidence(model, start[known]) | {
-            "action": torch.as_tensor(field[known]),
-            "end.config": config_index(model.net, observed[known]),
-            "end.count": torch.as_tensor(count(observed[known])),
+            "action": [model.net.actions[f] for f in field[known]],
+            "end.config": observed[known],
+            "end.count": count(observed[known]),
         }
         surprise[known] = imitation_check(model.net, model.params, ev).surprise.numpy()
 

@@ -39,8 +39,8 @@ def get_data(n: int, seed: int) -> dict[str, np.ndarray]:
     """``n`` random taps and removes: arrays of shape ``(n,)``, position in metres, force in N."""
     rng = np.random.default_rng(seed)
     visible = rng.random(n) < 0.7
-    action = rng.integers(0, 2, n)  # 0 look, 1 remove
-    gone = (action == 1) & visible & (rng.random(n) < 0.97)
+    action = np.array(["look", "remove"])[rng.integers(0, 2, n)]
+    gone = (action == "remove") & visible & (rng.random(n) < 0.97)
     position = rng.uniform(-1.0, 1.0, n)
     force = rng.uniform(*FORCE, n)
     rolled = position + roll(force) + rng.normal(0.0, 0.01, n)
@@ -84,7 +84,7 @@ def main(args: argparse.Namespace) -> dict[str, float]:
     remove = EffectNetwork((Discrete("visible", (False, True)),), ("look", "remove"))
     rows = {
         "initial.visible": train["visible"],
-        "action": torch.as_tensor(train["action"]),
+        "action": train["action"],
         "end.visible": train["visible_after"],
     }
     remove_params = fit(remove, rows).params

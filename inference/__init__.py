@@ -13,6 +13,7 @@ from inference.queries import (
     infer_parameter,
     predict,
 )
+from inference.simulate import simulate
 
 __all__ = [
     "ActionPosterior",
@@ -29,4 +30,5 @@ __all__ = [
     "infer_action",
     "infer_parameter",
     "predict",
+    "simulate",
 ]

@@ -18,7 +18,14 @@ from dataclasses import dataclass, field
 import torch
 from pyro import poutine
 
-from inference.queries import ActionPosterior, ParameterPosterior, first_best
+from inference.queries import (
+    ActionPosterior,
+    ParameterPosterior,
+    allowed_actions,
+    first_best,
+    no_rows,
+    placeholder_row,
+)
 from models.declaration import (
     ACTION,
     DTYPE,
@@ -125,9 +132,14 @@ class CompiledNetwork:
         enc = self.net.encode(evidence)
         if ACTION in enc:
             raise ValueError("evidence names the action; infer_action infers it")
-        if not enc:
+        if not len(enc):
             raise ValueError("evidence is empty: give at least the initial state")
-        n = next(iter(enc.values())).shape[0]
+        n = enc.n_rows
+        allowed = allowed_actions(self.net, allowed, n)
+        if n == 0:
+            return no_rows(
+                self.infer_action(placeholder_row(enc), allowed=allowed, avoid_unseen=avoid_unseen)
+            )
         plan = self.plan(frozenset(enc))
         index = tuple(enc[s] for s in plan.observed)
         total = plan.log_table[index]  # (n, latent sizes...)
@@ -163,15 +175,13 @@ class CompiledNetwork:
         if allowed is not None or plan.unseen is not None:
             top = None  # the maximum of the score, not of probs
         if allowed is not None:
-            score = score.masked_fill(
-                ~torch.as_tensor(allowed, dtype=torch.bool).expand_as(score), -1.0
-            )
+            score = score.masked_fill(~allowed.expand_as(score), -1.0)
         if avoid_unseen and plan.unseen is not None and bool((unseen_mass >= 0.5).any()):
             seen_score = score.masked_fill(unseen_mass >= 0.5, -1.0)
             score = torch.where(seen_score.max(-1, keepdim=True).values >= 0, seen_score, score)
         best = first_best(score, top)
         names = tuple(self.net.actions[i] for i in best.tolist())
-        return ActionPosterior(probs, best, names, log_evidence, unseen_mass)
+        return ActionPosterior(probs, best, names, log_evidence, unseen_mass, self.net.actions)
 
 
 def compile_discrete(net: EffectNetwork, params: NetworkParams) -> CompiledNetwork:
@@ -183,7 +193,7 @@ def compile_discrete(net: EffectNetwork, params: NetworkParams) -> CompiledNetwo
             f"compile_discrete needs an all-discrete network; continuous sites: {continuous}"
         )
     trace = poutine.trace(poutine.enum(effect_model, first_available_dim=-2)).get_trace(
-        net, params, {}, n_rows=1
+        net, params, n_rows=1
     )
     trace.compute_log_prob()
     sites = [
@@ -249,8 +259,8 @@ class CompiledParameterQuery:
         if ACTION not in enc:
             if len(p.actions) != 1:
                 raise ValueError(f"give the action (one of {list(p.actions)}) that used {p.name!r}")
-            enc[ACTION] = torch.full((n,), self.net.action_index(p.actions[0]), dtype=torch.long)
-        not_using = ~self.net.uses_parameter(p)[enc[ACTION]]
+            enc = enc | {ACTION: [p.actions[0]] * n}
+        not_using = ~self.net.parameter_in_use(p, enc[ACTION])
         if not_using.any():
             row = int(not_using.nonzero()[0])
             raise ValueError(

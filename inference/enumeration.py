@@ -13,13 +13,14 @@ closed form. Nothing here samples.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable
 from dataclasses import dataclass
 
 import torch
 from pyro import poutine
 
 from models.declaration import EffectNetwork
+from models.evidence import Evidence
 from models.model import effect_model
 from models.params import NetworkParams
 
@@ -67,18 +68,20 @@ def _states(trace: poutine.Trace, site: str) -> int:
 def enumerate_model(
     net: EffectNetwork,
     params: NetworkParams,
-    evidence: Mapping[str, torch.Tensor],
+    evidence: Evidence,
     *,
     keep: Iterable[str] = (),
     trace_only: Iterable[str] = (),
-    n_rows: int | None = None,
 ) -> Enumerated:
     """Trace the model with ``evidence`` and sum every observed or structural factor.
+
+    The model runs in its collapsed form (unknown parameters integrated out), so every
+    latent site is discrete and enumerated.
 
     Parameters
     ----------
     evidence
-        Encoded evidence (:meth:`EffectNetwork.encode`).
+        Encoded evidence (:meth:`EffectNetwork.encode`), at least one row.
     keep
         Unobserved end sites to keep as enumerated targets (their factor is added).
     trace_only
@@ -87,7 +90,7 @@ def enumerate_model(
     """
     keep = set(keep)
     trace_only = set(trace_only)
-    n = n_rows if n_rows is not None else next(iter(evidence.values())).shape[0]
+    n = evidence.n_rows
     missing_initial = [
         s.name
         for s in net.sites
@@ -98,7 +101,11 @@ def enumerate_model(
             f"queries need the initial state of continuous features; missing {missing_initial}"
         )
     trace = poutine.trace(poutine.enum(effect_model, first_available_dim=-2)).get_trace(
-        net, params, dict(evidence), n_rows=n, end_sites=set(evidence) | keep | trace_only
+        net,
+        params,
+        evidence,
+        end_sites=set(evidence) | keep | trace_only,
+        collapse=True,
     )
     trace.compute_log_prob()
     total = None
@@ -126,9 +133,7 @@ def row_chunks(n: int, enum_size: int, budget: int = 1 << 23) -> list[slice]:
     return [slice(i, min(n, i + step)) for i in range(0, n, step)] or [slice(0, 0)]
 
 
-def enumeration_size(
-    net: EffectNetwork, evidence: Mapping[str, torch.Tensor], keep: Iterable[str] = ()
-) -> int:
+def enumeration_size(net: EffectNetwork, evidence: Evidence, keep: Iterable[str] = ()) -> int:
     """Upper bound on the product of enumerated site sizes for this evidence."""
     latent = [
         s.size

@@ -9,8 +9,18 @@ defines:
   child of continuous parents) have no closed form and are fitted by gradient on the
   model's log-likelihood; so are all CPDs when some rows miss a discrete value (the
   marginal likelihood, with the missing values summed out by enumeration).
-* :func:`fit_gradient` -- SVI with an empty guide and ``TraceEnum_ELBO``: with no latent
-  continuous sites, the ELBO *is* the (marginal) log-likelihood.
+* :func:`fit_gradient` -- ``TraceEnum_ELBO`` with an empty guide, minimised with Adam on
+  tensors local to the call (Pyro's global parameter store is left alone): with no
+  latent continuous sites, the ELBO *is* the (marginal) log-likelihood.
+
+The rule that an action which does not use a parameter ignores it
+(:meth:`EffectNetwork.parameter_in_use`) holds in training too: a row whose action does
+not use ``p`` must leave ``param.p`` NaN (a value there is refused, not silently used),
+and the affected feature's weights on ``p`` are zero for such actions.
+
+Every loop is bounded and every input checked: a value whose square would overflow
+(beyond ``MAX_MAGNITUDE``), a non-finite or negative setting, zero rows, or a covariance
+that no jitter makes positive definite raise a ``ValueError`` naming the site.
 
 Pseudo-count policy (``pseudo_count``, written alpha): a table row is
 ``(counts + alpha) / (n + K alpha)``, so a parent configuration no sample reached is
@@ -30,8 +40,7 @@ from dataclasses import dataclass
 import pyro
 import pyro.distributions as dist
 import torch
-from pyro.infer import SVI, TraceEnum_ELBO
-from pyro.optim import Adam
+from pyro.infer import TraceEnum_ELBO
 from tqdm.auto import tqdm
 
 from models.declaration import (
@@ -45,6 +54,7 @@ from models.declaration import (
     initial_site,
     param_site,
 )
+from models.evidence import Evidence
 from models.model import effect_model
 from models.params import (
     LinearGaussian,
@@ -88,19 +98,13 @@ def fit(
     steps, lr, progress
         Gradient settings, used only for Softmax CPDs or when ``masks`` has gaps.
     """
-    if pseudo_count < 0 or min_variance < 0:
-        raise ValueError(
-            f"pseudo_count and min_variance must be >= 0, got {pseudo_count}, {min_variance}"
-        )
+    _check_settings(pseudo_count=pseudo_count, min_variance=min_variance, steps=steps, lr=lr)
     enc = _complete(net, data)
-    masks = {k: torch.as_tensor(v, dtype=torch.bool) for k, v in (masks or {}).items()}
-    for k in masks:
-        if not net.site(k).discrete:
-            raise ValueError(f"masks are for discrete sites; {k!r} is continuous")
-    complete = torch.ones(_rows(enc), dtype=torch.bool)
+    masks = _masks(net, masks, enc.n_rows)
+    complete = torch.ones(enc.n_rows, dtype=torch.bool)
     for m in masks.values():
         complete &= m
-    rows = {k: v[complete] for k, v in enc.items()}
+    rows = enc.rows(complete)
     if not complete.any():
         raise ValueError(
             "every row misses some value; at least one complete row is needed to start"
@@ -136,103 +140,175 @@ def fit_gradient(
     pseudo_count: float = 0.01,
     progress: bool = False,
 ) -> FitResult:
-    """Maximum likelihood by gradient: SVI, empty guide, ``TraceEnum_ELBO``.
+    """Maximum likelihood by gradient: ``TraceEnum_ELBO`` with an empty guide.
 
-    ``sites`` limits the fitted CPDs (the others stay at ``init``); ``init`` defaults to
-    uniform tables, standard Gaussians and zero softmax weights.
+    With no latent continuous site (unknown parameters are integrated out in closed
+    form, missing discrete values are enumerated) the ELBO *is* the marginal
+    log-likelihood, so its gradient is the likelihood's. ``sites`` limits the fitted
+    CPDs (the others stay at ``init``); ``init`` defaults to uniform tables, standard
+    Gaussians and zero softmax weights. The optimiser's tensors are local: Pyro's global
+    parameter store is neither read nor changed.
     """
-    enc = _complete(net, data)  # idempotent on rows it already encoded
-    n = _rows(enc)
-    init = init or _default_params(net, enc, pseudo_count)
-    sites = list(init.cpds) if sites is None else sites
-    masks = dict(masks or {})
-    pyro.clear_param_store()
+    _check_settings(pseudo_count=pseudo_count, steps=steps, lr=lr)
+    enc = _complete(net, data)
+    masks = _masks(net, masks, enc.n_rows)
+    init = init or _default_params(net, pseudo_count)
+    sites = list(init.cpds) if sites is None else list(sites)
+    unknown = [s for s in sites if s not in init.cpds]
+    if unknown:
+        raise ValueError(f"sites {unknown} are not sites of this network")
     fixed_cluster_rows = {cluster_site(p.name): ~net.uses_parameter(p) for p in net.parameters}
+    lower_cholesky = dist.transforms.LowerCholeskyTransform()
+
+    # Unconstrained tensors, one set per fitted CPD.
+    free: dict[str, dict[str, torch.Tensor]] = {}
+    for site in sites:
+        c = init.cpds[site]
+        if isinstance(c, Table):
+            free[site] = {"logits": c.probs.clamp_min(1e-12).log()}
+        elif isinstance(c, LinearGaussian):
+            free[site] = {
+                "weight": c.weight,
+                "bias": c.bias,
+                "tril": lower_cholesky.inv(c.scale_tril),
+            }
+        else:
+            free[site] = {"weight": c.weight, "bias": c.bias}
+    tensors = [t.detach().clone().requires_grad_() for f in free.values() for t in f.values()]
+    it = iter(tensors)
+    free = {site: {k: next(it) for k in f} for site, f in free.items()}
 
     def current() -> NetworkParams:
         cpds = dict(init.cpds)
-        for site in sites:
+        for site, f in free.items():
             c = init.cpds[site]
             if isinstance(c, Table):
-                logits = pyro.param(f"{site}.logits", c.probs.clamp_min(1e-12).log())
-                probs = logits.softmax(-1)
+                probs = f["logits"].softmax(-1)
                 if site in fixed_cluster_rows:  # actions not using the parameter: cell 0
                     probs = torch.where(fixed_cluster_rows[site][:, None], c.probs, probs)
                 cpds[site] = Table(probs, c.n)
             elif isinstance(c, LinearGaussian):
-                cpds[site] = LinearGaussian(
-                    pyro.param(f"{site}.weight", c.weight),
-                    pyro.param(f"{site}.bias", c.bias),
-                    pyro.param(
-                        f"{site}.scale_tril",
-                        c.scale_tril,
-                        constraint=dist.constraints.lower_cholesky,
-                    ),
-                    c.n,
-                )
+                cpds[site] = LinearGaussian(f["weight"], f["bias"], lower_cholesky(f["tril"]), c.n)
             else:
-                cpds[site] = Softmax(
-                    pyro.param(f"{site}.weight", c.weight), pyro.param(f"{site}.bias", c.bias), c.n
-                )
+                cpds[site] = Softmax(f["weight"], f["bias"], c.n)
         return NetworkParams(cpds, init.pseudo_count)
+
+    n = enc.n_rows
 
     def model():
         # Scale to a per-row loss so that one learning rate suits any data size.
         with pyro.poutine.scale(scale=1.0 / n):
-            effect_model(net, current(), enc, masks=masks)
+            effect_model(net, current(), enc, masks=masks, collapse=True)
 
     def guide():
         pass
 
-    svi = SVI(model, guide, Adam({"lr": lr}), TraceEnum_ELBO(max_plate_nesting=1))
+    elbo = TraceEnum_ELBO(max_plate_nesting=1)
+    optimiser = torch.optim.Adam(tensors, lr=lr)
     losses = []
     for _ in tqdm(range(steps), desc="fit (gradient)", disable=not progress):
-        losses.append(svi.step())
+        optimiser.zero_grad()
+        loss = elbo.differentiable_loss(model, guide)
+        loss.backward()
+        optimiser.step()
+        losses.append(loss.item())
     with torch.no_grad():
         params = current().map(lambda t: t.detach().clone())
     return FitResult(params, tuple(losses))
 
 
+def _check_settings(**settings: float) -> None:
+    """Refuse settings that would make fitting spin or return NaN."""
+    for name, value in settings.items():
+        ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
+        if name == "steps":
+            ok = isinstance(value, int) and not isinstance(value, bool) and value >= 1
+        elif name == "lr":
+            ok = ok and value > 0
+        else:
+            ok = ok and value >= 0
+        if not ok:
+            want = (
+                "a positive int"
+                if name == "steps"
+                else ("a finite number > 0" if name == "lr" else "a finite number >= 0")
+            )
+            raise ValueError(f"{name} must be {want}, got {value!r}")
+
+
+def _masks(
+    net: EffectNetwork, masks: Mapping[str, object] | None, n: int
+) -> dict[str, torch.Tensor]:
+    out = {}
+    for k, v in (masks or {}).items():
+        if not net.site(k).discrete:
+            raise ValueError(f"masks are for discrete sites; {k!r} is continuous")
+        m = torch.as_tensor(v, dtype=torch.bool).reshape(-1)
+        if m.shape[0] != n:
+            raise ValueError(f"masks[{k!r}] has {m.shape[0]} rows, the data {n}")
+        out[k] = m
+    return out
+
+
 # ---------------------------------------------------------------------------- closed form
-def _complete(net: EffectNetwork, data: Mapping[str, object]) -> dict[str, torch.Tensor]:
+def _complete(net: EffectNetwork, data: Mapping[str, object]) -> Evidence:
+    """Encode training rows, check them, and add each parameter's cluster (its cell)."""
     enc = net.encode(data)
+    if not len(enc) or enc.n_rows == 0:
+        raise ValueError("no training rows: fit needs at least one row of every site")
     missing = [s.name for s in net.sites if s.name not in enc and s.role != "cluster"]
     if missing:
         raise ValueError(
             f"training data must give every site; missing {missing}. (Give parameters as NaN in "
             f"rows whose action does not use them; mark missing discrete values with `masks`.)"
         )
-    if not enc:
-        raise ValueError("no training data")
+    clusters = {}
     for p in net.parameters:
-        uses = net.uses_parameter(p)[enc[ACTION]]
-        present = ~torch.isnan(enc[param_site(p.name)]).any(-1)
-        bad = uses & ~present
-        if bad.any():
-            row = int(bad.nonzero()[0])
-            raise ValueError(
-                f"site {param_site(p.name)!r}: row {row} has action "
-                f"{net.actions[int(enc[ACTION][row])]!r}, which uses the parameter, but no value"
-            )
-        derived = torch.where(uses, p.cluster_of(enc[param_site(p.name)].nan_to_num()), 0)
+        p_site = param_site(p.name)
+        uses = net.parameter_in_use(p, enc[ACTION])
+        present = ~torch.isnan(enc[p_site]).any(-1)
+        for bad, why in (
+            (uses & ~present, "uses the parameter, but the row gives no value"),
+            (~uses & present, "does not use the parameter, but the row gives a value (give NaN)"),
+        ):
+            if bad.any():
+                row = int(bad.nonzero()[0])
+                raise ValueError(
+                    f"site {p_site!r}: row {row} has action "
+                    f"{net.actions[int(enc[ACTION][row])]!r}, which {why}"
+                )
+        derived = torch.where(uses, p.cluster_of(enc[p_site].nan_to_num()), 0)
         given = enc.get(cluster_site(p.name))
         if given is not None and not torch.equal(given, derived):
             raise ValueError(
                 f"site {cluster_site(p.name)!r} disagrees with the equidistant cells of its parameter"
             )
-        enc[cluster_site(p.name)] = derived
-    return enc
+        clusters[cluster_site(p.name)] = derived
+    for site, value in enc.items():
+        if not net.site(site).discrete:
+            _check_magnitude(site, value)
+    return enc | net.encode_indices(clusters) if clusters else enc
 
 
-def _rows(enc: Mapping[str, torch.Tensor]) -> int:
-    return next(iter(enc.values())).shape[0]
+#: Largest magnitude whose second moments, summed over 10^7 rows, stay finite in float64.
+MAX_MAGNITUDE = 1e150
+
+
+def _check_magnitude(site: str, value: torch.Tensor) -> None:
+    big = value.nan_to_num().abs().amax(-1) > MAX_MAGNITUDE
+    if big.any():
+        row = int(big.nonzero()[0])
+        raise ValueError(
+            f"site {site!r}: row {row} holds {value[row].tolist()}, beyond +-{MAX_MAGNITUDE:g}; "
+            "its squares overflow the fit's statistics. Rescale the feature (other units)"
+        )
 
 
 def _flat_index(
     enc: Mapping[str, torch.Tensor], sites: tuple[str, ...], net: EffectNetwork
 ) -> tuple[torch.Tensor, tuple[int, ...]]:
     card = tuple(net.site(s).size for s in sites)
-    index = torch.zeros(_rows(enc), dtype=torch.long)
+    index = torch.zeros(enc.n_rows, dtype=torch.long)
     for s, k in zip(sites, card, strict=True):
         index = index * k + enc[s]
     return index, card
@@ -256,8 +332,14 @@ def _linear_gaussian(
     card: tuple[int, ...],
     alpha: float,
     min_variance: float,
+    site: str,
+    zero_weights: torch.Tensor | None = None,
 ) -> LinearGaussian:
-    """Per-configuration least squares of y on [x, 1] with pooled pseudo-rows."""
+    """Per-configuration least squares of y on [x, 1] with pooled pseudo-rows.
+
+    ``zero_weights`` ``(G, p)`` bool: weights fixed at zero per configuration (the
+    least squares then runs without those columns there).
+    """
     groups = math.prod(card)
     n_rows, d = y.shape
     z = (
@@ -274,6 +356,15 @@ def _linear_gaussian(
         # alpha pseudo-rows of the pooled statistics (an unseen configuration = the pooled fit)
         w = alpha / n_rows
         szz, szy, syy = szz + w * szz.sum(0), szy + w * szy.sum(0), syy + w * syy.sum(0)
+    if not all(bool(t.isfinite().all()) for t in (szz, szy, syy)):
+        raise ValueError(
+            f"site {site!r}: the fit's second moments overflow float64; rescale the data"
+        )
+    if zero_weights is not None and bool(zero_weights.any()):
+        drop = torch.cat([zero_weights, torch.zeros(groups, 1, dtype=torch.bool)], -1)
+        keep = (~drop).to(DTYPE)
+        szz = szz * keep[:, :, None] * keep[:, None, :] + torch.diag_embed(drop.to(DTYPE))
+        szy = szy * keep[:, :, None]
     total = n + (alpha if n_rows else 0.0)
     unseen = total == 0
     if unseen.any():  # alpha == 0: fall back on the pooled fit all the same
@@ -290,7 +381,7 @@ def _linear_gaussian(
     resid = syy - szy.mT @ beta - beta.mT @ szy + beta.mT @ szz @ beta
     cov = resid / total.clamp_min(1e-300)[:, None, None]
     cov = 0.5 * (cov + cov.mT) + min_variance * torch.eye(d, dtype=DTYPE)
-    tril = _safe_cholesky(cov)
+    tril = _safe_cholesky(cov, site)
     return LinearGaussian(
         beta[:, : q - 1, :].mT.reshape(*card, d, q - 1),
         beta[:, q - 1, :].reshape(*card, d),
@@ -299,25 +390,32 @@ def _linear_gaussian(
     )
 
 
-def _safe_cholesky(cov: torch.Tensor) -> torch.Tensor:
+def _safe_cholesky(cov: torch.Tensor, site: str, tries: int = 24) -> torch.Tensor:
+    """Cholesky factors, adding a growing jitter where a covariance is not quite PD."""
     tril, info = torch.linalg.cholesky_ex(cov)
     jitter = 1e-12
-    while (info > 0).any():
+    for _ in range(tries):
         bad = info > 0
+        if not bad.any():
+            return tril
         scale = cov[bad].diagonal(dim1=-2, dim2=-1).abs().mean(-1).clamp_min(1.0)
         cov[bad] = cov[bad] + (jitter * scale)[:, None, None] * torch.eye(
             cov.shape[-1], dtype=cov.dtype
         )
         tril, info = torch.linalg.cholesky_ex(cov)
         jitter *= 10
+    if (info > 0).any():
+        group = int((info > 0).nonzero()[0])
+        raise ValueError(
+            f"site {site!r}: configuration {group} has no positive definite covariance "
+            f"({cov[group].tolist()}); check its rows for inf, NaN or huge values"
+        )
     return tril
 
 
-def _closed_form(
-    net: EffectNetwork, enc: dict[str, torch.Tensor], alpha: float, min_variance: float
-) -> dict:
+def _closed_form(net: EffectNetwork, enc: Evidence, alpha: float, min_variance: float) -> dict:
     cpds: dict = {}
-    n = _rows(enc)
+    n = enc.n_rows
     no_parent = torch.zeros(n, dtype=torch.long)
     for f in net.features:
         if f.initial:
@@ -326,12 +424,12 @@ def _closed_form(
                 cpds[site] = _table_root(_table(no_parent, enc[site], (), f.cardinality, alpha))
             else:
                 cpds[site] = _strip(
-                    _linear_gaussian(no_parent, None, enc[site], (), alpha, min_variance)
+                    _linear_gaussian(no_parent, None, enc[site], (), alpha, min_variance, site)
                 )
     cpds[ACTION] = _table_root(_table(no_parent, enc[ACTION], (), len(net.actions), alpha))
     for p in net.parameters:
         c_site, p_site = cluster_site(p.name), param_site(p.name)
-        uses = net.uses_parameter(p)[enc[ACTION]]
+        uses = net.parameter_in_use(p, enc[ACTION])
         table = _table(
             enc[ACTION][uses], enc[c_site][uses], (len(net.actions),), p.n_clusters, alpha
         )
@@ -340,7 +438,13 @@ def _closed_form(
         probs = torch.where(net.uses_parameter(p)[:, None], table.probs, fixed)
         cpds[c_site] = Table(probs, table.n)
         cpds[p_site] = _linear_gaussian(
-            enc[c_site][uses], None, enc[p_site][uses], (p.n_clusters,), alpha, min_variance
+            enc[c_site][uses],
+            None,
+            enc[p_site][uses],
+            (p.n_clusters,),
+            alpha,
+            min_variance,
+            p_site,
         )
     for f in net.features:
         site = end_site(f.name)
@@ -348,7 +452,9 @@ def _closed_form(
         cont = [enc[s].nan_to_num() for s in net.continuous_parents(f.name)]
         x = torch.cat(cont, -1) if cont else None
         if isinstance(f, Continuous):
-            cpds[site] = _linear_gaussian(index, x, enc[site], card, alpha, min_variance)
+            cpds[site] = _linear_gaussian(
+                index, x, enc[site], card, alpha, min_variance, site, _unused(net, f.name, card)
+            )
         elif x is None:
             cpds[site] = _table(index, enc[site], card, f.cardinality, alpha)
         else:
@@ -362,6 +468,25 @@ def _closed_form(
     return ordered
 
 
+def _unused(net: EffectNetwork, feature: str, card: tuple[int, ...]) -> torch.Tensor | None:
+    """``(G, p)`` bool: the parameter's weights in configurations of actions not using it.
+
+    The rule of :meth:`EffectNetwork.parameter_in_use`: such an action ignores the
+    parameter, so its weights are zero, not fitted (pooled pseudo-rows would otherwise
+    lend them the using actions' slope).
+    """
+    p = net.parameter_of(feature)
+    if p is None:
+        return None
+    width = sum(net.site(s).size for s in net.continuous_parents(feature))
+    actions = torch.arange(len(net.actions))
+    unused = ~net.parameter_in_use(p, actions)  # the action axis is second to last
+    unused = unused[:, None].expand(*card).reshape(-1)
+    out = torch.zeros(unused.shape[0], width, dtype=torch.bool)
+    out[:, width - p.dim :] = unused[:, None]
+    return out
+
+
 def _table_root(t: Table) -> Table:
     return Table(t.probs.reshape(-1), t.n.reshape(()))
 
@@ -373,9 +498,7 @@ def _strip(g: LinearGaussian) -> LinearGaussian:
     )
 
 
-def _default_params(
-    net: EffectNetwork, enc: dict[str, torch.Tensor], alpha: float
-) -> NetworkParams:
+def _default_params(net: EffectNetwork, alpha: float) -> NetworkParams:
     """Uniform tables, zero-slope unit Gaussians and zero softmax: the gradient route's start."""
     cpds = {}
     for site, (kind, shapes) in expected_shapes(net).items():

@@ -11,25 +11,31 @@
 * :func:`imitation_check` -- imitate: the log-likelihood of an observed end state under
   the executed action, and a surprise score: the predictive probability of an outcome
   more likely than the one observed (exact for discrete end states; a seeded Monte Carlo
-  estimate when continuous end states are observed). Near 1: the action did not do what
-  it usually does.
+  estimate over the joint of all observed end features when one is continuous). Near 1:
+  the action did not do what it usually does.
 * :func:`infer_parameter` -- the paper's inverse parameter query: the cluster posterior by
   enumeration, the most probable cluster added to the evidence, then the parameter by
   closed-form Gaussian conditioning.
 
 Every query reports ``unseen``: the posterior probability that its answer rests on a
 parent configuration no training row reached (answered from the pseudo-count prior alone).
+
+Evidence follows one convention (:mod:`models.evidence`): state labels for discrete
+sites, numbers for continuous ones; a parameter row of NaN is unknown and integrated out
+for that row. Empty evidence rows (``n = 0``) give empty results of the right shapes.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from dataclasses import dataclass
+from collections.abc import Hashable, Mapping
+from dataclasses import dataclass, field, fields, is_dataclass, replace
 
+import numpy as np
 import torch
 from pyro.ops.indexing import Vindex
 
 from inference.enumeration import Enumerated, enumerate_model, enumeration_size, row_chunks
+from inference.simulate import draw
 from models.declaration import (
     ACTION,
     DTYPE,
@@ -39,6 +45,7 @@ from models.declaration import (
     end_site,
     param_site,
 )
+from models.evidence import Evidence
 from models.gaussian import condition_linear_gaussian
 from models.params import NetworkParams, check_params
 
@@ -66,22 +73,50 @@ class GaussianMixture:
 
 @dataclass(frozen=True)
 class Prediction:
-    """``discrete[feature]``: ``(n, K)`` probabilities; ``continuous[feature]``: a mixture."""
+    """``discrete[feature]``: ``(n, K)`` probabilities over the feature's states in
+    declaration order (``states[feature]``); ``continuous[feature]``: a mixture."""
 
     discrete: dict[str, torch.Tensor]
     continuous: dict[str, GaussianMixture]
     unseen: torch.Tensor  # (n,) probability of resting on an unseen configuration
+    states: dict[str, tuple] = field(default_factory=dict)
+
+    def prob(self, feature: str, state: Hashable) -> torch.Tensor:
+        """``(n,)`` probability that ``feature`` ends in ``state`` (a label)."""
+        states = self._states(feature)
+        if state not in states:
+            raise ValueError(f"feature {feature!r} has no state {state!r}; states: {states}")
+        return self.discrete[feature][:, states.index(state)]
+
+    def most_likely(self, feature: str) -> tuple:
+        """The most probable end state of ``feature`` per row, as labels."""
+        states = self._states(feature)
+        return tuple(states[i] for i in self.discrete[feature].argmax(-1).tolist())
+
+    def _states(self, feature: str) -> tuple:
+        if feature not in self.discrete:
+            raise ValueError(
+                f"no discrete prediction for {feature!r}; predicted: {sorted(self.discrete)}"
+            )
+        return self.states[feature]
 
 
 @dataclass(frozen=True)
 class ActionPosterior:
-    """``probs`` ``(n, A)``; ``best`` ``(n,)`` index; ``unseen`` ``(n, A)`` per action."""
+    """``probs`` ``(n, A)`` over ``actions``; ``best`` ``(n,)`` index; ``unseen`` ``(n, A)``."""
 
     probs: torch.Tensor
     best: torch.Tensor
     best_names: tuple[str, ...]
     log_evidence: torch.Tensor
     unseen: torch.Tensor
+    actions: tuple[str, ...] = ()
+
+    def prob(self, action: str) -> torch.Tensor:
+        """``(n,)`` posterior probability of the action named ``action``."""
+        if action not in self.actions:
+            raise ValueError(f"unknown action {action!r}; actions are {list(self.actions)}")
+        return self.probs[:, self.actions.index(action)]
 
 
 @dataclass(frozen=True)
@@ -116,29 +151,83 @@ def first_best(score: torch.Tensor, top: torch.Tensor | None = None) -> torch.Te
     return (score >= (top - TIE_TOLERANCE * top.abs())[:, None]).int().argmax(-1)
 
 
-def _prepare(
-    net: EffectNetwork, params: NetworkParams, evidence: Mapping[str, object]
-) -> dict[str, torch.Tensor]:
+def _prepare(net: EffectNetwork, params: NetworkParams, evidence: Mapping[str, object]) -> Evidence:
     check_params(net, params)
     enc = net.encode(evidence)
-    if not enc:
+    if not len(enc):
         raise ValueError("evidence is empty: give at least the initial state")
     return enc
 
 
-def _chunked(net, params, enc, keep, fn, trace_only=()):
-    """Run ``fn(enumerated, chunk_evidence)`` over row chunks and concatenate the results."""
-    n = next(iter(enc.values())).shape[0]
-    size = enumeration_size(net, enc, keep)
-    outs = [
-        fn(
-            enumerate_model(
-                net, params, {k: v[s] for k, v in enc.items()}, keep=keep, trace_only=trace_only
-            ),
-            {k: v[s] for k, v in enc.items()},
+def allowed_actions(net: EffectNetwork, allowed: object, n: int) -> torch.Tensor | None:
+    """``allowed`` as an ``(A,)`` or ``(n, A)`` bool mask with at least one action per row.
+
+    Accepts ``None``, a bool mask ``(A,)`` or ``(n, A)``, or a collection of action names.
+    """
+    if allowed is None:
+        return None
+    a = len(net.actions)
+    if isinstance(allowed, str):
+        allowed = [allowed]
+    if not isinstance(allowed, torch.Tensor) and all(isinstance(x, str) for x in allowed):
+        mask = torch.zeros(a, dtype=torch.bool)
+        for name in allowed:
+            mask[net.action_index(name)] = True
+    else:
+        mask = torch.as_tensor(
+            np.asarray(allowed) if not isinstance(allowed, torch.Tensor) else allowed
         )
-        for s in row_chunks(n, size)
-    ]
+        if mask.dtype != torch.bool:
+            raise ValueError(f"allowed must be action names or a bool mask, got dtype {mask.dtype}")
+        if mask.shape not in ((a,), (n, a)):
+            raise ValueError(
+                f"allowed has shape {tuple(mask.shape)}; expected ({a},) or ({n}, {a}) "
+                f"(one flag per action), or a list of action names"
+            )
+    none = ~mask.reshape(-1, a).any(-1)
+    if none.any():
+        row = int(none.nonzero()[0])
+        where = "" if mask.dim() == 1 else f" in row {row}"
+        raise ValueError(f"allowed permits no action{where}: allow at least one")
+    return mask
+
+
+def placeholder_row(enc: Evidence) -> Evidence:
+    """A placeholder row (state 0, zeros) that stands in for empty evidence: a query runs
+    on it and cuts its answer to zero rows (:func:`no_rows`)."""
+    values = {k: torch.zeros(1, *v.shape[1:], dtype=v.dtype) for k, v in enc.items()}
+    return Evidence(enc.net, values, 1)
+
+
+def no_rows(result):
+    """``result`` (a query's answer for one placeholder row) cut to zero rows."""
+    if isinstance(result, torch.Tensor):
+        return result[:0]
+    if isinstance(result, tuple):
+        return ()
+    if isinstance(result, dict):
+        return {k: no_rows(v) for k, v in result.items()}
+    if is_dataclass(result):
+        return replace(
+            result,
+            **{
+                f.name: no_rows(getattr(result, f.name))
+                for f in fields(result)
+                if f.name not in ("states", "actions")
+            },
+        )
+    return result
+
+
+def _chunked(net, params, enc: Evidence, keep, fn, trace_only=()):
+    """Run ``fn(enumerated, chunk_evidence)`` over row chunks and concatenate the results."""
+    size = enumeration_size(net, enc, keep)
+    outs = []
+    for s in row_chunks(enc.n_rows, size):
+        chunk = enc.rows(s)
+        outs.append(
+            fn(enumerate_model(net, params, chunk, keep=keep, trace_only=trace_only), chunk)
+        )
     if isinstance(outs[0], tuple):
         return tuple(torch.cat(parts, 0) for parts in zip(*outs, strict=True))
     return torch.cat(outs, 0)
@@ -162,6 +251,8 @@ def predict(
 ) -> Prediction:
     """End-state distribution of every end feature not in ``evidence``."""
     enc = _prepare(net, params, evidence)
+    if enc.n_rows == 0:
+        return no_rows(predict(net, params, placeholder_row(enc)))
     targets = [f.name for f in net.features if end_site(f.name) not in enc]
     discrete, continuous = {}, {}
     unseen_sites = [end_site(f) for f in targets]
@@ -178,7 +269,9 @@ def predict(
             (post * _unseen_mass(net, params, e, unseen_sites)).reshape(-1, post.shape[-1]).sum(0)
         )
 
-    return Prediction(discrete, continuous, _chunked(net, params, enc, set(), unseen).clamp(0, 1))
+    states = {f: net.feature(f).states for f in discrete}
+    unseen_mass = _chunked(net, params, enc, set(), unseen).clamp(0, 1)
+    return Prediction(discrete, continuous, unseen_mass, states)
 
 
 def _mixture(net, params, enc, site) -> GaussianMixture:
@@ -214,7 +307,8 @@ def infer_action(
     Parameters
     ----------
     allowed
-        ``(A,)`` or ``(n, A)`` bool: actions that may be chosen as ``best``.
+        Actions that may be chosen as ``best``: a list of action names, or an ``(A,)`` or
+        ``(n, A)`` bool mask. ``ValueError`` if a row permits none.
     avoid_unseen
         Never choose as ``best`` an action whose configuration no training row reached
         (its likelihood is the uniform prior's), unless every allowed action is unseen.
@@ -223,6 +317,13 @@ def infer_action(
     if ACTION in enc:
         raise ValueError(
             "evidence names the action; infer_action infers it (use predict or imitation_check)"
+        )
+    allowed = allowed_actions(net, allowed, enc.n_rows)
+    if enc.n_rows == 0:
+        return no_rows(
+            infer_action(
+                net, params, placeholder_row(enc), allowed=allowed, avoid_unseen=avoid_unseen
+            )
         )
     observed_end = [end_site(f.name) for f in net.features if end_site(f.name) in enc]
 
@@ -240,15 +341,13 @@ def infer_action(
     unseen = unseen.clamp(0, 1)
     score = probs.clone()
     if allowed is not None:
-        allowed = torch.as_tensor(allowed, dtype=torch.bool).expand_as(score)
-        score = torch.where(allowed, score, -1.0)
+        score = torch.where(allowed.expand_as(score), score, -1.0)
     if avoid_unseen:
         seen_score = torch.where(unseen < 0.5, score, -1.0)
         score = torch.where((seen_score.max(-1, keepdim=True).values >= 0), seen_score, score)
     best = first_best(score)
-    return ActionPosterior(
-        probs, best, tuple(net.actions[i] for i in best.tolist()), log_evidence, unseen
-    )
+    names = tuple(net.actions[i] for i in best.tolist())
+    return ActionPosterior(probs, best, names, log_evidence, unseen, net.actions)
 
 
 def imitation_check(
@@ -270,7 +369,11 @@ def imitation_check(
         raise ValueError(
             "imitation_check needs at least one observed end state (sites 'end.<feature>')"
         )
-    prior = {k: v for k, v in enc.items() if k not in observed}
+    if not isinstance(n_samples, int) or n_samples < 1:
+        raise ValueError(f"n_samples must be a positive int, got {n_samples!r}")
+    if enc.n_rows == 0:
+        return no_rows(imitation_check(net, params, placeholder_row(enc), n_samples=1, seed=seed))
+    prior = enc.without(*observed)
     log_lik = _chunked(net, params, enc, set(), lambda e, _: e.log_evidence) - _chunked(
         net, params, prior, set(), lambda e, _: e.log_evidence
     )
@@ -302,34 +405,14 @@ def _discrete_surprise(net, params, prior, observed, log_lik) -> torch.Tensor:
 
 
 def _sampled_surprise(net, params, prior, observed, log_lik, n_samples, seed) -> torch.Tensor:
-    """Monte Carlo estimate of the same tail probability, seeded."""
+    """Monte Carlo estimate of the same tail probability, seeded: outcomes of every
+    observed end feature drawn jointly from the model given the prior evidence."""
     n = log_lik.shape[0]
-    pred = predict(net, params, prior)
-    gen = torch.Generator().manual_seed(seed)
-    rows = {k: v.repeat_interleave(n_samples, 0) for k, v in prior.items()}
-    # Draw the joint outcome: a component by its weight, then every observed end site.
-    # With several observed end sites sharing latent discrete parents this draws them
-    # independently per site, which is exact only when one site is observed; say so.
-    if len(observed) > 1:
-        raise NotImplementedError(
-            "surprise for several observed end states with a continuous one: check them one at a time"
-        )
-    site = observed[0]
-    mix = pred.continuous[net.site(site).feature]
-    comp = torch.multinomial(mix.weights, n_samples, replacement=True, generator=gen)  # (n, S)
-    means = torch.gather(mix.means, 1, comp[..., None].expand(-1, -1, mix.means.shape[-1]))
-    covs = mix.covs[torch.arange(n)[:, None], comp]
-    eps = torch.randn(means.shape, generator=gen, dtype=DTYPE)
-    draws = means + (torch.linalg.cholesky(covs) @ eps[..., None]).squeeze(-1)
-    rows[site] = draws.reshape(n * n_samples, -1)
-    sample_ll = _chunked(net, params, rows, set(), lambda e, _: e.log_evidence)
-    sample_ll = sample_ll - _chunked(
-        net,
-        params,
-        {k: v for k, v in rows.items() if k != site},
-        set(),
-        lambda e, _: e.log_evidence,
-    )
+    rows = prior.repeat(n_samples)
+    drawn = draw(net, params, rows, seed=seed)
+    outcomes = Evidence(net, {s: drawn[s] for s in observed}, rows.n_rows)
+    sample_ll = _chunked(net, params, rows | outcomes, set(), lambda e, _: e.log_evidence)
+    sample_ll = sample_ll - _chunked(net, params, rows, set(), lambda e, _: e.log_evidence)
     return (sample_ll.reshape(n, n_samples) > log_lik[:, None]).to(DTYPE).mean(-1)
 
 
@@ -343,6 +426,11 @@ def infer_parameter(
             f"unknown parameter {parameter!r}; parameters: {[q.name for q in net.parameters]}"
         )
     enc = _prepare(net, params, evidence)
+    if enc.n_rows == 0:
+        placeholder = placeholder_row(enc)
+        if ACTION in placeholder:  # a placeholder action that uses the parameter
+            placeholder = placeholder.without(ACTION) | {ACTION: [p.actions[0]]}
+        return no_rows(infer_parameter(net, params, parameter, placeholder))
     if param_site(p.name) in enc or cluster_site(p.name) in enc:
         raise ValueError(
             f"evidence gives {param_site(p.name)!r} or {cluster_site(p.name)!r}, which this query infers"
@@ -355,10 +443,8 @@ def infer_parameter(
     if ACTION not in enc:
         if len(p.actions) != 1:
             raise ValueError(f"give the action (one of {list(p.actions)}) that used {p.name!r}")
-        enc[ACTION] = torch.full_like(
-            enc[y_site][:, 0], net.action_index(p.actions[0]), dtype=torch.long
-        )
-    not_using = ~net.uses_parameter(p)[enc[ACTION]]
+        enc = enc | {ACTION: [p.actions[0]] * enc.n_rows}
+    not_using = ~net.parameter_in_use(p, enc[ACTION])
     if not_using.any():
         row = int(not_using.nonzero()[0])
         raise ValueError(

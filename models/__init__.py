@@ -11,14 +11,24 @@ from models.declaration import (
     initial_site,
     param_site,
 )
+from models.evidence import Evidence
 from models.model import effect_model
-from models.params import LinearGaussian, NetworkParams, Softmax, Table, load, save
+from models.params import (
+    LinearGaussian,
+    NetworkParams,
+    Softmax,
+    Table,
+    load,
+    random_params,
+    save,
+)
 
 __all__ = [
     "ACTION",
     "Continuous",
     "Discrete",
     "EffectNetwork",
+    "Evidence",
     "LinearGaussian",
     "NetworkParams",
     "Parameter",
@@ -30,5 +40,6 @@ __all__ = [
     "initial_site",
     "load",
     "param_site",
+    "random_params",
     "save",
 ]

@@ -25,6 +25,7 @@ import numpy as np
 import torch
 
 from models.declaration import Discrete, EffectNetwork
+from models.evidence import Evidence
 
 N_FIELDS = 195
 N_CANS = 10
@@ -49,8 +50,9 @@ def can_network(configurations: Sequence[int], n_fields: int = N_FIELDS) -> Effe
 
 def can_rows(
     net: EffectNetwork, start_config: np.ndarray, field: np.ndarray, end_config: np.ndarray
-) -> dict[str, torch.Tensor]:
-    """Training rows from arrays of equal length ``(n,)`` int: masks and field indices.
+) -> Evidence:
+    """Training rows (encoded) from arrays of equal length ``(n,)`` int: masks and field
+    indices.
 
     Counts are derived from the masks. Raises ``ValueError`` for a mask that is not a
     state of ``net`` (an end configuration no start configuration lists, say).
@@ -63,13 +65,15 @@ def can_rows(
             f"start_config, field and end_config must be (n,) arrays of one length, got "
             f"{start_config.shape}, {field.shape}, {end_config.shape}"
         )
-    return {
-        "initial.config": config_index(net, start_config),
-        "initial.count": torch.as_tensor(count(start_config)),
-        "action": torch.as_tensor(field),
-        "end.config": config_index(net, end_config),
-        "end.count": torch.as_tensor(count(end_config)),
-    }
+    return net.encode_indices(
+        {
+            "initial.config": config_index(net, start_config),
+            "initial.count": torch.as_tensor(count(start_config)),
+            "action": torch.as_tensor(field),
+            "end.config": config_index(net, end_config),
+            "end.count": torch.as_tensor(count(end_config)),
+        }
+    )
 
 
 def config_index(net: EffectNetwork, masks: np.ndarray) -> torch.Tensor:

@@ -22,17 +22,19 @@ A declaration holds structure only. Fitted numbers live in :mod:`models.params`.
 from __future__ import annotations
 
 import math
-from collections.abc import Hashable, Mapping, Sequence
+from collections.abc import Hashable, Mapping
 from dataclasses import dataclass, field
 from typing import Literal
 
+import numpy as np
 import torch
+
+from models.evidence import DTYPE, Evidence, decode, encode
 
 FeatureKind = Literal["object", "meta", "world"]
 _KINDS = ("object", "meta", "world")
 
 ACTION = "action"
-DTYPE = torch.float64  # every continuous value and every probability is float64
 
 
 def initial_site(feature: str) -> str:
@@ -71,11 +73,18 @@ class Discrete:
 
     def __post_init__(self) -> None:
         _check_name(self.name, "feature")
-        object.__setattr__(self, "states", tuple(self.states))
+        if isinstance(self.states, str | bytes) or not hasattr(self.states, "__iter__"):
+            raise ValueError(
+                f"feature {self.name!r}: states must be a sequence of labels, got {self.states!r}"
+            )
+        object.__setattr__(self, "states", tuple(_state_label(self.name, s) for s in self.states))
         if len(self.states) < 2:
             raise ValueError(f"feature {self.name!r} needs at least two states, got {self.states}")
         if len(set(self.states)) != len(self.states):
-            raise ValueError(f"feature {self.name!r} has repeated states: {self.states}")
+            raise ValueError(
+                f"feature {self.name!r} has repeated states: {self.states} (Python counts "
+                "1, 1.0 and True as one value)"
+            )
         if self.kind not in _KINDS:
             raise ValueError(f"feature {self.name!r}: kind {self.kind!r} is not one of {_KINDS}")
 
@@ -135,16 +144,20 @@ class Parameter:
 
     def __post_init__(self) -> None:
         _check_name(self.name, "parameter")
-        for attr in ("low", "high", "bins", "actions"):
-            value = getattr(self, attr)
-            object.__setattr__(
-                self, attr, (value,) if isinstance(value, int | float | str) else tuple(value)
-            )
+        object.__setattr__(self, "low", _numbers(self.name, "low", self.low, float))
+        object.__setattr__(self, "high", _numbers(self.name, "high", self.high, float))
+        object.__setattr__(self, "bins", _numbers(self.name, "bins", self.bins, int))
+        actions = (self.actions,) if isinstance(self.actions, str) else tuple(self.actions)
+        object.__setattr__(self, "actions", actions)
         d = len(self.low)
         if d == 0 or len(self.high) != d or len(self.bins) != d:
             raise ValueError(
                 f"parameter {self.name!r}: low, high and bins must have the same length >= 1, "
                 f"got {len(self.low)}, {len(self.high)}, {len(self.bins)}"
+            )
+        if not all(math.isfinite(v) for v in self.low + self.high):
+            raise ValueError(
+                f"parameter {self.name!r}: low and high must be finite, got {self.low}, {self.high}"
             )
         if any(not lo < hi for lo, hi in zip(self.low, self.high, strict=True)):
             raise ValueError(
@@ -323,14 +336,15 @@ class EffectNetwork:
             ) from None
 
     # ----------------------------------------------------------------- evidence
-    def encode(self, evidence: Mapping[str, object]) -> dict[str, torch.Tensor]:
-        """Validate evidence and turn it into tensors, one row per query.
+    def encode(self, evidence: Mapping[str, object]) -> Evidence:
+        """Validate evidence given as state labels and encode it, one row per query.
 
         Keys are site names (``initial.f``, ``end.f``, ``action``, ``param.p``,
-        ``cluster.p``). Discrete values are state labels (a label or a sequence of labels;
-        action names for ``action``), or a ``torch.long`` tensor of state indices.
-        Continuous values are floats of shape ``(n, dim)`` (or ``(dim,)`` for one row).
-        All values must have the same number of rows ``n``.
+        ``cluster.p``). Discrete values are state labels in any container (a label, a
+        list, a numpy array, a torch tensor); action names for ``action``. Continuous
+        values are numbers of shape ``(n, dim)`` (or ``(dim,)`` for one row). All values
+        must have the same number of rows ``n``. Already encoded :class:`Evidence` is
+        returned as it is. See :mod:`models.evidence` for the whole convention.
 
         Raises
         ------
@@ -338,87 +352,29 @@ class EffectNetwork:
             Naming the site and the problem: unknown site, unknown state, wrong
             dimension, NaN or inf, or rows that disagree in number.
         """
-        encoded: dict[str, torch.Tensor] = {}
-        for name, value in evidence.items():
-            if name not in self._sites:
-                raise ValueError(
-                    f"evidence on site {name!r}, which does not exist; sites are {list(self._sites)}"
-                )
-            spec = self._sites[name]
-            encoded[name] = (
-                self._encode_discrete(spec, value)
-                if spec.discrete
-                else self._encode_continuous(spec, value)
-            )
-        rows = {name: v.shape[0] for name, v in encoded.items()}
-        if len(set(rows.values())) > 1:
-            raise ValueError(f"evidence rows disagree in number: {rows}")
-        return encoded
+        return encode(self, evidence, indices=False)
 
-    def _labels(self, spec: SiteSpec) -> tuple[Hashable, ...]:
-        if spec.role == "action":
-            return self.actions
-        if spec.role == "cluster":
-            return tuple(range(spec.size))
-        feature = self.feature(spec.feature)
-        assert isinstance(feature, Discrete)
-        return feature.states
+    def encode_indices(self, evidence: Mapping[str, object]) -> Evidence:
+        """Like :meth:`encode`, but discrete values are state *indices* ``0..K-1``.
 
-    def _encode_discrete(self, spec: SiteSpec, value: object) -> torch.Tensor:
-        if (
-            isinstance(value, torch.Tensor)
-            and not value.is_floating_point()
-            and value.dtype != torch.bool
-        ):
-            index = (
-                value
-                if value.dtype == torch.long and value.dim() == 1
-                else value.long().reshape(-1)
-            )
-            if index.numel():
-                low, high = (int(v) for v in torch.aminmax(index))
-                if low < 0 or high >= spec.size:
-                    bad = index[(index < 0) | (index >= spec.size)][0]
-                    raise ValueError(
-                        f"site {spec.name!r}: state index {int(bad)} outside 0..{spec.size - 1}"
-                    )
-            return index
-        labels = self._labels(spec)
-        lookup = {label: i for i, label in enumerate(labels)}
-        values = [value] if _is_scalar_label(value) else list(value)
-        out = []
-        for v in values:
-            v = v.item() if hasattr(v, "item") else v
-            if v not in lookup:
-                shown = (
-                    list(labels)
-                    if len(labels) <= 12
-                    else f"{list(labels[:12])} ... ({len(labels)} states)"
-                )
-                raise ValueError(
-                    f"site {spec.name!r}: value {v!r} is not one of its states {shown}"
-                )
-            out.append(lookup[v])
-        return torch.tensor(out, dtype=torch.long)
+        The one explicit path for indices (positions in the declared states, the
+        actions or the clusters); everywhere else a discrete value is a label.
+        """
+        return encode(self, evidence, indices=True)
 
-    def _encode_continuous(self, spec: SiteSpec, value: object) -> torch.Tensor:
-        x = torch.as_tensor(value, dtype=DTYPE)
-        if x.dim() == 1 and spec.size > 1 or x.dim() == 0:
-            x = x.reshape(1, -1)
-        elif x.dim() == 1:
-            x = x.reshape(-1, 1)
-        if x.dim() != 2 or x.shape[-1] != spec.size:
-            raise ValueError(
-                f"site {spec.name!r}: expected shape (n, {spec.size}), got {tuple(torch.as_tensor(value).shape)}"
-            )
-        bad = ~torch.isfinite(x)
-        if spec.role == "param":
-            # A parameter is missing (all NaN) in rows whose action does not use it.
-            bad = bad & ~torch.isnan(x).all(-1, keepdim=True)
-        if bad.any():
-            row = int(bad.any(-1).nonzero()[0])
-            raise ValueError(f"site {spec.name!r}: NaN or inf in row {row}: {x[row].tolist()}")
-        return x
+    def decode(self, site: str, index: torch.Tensor) -> list:
+        """The state labels of ``(n,)`` state indices of a discrete site."""
+        return decode(self, site, index)
+
+    def parameter_in_use(self, parameter: Parameter, action: torch.Tensor) -> torch.Tensor:
+        """Whether ``action`` (state indices, any shape) uses ``parameter``: bool, same shape.
+
+        The rule every part of the toolkit applies: an action that does not use a
+        parameter ignores its value. Its effect on the affected feature counts as zero
+        (in the model, in fitting and in the closed-form marginal), its own density is
+        left out, and its cluster sits on cell 0.
+        """
+        return self.uses_parameter(parameter)[action]
 
     # ----------------------------------------------------------------- serialisation
     def to_dict(self) -> dict:
@@ -474,9 +430,33 @@ def _spec(name: str, f: Feature, role: Literal["initial", "end"]) -> SiteSpec:
     return SiteSpec(name, False, f.dim, role, f.name)
 
 
-def _is_scalar_label(value: object) -> bool:
-    if isinstance(value, str | bytes | bool | int | float):
-        return True
+def _state_label(feature: str, state: object) -> Hashable:
+    """A state as a plain JSON scalar (numpy and 0-d torch scalars become Python ones)."""
+    if isinstance(state, np.generic) or isinstance(state, torch.Tensor) and state.dim() == 0:
+        state = state.item()
+    if state is not None and not isinstance(state, str | bool | int | float):
+        raise ValueError(
+            f"feature {feature!r}: state {state!r} is a {type(state).__name__}; states must be "
+            "str, int, float, bool or None (they are saved as JSON). Name a composite state "
+            "with a string, e.g. 'a-b' for ('a', 'b')"
+        )
+    if isinstance(state, float) and not math.isfinite(state):
+        raise ValueError(f"feature {feature!r}: state {state!r} is not a finite number")
+    return state
+
+
+def _numbers(parameter: str, attr: str, value: object, kind: type) -> tuple:
+    """``low``, ``high`` or ``bins`` as a tuple of Python floats or ints."""
     if isinstance(value, torch.Tensor):
-        return value.dim() == 0
-    return not isinstance(value, Sequence) and not hasattr(value, "__len__")
+        value = value.detach().cpu().numpy()
+    array = np.atleast_1d(np.asarray(value))
+    ok = array.ndim == 1 and (
+        array.dtype.kind in "iu" if kind is int else array.dtype.kind in "iuf"
+    )
+    if not ok:
+        what = "positive ints" if kind is int else "numbers"
+        raise ValueError(
+            f"parameter {parameter!r}: {attr} must be a number or a sequence of {what}, "
+            f"got {value!r}"
+        )
+    return tuple(kind(v) for v in array.tolist())

@@ -20,6 +20,7 @@ import torch
 
 from models.declaration import (
     ACTION,
+    DTYPE,
     EffectNetwork,
     cluster_site,
     end_site,
@@ -213,3 +214,51 @@ def load(path: str | Path) -> tuple[EffectNetwork, NetworkParams]:
         ) from exc
     check_params(net, params)
     return net, params
+
+
+def random_params(net: EffectNetwork, seed: int, *, unseen: float = 0.0) -> NetworkParams:
+    """Valid random parameters for ``net``: for tests, priors and simulation studies.
+
+    Tables are Dirichlet-like draws (softmax of scaled normals), linear Gaussians have
+    standard-normal weights and offsets and well-conditioned covariances, softmax CPDs
+    normal weights. Each parameter's cluster Gaussian lies inside its own cell (mean
+    drawn in the cell's middle half, standard deviation an eighth of the cell), as a
+    fitted one does, and actions not using the parameter sit on cell 0. ``unseen``: the
+    share of parent configurations marked as reached by no training row (``n = 0``).
+    """
+    if not 0.0 <= unseen <= 1.0:
+        raise ValueError(f"unseen must lie in [0, 1], got {unseen!r}")
+    g = torch.Generator().manual_seed(int(seed))
+
+    def normal(shape):
+        return torch.randn(shape, generator=g, dtype=DTYPE)
+
+    cpds = {}
+    for site, (kind, shapes) in expected_shapes(net).items():
+        n = (torch.rand(shapes["n"], generator=g, dtype=DTYPE) >= unseen).to(DTYPE) * 5
+        if kind == "Table":
+            cpds[site] = Table((2 * normal(shapes["probs"])).softmax(-1), n)
+        elif kind == "LinearGaussian":
+            d = shapes["bias"][-1]
+            a = normal(shapes["scale_tril"])
+            cov = a @ a.mT / d + 0.3 * torch.eye(d, dtype=DTYPE)
+            cpds[site] = LinearGaussian(
+                normal(shapes["weight"]), normal(shapes["bias"]), torch.linalg.cholesky(cov), n
+            )
+        else:
+            cpds[site] = Softmax(normal(shapes["weight"]), normal(shapes["bias"]), n)
+    for p in net.parameters:
+        c_site, p_site = cluster_site(p.name), param_site(p.name)
+        t = cpds[c_site]
+        fixed = torch.zeros(p.n_clusters, dtype=DTYPE)
+        fixed[0] = 1
+        cpds[c_site] = Table(torch.where(net.uses_parameter(p)[:, None], t.probs, fixed), t.n)
+        width = (torch.tensor(p.high, dtype=DTYPE) - torch.tensor(p.low, dtype=DTYPE)) / (
+            torch.tensor(p.bins, dtype=DTYPE)
+        )
+        offset = (torch.rand(p.n_clusters, p.dim, generator=g, dtype=DTYPE) - 0.5) * 0.5
+        mean = p.cluster_centres() + offset * width
+        tril = torch.diag_embed((width / 8).expand(p.n_clusters, p.dim))
+        prior = cpds[p_site]
+        cpds[p_site] = LinearGaussian(prior.weight, mean, tril, prior.n)
+    return NetworkParams(cpds, 0.01)

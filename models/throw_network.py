@@ -118,7 +118,8 @@ def throw_data(net: EffectNetwork, targets: np.ndarray, hits: np.ndarray) -> dic
     Returns
     -------
     dict
-        ``{"action": (n,) long, "param.target": (n, 2) float64, "end.hit": (n, 2) float64}``.
+        Encoded rows (:class:`~models.evidence.Evidence`): ``action`` (the one throw),
+        ``param.target`` ``(n, 2)`` and ``end.hit`` ``(n, 2)`` float64.
 
     Raises
     ------
@@ -134,11 +135,13 @@ def throw_data(net: EffectNetwork, targets: np.ndarray, hits: np.ndarray) -> dic
             f"targets has {len(targets)} rows and hits {len(hits)}: expected one hit per target"
         )
     _check_inside(targets, "targets", parameter.low, parameter.high)
-    return {
-        ACTION: torch.zeros(len(targets), dtype=torch.long),
-        param_site(TARGET): torch.as_tensor(targets, dtype=DTYPE),
-        end_site(HIT): torch.as_tensor(hits, dtype=DTYPE),
-    }
+    return net.encode(
+        {
+            ACTION: [net.actions[0]] * len(targets),
+            param_site(TARGET): targets,
+            end_site(HIT): hits,
+        }
+    )
 
 
 def hit_evidence(

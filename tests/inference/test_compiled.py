@@ -21,7 +21,7 @@ from tests.helpers import discrete_network, random_params
 )
 def test_compiled_equals_traced(cards, n_actions, seed, zero_n, data):
     net = discrete_network(cards, n_actions)
-    params = random_params(net, seed, zero_n=zero_n)
+    params = random_params(net, seed, unseen=zero_n)
     compiled = compile_discrete(net, params)
     g = torch.Generator().manual_seed(seed)
     ev = {}
@@ -32,6 +32,7 @@ def test_compiled_equals_traced(cards, n_actions, seed, zero_n, data):
             ev[f"end.f{i}"] = torch.randint(0, k, (7,), generator=g)
     if not ev:
         ev["initial.f0"] = torch.randint(0, cards[0], (7,), generator=g)
+    ev = net.encode_indices(ev)
     a = compiled.infer_action(ev)
     b = infer_action(net, params, ev)
     torch.testing.assert_close(a.probs, b.probs, atol=1e-9, rtol=0)
@@ -51,7 +52,7 @@ def test_compiled_parameter_query_equals_traced():
     from inference.compiled import compile_parameter_query
     from tests.inference.test_queries_mixed import NET
 
-    params = random_params(NET, 21, zero_n=0.2)
+    params = random_params(NET, 21, unseen=0.2)
     query = compile_parameter_query(NET, params, "force")
     g = torch.Generator().manual_seed(1)
     n = 40
@@ -61,6 +62,7 @@ def test_compiled_parameter_query_equals_traced():
         "action": torch.randint(1, 3, (n,), generator=g),  # tap or push: both use the force
         "end.pos": 3 * torch.randn(n, 2, generator=g, dtype=torch.float64),
     }
+    ev = NET.encode_indices(ev)
     a = query.infer(ev)
     b = infer_parameter(NET, params, "force", ev)
     torch.testing.assert_close(a.cluster_probs, b.cluster_probs, atol=1e-9, rtol=0)
@@ -84,6 +86,7 @@ def test_compiled_parameter_query_with_one_shared_configuration():
         "action": torch.full((n,), 2),
         "end.pos": 3 * torch.randn(n, 2, generator=g, dtype=torch.float64),
     }
+    ev = NET.encode_indices(ev)
     a = compile_parameter_query(NET, params, "force").infer(ev)
     b = infer_parameter(NET, params, "force", ev)
     torch.testing.assert_close(a.cluster_probs, b.cluster_probs, atol=1e-9, rtol=0)

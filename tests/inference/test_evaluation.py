@@ -251,12 +251,14 @@ def test_unpooled_tail_surprise_is_the_networks_imitation_check(seed):
     action = torch.randint(0, 6, (n,), generator=gen)
     end = torch.randint(0, 4, (n,), generator=gen)
     check = imitation_check(
-        net, params, {"initial.f0": initial, "action": action, "end.f0": end}
+        net,
+        params,
+        net.encode_indices({"initial.f0": initial, "action": action, "end.f0": end}),
     ).surprise
     for s in range(4):
         rows = initial == s
         table = predict(
-            net, params, {"initial.f0": torch.full((6,), s), "action": torch.arange(6)}
+            net, params, {"initial.f0": torch.full((6,), s), "action": list(net.actions)}
         ).discrete["f0"]
         pooled = aim_pooled(table, (2, 3), action[rows], sigma=0.0)
         assert torch.allclose(tail_surprise(pooled, end[rows]), check[rows], atol=1e-12)

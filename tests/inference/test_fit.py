@@ -8,7 +8,8 @@ from models import Continuous, Discrete, EffectNetwork, Parameter
 from models.declaration import DTYPE
 
 
-def tap_data(n=400, seed=0):
+def tap_data(net, n=400, seed=0):
+    """Rows of a tap world, by state index (``remove`` = 0, ``tap`` = 1)."""
     g = torch.Generator().manual_seed(seed)
     a = torch.randint(0, 2, (n,), generator=g)
     vis0 = torch.randint(0, 2, (n,), generator=g)
@@ -21,14 +22,16 @@ def tap_data(n=400, seed=0):
         + torch.where(a[:, None] == 1, 0.3 * force.nan_to_num(), 0.0)
         + 0.1 * torch.randn(n, 1, generator=g, dtype=DTYPE)
     )
-    return {
-        "initial.visible": vis0,
-        "initial.pos": pos0,
-        "action": a,
-        "param.force": force,
-        "end.visible": vis1,
-        "end.pos": pos1,
-    }
+    return net.encode_indices(
+        {
+            "initial.visible": vis0,
+            "initial.pos": pos0,
+            "action": a,
+            "param.force": force,
+            "end.visible": vis1,
+            "end.pos": pos1,
+        }
+    )
 
 
 DISCRETE = EffectNetwork(
@@ -43,13 +46,15 @@ def discrete_data(n=3000, seed=1):
     c0 = torch.randint(0, 3, (n,), generator=g)
     v1 = torch.where((a == 0) & (torch.rand(n, generator=g) < 0.9), 0, v0)
     c1 = torch.where(a == 1, torch.randint(0, 3, (n,), generator=g), c0)
-    return {
-        "initial.visible": v0,
-        "initial.colour": c0,
-        "action": a,
-        "end.visible": v1,
-        "end.colour": c1,
-    }
+    return DISCRETE.encode_indices(
+        {
+            "initial.visible": v0,
+            "initial.colour": c0,
+            "action": a,
+            "end.visible": v1,
+            "end.colour": c1,
+        }
+    )
 
 
 def test_tables_are_normalised_counts():
@@ -66,7 +71,7 @@ def test_tables_are_normalised_counts():
 
 
 def test_pseudo_count_policy():
-    data = {k: v[:5] for k, v in discrete_data().items()}
+    data = discrete_data().rows(slice(0, 5))
     params = fit(DISCRETE, data, pseudo_count=1.0).params
     t, n = params["end.colour"].probs, params["end.colour"].n
     assert (n == 0).any()
@@ -76,12 +81,12 @@ def test_pseudo_count_policy():
 
 
 def test_linear_gaussian_is_least_squares_and_residual_covariance():
-    data = tap_data()
     net = EffectNetwork(
         (Discrete("visible", (0, 1)), Continuous("pos", 1)),
         ("remove", "tap"),
         (Parameter("force", 0.0, 10.0, 2, ("tap",), "pos"),),
     )
+    data = tap_data(net)
     params = fit(net, data, pseudo_count=0.0, min_variance=0.0, steps=50).params
     cpd = params["end.pos"]
     c = net.parameters[0].cluster_of(data["param.force"].nan_to_num())
@@ -128,7 +133,7 @@ def test_gradient_route_for_gaussians():
     a = torch.randint(0, 2, (n,), generator=g)
     x0 = torch.randn(n, 1, generator=g, dtype=DTYPE)
     x1 = 0.5 * x0 + a[:, None] * 2.0 + 0.2 * torch.randn(n, 1, generator=g, dtype=DTYPE)
-    data = {"initial.pos": x0, "action": a, "end.pos": x1}
+    data = net.encode_indices({"initial.pos": x0, "action": a, "end.pos": x1})
     closed = fit(net, data, pseudo_count=0.0, min_variance=0.0).params["end.pos"]
     grad = fit_gradient(net, data, steps=300, lr=0.1).params["end.pos"]
     torch.testing.assert_close(grad.weight, closed.weight, atol=1e-2, rtol=0)
@@ -152,7 +157,7 @@ def test_too_few_samples_stay_positive_definite():
     net = EffectNetwork((Continuous("pos", 3),), ("a", "b"))
     data = {
         "initial.pos": torch.randn(3, 3, dtype=DTYPE),
-        "action": torch.tensor([0, 0, 1]),
+        "action": ["a", "a", "b"],
         "end.pos": torch.randn(3, 3, dtype=DTYPE),
     }
     params = fit(net, data).params
@@ -162,15 +167,15 @@ def test_too_few_samples_stay_positive_definite():
 def test_fit_rejects_bad_data():
     data = discrete_data(n=20)
     with pytest.raises(ValueError, match="missing.*end.colour"):
-        fit(DISCRETE, {k: v for k, v in data.items() if k != "end.colour"})
+        fit(DISCRETE, data.without("end.colour"))
     with pytest.raises(ValueError, match="pseudo_count"):
         fit(DISCRETE, data, pseudo_count=-1)
-    tap = tap_data(n=20)
-    tap["param.force"][tap["action"] == 1] = float("nan")
     net = EffectNetwork(
         (Discrete("visible", (0, 1)), Continuous("pos", 1)),
         ("remove", "tap"),
         (Parameter("force", 0.0, 10.0, 2, ("tap",), "pos"),),
     )
-    with pytest.raises(ValueError, match="uses the parameter, but no value"):
+    tap = tap_data(net, n=20)
+    tap["param.force"][tap["action"] == 1] = float("nan")
+    with pytest.raises(ValueError, match="uses the parameter, but the row gives no value"):
         fit(net, tap)

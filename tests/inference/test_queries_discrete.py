@@ -79,7 +79,7 @@ def test_predict_and_imitation_equal_brute_force(cards, seed, data):
     init = tuple(data.draw(st.integers(0, k - 1)) for k in cards)
     action = data.draw(st.integers(0, 2))
     evidence = {f"initial.f{i}": torch.tensor([v]) for i, v in enumerate(init)} | {
-        "action": torch.tensor([action])
+        "action": [net.actions[action]]
     }
     pred = predict(net, params, evidence)
     for i, k in enumerate(cards):
@@ -175,7 +175,7 @@ def test_unseen_configuration_is_reported():
     assert post.unseen[0].tolist() == [0.0, 0.0, 1.0]
     assert post.best[0] != 2
     pred = predict(
-        net, params, {"initial.f0": torch.tensor([1, 0]), "action": torch.tensor([2, 2])}
+        net, params, {"initial.f0": torch.tensor([1, 0]), "action": ["a2", "a2"]}
     )
     assert pred.unseen.tolist() == [1.0, 0.0]
 

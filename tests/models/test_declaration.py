@@ -47,12 +47,17 @@ def test_cluster_grid():
         ({"action": ["kick"]}, r"action.*'kick' is not one of its states"),
         ({"initial.colour": [1]}, r"site 'initial.colour', which does not exist"),
         ({"initial.visible": [True, False], "initial.light": ["lit"]}, "rows disagree"),
-        ({"initial.visible": torch.tensor([2])}, "state index 2 outside 0..1"),
+        ({"initial.visible": torch.tensor([2])}, "value 2 is not one of its states"),
     ],
 )
 def test_bad_evidence_is_named(evidence, match):
     with pytest.raises(ValueError, match=match):
         NET.encode(evidence)
+
+
+def test_bad_indices_are_named():
+    with pytest.raises(ValueError, match="state index 2 outside 0..1"):
+        NET.encode_indices({"initial.visible": torch.tensor([2])})
 
 
 def test_bad_declarations():
@@ -113,16 +118,18 @@ def test_load_refuses_corrupt_and_incompatible_files(tmp_path):
 def test_fitted_network_round_trips(tmp_path):
     g = torch.Generator().manual_seed(0)
     n = 100
-    data = {
-        "initial.visible": torch.randint(0, 2, (n,), generator=g),
-        "initial.pos": torch.randn(n, 2, generator=g),
-        "initial.light": torch.randint(0, 2, (n,), generator=g),
-        "action": torch.zeros(n, dtype=torch.long),
-        "param.force": torch.full((n, 1), float("nan")),
-        "end.visible": torch.randint(0, 2, (n,), generator=g),
-        "end.pos": torch.randn(n, 2, generator=g),
-        "end.light": torch.randint(0, 2, (n,), generator=g),
-    }
+    data = NET.encode_indices(
+        {
+            "initial.visible": torch.randint(0, 2, (n,), generator=g),
+            "initial.pos": torch.randn(n, 2, generator=g),
+            "initial.light": torch.randint(0, 2, (n,), generator=g),
+            "action": torch.zeros(n, dtype=torch.long),
+            "param.force": torch.full((n, 1), float("nan")),
+            "end.visible": torch.randint(0, 2, (n,), generator=g),
+            "end.pos": torch.randn(n, 2, generator=g),
+            "end.light": torch.randint(0, 2, (n,), generator=g),
+        }
+    )
     params = fit(NET, data, steps=5).params
     net2, params2 = load(save(tmp_path / "fitted.pt", NET, params))
     assert net2 == NET and set(params2.cpds) == set(params.cpds)

@@ -1,0 +1,153 @@
+"""Rows drawn from a fitted effect network: the model generating data from itself.
+
+:func:`simulate` draws rows in :func:`inference.fit`'s own format (state labels, the
+parameter NaN where the action does not use it), so ``fit(net, simulate(net, params,
+n))`` recovers ``params`` within sampling error. Given evidence, the rows come from the
+model's exact conditional:
+
+1. the discrete sites the evidence depends on are drawn jointly from their posterior,
+   computed by enumeration (unknown parameters integrated out);
+2. an unknown parameter is drawn from its Gaussian posterior given its cluster and the
+   observed affected feature (a closed-form identity), or from its cluster's Gaussian
+   when that feature is not observed;
+3. every remaining site is drawn forward by the model itself.
+
+Evidence on roots only (initial states, the action) skips step 1: they are independent,
+so conditioning on them is clamping them.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import torch
+from pyro import poutine
+
+from inference.enumeration import enumerate_model
+from models.declaration import (
+    ACTION,
+    DTYPE,
+    EffectNetwork,
+    Parameter,
+    cluster_site,
+    end_site,
+    param_site,
+)
+from models.evidence import Evidence
+from models.gaussian import condition_linear_gaussian
+from models.model import effect_model
+from models.params import NetworkParams, check_params
+
+
+def simulate(
+    net: EffectNetwork,
+    params: NetworkParams,
+    n: int,
+    evidence: Mapping[str, object] | None = None,
+    *,
+    seed: int = 0,
+) -> dict[str, object]:
+    """Draw ``n`` rows from the model, given ``evidence`` if any.
+
+    Parameters
+    ----------
+    n
+        Rows to draw.
+    evidence
+        Values of some sites (labels, as everywhere), one row (shared by all ``n``) or
+        ``n`` rows (one per draw). ``None``: draws from the model's joint.
+    seed
+        Seeds the draws; the global random state is left as it was.
+
+    Returns
+    -------
+    dict
+        Every site but the clusters: discrete sites a list of ``n`` state labels,
+        continuous ones an ``(n, d)`` float64 tensor; ``param.p`` is NaN in rows whose
+        action does not use ``p``.
+    """
+    check_params(net, params)
+    if not isinstance(n, int) or isinstance(n, bool) or n < 1:
+        raise ValueError(f"n must be a positive int, got {n!r}")
+    enc = net.encode(evidence if evidence is not None else {})
+    if len(enc) and enc.n_rows not in (1, n):
+        raise ValueError(f"evidence has {enc.n_rows} rows; give one row or n = {n} rows")
+    if len(enc) and enc.n_rows == 1 and n > 1:
+        enc = enc.repeat(n)
+    rows = draw(net, params, enc if len(enc) else Evidence(net, {}, n), seed=seed)
+    return {
+        site: net.decode(site, value) if net.site(site).discrete else value
+        for site, value in rows.items()
+        if net.site(site).role != "cluster"
+    }
+
+
+def draw(
+    net: EffectNetwork, params: NetworkParams, evidence: Evidence, *, seed: int
+) -> dict[str, torch.Tensor]:
+    """Encoded draws of every site, one per evidence row (see the module's steps)."""
+    n = evidence.n_rows
+    data = dict(evidence)
+    with torch.random.fork_rng():
+        torch.manual_seed(seed)
+        if any(net.site(s).role not in ("initial", ACTION) for s in evidence):
+            try:
+                e = enumerate_model(net, params, evidence)
+            except ValueError as exc:
+                raise ValueError(f"simulate given evidence beyond the roots: {exc}") from None
+            data |= _posterior_draw(e)
+            for p in net.parameters:
+                data[param_site(p.name)] = _parameter_draw(net, params, p, data)
+        trace = poutine.trace(effect_model).get_trace(net, params, Evidence(net, data, n))
+    out = {s.name: trace.nodes[s.name]["value"] for s in net.sites}
+    for p in net.parameters:  # the parameter of an action that does not use it: absent
+        uses = net.parameter_in_use(p, out[ACTION])
+        site = param_site(p.name)
+        out[site] = torch.where(uses[:, None], out[site], torch.nan)
+    return out
+
+
+def _posterior_draw(e) -> dict[str, torch.Tensor]:
+    """One joint draw per row of the enumerated sites, from their exact posterior."""
+    post = e.posterior()  # (E..., n)
+    n = post.shape[-1]
+    flat = post.reshape(-1, n).T.clamp_min(0)  # (n, M)
+    pick = torch.multinomial(flat, 1).squeeze(-1)
+    shape = post.shape[:-1]
+    out = {}
+    for site, dim in e.dims.items():
+        axis = len(shape) + 1 + dim  # position of the site's dim within ``shape``
+        size = shape[axis]
+        if size > 1:
+            stride = int(torch.tensor(shape[axis + 1 :]).prod()) if axis + 1 < len(shape) else 1
+            out[site] = (pick // stride) % size
+    return out
+
+
+def _parameter_draw(net: EffectNetwork, params: NetworkParams, p: Parameter, data) -> torch.Tensor:
+    """``param.p`` in every row: given, else drawn given its cluster (and ``end.g``)."""
+    p_site, c_site, y_site = param_site(p.name), cluster_site(p.name), end_site(p.affects)
+    action = data[ACTION]
+    n = action.shape[0]
+    theta = data.get(p_site, torch.full((n, p.dim), torch.nan, dtype=DTYPE)).clone()
+    todo = torch.isnan(theta).any(-1) & net.parameter_in_use(p, action)
+    if not todo.any():
+        return theta
+    cluster = data[c_site]
+    prior = params[p_site]
+    mean, cov = prior.bias[cluster], prior.covariance[cluster]
+    if y_site in data:
+        cpd = params[y_site]
+        index = tuple(data[s] for s in net.discrete_parents(p.affects))
+        weight = cpd.weight[index]
+        w_x, w_p = weight[..., : weight.shape[-1] - p.dim], weight[..., weight.shape[-1] - p.dim :]
+        offset = cpd.bias[index]
+        others = [data[s] for s in net.continuous_parents(p.affects)[:-1]]
+        if others:
+            offset = offset + (w_x @ torch.cat(others, -1)[..., None]).squeeze(-1)
+        mean, cov = condition_linear_gaussian(
+            mean, cov, w_p, offset, cpd.covariance[index], data[y_site]
+        )
+    eps = torch.randn(n, p.dim, dtype=DTYPE)
+    drawn = mean + (torch.linalg.cholesky(cov) @ eps[..., None]).squeeze(-1)
+    return torch.where(todo[:, None], drawn, theta)

@@ -1,0 +1,262 @@
+"""Evidence: values of a network's sites, validated and encoded for the model.
+
+**The one convention.** Everywhere a user gives values (training rows, query evidence,
+``effect_model``'s ``data``), a discrete site takes *state labels*: the states a feature
+was declared with (``False``/``True``, ``"open"``, ``3``), action names for ``action``,
+cluster numbers ``0..C-1`` for ``cluster.<p>``. That holds for every container: a label,
+a list, a tuple, a numpy array or a torch tensor. For states ``(1, 2, 3)`` the values
+``[1]``, ``np.array([1])`` and ``torch.tensor([1])`` all mean the state ``1``.
+
+State *indices* (positions in the declared states, what the model computes with) enter
+only through one named path, :meth:`EffectNetwork.encode_indices`, and come out of
+:meth:`EffectNetwork.encode`. Both return :class:`Evidence`, which every query, ``fit``
+and ``effect_model`` accept as already encoded, and which Pyro's handlers take as it is
+(``pyro.condition(effect_model, data=net.encode({...}))``).
+
+Continuous sites take floats of shape ``(n, dim)`` (``(dim,)`` is one row; for ``dim`` 1
+a flat ``(n,)`` is ``n`` rows), any float or int dtype; they are stored as float64.
+NaN is refused except in an action parameter ``param.<p>``, where a row of NaN means
+"unknown": rows whose action does not use the parameter may leave it NaN, and queries
+integrate an unknown value out, row by row.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Hashable, Iterator, Mapping
+from typing import TYPE_CHECKING
+
+import numpy as np
+import torch
+
+if TYPE_CHECKING:
+    from models.declaration import EffectNetwork, SiteSpec
+
+DTYPE = torch.float64  # every continuous value and every probability is float64
+
+
+class Evidence(Mapping):
+    """Encoded values of some sites of one network, ``n_rows`` rows each.
+
+    Discrete sites hold ``(n,)`` long state indices, continuous ones ``(n, d)`` float64.
+    Build it with :meth:`EffectNetwork.encode` (labels) or
+    :meth:`EffectNetwork.encode_indices` (indices); never from raw tensors, so that a
+    tensor of indices can not be mistaken for labels.
+
+    ``evidence | {"end.count": [3]}`` adds label values (encoded with the same network);
+    ``evidence | other_evidence`` merges two encoded ones. Row counts must agree.
+    """
+
+    __slots__ = ("_values", "n_rows", "net")
+
+    def __init__(self, net: EffectNetwork, values: dict[str, torch.Tensor], n_rows: int):
+        self.net = net
+        self._values = values
+        self.n_rows = n_rows
+
+    def __getitem__(self, site: str) -> torch.Tensor:
+        return self._values[site]
+
+    def __iter__(self) -> Iterator[str]:
+        return iter(self._values)
+
+    def __len__(self) -> int:
+        return len(self._values)
+
+    def __repr__(self) -> str:
+        shapes = {k: tuple(v.shape) for k, v in self._values.items()}
+        return f"Evidence(n_rows={self.n_rows}, {shapes})"
+
+    def __or__(self, other: object) -> Evidence:
+        if isinstance(other, Evidence):
+            if other.net is not self.net and other.net != self.net:
+                raise ValueError("cannot merge evidence encoded for two different networks")
+        elif isinstance(other, Mapping):
+            other = self.net.encode(other)
+        else:
+            return NotImplemented
+        return _merge(self, other)
+
+    def __ror__(self, other: object) -> Evidence:
+        if not isinstance(other, Mapping):
+            return NotImplemented
+        return _merge(self.net.encode(other), self)
+
+    def rows(self, index: slice | torch.Tensor) -> Evidence:
+        """The evidence of some rows (a slice, an index or a bool mask)."""
+        values = {k: v[index] for k, v in self._values.items()}
+        if values:
+            n = next(iter(values.values())).shape[0]
+        else:
+            n = len(range(self.n_rows)[index]) if isinstance(index, slice) else 0
+        return Evidence(self.net, values, n)
+
+    def repeat(self, times: int) -> Evidence:
+        """Every row repeated ``times`` times in place (row i becomes rows i*times...)."""
+        values = {k: v.repeat_interleave(times, 0) for k, v in self._values.items()}
+        return Evidence(self.net, values, self.n_rows * times)
+
+    def without(self, *sites: str) -> Evidence:
+        """The evidence with some sites left out."""
+        return Evidence(
+            self.net, {k: v for k, v in self._values.items() if k not in sites}, self.n_rows
+        )
+
+
+def _merge(a: Evidence, b: Evidence) -> Evidence:
+    if a._values and b._values and a.n_rows != b.n_rows:
+        raise ValueError(f"evidence rows disagree in number: {a.n_rows} and {b.n_rows}")
+    n = a.n_rows if a._values else b.n_rows
+    return Evidence(a.net, a._values | b._values, n)
+
+
+def encode(net: EffectNetwork, evidence: Mapping[str, object], *, indices: bool) -> Evidence:
+    """Validate ``evidence`` (labels, or indices when ``indices``) into :class:`Evidence`."""
+    if isinstance(evidence, Evidence):
+        if indices:
+            raise ValueError("this evidence is already encoded; pass it on as it is")
+        return evidence
+    if not isinstance(evidence, Mapping):
+        raise ValueError(
+            f"evidence must be a mapping from site name to values, got {type(evidence).__name__}"
+        )
+    values: dict[str, torch.Tensor] = {}
+    for name, value in evidence.items():
+        spec = _spec(net, name)
+        if spec.discrete:
+            values[name] = (
+                _encode_indices(spec, value) if indices else _encode_labels(net, spec, value)
+            )
+        else:
+            values[name] = _encode_continuous(spec, value)
+    rows = {name: v.shape[0] for name, v in values.items()}
+    if len(set(rows.values())) > 1:
+        raise ValueError(f"evidence rows disagree in number: {rows}")
+    return Evidence(net, values, next(iter(rows.values()), 0))
+
+
+def _spec(net: EffectNetwork, name: object) -> SiteSpec:
+    names = [s.name for s in net.sites]
+    if name not in names:
+        raise ValueError(f"evidence on site {name!r}, which does not exist; sites are {names}")
+    return net.site(name)
+
+
+def labels(net: EffectNetwork, spec: SiteSpec) -> tuple[Hashable, ...]:
+    """The labels of a discrete site's states, in index order."""
+    if spec.role == "action":
+        return net.actions
+    if spec.role == "cluster":
+        return tuple(range(spec.size))
+    return net.feature(spec.feature).states
+
+
+def _as_array(spec: SiteSpec, value: object) -> np.ndarray:
+    if isinstance(value, torch.Tensor):
+        return value.detach().cpu().numpy()
+    if isinstance(value, str | bytes):
+        return np.array([value], dtype=object)
+    try:
+        array = np.asarray(value)
+    except (TypeError, ValueError):  # ragged or odd containers: keep the Python objects
+        array = np.empty(len(value), dtype=object)
+        array[:] = list(value)
+    if array.ndim == 0:
+        array = array.reshape(1)
+    if array.ndim != 1:
+        raise ValueError(
+            f"site {spec.name!r}: expected one label per row, shape (n,), got shape {array.shape}"
+        )
+    return array
+
+
+def _encode_labels(net: EffectNetwork, spec: SiteSpec, value: object) -> torch.Tensor:
+    array = _as_array(spec, value)
+    states = labels(net, spec)
+    lookup = {label: i for i, label in enumerate(states)}
+    if array.dtype != object and array.size:
+        # One dictionary look-up per distinct value, not per row.
+        try:
+            unique, inverse = np.unique(array, return_inverse=True)
+        except TypeError:
+            unique = None
+        if unique is not None:
+            mapped = np.array([_look_up(spec, states, lookup, u.item()) for u in unique])
+            return torch.as_tensor(mapped[inverse.reshape(-1)], dtype=torch.long)
+    return torch.tensor(
+        [_look_up(spec, states, lookup, _python(v)) for v in array], dtype=torch.long
+    )
+
+
+def _python(v: object) -> object:
+    return v.item() if isinstance(v, np.generic | torch.Tensor) else v
+
+
+def _look_up(spec: SiteSpec, states: tuple, lookup: dict, v: object) -> int:
+    try:
+        return lookup[v]
+    except (KeyError, TypeError):
+        shown = (
+            list(states) if len(states) <= 12 else f"{list(states[:12])} ... ({len(states)} states)"
+        )
+        hint = ""
+        if isinstance(v, int) and not isinstance(v, bool) and 0 <= v < len(states):
+            hint = " (values are state labels; to give state indices use net.encode_indices({...}))"
+        raise ValueError(
+            f"site {spec.name!r}: value {v!r} is not one of its states {shown}{hint}"
+        ) from None
+
+
+def _encode_indices(spec: SiteSpec, value: object) -> torch.Tensor:
+    array = _as_array(spec, value)
+    if array.dtype.kind not in "iu":
+        raise ValueError(
+            f"site {spec.name!r}: state indices must be integers, got dtype {array.dtype}"
+        )
+    index = torch.as_tensor(array.astype(np.int64, copy=False))
+    if index.numel():
+        low, high = (int(v) for v in torch.aminmax(index))
+        if low < 0 or high >= spec.size:
+            bad = index[(index < 0) | (index >= spec.size)][0]
+            raise ValueError(
+                f"site {spec.name!r}: state index {int(bad)} outside 0..{spec.size - 1}"
+            )
+    return index
+
+
+def _encode_continuous(spec: SiteSpec, value: object) -> torch.Tensor:
+    try:
+        x = torch.as_tensor(
+            value.detach() if isinstance(value, torch.Tensor) else np.asarray(value),
+            dtype=DTYPE,
+        )
+    except (TypeError, ValueError, RuntimeError) as exc:
+        raise ValueError(
+            f"site {spec.name!r}: expected numbers of shape (n, {spec.size}), got {value!r}"
+        ) from exc
+    if x.dim() == 1 and spec.size > 1 or x.dim() == 0:
+        x = x.reshape(1, -1)
+    elif x.dim() == 1:
+        x = x.reshape(-1, 1)
+    if x.dim() != 2 or x.shape[-1] != spec.size:
+        raise ValueError(
+            f"site {spec.name!r}: expected shape (n, {spec.size}), got {tuple(np.shape(value))}"
+        )
+    bad = ~torch.isfinite(x)
+    if spec.role == "param":
+        nan_row = torch.isnan(x).all(-1, keepdim=True)
+        bad = bad & ~nan_row  # a whole row of NaN: the parameter's value is unknown
+    if bad.any():
+        row = int(bad.any(-1).nonzero()[0])
+        what = (
+            "NaN or inf (a parameter is unknown only when its whole row is NaN)"
+            if spec.role == "param"
+            else "NaN or inf"
+        )
+        raise ValueError(f"site {spec.name!r}: {what} in row {row}: {x[row].tolist()}")
+    return x
+
+
+def decode(net: EffectNetwork, site: str, index: torch.Tensor) -> list:
+    """State labels of ``(n,)`` state indices of a discrete site."""
+    states = labels(net, net.site(site))
+    return [states[i] for i in index.reshape(-1).tolist()]
