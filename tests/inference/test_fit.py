@@ -179,3 +179,71 @@ def test_fit_rejects_bad_data():
     tap["param.force"][tap["action"] == 1] = float("nan")
     with pytest.raises(ValueError, match="uses the parameter, but the row gives no value"):
         fit(net, tap)
+
+
+def test_fitting_leaves_pyros_param_store_alone():
+    import pyro
+
+    pyro.clear_param_store()
+    mine = pyro.param("my_weight", torch.ones(2))
+    data = discrete_data(n=200)
+    fit(DISCRETE, data, masks={"end.colour": torch.arange(200) % 3 > 0}, steps=5)
+    fit_gradient(DISCRETE, data, steps=5)
+    store = pyro.get_param_store()
+    assert list(store.keys()) == ["my_weight"]
+    assert torch.equal(store["my_weight"], mine)
+    pyro.clear_param_store()
+
+
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize("huge", [1e160, 1e200, 1e300, -1e308])
+def test_huge_values_are_refused_not_spun_on(huge):
+    net = EffectNetwork((Continuous("pos", 1),), ("stay", "move"))
+    data = {
+        "initial.pos": [[0.0], [1.0], [huge]],
+        "action": ["stay", "move", "move"],
+        "end.pos": [[0.0], [2.0], [1.0]],
+    }
+    with pytest.raises(ValueError, match=r"site .initial.pos.: row 2 .*Rescale"):
+        fit(net, data)
+
+
+def test_large_but_safe_values_fit():
+    net = EffectNetwork((Continuous("pos", 1),), ("stay",))
+    data = {"initial.pos": [[1e100], [2e100], [4e100]], "action": ["stay"] * 3}
+    data["end.pos"] = data["initial.pos"]
+    params = fit(net, data, pseudo_count=0.0, min_variance=0.0).params
+    assert torch.isfinite(params["initial.pos"].bias).all()
+
+
+@pytest.mark.timeout(60)
+@pytest.mark.parametrize(
+    ("setting", "value"),
+    [
+        ("pseudo_count", float("nan")),
+        ("pseudo_count", float("inf")),
+        ("pseudo_count", -1.0),
+        ("min_variance", float("nan")),
+        ("steps", 0),
+        ("steps", 2.5),
+        ("lr", 0.0),
+        ("lr", float("nan")),
+    ],
+)
+def test_bad_settings_are_named(setting, value):
+    with pytest.raises(ValueError, match=setting):
+        fit(DISCRETE, discrete_data(n=20), **{setting: value})
+
+
+def test_zero_rows_are_named():
+    empty = {
+        "initial.visible": [],
+        "initial.colour": [],
+        "action": [],
+        "end.visible": [],
+        "end.colour": [],
+    }
+    with pytest.raises(ValueError, match="no training rows"):
+        fit(DISCRETE, empty)
+    with pytest.raises(ValueError, match="no training rows"):
+        fit(DISCRETE, {})

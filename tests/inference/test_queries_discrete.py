@@ -8,6 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from inference import imitation_check, infer_action, predict
+from models import Discrete, EffectNetwork
 from models.declaration import DTYPE
 from tests.helpers import discrete_network, random_params
 
@@ -174,9 +175,7 @@ def test_unseen_configuration_is_reported():
     post = infer_action(net, params, {"initial.f0": torch.tensor([1]), "end.f0": torch.tensor([0])})
     assert post.unseen[0].tolist() == [0.0, 0.0, 1.0]
     assert post.best[0] != 2
-    pred = predict(
-        net, params, {"initial.f0": torch.tensor([1, 0]), "action": ["a2", "a2"]}
-    )
+    pred = predict(net, params, {"initial.f0": torch.tensor([1, 0]), "action": ["a2", "a2"]})
     assert pred.unseen.tolist() == [1.0, 0.0]
 
 
@@ -188,3 +187,74 @@ def test_ties_go_to_the_lowest_index_whatever_the_rounding():
     )
     assert first_best(score).tolist() == [1, 0]
     assert first_best(torch.tensor([[0.1, 0.3, 0.2]], dtype=DTYPE)).tolist() == [1]
+
+
+def test_allowed_actions_by_name_and_mask():
+    from inference.compiled import compile_discrete
+
+    net = discrete_network([2], 3)
+    params = random_params(net, 4)
+    ev = {"initial.f0": [1, 0]}
+    compiled = compile_discrete(net, params)
+    for run in (
+        lambda **k: infer_action(net, params, ev, **k),
+        lambda **k: compiled.infer_action(ev, **k),
+    ):
+        assert run(allowed=["a2"]).best_names == ("a2", "a2")
+        assert run(allowed="a1").best_names == ("a1", "a1")
+        per_row = torch.tensor([[True, False, False], [False, False, True]])
+        assert run(allowed=per_row).best_names == ("a0", "a2")
+        with pytest.raises(ValueError, match="permits no action"):
+            run(allowed=torch.zeros(3, dtype=torch.bool))
+        with pytest.raises(ValueError, match="permits no action in row 1"):
+            run(allowed=torch.tensor([[True, False, False], [False, False, False]]))
+        with pytest.raises(ValueError, match=r"allowed has shape \(2,\); expected \(3,\)"):
+            run(allowed=torch.tensor([True, False]))
+        with pytest.raises(ValueError, match="unknown action 'fly'"):
+            run(allowed=["fly"])
+
+
+def test_empty_batches_give_empty_results():
+    from inference import infer_parameter
+    from inference.compiled import compile_discrete, compile_parameter_query
+    from tests.inference.test_queries_mixed import NET
+
+    net = discrete_network([2, 3], 4)
+    params = random_params(net, 0)
+    none = {"initial.f0": [], "initial.f1": []}
+    post = infer_action(net, params, none | {"end.f1": []})
+    assert post.probs.shape == (0, 4) and post.best.shape == (0,) and post.best_names == ()
+    assert compile_discrete(net, params).infer_action(none).probs.shape == (0, 4)
+    pred = predict(net, params, none | {"action": []})
+    assert pred.discrete["f0"].shape == (0, 2) and pred.discrete["f1"].shape == (0, 3)
+    assert pred.unseen.shape == (0,)
+    check = imitation_check(net, params, none | {"action": [], "end.f0": []})
+    assert check.surprise.shape == (0,) and check.log_likelihood.shape == (0,)
+
+    mixed = random_params(NET, 0)
+    ev = {"initial.visible": [], "initial.pos": torch.zeros(0, 2), "end.pos": torch.zeros(0, 2)}
+    ev |= {"action": []}
+    par = infer_parameter(NET, mixed, "force", ev)
+    assert par.mean.shape == (0, 1) and par.cov.shape == (0, 1, 1)
+    assert par.cluster_probs.shape == (0, 3)
+    par = compile_parameter_query(NET, mixed, "force").infer(ev)
+    assert par.mean.shape == (0, 1)
+    pred = predict(NET, mixed, ev | {"param.force": torch.zeros(0, 1)})
+    assert pred.discrete["visible"].shape == (0, 2)
+    assert pred.continuous == {}
+    mix = predict(NET, mixed, {"initial.visible": [], "initial.pos": torch.zeros(0, 2)})
+    assert mix.continuous["pos"].mean.shape == (0, 2)
+
+
+def test_discrete_predictions_by_state_name():
+    net = EffectNetwork((Discrete("door", ("shut", "open")),), ("wait", "pull"))
+    params = random_params(net, 1)
+    pred = predict(net, params, {"initial.door": ["shut", "open"], "action": ["pull", "pull"]})
+    torch.testing.assert_close(pred.prob("door", "open"), pred.discrete["door"][:, 1])
+    assert pred.most_likely("door") == tuple(
+        ("shut", "open")[i] for i in pred.discrete["door"].argmax(-1).tolist()
+    )
+    with pytest.raises(ValueError, match="no state 'ajar'"):
+        pred.prob("door", "ajar")
+    post = infer_action(net, params, {"initial.door": ["shut"], "end.door": ["open"]})
+    torch.testing.assert_close(post.prob("pull"), post.probs[:, 1])

@@ -4,7 +4,7 @@ import math
 
 import torch
 
-from inference import infer_action, infer_parameter, predict
+from inference import imitation_check, infer_action, infer_parameter, predict
 from models import Continuous, Discrete, EffectNetwork, Parameter
 from models.declaration import DTYPE
 from models.gaussian import condition_linear_gaussian
@@ -123,3 +123,45 @@ def test_condition_linear_gaussian_batch_shapes():
     )
     assert m.shape == (4, 3) and c.shape == (4, 3, 3)
     assert (torch.linalg.eigvalsh(c) > 0).all()
+
+
+def test_joint_surprise_of_discrete_and_continuous_end_features():
+    # end.visible (softmax on the initial position) and end.pos are independent given the
+    # initial state and the action: the tail probability by a large hand-made sample.
+    net = EffectNetwork((Discrete("visible", (False, True)), Continuous("pos", 1)), ("a", "b"))
+    params = random_params(net, 7)
+    gen = torch.Generator().manual_seed(0)
+    for vis0, pos0, action, vis1, pos1 in [(1, 0.3, 0, 0, 0.5), (0, -1.0, 1, 1, -2.0)]:
+        soft = params["end.visible"]
+        logits = soft.weight[vis0, action, :, 0] * pos0 + soft.bias[vis0, action]
+        p_vis = logits.softmax(-1)
+        g = params["end.pos"]
+        mean = float(g.weight[vis0, action, 0, 0] * pos0 + g.bias[vis0, action, 0])
+        sd = float(g.scale_tril[vis0, action, 0, 0])
+
+        def log_density(v, x, p_vis=p_vis, mean=mean, sd=sd):
+            return p_vis[v].log() - 0.5 * ((x - mean) / sd) ** 2 - math.log(sd)
+
+        m = 200_000
+        v = torch.multinomial(p_vis, m, replacement=True, generator=gen)
+        x = mean + sd * torch.randn(m, generator=gen, dtype=DTYPE)
+        want = float(
+            (log_density(v, x) > log_density(vis1, torch.tensor(pos1, dtype=DTYPE))).double().mean()
+        )
+        got = imitation_check(
+            net,
+            params,
+            {
+                "initial.visible": [bool(vis0)],
+                "initial.pos": [[pos0]],
+                "action": [net.actions[action]],
+                "end.visible": [bool(vis1)],
+                "end.pos": [[pos1]],
+            },
+            n_samples=4000,
+        )
+        assert abs(float(got.surprise[0]) - want) < 0.03
+        want_ll = float(log_density(vis1, torch.tensor(pos1, dtype=DTYPE))) - 0.5 * math.log(
+            2 * math.pi
+        )
+        assert abs(float(got.log_likelihood[0]) - want_ll) < 1e-9

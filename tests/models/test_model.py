@@ -1,0 +1,155 @@
+"""The effect model as a full Pyro model: Pyro's own handlers see what fit and queries see."""
+
+import math
+
+import pyro
+import pytest
+import torch
+from pyro import poutine
+from pyro.infer import Predictive, TraceEnum_ELBO, infer_discrete
+
+from inference import infer_action, predict
+from models import (
+    Continuous,
+    Discrete,
+    EffectNetwork,
+    Parameter,
+    effect_model,
+    random_params,
+)
+from models.declaration import DTYPE
+
+NET = EffectNetwork(
+    (Discrete("visible", (False, True)), Continuous("pos", 1)),
+    ("look", "remove", "tap"),
+    (Parameter("force", 0.0, 20.0, 4, ("tap",), "pos"),),
+)
+PARAMS = random_params(NET, 3)
+START = {"initial.visible": [True], "initial.pos": [[0.1]]}
+
+
+def site_names(data, **kwargs):
+    trace = poutine.trace(effect_model).get_trace(NET, PARAMS, data, **kwargs)
+    return [n for n, s in trace.nodes.items() if s["type"] == "sample"]
+
+
+def test_sites_do_not_depend_on_the_data():
+    full = site_names(None, n_rows=2)
+    assert {"param.force", "cluster.force", "end.pos", "action"} <= set(full)
+    assert site_names(START | {"action": ["tap"]}) == full
+    assert site_names(START | {"action": ["tap"], "param.force": [[3.0]]}) == full
+    assert site_names(START, collapse=True) == full
+
+
+def test_conditioning_on_the_parameter_is_obeyed():
+    # pyro.condition on param.force means what the force in the data means: the joint
+    # (TraceEnum_ELBO's loss, all discrete sites summed out) is the same, and the cluster
+    # is the force's cell.
+    ev = NET.encode(START | {"action": ["tap"], "end.pos": [[1.3]]})
+    force = torch.tensor([[10.0]], dtype=torch.float32)  # float32, as torch makes it
+    elbo = TraceEnum_ELBO(max_plate_nesting=1)
+    by_data = elbo.loss(
+        lambda: effect_model(NET, PARAMS, ev | {"param.force": [[10.0]]}, collapse=True),
+        lambda: None,
+    )
+    conditioned = poutine.condition(effect_model, data={"param.force": force})
+    by_handler = elbo.loss(lambda: conditioned(NET, PARAMS, ev, collapse=True), lambda: None)
+    marginal = elbo.loss(lambda: effect_model(NET, PARAMS, ev, collapse=True), lambda: None)
+    assert abs(by_handler - by_data) < 1e-9
+    assert abs(by_handler - marginal) > 0.1  # not the parameter integrated out
+    with torch.random.fork_rng():
+        torch.manual_seed(0)
+        draw = infer_discrete(
+            lambda: conditioned(NET, PARAMS, ev.repeat(50)), first_available_dim=-2, temperature=1
+        )()
+    assert draw["cluster.force"].tolist() == [2] * 50  # 10 N lies in cell 2 of 0..20 N
+
+
+def test_predictive_samples_every_site():
+    with torch.random.fork_rng():
+        torch.manual_seed(1)
+        draws = Predictive(effect_model, num_samples=7)(NET, PARAMS, n_rows=3)
+    for site in NET.sites:
+        assert site.name in draws
+        assert draws[site.name].shape[:2] == (7, 3)
+    assert draws["param.force"].shape == (7, 3, 1)
+
+
+def test_infer_discrete_samples_the_exact_action_posterior():
+    ev = NET.encode(
+        {
+            "initial.visible": [True] * 400,
+            "initial.pos": [[0.1]] * 400,
+            "end.visible": [False] * 400,
+        }
+    )
+    exact = infer_action(NET, PARAMS, ev).probs[0]
+
+    def model():  # the unobserved continuous end.pos has no children: leave it out
+        return effect_model(NET, PARAMS, ev, collapse=True, end_sites={"end.visible"})
+
+    with torch.random.fork_rng():
+        torch.manual_seed(2)
+        action = infer_discrete(model, first_available_dim=-2, temperature=1)()["action"]
+    freq = torch.bincount(action, minlength=3).to(DTYPE) / 400
+    assert (freq - exact).abs().max() < 4 * math.sqrt(0.25 / 400)
+
+
+def test_trace_enum_elbo_is_the_exact_log_evidence():
+    ev = NET.encode(START | {"end.pos": [[0.8]], "end.visible": [False]})
+    loss = TraceEnum_ELBO(max_plate_nesting=1).loss(
+        lambda: effect_model(NET, PARAMS, ev, collapse=True), lambda: None
+    )
+    assert abs(loss + float(infer_action(NET, PARAMS, ev).log_evidence[0])) < 1e-9
+
+
+def test_float32_inputs_work():
+    ev = NET.encode(START | {"action": ["tap"]})
+    cond = poutine.condition(
+        effect_model,
+        data={"param.force": torch.tensor([[10.0]]), "end.pos": torch.tensor([[1.0]])},
+    )
+    trace = poutine.trace(cond).get_trace(NET, PARAMS, ev)
+    trace.compute_log_prob()
+    assert trace.nodes["end.pos"]["log_prob"].dtype == DTYPE
+    out = predict(NET, PARAMS, {"initial.visible": [True], "initial.pos": torch.tensor([[0.1]])})
+    assert out.continuous["pos"].mean.dtype == DTYPE
+
+
+def test_labels_given_to_pyro_condition_are_a_clear_error():
+    cond = poutine.condition(effect_model, data={"action": ["tap"]})
+    with pytest.raises(ValueError, match=r"site 'action' received \['tap'\].*net.encode"):
+        cond(NET, PARAMS, n_rows=1)
+    # the documented way
+    cond = poutine.condition(effect_model, data=NET.encode({"action": ["tap"]}))
+    assert cond(NET, PARAMS, n_rows=1)["action"].tolist() == [2]
+
+
+def test_model_without_data_runs_one_row():
+    values = effect_model(NET, PARAMS)
+    assert values["action"].shape == (1,)
+    assert effect_model(NET, PARAMS, n_rows=4)["end.pos"].shape == (4, 1)
+    with pytest.raises(ValueError, match="at least one row"):
+        effect_model(NET, PARAMS, n_rows=0)
+    with pytest.raises(ValueError, match="n_rows=2 but the data has 1 rows"):
+        effect_model(NET, PARAMS, START, n_rows=2)
+
+
+def test_render_model_draws_the_network():
+    graph = pyro.render_model(effect_model, model_args=(NET, PARAMS, NET.encode(START)))
+    source = graph.source
+    for edge in (
+        'action -> "end.pos"',
+        '"initial.visible" -> "end.pos"',
+        '"cluster.force" -> "param.force"',
+        '"param.force" -> "end.pos"',
+        'action -> "end.visible"',
+    ):
+        assert edge in source
+    assert '"end.visible" -> "end.pos"' not in source  # no edges among end sites
+
+
+def test_discrete_network_renders_too():
+    net = EffectNetwork((Discrete("door", ("shut", "open")),), ("wait", "pull"))
+    graph = pyro.render_model(effect_model, model_args=(net, random_params(net, 0)))
+    assert '"initial.door" -> "end.door"' in graph.source
