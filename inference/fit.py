@@ -194,11 +194,15 @@ def fit_gradient(
         return NetworkParams(cpds, init.pseudo_count)
 
     n = enc.n_rows
+    # With every value given, the end sites that are not fitted add a constant to the
+    # loss: leave them out (with gaps, their factors join the marginal and stay).
+    gaps = any(not bool(m.all()) for m in masks.values())
+    end_sites = None if gaps else {s for s in sites if net.site(s).role == "end"}
 
     def model():
         # Scale to a per-row loss so that one learning rate suits any data size.
         with pyro.poutine.scale(scale=1.0 / n):
-            effect_model(net, current(), enc, masks=masks, collapse=True)
+            effect_model(net, current(), enc, masks=masks, collapse=True, end_sites=end_sites)
 
     def guide():
         pass
@@ -208,7 +212,8 @@ def fit_gradient(
     losses = []
     for _ in tqdm(range(steps), desc="fit (gradient)", disable=not progress):
         optimiser.zero_grad()
-        loss = elbo.differentiable_loss(model, guide)
+        with pyro.validation_enabled(False):  # the rows were validated when encoded
+            loss = elbo.differentiable_loss(model, guide)
         loss.backward()
         optimiser.step()
         losses.append(loss.item())

@@ -1,0 +1,128 @@
+"""The model generates data from itself: fit(simulate(...)) recovers the parameters, and
+draws given evidence follow the exact posteriors of the queries."""
+
+import math
+
+import pytest
+import torch
+
+from inference import fit, infer_action, infer_parameter, simulate
+from models import Continuous, Discrete, EffectNetwork, Parameter, random_params
+from models.declaration import DTYPE
+from models.params import LinearGaussian, NetworkParams, Table, check_params
+
+NET = EffectNetwork(
+    (Discrete("door", ("shut", "open")), Continuous("pos", 1)),
+    ("wait", "push"),
+    (Parameter("force", 0.0, 10.0, 2, ("push",), "pos"),),
+)
+
+
+def balanced_params(seed):
+    """Random parameters with every configuration well visited (for recovery tests)."""
+    p = random_params(NET, seed)
+    cpds = dict(p.cpds)
+    cpds["action"] = Table(torch.tensor([0.5, 0.5], dtype=DTYPE), p["action"].n)
+    cpds["initial.door"] = Table(torch.tensor([0.5, 0.5], dtype=DTYPE), p["initial.door"].n)
+    c = p["cluster.force"]
+    cpds["cluster.force"] = Table(torch.tensor([[1.0, 0.0], [0.5, 0.5]], dtype=DTYPE), c.n)
+    soft = p["end.door"]
+    cpds["end.door"] = type(soft)(0.5 * soft.weight, 0.3 * soft.bias, soft.n)
+    return NetworkParams(cpds, p.pseudo_count)
+
+
+def test_random_params_are_valid():
+    params = random_params(NET, 0)
+    check_params(NET, params)
+    prior = params["param.force"]
+    cells = NET.parameters[0].cluster_of(prior.bias)
+    assert cells.tolist() == [0, 1]  # each cluster's Gaussian sits in its own cell
+    assert params["cluster.force"].probs[0].tolist() == [1.0, 0.0]  # wait: cell 0
+    with pytest.raises(ValueError, match="unseen"):
+        random_params(NET, 0, unseen=2.0)
+
+
+def test_fit_of_simulated_rows_recovers_the_parameters():
+    params = balanced_params(1)
+    n = 20_000
+    rows = simulate(NET, params, n, seed=3)
+    assert set(rows) == {s.name for s in NET.sites if s.role != "cluster"}
+    assert all(
+        math.isnan(f[0])
+        for f, a in zip(rows["param.force"].tolist(), rows["action"], strict=True)
+        if a == "wait"
+    )
+    fitted = fit(NET, rows, steps=10).params  # steps: the softmax of end.door only
+    for site in ("action", "initial.door"):
+        p = params[site].probs
+        assert (fitted[site].probs - p).abs().max() < 4 * math.sqrt(0.25 / n)
+    # the pushed position, per door state and cluster: weight on [pos, force] and bias
+    # (about 2,500 rows per pushed configuration: standard errors near 0.03 for the mean
+    # at the cell's centre and 0.05 for the slope on a force spread over a quarter cell)
+    truth, got = params["end.pos"], fitted["end.pos"]
+    centres = NET.parameters[0].cluster_centres()
+    for door in (0, 1):
+        for c in (0, 1):
+            at = torch.cat([torch.zeros(1, dtype=DTYPE), centres[c]])
+            mean_got = got.weight[door, 1, c] @ at + got.bias[door, 1, c]
+            mean_true = truth.weight[door, 1, c] @ at + truth.bias[door, 1, c]
+            assert (mean_got - mean_true).abs().max() < 0.15
+            assert (got.weight[door, 1, c] - truth.weight[door, 1, c]).abs().max() < 0.25
+            ratio = got.covariance[door, 1, c] / truth.covariance[door, 1, c]
+            assert abs(float(ratio) - 1) < 0.15
+        # waiting: the force is ignored, its weight is zero
+        assert float(got.weight[door, 0, 0, 0, 1]) == 0.0
+        assert (got.weight[door, 0, 0, 0, :1] - truth.weight[door, 0, 0, 0, :1]).abs().max() < 0.1
+    assert (got.covariance > 0).all()
+    lg = fitted["param.force"]
+    assert isinstance(lg, LinearGaussian)
+    assert (lg.bias - params["param.force"].bias).abs().max() < 0.05
+
+
+def test_draws_given_an_end_state_follow_the_action_posterior():
+    params = random_params(NET, 2)
+    ev = {"initial.door": ["shut"], "initial.pos": [[0.2]], "end.door": ["open"]}
+    exact = infer_action(NET, params, ev).probs[0]
+    n = 4000
+    rows = simulate(NET, params, n, ev, seed=0)
+    assert rows["end.door"] == ["open"] * n and rows["initial.door"] == ["shut"] * n
+    freq = torch.tensor([rows["action"].count(a) / n for a in NET.actions], dtype=DTYPE)
+    assert (freq - exact).abs().max() < 4 * math.sqrt(0.25 / n)
+
+
+def test_draws_given_the_affected_feature_follow_the_cluster_posterior():
+    params = random_params(NET, 4)
+    ev = {"initial.door": ["open"], "initial.pos": [[0.0]], "action": ["push"], "end.pos": [[1.0]]}
+    exact = infer_parameter(NET, params, "force", ev).cluster_probs[0]
+    n = 4000
+    force = simulate(NET, params, n, ev, seed=1)["param.force"]
+    cells = NET.parameters[0].cluster_of(force)
+    freq = torch.bincount(cells, minlength=2).to(DTYPE) / n
+    assert (freq - exact).abs().max() < 0.05  # a drawn force may leave its cell's bounds
+
+
+def test_seeded_and_local():
+    params = random_params(NET, 0)
+    torch.manual_seed(123)
+    before = torch.rand(3)
+    torch.manual_seed(123)
+    a = simulate(NET, params, 50, seed=9)
+    after = torch.rand(3)
+    b = simulate(NET, params, 50, seed=9)
+    assert torch.equal(before, after)  # the global random state is untouched
+    assert a["action"] == b["action"] and torch.equal(a["end.pos"], b["end.pos"])
+    c = simulate(NET, params, 50, seed=10)
+    assert not torch.equal(a["end.pos"], c["end.pos"])
+
+
+def test_bad_requests_are_named():
+    params = random_params(NET, 0)
+    with pytest.raises(ValueError, match="n must be a positive int"):
+        simulate(NET, params, 0)
+    with pytest.raises(ValueError, match="give one row or n = 5 rows"):
+        simulate(NET, params, 5, {"action": ["push", "wait"]})
+    with pytest.raises(ValueError, match="continuous features"):
+        simulate(NET, params, 5, {"end.door": ["open"]})  # initial position unknown
+    net = EffectNetwork((Discrete("door", ("shut", "open")),), ("wait",))
+    rows = simulate(net, random_params(net, 0), 3, {"initial.door": ["open"]})
+    assert rows["initial.door"] == ["open"] * 3 and len(rows["end.door"]) == 3

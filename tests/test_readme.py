@@ -1,0 +1,47 @@
+"""Every Python snippet in README.md runs, in order, and says what its comments say."""
+
+import math
+import os
+import re
+from pathlib import Path
+
+import pytest
+import torch
+
+README = Path(__file__).resolve().parents[1] / "README.md"
+
+
+def snippets() -> list[str]:
+    blocks = re.findall(r"^( *)```python\n(.*?)^\1```", README.read_text(), re.S | re.M)
+    out = []
+    for indent, body in blocks:
+        lines = [
+            line[len(indent) :] if line.startswith(indent) else line for line in body.splitlines()
+        ]
+        out.append("\n".join(lines))
+    return out
+
+
+def test_readme_has_snippets():
+    assert len(snippets()) >= 2
+
+
+@pytest.mark.timeout(600)
+def test_readme_snippets_run(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # the snippet saves net.pt
+    namespace: dict = {}
+    with torch.random.fork_rng():
+        torch.manual_seed(0)
+        for code in snippets():
+            exec(compile(code, str(README), "exec"), namespace)  # noqa: S102
+    assert os.path.exists("net.pt")
+    assert abs(float(namespace["where"][0, 0]) - 0.35) < 0.02
+    assert namespace["best"] == ("remove",)
+    assert float(namespace["gone"][0]) > 0.99
+    assert float(namespace["surprise"][0]) > 0.99
+    assert abs(float(namespace["force_needed"][0, 0]) - 10.0) < 0.5
+    assert namespace["draws"]["param.force"].shape == (100, 5, 1)
+    assert math.isfinite(namespace["loss"])
+    assert int(namespace["cluster"]) == 4  # 10 N: cell 4 of 8 over 0..20 N
+    assert '"param.force" -> "end.position"' in namespace["graph"].source
+    assert len(namespace["rows"]["action"]) == 500
