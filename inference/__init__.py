@@ -1,7 +1,7 @@
 """Fitting (maximum likelihood) and exact queries on effect networks."""
 
 from inference.enumeration import Enumerated, enumerate_model
-from inference.fit import FitResult, fit, fit_gradient
+from inference.fit import FitResult, fit, fit_gradient, fit_statistics
 from inference.queries import (
     ActionPosterior,
     GaussianMixture,
@@ -14,6 +14,7 @@ from inference.queries import (
     predict,
 )
 from inference.simulate import simulate
+from inference.statistics import Statistics, params_from_statistics
 
 __all__ = [
     "ActionPosterior",
@@ -22,13 +23,16 @@ __all__ = [
     "GaussianMixture",
     "ImitationCheck",
     "ParameterPosterior",
+    "Statistics",
     "Prediction",
     "enumerate_model",
     "fit",
     "fit_gradient",
+    "fit_statistics",
     "imitation_check",
     "infer_action",
     "infer_parameter",
+    "params_from_statistics",
     "predict",
     "simulate",
 ]

@@ -22,19 +22,16 @@ Every loop is bounded and every input checked: a value whose square would overfl
 (beyond ``MAX_MAGNITUDE``), a non-finite or negative setting, zero rows, or a covariance
 that no jitter makes positive definite raise a ``ValueError`` naming the site.
 
-Pseudo-count policy (``pseudo_count``, written alpha): a table row is
-``(counts + alpha) / (n + K alpha)``, so a parent configuration no sample reached is
-uniform; a Gaussian configuration gets alpha pseudo-rows of the pooled statistics of its
-site (all rows together), so an unseen one is the pooled fit and a rarely seen one is
-shrunk towards it. Covariances get ``min_variance`` on the diagonal so that a
-configuration with fewer rows than dimensions stays positive definite. ``alpha = 0`` and
-``min_variance = 0`` give the plain sample statistics where every configuration is seen.
+The closed form runs on sufficient statistics (:mod:`inference.statistics`, where the
+pseudo-count policy is written): ``data`` may be an iterable of row chunks whose
+statistics are summed, so a data set larger than memory, or partitioned on a cluster,
+fits to the same parameters.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
 import pyro
@@ -43,15 +40,12 @@ import torch
 from pyro.infer import TraceEnum_ELBO
 from tqdm.auto import tqdm
 
+from inference.statistics import Statistics, params_from_statistics, statistics
 from models.declaration import (
     ACTION,
     DTYPE,
-    Continuous,
-    Discrete,
     EffectNetwork,
     cluster_site,
-    end_site,
-    initial_site,
     param_site,
 )
 from models.evidence import Evidence
@@ -61,7 +55,6 @@ from models.params import (
     NetworkParams,
     Softmax,
     Table,
-    check_params,
     expected_shapes,
 )
 
@@ -76,7 +69,7 @@ class FitResult:
 
 def fit(
     net: EffectNetwork,
-    data: Mapping[str, object],
+    data: Mapping[str, object] | Iterable[Mapping[str, object]],
     *,
     pseudo_count: float = 0.01,
     min_variance: float = 1e-6,
@@ -92,24 +85,40 @@ def fit(
     data
         Training rows by site name (see :meth:`EffectNetwork.encode`); every site of the
         network must be present. ``param.p`` holds NaN in rows whose action does not use
-        ``p``.
+        ``p``. Or an iterable of such row chunks (a generator, say), read once: each
+        chunk's sufficient statistics are computed and summed
+        (:mod:`inference.statistics`), so the rows never need to be in memory together.
+        Chunks serve networks whose CPDs all have a closed form, without ``masks``.
     masks
         ``(n,)`` bool per discrete site, False where the row's value is missing.
     steps, lr, progress
         Gradient settings, used only for Softmax CPDs or when ``masks`` has gaps.
+        ``progress`` also shows a bar over chunks.
     """
     _check_settings(pseudo_count=pseudo_count, min_variance=min_variance, steps=steps, lr=lr)
+    if not isinstance(data, Mapping):
+        if masks:
+            raise ValueError("masks need the rows in memory: give data as one mapping")
+        stats = fit_statistics(net, data, progress=progress)
+        if stats.softmax:
+            raise ValueError(
+                f"sites {list(stats.softmax)} are softmax CPDs (no closed form): their "
+                "gradient fit needs the rows in memory; give data as one mapping"
+            )
+        cpds = params_from_statistics(net, stats, pseudo_count, min_variance)
+        return FitResult(NetworkParams(cpds, pseudo_count))
     enc = _complete(net, data)
     masks = _masks(net, masks, enc.n_rows)
     complete = torch.ones(enc.n_rows, dtype=torch.bool)
     for m in masks.values():
         complete &= m
-    rows = enc.rows(complete)
     if not complete.any():
         raise ValueError(
             "every row misses some value; at least one complete row is needed to start"
         )
-    cpds = _closed_form(net, rows, pseudo_count, min_variance)
+    cpds = params_from_statistics(
+        net, statistics(net, enc.rows(complete)), pseudo_count, min_variance
+    )
     params = NetworkParams(cpds, pseudo_count)
     gradient_sites = [s for s, c in cpds.items() if isinstance(c, Softmax)]
     if not complete.all():
@@ -126,6 +135,28 @@ def fit(
         lr=lr,
         progress=progress,
     )
+
+
+def fit_statistics(
+    net: EffectNetwork, chunks: Iterable[Mapping[str, object]], *, progress: bool = False
+) -> Statistics:
+    """The summed sufficient statistics of row chunks (each checked as :func:`fit` does).
+
+    Statistics of partitions computed apart (on a cluster's workers, say) add up with
+    ``+``; :func:`inference.statistics.params_from_statistics` turns the sum into
+    parameters.
+    """
+    total = None
+    for chunk in tqdm(chunks, desc="fit (chunks)", unit="chunk", disable=not progress):
+        if not isinstance(chunk, Mapping):
+            raise ValueError(
+                f"data must be a mapping of rows or an iterable of such chunks; got a "
+                f"chunk of type {type(chunk).__name__}"
+            )
+        total = statistics(net, _complete(net, chunk)).merged_into(total)
+    if total is None:
+        raise ValueError("no training rows: the iterable of chunks was empty")
+    return total
 
 
 def fit_gradient(
@@ -307,200 +338,6 @@ def _check_magnitude(site: str, value: torch.Tensor) -> None:
             f"site {site!r}: row {row} holds {value[row].tolist()}, beyond +-{MAX_MAGNITUDE:g}; "
             "its squares overflow the fit's statistics. Rescale the feature (other units)"
         )
-
-
-def _flat_index(
-    enc: Mapping[str, torch.Tensor], sites: tuple[str, ...], net: EffectNetwork
-) -> tuple[torch.Tensor, tuple[int, ...]]:
-    card = tuple(net.site(s).size for s in sites)
-    index = torch.zeros(enc.n_rows, dtype=torch.long)
-    for s, k in zip(sites, card, strict=True):
-        index = index * k + enc[s]
-    return index, card
-
-
-def _table(
-    index: torch.Tensor, child: torch.Tensor, card: tuple[int, ...], k: int, alpha: float
-) -> Table:
-    size = math.prod(card)
-    counts = torch.bincount(index * k + child, minlength=size * k).reshape(*card, k).to(DTYPE)
-    n = counts.sum(-1)
-    probs = (counts + alpha) / (n + k * alpha).clamp_min(1e-300)[..., None]
-    probs = torch.where((n == 0)[..., None], torch.full_like(probs, 1.0 / k), probs)
-    return Table(probs, n)
-
-
-def _linear_gaussian(
-    index: torch.Tensor,
-    x: torch.Tensor | None,
-    y: torch.Tensor,
-    card: tuple[int, ...],
-    alpha: float,
-    min_variance: float,
-    site: str,
-    zero_weights: torch.Tensor | None = None,
-) -> LinearGaussian:
-    """Per-configuration least squares of y on [x, 1] with pooled pseudo-rows.
-
-    ``zero_weights`` ``(G, p)`` bool: weights fixed at zero per configuration (the
-    least squares then runs without those columns there).
-    """
-    groups = math.prod(card)
-    n_rows, d = y.shape
-    z = (
-        torch.cat([x, torch.ones(n_rows, 1, dtype=DTYPE)], -1)
-        if x is not None
-        else torch.ones(n_rows, 1, dtype=DTYPE)
-    )
-    q = z.shape[-1]
-    szz = torch.zeros(groups, q, q, dtype=DTYPE).index_add_(0, index, z[:, :, None] * z[:, None, :])
-    szy = torch.zeros(groups, q, d, dtype=DTYPE).index_add_(0, index, z[:, :, None] * y[:, None, :])
-    syy = torch.zeros(groups, d, d, dtype=DTYPE).index_add_(0, index, y[:, :, None] * y[:, None, :])
-    n = torch.bincount(index, minlength=groups).to(DTYPE)
-    if n_rows:
-        # alpha pseudo-rows of the pooled statistics (an unseen configuration = the pooled fit)
-        w = alpha / n_rows
-        szz, szy, syy = szz + w * szz.sum(0), szy + w * szy.sum(0), syy + w * syy.sum(0)
-    if not all(bool(t.isfinite().all()) for t in (szz, szy, syy)):
-        raise ValueError(
-            f"site {site!r}: the fit's second moments overflow float64; rescale the data"
-        )
-    if zero_weights is not None and bool(zero_weights.any()):
-        drop = torch.cat([zero_weights, torch.zeros(groups, 1, dtype=torch.bool)], -1)
-        keep = (~drop).to(DTYPE)
-        szz = szz * keep[:, :, None] * keep[:, None, :] + torch.diag_embed(drop.to(DTYPE))
-        szy = szy * keep[:, :, None]
-    total = n + (alpha if n_rows else 0.0)
-    unseen = total == 0
-    if unseen.any():  # alpha == 0: fall back on the pooled fit all the same
-        szz[unseen], szy[unseen], syy[unseen], total[unseen] = (
-            szz.sum(0),
-            szy.sum(0),
-            syy.sum(0),
-            float(n_rows),
-        )
-    ridge = 1e-10 * szz.diagonal(dim1=-2, dim2=-1).mean(-1).clamp_min(1e-12)
-    beta = torch.linalg.solve(
-        szz + ridge[:, None, None] * torch.eye(q, dtype=DTYPE), szy
-    )  # (G, q, d)
-    resid = syy - szy.mT @ beta - beta.mT @ szy + beta.mT @ szz @ beta
-    cov = resid / total.clamp_min(1e-300)[:, None, None]
-    cov = 0.5 * (cov + cov.mT) + min_variance * torch.eye(d, dtype=DTYPE)
-    tril = _safe_cholesky(cov, site)
-    return LinearGaussian(
-        beta[:, : q - 1, :].mT.reshape(*card, d, q - 1),
-        beta[:, q - 1, :].reshape(*card, d),
-        tril.reshape(*card, d, d),
-        n.reshape(card),
-    )
-
-
-def _safe_cholesky(cov: torch.Tensor, site: str, tries: int = 24) -> torch.Tensor:
-    """Cholesky factors, adding a growing jitter where a covariance is not quite PD."""
-    tril, info = torch.linalg.cholesky_ex(cov)
-    jitter = 1e-12
-    for _ in range(tries):
-        bad = info > 0
-        if not bad.any():
-            return tril
-        scale = cov[bad].diagonal(dim1=-2, dim2=-1).abs().mean(-1).clamp_min(1.0)
-        cov[bad] = cov[bad] + (jitter * scale)[:, None, None] * torch.eye(
-            cov.shape[-1], dtype=cov.dtype
-        )
-        tril, info = torch.linalg.cholesky_ex(cov)
-        jitter *= 10
-    if (info > 0).any():
-        group = int((info > 0).nonzero()[0])
-        raise ValueError(
-            f"site {site!r}: configuration {group} has no positive definite covariance "
-            f"({cov[group].tolist()}); check its rows for inf, NaN or huge values"
-        )
-    return tril
-
-
-def _closed_form(net: EffectNetwork, enc: Evidence, alpha: float, min_variance: float) -> dict:
-    cpds: dict = {}
-    n = enc.n_rows
-    no_parent = torch.zeros(n, dtype=torch.long)
-    for f in net.features:
-        if f.initial:
-            site = initial_site(f.name)
-            if isinstance(f, Discrete):
-                cpds[site] = _table_root(_table(no_parent, enc[site], (), f.cardinality, alpha))
-            else:
-                cpds[site] = _strip(
-                    _linear_gaussian(no_parent, None, enc[site], (), alpha, min_variance, site)
-                )
-    cpds[ACTION] = _table_root(_table(no_parent, enc[ACTION], (), len(net.actions), alpha))
-    for p in net.parameters:
-        c_site, p_site = cluster_site(p.name), param_site(p.name)
-        uses = net.parameter_in_use(p, enc[ACTION])
-        table = _table(
-            enc[ACTION][uses], enc[c_site][uses], (len(net.actions),), p.n_clusters, alpha
-        )
-        fixed = torch.zeros(p.n_clusters, dtype=DTYPE)
-        fixed[0] = 1.0
-        probs = torch.where(net.uses_parameter(p)[:, None], table.probs, fixed)
-        cpds[c_site] = Table(probs, table.n)
-        cpds[p_site] = _linear_gaussian(
-            enc[c_site][uses],
-            None,
-            enc[p_site][uses],
-            (p.n_clusters,),
-            alpha,
-            min_variance,
-            p_site,
-        )
-    for f in net.features:
-        site = end_site(f.name)
-        index, card = _flat_index(enc, net.discrete_parents(f.name), net)
-        cont = [enc[s].nan_to_num() for s in net.continuous_parents(f.name)]
-        x = torch.cat(cont, -1) if cont else None
-        if isinstance(f, Continuous):
-            cpds[site] = _linear_gaussian(
-                index, x, enc[site], card, alpha, min_variance, site, _unused(net, f.name, card)
-            )
-        elif x is None:
-            cpds[site] = _table(index, enc[site], card, f.cardinality, alpha)
-        else:
-            # Softmax: start from the table's log-frequencies with zero slopes; gradient follows.
-            t = _table(index, enc[site], card, f.cardinality, max(alpha, 1e-3))
-            cpds[site] = Softmax(
-                torch.zeros(*card, f.cardinality, x.shape[-1], dtype=DTYPE), t.probs.log(), t.n
-            )
-    ordered = {name: cpds[name] for name in expected_shapes(net)}
-    check_params(net, NetworkParams(ordered, alpha))
-    return ordered
-
-
-def _unused(net: EffectNetwork, feature: str, card: tuple[int, ...]) -> torch.Tensor | None:
-    """``(G, p)`` bool: the parameter's weights in configurations of actions not using it.
-
-    The rule of :meth:`EffectNetwork.parameter_in_use`: such an action ignores the
-    parameter, so its weights are zero, not fitted (pooled pseudo-rows would otherwise
-    lend them the using actions' slope).
-    """
-    p = net.parameter_of(feature)
-    if p is None:
-        return None
-    width = sum(net.site(s).size for s in net.continuous_parents(feature))
-    actions = torch.arange(len(net.actions))
-    unused = ~net.parameter_in_use(p, actions)  # the action axis is second to last
-    unused = unused[:, None].expand(*card).reshape(-1)
-    out = torch.zeros(unused.shape[0], width, dtype=torch.bool)
-    out[:, width - p.dim :] = unused[:, None]
-    return out
-
-
-def _table_root(t: Table) -> Table:
-    return Table(t.probs.reshape(-1), t.n.reshape(()))
-
-
-def _strip(g: LinearGaussian) -> LinearGaussian:
-    d = g.bias.shape[-1]
-    return LinearGaussian(
-        g.weight.reshape(d, 0), g.bias.reshape(d), g.scale_tril.reshape(d, d), g.n.reshape(())
-    )
 
 
 def _default_params(net: EffectNetwork, alpha: float) -> NetworkParams:

@@ -101,7 +101,9 @@ def test_discrete_queries_are_right_or_refused(net, seed, data):
         evidence[site] = container(data, [labels[i]])
     allowed = None
     if query in ("infer_action", "compiled") and data.draw(st.booleans()):
-        allowed = data.draw(st.lists(st.sampled_from(net.actions), max_size=len(net.actions)))
+        allowed = data.draw(
+            st.lists(st.sampled_from(net.actions), min_size=1, max_size=len(net.actions))
+        )
     corruption = data.draw(
         st.sampled_from(["none"] * 4 + ["label", "rows", "site", "indices", "allowed"])
     )
