@@ -35,6 +35,7 @@ from models.declaration import (
     end_site,
     param_site,
 )
+from models.evidence import Evidence
 from models.model import collapsed_tables, effect_model
 from models.params import NetworkParams, check_params
 
@@ -259,7 +260,8 @@ class CompiledParameterQuery:
         if ACTION not in enc:
             if len(p.actions) != 1:
                 raise ValueError(f"give the action (one of {list(p.actions)}) that used {p.name!r}")
-            enc = enc | {ACTION: [p.actions[0]] * n}
+            action = torch.full((n,), self.net.action_index(p.actions[0]))
+            enc = Evidence(self.net, dict(enc) | {ACTION: action}, n)
         not_using = ~self.net.parameter_in_use(p, enc[ACTION])
         if not_using.any():
             row = int(not_using.nonzero()[0])

@@ -443,7 +443,8 @@ def infer_parameter(
     if ACTION not in enc:
         if len(p.actions) != 1:
             raise ValueError(f"give the action (one of {list(p.actions)}) that used {p.name!r}")
-        enc = enc | {ACTION: [p.actions[0]] * enc.n_rows}
+        action = torch.full((enc.n_rows,), net.action_index(p.actions[0]))
+        enc = Evidence(net, dict(enc) | {ACTION: action}, enc.n_rows)
     not_using = ~net.parameter_in_use(p, enc[ACTION])
     if not_using.any():
         row = int(not_using.nonzero()[0])

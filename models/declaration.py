@@ -233,6 +233,7 @@ class EffectNetwork:
     actions: tuple[str, ...]
     parameters: tuple[Parameter, ...] = ()
     _sites: dict[str, SiteSpec] = field(init=False, repr=False, compare=False)
+    _uses: dict[str, torch.Tensor] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "features", tuple(self.features))
@@ -275,6 +276,10 @@ class EffectNetwork:
         for f in self.features:
             sites[end_site(f.name)] = _spec(end_site(f.name), f, "end")
         object.__setattr__(self, "_sites", sites)
+        uses = {
+            p.name: torch.tensor([a in p.actions for a in self.actions]) for p in self.parameters
+        }
+        object.__setattr__(self, "_uses", uses)
 
     # ----------------------------------------------------------------- structure
     @property
@@ -324,8 +329,8 @@ class EffectNetwork:
         return tuple(parents)
 
     def uses_parameter(self, parameter: Parameter) -> torch.Tensor:
-        """``(n_actions,)`` bool: which actions use ``parameter``."""
-        return torch.tensor([a in parameter.actions for a in self.actions])
+        """``(n_actions,)`` bool: which actions use ``parameter`` (a copy)."""
+        return self._uses[parameter.name].clone()
 
     def action_index(self, action: str) -> int:
         try:
@@ -374,7 +379,7 @@ class EffectNetwork:
         (in the model, in fitting and in the closed-form marginal), its own density is
         left out, and its cluster sits on cell 0.
         """
-        return self.uses_parameter(parameter)[action]
+        return self._uses[parameter.name][action]
 
     # ----------------------------------------------------------------- serialisation
     def to_dict(self) -> dict:

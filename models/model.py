@@ -169,7 +169,7 @@ def _rows(data: Evidence, n_rows: int | None) -> int:
 
 def _parameter(net, params, p: Parameter, action, data, masks, collapse, n):
     """Sample ``cluster.p`` and ``param.p``; return them, and the rows where the value is
-    known (``None`` when it is known in every row)."""
+    known (bool, the parameter's batch shape)."""
     c_site, p_site = cluster_site(p.name), param_site(p.name)
     uses = net.parameter_in_use(p, action)  # (E..., n or 1)
     x = data.get(p_site)
@@ -207,9 +207,12 @@ def _parameter(net, params, p: Parameter, action, data, masks, collapse, n):
             )
     theta = _continuous(p_site, theta)
     known = ~torch.isnan(theta).any(-1)
-    wrong_cell = uses & known & (p.cluster_of(theta.nan_to_num()) != cluster)
-    pyro.factor(f"{c_site}.cell", torch.zeros((), dtype=DTYPE).masked_fill(wrong_cell, -torch.inf))
-    return (cluster, theta), (None if bool(known.all()) else known)
+    cell_factor = torch.zeros((), dtype=DTYPE)
+    if bool(known.any()):
+        wrong_cell = uses & known & (p.cluster_of(theta.nan_to_num()) != cluster)
+        cell_factor = cell_factor.masked_fill(wrong_cell, -torch.inf)
+    pyro.factor(f"{c_site}.cell", cell_factor)
+    return (cluster, theta), known
 
 
 def _continuous_end(net, params, f: Continuous, index, values, known) -> dist.MultivariateNormal:
@@ -218,18 +221,21 @@ def _continuous_end(net, params, f: Continuous, index, values, known) -> dist.Mu
     cpd = params[site]
     parents = net.continuous_parents(f.name)
     p = net.parameter_of(f.name)
-    weight = Vindex(cpd.weight)[(*index, slice(None), slice(None))]
-    loc = Vindex(cpd.bias)[(*index, slice(None))]
-    tril = Vindex(cpd.scale_tril)[(*index, slice(None), slice(None))]
     parts = [values[s] for s in parents]
-    if p is not None:
-        uses = net.parameter_in_use(p, values[ACTION])
-        parts[-1] = torch.where(uses[..., None], parts[-1].nan_to_num(), 0.0)
-    x = _concat(parts)
-    if x is not None:
-        loc = loc + _linear(weight, x)
-    known_rows = known.get(p.name) if p is not None else None
-    if known_rows is not None:
+    known_rows = known[p.name] if p is not None else None
+    everywhere = known_rows is None or bool(known_rows.all())
+    nowhere = known_rows is not None and not bool(known_rows.any())
+    if not nowhere:  # the parameter known in some rows: condition on it there
+        loc = Vindex(cpd.bias)[(*index, slice(None))]
+        tril = Vindex(cpd.scale_tril)[(*index, slice(None), slice(None))]
+        weight = Vindex(cpd.weight)[(*index, slice(None), slice(None))]
+        if p is not None:
+            uses = net.parameter_in_use(p, values[ACTION])
+            parts[-1] = torch.where(uses[..., None], parts[-1].nan_to_num(), 0.0)
+        x = _concat(parts)
+        if x is not None:
+            loc = loc + _linear(weight, x)
+    if not everywhere:
         # Rows with an unknown parameter: y = W_x x + W_p theta + b + e, theta ~ N(m_c, S_c).
         offset, marginal_tril, w_x = collapsed_tables(net, params, p)
         m_loc = Vindex(offset)[(*index, slice(None))]
@@ -237,8 +243,11 @@ def _continuous_end(net, params, f: Continuous, index, values, known) -> dist.Mu
         xs = _concat(parts[:-1])
         if xs is not None:
             m_loc = m_loc + _linear(Vindex(w_x)[(*index, slice(None), slice(None))], xs)
-        loc = torch.where(known_rows[..., None], loc, m_loc)
-        tril = torch.where(known_rows[..., None, None], tril, m_tril)
+        if nowhere:
+            loc, tril = m_loc, m_tril
+        else:
+            loc = torch.where(known_rows[..., None], loc, m_loc)
+            tril = torch.where(known_rows[..., None, None], tril, m_tril)
     return dist.MultivariateNormal(loc, scale_tril=tril)
 
 
@@ -247,6 +256,9 @@ class _UnknownWhereNaN(dist.MultivariateNormal):
 
     def log_prob(self, value: torch.Tensor) -> torch.Tensor:
         given = ~torch.isnan(value).any(-1)
+        if not bool(given.any()):
+            shape = torch.broadcast_shapes(self.batch_shape, value.shape[:-1])
+            return torch.zeros(shape, dtype=self.loc.dtype)
         return torch.where(given, super().log_prob(value.nan_to_num()), 0.0)
 
 
