@@ -20,7 +20,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim2d import can_dataset, cans
+from sim2d import can_dataset, materials
 from sim2d.configurations import stable_configurations
 
 
@@ -65,7 +65,7 @@ def main(argv=None) -> None:
                 f"{int(data.timed_out.sum())} timed out, "
                 f"{int((~data.throwable).sum())} unthrowable rows; written to {out}"
             )
-    print(f"time step {cans.TIME_STEP} s, cap {cans.MAX_SIM_TIME} s")
+    print(f"time step {materials.TIME_STEP} s, cap {materials.MAX_SIM_TIME} s")
 
 
 if __name__ == "__main__":

@@ -16,7 +16,7 @@ from inference import fit
 from inference.compiled import CompiledNetwork, compile_discrete
 from models import EffectNetwork, NetworkParams
 from models.can_network import can_network, can_rows, config_index
-from sim2d import cans
+from sim2d import field_throws, geometry
 from sim2d.can_dataset import CanDataset, generate_dataset, load_dataset
 from sim2d.configurations import stable_configurations
 
@@ -101,11 +101,13 @@ def fit_can_network(data: CanDataset, angle: int) -> CanModel:
     sel = (data.angle == angle) & data.throwable
     if not sel.any():
         raise ValueError(
-            f"the data set has no throwable throws at angle {angle} ({cans.ANGLE_NAMES[angle]})"
+            f"the data set has no throwable throws at angle {angle} ({geometry.ANGLE_NAMES[angle]})"
         )
     states = sorted(set(data.start_config.tolist()) | set(data.end_config[sel].tolist()))
     net = can_network(states)
     rows = can_rows(net, data.start_config[sel], data.field[sel], data.end_config[sel])
     params = fit(net, rows).params
-    throwable = torch.tensor([cans.is_throwable(f, angle) for f in range(cans.N_FIELDS)])
+    throwable = torch.tensor(
+        [field_throws.is_throwable(f, angle) for f in range(geometry.N_FIELDS)]
+    )
     return CanModel(angle, net, params, compile_discrete(net, params), throwable)

@@ -36,7 +36,7 @@ from can_tossing import ANGLE, table_one_cases  # noqa: E402
 from combined import SCENARIOS  # noqa: E402
 
 from inference.planning import exact_plan, policy_value  # noqa: E402
-from sim2d import cans  # noqa: E402
+from sim2d import field_throws, geometry  # noqa: E402
 from sim2d.can_dataset import generate_dataset, load_dataset  # noqa: E402
 from sim2d.combined import TABLE_TOP_Z, exact_throws, play_throw  # noqa: E402
 from sim2d.configurations import stable_configurations  # noqa: E402
@@ -67,9 +67,9 @@ def table_one_bound(args) -> dict:
         progress=not args.quiet,
     )
     sims = load_dataset(path)
-    fields = np.flatnonzero([cans.is_throwable(f, ANGLE) for f in range(cans.N_FIELDS)])
+    fields = np.flatnonzero([field_throws.is_throwable(f, ANGLE) for f in range(geometry.N_FIELDS)])
     order = np.lexsort((sims.repeat, sims.field, sims.start_config))
-    counts = sims.count_after[order].reshape(len(configs), cans.N_FIELDS, args.repeats)
+    counts = sims.count_after[order].reshape(len(configs), geometry.N_FIELDS, args.repeats)
     counts = counts[:, fields]  # (configs, throwable fields, repeats)
     row = {c: i for i, c in enumerate(sorted(configs))}
     success = counts[[row[int(s)] for s in start]] == desired[:, None, None]
@@ -102,7 +102,7 @@ def combined_bound(args, table_z: float, jitter: float) -> dict:
     stable = stable_configurations()
     out = {}
     for name, removed in SCENARIOS.items():
-        goal = cans.FULL_PYRAMID & ~cans.cans_to_mask(removed)
+        goal = geometry.FULL_PYRAMID & ~geometry.cans_to_mask(removed)
         states = sorted(s for s in stable if s & goal == goal)
         jobs = [(s, table_z, args.step, args.combined_repeats, jitter, BOUND_SEED) for s in states]
         with ProcessPoolExecutor(args.workers) as pool:
@@ -127,7 +127,7 @@ def combined_bound(args, table_z: float, jitter: float) -> dict:
                             t[part][i, a, index[nxt]] += 1.0 / len(row)
         plan = exact_plan(t[0], index[goal], args.horizon)
         value = policy_value(t[1], plan.policy, index[goal], args.horizon)
-        full = index[cans.FULL_PYRAMID]
+        full = index[geometry.FULL_PYRAMID]
         out[name] = {
             "success_bound": float(value[args.horizon, full]),
             "success_in_sample": float(plan.value[args.horizon, full]),

@@ -1,12 +1,12 @@
 """The can-tossing data set: every stable configuration x 195 fields x angles x repeats.
 
-Protocol (paper §IV-A, DESIGN.md): each physically possible configuration is hit at
+Protocol (paper §IV-A): each physically possible configuration is hit at
 every field with every angle, ``repeats`` times, each repeat with its own seeded aim
 jitter (``jitter`` metres, normal per axis; the seed of throw (config, field, angle,
-repeat) is :func:`sim2d.cans.throw_seed` of the data set's ``seed``). Rows are ordered
+repeat) is :func:`sim2d.field_throws.aim_seed` of the data set's ``seed``). Rows are ordered
 by configuration (ascending mask), field, angle, repeat.
 
-Unthrowable actions (:func:`sim2d.cans.is_throwable` False) are not simulated: their
+Unthrowable actions (:func:`sim2d.field_throws.is_throwable` False) are not simulated: their
 rows carry ``throwable = False``, ``end_config = start_config``, ``thrown_off = 0``,
 ``hit_any_can = False`` and ``sim_time = 0``. Use ``throwable`` to drop them.
 
@@ -17,7 +17,7 @@ array          dtype    meaning
 =============  =======  ============================================================
 start_config   int16    configuration mask before the throw
 field          int16    field index, ``row * 15 + column``
-angle          int8     index into ``sim2d.cans.ANGLES``
+angle          int8     index into ``sim2d.geometry.ANGLES``
 repeat         int8     repeat number
 seed           uint32   seed of the aim jitter
 end_config     int16    cans not thrown off
@@ -51,8 +51,11 @@ from pathlib import Path
 
 import numpy as np
 
-from sim2d import cans
+from sim2d import geometry, materials
 from sim2d.configurations import SETTLE_TIME, STABLE_TOLERANCE, stable_configurations
+from sim2d.field_throws import aim_offset, aim_seed, is_throwable, launch_state, outcome_of
+from sim2d.validation import as_int, check_index
+from sim2d.world import simulate
 
 __all__ = ["FORMAT_VERSION", "CanDataset", "generate_dataset", "load_dataset"]
 
@@ -109,23 +112,22 @@ def _simulate_chunk(rows: np.ndarray, jitter: float, seed: int) -> dict[str, np.
     """
     n = len(rows)
     out = {name: np.zeros(n, dtype=dtype) for name, dtype in _DTYPES.items()}
-    throwable = {(f, a): cans.is_throwable(f, a) for f, a in {(r[1], r[2]) for r in rows.tolist()}}
+    throwable = {(f, a): is_throwable(f, a) for f, a in {(r[1], r[2]) for r in rows.tolist()}}
     for k, (config, fld, angle, repeat) in enumerate(rows.tolist()):
-        throw_seed = cans.throw_seed(seed, config, fld, angle, repeat)
+        row_seed = aim_seed(seed, config, fld, angle, repeat)
         out["start_config"][k] = config
         out["field"][k] = fld
         out["angle"][k] = angle
         out["repeat"][k] = repeat
-        out["seed"][k] = throw_seed
+        out["seed"][k] = row_seed
         out["count_before"][k] = config.bit_count()
         if not throwable[fld, angle]:
             out["end_config"][k] = config
             out["count_after"][k] = config.bit_count()
             continue
         out["throwable"][k] = True
-        offset = cans._aim_offset(jitter, throw_seed)
-        position, velocity = cans.launch_state(fld, angle, offset=offset)
-        outcome, _ = cans._play(config, position, velocity)
+        position, velocity = launch_state(fld, angle, offset=aim_offset(jitter, row_seed))
+        outcome = outcome_of(config, simulate(config, position, velocity))
         out["end_config"][k] = outcome.end_config
         out["thrown_off"][k] = outcome.thrown_off
         out["count_after"][k] = outcome.count_after
@@ -137,7 +139,9 @@ def _simulate_chunk(rows: np.ndarray, jitter: float, seed: int) -> dict[str, np.
 
 
 def _rows(configs, angles, repeats) -> np.ndarray:
-    grid = np.meshgrid(configs, np.arange(cans.N_FIELDS), angles, np.arange(repeats), indexing="ij")
+    grid = np.meshgrid(
+        configs, np.arange(geometry.N_FIELDS), angles, np.arange(repeats), indexing="ij"
+    )
     return np.stack([g.ravel() for g in grid], axis=1).astype(np.int64)
 
 
@@ -153,16 +157,16 @@ def _metadata(configs, angles, repeats, jitter, seed, chunk_size) -> dict:
         "format_version": FORMAT_VERSION,
         "producer": "sim2d.can_dataset.generate_dataset",
         "package_version": _package_version(),
-        "constants": cans.physical_constants(),
+        "constants": materials.physical_constants(),
         "settle_time": SETTLE_TIME,
         "stable_tolerance": STABLE_TOLERANCE,
         "geometry": {
-            "can_positions": cans.can_positions().tolist(),
-            "field_centres": cans.field_centres().tolist(),
-            "supporters": [list(s) if s else None for s in cans.SUPPORTERS],
-            "top_three": list(cans.TOP_THREE),
-            "near_flank": list(cans.NEAR_FLANK),
-            "far_flank": list(cans.FAR_FLANK),
+            "can_positions": geometry.can_positions().tolist(),
+            "field_centres": geometry.field_centres().tolist(),
+            "supporters": [list(s) if s else None for s in geometry.SUPPORTERS],
+            "top_three": list(geometry.TOP_THREE),
+            "near_flank": list(geometry.NEAR_FLANK),
+            "far_flank": list(geometry.FAR_FLANK),
             "field_index": "row * 15 + column; row 0 bottom, column 0 near side",
         },
         "configs": [int(c) for c in configs],
@@ -171,7 +175,7 @@ def _metadata(configs, angles, repeats, jitter, seed, chunk_size) -> dict:
         "jitter": float(jitter),
         "jitter_rule": "normal(0, jitter) per axis added to the field centre, clipped at 3 sd",
         "seed": int(seed),
-        "seed_rule": "throw seed = sim2d.cans.throw_seed(seed, config, field, angle, repeat)",
+        "seed_rule": "aim seed = sim2d.field_throws.aim_seed(seed, config, field, angle, repeat)",
         "unthrowable_rule": "not simulated; end_config = start_config, throwable = False",
         "thrown_off_rule": "at rest moved > 1 cm vertically or > 10 cm horizontally, or left",
         "row_order": "config (ascending), field, angle, repeat",
@@ -190,25 +194,25 @@ def _check_args(configs, angles, repeats, jitter, chunk_size):
     stable = stable_configurations()
     if configs is None:
         configs = stable
-    configs = sorted({cans._as_int(c, "configs") for c in configs})
+    configs = sorted({as_int(c, "configs") for c in configs})
     bad = [c for c in configs if c not in stable]
     if bad:
         raise ValueError(
             f"configs contains {bad[:5]}{'...' if len(bad) > 5 else ''}, not physically "
             "possible; expected a subset of sim2d.configurations.stable_configurations()"
         )
-    angles = sorted({cans._check_index(a, "angles", len(cans.ANGLES), "an angle") for a in angles})
+    angles = sorted({check_index(a, "angles", len(geometry.ANGLES), "an angle") for a in angles})
     if not angles:
         raise ValueError("angles=() is empty; expected a subset of (0, 1, 2)")
-    repeats = cans._as_int(repeats, "repeats")
+    repeats = as_int(repeats, "repeats")
     if not 1 <= repeats <= 127:
         raise ValueError(f"repeats={repeats} is out of range; expected 1..127")
-    if not (np.isfinite(jitter) and 0 <= jitter <= cans.TABLE_CLEARANCE / 3):
+    if not (np.isfinite(jitter) and 0 <= jitter <= materials.TABLE_CLEARANCE / 3):
         raise ValueError(
-            f"jitter={jitter!r} is invalid; expected metres in [0, {cans.TABLE_CLEARANCE / 3:.4f}]"
+            f"jitter={jitter!r} is invalid; expected metres in [0, {materials.TABLE_CLEARANCE / 3:.4f}]"
             " (larger aim errors could start a throwable parabola inside the table)"
         )
-    chunk_size = cans._as_int(chunk_size, "chunk_size")
+    chunk_size = as_int(chunk_size, "chunk_size")
     if chunk_size < 1:
         raise ValueError(f"chunk_size={chunk_size} is invalid; expected >= 1")
     return configs, angles, repeats, float(jitter), chunk_size
@@ -265,7 +269,7 @@ def generate_dataset(
     configs, angles, repeats, jitter, chunk_size = _check_args(
         configs, angles, repeats, jitter, chunk_size
     )
-    seed = cans._as_int(seed, "seed")
+    seed = as_int(seed, "seed")
     path = Path(path)
     metadata = _metadata(configs, angles, repeats, jitter, seed, chunk_size)
     if path.exists():

@@ -1,9 +1,9 @@
 """Physically possible configurations of the can pyramid, found by simulation.
 
-A configuration (a subset of the ten cans, as a 10-bit mask; see :mod:`sim2d.cans`) is
+A configuration (a subset of the ten cans, as a 10-bit mask; see :mod:`sim2d.geometry`) is
 physically possible when, with its cans placed at their standard positions and
 simulated for ``SETTLE_TIME`` = 5 s, no can's centre ever moves more than
-``STABLE_TOLERANCE`` = 1 cm (DESIGN.md). All 2^10 subsets are simulated; none is
+``STABLE_TOLERANCE`` = 1 cm. All 2^10 subsets are simulated; none is
 decided by a rule. Every subset in which each upper can has both supporters stands;
 others can too, when the cans above pin a can that lost one supporter.
 
@@ -12,7 +12,7 @@ off, so a slow creep is not mistaken for rest. A subset is rejected as soon as o
 has moved more than the tolerance, which makes the 1024 runs take seconds.
 
 The result depends only on the physical constants, so it is cached on disk as JSON,
-keyed by a hash of :func:`sim2d.cans.physical_constants` and the two constants here.
+keyed by a hash of :func:`sim2d.materials.physical_constants` and the two constants here.
 The cache directory is ``$EFFECT_NETWORKS_CACHE`` if set, else
 ``~/.cache/effect-networks``.
 """
@@ -27,19 +27,20 @@ import tempfile
 from functools import lru_cache
 from pathlib import Path
 
-from sim2d import cans
+from sim2d import geometry, materials, world
 
 __all__ = [
     "SETTLE_TIME",
     "STABLE_TOLERANCE",
     "cache_dir",
+    "check_config",
     "fully_supported",
     "is_stable",
     "settles",
     "stable_configurations",
 ]
 
-SETTLE_TIME = 5.0  # s (DESIGN.md)
+SETTLE_TIME = 5.0  # s
 STABLE_TOLERANCE = 0.01  # m, the most a can of a standing configuration may move
 _CHECK_EVERY = 10  # steps between displacement checks
 
@@ -52,7 +53,7 @@ def cache_dir() -> Path:
 
 def _cache_key() -> str:
     constants = dict(
-        cans.physical_constants(), settle_time=SETTLE_TIME, stable_tolerance=STABLE_TOLERANCE
+        materials.physical_constants(), settle_time=SETTLE_TIME, stable_tolerance=STABLE_TOLERANCE
     )
     text = json.dumps(constants, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
@@ -60,8 +61,8 @@ def _cache_key() -> str:
 
 def fully_supported(mask: int) -> bool:
     """Whether every upper can of a configuration has both its supporters (a rule, for tests)."""
-    for i in cans.mask_to_cans(mask):
-        below = cans.SUPPORTERS[i]
+    for i in geometry.mask_to_cans(mask):
+        below = geometry.SUPPORTERS[i]
         if below is not None and not all(mask >> j & 1 for j in below):
             return False
     return True
@@ -75,15 +76,15 @@ def settles(mask: int) -> bool:
     mask : int
         Any 10-bit configuration mask.
     """
-    mask = cans._check_mask(mask, "mask")
-    space = cans._new_space()
-    space.sleep_time_threshold = math.inf
-    bodies = cans._add_cans(space, mask)
-    start = {i: tuple(cans._can_positions()[i]) for i in bodies}
+    mask = geometry.check_mask(mask)
+    space = world.new_space(sleep_time=math.inf)
+    bodies = world.add_cans(space, mask)
+    positions = geometry.can_positions()
+    start = {i: tuple(positions[i]) for i in bodies}
     limit = STABLE_TOLERANCE**2
-    for _ in range(round(SETTLE_TIME / cans.TIME_STEP) // _CHECK_EVERY):
+    for _ in range(round(SETTLE_TIME / materials.TIME_STEP) // _CHECK_EVERY):
         for _ in range(_CHECK_EVERY):
-            space.step(cans.TIME_STEP)
+            space.step(materials.TIME_STEP)
         for i, body in bodies.items():
             dx = body.position.x - start[i][0]
             dz = body.position.y - start[i][1]
@@ -93,7 +94,7 @@ def settles(mask: int) -> bool:
 
 
 def _compute(executor=None) -> tuple[int, ...]:
-    masks = range(1 << cans.N_CANS)
+    masks = range(1 << geometry.N_CANS)
     if executor is None:
         flags = [settles(m) for m in masks]
     else:
@@ -136,10 +137,10 @@ def stable_configurations(
     file.parent.mkdir(parents=True, exist_ok=True)
     payload = {
         "key": _cache_key(),
-        "constants": cans.physical_constants(),
+        "constants": materials.physical_constants(),
         "settle_time": SETTLE_TIME,
         "stable_tolerance": STABLE_TOLERANCE,
-        "count": len(stable),
+        "n_stable": len(stable),
         "stable": list(stable),
     }
     # Write to a temporary file and rename, so concurrent readers never see half a file.
@@ -156,4 +157,15 @@ def _stable_set() -> frozenset[int]:
 
 def is_stable(mask: int) -> bool:
     """Whether a configuration is physically possible (uses the cached enumeration)."""
-    return cans._check_mask(mask, "mask") in _stable_set()
+    return geometry.check_mask(mask) in _stable_set()
+
+
+def check_config(config, name: str = "config") -> int:
+    """``config`` as an int, refused unless it is a physically possible configuration."""
+    mask = geometry.check_mask(config, name)
+    if not is_stable(mask):
+        raise ValueError(
+            f"{name}={mask} (cans {geometry.mask_to_cans(mask)}) is not a physically possible "
+            "configuration; expected one of sim2d.configurations.stable_configurations()"
+        )
+    return mask

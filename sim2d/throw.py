@@ -61,9 +61,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sim2d.materials import GRAVITY
+
 __all__ = [
     "FOREARM_LENGTH",
-    "GRAVITY",
     "HAND_SPEED",
     "PITCH_LIMITS_DEG",
     "RELEASE_X",
@@ -82,8 +83,7 @@ __all__ = [
     "throw",
 ]
 
-#: Gravitational acceleration, m/s² (acts along -z; DESIGN, "The can world").
-GRAVITY = 9.81
+# Gravity is the can world's (m/s², along -z): one constant for both worlds.
 
 #: Right shoulder position (x, y, z) in metres (DESIGN, "The throw").
 SHOULDER = np.array([0.0, -0.2, 1.4])

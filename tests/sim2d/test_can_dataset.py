@@ -5,10 +5,10 @@ import concurrent.futures
 import numpy as np
 import pytest
 
-from sim2d import can_dataset, cans
+from sim2d import can_dataset, field_throws, geometry, materials
 from sim2d.can_dataset import generate_dataset, load_dataset
 
-BOTTOM_ROW = cans.cans_to_mask([0, 1, 2, 3])
+BOTTOM_ROW = geometry.cans_to_mask([0, 1, 2, 3])
 SMALL = {"configs": [BOTTOM_ROW, 0], "angles": (0, 2), "repeats": 2, "chunk_size": 97}
 N_SMALL = 2 * 195 * 2 * 2
 
@@ -48,8 +48,8 @@ def test_format(small):
     assert meta["format_version"] == can_dataset.FORMAT_VERSION
     assert meta["jitter"] == 0.003 and meta["seed"] == 0 and meta["repeats"] == 2
     assert meta["configs"] == [0, BOTTOM_ROW] and meta["angles"] == [0, 2]
-    assert meta["constants"] == cans.physical_constants()
-    assert np.allclose(meta["geometry"]["can_positions"], cans.can_positions())
+    assert meta["constants"] == materials.physical_constants()
+    assert np.allclose(meta["geometry"]["can_positions"], geometry.can_positions())
     # rows ordered by config, field, angle, repeat
     assert np.all(np.diff(data.start_config) >= 0)
     assert list(data.repeat[:4]) == [0, 1, 0, 1] and list(data.angle[:4]) == [0, 0, 2, 2]
@@ -59,11 +59,13 @@ def test_rows_match_single_throws(small):
     data = load_dataset(small)
     throwable = np.flatnonzero(data.throwable & (data.start_config == BOTTOM_ROW))
     for k in throwable[:: len(throwable) // 12]:
-        seed = cans.throw_seed(
+        seed = field_throws.aim_seed(
             0, BOTTOM_ROW, int(data.field[k]), int(data.angle[k]), int(data.repeat[k])
         )
         assert data.seed[k] == seed
-        o = cans.throw(BOTTOM_ROW, int(data.field[k]), int(data.angle[k]), jitter=0.003, seed=seed)
+        o = field_throws.throw_at_field(
+            BOTTOM_ROW, int(data.field[k]), int(data.angle[k]), jitter=0.003, seed=seed
+        )
         assert (o.end_config, o.thrown_off, o.hit_any_can, o.touched) == (
             data.end_config[k], data.thrown_off[k], data.hit_any_can[k], data.touched[k]
         )  # fmt: skip
@@ -73,7 +75,7 @@ def test_rows_match_single_throws(small):
 def test_unthrowable_rows_are_flagged_and_unchanged(small):
     data = load_dataset(small)
     expected = np.array(
-        [cans.is_throwable(f, a) for f, a in zip(data.field, data.angle, strict=True)]
+        [field_throws.is_throwable(f, a) for f, a in zip(data.field, data.angle, strict=True)]
     )
     assert np.array_equal(data.throwable, expected)
     gone = ~data.throwable
@@ -118,7 +120,7 @@ def test_parts_of_another_protocol_are_refused(tmp_path):
 
 def test_default_process_pool(tmp_path):
     path = generate_dataset(
-        tmp_path / "pool.npz", configs=[cans.cans_to_mask([1])], angles=(1,), repeats=1,
+        tmp_path / "pool.npz", configs=[geometry.cans_to_mask([1])], angles=(1,), repeats=1,
         chunk_size=50, progress=True,
     )  # fmt: skip
     data = load_dataset(path)
