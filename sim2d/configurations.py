@@ -19,15 +19,17 @@ The cache directory is ``$EFFECT_NETWORKS_CACHE`` if set, else
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import math
 import os
-import tempfile
 from functools import lru_cache
 from pathlib import Path
 
 from sim2d import geometry, materials, world
+from sim2d.chunks import write_text
+from sim2d.executors import open_executor
 
 __all__ = [
     "SETTLE_TIME",
@@ -36,6 +38,7 @@ __all__ = [
     "check_config",
     "fully_supported",
     "is_stable",
+    "settle_flags",
     "settles",
     "stable_configurations",
 ]
@@ -43,6 +46,7 @@ __all__ = [
 SETTLE_TIME = 5.0  # s
 STABLE_TOLERANCE = 0.01  # m, the most a can of a standing configuration may move
 _CHECK_EVERY = 10  # steps between displacement checks
+_BATCH = 64  # masks per executor task
 
 
 def cache_dir() -> Path:
@@ -93,13 +97,28 @@ def settles(mask: int) -> bool:
     return True
 
 
+def settle_flags(masks) -> list[bool]:
+    """:func:`settles` of each mask (one executor task)."""
+    return [settles(mask) for mask in masks]
+
+
 def _compute(executor=None) -> tuple[int, ...]:
-    masks = range(1 << geometry.N_CANS)
+    masks = list(range(1 << geometry.N_CANS))
     if executor is None:
-        flags = [settles(m) for m in masks]
+        flags = settle_flags(masks)
     else:
-        flags = list(executor.map(settles, masks, chunksize=64))
-    return tuple(m for m, ok in zip(masks, flags, strict=True) if ok)
+        batches = [masks[i : i + _BATCH] for i in range(0, len(masks), _BATCH)]
+        with contextlib.ExitStack() as stack:
+            if isinstance(executor, str):
+                executor = stack.enter_context(open_executor(executor))
+            futures = [executor.submit(settle_flags, batch) for batch in batches]
+            flags = [flag for future in futures for flag in future.result()]
+    if len(flags) != len(masks) or not all(isinstance(f, bool) for f in flags):
+        raise RuntimeError(
+            f"the executor returned {len(flags)} results of types "
+            f"{sorted({type(f).__name__ for f in flags})}; expected {len(masks)} bools"
+        )
+    return tuple(mask for mask, ok in zip(masks, flags, strict=True) if ok)
 
 
 def stable_configurations(
@@ -114,8 +133,10 @@ def stable_configurations(
         all 1024 subsets afresh (seconds) and leave the cache alone.
     path : path-like, optional
         Cache file to use instead of ``cache_dir() / "stable_configurations-<hash>.json"``.
-    executor : concurrent.futures.Executor, optional
-        Spreads the 1024 simulations; default: this process.
+    executor : str or object with ``submit``, optional
+        Spreads the 1024 simulations in batches: a specification for
+        :func:`sim2d.executors.open_executor`, or an open executor (only ``submit`` and
+        the futures' ``result()`` are used). Default: this process.
 
     Returns
     -------
@@ -130,7 +151,10 @@ def stable_configurations(
         else cache_dir() / f"stable_configurations-{_cache_key()}.json"
     )
     if file.exists():
-        data = json.loads(file.read_text())
+        try:
+            data = json.loads(file.read_text())
+        except ValueError:  # a damaged cache is recomputed and rewritten
+            data = {}
         if data.get("key") == _cache_key():
             return tuple(data["stable"])
     stable = _compute(executor)
@@ -143,10 +167,8 @@ def stable_configurations(
         "n_stable": len(stable),
         "stable": list(stable),
     }
-    # Write to a temporary file and rename, so concurrent readers never see half a file.
-    with tempfile.NamedTemporaryFile("w", dir=file.parent, delete=False, suffix=".tmp") as tmp:
-        json.dump(payload, tmp, indent=1)
-    os.replace(tmp.name, file)
+    # Written to a temporary file and renamed, so concurrent readers never see half a file.
+    write_text(file, json.dumps(payload, indent=1))
     return stable
 
 

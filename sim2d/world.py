@@ -7,14 +7,17 @@ what is left (:class:`Run`). It is the only simulation loop of a ball in the can
 
 Stopping rules, checked every ``CHECK_EVERY`` steps:
 
-- a body beyond ``SCENE_MARGIN`` from the pyramid and moving away, or more than
+- a body beyond ``scene_margin`` from the pyramid and moving away, or more than
   ``FALLEN_DEPTH`` below the table top, has left the scene for good and is removed;
 - before the ball touched any can the cans stand still, so the run ends as soon as the
   ball can no longer reach any of them (or is gone or asleep);
 - after a touch, the run ends when every can sleeps (pymunk's sleeping: idle for
-  ``SLEEP_TIME``) and the ball can change nothing more: it is gone, asleep, or moving
+  ``sleep_time``) and the ball can change nothing more: it is gone, asleep, or moving
   away beyond every can (a rolling circle never stops in pymunk: no rolling resistance);
 - otherwise the run ends at ``MAX_SIM_TIME`` and reports ``timed_out``.
+
+``scene_margin`` and ``sleep_time`` are :class:`sim2d.materials.StoppingRules`; the
+default is :data:`sim2d.materials.STOPPING`.
 
 Speed: pymunk's public ``Space.step`` spends more time in Python bookkeeping (deferred
 additions and removals, post-step callbacks) than in the C step for this small world.
@@ -84,7 +87,7 @@ class Run:
     timed_out: bool
 
 
-def new_space(*, sleep_time: float = m.SLEEP_TIME) -> pymunk.Space:
+def new_space(*, sleep_time: float = m.STOPPING.sleep_time) -> pymunk.Space:
     """A pymunk space with gravity, the solver settings and the table top (z <= 0)."""
     space = pymunk.Space()
     space.gravity = (0.0, -m.GRAVITY)
@@ -183,6 +186,7 @@ def simulate(
     *,
     frame_every: int = 0,
     on_frame: FrameCallback | None = None,
+    stopping: m.StoppingRules = m.STOPPING,
     reference: bool = False,
 ) -> Run:
     """Run one ball state against a configuration until a stopping rule fires.
@@ -197,6 +201,8 @@ def simulate(
         With ``on_frame``, call it at step 0, every ``frame_every`` steps and at the end.
     on_frame : callable, optional
         ``on_frame(step, cans, ball)``, see :data:`FrameCallback`.
+    stopping : sim2d.materials.StoppingRules
+        When the run is over.
     reference : bool
         Step and read bodies through pymunk's public API (slower, same numbers).
 
@@ -206,7 +212,7 @@ def simulate(
     """
     api = _PublicState if reference else _BindingState
     step_space, pos, vel, sleeping = api.step, api.position, api.velocity, api.sleeping
-    space = new_space()
+    space = new_space(sleep_time=stopping.sleep_time)
     cans = add_cans(space, config)
     ball, ball_shape = add_ball(space, position, velocity)
 
@@ -221,8 +227,8 @@ def simulate(
 
     space.on_collision(BALL_TYPE, CAN_TYPE, begin=on_touch)
 
-    lo = PYRAMID_X - m.SCENE_MARGIN
-    hi = PYRAMID_X + PYRAMID_WIDTH + m.SCENE_MARGIN
+    lo = PYRAMID_X - stopping.scene_margin
+    hi = PYRAMID_X + PYRAMID_WIDTH + stopping.scene_margin
     fallen = -m.FALLEN_DEPTH
     # the far face of the configuration's rightmost can, for the no-touch rule
     right = max((can_positions()[i, 0] for i in cans), default=-math.inf) + CAN_WIDTH / 2
