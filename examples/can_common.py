@@ -39,9 +39,17 @@ def start_configurations(n_configs: int | None) -> list[int]:
 
 
 def can_dataset(
-    data_dir: Path, scale: str, *, angles=(0, 1, 2), seed: int = 0, progress: bool = True
+    data_dir: Path,
+    scale: str,
+    *,
+    angles=(0, 1, 2),
+    seed: int = 0,
+    progress: bool = True,
+    executor=None,
 ) -> CanDataset:
-    """Generate (or reuse, or resume) the can data set at ``scale`` and load it."""
+    """Generate (or reuse, or resume) the can data set at ``scale`` and load it.
+
+    ``executor``: where it is simulated (:func:`sim2d.can_dataset.generate_dataset`)."""
     spec = SCALES[scale]
     configs = start_configurations(spec["n_configs"])
     name = "can_dataset.npz" if scale == "full" else f"can_dataset_{scale}.npz"
@@ -51,6 +59,7 @@ def can_dataset(
         angles=angles,
         repeats=spec["repeats"],
         seed=seed,
+        executor=executor,
         progress=progress,
     )
     return load_dataset(path)

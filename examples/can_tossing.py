@@ -363,7 +363,7 @@ def imitation(model, data, n: int, aim_error: float, seed: int, n_ordinary: int 
 def main(args: argparse.Namespace) -> dict:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    data = can_dataset(Path(args.data_dir), args.scale)
+    data = can_dataset(Path(args.data_dir), args.scale, executor=args.executor)
     model = fit_can_network(data, ANGLE)
     tables = {mode: table_one(model, data, mode, args.seed) for mode in ("counts", "actions")}
     head = tables[args.cases][args.rule]
@@ -524,6 +524,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     )
     parser.add_argument("--scale", choices=("full", "quick", "tiny"), default="full")
     parser.add_argument("--data-dir", default="data")
+    parser.add_argument(
+        "--executor",
+        default=None,
+        help="data set: process:N | dask-local:N | dask://HOST:PORT | ray (default: every core)",
+    )
     parser.add_argument("--out", default="results")
     parser.add_argument("--seed", type=int, default=0, help="seed of the evaluation throws")
     parser.add_argument("--rule", choices=("index", "aim"), default="aim", help="tie-break")

@@ -291,7 +291,9 @@ def table_markdown(name: str, s: dict) -> str:
 def main(args: argparse.Namespace) -> dict:
     torch.set_num_threads(1)
     started = time.perf_counter()
-    data = can_dataset(Path(args.data_dir), args.scale, progress=not args.quiet)
+    data = can_dataset(
+        Path(args.data_dir), args.scale, progress=not args.quiet, executor=args.executor
+    )
     world, why = build_world(args, data)
     print(
         f"robot impact direction {why['robot_impact_deg_mean']:.1f} deg; can network trained on "
@@ -329,6 +331,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     )
     parser.add_argument("--scale", choices=("full", "quick", "tiny"), default="full")
     parser.add_argument("--data-dir", default="data")
+    parser.add_argument(
+        "--executor",
+        default=None,
+        help="data set: process:N | dask-local:N | dask://HOST:PORT | ray (default: every core)",
+    )
     parser.add_argument("--out", default="results")
     parser.add_argument(
         "--n-throws", type=int, default=29_000, help="throws to train the throw network"

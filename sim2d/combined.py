@@ -145,3 +145,40 @@ def exact_throws(step: float = 0.002, *, table_z: float = TABLE_TOP_Z):
     if not ok.any():
         raise ValueError(f"table_z = {table_z}: the robot reaches no height of the pyramid")
     return heights[ok], throw(exact_target_for_hit(hits[ok]))
+
+
+def throws_from(
+    state: int,
+    table_z: float = TABLE_TOP_Z,
+    step: float = 0.002,
+    repeats: int = 8,
+    jitter: float = 0.0,
+    seed: int = 0,
+) -> dict[str, np.ndarray]:
+    """Every exact robot throw (:func:`exact_throws`) played into ``state``, ``repeats`` times.
+
+    Each throw gets the can world's aim jitter with its own seed: the seeds are the
+    words of ``numpy.random.SeedSequence([seed, state])``, in order of height and repeat.
+    An executor task (returns arrays; see :func:`sim2d.chunks.run_chunks`).
+
+    Returns
+    -------
+    dict
+        ``heights`` ``(n,)`` float (m above the table top) and ``next_states``
+        ``(n, repeats)`` int: the state after each throw (:func:`play_throw`).
+    """
+    heights, result = exact_throws(step, table_z=table_z)
+    seeds = np.random.SeedSequence([seed, state]).generate_state(len(result.hit) * repeats)
+    seeds = seeds.reshape(len(result.hit), repeats)
+    stable = frozenset(stable_configurations())
+    next_states = np.array(
+        [
+            [
+                play_throw(state, h, v, table_z=table_z, jitter=jitter, seed=int(k), stable=stable)
+                for k in ks
+            ]
+            for h, v, ks in zip(result.hit, result.velocity_at_plane, seeds, strict=True)
+        ],
+        dtype=np.int64,
+    ).reshape(len(result.hit), repeats)
+    return {"heights": heights, "next_states": next_states}

@@ -139,44 +139,28 @@ def add_ball(space: pymunk.Space, position, velocity) -> tuple[pymunk.Body, pymu
     return ball, shape
 
 
-class _PublicState:
-    """Body state through pymunk's public API (the reference)."""
-
-    @staticmethod
-    def step(space: pymunk.Space, dt: float) -> None:
-        space.step(dt)
-
-    @staticmethod
-    def position(body: pymunk.Body):
-        return body.position
-
-    @staticmethod
-    def velocity(body: pymunk.Body):
-        return body.velocity
-
-    @staticmethod
-    def sleeping(body: pymunk.Body) -> bool:
-        return body.is_sleeping
+def _public_api(space: pymunk.Space):
+    """Step and body getters through pymunk's public API (the reference)."""
+    return (
+        lambda handle, dt: space.step(dt),
+        space,
+        lambda body: body,
+        lambda body: body.position,
+        lambda body: body.velocity,
+        lambda body: body.is_sleeping,
+    )
 
 
-class _BindingState:
-    """Body state through pymunk's cffi binding: the same numbers, less Python."""
-
-    @staticmethod
-    def step(space: pymunk.Space, dt: float) -> None:
-        _cp.cpSpaceStep(space._space, dt)
-
-    @staticmethod
-    def position(body: pymunk.Body):
-        return _cp.cpBodyGetPosition(body._body)
-
-    @staticmethod
-    def velocity(body: pymunk.Body):
-        return _cp.cpBodyGetVelocity(body._body)
-
-    @staticmethod
-    def sleeping(body: pymunk.Body) -> bool:
-        return bool(_cp.cpBodyIsSleeping(body._body))
+def _binding_api(space: pymunk.Space):
+    """The same through pymunk's cffi binding: the same numbers, less Python."""
+    return (
+        _cp.cpSpaceStep,
+        space._space,
+        lambda body: body._body,
+        _cp.cpBodyGetPosition,
+        _cp.cpBodyGetVelocity,
+        _cp.cpBodyIsSleeping,
+    )
 
 
 def simulate(
@@ -210,11 +194,15 @@ def simulate(
     -------
     Run
     """
-    api = _PublicState if reference else _BindingState
-    step_space, pos, vel, sleeping = api.step, api.position, api.velocity, api.sleeping
     space = new_space(sleep_time=stopping.sleep_time)
     cans = add_cans(space, config)
     ball, ball_shape = add_ball(space, position, velocity)
+    step_space, space_handle, handle, pos, vel, sleeping = (
+        _public_api if reference else _binding_api
+    )(space)
+    # body handles for the getters, by can index (removed cans are dropped from both)
+    can_handles = {i: handle(body) for i, body in cans.items()}
+    ball_handle = handle(ball)
 
     can_of_shape = {next(iter(body.shapes)): i for i, body in cans.items()}
     touched = 0
@@ -265,37 +253,37 @@ def simulate(
     while step < max_steps:
         if recording:
             for _ in range(every):
-                step_space(space, dt)
+                step_space(space_handle, dt)
                 step += 1
                 if step % frame_every == 0:
                     record(step)
                     last_frame = step
         else:
             for _ in range(every):
-                step_space(space, dt)
+                step_space(space_handle, dt)
             step += every
-        for i in [i for i, body in cans.items() if leaving(body)]:
+        for i in [i for i, h in can_handles.items() if leaving(h)]:
             space.remove(cans[i], *cans[i].shapes)
-            del cans[i]
+            del cans[i], can_handles[i]
             removed |= 1 << i
-        if ball_in and leaving(ball):
+        if ball_in and leaving(ball_handle):
             space.remove(ball, ball_shape)
             ball_in = False
         if not touched:
             # Before any contact the cans stand still: can the ball still reach one?
-            if not ball_in or config == 0 or sleeping(ball):
+            if not ball_in or config == 0 or sleeping(ball_handle):
                 timed_out = False
                 break
-            p, v = pos(ball), vel(ball)
+            p, v = pos(ball_handle), vel(ball_handle)
             if p.x - radius > right and v.x >= 0.0:
                 timed_out = False
                 break
-        elif all(sleeping(body) for body in cans.values()):
-            if not ball_in or sleeping(ball) or not cans:
+        elif all(sleeping(h) for h in can_handles.values()):
+            if not ball_in or sleeping(ball_handle) or not cans:
                 timed_out = False
                 break
-            p, v = pos(ball), vel(ball)
-            xs = [pos(body).x for body in cans.values()]
+            p, v = pos(ball_handle), vel(ball_handle)
+            xs = [pos(h).x for h in can_handles.values()]
             if (v.x >= 0.0 and p.x > max(xs) + reach) or (v.x <= 0.0 and p.x < min(xs) - reach):
                 timed_out = False
                 break
@@ -303,7 +291,7 @@ def simulate(
         record(step)
 
     end_positions = np.full((N_CANS, 2), np.nan)
-    for i, body in cans.items():
-        p = pos(body)
+    for i, h in can_handles.items():
+        p = pos(h)
         end_positions[i] = (p.x, p.y)
     return Run(end_positions, removed, touched, step, timed_out)

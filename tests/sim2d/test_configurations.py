@@ -2,7 +2,7 @@
 
 import itertools
 import json
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import Future, ProcessPoolExecutor
 
 import pytest
 
@@ -88,3 +88,23 @@ def test_cache_key_follows_the_constants(monkeypatch):
 def test_bad_mask():
     with pytest.raises(ValueError, match=r"mask=-1 .*10-bit"):
         settles(-1)
+
+
+def test_enumeration_on_dask_uses_only_submit_and_result(dask_executor):
+    from distributed import Client
+
+    serial = stable_configurations(cache=False)
+    client = Client.current()  # a Dask client's own futures: truthy objects, not bools
+    assert stable_configurations(cache=False, executor=client) == serial
+    assert stable_configurations(cache=False, executor=dask_executor) == serial
+
+
+def test_an_executor_returning_no_flags_is_refused():
+    class Garbage:
+        def submit(self, fn, batch):
+            future = Future()
+            future.set_result(["yes"] * len(batch))
+            return future
+
+    with pytest.raises(RuntimeError, match=r"returned 1024 results of types \['str'\]"):
+        stable_configurations(cache=False, executor=Garbage())

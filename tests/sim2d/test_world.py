@@ -82,3 +82,13 @@ def test_a_can_on_the_table_falls_asleep_and_a_settled_pyramid_stops():
     run = simulate(geometry.FULL_PYRAMID, (geometry.ENTRY_X, 0.3), (7.0, 0.0))
     assert run.touched and not run.timed_out
     assert run.steps * materials.TIME_STEP < materials.MAX_SIM_TIME
+
+
+def test_a_body_removed_at_the_scene_margin_has_moved_enough_to_be_thrown_off():
+    """Every can's standard centre is more than the thrown-off distance from both margins."""
+    x = geometry.can_positions()[:, 0]
+    for stopping in (materials.STOPPING, materials.STOPPING_FORMAT_1):
+        near = geometry.PYRAMID_X - stopping.scene_margin
+        far = geometry.PYRAMID_X + geometry.PYRAMID_WIDTH + stopping.scene_margin
+        assert np.all(x - near > materials.THROWN_OFF_HORIZONTAL)
+        assert np.all(far - x > materials.THROWN_OFF_HORIZONTAL)
