@@ -59,9 +59,7 @@ def held_out_best(success: np.ndarray) -> np.ndarray:
 
 def table_one_bound(args, executor=None) -> dict:
     """Table I's cases scored with the simulator's own best field."""
-    data = can_dataset(
-        Path(args.data_dir), args.scale, progress=not args.quiet, executor=executor
-    )
+    data = can_dataset(Path(args.data_dir), args.scale, progress=not args.quiet, executor=executor)
     start, desired = table_one_cases(data, "counts")
     configs = [c for c in start_configurations(SCALES[args.scale]["n_configs"]) if c]
     path = generate_dataset(

@@ -81,7 +81,9 @@ def test_table_one_bookkeeping_matches_independent_rethrows(ex, tiny):
     # the training seeds are never reused
     assert not set(cases["seed"].tolist()) & set(data.seed.tolist())
     achieved = [
-        field_throws.throw_at_field(int(s), int(f), 0, jitter=data.metadata["jitter"], seed=int(k)).count_after
+        field_throws.throw_at_field(
+            int(s), int(f), 0, jitter=data.metadata["jitter"], seed=int(k)
+        ).count_after
         for s, f, k in zip(cases["start"], cases["field"], cases["seed"], strict=True)
     ]
     assert cases["achieved"].tolist() == achieved
