@@ -107,7 +107,7 @@ HAND_SPEED = 7.0
 
 #: Shoulder yaw (azimuth of the shoulder-to-hand axis about +z, positive to the
 #: robot's left) limits, degrees. Chosen so that the limits bind on both sides of the
-#: area (DESIGN, "Findings": looser limits never bind); about 46 % of uniform targets
+#: area (looser limits never bind); about 46 % of uniform targets
 #: are clamped in yaw or pitch.
 YAW_LIMITS_DEG = (-20.0, 25.0)
 
@@ -162,10 +162,10 @@ class ReleaseNoise:
     ----------
     direction_std_deg : float
         Standard deviation, degrees, of independent Gaussian errors added to the
-        release direction's yaw and to its pitch. Default 0.5 deg (DESIGN, "Findings").
+        release direction's yaw and to its pitch. Default 0.5 deg.
     speed_rel_std : float
         Standard deviation of the relative speed error: the release speed is
-        multiplied by ``1 + N(0, speed_rel_std**2)``. Default 0.02 (DESIGN, "Findings").
+        multiplied by ``1 + N(0, speed_rel_std**2)``. Default 0.02.
     """
 
     direction_std_deg: float = 0.5
