@@ -62,15 +62,16 @@ def test_sim2d_can_world_imports_neither_torch_nor_pyro_nor_matplotlib():
     fld=st.integers(geometry.N_COLUMNS, geometry.N_FIELDS - 1),
     angle=st.sampled_from([0, 1, 2]),
     seed=st.integers(0, 2**31),
+    stopping=st.sampled_from([materials.STOPPING, materials.STOPPING_FORMAT_1]),
 )
-def test_stepping_through_the_binding_equals_the_public_api(config, fld, angle, seed):
+def test_stepping_through_the_binding_equals_the_public_api(config, fld, angle, seed, stopping):
     """The fast loop and the reference loop are the same simulation, bit for bit."""
     if not field_throws.is_throwable(fld, angle):
         return
     offset = field_throws.aim_offset(0.003, seed)
     position, velocity = field_throws.launch_state(fld, angle, offset=offset)
-    fast = simulate(config, position, velocity)
-    reference = simulate(config, position, velocity, reference=True)
+    fast = simulate(config, position, velocity, stopping=stopping)
+    reference = simulate(config, position, velocity, stopping=stopping, reference=True)
     assert np.array_equal(fast.end_positions, reference.end_positions, equal_nan=True)
     assert (fast.removed, fast.touched, fast.steps, fast.timed_out) == (
         reference.removed, reference.touched, reference.steps, reference.timed_out
