@@ -16,7 +16,7 @@ from inference import fit
 from inference.compiled import CompiledNetwork, compile_discrete
 from models import EffectNetwork, NetworkParams
 from models.can_network import can_network, can_rows
-from sim2d import cans
+from sim2d import field_throws, geometry
 from sim2d.can_dataset import CanDataset, generate_dataset, load_dataset
 from sim2d.configurations import stable_configurations
 
@@ -39,9 +39,17 @@ def start_configurations(n_configs: int | None) -> list[int]:
 
 
 def can_dataset(
-    data_dir: Path, scale: str, *, angles=(0, 1, 2), seed: int = 0, progress: bool = True
+    data_dir: Path,
+    scale: str,
+    *,
+    angles=(0, 1, 2),
+    seed: int = 0,
+    progress: bool = True,
+    executor=None,
 ) -> CanDataset:
-    """Generate (or reuse, or resume) the can data set at ``scale`` and load it."""
+    """Generate (or reuse, or resume) the can data set at ``scale`` and load it.
+
+    ``executor``: where it is simulated (:func:`sim2d.can_dataset.generate_dataset`)."""
     spec = SCALES[scale]
     configs = start_configurations(spec["n_configs"])
     name = "can_dataset.npz" if scale == "full" else f"can_dataset_{scale}.npz"
@@ -51,6 +59,7 @@ def can_dataset(
         angles=angles,
         repeats=spec["repeats"],
         seed=seed,
+        executor=executor,
         progress=progress,
     )
     return load_dataset(path)
@@ -101,11 +110,13 @@ def fit_can_network(data: CanDataset, angle: int) -> CanModel:
     sel = (data.angle == angle) & data.throwable
     if not sel.any():
         raise ValueError(
-            f"the data set has no throwable throws at angle {angle} ({cans.ANGLE_NAMES[angle]})"
+            f"the data set has no throwable throws at angle {angle} ({geometry.ANGLE_NAMES[angle]})"
         )
     states = sorted(set(data.start_config.tolist()) | set(data.end_config[sel].tolist()))
     net = can_network(states)
     rows = can_rows(net, data.start_config[sel], data.field[sel], data.end_config[sel])
     params = fit(net, rows).params
-    throwable = torch.tensor([cans.is_throwable(f, angle) for f in range(cans.N_FIELDS)])
+    throwable = torch.tensor(
+        [field_throws.is_throwable(f, angle) for f in range(geometry.N_FIELDS)]
+    )
     return CanModel(angle, net, params, compile_discrete(net, params), throwable)

@@ -61,7 +61,7 @@ from inference.evaluation import (  # noqa: E402
     tail_surprise,
 )
 from models.can_network import config_index, count  # noqa: E402
-from sim2d import cans  # noqa: E402
+from sim2d import field_throws, geometry, materials  # noqa: E402
 
 ANGLE = 0  # the paper trains and evaluates at 0°
 PAPER_TABLE_I = dict(zip(ACCURACY_BINS, (36, 63, 309, 7780, 269, 113, 33), strict=True))
@@ -114,7 +114,9 @@ def choose(model: CanModel, evidence: dict, rule: str) -> np.ndarray:
         return post.best.numpy()
     allowed = model.throwable.expand_as(post.probs) & (post.unseen < 0.5)
     allowed = torch.where(allowed.any(-1, keepdim=True), allowed, model.throwable)
-    return aim_robust_best(post.probs, (cans.N_ROWS, cans.N_COLUMNS), allowed=allowed).numpy()
+    return aim_robust_best(
+        post.probs, (geometry.N_ROWS, geometry.N_COLUMNS), allowed=allowed
+    ).numpy()
 
 
 def start_evidence(model: CanModel, start: np.ndarray) -> dict:
@@ -128,7 +130,9 @@ def play(start, fields, jitter: float, seeds, desc: str) -> np.ndarray:
     """End configurations of the 0° throws ``(start[i], fields[i])`` with seeded jitter."""
     return np.array(
         [
-            cans.throw(int(s), int(f), ANGLE, jitter=jitter, seed=int(k)).end_config
+            field_throws.throw_at_field(
+                int(s), int(f), ANGLE, jitter=jitter, seed=int(k)
+            ).end_config
             for s, f, k in tqdm(
                 list(zip(start, fields, seeds, strict=True)), desc=desc, leave=False
             )
@@ -180,7 +184,9 @@ def table_one(model, data, mode: str, seed: int) -> dict:
 def demonstrations(data, n: int, rng) -> tuple[np.ndarray, np.ndarray]:
     """``n`` random (non-empty start, throwable 0° field) pairs from the data set."""
     starts = np.unique(data.start_config[(data.angle == ANGLE) & (data.start_config != 0)])
-    throwable = np.flatnonzero([cans.is_throwable(f, ANGLE) for f in range(cans.N_FIELDS)])
+    throwable = np.flatnonzero(
+        [field_throws.is_throwable(f, ANGLE) for f in range(geometry.N_FIELDS)]
+    )
     return rng.choice(starts, n), rng.choice(throwable, n)
 
 
@@ -217,9 +223,9 @@ def perturbed_aims(start, field, aim_error: float, rng) -> list[tuple[np.ndarray
     for f in field:
         while True:
             offset = rng.normal(0.0, aim_error, 2)
-            position, velocity = cans.launch_state(int(f), ANGLE, offset=offset)
-            target_z = cans.field_centres()[f, 1] + offset[1]
-            if min(position[1], target_z) >= cans.BALL_RADIUS + cans.TABLE_CLEARANCE:
+            position, velocity = field_throws.launch_state(int(f), ANGLE, offset=offset)
+            target_z = geometry.field_centres()[f, 1] + offset[1]
+            if min(position[1], target_z) >= materials.BALL_RADIUS + materials.TABLE_CLEARANCE:
                 states.append((position, velocity))
                 break
     return states
@@ -245,8 +251,8 @@ def perturbed_throws(
         desc="perturbed throws",
         leave=False,
     ):
-        nominal.append(cans.throw(int(s), int(f), ANGLE).end_config)
-        observed.append(cans.play_ball(int(s), pos, vel).end_config)
+        nominal.append(field_throws.throw_at_field(int(s), int(f), ANGLE).end_config)
+        observed.append(field_throws.play_ball(int(s), pos, vel).end_config)
     nominal, observed = np.array(nominal), np.array(observed)
     failed = observed != nominal
     seeds = fresh_seeds(seed, purpose, n * n_ordinary).reshape(n_ordinary, n)
@@ -278,7 +284,7 @@ def pooled_surprise(model, throws: dict, sigma: float, tables: dict) -> np.ndarr
             tables[s] = model.end_config_probs(int(s))
         pooled = aim_pooled(
             tables[s],
-            (cans.N_ROWS, cans.N_COLUMNS),
+            (geometry.N_ROWS, geometry.N_COLUMNS),
             throws["field"][rows],
             allowed=model.throwable,
             sigma=sigma,
@@ -357,7 +363,7 @@ def imitation(model, data, n: int, aim_error: float, seed: int, n_ordinary: int 
 def main(args: argparse.Namespace) -> dict:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
-    data = can_dataset(Path(args.data_dir), args.scale)
+    data = can_dataset(Path(args.data_dir), args.scale, executor=args.executor)
     model = fit_can_network(data, ANGLE)
     tables = {mode: table_one(model, data, mode, args.seed) for mode in ("counts", "actions")}
     head = tables[args.cases][args.rule]
@@ -518,6 +524,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     )
     parser.add_argument("--scale", choices=("full", "quick", "tiny"), default="full")
     parser.add_argument("--data-dir", default="data")
+    parser.add_argument(
+        "--executor",
+        default=None,
+        help="data set: process:N | dask-local:N | dask://HOST:PORT | ray (default: every core)",
+    )
     parser.add_argument("--out", default="results")
     parser.add_argument("--seed", type=int, default=0, help="seed of the evaluation throws")
     parser.add_argument("--rule", choices=("index", "aim"), default="aim", help="tie-break")

@@ -47,15 +47,15 @@ from inference import predict  # noqa: E402
 from inference.compiled import compile_parameter_query  # noqa: E402
 from inference.planning import exact_plan, paper_planner  # noqa: E402
 from models.throw_network import TARGET  # noqa: E402
-from sim2d import cans  # noqa: E402
+from sim2d import geometry, materials  # noqa: E402
 from sim2d.combined import CAN_BAND, TABLE_TOP_Z, first_contact, play_throw, settle  # noqa: E402
 from sim2d.configurations import stable_configurations  # noqa: E402
 from sim2d.throw import TARGET_AREA, ReleaseNoise, throw  # noqa: E402
 
 SCENARIOS = {
-    "top_three": cans.TOP_THREE,
-    "near_flank": cans.NEAR_FLANK,
-    "far_flank": cans.FAR_FLANK,
+    "top_three": geometry.TOP_THREE,
+    "near_flank": geometry.NEAR_FLANK,
+    "far_flank": geometry.FAR_FLANK,
 }
 PAPER_RATES = {"top_three": 0.5713, "near_flank": 0.6857, "far_flank": 0.5771}
 TABLES = {"top_three": "Table II", "near_flank": "Table III", "far_flank": "Table IV"}
@@ -109,9 +109,9 @@ class World:
             for _ in range(4):
                 aims = self.robot.aim(np.stack([np.zeros_like(z2), z2 + self.table_z], -1))
                 v = throw(aims).velocity_at_plane
-                t = (contact[:, 0] - cans.PYRAMID_X) / v[:, 0]
-                z2 = contact[:, 1] - v[:, 2] * t + 0.5 * cans.GRAVITY * t * t
-            heights = np.full(cans.N_FIELDS, np.nan)
+                t = (contact[:, 0] - geometry.PYRAMID_X) / v[:, 0]
+                z2 = contact[:, 1] - v[:, 2] * t + 0.5 * materials.GRAVITY * t * t
+            heights = np.full(geometry.N_FIELDS, np.nan)
             heights[fields] = z2
             self._heights[state] = heights
         return self._heights[state]
@@ -150,16 +150,16 @@ def build_world(args, data) -> tuple[World, dict]:
     net, params, _ = fit_throws((args.bins, args.bins), targets, hits)
     robot = Robot(compile_parameter_query(net, params, TARGET), net, params, noise, rng)
     # the robot's impact direction at the pyramid, throwing at every field height
-    probe = np.linspace(0.05, cans.PYRAMID_HEIGHT, 12) + args.table_z
+    probe = np.linspace(0.05, geometry.PYRAMID_HEIGHT, 12) + args.table_z
     v = throw(robot.aim(np.stack([np.zeros_like(probe), probe], -1))).velocity_at_plane
     impact_deg = float(np.degrees(np.arctan2(v[:, 2], v[:, 0])).mean())
-    angle_deg = [math.degrees(math.atan2(vz, vx)) for vx, vz in cans.ANGLES]
+    angle_deg = [math.degrees(math.atan2(vz, vx)) for vx, vz in geometry.ANGLES]
     angle = int(np.argmin([abs(a - impact_deg) for a in angle_deg]))
     can = fit_can_network(data, angle)
     why = {
         "robot_impact_deg_mean": impact_deg,
-        "angle_deg": dict(zip(cans.ANGLE_NAMES, angle_deg, strict=True)),
-        "chosen_angle": cans.ANGLE_NAMES[angle],
+        "angle_deg": dict(zip(geometry.ANGLE_NAMES, angle_deg, strict=True)),
+        "chosen_angle": geometry.ANGLE_NAMES[angle],
     }
     jitter = data.metadata["jitter"] if args.jitter is None else args.jitter
     world = World(can, robot, frozenset(stable_configurations()), args.table_z, jitter)
@@ -175,7 +175,7 @@ def transition_model(world: World, states: list[int]) -> torch.Tensor:
     a start get no actions (their rows stay zero).
     """
     index = {s: i for i, s in enumerate(states)}
-    t = torch.zeros(len(states), cans.N_FIELDS, len(states), dtype=torch.float64)
+    t = torch.zeros(len(states), geometry.N_FIELDS, len(states), dtype=torch.float64)
     can_states = world.can.states
     settled_index = [index.get(settle(end, world.stable), -1) for end in can_states]
     for s in states:
@@ -211,10 +211,10 @@ def transition_model(world: World, states: list[int]) -> torch.Tensor:
 
 def run_scenario(world: World, name: str, args) -> dict:
     removed = SCENARIOS[name]
-    start = cans.FULL_PYRAMID
-    goal = start & ~cans.cans_to_mask(removed)
-    to_set = lambda mask: frozenset(cans.mask_to_cans(mask))  # noqa: E731
-    to_mask = cans.cans_to_mask
+    start = geometry.FULL_PYRAMID
+    goal = start & ~geometry.cans_to_mask(removed)
+    to_set = lambda mask: frozenset(geometry.mask_to_cans(mask))  # noqa: E731
+    to_mask = geometry.cans_to_mask
     # the learned transitions over every physically possible superset of the goal
     states = sorted(s for s in world.stable if s & goal == goal)
     t = transition_model(world, states)
@@ -291,7 +291,9 @@ def table_markdown(name: str, s: dict) -> str:
 def main(args: argparse.Namespace) -> dict:
     torch.set_num_threads(1)
     started = time.perf_counter()
-    data = can_dataset(Path(args.data_dir), args.scale, progress=not args.quiet)
+    data = can_dataset(
+        Path(args.data_dir), args.scale, progress=not args.quiet, executor=args.executor
+    )
     world, why = build_world(args, data)
     print(
         f"robot impact direction {why['robot_impact_deg_mean']:.1f} deg; can network trained on "
@@ -329,6 +331,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     )
     parser.add_argument("--scale", choices=("full", "quick", "tiny"), default="full")
     parser.add_argument("--data-dir", default="data")
+    parser.add_argument(
+        "--executor",
+        default=None,
+        help="data set: process:N | dask-local:N | dask://HOST:PORT | ray (default: every core)",
+    )
     parser.add_argument("--out", default="results")
     parser.add_argument(
         "--n-throws", type=int, default=29_000, help="throws to train the throw network"

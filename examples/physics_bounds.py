@@ -15,6 +15,10 @@ can be read against it:
   repeats and scored on the other half (:func:`inference.planning.policy_value`).
 
     python examples/physics_bounds.py [--scale full|quick|tiny] [--table-z 0.75 0.35 ...]
+        [--executor process:N | dask-local:N | dask://HOST:PORT | ray]
+
+Both bounds' simulations are saved under ``--data-dir`` as they finish and resumed when
+interrupted.
 """
 
 from __future__ import annotations
@@ -23,12 +27,10 @@ import argparse
 import json
 import sys
 import time
-from concurrent.futures import ProcessPoolExecutor
 from pathlib import Path
 
 import numpy as np
 import torch
-from tqdm.auto import tqdm
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from can_common import SCALES, can_dataset, start_configurations  # noqa: E402
@@ -36,10 +38,12 @@ from can_tossing import ANGLE, table_one_cases  # noqa: E402
 from combined import SCENARIOS  # noqa: E402
 
 from inference.planning import exact_plan, policy_value  # noqa: E402
-from sim2d import cans  # noqa: E402
+from sim2d import field_throws, geometry, materials  # noqa: E402
 from sim2d.can_dataset import generate_dataset, load_dataset  # noqa: E402
-from sim2d.combined import TABLE_TOP_Z, exact_throws, play_throw  # noqa: E402
+from sim2d.chunks import locked, read_npz, run_chunks  # noqa: E402
+from sim2d.combined import TABLE_TOP_Z, throws_from  # noqa: E402
 from sim2d.configurations import stable_configurations  # noqa: E402
+from sim2d.executors import open_executor, parse_spec  # noqa: E402
 
 BOUND_SEED = 1  # the training data set uses seed 0: these throws are fresh
 
@@ -53,9 +57,9 @@ def held_out_best(success: np.ndarray) -> np.ndarray:
     return np.take_along_axis(held, chosen[:, None], -1)[:, 0]
 
 
-def table_one_bound(args) -> dict:
+def table_one_bound(args, executor=None) -> dict:
     """Table I's cases scored with the simulator's own best field."""
-    data = can_dataset(Path(args.data_dir), args.scale, progress=not args.quiet)
+    data = can_dataset(Path(args.data_dir), args.scale, progress=not args.quiet, executor=executor)
     start, desired = table_one_cases(data, "counts")
     configs = [c for c in start_configurations(SCALES[args.scale]["n_configs"]) if c]
     path = generate_dataset(
@@ -64,12 +68,13 @@ def table_one_bound(args) -> dict:
         angles=(ANGLE,),
         repeats=args.repeats,
         seed=BOUND_SEED,
+        executor=executor,
         progress=not args.quiet,
     )
     sims = load_dataset(path)
-    fields = np.flatnonzero([cans.is_throwable(f, ANGLE) for f in range(cans.N_FIELDS)])
+    fields = np.flatnonzero([field_throws.is_throwable(f, ANGLE) for f in range(geometry.N_FIELDS)])
     order = np.lexsort((sims.repeat, sims.field, sims.start_config))
-    counts = sims.count_after[order].reshape(len(configs), cans.N_FIELDS, args.repeats)
+    counts = sims.count_after[order].reshape(len(configs), geometry.N_FIELDS, args.repeats)
     counts = counts[:, fields]  # (configs, throwable fields, repeats)
     row = {c: i for i, c in enumerate(sorted(configs))}
     success = counts[[row[int(s)] for s in start]] == desired[:, None, None]
@@ -83,38 +88,39 @@ def table_one_bound(args) -> dict:
     }
 
 
-def _outcomes(job) -> np.ndarray:
-    """``(heights, repeats)`` next states of one state's throws (runs in a worker)."""
-    state, table_z, step, repeats, jitter, seed = job
-    _, result = exact_throws(step, table_z=table_z)
-    seeds = np.random.SeedSequence([seed, state]).generate_state(len(result.hit) * repeats)
-    seeds = seeds.reshape(len(result.hit), repeats)
-    return np.array(
-        [
-            [play_throw(state, h, v, table_z=table_z, jitter=jitter, seed=int(k)) for k in ks]
-            for h, v, ks in zip(result.hit, result.velocity_at_plane, seeds, strict=True)
-        ]
-    )
+def combined_outcomes(args, table_z: float, jitter: float, states, executor) -> dict:
+    """``{state: (heights, repeats) next states}``, saved per state under ``--data-dir``
+    (resumable; :func:`sim2d.chunks.run_chunks`)."""
+    states = sorted(states)
+    tasks = [(s, table_z, args.step, args.combined_repeats, jitter, BOUND_SEED) for s in states]
+    protocol = {
+        "producer": "sim2d.combined.throws_from",
+        "tasks": [list(t) for t in tasks],
+        "constants": materials.physical_constants(),
+    }
+    name = f"combined_bound_{args.scale}_{table_z}_{args.step}_{args.combined_repeats}.parts"
+    folder = Path(args.data_dir) / name
+    with locked(folder):
+        files = run_chunks(
+            folder, protocol, throws_from, tasks, executor=executor,
+            progress=not args.quiet, desc=f"combined bound (table {table_z} m)",
+        )  # fmt: skip
+        return {s: read_npz(f)["next_states"] for s, f in zip(states, files, strict=True)}
 
 
-def combined_bound(args, table_z: float, jitter: float) -> dict:
+def combined_bound(args, table_z: float, jitter: float, executor=None) -> dict:
     """Per scenario: the best plan's held-out success, over the robot's exact throws."""
     stable = stable_configurations()
+    goals = {
+        name: geometry.FULL_PYRAMID & ~geometry.cans_to_mask(removed)
+        for name, removed in SCENARIOS.items()
+    }
+    needed = {s for goal in goals.values() for s in stable if s & goal == goal}
+    by_state = combined_outcomes(args, table_z, jitter, needed, executor)
     out = {}
-    for name, removed in SCENARIOS.items():
-        goal = cans.FULL_PYRAMID & ~cans.cans_to_mask(removed)
+    for name, goal in goals.items():
         states = sorted(s for s in stable if s & goal == goal)
-        jobs = [(s, table_z, args.step, args.combined_repeats, jitter, BOUND_SEED) for s in states]
-        with ProcessPoolExecutor(args.workers) as pool:
-            outcomes = list(
-                tqdm(
-                    pool.map(_outcomes, jobs),
-                    total=len(jobs),
-                    desc=f"{name} (table {table_z} m)",
-                    disable=args.quiet,
-                    leave=False,
-                )
-            )
+        outcomes = [by_state[s] for s in states]
         index = {s: i for i, s in enumerate(states)}
         half = args.combined_repeats // 2
         t = [torch.zeros(len(states), outcomes[0].shape[0], len(states), dtype=torch.float64)]
@@ -127,7 +133,7 @@ def combined_bound(args, table_z: float, jitter: float) -> dict:
                             t[part][i, a, index[nxt]] += 1.0 / len(row)
         plan = exact_plan(t[0], index[goal], args.horizon)
         value = policy_value(t[1], plan.policy, index[goal], args.horizon)
-        full = index[cans.FULL_PYRAMID]
+        full = index[geometry.FULL_PYRAMID]
         out[name] = {
             "success_bound": float(value[args.horizon, full]),
             "success_in_sample": float(plan.value[args.horizon, full]),
@@ -164,14 +170,16 @@ def markdown(result: dict) -> str:
 def main(args: argparse.Namespace) -> dict:
     torch.set_num_threads(1)
     started = time.perf_counter()
-    jitter = float(can_dataset(Path(args.data_dir), args.scale, progress=False).metadata["jitter"])
-    result = {
-        "scale": args.scale,
-        "table_one": table_one_bound(args),
-        "horizon": args.horizon,
-        "jitter": jitter,
-        "combined": {str(z): combined_bound(args, z, jitter) for z in args.table_z},
-    }
+    with open_executor(args.executor) as executor:
+        data = can_dataset(Path(args.data_dir), args.scale, progress=False, executor=executor)
+        jitter = float(data.metadata["jitter"])
+        result = {
+            "scale": args.scale,
+            "table_one": table_one_bound(args, executor),
+            "horizon": args.horizon,
+            "jitter": jitter,
+            "combined": {str(z): combined_bound(args, z, jitter, executor) for z in args.table_z},
+        }
     result["seconds"] = time.perf_counter() - started
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -193,9 +201,18 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--step", type=float, default=0.002, help="combined: m between heights")
     parser.add_argument("--combined-repeats", type=int, default=8, help="combined: per height")
     parser.add_argument("--horizon", type=int, default=6, help="combined: throws allowed")
-    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument(
+        "--executor",
+        default=None,
+        help="process:N | dask-local:N | dask://HOST:PORT | ray (default: every core here)",
+    )
     parser.add_argument("--quiet", action="store_true")
     args = parser.parse_args(argv)
+    if args.executor is not None:
+        try:
+            parse_spec(args.executor)
+        except ValueError as error:
+            parser.error(str(error))
     if args.repeats < 2 or args.combined_repeats < 2:
         parser.error(
             "--repeats and --combined-repeats must be at least 2 (half choose, half score)"

@@ -9,8 +9,9 @@ combined scenarios (``physics_bounds.py``). The can data set is generated once u
 ``--data-dir`` (resumable) and reused. Writes ``results/summary.md`` with the paper's
 numbers beside ours and each step's wall time.
 
-    ./reproduce              # full scale (the can data set alone takes ~6 min on 2 cores)
+    ./reproduce              # full scale (the can data set alone takes 2-5 min on 2 cores)
     ./reproduce --quick      # a first look in a few minutes
+    ./reproduce --executor dask://scheduler:8786   # the simulations on a Dask cluster
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ def steps(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
     out, data = args.out, args.data_dir
     scale = "quick" if args.quick else "full"
     quick = ["--quick"] if args.quick else []
+    executor = ["--executor", args.executor] if args.executor else []
     return [
         (
             "tap_and_remove",
@@ -37,15 +39,15 @@ def steps(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
         ("can_world", ["--out", f"{out}/can_world"]),
         ("throw_kinematics", ["--out", f"{out}/throw"]),
         ("throwing", ["--out", out, *quick]),
-        ("can_tossing", ["--scale", scale, "--data-dir", data, "--out", out]),
+        ("can_tossing", ["--scale", scale, "--data-dir", data, "--out", out, *executor]),
         (
             "combined",
-            ["--scale", scale, "--data-dir", data, "--out", out]
+            ["--scale", scale, "--data-dir", data, "--out", out, *executor]
             + (["--n-throws", "5000", "--episodes", "10"] if args.quick else []),
         ),
         (
             "physics_bounds",
-            ["--scale", scale, "--data-dir", data, "--out", out]
+            ["--scale", scale, "--data-dir", data, "--out", out, *executor]
             + (
                 ["--repeats", "8", "--step", "0.004", "--combined-repeats", "4"]
                 if args.quick
@@ -126,6 +128,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--out", default="results")
     parser.add_argument("--data-dir", default="data")
     parser.add_argument("--only", nargs="*", help="run only these steps")
+    parser.add_argument(
+        "--executor",
+        default=None,
+        help="where the can world is simulated: process:N | dask-local:N | dask://HOST:PORT | "
+        "ray (default: every core here)",
+    )
     return parser.parse_args(argv)
 
 

@@ -1,12 +1,12 @@
 """The can-tossing data set: every stable configuration x 195 fields x angles x repeats.
 
-Protocol (paper §IV-A, DESIGN.md): each physically possible configuration is hit at
+Protocol (paper §IV-A): each physically possible configuration is hit at
 every field with every angle, ``repeats`` times, each repeat with its own seeded aim
 jitter (``jitter`` metres, normal per axis; the seed of throw (config, field, angle,
-repeat) is :func:`sim2d.cans.throw_seed` of the data set's ``seed``). Rows are ordered
+repeat) is :func:`sim2d.field_throws.aim_seed` of the data set's ``seed``). Rows are ordered
 by configuration (ascending mask), field, angle, repeat.
 
-Unthrowable actions (:func:`sim2d.cans.is_throwable` False) are not simulated: their
+Unthrowable actions (:func:`sim2d.field_throws.is_throwable` False) are not simulated: their
 rows carry ``throwable = False``, ``end_config = start_config``, ``thrown_off = 0``,
 ``hit_any_can = False`` and ``sim_time = 0``. Use ``throwable`` to drop them.
 
@@ -17,7 +17,7 @@ array          dtype    meaning
 =============  =======  ============================================================
 start_config   int16    configuration mask before the throw
 field          int16    field index, ``row * 15 + column``
-angle          int8     index into ``sim2d.cans.ANGLES``
+angle          int8     index into ``sim2d.geometry.ANGLES``
 repeat         int8     repeat number
 seed           uint32   seed of the aim jitter
 end_config     int16    cans not thrown off
@@ -32,31 +32,42 @@ sim_time       float32  simulated seconds
 metadata       str      0-d array, JSON: format version, constants, geometry, protocol
 =============  =======  ============================================================
 
-Generation is written in chunks to ``<path>.parts/`` (one ``.npz`` per chunk, each
-written atomically), so an interrupted run resumes where it stopped; the chunks are
-merged into ``path`` at the end and then removed.
+Generation is written in chunks to ``<path>.parts/`` (:func:`sim2d.chunks.run_chunks`:
+one ``.npz`` per chunk, written atomically, checked when reused), so an interrupted run
+resumes where it stopped and a damaged chunk is computed again; the chunks are merged
+into ``path`` at the end and then removed. ``<path>.lock`` keeps a second generator off
+the same path. The chunks run on any executor (:mod:`sim2d.executors`); workers return
+arrays and this process writes the files, byte for byte the same on every executor.
+
+Format versions: 2 runs every throw under :data:`sim2d.materials.STOPPING` (the
+stopping rules are recorded under ``constants``); 1 ran them under
+:data:`sim2d.materials.STOPPING_FORMAT_1`, which removed bodies leaving the scene only
+50 cm past the pyramid instead of 10 cm. A file of another version is refused.
 """
 
 from __future__ import annotations
 
-import concurrent.futures
 import importlib.metadata
 import json
-import os
 import shutil
-import tempfile
+import warnings
 from dataclasses import dataclass
 from dataclasses import field as dataclass_field
 from pathlib import Path
 
 import numpy as np
 
-from sim2d import cans
+from sim2d import geometry, materials
+from sim2d.chunks import ChunkWarning, locked, read_npz, run_chunks, save_npz
 from sim2d.configurations import SETTLE_TIME, STABLE_TOLERANCE, stable_configurations
+from sim2d.executors import parse_spec
+from sim2d.field_throws import aim_offset, aim_seed, is_throwable, launch_state, outcome_of
+from sim2d.validation import as_int, check_index
+from sim2d.world import simulate
 
 __all__ = ["FORMAT_VERSION", "CanDataset", "generate_dataset", "load_dataset"]
 
-FORMAT_VERSION = 1
+FORMAT_VERSION = 2
 _DTYPES = {
     "start_config": np.int16,
     "field": np.int16,
@@ -109,23 +120,22 @@ def _simulate_chunk(rows: np.ndarray, jitter: float, seed: int) -> dict[str, np.
     """
     n = len(rows)
     out = {name: np.zeros(n, dtype=dtype) for name, dtype in _DTYPES.items()}
-    throwable = {(f, a): cans.is_throwable(f, a) for f, a in {(r[1], r[2]) for r in rows.tolist()}}
+    throwable = {(f, a): is_throwable(f, a) for f, a in {(r[1], r[2]) for r in rows.tolist()}}
     for k, (config, fld, angle, repeat) in enumerate(rows.tolist()):
-        throw_seed = cans.throw_seed(seed, config, fld, angle, repeat)
+        row_seed = aim_seed(seed, config, fld, angle, repeat)
         out["start_config"][k] = config
         out["field"][k] = fld
         out["angle"][k] = angle
         out["repeat"][k] = repeat
-        out["seed"][k] = throw_seed
+        out["seed"][k] = row_seed
         out["count_before"][k] = config.bit_count()
         if not throwable[fld, angle]:
             out["end_config"][k] = config
             out["count_after"][k] = config.bit_count()
             continue
         out["throwable"][k] = True
-        offset = cans._aim_offset(jitter, throw_seed)
-        position, velocity = cans.launch_state(fld, angle, offset=offset)
-        outcome, _ = cans._play(config, position, velocity)
+        position, velocity = launch_state(fld, angle, offset=aim_offset(jitter, row_seed))
+        outcome = outcome_of(config, simulate(config, position, velocity))
         out["end_config"][k] = outcome.end_config
         out["thrown_off"][k] = outcome.thrown_off
         out["count_after"][k] = outcome.count_after
@@ -137,7 +147,9 @@ def _simulate_chunk(rows: np.ndarray, jitter: float, seed: int) -> dict[str, np.
 
 
 def _rows(configs, angles, repeats) -> np.ndarray:
-    grid = np.meshgrid(configs, np.arange(cans.N_FIELDS), angles, np.arange(repeats), indexing="ij")
+    grid = np.meshgrid(
+        configs, np.arange(geometry.N_FIELDS), angles, np.arange(repeats), indexing="ij"
+    )
     return np.stack([g.ravel() for g in grid], axis=1).astype(np.int64)
 
 
@@ -153,16 +165,16 @@ def _metadata(configs, angles, repeats, jitter, seed, chunk_size) -> dict:
         "format_version": FORMAT_VERSION,
         "producer": "sim2d.can_dataset.generate_dataset",
         "package_version": _package_version(),
-        "constants": cans.physical_constants(),
+        "constants": materials.physical_constants(),
         "settle_time": SETTLE_TIME,
         "stable_tolerance": STABLE_TOLERANCE,
         "geometry": {
-            "can_positions": cans.can_positions().tolist(),
-            "field_centres": cans.field_centres().tolist(),
-            "supporters": [list(s) if s else None for s in cans.SUPPORTERS],
-            "top_three": list(cans.TOP_THREE),
-            "near_flank": list(cans.NEAR_FLANK),
-            "far_flank": list(cans.FAR_FLANK),
+            "can_positions": geometry.can_positions().tolist(),
+            "field_centres": geometry.field_centres().tolist(),
+            "supporters": [list(s) if s else None for s in geometry.SUPPORTERS],
+            "top_three": list(geometry.TOP_THREE),
+            "near_flank": list(geometry.NEAR_FLANK),
+            "far_flank": list(geometry.FAR_FLANK),
             "field_index": "row * 15 + column; row 0 bottom, column 0 near side",
         },
         "configs": [int(c) for c in configs],
@@ -171,7 +183,7 @@ def _metadata(configs, angles, repeats, jitter, seed, chunk_size) -> dict:
         "jitter": float(jitter),
         "jitter_rule": "normal(0, jitter) per axis added to the field centre, clipped at 3 sd",
         "seed": int(seed),
-        "seed_rule": "throw seed = sim2d.cans.throw_seed(seed, config, field, angle, repeat)",
+        "seed_rule": "aim seed = sim2d.field_throws.aim_seed(seed, config, field, angle, repeat)",
         "unthrowable_rule": "not simulated; end_config = start_config, throwable = False",
         "thrown_off_rule": "at rest moved > 1 cm vertically or > 10 cm horizontally, or left",
         "row_order": "config (ascending), field, angle, repeat",
@@ -179,36 +191,29 @@ def _metadata(configs, angles, repeats, jitter, seed, chunk_size) -> dict:
     }
 
 
-def _save_npz(path: Path, arrays: dict[str, np.ndarray]) -> None:
-    """Write an .npz atomically (temporary file, then rename)."""
-    with tempfile.NamedTemporaryFile(dir=path.parent, delete=False, suffix=".tmp") as tmp:
-        np.savez(tmp, **arrays)
-    os.replace(tmp.name, path)
-
-
 def _check_args(configs, angles, repeats, jitter, chunk_size):
     stable = stable_configurations()
     if configs is None:
         configs = stable
-    configs = sorted({cans._as_int(c, "configs") for c in configs})
+    configs = sorted({as_int(c, "configs") for c in configs})
     bad = [c for c in configs if c not in stable]
     if bad:
         raise ValueError(
             f"configs contains {bad[:5]}{'...' if len(bad) > 5 else ''}, not physically "
             "possible; expected a subset of sim2d.configurations.stable_configurations()"
         )
-    angles = sorted({cans._check_index(a, "angles", len(cans.ANGLES), "an angle") for a in angles})
+    angles = sorted({check_index(a, "angles", len(geometry.ANGLES), "an angle") for a in angles})
     if not angles:
         raise ValueError("angles=() is empty; expected a subset of (0, 1, 2)")
-    repeats = cans._as_int(repeats, "repeats")
+    repeats = as_int(repeats, "repeats")
     if not 1 <= repeats <= 127:
         raise ValueError(f"repeats={repeats} is out of range; expected 1..127")
-    if not (np.isfinite(jitter) and 0 <= jitter <= cans.TABLE_CLEARANCE / 3):
+    if not (np.isfinite(jitter) and 0 <= jitter <= materials.TABLE_CLEARANCE / 3):
         raise ValueError(
-            f"jitter={jitter!r} is invalid; expected metres in [0, {cans.TABLE_CLEARANCE / 3:.4f}]"
+            f"jitter={jitter!r} is invalid; expected metres in [0, {materials.TABLE_CLEARANCE / 3:.4f}]"
             " (larger aim errors could start a throwable parabola inside the table)"
         )
-    chunk_size = cans._as_int(chunk_size, "chunk_size")
+    chunk_size = as_int(chunk_size, "chunk_size")
     if chunk_size < 1:
         raise ValueError(f"chunk_size={chunk_size} is invalid; expected >= 1")
     return configs, angles, repeats, float(jitter), chunk_size
@@ -222,7 +227,7 @@ def generate_dataset(
     repeats: int = 3,
     jitter: float = 0.003,
     seed: int = 0,
-    executor: concurrent.futures.Executor | None = None,
+    executor=None,
     chunk_size: int = 1000,
     progress: bool = True,
 ) -> Path:
@@ -242,10 +247,11 @@ def generate_dataset(
         Standard deviation of the aim error per axis (at most 3.3 mm).
     seed : int
         Seed of the data set; the throws' seeds derive from it.
-    executor : concurrent.futures.Executor, optional
-        Anything with ``submit`` returning futures with ``result()`` (a Dask or Ray
-        executor will do). Default: a ProcessPoolExecutor with ``os.cpu_count()``
-        workers, shut down at the end.
+    executor : str or object with ``submit``, optional
+        Where the chunks run: ``process:N``, ``dask-local:N``, ``dask://HOST:PORT`` or
+        ``ray`` (:mod:`sim2d.executors`; opened and closed here), or an open executor
+        whose ``submit(fn, *args)`` returns a future with ``result()``. Default: a
+        process pool on every core. The file is the same, byte for byte, on any of them.
     chunk_size : int
         Throws per chunk (the unit of work and of resumption).
     progress : bool
@@ -261,102 +267,70 @@ def generate_dataset(
     ValueError
         For invalid arguments, or when ``<path>.parts/`` holds chunks of a different
         protocol (delete it or choose another path).
+    RuntimeError
+        When another generator is writing ``path`` (``<path>.lock`` is held).
     """
     configs, angles, repeats, jitter, chunk_size = _check_args(
         configs, angles, repeats, jitter, chunk_size
     )
-    seed = cans._as_int(seed, "seed")
+    seed = as_int(seed, "seed")
+    if executor is not None and isinstance(executor, str):
+        parse_spec(executor)  # a bad specification fails before any work
     path = Path(path)
-    metadata = _metadata(configs, angles, repeats, jitter, seed, chunk_size)
-    if path.exists():
-        try:
-            existing = load_dataset(path).metadata
-        except (ValueError, OSError, KeyError):
-            existing = None
-        if existing == metadata:
-            return path
-    parts = path.with_name(path.name + ".parts")
-    parts.mkdir(parents=True, exist_ok=True)
-    manifest = parts / "manifest.json"
-    if manifest.exists():
-        if json.loads(manifest.read_text()) != metadata:
-            raise ValueError(
-                f"{parts} holds chunks of a different data set (other constants or "
-                "arguments); delete that folder or choose another path"
-            )
-    else:
-        manifest.write_text(json.dumps(metadata))
-
-    rows = _rows(configs, angles, repeats)
-    starts = range(0, len(rows), chunk_size)
-    chunk_files = [parts / f"chunk-{k:06d}.npz" for k in range(len(starts))]
-    todo = [k for k, f in enumerate(chunk_files) if not f.exists()]
-
-    bar = None
-    if progress:
-        from tqdm.auto import tqdm
-
-        bar = tqdm(total=len(rows), unit="throw", desc="can data set", smoothing=0.05)
-        done = [k for k in range(len(starts)) if k not in set(todo)]
-        bar.update(sum(len(rows[starts[k] : starts[k] + chunk_size]) for k in done))
-
-    own_executor = executor is None and todo
-    if own_executor:
-        executor = concurrent.futures.ProcessPoolExecutor(max_workers=os.cpu_count())
-    futures = {}
-    try:
-        futures = {
-            executor.submit(
-                _simulate_chunk, rows[starts[k] : starts[k] + chunk_size], jitter, seed
-            ): k
-            for k in todo
-        }
-        if all(isinstance(f, concurrent.futures.Future) for f in futures):
-            finished = concurrent.futures.as_completed(futures)
-        else:
-            finished = iter(futures)
-        for future in finished:
-            k = futures[future]
-            result = future.result()
-            _save_npz(chunk_files[k], result)
-            if bar is not None:
-                bar.update(len(result["start_config"]))
-    except BaseException:
-        # Interrupted or a chunk failed: keep every chunk that did finish, drop the rest.
-        for future, k in futures.items():
-            if not chunk_files[k].exists() and _succeeded(future):
-                _save_npz(chunk_files[k], future.result())
-            future.cancel()
-        raise
-    finally:
-        if own_executor:
-            executor.shutdown(wait=True, cancel_futures=True)
-        if bar is not None:
-            bar.close()
-
-    merged = {}
-    pieces = [np.load(f) for f in chunk_files]
-    for name, dtype in _DTYPES.items():
-        merged[name] = np.concatenate([p[name] for p in pieces]).astype(dtype, copy=False)
-    for p in pieces:
-        p.close()
-    assert len(merged["start_config"]) == len(rows)
-    assert np.array_equal(merged["start_config"], rows[:, 0])
-    merged["metadata"] = np.array(json.dumps(metadata))
     path.parent.mkdir(parents=True, exist_ok=True)
-    _save_npz(path, merged)
-    shutil.rmtree(parts)
+    metadata = _metadata(configs, angles, repeats, jitter, seed, chunk_size)
+    with locked(path):
+        if path.exists():
+            try:
+                existing = load_dataset(path).metadata
+            except ValueError as error:
+                warnings.warn(f"{error}; generating it again", ChunkWarning, stacklevel=2)
+                existing = None
+            if existing == metadata:
+                return path
+        rows = _rows(configs, angles, repeats)
+        chunks = [rows[i : i + chunk_size] for i in range(0, len(rows), chunk_size)]
+
+        def check(k: int, arrays: dict[str, np.ndarray]) -> str | None:
+            return _chunk_problem(chunks[k], arrays)
+
+        files = run_chunks(
+            path.with_name(path.name + ".parts"),
+            metadata,
+            _simulate_chunk,
+            [(chunk, jitter, seed) for chunk in chunks],
+            executor=executor,
+            check=check,
+            sizes=[len(c) for c in chunks],
+            progress=progress,
+            desc="can data set",
+        )
+        pieces = [read_npz(f) for f in files]
+        merged = {
+            name: np.concatenate([p[name] for p in pieces]).astype(dtype, copy=False)
+            for name, dtype in _DTYPES.items()
+        }
+        assert np.array_equal(merged["start_config"], rows[:, 0])
+        merged["metadata"] = np.array(json.dumps(metadata))
+        save_npz(path, merged)
+        shutil.rmtree(files[0].parent if files else path.with_name(path.name + ".parts"))
     return path
 
 
-def _succeeded(future) -> bool:
-    if not future.done() or future.cancelled():
-        return False
-    try:
-        future.result()
-    except BaseException:
-        return False
-    return True
+def _chunk_problem(rows: np.ndarray, arrays: dict[str, np.ndarray]) -> str | None:
+    """What is wrong with a chunk's arrays for the throws ``rows``, or None."""
+    for name, dtype in _DTYPES.items():
+        if name not in arrays:
+            return f"lacks the array {name!r}"
+        if arrays[name].dtype != dtype or arrays[name].shape != (len(rows),):
+            return (
+                f"has {name} of {arrays[name].dtype} {arrays[name].shape}; "
+                f"expected {np.dtype(dtype)} ({len(rows)},)"
+            )
+    for j, name in enumerate(("start_config", "field", "angle", "repeat")):
+        if not np.array_equal(arrays[name], rows[:, j]):
+            return f"holds other throws than expected ({name} differs)"
+    return None
 
 
 def load_dataset(path) -> CanDataset:
@@ -365,18 +339,28 @@ def load_dataset(path) -> CanDataset:
     Raises
     ------
     ValueError
-        If the file is not a can data set of this format version.
+        If the file is truncated or corrupt, or not a can data set of this format
+        version (the message names the file).
     """
     path = Path(path)
-    with np.load(path, allow_pickle=False) as data:
-        missing = [name for name in (*_DTYPES, "metadata") if name not in data.files]
-        if missing:
-            raise ValueError(f"path={str(path)!r} lacks arrays {missing}; expected a can data set")
+    data = read_npz(path)
+    missing = [name for name in (*_DTYPES, "metadata") if name not in data]
+    if missing:
+        raise ValueError(f"path={str(path)!r} lacks arrays {missing}; expected a can data set")
+    try:
         metadata = json.loads(str(data["metadata"]))
-        if metadata.get("format_version") != FORMAT_VERSION:
+    except ValueError:
+        raise ValueError(f"path={str(path)!r} has unreadable metadata; expected JSON") from None
+    if metadata.get("format_version") != FORMAT_VERSION:
+        raise ValueError(
+            f"path={str(path)!r} has format version {metadata.get('format_version')}; "
+            f"expected {FORMAT_VERSION} (generate it again)"
+        )
+    n = len(data["start_config"])
+    for name, dtype in _DTYPES.items():
+        if data[name].dtype != dtype or data[name].shape != (n,):
             raise ValueError(
-                f"path={str(path)!r} has format version {metadata.get('format_version')}; "
-                f"expected {FORMAT_VERSION}"
+                f"path={str(path)!r} has {name} of {data[name].dtype} {data[name].shape}; "
+                f"expected {np.dtype(dtype)} ({n},)"
             )
-        arrays = {name: data[name] for name in _DTYPES}
-    return CanDataset(**arrays, metadata=metadata)
+    return CanDataset(**{name: data[name] for name in _DTYPES}, metadata=metadata)

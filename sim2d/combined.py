@@ -1,13 +1,13 @@
 r"""The combined scene (paper §IV-C): the robot's throw played into the can pyramid.
 
-DESIGN.md "Combined system": the pyramid's near face stands at x = 2 m (the throw's target
+The pyramid's near face stands at x = 2 m (the throw's target
 plane) in the plane y = 0, on a table whose top is ``table_z`` above the robot's floor. A
 throw whose hit point lies within the can depth (``|y| <= CAN_BAND``) enters the can world
 at its hit height with its in-plane velocity; otherwise it hits no can. The ball is run
 back ballistically from the plane to the can world's entry line (0.1 m in front of the
 near face) and played from there.
 
-Intermediate states (the recorded rule, DESIGN.md): after a throw the remaining cans are
+Intermediate states (the recorded rule): after a throw the remaining cans are
 put back at their standard positions; if that set is not physically possible, the cans
 that cannot stand fall too: the state is the largest physically possible subset of the
 remaining cans (ties: the smallest mask).
@@ -21,15 +21,16 @@ from collections.abc import Iterable
 
 import numpy as np
 
-from sim2d import cans
+from sim2d import geometry, materials
 from sim2d.configurations import stable_configurations
+from sim2d.field_throws import aim_offset, launch_state, play_ball
 from sim2d.throw import exact_target_for_hit, is_reachable_hit, throw
 
 #: m, the table top above the robot's floor: a standard table. The pyramid then spans
 #: 0.75-1.39 m, inside the throw's reachable hits (0.35-1.63 m near y = 0).
 TABLE_TOP_Z = 0.75
 #: m, the largest |y| of a hit at which the ball still meets a can (half a can + ball radius)
-CAN_BAND = cans.CAN_WIDTH / 2 + cans.BALL_RADIUS
+CAN_BAND = geometry.CAN_WIDTH / 2 + materials.BALL_RADIUS
 
 
 def settle(mask: int, stable: Iterable[int] | None = None) -> int:
@@ -51,15 +52,16 @@ def first_contact(state: int, field: int, angle: int) -> tuple[float, float]:
     is met when the centre enters the can's box grown by the ball's radius. A path that
     meets no can is matched at the field centre.
     """
-    (x0, z0), (vx, vz) = cans.launch_state(field, angle)
-    x_end, z_end = cans.field_centres()[field]
-    x = np.arange(cans.PYRAMID_X - cans.BALL_RADIUS, x_end, 1e-3)
+    (x0, z0), (vx, vz) = launch_state(field, angle)
+    x_end, z_end = geometry.field_centres()[field]
+    radius = materials.BALL_RADIUS
+    x = np.arange(geometry.PYRAMID_X - radius, x_end, 1e-3)
     t = (x - x0) / vx
-    z = z0 + vz * t - 0.5 * cans.GRAVITY * t * t
+    z = z0 + vz * t - 0.5 * materials.GRAVITY * t * t
     inside = np.zeros(len(x), dtype=bool)
-    for cx, cz in cans.can_positions()[list(cans.mask_to_cans(state))]:
-        inside |= (np.abs(x - cx) <= cans.CAN_WIDTH / 2 + cans.BALL_RADIUS) & (
-            np.abs(z - cz) <= cans.CAN_HEIGHT / 2 + cans.BALL_RADIUS
+    for cx, cz in geometry.can_positions()[list(geometry.mask_to_cans(state))]:
+        inside |= (np.abs(x - cx) <= geometry.CAN_WIDTH / 2 + radius) & (
+            np.abs(z - cz) <= geometry.CAN_HEIGHT / 2 + radius
         )
     if inside.any():
         i = int(np.argmax(inside))
@@ -89,11 +91,11 @@ def entry_state(hit, velocity, *, table_z: float = TABLE_TOP_Z):
     (y, z), (vx, _, vz) = np.asarray(hit, float), np.asarray(velocity, float)
     if abs(y) > CAN_BAND:
         return None
-    dt = (cans.PYRAMID_X - cans.ENTRY_X) / vx  # back to the entry line
-    z_entry = z - table_z - vz * dt - 0.5 * cans.GRAVITY * dt * dt
-    if z_entry < cans.BALL_RADIUS + 1e-3:
+    dt = (geometry.PYRAMID_X - geometry.ENTRY_X) / vx  # back to the entry line
+    z_entry = z - table_z - vz * dt - 0.5 * materials.GRAVITY * dt * dt
+    if z_entry < materials.BALL_RADIUS + 1e-3:
         return None
-    return (cans.ENTRY_X, z_entry), (vx, vz + cans.GRAVITY * dt)
+    return (geometry.ENTRY_X, z_entry), (vx, vz + materials.GRAVITY * dt)
 
 
 def play_throw(
@@ -116,8 +118,8 @@ def play_throw(
         return state
     (x, z), v = entry
     if jitter:  # the can world's own aim error (normal, clipped at 3 sd); its first axis
-        z = max(z + float(cans._aim_offset(jitter, seed)[0]), cans.BALL_RADIUS + 1e-3)
-    outcome = cans.play_ball(state, (x, z), v)
+        z = max(z + float(aim_offset(jitter, seed)[0]), materials.BALL_RADIUS + 1e-3)
+    outcome = play_ball(state, (x, z), v)
     return settle(outcome.end_config, stable)
 
 
@@ -137,9 +139,46 @@ def exact_throws(step: float = 0.002, *, table_z: float = TABLE_TOP_Z):
     """
     if not step > 0:
         raise ValueError(f"step = {step!r}: expected a positive number of metres")
-    heights = np.arange(0.0, cans.PYRAMID_HEIGHT + cans.BALL_RADIUS, step)
+    heights = np.arange(0.0, geometry.PYRAMID_HEIGHT + materials.BALL_RADIUS, step)
     hits = np.stack([np.zeros_like(heights), heights + table_z], -1)
     ok = is_reachable_hit(hits)
     if not ok.any():
         raise ValueError(f"table_z = {table_z}: the robot reaches no height of the pyramid")
     return heights[ok], throw(exact_target_for_hit(hits[ok]))
+
+
+def throws_from(
+    state: int,
+    table_z: float = TABLE_TOP_Z,
+    step: float = 0.002,
+    repeats: int = 8,
+    jitter: float = 0.0,
+    seed: int = 0,
+) -> dict[str, np.ndarray]:
+    """Every exact robot throw (:func:`exact_throws`) played into ``state``, ``repeats`` times.
+
+    Each throw gets the can world's aim jitter with its own seed: the seeds are the
+    words of ``numpy.random.SeedSequence([seed, state])``, in order of height and repeat.
+    An executor task (returns arrays; see :func:`sim2d.chunks.run_chunks`).
+
+    Returns
+    -------
+    dict
+        ``heights`` ``(n,)`` float (m above the table top) and ``next_states``
+        ``(n, repeats)`` int: the state after each throw (:func:`play_throw`).
+    """
+    heights, result = exact_throws(step, table_z=table_z)
+    seeds = np.random.SeedSequence([seed, state]).generate_state(len(result.hit) * repeats)
+    seeds = seeds.reshape(len(result.hit), repeats)
+    stable = frozenset(stable_configurations())
+    next_states = np.array(
+        [
+            [
+                play_throw(state, h, v, table_z=table_z, jitter=jitter, seed=int(k), stable=stable)
+                for k in ks
+            ]
+            for h, v, ks in zip(result.hit, result.velocity_at_plane, seeds, strict=True)
+        ],
+        dtype=np.int64,
+    ).reshape(len(result.hit), repeats)
+    return {"heights": heights, "next_states": next_states}

@@ -1,9 +1,9 @@
 """Physically possible configurations of the can pyramid, found by simulation.
 
-A configuration (a subset of the ten cans, as a 10-bit mask; see :mod:`sim2d.cans`) is
+A configuration (a subset of the ten cans, as a 10-bit mask; see :mod:`sim2d.geometry`) is
 physically possible when, with its cans placed at their standard positions and
 simulated for ``SETTLE_TIME`` = 5 s, no can's centre ever moves more than
-``STABLE_TOLERANCE`` = 1 cm (DESIGN.md). All 2^10 subsets are simulated; none is
+``STABLE_TOLERANCE`` = 1 cm. All 2^10 subsets are simulated; none is
 decided by a rule. Every subset in which each upper can has both supporters stands;
 others can too, when the cans above pin a can that lost one supporter.
 
@@ -12,36 +12,41 @@ off, so a slow creep is not mistaken for rest. A subset is rejected as soon as o
 has moved more than the tolerance, which makes the 1024 runs take seconds.
 
 The result depends only on the physical constants, so it is cached on disk as JSON,
-keyed by a hash of :func:`sim2d.cans.physical_constants` and the two constants here.
+keyed by a hash of :func:`sim2d.materials.physical_constants` and the two constants here.
 The cache directory is ``$EFFECT_NETWORKS_CACHE`` if set, else
 ``~/.cache/effect-networks``.
 """
 
 from __future__ import annotations
 
+import contextlib
 import hashlib
 import json
 import math
 import os
-import tempfile
 from functools import lru_cache
 from pathlib import Path
 
-from sim2d import cans
+from sim2d import geometry, materials, world
+from sim2d.chunks import write_text
+from sim2d.executors import open_executor
 
 __all__ = [
     "SETTLE_TIME",
     "STABLE_TOLERANCE",
     "cache_dir",
+    "check_config",
     "fully_supported",
     "is_stable",
+    "settle_flags",
     "settles",
     "stable_configurations",
 ]
 
-SETTLE_TIME = 5.0  # s (DESIGN.md)
+SETTLE_TIME = 5.0  # s
 STABLE_TOLERANCE = 0.01  # m, the most a can of a standing configuration may move
 _CHECK_EVERY = 10  # steps between displacement checks
+_BATCH = 64  # masks per executor task
 
 
 def cache_dir() -> Path:
@@ -52,7 +57,7 @@ def cache_dir() -> Path:
 
 def _cache_key() -> str:
     constants = dict(
-        cans.physical_constants(), settle_time=SETTLE_TIME, stable_tolerance=STABLE_TOLERANCE
+        materials.physical_constants(), settle_time=SETTLE_TIME, stable_tolerance=STABLE_TOLERANCE
     )
     text = json.dumps(constants, sort_keys=True)
     return hashlib.sha256(text.encode()).hexdigest()[:16]
@@ -60,8 +65,8 @@ def _cache_key() -> str:
 
 def fully_supported(mask: int) -> bool:
     """Whether every upper can of a configuration has both its supporters (a rule, for tests)."""
-    for i in cans.mask_to_cans(mask):
-        below = cans.SUPPORTERS[i]
+    for i in geometry.mask_to_cans(mask):
+        below = geometry.SUPPORTERS[i]
         if below is not None and not all(mask >> j & 1 for j in below):
             return False
     return True
@@ -75,15 +80,15 @@ def settles(mask: int) -> bool:
     mask : int
         Any 10-bit configuration mask.
     """
-    mask = cans._check_mask(mask, "mask")
-    space = cans._new_space()
-    space.sleep_time_threshold = math.inf
-    bodies = cans._add_cans(space, mask)
-    start = {i: tuple(cans._can_positions()[i]) for i in bodies}
+    mask = geometry.check_mask(mask)
+    space = world.new_space(sleep_time=math.inf)
+    bodies = world.add_cans(space, mask)
+    positions = geometry.can_positions()
+    start = {i: tuple(positions[i]) for i in bodies}
     limit = STABLE_TOLERANCE**2
-    for _ in range(round(SETTLE_TIME / cans.TIME_STEP) // _CHECK_EVERY):
+    for _ in range(round(SETTLE_TIME / materials.TIME_STEP) // _CHECK_EVERY):
         for _ in range(_CHECK_EVERY):
-            space.step(cans.TIME_STEP)
+            space.step(materials.TIME_STEP)
         for i, body in bodies.items():
             dx = body.position.x - start[i][0]
             dz = body.position.y - start[i][1]
@@ -92,13 +97,28 @@ def settles(mask: int) -> bool:
     return True
 
 
+def settle_flags(masks) -> list[bool]:
+    """:func:`settles` of each mask (one executor task)."""
+    return [settles(mask) for mask in masks]
+
+
 def _compute(executor=None) -> tuple[int, ...]:
-    masks = range(1 << cans.N_CANS)
+    masks = list(range(1 << geometry.N_CANS))
     if executor is None:
-        flags = [settles(m) for m in masks]
+        flags = settle_flags(masks)
     else:
-        flags = list(executor.map(settles, masks, chunksize=64))
-    return tuple(m for m, ok in zip(masks, flags, strict=True) if ok)
+        batches = [masks[i : i + _BATCH] for i in range(0, len(masks), _BATCH)]
+        with contextlib.ExitStack() as stack:
+            if isinstance(executor, str):
+                executor = stack.enter_context(open_executor(executor))
+            futures = [executor.submit(settle_flags, batch) for batch in batches]
+            flags = [flag for future in futures for flag in future.result()]
+    if len(flags) != len(masks) or not all(isinstance(f, bool) for f in flags):
+        raise RuntimeError(
+            f"the executor returned {len(flags)} results of types "
+            f"{sorted({type(f).__name__ for f in flags})}; expected {len(masks)} bools"
+        )
+    return tuple(mask for mask, ok in zip(masks, flags, strict=True) if ok)
 
 
 def stable_configurations(
@@ -113,8 +133,10 @@ def stable_configurations(
         all 1024 subsets afresh (seconds) and leave the cache alone.
     path : path-like, optional
         Cache file to use instead of ``cache_dir() / "stable_configurations-<hash>.json"``.
-    executor : concurrent.futures.Executor, optional
-        Spreads the 1024 simulations; default: this process.
+    executor : str or object with ``submit``, optional
+        Spreads the 1024 simulations in batches: a specification for
+        :func:`sim2d.executors.open_executor`, or an open executor (only ``submit`` and
+        the futures' ``result()`` are used). Default: this process.
 
     Returns
     -------
@@ -129,23 +151,24 @@ def stable_configurations(
         else cache_dir() / f"stable_configurations-{_cache_key()}.json"
     )
     if file.exists():
-        data = json.loads(file.read_text())
+        try:
+            data = json.loads(file.read_text())
+        except ValueError:  # a damaged cache is recomputed and rewritten
+            data = {}
         if data.get("key") == _cache_key():
             return tuple(data["stable"])
     stable = _compute(executor)
     file.parent.mkdir(parents=True, exist_ok=True)
     payload = {
         "key": _cache_key(),
-        "constants": cans.physical_constants(),
+        "constants": materials.physical_constants(),
         "settle_time": SETTLE_TIME,
         "stable_tolerance": STABLE_TOLERANCE,
-        "count": len(stable),
+        "n_stable": len(stable),
         "stable": list(stable),
     }
-    # Write to a temporary file and rename, so concurrent readers never see half a file.
-    with tempfile.NamedTemporaryFile("w", dir=file.parent, delete=False, suffix=".tmp") as tmp:
-        json.dump(payload, tmp, indent=1)
-    os.replace(tmp.name, file)
+    # Written to a temporary file and renamed, so concurrent readers never see half a file.
+    write_text(file, json.dumps(payload, indent=1))
     return stable
 
 
@@ -156,4 +179,15 @@ def _stable_set() -> frozenset[int]:
 
 def is_stable(mask: int) -> bool:
     """Whether a configuration is physically possible (uses the cached enumeration)."""
-    return cans._check_mask(mask, "mask") in _stable_set()
+    return geometry.check_mask(mask) in _stable_set()
+
+
+def check_config(config, name: str = "config") -> int:
+    """``config`` as an int, refused unless it is a physically possible configuration."""
+    mask = geometry.check_mask(config, name)
+    if not is_stable(mask):
+        raise ValueError(
+            f"{name}={mask} (cans {geometry.mask_to_cans(mask)}) is not a physically possible "
+            "configuration; expected one of sim2d.configurations.stable_configurations()"
+        )
+    return mask

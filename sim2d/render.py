@@ -10,7 +10,11 @@ from pathlib import Path
 
 import numpy as np
 
-from sim2d import cans
+from sim2d import geometry as g
+from sim2d import materials as m
+from sim2d.field_throws import is_throwable, launch_state
+from sim2d.geometry import mask_to_cans
+from sim2d.recording import ThrowRecording
 
 __all__ = ["animate_throw", "plot_pyramid", "plot_throw"]
 
@@ -18,8 +22,8 @@ _CAN_COLOUR = "#c0c8d0"
 _GONE_COLOUR = "#e06050"
 _BALL_COLOUR = "#3060c0"
 _TABLE_COLOUR = "#8a6a48"
-_VIEW_X = (cans.ENTRY_X - 0.15, cans.PYRAMID_X + cans.PYRAMID_WIDTH + 0.8)
-_VIEW_Z = (-0.08, cans.PYRAMID_HEIGHT + 0.25)
+_VIEW_X = (g.ENTRY_X - 0.15, g.PYRAMID_X + g.PYRAMID_WIDTH + 0.8)
+_VIEW_Z = (-0.08, g.PYRAMID_HEIGHT + 0.25)
 
 
 def _figure(width: float, height: float):
@@ -33,8 +37,8 @@ def _figure(width: float, height: float):
 
 def _can_corners(x: float, z: float, angle: float) -> np.ndarray:
     half = np.array([[-1, -1], [1, -1], [1, 1], [-1, 1]]) * [
-        cans.CAN_WIDTH / 2,
-        cans.CAN_HEIGHT / 2,
+        g.CAN_WIDTH / 2,
+        g.CAN_HEIGHT / 2,
     ]
     c, s = np.cos(angle), np.sin(angle)
     return half @ np.array([[c, s], [-s, c]]) + [x, z]
@@ -74,25 +78,25 @@ def _draw_cans(ax, poses: np.ndarray, colours, labels: bool = True) -> list:
 
 
 def _standard_poses(config: int) -> np.ndarray:
-    poses = np.full((cans.N_CANS, 3), np.nan)
-    for i in cans.mask_to_cans(config):
-        poses[i, :2] = cans.can_positions()[i]
+    poses = np.full((g.N_CANS, 3), np.nan)
+    for i in mask_to_cans(config):
+        poses[i, :2] = g.can_positions()[i]
         poses[i, 2] = 0.0
     return poses
 
 
 def _parabola(field: int, angle: int, n: int = 60) -> np.ndarray:
     """Nominal ball-centre path from the entry line to the field centre, ``(n, 2)``."""
-    position, velocity = cans.launch_state(field, angle)
-    target = cans.field_centres()[field]
+    position, velocity = launch_state(field, angle)
+    target = g.field_centres()[field]
     t = np.linspace(0.0, (target[0] - position[0]) / velocity[0], n)
     return np.stack(
-        [position[0] + velocity[0] * t, position[1] + velocity[1] * t - 0.5 * cans.GRAVITY * t**2],
+        [position[0] + velocity[0] * t, position[1] + velocity[1] * t - 0.5 * m.GRAVITY * t**2],
         axis=1,
     )
 
 
-def plot_pyramid(path, config: int = cans.FULL_PYRAMID, *, example_field: int = 97) -> Path:
+def plot_pyramid(path, config: int = g.FULL_PYRAMID, *, example_field: int = 97) -> Path:
     """The pyramid, the 195 field centres and the three throwing angles.
 
     Field centres are dots, hollow where the flat (0 degree) throw is impossible; crosses
@@ -103,22 +107,22 @@ def plot_pyramid(path, config: int = cans.FULL_PYRAMID, *, example_field: int = 
 
     fig = _figure(9, 6)
     ax = fig.add_subplot()
-    _setup_axes(ax, f"can world: {cans.count(config)} cans, 15 x 13 fields, 3 angles")
-    _draw_cans(ax, _standard_poses(config), [_CAN_COLOUR] * cans.N_CANS)
+    _setup_axes(ax, f"can world: {g.count(config)} cans, 15 x 13 fields, 3 angles")
+    _draw_cans(ax, _standard_poses(config), [_CAN_COLOUR] * g.N_CANS)
     ax.add_patch(
         Rectangle(
-            (cans.PYRAMID_X, 0.0),
-            cans.PYRAMID_WIDTH,
-            cans.PYRAMID_HEIGHT,
+            (g.PYRAMID_X, 0.0),
+            g.PYRAMID_WIDTH,
+            g.PYRAMID_HEIGHT,
             fill=False,
             ls="--",
             ec="grey",
             lw=0.8,
         )
     )
-    centres = cans.field_centres()
+    centres = g.field_centres()
     throwable = np.array(
-        [[cans.is_throwable(f, a) for a in range(len(cans.ANGLES))] for f in range(cans.N_FIELDS)]
+        [[is_throwable(f, a) for a in range(len(g.ANGLES))] for f in range(g.N_FIELDS)]
     )
     flat = throwable[:, 0]
     ax.scatter(*centres[flat].T, s=6, c="k", zorder=4, label="field centre")
@@ -130,12 +134,12 @@ def plot_pyramid(path, config: int = cans.FULL_PYRAMID, *, example_field: int = 
     ax.scatter(
         *centres[never].T, s=20, marker="x", c="r", lw=0.8, zorder=4, label="never throwable"
     )
-    for a, (name, colour) in enumerate(zip(cans.ANGLE_NAMES, ["C2", "C1", "C4"], strict=True)):
+    for a, (name, colour) in enumerate(zip(g.ANGLE_NAMES, ["C2", "C1", "C4"], strict=True)):
         path_xz = _parabola(example_field, a)
-        ax.plot(*path_xz.T, c=colour, lw=1.5, label=f'angle {a} "{name}" {cans.ANGLES[a]} m/s')
+        ax.plot(*path_xz.T, c=colour, lw=1.5, label=f'angle {a} "{name}" {g.ANGLES[a]} m/s')
         ax.add_patch(_ball_patch(path_xz[0], colour, alpha=0.35))
-    ax.axvline(cans.ENTRY_X, c="grey", lw=0.6, ls=":")
-    ax.text(cans.ENTRY_X, _VIEW_Z[1] - 0.03, " entry line", fontsize=8, color="grey")
+    ax.axvline(g.ENTRY_X, c="grey", lw=0.6, ls=":")
+    ax.text(g.ENTRY_X, _VIEW_Z[1] - 0.03, " entry line", fontsize=8, color="grey")
     ax.legend(loc="upper right", fontsize=7)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -146,65 +150,67 @@ def plot_pyramid(path, config: int = cans.FULL_PYRAMID, *, example_field: int = 
 def _ball_patch(xz, colour=_BALL_COLOUR, alpha: float = 1.0):
     from matplotlib.patches import Circle
 
-    return Circle(tuple(xz), cans.BALL_RADIUS, fc=colour, ec="k", lw=0.6, alpha=alpha, zorder=6)
+    return Circle(tuple(xz), m.BALL_RADIUS, fc=colour, ec="k", lw=0.6, alpha=alpha, zorder=6)
 
 
-def _describe(trace: cans.ThrowTrace, field: int, angle: int) -> str:
-    o = trace.outcome
-    row, column = divmod(field, cans.N_COLUMNS)
-    gone = cans.mask_to_cans(o.thrown_off)
+def _describe(recording: ThrowRecording, field: int, angle: int) -> str:
+    o = recording.outcome
+    row, column = divmod(field, g.N_COLUMNS)
+    gone = mask_to_cans(o.thrown_off)
     return (
-        f"field {field} (row {row}, column {column}), angle {cans.ANGLE_NAMES[angle]}: "
+        f"field {field} (row {row}, column {column}), angle {g.ANGLE_NAMES[angle]}: "
         f"{o.count_before} -> {o.count_after} cans, thrown off {list(gone)}"
         + (" (timed out)" if o.timed_out else "")
     )
 
 
-def plot_throw(path, trace: cans.ThrowTrace, field: int, angle: int) -> Path:
+def plot_throw(path, recording: ThrowRecording, field: int, angle: int) -> Path:
     """Before and after one throw: start scene with the ball's path, and the scene at rest.
 
-    ``trace`` comes from :func:`sim2d.cans.trace_throw` with the same field and angle.
+    ``recording`` comes from :func:`sim2d.recording.record_throw` with the same field and angle.
     Cans thrown off are red in both panels.
     """
-    o = trace.outcome
-    colours = [_GONE_COLOUR if o.thrown_off >> i & 1 else _CAN_COLOUR for i in range(cans.N_CANS)]
+    o = recording.outcome
+    colours = [_GONE_COLOUR if o.thrown_off >> i & 1 else _CAN_COLOUR for i in range(g.N_CANS)]
     fig = _figure(12, 4.8)
     before, after = fig.subplots(1, 2, sharey=True)
     _setup_axes(before, "before")
-    _draw_cans(before, trace.cans[0], colours)
-    ball = trace.ball[~np.isnan(trace.ball[:, 0])]
+    _draw_cans(before, recording.cans[0], colours)
+    ball = recording.ball[~np.isnan(recording.ball[:, 0])]
     before.plot(*ball.T, c=_BALL_COLOUR, lw=1, ls="--")
-    before.add_patch(_ball_patch(trace.ball[0]))
-    before.plot(*cans.field_centres()[field], "k+", ms=12, mew=1.5, zorder=7)
+    before.add_patch(_ball_patch(recording.ball[0]))
+    before.plot(*g.field_centres()[field], "k+", ms=12, mew=1.5, zorder=7)
     _setup_axes(after, f"after {o.sim_time:.2f} s")
-    _draw_cans(after, trace.cans[-1], colours)
-    if not np.isnan(trace.ball[-1, 0]):
-        after.add_patch(_ball_patch(trace.ball[-1]))
-    fig.suptitle(_describe(trace, field, angle), fontsize=11)
+    _draw_cans(after, recording.cans[-1], colours)
+    if not np.isnan(recording.ball[-1, 0]):
+        after.add_patch(_ball_patch(recording.ball[-1]))
+    fig.suptitle(_describe(recording, field, angle), fontsize=11)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
     return path
 
 
-def animate_throw(path, trace: cans.ThrowTrace, field: int, angle: int, *, fps: int = 25) -> Path:
+def animate_throw(
+    path, recording: ThrowRecording, field: int, angle: int, *, fps: int = 25
+) -> Path:
     """An animated GIF of a recorded throw (one frame per recorded instant)."""
     from matplotlib.animation import PillowWriter
 
-    o = trace.outcome
-    colours = [_GONE_COLOUR if o.thrown_off >> i & 1 else _CAN_COLOUR for i in range(cans.N_CANS)]
+    o = recording.outcome
+    colours = [_GONE_COLOUR if o.thrown_off >> i & 1 else _CAN_COLOUR for i in range(g.N_CANS)]
     fig = _figure(7, 4.2)
     ax = fig.add_subplot()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     writer = PillowWriter(fps=fps)
     with writer.saving(fig, str(path), dpi=80):
-        for k, t in enumerate(trace.times):
+        for k, t in enumerate(recording.times):
             ax.clear()
-            _setup_axes(ax, f"t = {t:.2f} s   " + _describe(trace, field, angle))
+            _setup_axes(ax, f"t = {t:.2f} s   " + _describe(recording, field, angle))
             ax.title.set_fontsize(7)
-            _draw_cans(ax, trace.cans[k], colours, labels=True)
-            if not np.isnan(trace.ball[k, 0]):
-                ax.add_patch(_ball_patch(trace.ball[k]))
+            _draw_cans(ax, recording.cans[k], colours, labels=True)
+            if not np.isnan(recording.ball[k, 0]):
+                ax.add_patch(_ball_patch(recording.ball[k]))
             writer.grab_frame()
     return path

@@ -19,7 +19,7 @@ a target point on the vertical target plane x = 2 m. Top view and side view::
     Seen from above the ball flies on the line S -> target; seen from the side it
     falls below that line after R.
 
-- S, the right shoulder, at (0, -0.2, 1.4) m (DESIGN, "The throw").
+- S, the right shoulder, at (0, -0.2, 1.4) m.
 - The arm: upper arm and forearm, :data:`UPPER_ARM_LENGTH` = :data:`FOREARM_LENGTH`
   = 0.3 m (an adult human's proportions; chosen). Its hand position is written in the
   swivel-angle form common in humanoid arm inverse kinematics (Tolani, Goswami &
@@ -36,7 +36,7 @@ a target point on the vertical target plane x = 2 m. Top view and side view::
   :data:`PITCH_LIMITS_DEG` are therefore exactly the limits on the throw direction:
   a target outside that cone is thrown at along the nearest direction inside it (yaw
   and pitch clipped separately), and the throw is *clamped*: 46 % of uniform targets.
-  Because the cone's apex is the shoulder, DESIGN's trial limits (yaw -15..25 deg,
+  Because the cone's apex is the shoulder, the limits of a first trial (yaw -15..25 deg,
   pitch -20..12 deg) would clamp 57 % here; ours are a little wider.
 - The ball is released where the hand crosses x = :data:`RELEASE_X` = 0.3 m (paper:
   "released 30cm in front of the robot") with the hand's velocity, and flies
@@ -61,9 +61,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sim2d.materials import GRAVITY
+
 __all__ = [
     "FOREARM_LENGTH",
-    "GRAVITY",
     "HAND_SPEED",
     "PITCH_LIMITS_DEG",
     "RELEASE_X",
@@ -82,10 +83,9 @@ __all__ = [
     "throw",
 ]
 
-#: Gravitational acceleration, m/s² (acts along -z; DESIGN, "The can world").
-GRAVITY = 9.81
+# Gravity is the can world's (m/s², along -z): one constant for both worlds.
 
-#: Right shoulder position (x, y, z) in metres (DESIGN, "The throw").
+#: Right shoulder position (x, y, z) in metres.
 SHOULDER = np.array([0.0, -0.2, 1.4])
 SHOULDER.setflags(write=False)
 
@@ -107,7 +107,7 @@ HAND_SPEED = 7.0
 
 #: Shoulder yaw (azimuth of the shoulder-to-hand axis about +z, positive to the
 #: robot's left) limits, degrees. Chosen so that the limits bind on both sides of the
-#: area (DESIGN, "Findings": looser limits never bind); about 46 % of uniform targets
+#: area (looser limits never bind); about 46 % of uniform targets
 #: are clamped in yaw or pitch.
 YAW_LIMITS_DEG = (-20.0, 25.0)
 
@@ -162,10 +162,10 @@ class ReleaseNoise:
     ----------
     direction_std_deg : float
         Standard deviation, degrees, of independent Gaussian errors added to the
-        release direction's yaw and to its pitch. Default 0.5 deg (DESIGN, "Findings").
+        release direction's yaw and to its pitch. Default 0.5 deg.
     speed_rel_std : float
         Standard deviation of the relative speed error: the release speed is
-        multiplied by ``1 + N(0, speed_rel_std**2)``. Default 0.02 (DESIGN, "Findings").
+        multiplied by ``1 + N(0, speed_rel_std**2)``. Default 0.02.
     """
 
     direction_std_deg: float = 0.5

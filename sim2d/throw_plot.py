@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
+from sim2d.materials import GRAVITY
 from sim2d.throw import (
-    GRAVITY,
     PITCH_LIMITS_DEG,
     SHOULDER,
     TARGET_AREA,

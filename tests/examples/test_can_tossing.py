@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from inference.evaluation import ACCURACY_BINS, roc_auc
-from sim2d import cans
+from sim2d import field_throws
 from tests.helpers import load_example
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -77,11 +77,13 @@ def test_table_one_bookkeeping_matches_independent_rethrows(ex, tiny):
     cases = ex.play_table_one(model, data, "counts", seed=7, rule="aim")
     n = len(cases["start"])
     assert n > 0
-    assert all(cans.is_throwable(int(f), 0) for f in cases["field"])
+    assert all(field_throws.is_throwable(int(f), 0) for f in cases["field"])
     # the training seeds are never reused
     assert not set(cases["seed"].tolist()) & set(data.seed.tolist())
     achieved = [
-        cans.throw(int(s), int(f), 0, jitter=data.metadata["jitter"], seed=int(k)).count_after
+        field_throws.throw_at_field(
+            int(s), int(f), 0, jitter=data.metadata["jitter"], seed=int(k)
+        ).count_after
         for s, f, k in zip(cases["start"], cases["field"], cases["seed"], strict=True)
     ]
     assert cases["achieved"].tolist() == achieved

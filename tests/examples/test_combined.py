@@ -3,7 +3,7 @@
 import json
 from pathlib import Path
 
-from sim2d import cans
+from sim2d import geometry
 from tests.helpers import load_example
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -34,5 +34,5 @@ def test_tiny_run_end_to_end(tmp_path):
         assert first["actions"] == first["success"] + first["fail_too_many"] + first[
             "fail_no_hit"
         ] + sum(first["intermediate"].values())
-    assert saved["angle_choice"]["chosen_angle"] in cans.ANGLE_NAMES
+    assert saved["angle_choice"]["chosen_angle"] in geometry.ANGLE_NAMES
     assert (tmp_path / "combined.md").read_text().count("success rate") == 3

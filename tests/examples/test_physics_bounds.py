@@ -36,3 +36,37 @@ def test_tiny_run_end_to_end(tmp_path):
         for key in ("success_bound", "success_in_sample", "one_throw_bound"):
             assert 0 <= s[key] <= 1
         assert s["n_heights"] > 0 and s["n_states"] >= 1
+
+
+class Counting:
+    """Runs each task at submission, in this process, and counts them."""
+
+    def __init__(self):
+        self.submitted = 0
+
+    def submit(self, fn, *args):
+        from concurrent.futures import Future
+
+        self.submitted += 1
+        future = Future()
+        future.set_result(fn(*args))
+        return future
+
+
+def test_the_combined_bound_resumes_from_its_saved_states(tmp_path):
+    args = bounds.parse_args(
+        ["--scale", "tiny", "--data-dir", str(tmp_path), "--step", "0.2", "--combined-repeats", "2"]
+    )
+    states = [1023, 15]
+    first = Counting()
+    outcomes = bounds.combined_outcomes(args, 0.75, 0.003, states, first)
+    assert first.submitted == 2 and set(outcomes) == {15, 1023}
+    again = Counting()
+    assert bounds.combined_outcomes(args, 0.75, 0.003, states, again).keys() == outcomes.keys()
+    assert again.submitted == 0
+    folder = next(tmp_path.glob("combined_bound_*.parts"))
+    (folder / "chunk-000001.npz").unlink()  # chunks are in sorted state order: 1023
+    resumed = Counting()
+    redone = bounds.combined_outcomes(args, 0.75, 0.003, states, resumed)
+    assert resumed.submitted == 1
+    assert all(np.array_equal(redone[s], outcomes[s]) for s in states)

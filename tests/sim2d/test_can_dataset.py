@@ -1,14 +1,24 @@
 """Tests of the can data set's generation and format (sim2d/can_dataset.py)."""
 
 import concurrent.futures
+import errno
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+import warnings
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from sim2d import can_dataset, cans
+from sim2d import can_dataset, field_throws, geometry, materials
 from sim2d.can_dataset import generate_dataset, load_dataset
+from sim2d.chunks import ChunkWarning, locked
 
-BOTTOM_ROW = cans.cans_to_mask([0, 1, 2, 3])
+BOTTOM_ROW = geometry.cans_to_mask([0, 1, 2, 3])
 SMALL = {"configs": [BOTTOM_ROW, 0], "angles": (0, 2), "repeats": 2, "chunk_size": 97}
 N_SMALL = 2 * 195 * 2 * 2
 
@@ -30,6 +40,34 @@ class SerialExecutor:
         return future
 
 
+class Counting:
+    """Passes tasks on to another executor, counting them."""
+
+    def __init__(self, executor):
+        self.executor = executor
+        self.submitted = 0
+
+    def submit(self, fn, *args):
+        self.submitted += 1
+        return self.executor.submit(fn, *args)
+
+
+N_CHUNKS = -(-N_SMALL // SMALL["chunk_size"])
+
+
+def interrupted(path: Path, after: int = 3) -> Path:
+    """Start generating ``path`` and stop after ``after`` chunks; the parts folder."""
+    with pytest.raises(KeyboardInterrupt):
+        generate_dataset(path, executor=SerialExecutor(fail_after=after), progress=False, **SMALL)
+    parts = path.with_name(path.name + ".parts")
+    assert len(list(parts.glob("chunk-*.npz"))) == after and not path.exists()
+    return parts
+
+
+def same_bytes(a: Path, b: Path) -> bool:
+    return a.read_bytes() == b.read_bytes()
+
+
 @pytest.fixture(scope="module")
 def small(tmp_path_factory):
     path = tmp_path_factory.mktemp("data") / "small.npz"
@@ -48,8 +86,8 @@ def test_format(small):
     assert meta["format_version"] == can_dataset.FORMAT_VERSION
     assert meta["jitter"] == 0.003 and meta["seed"] == 0 and meta["repeats"] == 2
     assert meta["configs"] == [0, BOTTOM_ROW] and meta["angles"] == [0, 2]
-    assert meta["constants"] == cans.physical_constants()
-    assert np.allclose(meta["geometry"]["can_positions"], cans.can_positions())
+    assert meta["constants"] == materials.physical_constants()
+    assert np.allclose(meta["geometry"]["can_positions"], geometry.can_positions())
     # rows ordered by config, field, angle, repeat
     assert np.all(np.diff(data.start_config) >= 0)
     assert list(data.repeat[:4]) == [0, 1, 0, 1] and list(data.angle[:4]) == [0, 0, 2, 2]
@@ -59,11 +97,13 @@ def test_rows_match_single_throws(small):
     data = load_dataset(small)
     throwable = np.flatnonzero(data.throwable & (data.start_config == BOTTOM_ROW))
     for k in throwable[:: len(throwable) // 12]:
-        seed = cans.throw_seed(
+        seed = field_throws.aim_seed(
             0, BOTTOM_ROW, int(data.field[k]), int(data.angle[k]), int(data.repeat[k])
         )
         assert data.seed[k] == seed
-        o = cans.throw(BOTTOM_ROW, int(data.field[k]), int(data.angle[k]), jitter=0.003, seed=seed)
+        o = field_throws.throw_at_field(
+            BOTTOM_ROW, int(data.field[k]), int(data.angle[k]), jitter=0.003, seed=seed
+        )
         assert (o.end_config, o.thrown_off, o.hit_any_can, o.touched) == (
             data.end_config[k], data.thrown_off[k], data.hit_any_can[k], data.touched[k]
         )  # fmt: skip
@@ -73,7 +113,7 @@ def test_rows_match_single_throws(small):
 def test_unthrowable_rows_are_flagged_and_unchanged(small):
     data = load_dataset(small)
     expected = np.array(
-        [cans.is_throwable(f, a) for f, a in zip(data.field, data.angle, strict=True)]
+        [field_throws.is_throwable(f, a) for f, a in zip(data.field, data.angle, strict=True)]
     )
     assert np.array_equal(data.throwable, expected)
     gone = ~data.throwable
@@ -118,7 +158,7 @@ def test_parts_of_another_protocol_are_refused(tmp_path):
 
 def test_default_process_pool(tmp_path):
     path = generate_dataset(
-        tmp_path / "pool.npz", configs=[cans.cans_to_mask([1])], angles=(1,), repeats=1,
+        tmp_path / "pool.npz", configs=[geometry.cans_to_mask([1])], angles=(1,), repeats=1,
         chunk_size=50, progress=True,
     )  # fmt: skip
     data = load_dataset(path)
@@ -145,3 +185,200 @@ def test_load_rejects_other_files(tmp_path):
     np.savez(path, x=np.zeros(3))
     with pytest.raises(ValueError, match="lacks arrays"):
         load_dataset(path)
+
+
+# --- executors -----------------------------------------------------------------------------
+
+
+def test_a_dask_cluster_writes_the_same_file_byte_for_byte(tmp_path, small, dask_executor):
+    path = generate_dataset(tmp_path / "dask.npz", executor=dask_executor, progress=False, **SMALL)
+    assert same_bytes(path, small)
+
+
+def test_an_interrupted_run_resumes_on_dask_without_redoing_saved_chunks(
+    tmp_path, small, dask_executor
+):
+    path = tmp_path / "resumed.npz"
+    interrupted(path)
+    resume = Counting(dask_executor)
+    generate_dataset(path, executor=resume, progress=False, **SMALL)
+    assert resume.submitted == N_CHUNKS - 3
+    assert same_bytes(path, small)
+
+
+def test_a_process_pool_by_name_writes_the_same_file(tmp_path, small):
+    path = generate_dataset(tmp_path / "p.npz", executor="process:2", progress=False, **SMALL)
+    assert same_bytes(path, small)
+
+
+@pytest.mark.slow  # starting Ray takes most of a minute here
+def test_ray_writes_the_same_file(tmp_path, small):
+    pytest.importorskip("ray")
+    path = generate_dataset(tmp_path / "ray.npz", executor="ray", progress=False, **SMALL)
+    assert same_bytes(path, small)
+
+
+def test_command_line(tmp_path):
+    out = tmp_path / "cli.npz"
+    args = [sys.executable, "-m", "sim2d.generate", str(out), "--configs", "15", "--angles", "2"]
+    run = subprocess.run(
+        [*args, "--repeats", "1", "--chunk-size", "40", "--executor", "process:2", "--quiet"],
+        capture_output=True,
+        text=True,
+        timeout=120,
+    )
+    assert run.returncode == 0, run.stderr
+    data = load_dataset(out)
+    assert len(data) == 195 and set(data.start_config.tolist()) == {15}
+    assert f"{out}: 195 throws" in run.stdout
+    bad = subprocess.run(
+        [*args, "--executor", "spark:3"], capture_output=True, text=True, timeout=60
+    )
+    assert bad.returncode == 2 and "executor='spark:3'" in bad.stderr
+    assert "process:N, dask-local:N, dask://HOST:PORT or ray" in bad.stderr
+
+
+# --- nothing lost --------------------------------------------------------------------------
+
+
+def _truncate(file: Path) -> None:
+    file.write_bytes(file.read_bytes()[: file.stat().st_size // 2])
+
+
+def _flip_a_byte(file: Path) -> None:
+    data = bytearray(file.read_bytes())
+    data[len(data) // 3] ^= 0xFF  # inside the arrays, not the zip directory at the end
+    file.write_bytes(bytes(data))
+
+
+@pytest.mark.parametrize("damage", [_truncate, _flip_a_byte])
+def test_a_damaged_chunk_is_named_and_only_it_is_computed_again(tmp_path, small, damage):
+    path = tmp_path / "d.npz"
+    parts = interrupted(path)
+    damage(parts / "chunk-000001.npz")
+    resume = SerialExecutor()
+    with pytest.warns(ChunkWarning, match=r"chunk-000001\.npz .*computed again"):
+        generate_dataset(path, executor=resume, progress=False, **SMALL)
+    assert resume.submitted == N_CHUNKS - 3 + 1
+    assert same_bytes(path, small)
+
+
+def test_a_chunk_of_other_throws_is_computed_again(tmp_path, small):
+    path = tmp_path / "d.npz"
+    parts = interrupted(path)
+    shutil.copy(parts / "chunk-000000.npz", parts / "chunk-000002.npz")  # right protocol
+    resume = SerialExecutor()
+    with pytest.warns(ChunkWarning, match=r"chunk-000002\.npz holds other throws"):
+        generate_dataset(path, executor=resume, progress=False, **SMALL)
+    assert resume.submitted == N_CHUNKS - 3 + 1
+    assert same_bytes(path, small)
+
+
+def test_a_corrupt_manifest_is_named_and_no_chunk_is_lost(tmp_path, small):
+    path = tmp_path / "d.npz"
+    parts = interrupted(path)
+    _truncate(parts / "manifest.json")
+    resume = SerialExecutor()
+    with pytest.warns(ChunkWarning, match=r"manifest\.json is truncated or corrupt"):
+        generate_dataset(path, executor=resume, progress=False, **SMALL)
+    assert resume.submitted == N_CHUNKS - 3
+    assert same_bytes(path, small)
+
+
+def test_a_damaged_data_set_is_named_and_generated_again(tmp_path, small):
+    path = tmp_path / "d.npz"
+    path.write_bytes(small.read_bytes())
+    _truncate(path)
+    with pytest.raises(ValueError, match=r"d\.npz is truncated or corrupt"):
+        load_dataset(path)
+    with pytest.warns(ChunkWarning, match=r"d\.npz is truncated or corrupt.*generating it again"):
+        generate_dataset(path, executor=SerialExecutor(), progress=False, **SMALL)
+    assert same_bytes(path, small)
+
+
+def test_a_lock_keeps_a_second_generator_off_the_path(tmp_path):
+    path = tmp_path / "d.npz"
+    with locked(path):  # another generator, as far as the lock can tell
+        with pytest.raises(RuntimeError, match=r"d\.npz\.lock is held by another generator"):
+            generate_dataset(path, executor=SerialExecutor(), progress=False, **SMALL)
+    assert not path.exists() and not Path(f"{path}.lock").exists()
+    generate_dataset(path, executor=SerialExecutor(), progress=False, **SMALL)  # free again
+
+
+def test_a_full_disk_leaves_no_temporary_file_and_keeps_finished_chunks(tmp_path, monkeypatch):
+    path = tmp_path / "d.npz"
+    parts = interrupted(path)
+    real = np.lib.format.write_array
+    writes = []
+
+    def full_disk(fp, array, *args, **kwargs):
+        writes.append(1)
+        if len(writes) > 20:  # a chunk or two later, in the middle of an array
+            fp.write(b"\0" * 100)
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(fp, array, *args, **kwargs)
+
+    monkeypatch.setattr(np.lib.format, "write_array", full_disk)
+    with pytest.raises(OSError, match="No space left"):
+        generate_dataset(path, executor=SerialExecutor(), progress=False, **SMALL)
+    monkeypatch.setattr(np.lib.format, "write_array", real)
+    assert not [p for p in tmp_path.rglob("*") if ".tmp" in p.name]
+    saved = sorted(parts.glob("chunk-*.npz"))
+    assert len(saved) > 3 and not path.exists()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error", ChunkWarning)  # every saved chunk is intact
+        resume = SerialExecutor()
+        generate_dataset(path, executor=resume, progress=False, **SMALL)
+    assert resume.submitted == N_CHUNKS - len(saved)
+
+
+def test_files_are_created_like_ordinary_files(tmp_path):
+    umask = os.umask(0o022)
+    try:
+        path = tmp_path / "d.npz"
+        parts = interrupted(path)
+        modes = {p.name: p.stat().st_mode & 0o777 for p in parts.iterdir()}
+        generate_dataset(path, executor=SerialExecutor(), progress=False, **SMALL)
+        modes[path.name] = path.stat().st_mode & 0o777
+    finally:
+        os.umask(umask)
+    assert set(modes.values()) == {0o644}, modes
+
+
+def _children(pid: int) -> list[int]:
+    psutil = pytest.importorskip("psutil")
+    return [p.pid for p in psutil.Process(pid).children(recursive=True)]
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT, signal.SIGKILL])
+def test_pool_workers_end_with_the_generator(tmp_path, sig):
+    psutil = pytest.importorskip("psutil")
+    out = tmp_path / "big.npz"
+    parts = Path(f"{out}.parts")
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "sim2d.generate", str(out), "--configs", "1023", "--angles", "1",
+         "--repeats", "4", "--chunk-size", "10", "--executor", "process:2", "--quiet"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )  # fmt: skip
+    try:
+        deadline = time.monotonic() + 60
+        while not list(parts.glob("chunk-*.npz")) and time.monotonic() < deadline:
+            time.sleep(0.1)
+        workers = _children(proc.pid)
+        assert len(workers) >= 2, "the pool's workers run"
+        proc.send_signal(sig)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode != 0
+    if sig != signal.SIGKILL:  # a kill gives the generator no say
+        assert "run it again to resume" in err
+    deadline = time.monotonic() + 10
+    while any(psutil.pid_exists(w) and psutil.Process(w).status() != "zombie" for w in workers):
+        assert time.monotonic() < deadline, "pool workers outlived the generator"
+        time.sleep(0.1)
+    saved = list(parts.glob("chunk-*.npz"))
+    assert saved and not out.exists()
+    if sig != signal.SIGKILL:
+        assert not Path(f"{out}.lock").exists()

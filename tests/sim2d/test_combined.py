@@ -3,7 +3,7 @@
 import numpy as np
 import pytest
 
-from sim2d import cans
+from sim2d import geometry, materials
 from sim2d.combined import (
     CAN_BAND,
     TABLE_TOP_Z,
@@ -19,30 +19,30 @@ from sim2d.throw import exact_target_for_hit, throw
 
 def test_settle_keeps_stable_sets_and_drops_unsupported_cans():
     stable = frozenset(stable_configurations())
-    assert settle(cans.FULL_PYRAMID, stable) == cans.FULL_PYRAMID
-    lone_top = cans.cans_to_mask([0, 1, 2, 3, 9])  # the top can with nothing under it
+    assert settle(geometry.FULL_PYRAMID, stable) == geometry.FULL_PYRAMID
+    lone_top = geometry.cans_to_mask([0, 1, 2, 3, 9])  # the top can with nothing under it
     settled = settle(lone_top)
     assert settled in stable and settled & ~lone_top == 0
-    assert settled == cans.cans_to_mask([0, 1, 2, 3])
+    assert settled == geometry.cans_to_mask([0, 1, 2, 3])
 
 
 def test_first_contact_meets_the_first_can_on_the_path():
     # a flat throw through row 1 of the near column meets can 0 at its near face
-    x, z = first_contact(cans.FULL_PYRAMID, 1 * cans.N_COLUMNS + 0, 0)
-    cx, cz = cans.can_positions()[0]
-    assert x == pytest.approx(cx - cans.CAN_WIDTH / 2 - cans.BALL_RADIUS, abs=2e-3)
+    x, z = first_contact(geometry.FULL_PYRAMID, 1 * geometry.N_COLUMNS + 0, 0)
+    cx, cz = geometry.can_positions()[0]
+    assert x == pytest.approx(cx - geometry.CAN_WIDTH / 2 - materials.BALL_RADIUS, abs=2e-3)
     # with no cans the path is matched at the field centre
-    assert first_contact(0, 100, 0) == pytest.approx(tuple(cans.field_centres()[100]))
+    assert first_contact(0, 100, 0) == pytest.approx(tuple(geometry.field_centres()[100]))
 
 
 def test_entry_state_runs_the_ball_back_along_its_parabola():
     hit, v = np.array([0.0, TABLE_TOP_Z + 0.4]), np.array([7.0, 0.5, -2.0])
     (x, z), (vx, vz) = entry_state(hit, v)
-    dt = (cans.PYRAMID_X - x) / vx
+    dt = (geometry.PYRAMID_X - x) / vx
     # flying forward from the entry state lands exactly on the hit, with the hit's velocity
-    assert x == cans.ENTRY_X and vx == 7.0
-    assert z + vz * dt - 0.5 * cans.GRAVITY * dt**2 == pytest.approx(0.4, abs=1e-12)
-    assert vz - cans.GRAVITY * dt == pytest.approx(-2.0, abs=1e-12)
+    assert x == geometry.ENTRY_X and vx == 7.0
+    assert z + vz * dt - 0.5 * materials.GRAVITY * dt**2 == pytest.approx(0.4, abs=1e-12)
+    assert vz - materials.GRAVITY * dt == pytest.approx(-2.0, abs=1e-12)
     assert entry_state([CAN_BAND + 1e-3, hit[1]], v) is None  # beside the pyramid
     assert entry_state([0.0, TABLE_TOP_Z + 0.01], v) is None  # into the table in front
 
@@ -50,13 +50,17 @@ def test_entry_state_runs_the_ball_back_along_its_parabola():
 def test_a_throw_beside_the_pyramid_changes_nothing_and_a_throw_at_the_top_removes_it():
     aims = exact_target_for_hit(np.array([[0.5, TABLE_TOP_Z + 0.3], [0.0, TABLE_TOP_Z + 0.58]]))
     r = throw(aims)
-    assert play_throw(cans.FULL_PYRAMID, r.hit[0], r.velocity_at_plane[0]) == cans.FULL_PYRAMID
-    top = play_throw(cans.FULL_PYRAMID, r.hit[1], r.velocity_at_plane[1])
-    assert top & ~cans.cans_to_mask([9]) == top and not top >> 9 & 1  # can 9 gone
+    assert (
+        play_throw(geometry.FULL_PYRAMID, r.hit[0], r.velocity_at_plane[0]) == geometry.FULL_PYRAMID
+    )
+    top = play_throw(geometry.FULL_PYRAMID, r.hit[1], r.velocity_at_plane[1])
+    assert top & ~geometry.cans_to_mask([9]) == top and not top >> 9 & 1  # can 9 gone
     # the jitter is seeded: the same seed, the same outcome
-    again = [play_throw(cans.FULL_PYRAMID, r.hit[1], r.velocity_at_plane[1], jitter=0.003, seed=7)]
+    again = [
+        play_throw(geometry.FULL_PYRAMID, r.hit[1], r.velocity_at_plane[1], jitter=0.003, seed=7)
+    ]
     again.append(
-        play_throw(cans.FULL_PYRAMID, r.hit[1], r.velocity_at_plane[1], jitter=0.003, seed=7)
+        play_throw(geometry.FULL_PYRAMID, r.hit[1], r.velocity_at_plane[1], jitter=0.003, seed=7)
     )
     assert again[0] == again[1]
 
@@ -65,6 +69,6 @@ def test_exact_throws_hit_the_heights_they_aim_at():
     heights, result = exact_throws(0.05)
     np.testing.assert_allclose(result.hit[:, 1], heights + TABLE_TOP_Z, atol=1e-6)
     np.testing.assert_allclose(result.hit[:, 0], 0.0, atol=1e-6)
-    assert heights.min() >= 0 and heights.max() < cans.PYRAMID_HEIGHT + cans.BALL_RADIUS
+    assert heights.min() >= 0 and heights.max() < geometry.PYRAMID_HEIGHT + materials.BALL_RADIUS
     with pytest.raises(ValueError, match="step"):
         exact_throws(0.0)

@@ -2,11 +2,11 @@
 
 import itertools
 import json
-from concurrent.futures import ProcessPoolExecutor
+from concurrent.futures import Future, ProcessPoolExecutor
 
 import pytest
 
-from sim2d import cans, configurations
+from sim2d import configurations, geometry, materials
 from sim2d.configurations import settles, stable_configurations
 
 # Written out by hand from the pyramid sketch, not taken from the code under test.
@@ -30,21 +30,21 @@ def test_all_42_fully_supported_configurations_stand():
     supported = [m for m in ALL_SUBSETS if fully_supported_by_hand(m)]
     assert len(supported) == 42
     stable = set(stable_configurations())
-    assert all(cans.cans_to_mask(m) in stable for m in supported)
-    assert 0 in stable and cans.FULL_PYRAMID in stable
+    assert all(geometry.cans_to_mask(m) in stable for m in supported)
+    assert 0 in stable and geometry.FULL_PYRAMID in stable
 
 
 def test_no_configuration_with_an_unsupported_can_stands():
     stable = set(stable_configurations())
-    floating = [cans.cans_to_mask(m) for m in ALL_SUBSETS if some_can_floats(m)]
+    floating = [geometry.cans_to_mask(m) for m in ALL_SUBSETS if some_can_floats(m)]
     assert floating and not stable & set(floating)
 
 
 def test_direct_simulation():
-    assert settles(cans.FULL_PYRAMID) and settles(0)
-    assert not settles(cans.cans_to_mask([9])), "a can in the air falls"
+    assert settles(geometry.FULL_PYRAMID) and settles(0)
+    assert not settles(geometry.cans_to_mask([9])), "a can in the air falls"
     # a can that lost one supporter with nothing above it tips over
-    assert not settles(cans.cans_to_mask([0, 4]))
+    assert not settles(geometry.cans_to_mask([0, 4]))
 
 
 def test_enumeration_result():
@@ -81,10 +81,30 @@ def test_enumeration_is_cached(tmp_path, monkeypatch):
 
 def test_cache_key_follows_the_constants(monkeypatch):
     key = configurations._cache_key()
-    monkeypatch.setattr(cans, "FRICTION_CAN_CAN", 0.5)
+    monkeypatch.setattr(materials, "FRICTION_CAN_CAN", 0.5)
     assert configurations._cache_key() != key
 
 
 def test_bad_mask():
     with pytest.raises(ValueError, match=r"mask=-1 .*10-bit"):
         settles(-1)
+
+
+def test_enumeration_on_dask_uses_only_submit_and_result(dask_executor):
+    from distributed import Client
+
+    serial = stable_configurations(cache=False)
+    client = Client.current()  # a Dask client's own futures: truthy objects, not bools
+    assert stable_configurations(cache=False, executor=client) == serial
+    assert stable_configurations(cache=False, executor=dask_executor) == serial
+
+
+def test_an_executor_returning_no_flags_is_refused():
+    class Garbage:
+        def submit(self, fn, batch):
+            future = Future()
+            future.set_result(["yes"] * len(batch))
+            return future
+
+    with pytest.raises(RuntimeError, match=r"returned 1024 results of types \['str'\]"):
+        stable_configurations(cache=False, executor=Garbage())

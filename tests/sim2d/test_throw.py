@@ -12,9 +12,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
+from sim2d.materials import GRAVITY
 from sim2d.throw import (
     FOREARM_LENGTH,
-    GRAVITY,
     HAND_SPEED,
     PITCH_LIMITS_DEG,
     RELEASE_X,

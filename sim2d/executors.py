@@ -1,0 +1,158 @@
+"""Where simulations run: a process pool, a Dask cluster or Ray, chosen by one string.
+
+The can world's long jobs (:func:`sim2d.can_dataset.generate_dataset`,
+:func:`sim2d.configurations.stable_configurations`, :func:`sim2d.chunks.run_chunks`) take
+an ``executor``: either an object with ``submit(fn, *args)`` returning a future with
+``result()`` (nothing else is used), or one of these specifications, opened and closed
+by :func:`open_executor`:
+
+==================  ================================================================
+``process:N``       N worker processes on this machine (``concurrent.futures``); the
+                    workers end when the process that started them ends
+``dask-local:N``    a Dask ``LocalCluster`` of N single-threaded worker processes
+``dask://HOST:PORT``  the Dask scheduler at HOST:PORT (any cluster: ``dask scheduler``
+                    plus ``dask worker tcp://HOST:PORT`` on each machine)
+``ray``             Ray: the cluster named by ``RAY_ADDRESS`` if set, else a local one
+==================  ================================================================
+
+Workers need this package importable (installed in the same version on every machine)
+but no shared disk: they return arrays and the calling process writes the files. Every
+executor opened here returns ``concurrent.futures.Future`` objects, so results can be
+collected as they finish (:func:`as_finished`).
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import contextlib
+import os
+import re
+import threading
+from collections.abc import Iterator
+
+__all__ = ["RayExecutor", "as_finished", "default_spec", "open_executor", "parse_spec"]
+
+_SPEC = re.compile(r"^(?:(process|dask-local):(\d+)|dask://([^\s:/]+):(\d+)|(ray))$")
+_EXPECTED = "process:N, dask-local:N, dask://HOST:PORT or ray"
+
+
+def default_spec() -> str:
+    """``process:N`` with N the number of CPU cores this process may use."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cores = os.cpu_count() or 1
+    return f"process:{cores}"
+
+
+def parse_spec(spec: str) -> tuple[str, int | str | None]:
+    """``(kind, argument)`` of an executor specification (see the module docstring).
+
+    Raises
+    ------
+    ValueError
+        Naming the specification and the forms expected.
+    """
+    match = _SPEC.match(spec) if isinstance(spec, str) else None
+    if match is None:
+        raise ValueError(f"executor={spec!r} is not an executor; expected {_EXPECTED}")
+    kind, n, host, port, ray = match.groups()
+    if kind is not None:
+        if int(n) < 1:
+            raise ValueError(f"executor={spec!r} asks for {n} workers; expected at least 1")
+        return kind, int(n)
+    if host is not None:
+        return "dask", f"tcp://{host}:{port}"
+    return "ray", None
+
+
+def _end_with_parent(parent: int) -> None:
+    """Pool-worker initializer: exit as soon as the process that started the pool is gone.
+
+    The worker also ignores SIGINT: a Ctrl-C reaches the whole process group, and the
+    parent saves what finished and shuts the pool down. A pool worker blocks on its task queue, whose other end the forked workers keep open
+    themselves, so a parent killed by a signal would leave them waiting forever.
+    """
+    import ctypes
+    import signal
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
+    with contextlib.suppress(OSError, AttributeError):  # Linux: the kernel tells us
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM))  # PR_SET_PDEATHSIG
+
+    def watch() -> None:  # everywhere else (and for a parent that died before prctl)
+        while os.getppid() == parent:
+            threading.Event().wait(0.2)
+        os._exit(1)
+
+    threading.Thread(target=watch, daemon=True, name="end-with-parent").start()
+
+
+class RayExecutor:
+    """``submit(fn, *args)`` as a Ray task; returns its ``ObjectRef.future()``."""
+
+    def __init__(self) -> None:
+        import ray
+
+        self._ray = ray
+        self._remote: dict = {}
+
+    def submit(self, fn, *args) -> concurrent.futures.Future:
+        if fn not in self._remote:
+            self._remote[fn] = self._ray.remote(fn)
+        return self._remote[fn].remote(*args).future()
+
+
+@contextlib.contextmanager
+def open_executor(spec: str | None = None) -> Iterator:
+    """Open the executor named by ``spec`` (default :func:`default_spec`) and close it after.
+
+    Yields an object with ``submit(fn, *args)`` returning ``concurrent.futures.Future``.
+    A process pool is shut down with its queued tasks cancelled; a Dask client and its
+    local cluster are closed; Ray is shut down if it was started here.
+    """
+    kind, arg = parse_spec(default_spec() if spec is None else spec)
+    if kind == "process":
+        pool = concurrent.futures.ProcessPoolExecutor(
+            max_workers=arg, initializer=_end_with_parent, initargs=(os.getpid(),)
+        )
+        try:
+            yield pool
+        finally:
+            pool.shutdown(wait=True, cancel_futures=True)
+    elif kind in ("dask-local", "dask"):
+        from distributed import Client, LocalCluster
+
+        with contextlib.ExitStack() as stack:
+            if kind == "dask-local":
+                cluster = stack.enter_context(
+                    LocalCluster(
+                        n_workers=arg,
+                        threads_per_worker=1,
+                        processes=True,
+                        dashboard_address=None,
+                    )
+                )
+                client = stack.enter_context(Client(cluster))
+            else:
+                client = stack.enter_context(Client(arg))
+            yield client.get_executor(pure=False)
+    else:
+        import ray
+
+        started = not ray.is_initialized()
+        if started:
+            ray.init(address=os.environ.get("RAY_ADDRESS"), log_to_driver=False)
+        try:
+            yield RayExecutor()
+        finally:
+            if started:
+                ray.shutdown()
+
+
+def as_finished(futures) -> Iterator:
+    """The futures in the order they finish (``concurrent.futures`` ones), else as given."""
+    futures = list(futures)
+    if all(isinstance(f, concurrent.futures.Future) for f in futures):
+        return concurrent.futures.as_completed(futures)
+    return iter(futures)

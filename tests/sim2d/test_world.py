@@ -1,0 +1,95 @@
+"""Tests of the pymunk world and its stepping (sim2d/world.py): physics invariants, layering."""
+
+import subprocess
+import sys
+
+import numpy as np
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from sim2d import field_throws, geometry, materials, recording
+from sim2d.configurations import stable_configurations
+from sim2d.world import simulate
+
+
+def field(row: int, column: int) -> int:
+    return row * geometry.N_COLUMNS + column
+
+
+def test_free_flight_matches_ballistic_formula():
+    # Only the far bottom can stands; a high flat throw passes over it untouched.
+    f, a = field(12, 7), 0
+    trace = recording.record_throw(
+        geometry.cans_to_mask([3]), f, a, frame_interval=materials.TIME_STEP
+    )
+    assert not trace.outcome.hit_any_can
+    (x0, z0), (vx, vz) = field_throws.launch_state(f, a)
+    t = trace.times
+    expected = np.stack([x0 + vx * t, z0 + vz * t - 0.5 * materials.GRAVITY * t * t], axis=1)
+    np.testing.assert_allclose(trace.ball, expected, atol=1e-9)
+    assert len(t) > 50
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    height=st.floats(
+        materials.BALL_RADIUS + 0.002, geometry.CAN_HEIGHT + materials.BALL_RADIUS - 0.01
+    ),
+    speed=st.floats(3.0, 20.0),
+)
+def test_no_tunnelling_through_a_single_can(height, speed):
+    """A ball flying at a lone can's height always hits it, up to 20 m/s at a 1 ms step."""
+    outcome = field_throws.play_ball(
+        geometry.cans_to_mask([0]), (geometry.ENTRY_X, height), (speed, 0.0)
+    )
+    assert outcome.hit_any_can and outcome.touched == 1
+    assert outcome.thrown_off == 1, "a 2 kg ball moves a 0.1 kg can"
+
+
+def test_sim2d_can_world_imports_neither_torch_nor_pyro_nor_matplotlib():
+    code = (
+        "import sys, sim2d.geometry, sim2d.materials, sim2d.world, sim2d.field_throws, "
+        "sim2d.configurations, sim2d.recording, sim2d.can_dataset, sim2d.render; "
+        "print(sorted(m for m in ('torch', 'pyro', 'matplotlib') if m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "[]"
+
+
+@settings(max_examples=12, deadline=None)
+@given(
+    config=st.sampled_from(stable_configurations()),
+    fld=st.integers(geometry.N_COLUMNS, geometry.N_FIELDS - 1),
+    angle=st.sampled_from([0, 1, 2]),
+    seed=st.integers(0, 2**31),
+    stopping=st.sampled_from([materials.STOPPING, materials.STOPPING_FORMAT_1]),
+)
+def test_stepping_through_the_binding_equals_the_public_api(config, fld, angle, seed, stopping):
+    """The fast loop and the reference loop are the same simulation, bit for bit."""
+    if not field_throws.is_throwable(fld, angle):
+        return
+    offset = field_throws.aim_offset(0.003, seed)
+    position, velocity = field_throws.launch_state(fld, angle, offset=offset)
+    fast = simulate(config, position, velocity, stopping=stopping)
+    reference = simulate(config, position, velocity, stopping=stopping, reference=True)
+    assert np.array_equal(fast.end_positions, reference.end_positions, equal_nan=True)
+    assert (fast.removed, fast.touched, fast.steps, fast.timed_out) == (
+        reference.removed, reference.touched, reference.steps, reference.timed_out
+    )  # fmt: skip
+
+
+def test_a_can_on_the_table_falls_asleep_and_a_settled_pyramid_stops():
+    """A ball that rolls away beyond every can ends the run long before the cap."""
+    run = simulate(geometry.FULL_PYRAMID, (geometry.ENTRY_X, 0.3), (7.0, 0.0))
+    assert run.touched and not run.timed_out
+    assert run.steps * materials.TIME_STEP < materials.MAX_SIM_TIME
+
+
+def test_a_body_removed_at_the_scene_margin_has_moved_enough_to_be_thrown_off():
+    """Every can's standard centre is more than the thrown-off distance from both margins."""
+    x = geometry.can_positions()[:, 0]
+    for stopping in (materials.STOPPING, materials.STOPPING_FORMAT_1):
+        near = geometry.PYRAMID_X - stopping.scene_margin
+        far = geometry.PYRAMID_X + geometry.PYRAMID_WIDTH + stopping.scene_margin
+        assert np.all(x - near > materials.THROWN_OFF_HORIZONTAL)
+        assert np.all(far - x > materials.THROWN_OFF_HORIZONTAL)
