@@ -20,10 +20,12 @@ from pyro import poutine
 
 from inference.queries import (
     ActionPosterior,
+    GaussianMixture,
     ParameterPosterior,
     allowed_actions,
     first_best,
     no_rows,
+    outside_range,
     placeholder_row,
 )
 from models.declaration import (
@@ -248,7 +250,7 @@ class CompiledParameterQuery:
     post_cov: torch.Tensor  # (P..., k, k)
     seen: torch.Tensor  # (P...) bool
 
-    def infer(self, evidence: Mapping[str, object]) -> ParameterPosterior:
+    def infer(self, evidence: Mapping[str, object], *, mixture: bool = False) -> ParameterPosterior:
         """Same contract and result as :func:`inference.infer_parameter`."""
         p = self.parameter
         y_site = end_site(p.affects)
@@ -299,7 +301,17 @@ class CompiledParameterQuery:
         resid = y - loc.expand(n, *loc.shape[1:])[rows, best]
         mean = self.prior_mean[best] + (self.gain[full] @ resid[..., None]).squeeze(-1)
         unseen = (~self.seen[full]).to(DTYPE)
-        return ParameterPosterior(probs, best, mean, self.post_cov[full], unseen)
+        mix = None
+        if mixture:  # every cluster's conditional Gaussian, from the same tables
+            resid_all = y[:, None, :] - loc  # (n, C, d)
+            gain = self.gain[gather] if shared else self.gain[index]  # (n or 1, C, k, d)
+            means = self.prior_mean + (gain @ resid_all[..., None]).squeeze(-1)
+            covs = (self.post_cov[gather] if shared else self.post_cov[index]).expand(
+                n, *self.post_cov.shape[-3:]
+            )
+            mix = GaussianMixture(probs, means, covs)
+        cov = self.post_cov[full]
+        return ParameterPosterior(probs, best, mean, cov, unseen, outside_range(p, mean), mix)
 
 
 def compile_parameter_query(

@@ -131,13 +131,20 @@ class ImitationCheck:
 @dataclass(frozen=True)
 class ParameterPosterior:
     """``cluster_probs`` ``(n, C)``, ``best_cluster`` ``(n,)``; the parameter given the best
-    cluster: ``mean`` ``(n, d)``, ``cov`` ``(n, d, d)``."""
+    cluster (the paper's answer): ``mean`` ``(n, d)``, ``cov`` ``(n, d, d)``.
+
+    ``outside`` ``(n,)`` bool: that mean lies outside the parameter's ``[low, high]`` (an
+    action the declaration does not cover). ``mixture``: with ``mixture=True``, the full
+    posterior of the parameter, one Gaussian per cluster weighted by ``cluster_probs``.
+    """
 
     cluster_probs: torch.Tensor
     best_cluster: torch.Tensor
     mean: torch.Tensor
     cov: torch.Tensor
     unseen: torch.Tensor
+    outside: torch.Tensor | None = None
+    mixture: GaussianMixture | None = None
 
 
 TIE_TOLERANCE = 1e-9  # relative: scores this close to the maximum count as tied
@@ -417,9 +424,19 @@ def _sampled_surprise(net, params, prior, observed, log_lik, n_samples, seed) ->
 
 
 def infer_parameter(
-    net: EffectNetwork, params: NetworkParams, parameter: str, evidence: Mapping[str, object]
+    net: EffectNetwork,
+    params: NetworkParams,
+    parameter: str,
+    evidence: Mapping[str, object],
+    *,
+    mixture: bool = False,
 ) -> ParameterPosterior:
-    """The paper's inverse parameter query: best cluster by enumeration, then the parameter."""
+    """The paper's inverse parameter query: best cluster by enumeration, then the parameter.
+
+    With ``mixture=True`` the result also holds the parameter's full posterior (every
+    cluster's conditional Gaussian, weighted by the cluster posterior), whose mean is the
+    posterior mean of the parameter; the paper's best-cluster answer stays in ``mean``.
+    """
     p = next((q for q in net.parameters if q.name == parameter), None)
     if p is None:
         raise ValueError(
@@ -430,7 +447,7 @@ def infer_parameter(
         placeholder = placeholder_row(enc)
         if ACTION in placeholder:  # a placeholder action that uses the parameter
             placeholder = placeholder.without(ACTION) | {ACTION: [p.actions[0]]}
-        return no_rows(infer_parameter(net, params, parameter, placeholder))
+        return no_rows(infer_parameter(net, params, parameter, placeholder, mixture=mixture))
     if param_site(p.name) in enc or cluster_site(p.name) in enc:
         raise ValueError(
             f"evidence gives {param_site(p.name)!r} or {cluster_site(p.name)!r}, which this query infers"
@@ -465,15 +482,34 @@ def infer_parameter(
         enc[s] if s != cluster_site(p.name) else best for s in net.discrete_parents(p.affects)
     )
     unseen = (params[y_site].n[index] == 0).to(DTYPE)
-    return ParameterPosterior(probs, best, mean, cov, unseen)
+    full = None
+    if mixture:
+        every = torch.arange(p.n_clusters).expand(enc.n_rows, -1)  # (n, C)
+        means, covs = _condition_on_cluster(net, params, p, enc, every)
+        full = GaussianMixture(probs, means, covs)
+    return ParameterPosterior(probs, best, mean, cov, unseen, outside_range(p, mean), full)
+
+
+def outside_range(p: Parameter, value: torch.Tensor) -> torch.Tensor:
+    """``(n,)`` bool: a parameter value ``(n, d)`` outside ``[low, high]`` in some dim."""
+    low, high = value.new_tensor(p.low), value.new_tensor(p.high)
+    return ((value < low) | (value > high)).any(-1)
 
 
 def _condition_on_cluster(
     net, params, p: Parameter, enc, cluster
 ) -> tuple[torch.Tensor, torch.Tensor]:
+    """The parameter's Gaussian given ``end.g`` and a cluster per row: ``cluster`` ``(n,)``,
+    or ``(n, C)`` for several clusters per row (the results then carry the ``C`` dim)."""
     y_site = end_site(p.affects)
+    extra = cluster.dim() - 1  # trailing dims the row-wise evidence must broadcast over
+
+    def rows(t: torch.Tensor) -> torch.Tensor:
+        return t.reshape(t.shape[:1] + (1,) * extra + t.shape[1:])
+
     index = tuple(
-        enc[s] if s != cluster_site(p.name) else cluster for s in net.discrete_parents(p.affects)
+        rows(enc[s]) if s != cluster_site(p.name) else cluster
+        for s in net.discrete_parents(p.affects)
     )
     cpd = params[y_site]
     k = p.dim
@@ -482,7 +518,7 @@ def _condition_on_cluster(
     offset = cpd.bias[index]
     others = [enc[s] for s in net.continuous_parents(p.affects)[:-1]]
     if others:
-        offset = offset + (w_x @ torch.cat(others, -1)[..., None]).squeeze(-1)
+        offset = offset + (w_x @ rows(torch.cat(others, -1))[..., None]).squeeze(-1)
     prior = params[param_site(p.name)]
     return condition_linear_gaussian(
         prior.bias[cluster],
@@ -490,5 +526,5 @@ def _condition_on_cluster(
         w_p,
         offset,
         cpd.covariance[index],
-        enc[y_site],
+        rows(enc[y_site]),
     )

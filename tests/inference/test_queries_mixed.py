@@ -165,3 +165,58 @@ def test_joint_surprise_of_discrete_and_continuous_end_features():
             2 * math.pi
         )
         assert abs(float(got.log_likelihood[0]) - want_ll) < 1e-9
+
+
+def test_full_parameter_posterior_is_the_integral_over_the_force():
+    from inference.compiled import compile_parameter_query
+
+    params = random_params(NET, 6)
+    vis0, action = 1, 2  # push
+    pos0 = torch.tensor([0.2, -0.4], dtype=DTYPE)
+    pos1 = torch.tensor([1.5, 0.5], dtype=DTYPE)
+    ev = {"initial.visible": [True], "initial.pos": pos0[None], "action": ["push"]}
+    ev |= {"end.pos": pos1[None]}
+    got = infer_parameter(NET, params, "force", ev, mixture=True)
+    # p(theta | y) by brute force over a grid: sum over clusters of
+    # p(c | push) N(theta; m_c, s_c) N(y; W [x, theta] + b, R)
+    theta = torch.linspace(-40, 50, 20001, dtype=DTYPE)
+    density = torch.zeros_like(theta)
+    for c in range(3):
+        pc = float(params["cluster.force"].probs[action, c])
+        cpd = params["end.pos"]
+        w, b, cov = (
+            cpd.weight[vis0, action, c],
+            cpd.bias[vis0, action, c],
+            cpd.covariance[vis0, action, c],
+        )
+        m, s = params["param.force"].bias[c, 0], params["param.force"].covariance[c, 0, 0]
+        means = (w[:, :2] @ pos0 + b)[None] + theta[:, None] * w[:, 2][None]
+        prior = torch.exp(-0.5 * (theta - m) ** 2 / s) / torch.sqrt(2 * math.pi * s)
+        density += pc * normal_pdf(pos1, means, cov) * prior
+    z = torch.trapezoid(density, theta)
+    mean = torch.trapezoid(theta * density, theta) / z
+    var = torch.trapezoid((theta - mean) ** 2 * density, theta) / z
+    mix = got.mixture
+    torch.testing.assert_close(mix.mean[0, 0], mean, atol=1e-6, rtol=1e-6)
+    torch.testing.assert_close(mix.cov[0, 0, 0], var, atol=1e-6, rtol=1e-5)
+    torch.testing.assert_close(mix.weights, got.cluster_probs)
+    best = int(got.best_cluster[0])
+    torch.testing.assert_close(mix.means[0, best], got.mean[0])  # the paper's answer inside
+    compiled = compile_parameter_query(NET, params, "force").infer(ev, mixture=True).mixture
+    torch.testing.assert_close(compiled.means, mix.means)
+    torch.testing.assert_close(compiled.covs, mix.covs)
+    assert infer_parameter(NET, params, "force", ev).mixture is None  # the paper's default
+
+
+def test_inferred_parameter_outside_its_range_is_flagged():
+    params = random_params(NET, 6)
+    ev = {"initial.visible": [True, True], "initial.pos": [[0.0, 0.0]] * 2}
+    ev |= {"action": ["push", "push"]}
+    inside = infer_parameter(NET, params, "force", ev | {"end.pos": [[0.0, 0.0]] * 2})
+    means = inside.mean[:, 0]
+    assert inside.outside.tolist() == ((means < 0) | (means > 10)).tolist()
+    # an effect the declared forces cannot make: far along the force's direction
+    w = params["end.pos"].weight[1, 2, 2, :, 2]
+    far = (1e4 * w / w.norm())[None].expand(2, 2)
+    flagged = infer_parameter(NET, params, "force", ev | {"end.pos": far})
+    assert flagged.outside.all()
