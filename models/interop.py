@@ -450,6 +450,11 @@ def _from_pgmpy(model, *, n, actions_node, kind, order, pseudo_count, relabel):
 
 def _classify(nodes: list[str], actions_node: str) -> tuple[list[str], list[str]]:
     """Feature names of the initial and the end nodes, in node order."""
+    if actions_node not in nodes:
+        raise ValueError(
+            f"the network has no action node {actions_node!r} (nodes: {nodes}); name it "
+            "with actions_node="
+        )
     initial, ends = [], []
     for node in nodes:
         if node == actions_node:
@@ -462,11 +467,6 @@ def _classify(nodes: list[str], actions_node: str) -> tuple[list[str], list[str]
                 "Python identifier)"
             )
         (initial if role == "initial" else ends).append(feature)
-    if actions_node not in nodes:
-        raise ValueError(
-            f"the network has no action node {actions_node!r} (nodes: {nodes}); name it "
-            "with actions_node="
-        )
     for f in initial:
         if f not in ends:
             raise ValueError(
