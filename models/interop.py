@@ -336,9 +336,8 @@ def _from_pgmpy(model, *, n, actions_node, kind, order, pseudo_count, relabel):
         raise TypeError(
             f"model must be a pgmpy DiscreteBayesianNetwork, got {type(model).__name__}"
         )
-    if not isinstance(pseudo_count, int | float) or not math.isfinite(pseudo_count):
-        raise ValueError(f"pseudo_count must be a finite number >= 0, got {pseudo_count!r}")
-    if pseudo_count < 0:
+    number = isinstance(pseudo_count, int | float) and not isinstance(pseudo_count, bool)
+    if not number or not math.isfinite(pseudo_count) or pseudo_count < 0:
         raise ValueError(f"pseudo_count must be a finite number >= 0, got {pseudo_count!r}")
     nodes = list(model.nodes())
     initial, ends = _classify(nodes, actions_node)

@@ -323,6 +323,13 @@ def test_missing_cpds_and_bad_counts_are_refused():
         from_pgmpy(bn, n={"initial.door": 1, "action": -1, "end.door": 1})
     with pytest.raises(ValueError, match="no action node 'act'"):
         from_pgmpy(bn, n=1, actions_node="act")
+    with pytest.raises(ValueError, match="pseudo_count must be a finite number >= 0, got -1"):
+        from_pgmpy(bn, n=1, pseudo_count=-1)
+    assert from_pgmpy(bn, n=1, pseudo_count=0.5)[1].pseudo_count == 0.5
+    with pytest.raises(ValueError, match=r"kind names unknown features \['window'\]"):
+        from_pgmpy(bn, n=1, kind={"window": "world"})
+    with pytest.raises(ValueError, match=r"order \['window'\] must list every feature once"):
+        from_pgmpy(bn, n=1, order=["window"])
 
 
 def test_actions_node_by_another_name_and_int_states():
