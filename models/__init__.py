@@ -12,6 +12,7 @@ from models.declaration import (
     param_site,
 )
 from models.evidence import Evidence
+from models.interop import PgmpyNetwork, from_pgmpy, read_bif, to_pgmpy, write_bif
 from models.model import effect_model
 from models.params import (
     LinearGaussian,
@@ -32,14 +33,19 @@ __all__ = [
     "LinearGaussian",
     "NetworkParams",
     "Parameter",
+    "PgmpyNetwork",
     "Softmax",
     "Table",
     "cluster_site",
     "effect_model",
     "end_site",
+    "from_pgmpy",
     "initial_site",
     "load",
     "param_site",
+    "read_bif",
     "random_params",
     "save",
+    "to_pgmpy",
+    "write_bif",
 ]

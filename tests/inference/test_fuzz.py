@@ -109,8 +109,11 @@ def test_discrete_queries_are_right_or_refused(net, seed, data):
     )
     if corruption == "label":
         evidence[sites[0]] = ["no such state"]
-    elif corruption == "rows":
-        evidence[sites[0]] = list(evidence[sites[0]]) * 2
+    elif corruption == "rows":  # two rows beside one; a lone site's two rows are valid
+        if len(chosen) < 2:
+            corruption = "none"
+        else:
+            evidence[sites[0]] = list(evidence[sites[0]]) * 2
     elif corruption == "site":
         evidence["initial.nothing"] = [1]
     elif corruption == "indices":  # an index that is no label of an int/str/float feature
