@@ -1,7 +1,7 @@
 """Fitting (maximum likelihood) and exact queries on effect networks."""
 
 from inference.enumeration import Enumerated, enumerate_model
-from inference.fit import FitResult, fit, fit_gradient, fit_statistics
+from inference.fit import ConvergenceWarning, FitResult, fit, fit_gradient, fit_statistics
 from inference.queries import (
     ActionPosterior,
     GaussianMixture,
@@ -18,6 +18,7 @@ from inference.statistics import Statistics, params_from_statistics
 
 __all__ = [
     "ActionPosterior",
+    "ConvergenceWarning",
     "Enumerated",
     "FitResult",
     "GaussianMixture",

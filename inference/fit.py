@@ -31,6 +31,7 @@ fits to the same parameters.
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
@@ -61,10 +62,17 @@ from models.params import (
 
 @dataclass(frozen=True)
 class FitResult:
-    """What fitting returns: new parameters, and the loss per gradient step (if any)."""
+    """What fitting returns: new parameters; for a gradient fit the loss curve (the
+    per-row negative log-likelihood, prior included, at each evaluation) and whether it
+    settled within the tolerance."""
 
     params: NetworkParams
     losses: tuple[float, ...] = ()
+    converged: bool = True
+
+
+class ConvergenceWarning(UserWarning):
+    """A gradient fit stopped before its loss settled (the CPDs are named)."""
 
 
 def fit(
@@ -76,6 +84,8 @@ def fit(
     masks: Mapping[str, torch.Tensor] | None = None,
     steps: int = 500,
     lr: float = 0.05,
+    l2: float = 0.01,
+    tol: float = 1e-6,
     progress: bool = False,
 ) -> FitResult:
     """Fit every CPD of ``net`` by maximum likelihood.
@@ -91,11 +101,13 @@ def fit(
         Chunks serve networks whose CPDs all have a closed form, without ``masks``.
     masks
         ``(n,)`` bool per discrete site, False where the row's value is missing.
-    steps, lr, progress
-        Gradient settings, used only for Softmax CPDs or when ``masks`` has gaps.
-        ``progress`` also shows a bar over chunks.
+    steps, lr, l2, tol, progress
+        Gradient settings (see :func:`fit_gradient`), used only for Softmax CPDs or when
+        ``masks`` has gaps. ``progress`` also shows a bar over chunks.
     """
-    _check_settings(pseudo_count=pseudo_count, min_variance=min_variance, steps=steps, lr=lr)
+    _check_settings(
+        pseudo_count=pseudo_count, min_variance=min_variance, steps=steps, lr=lr, l2=l2, tol=tol
+    )
     if not isinstance(data, Mapping):
         if masks:
             raise ValueError("masks need the rows in memory: give data as one mapping")
@@ -133,6 +145,8 @@ def fit(
         masks=masks,
         steps=steps,
         lr=lr,
+        l2=l2,
+        tol=tol,
         progress=progress,
     )
 
@@ -168,6 +182,8 @@ def fit_gradient(
     masks: Mapping[str, torch.Tensor] | None = None,
     steps: int = 1000,
     lr: float = 0.05,
+    l2: float = 0.01,
+    tol: float = 1e-6,
     pseudo_count: float = 0.01,
     progress: bool = False,
 ) -> FitResult:
@@ -179,8 +195,19 @@ def fit_gradient(
     CPDs (the others stay at ``init``); ``init`` defaults to uniform tables, standard
     Gaussians and zero softmax weights. The optimiser's tensors are local: Pyro's global
     parameter store is neither read nor changed.
+
+    Softmax weights carry a Gaussian prior of precision ``l2`` (``l2 / 2 * |W|^2`` is
+    added to the negative log-likelihood; their offsets are free): it keeps slopes finite
+    where the data separate the classes and pulls extrapolation far from the data towards
+    the offsets' frequencies. ``l2 = 0`` is plain maximum likelihood.
+
+    With every value given (no gaps in ``masks``) the loss is smooth and, for softmax CPDs,
+    convex: L-BFGS with a strong-Wolfe line search minimises it in at most ``steps``
+    iterations (``lr`` unused). With gaps, Adam with ``lr`` runs ``steps`` steps. The fit
+    has settled when the loss changes by less than ``tol`` (relative) per step; otherwise
+    a :class:`ConvergenceWarning` names the CPDs and ``FitResult.converged`` is False.
     """
-    _check_settings(pseudo_count=pseudo_count, steps=steps, lr=lr)
+    _check_settings(pseudo_count=pseudo_count, steps=steps, lr=lr, l2=l2, tol=tol)
     enc = _complete(net, data)
     masks = _masks(net, masks, enc.n_rows)
     init = init or _default_params(net, pseudo_count)
@@ -239,18 +266,69 @@ def fit_gradient(
         pass
 
     elbo = TraceEnum_ELBO(max_plate_nesting=1)
-    optimiser = torch.optim.Adam(tensors, lr=lr)
-    losses = []
-    for _ in tqdm(range(steps), desc="fit (gradient)", disable=not progress):
-        optimiser.zero_grad()
+    slopes = [f["weight"] for site, f in free.items() if isinstance(init.cpds[site], Softmax)]
+    losses: list[float] = []
+
+    def objective() -> torch.Tensor:
         with pyro.validation_enabled(False):  # the rows were validated when encoded
             loss = elbo.differentiable_loss(model, guide)
-        loss.backward()
-        optimiser.step()
-        losses.append(loss.item())
+        if slopes and l2:
+            loss = loss + (0.5 * l2 / n) * sum(w.square().sum() for w in slopes)
+        return loss
+
+    bar = tqdm(total=steps, desc="fit (gradient)", disable=not progress)
+    if gaps:
+        optimiser = torch.optim.Adam(tensors, lr=lr)
+        for _ in range(steps):
+            optimiser.zero_grad()
+            loss = objective()
+            loss.backward()
+            optimiser.step()
+            losses.append(loss.item())
+            bar.update()
+        settled = len(losses) > 1 and _settled(losses[-2], losses[-1], tol)
+    else:
+        optimiser = torch.optim.LBFGS(
+            tensors,
+            lr=1.0,
+            max_iter=steps,
+            tolerance_grad=1e-9,
+            tolerance_change=tol * 1e-3,
+            history_size=20,
+            line_search_fn="strong_wolfe",
+        )
+
+        def closure() -> torch.Tensor:
+            optimiser.zero_grad()
+            loss = objective()
+            loss.backward()
+            losses.append(loss.item())
+            return loss
+
+        optimiser.step(closure)
+        state = optimiser.state[optimiser._params[0]]
+        iterations = state.get("n_iter", steps)
+        exhausted = iterations >= steps or state.get("func_evals", 0) >= steps * 5 // 4
+        bar.update(min(iterations, steps))
+        with torch.no_grad():
+            grad = max(float(t.grad.abs().max()) for t in tensors if t.grad is not None)
+        # L-BFGS stops early only on its own tolerances (gradient or change of the loss)
+        settled = not exhausted or grad <= 1e-7
+    bar.close()
+    if not settled:
+        warnings.warn(
+            f"the gradient fit of {sites} did not settle in {steps} steps (last relative "
+            f"change of the loss above tol={tol:g}); raise steps, or lr with masks",
+            ConvergenceWarning,
+            stacklevel=2,
+        )
     with torch.no_grad():
         params = current().map(lambda t: t.detach().clone())
-    return FitResult(params, tuple(losses))
+    return FitResult(params, tuple(losses), settled)
+
+
+def _settled(before: float, after: float, tol: float) -> bool:
+    return abs(before - after) <= tol * max(1.0, abs(after))
 
 
 def _check_settings(**settings: float) -> None:
@@ -259,7 +337,7 @@ def _check_settings(**settings: float) -> None:
         ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
         if name == "steps":
             ok = isinstance(value, int) and not isinstance(value, bool) and value >= 1
-        elif name == "lr":
+        elif name in ("lr", "tol"):
             ok = ok and value > 0
         else:
             ok = ok and value >= 0
@@ -267,7 +345,7 @@ def _check_settings(**settings: float) -> None:
             want = (
                 "a positive int"
                 if name == "steps"
-                else ("a finite number > 0" if name == "lr" else "a finite number >= 0")
+                else ("a finite number > 0" if name in ("lr", "tol") else "a finite number >= 0")
             )
             raise ValueError(f"{name} must be {want}, got {value!r}")
 

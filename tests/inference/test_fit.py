@@ -181,6 +181,7 @@ def test_fit_rejects_bad_data():
         fit(net, tap)
 
 
+@pytest.mark.filterwarnings("ignore::inference.fit.ConvergenceWarning")  # 5 steps only
 def test_fitting_leaves_pyros_param_store_alone():
     import pyro
 
@@ -247,3 +248,71 @@ def test_zero_rows_are_named():
         fit(DISCRETE, empty)
     with pytest.raises(ValueError, match="no training rows"):
         fit(DISCRETE, {})
+
+
+def threshold_world(n=2000, seed=0):
+    """Pushing moves the object 0.3 m; beyond 0.8 m it falls off the table."""
+    import numpy as np
+
+    net = EffectNetwork(
+        (Discrete("on_table", ("no", "yes")), Continuous("pos", 1)), ("wait", "push")
+    )
+    rng = np.random.default_rng(seed)
+    pos = rng.uniform(-1, 1, (n, 1))
+    action = rng.choice(net.actions, n)
+    moved = pos + np.where(action[:, None] == "push", 0.3, 0.0)
+    data = {
+        "initial.on_table": ["yes"] * n,
+        "initial.pos": pos,
+        "action": action,
+        "end.on_table": np.where(moved[:, 0] < 0.8, "yes", "no"),
+        "end.pos": moved,
+    }
+    return net, data
+
+
+def test_softmax_fit_settles_on_a_real_dependence():
+    from inference import predict
+
+    net, data = threshold_world()
+    result = fit(net, data)
+    assert result.converged and len(result.losses) > 1
+    ev = {"initial.on_table": ["yes"] * 3, "initial.pos": [[0.0], [0.3], [0.7]]}
+    pred = predict(net, result.params, ev | {"action": ["push"] * 3})
+    on = pred.prob("on_table", "yes")
+    assert float(on[0]) > 0.999 and float(on[1]) > 0.9 and float(on[2]) < 0.01
+
+
+def test_softmax_fit_is_the_penalised_optimum():
+    # at the optimum the gradient of NLL + l2/2 |W|^2, written out with numpy, vanishes
+    import numpy as np
+
+    net, data = threshold_world(n=600, seed=1)
+    l2 = 0.5
+    cpd = fit(net, data, l2=l2).params["end.on_table"]
+    x = np.asarray(data["initial.pos"])[:, 0]
+    y = (np.asarray(data["end.on_table"]) == "yes").astype(int)
+    for a, name in enumerate(net.actions):
+        rows = np.asarray(data["action"]) == name
+        w = cpd.weight[1, a, :, 0].numpy()  # initial.on_table = yes
+        b = cpd.bias[1, a].numpy()
+        logits = x[rows, None] * w[None] + b[None]
+        p = np.exp(logits - logits.max(1, keepdims=True))
+        p /= p.sum(1, keepdims=True)
+        err = p - np.eye(2)[y[rows]]
+        grad_w = (err * x[rows, None]).sum(0) + l2 * w
+        grad_b = err.sum(0)
+        assert np.abs(grad_w).max() < 1e-3 and np.abs(grad_b).max() < 1e-3
+
+
+def test_an_unsettled_softmax_fit_warns_and_names_the_cpd():
+    from inference import ConvergenceWarning
+
+    net, data = threshold_world(n=300)
+    with pytest.warns(ConvergenceWarning, match=r"\['end.on_table'\] did not settle in 2 steps"):
+        result = fit(net, data, steps=2)
+    assert not result.converged
+    with pytest.raises(ValueError, match="l2 must be a finite number >= 0"):
+        fit(net, data, l2=-1.0)
+    with pytest.raises(ValueError, match="tol must be a finite number > 0"):
+        fit(net, data, tol=0.0)
