@@ -130,6 +130,6 @@ def test_fitted_network_round_trips(tmp_path):
             "end.light": torch.randint(0, 2, (n,), generator=g),
         }
     )
-    params = fit(NET, data, steps=5).params
+    params = fit(NET, data).params
     net2, params2 = load(save(tmp_path / "fitted.pt", NET, params))
     assert net2 == NET and set(params2.cpds) == set(params.cpds)
