@@ -62,10 +62,10 @@ class _Answers:
     computes it over gathered rows (row by row the same operations, so the same bits).
     """
 
-    probs: torch.Tensor  # (observed sizes..., A)
-    top: torch.Tensor  # (observed sizes...): the largest probability
-    best: torch.Tensor  # (observed sizes...): first_best of probs
-    log_evidence: torch.Tensor  # (observed sizes...)
+    probs: torch.Tensor  # (G, A), G the observed configurations flattened
+    top: torch.Tensor  # (G,): the largest probability
+    best: torch.Tensor  # (G,): first_best of probs
+    log_evidence: torch.Tensor  # (G,)
 
     @staticmethod
     def of(log_joint: torch.Tensor) -> _Answers:
@@ -73,13 +73,15 @@ class _Answers:
         probs = flat.softmax(-1)
         top, arg = probs.max(-1)
         log_evidence = flat.gather(-1, arg[:, None]).squeeze(-1) - top.log()
-        shape = log_joint.shape[:-1]
-        return _Answers(
-            probs.reshape(log_joint.shape),
-            top.reshape(shape),
-            first_best(probs, top).reshape(shape),
-            log_evidence.reshape(shape),
-        )
+        return _Answers(probs, top, first_best(probs, top), log_evidence)
+
+    @staticmethod
+    def row(index: tuple[torch.Tensor, ...], sizes: tuple[int, ...]) -> torch.Tensor:
+        """``(n,)`` row of the flattened tables for the observed state indices."""
+        flat = index[0]
+        for i, size in zip(index[1:], sizes[1:], strict=True):
+            flat = flat * size + i
+        return flat
 
 
 # Per-configuration answers are kept while the table of them stays this small (elements).
@@ -181,9 +183,10 @@ class CompiledNetwork:
         a = plan.latent.index(ACTION) + 1
         top = None
         if plan.answers is not None:  # gather the answers computed for the whole table
-            probs = plan.answers.probs[index]
-            top = plan.answers.top[index]
-            log_evidence = plan.answers.log_evidence[index]
+            row = _Answers.row(index, plan.log_table.shape[:-1])
+            probs = plan.answers.probs.index_select(0, row)
+            top = plan.answers.top[row]
+            log_evidence = plan.answers.log_evidence[row]
         else:
             total = plan.log_table[index]  # (n, latent sizes...)
             if len(plan.latent) > 1:
@@ -221,7 +224,7 @@ class CompiledNetwork:
             seen_score = score.masked_fill(unseen_mass >= 0.5, -1.0)
             score = torch.where(seen_score.max(-1, keepdim=True).values >= 0, seen_score, score)
         if plan.answers is not None and allowed is None and plan.unseen is None:
-            best = plan.answers.best[index]  # first_best(score, top), row by row
+            best = plan.answers.best[row]  # first_best(score, top), row by row
         else:
             best = first_best(score, top)
         names = tuple(self.net.actions[i] for i in best.tolist())
