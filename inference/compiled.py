@@ -50,6 +50,42 @@ class _Plan:
     latent: tuple[str, ...]  # latent axes the table keeps (size > 1)
     log_table: torch.Tensor  # (observed sizes..., latent sizes...)
     unseen: torch.Tensor | None  # bool, same shape: an observed end site's configuration unseen
+    answers: _Answers | None = None  # when the action is the only latent axis
+
+
+@dataclass(frozen=True)
+class _Answers:
+    """The posterior per observed configuration, for a pattern whose only latent site is
+    the action: a query then gathers its answer instead of computing it per row.
+
+    Each is computed over the plan's table exactly as :meth:`CompiledNetwork.infer_action`
+    computes it over gathered rows (row by row the same operations, so the same bits).
+    """
+
+    probs: torch.Tensor  # (G, A), G the observed configurations flattened
+    top: torch.Tensor  # (G,): the largest probability
+    best: torch.Tensor  # (G,): first_best of probs
+    log_evidence: torch.Tensor  # (G,)
+
+    @staticmethod
+    def of(log_joint: torch.Tensor) -> _Answers:
+        flat = log_joint.reshape(-1, log_joint.shape[-1])
+        probs = flat.softmax(-1)
+        top, arg = probs.max(-1)
+        log_evidence = flat.gather(-1, arg[:, None]).squeeze(-1) - top.log()
+        return _Answers(probs, top, first_best(probs, top), log_evidence)
+
+    @staticmethod
+    def row(index: tuple[torch.Tensor, ...], sizes: tuple[int, ...]) -> torch.Tensor:
+        """``(n,)`` row of the flattened tables for the observed state indices."""
+        flat = index[0]
+        for i, size in zip(index[1:], sizes[1:], strict=True):
+            flat = flat * size + i
+        return flat
+
+
+# Per-configuration answers are kept while the table of them stays this small (elements).
+ANSWERS_BUDGET = 1 << 22
 
 
 @dataclass(frozen=True)
@@ -111,12 +147,11 @@ class CompiledNetwork:
             )
         if unseen is not None and not bool(unseen.any()):
             unseen = None  # every configuration this pattern touches was seen
-        plan = _Plan(
-            tuple(self.order[a] for a in obs_axes),
-            tuple(self.order[a] for a in latent_axes),
-            total,
-            unseen,
-        )
+        latent = tuple(self.order[a] for a in latent_axes)
+        answers = None
+        if latent == (ACTION,) and total.numel() <= ANSWERS_BUDGET:
+            answers = _Answers.of(total)
+        plan = _Plan(tuple(self.order[a] for a in obs_axes), latent, total, unseen, answers)
         self.plans[observed] = plan
         return plan
 
@@ -145,23 +180,29 @@ class CompiledNetwork:
             )
         plan = self.plan(frozenset(enc))
         index = tuple(enc[s] for s in plan.observed)
-        total = plan.log_table[index]  # (n, latent sizes...)
         a = plan.latent.index(ACTION) + 1
-        if len(plan.latent) > 1:
-            total = total.movedim(a, -1)
-        total = total.reshape(n, -1, len(self.net.actions))  # (n, others, A)
         top = None
-        if total.shape[1] == 1:
-            log_joint = total[:, 0]
-            probs = log_joint.softmax(-1)
-            # log p(e) = log p(a*, e) - log p(a* | e) at the most probable a*: exact, and
-            # cheaper than a second pass (logsumexp)
-            top, arg = probs.max(-1)
-            log_evidence = log_joint.gather(-1, arg[:, None]).squeeze(-1) - top.log()
+        if plan.answers is not None:  # gather the answers computed for the whole table
+            row = _Answers.row(index, plan.log_table.shape[:-1])
+            probs = plan.answers.probs.index_select(0, row)
+            top = plan.answers.top[row]
+            log_evidence = plan.answers.log_evidence[row]
         else:
-            log_marginal = total.logsumexp(1)
-            log_evidence = log_marginal.logsumexp(-1)
-            probs = (log_marginal - log_evidence[:, None]).exp()
+            total = plan.log_table[index]  # (n, latent sizes...)
+            if len(plan.latent) > 1:
+                total = total.movedim(a, -1)
+            total = total.reshape(n, -1, len(self.net.actions))  # (n, others, A)
+            if total.shape[1] == 1:
+                log_joint = total[:, 0]
+                probs = log_joint.softmax(-1)
+                # log p(e) = log p(a*, e) - log p(a* | e) at the most probable a*: exact,
+                # and cheaper than a second pass (logsumexp)
+                top, arg = probs.max(-1)
+                log_evidence = log_joint.gather(-1, arg[:, None]).squeeze(-1) - top.log()
+            else:
+                log_marginal = total.logsumexp(1)
+                log_evidence = log_marginal.logsumexp(-1)
+                probs = (log_marginal - log_evidence[:, None]).exp()
         if plan.unseen is None:
             unseen_mass = torch.zeros_like(probs)
         else:
@@ -182,7 +223,10 @@ class CompiledNetwork:
         if avoid_unseen and plan.unseen is not None and bool((unseen_mass >= 0.5).any()):
             seen_score = score.masked_fill(unseen_mass >= 0.5, -1.0)
             score = torch.where(seen_score.max(-1, keepdim=True).values >= 0, seen_score, score)
-        best = first_best(score, top)
+        if plan.answers is not None and allowed is None and plan.unseen is None:
+            best = plan.answers.best[row]  # first_best(score, top), row by row
+        else:
+            best = first_best(score, top)
         names = tuple(self.net.actions[i] for i in best.tolist())
         return ActionPosterior(probs, best, names, log_evidence, unseen_mass, self.net.actions)
 

@@ -15,6 +15,7 @@ from __future__ import annotations
 import math
 from collections.abc import Iterable
 from dataclasses import dataclass
+from functools import cached_property
 
 import torch
 from pyro import poutine
@@ -38,7 +39,7 @@ class Enumerated:
     dims: dict[str, int]
     trace: poutine.Trace
 
-    @property
+    @cached_property  # a sum over the whole joint, which queries ask for more than once
     def log_evidence(self) -> torch.Tensor:
         """``(n,)`` log-probability of the evidence (kept sites), all latents summed out."""
         w = self.log_weight
@@ -61,8 +62,8 @@ class Enumerated:
 
 
 def _states(trace: poutine.Trace, site: str) -> int:
-    fn = trace.nodes[site]["fn"]
-    return int(fn.probs.shape[-1]) if hasattr(fn, "probs") else int(fn.logits.shape[-1])
+    # the support, not ``fn.probs``: that would take softmax over the whole batch
+    return int(trace.nodes[site]["fn"].enumerate_support(expand=False).shape[0])
 
 
 def enumerate_model(

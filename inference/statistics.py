@@ -107,6 +107,7 @@ def statistics(net: EffectNetwork, enc: Evidence) -> Statistics:
     n = enc.n_rows
     no_parent = torch.zeros(n, dtype=torch.long)
     softmax = []
+    flat: dict[tuple[str, ...], tuple[torch.Tensor, tuple[int, ...]]] = {}
     for f in net.features:
         if f.initial:
             site = initial_site(f.name)
@@ -125,7 +126,10 @@ def statistics(net: EffectNetwork, enc: Evidence) -> Statistics:
         sites[p_site] = _moments(cluster, None, enc[p_site][uses], (p.n_clusters,), p_site)
     for f in net.features:
         site = end_site(f.name)
-        index, card = _flat_index(net, enc, net.discrete_parents(f.name))
+        parents = net.discrete_parents(f.name)
+        if parents not in flat:  # end sites sharing their parents share the index
+            flat[parents] = _flat_index(net, enc, parents)
+        index, card = flat[parents]
         cont = [enc[s].nan_to_num() for s in net.continuous_parents(f.name)]
         x = torch.cat(cont, -1) if cont else None
         if isinstance(f, Continuous):
@@ -181,15 +185,18 @@ def _flat_index(
 
 def _counts(index: torch.Tensor, child: torch.Tensor, card: tuple[int, ...], k: int) -> Counts:
     size = math.prod(card)
-    return Counts(torch.bincount(index * k + child, minlength=size * k).reshape(*card, k))
+    flat = child if not card else index * k + child  # no parents: the index is all zeros
+    return Counts(torch.bincount(flat, minlength=size * k).reshape(*card, k))
 
 
 def _table(counts: torch.Tensor, alpha: float) -> Table:
-    counts = counts.to(DTYPE)
-    k = counts.shape[-1]
-    n = counts.sum(-1)
-    probs = (counts + alpha) / (n + k * alpha).clamp_min(1e-300)[..., None]
-    probs = torch.where((n == 0)[..., None], torch.full_like(probs, 1.0 / k), probs)
+    probs = counts.to(DTYPE, copy=True)  # a new tensor: the arithmetic below runs in place
+    k = probs.shape[-1]
+    n = probs.sum(-1)
+    probs.add_(alpha).div_((n + k * alpha).clamp_min(1e-300)[..., None])
+    unseen = n == 0
+    if bool(unseen.any()):
+        probs[unseen] = 1.0 / k
     return Table(probs, n)
 
 

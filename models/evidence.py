@@ -83,6 +83,13 @@ class Evidence(Mapping):
 
     def rows(self, index: slice | torch.Tensor) -> Evidence:
         """The evidence of some rows (a slice, an index or a bool mask)."""
+        if (
+            isinstance(index, torch.Tensor)
+            and index.dtype == torch.bool
+            and index.shape == (self.n_rows,)
+            and len(self._values) > 1
+        ):
+            index = index.nonzero().squeeze(-1)  # once, not once per site
         values = {k: v[index] for k, v in self._values.items()}
         if values:
             n = next(iter(values.values())).shape[0]

@@ -48,6 +48,7 @@ import pyro.distributions as dist
 import torch
 from pyro import poutine
 from pyro.ops.indexing import Vindex
+from torch.distributions.utils import probs_to_logits
 
 from models.declaration import (
     ACTION,
@@ -109,6 +110,7 @@ def effect_model(
     data = net.encode(data) if data is not None else Evidence(net, {}, 0)
     n = _rows(data, n_rows)
     masks = dict(masks or {})
+    log_tables = _LogTables(params)
     values: dict[str, torch.Tensor] = {}
     with pyro.plate("rows", n, dim=-1):
         for f in net.features:
@@ -116,17 +118,20 @@ def effect_model(
                 site = initial_site(f.name)
                 cpd = params[site]
                 if isinstance(f, Discrete):
-                    values[site] = _discrete(site, dist.Categorical(cpd.probs), data, masks)
+                    fn = dist.Categorical(logits=log_tables[site])
+                    values[site] = _discrete(site, fn, data, masks)
                 else:
                     fn = dist.MultivariateNormal(cpd.bias, scale_tril=cpd.scale_tril)
                     values[site] = _continuous(site, pyro.sample(site, fn, obs=data.get(site)))
 
-        action = _discrete(ACTION, dist.Categorical(params[ACTION].probs), data, masks)
+        action = _discrete(ACTION, dist.Categorical(logits=log_tables[ACTION]), data, masks)
         values[ACTION] = action
 
         known: dict[str, torch.Tensor | None] = {}
         for p in net.parameters:
-            theta, known[p.name] = _parameter(net, params, p, action, data, masks, collapse, n)
+            theta, known[p.name] = _parameter(
+                net, params, log_tables, p, action, data, masks, collapse, n
+            )
             values[cluster_site(p.name)] = theta[0]
             values[param_site(p.name)] = theta[1]
 
@@ -138,7 +143,7 @@ def effect_model(
             cpd = params[site]
             if isinstance(f, Discrete):
                 if isinstance(cpd, Table):
-                    fn = dist.Categorical(Vindex(cpd.probs)[(*index, slice(None))])
+                    fn = dist.Categorical(logits=Vindex(log_tables[site])[(*index, slice(None))])
                 else:
                     assert isinstance(cpd, Softmax)
                     x = _concat([values[s] for s in net.continuous_parents(f.name)])
@@ -150,6 +155,28 @@ def effect_model(
                 fn = _continuous_end(net, params, f, index, values, known)
                 values[site] = _continuous(site, pyro.sample(site, fn, obs=data.get(site)))
     return values
+
+
+class _LogTables:
+    """Log-probabilities of the model's tables, each taken once per model call, on demand.
+
+    A Categorical built from probabilities takes their log lazily, over its whole batch:
+    for a table gathered at enumerated parents (and broadcast over rows) that is the
+    enumerated tensor, far larger than the table. Gathering log-probabilities instead
+    takes each log once, on the table. The values are those ``Categorical(probs)``
+    computes (normalised, clamped to ``[eps, 1 - eps]``, then log), so a zero
+    probability stays finite, as it was.
+    """
+
+    def __init__(self, params: NetworkParams):
+        self._params = params
+        self._logs: dict[str, torch.Tensor] = {}
+
+    def __getitem__(self, site: str) -> torch.Tensor:
+        if site not in self._logs:
+            probs = self._params[site].probs
+            self._logs[site] = probs_to_logits(probs / probs.sum(-1, keepdim=True))
+        return self._logs[site]
 
 
 def _rows(data: Evidence, n_rows: int | None) -> int:
@@ -167,15 +194,15 @@ def _rows(data: Evidence, n_rows: int | None) -> int:
     return n
 
 
-def _parameter(net, params, p: Parameter, action, data, masks, collapse, n):
+def _parameter(net, params, log_tables, p: Parameter, action, data, masks, collapse, n):
     """Sample ``cluster.p`` and ``param.p``; return them, and the rows where the value is
     known (bool, the parameter's batch shape)."""
     c_site, p_site = cluster_site(p.name), param_site(p.name)
     uses = net.parameter_in_use(p, action)  # (E..., n or 1)
     x = data.get(p_site)
-    cluster_probs = Vindex(params[c_site].probs)[action, :]
+    cluster_fn = dist.Categorical(logits=Vindex(log_tables[c_site])[action, :])
     if c_site in data or x is None:
-        cluster = _discrete(c_site, dist.Categorical(cluster_probs), data, masks)
+        cluster = _discrete(c_site, cluster_fn, data, masks)
     else:
         # The cell of a given parameter is the cluster; rows whose action does not use
         # the parameter sit on cell 0; rows with an unknown value leave it latent.
@@ -183,7 +210,7 @@ def _parameter(net, params, p: Parameter, action, data, masks, collapse, n):
         cell = torch.where(uses, p.cluster_of(x.nan_to_num()), 0)
         observed = given | ~uses
         mask = None if bool(observed.all()) else observed
-        cluster = _discrete(c_site, dist.Categorical(cluster_probs), {c_site: cell}, {c_site: mask})
+        cluster = _discrete(c_site, cluster_fn, {c_site: cell}, {c_site: mask})
     cpd = params[p_site]
     loc = Vindex(cpd.bias)[cluster, :]
     tril = Vindex(cpd.scale_tril)[cluster, :, :]

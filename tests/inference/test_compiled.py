@@ -1,5 +1,7 @@
 """The compiled tables answer exactly what the traced model answers."""
 
+import dataclasses
+
 import pytest
 import torch
 from hypothesis import given, settings
@@ -91,3 +93,31 @@ def test_compiled_parameter_query_with_one_shared_configuration():
     b = infer_parameter(NET, params, "force", ev)
     torch.testing.assert_close(a.cluster_probs, b.cluster_probs, atol=1e-9, rtol=0)
     torch.testing.assert_close(a.mean, b.mean)
+
+
+@settings(max_examples=15, deadline=None)
+@given(seed=st.integers(0, 1000), zero_n=st.sampled_from([0.0, 0.3]), data=st.data())
+def test_answers_per_configuration_equal_the_answers_per_row(seed, zero_n, data):
+    """The answers gathered from the per-configuration tables (the action the only latent
+    site) are those computed row by row from the log table."""
+    net = discrete_network([3, 2], 4)
+    params = random_params(net, seed, unseen=zero_n)
+    g = torch.Generator().manual_seed(seed)
+    ev = net.encode_indices(
+        {
+            "initial.f0": torch.randint(0, 3, (9,), generator=g),
+            "initial.f1": torch.randint(0, 2, (9,), generator=g),
+            "end.f1": torch.randint(0, 2, (9,), generator=g),
+        }
+    )
+    allowed = data.draw(st.sampled_from([None, torch.tensor([False, True, True, False])]))
+    fast = compile_discrete(net, params)
+    a = fast.infer_action(ev, allowed=allowed)
+    [(pattern, plan)] = fast.plans.items()
+    assert plan.answers is not None
+    slow = compile_discrete(net, params)
+    slow.plans[pattern] = dataclasses.replace(plan, answers=None)
+    b = slow.infer_action(ev, allowed=allowed)
+    for name in ("probs", "log_evidence", "unseen"):
+        torch.testing.assert_close(getattr(a, name), getattr(b, name), atol=1e-12, rtol=0)
+    assert torch.equal(a.best, b.best) and a.best_names == b.best_names
