@@ -52,12 +52,21 @@ def test_discrete_tables_from_chunks_are_the_one_pass_tables_bit_for_bit(seed, s
 @given(seed=st.integers(0, 100), sizes=st.lists(st.integers(1, 700), min_size=1, max_size=6))
 def test_gaussians_from_chunks_equal_the_one_pass_fit(seed, sizes):
     rows = simulate(THROW, random_params(THROW, seed), 1500, seed=seed)
+    whole = fit_statistics(THROW, [rows])
+    parts = fit_statistics(THROW, chunks(rows, cut(1500, sizes)))
+    for site, s in whole.sites.items():
+        for name, value in vars(s).items():
+            # counts exactly; sums of products to float64 rounding (another order of adds)
+            got = getattr(parts.sites[site], name)
+            scale = float(value.abs().max()) or 1.0
+            torch.testing.assert_close(got, value, rtol=1e-12, atol=1e-13 * scale)
     one = fit(THROW, rows).params
     many = fit(THROW, chunks(rows, cut(1500, sizes))).params
     for site, cpd in one.cpds.items():
         for name, value in vars(cpd).items():
-            # counts exactly; sums of products to float64 rounding (another order of adds)
-            torch.testing.assert_close(getattr(many[site], name), value, rtol=1e-10, atol=1e-12)
+            # the least squares of a configuration with few rows is ill-conditioned and
+            # magnifies those last-bit differences (a case with 6.5e-7 was found)
+            torch.testing.assert_close(getattr(many[site], name), value, rtol=1e-5, atol=1e-5)
 
 
 def test_partitions_merge_in_any_grouping():
