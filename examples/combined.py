@@ -6,7 +6,7 @@ chained: the can network (Fig. 2) picks the field to hit, the throw network (Fig
 turns that hit point into the point the robot aims at, and the robot's throw is played
 through its kinematics into the can world.
 
-Set-up (:mod:`sim2d.combined`, DESIGN.md "Combined system"): the pyramid stands on a
+Set-up (:mod:`sim2d.combined`): the pyramid stands on a
 table ``--table-z`` above the robot's floor with its near face in the throw's target plane;
 a throw within the can depth enters the can world with its in-plane velocity, plus the can
 data set's aim jitter (``--jitter``); intermediate states follow the recorded settle rule.
