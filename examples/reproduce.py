@@ -134,7 +134,12 @@ def parse_args(argv=None) -> argparse.Namespace:
         help="where the can world is simulated: process:N | dask-local:N | dask://HOST:PORT | "
         "ray (default: every core here)",
     )
-    return parser.parse_args(argv)
+    args = parser.parse_args(argv)
+    names = [name for name, _ in steps(args)]
+    unknown = sorted(set(args.only or []) - set(names))
+    if unknown:
+        parser.error(f"--only: unknown step(s) {unknown}; the steps are {names}")
+    return args
 
 
 if __name__ == "__main__":

@@ -15,3 +15,12 @@ def test_the_executor_reaches_every_simulating_step():
         "--executor" not in argv
         for argv in dict(reproduce.steps(reproduce.parse_args([]))).values()
     )
+
+
+def test_only_refuses_unknown_steps(capsys):
+    import pytest
+
+    with pytest.raises(SystemExit):
+        reproduce.parse_args(["--only", "can_tossing", "can_tosing"])
+    assert "unknown step(s) ['can_tosing']" in capsys.readouterr().err
+    assert reproduce.parse_args(["--only", "throwing"]).only == ["throwing"]
