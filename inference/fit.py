@@ -56,6 +56,7 @@ from models.params import (
     NetworkParams,
     Softmax,
     Table,
+    cell_zero_for_unused,
     expected_shapes,
 )
 
@@ -215,7 +216,7 @@ def fit_gradient(
     unknown = [s for s in sites if s not in init.cpds]
     if unknown:
         raise ValueError(f"sites {unknown} are not sites of this network")
-    fixed_cluster_rows = {cluster_site(p.name): ~net.uses_parameter(p) for p in net.parameters}
+    cluster_of_site = {cluster_site(p.name): p for p in net.parameters}
     lower_cholesky = dist.transforms.LowerCholeskyTransform()
 
     # Unconstrained tensors, one set per fitted CPD.
@@ -242,8 +243,8 @@ def fit_gradient(
             c = init.cpds[site]
             if isinstance(c, Table):
                 probs = f["logits"].softmax(-1)
-                if site in fixed_cluster_rows:  # actions not using the parameter: cell 0
-                    probs = torch.where(fixed_cluster_rows[site][:, None], c.probs, probs)
+                if site in cluster_of_site:  # actions not using the parameter: cell 0
+                    probs = cell_zero_for_unused(net, cluster_of_site[site], probs)
                 cpds[site] = Table(probs, c.n)
             elif isinstance(c, LinearGaussian):
                 cpds[site] = LinearGaussian(f["weight"], f["bias"], lower_cholesky(f["tril"]), c.n)
@@ -445,9 +446,5 @@ def _default_params(net: EffectNetwork, alpha: float) -> NetworkParams:
             )
     for p in net.parameters:  # actions not using a parameter sit on cell 0
         t = cpds[cluster_site(p.name)]
-        fixed = torch.zeros(p.n_clusters, dtype=DTYPE)
-        fixed[0] = 1.0
-        cpds[cluster_site(p.name)] = Table(
-            torch.where(net.uses_parameter(p)[:, None], t.probs, fixed), t.n
-        )
+        cpds[cluster_site(p.name)] = Table(cell_zero_for_unused(net, p, t.probs), t.n)
     return NetworkParams(cpds, alpha)

@@ -37,7 +37,7 @@ from models.declaration import (
     param_site,
 )
 from models.evidence import Evidence
-from models.params import LinearGaussian, Softmax, Table, expected_shapes
+from models.params import LinearGaussian, Softmax, Table, cell_zero_for_unused, expected_shapes
 
 
 @dataclass(frozen=True)
@@ -165,11 +165,8 @@ def params_from_statistics(
             zero = _unused(net, feature, card) if feature is not None else None
             cpds[site] = _linear_gaussian(s, card, alpha, min_variance, site, zero)
     for p in net.parameters:  # actions not using a parameter sit on cell 0
-        c_site = cluster_site(p.name)
-        fixed = torch.zeros(p.n_clusters, dtype=DTYPE)
-        fixed[0] = 1.0
-        t = cpds[c_site]
-        cpds[c_site] = Table(torch.where(net.uses_parameter(p)[:, None], t.probs, fixed), t.n)
+        t = cpds[cluster_site(p.name)]
+        cpds[cluster_site(p.name)] = Table(cell_zero_for_unused(net, p, t.probs), t.n)
     return {name: cpds[name] for name in shapes}
 
 

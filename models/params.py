@@ -216,6 +216,17 @@ def load(path: str | Path) -> tuple[EffectNetwork, NetworkParams]:
     return net, params
 
 
+def cell_zero_for_unused(net: EffectNetwork, parameter, probs: torch.Tensor) -> torch.Tensor:
+    """A cluster table ``(A, C)`` with the rows of actions not using ``parameter`` on cell 0.
+
+    The rule of :meth:`EffectNetwork.parameter_in_use` for the cluster site: such an
+    action ignores the parameter, so its cluster is fixed, not fitted.
+    """
+    fixed = torch.zeros(parameter.n_clusters, dtype=probs.dtype)
+    fixed[0] = 1.0
+    return torch.where(net.uses_parameter(parameter)[:, None], probs, fixed)
+
+
 def random_params(net: EffectNetwork, seed: int, *, unseen: float = 0.0) -> NetworkParams:
     """Valid random parameters for ``net``: for tests, priors and simulation studies.
 
@@ -250,9 +261,7 @@ def random_params(net: EffectNetwork, seed: int, *, unseen: float = 0.0) -> Netw
     for p in net.parameters:
         c_site, p_site = cluster_site(p.name), param_site(p.name)
         t = cpds[c_site]
-        fixed = torch.zeros(p.n_clusters, dtype=DTYPE)
-        fixed[0] = 1
-        cpds[c_site] = Table(torch.where(net.uses_parameter(p)[:, None], t.probs, fixed), t.n)
+        cpds[c_site] = Table(cell_zero_for_unused(net, p, t.probs), t.n)
         width = (torch.tensor(p.high, dtype=DTYPE) - torch.tensor(p.low, dtype=DTYPE)) / (
             torch.tensor(p.bins, dtype=DTYPE)
         )
