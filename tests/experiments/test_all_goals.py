@@ -112,3 +112,19 @@ def test_example_runs_as_a_script_and_checks_its_numbers(tmp_path):
     assert {"all_goals.json", "all_goals.md", "all_goals.png"} <= {
         p.name for p in tmp_path.iterdir()
     }
+
+
+def test_cross_fitted_bound_scores_each_half_s_plan_on_the_other():
+    # state 0 (start) -> state 1 (goal); two actions whose success the halves disagree on
+    def half(p0, p1):
+        t = torch.zeros(2, 2, 2, dtype=torch.float64)
+        t[0, 0] = torch.tensor([1 - p0, p0], dtype=torch.float64)
+        t[0, 1] = torch.tensor([1 - p1, p1], dtype=torch.float64)
+        t[1, :, 1] = 1.0
+        return t
+
+    held, in_sample = all_goals.cross_fitted_bound((half(1.0, 0.5), half(0.5, 1.0)), 1, 0, 1)
+    assert held == pytest.approx(0.5) and in_sample == pytest.approx(1.0)
+    same = half(0.3, 0.6)
+    held, in_sample = all_goals.cross_fitted_bound((same, same), 1, 0, 2)
+    assert held == pytest.approx(1 - 0.4**2) and in_sample == pytest.approx(held)
