@@ -1,31 +1,24 @@
-"""The can-tossing example: Table I's cases on a hand-made slice, its bookkeeping against
-independent re-throws, and the whole script at the tiny scale."""
+"""experiments.can_tossing: Table I's cases on a hand-made slice, its bookkeeping against
+independent re-throws, the whole experiment at the tiny scale, and its settings' checks."""
 
-import json
-from pathlib import Path
 from types import SimpleNamespace
 
 import numpy as np
 import pytest
+import torch
 
+from experiments import can_tossing as ct
+from experiments.cans import can_dataset, fit_can_network
+from experiments.config import ConfigError
 from inference.evaluation import ACCURACY_BINS, roc_auc
 from sim2d import field_throws
-from tests.helpers import load_example
-
-ROOT = Path(__file__).resolve().parents[2]
 
 
 @pytest.fixture(scope="module")
-def ex():
-    return load_example("can_tossing")
-
-
-@pytest.fixture(scope="module")
-def tiny(ex, tmp_path_factory):
+def tiny(tiny_data_dir):
     """The tiny data set (3 configurations x 195 fields x 3 angles, one repeat) and its model."""
-    data_dir = tmp_path_factory.mktemp("data")
-    data = ex.can_dataset(data_dir, "tiny", progress=False)
-    return data, ex.fit_can_network(data, 0), data_dir
+    data = can_dataset(tiny_data_dir, "tiny", progress=False)
+    return data, fit_can_network(data, 0)
 
 
 def hand_slice():
@@ -47,8 +40,8 @@ def hand_slice():
     return SimpleNamespace(**data)
 
 
-def test_table_one_cases_counts(ex):
-    start, desired = ex.table_one_cases(hand_slice(), "counts")
+def test_table_one_cases_counts():
+    start, desired = ct.table_one_cases(hand_slice(), "counts")
     # start 1: reached 0, plus unchanged 1; start 3: reached 0, 1, 2 (2 is the unchanged one)
     assert list(zip(start.tolist(), desired.tolist(), strict=True)) == [
         (1, 0),
@@ -59,8 +52,8 @@ def test_table_one_cases_counts(ex):
     ]
 
 
-def test_table_one_cases_actions(ex):
-    start, desired = ex.table_one_cases(hand_slice(), "actions")
+def test_table_one_cases_actions():
+    start, desired = ct.table_one_cases(hand_slice(), "actions")
     # one case per (start, field) whose first repeat changed the count, plus one unchanged
     # per start: start 1 field 20 (0), start 3 fields 20 and 21 (1 each)
     assert list(zip(start.tolist(), desired.tolist(), strict=True)) == [
@@ -72,9 +65,14 @@ def test_table_one_cases_actions(ex):
     ]
 
 
-def test_table_one_bookkeeping_matches_independent_rethrows(ex, tiny):
-    data, model, _ = tiny
-    cases = ex.play_table_one(model, data, "counts", seed=7, rule="aim")
+def test_table_one_cases_refuses_an_unknown_protocol():
+    with pytest.raises(ValueError, match="mode: 'rows' is not one of 'counts', 'actions'"):
+        ct.table_one_cases(hand_slice(), "rows")
+
+
+def test_table_one_bookkeeping_matches_independent_rethrows(tiny):
+    data, model = tiny
+    cases = ct.play_table_one(model, data, "counts", seed=7, rule="aim", progress=False)
     n = len(cases["start"])
     assert n > 0
     assert all(field_throws.is_throwable(int(f), 0) for f in cases["field"])
@@ -87,7 +85,7 @@ def test_table_one_bookkeeping_matches_independent_rethrows(ex, tiny):
         for s, f, k in zip(cases["start"], cases["field"], cases["seed"], strict=True)
     ]
     assert cases["achieved"].tolist() == achieved
-    summary = ex.summarise(cases)
+    summary = ct.summarise(cases)
     diff = cases["desired"] - np.array(achieved)
     by_hand = [
         (diff <= -3).sum(),
@@ -99,56 +97,43 @@ def test_table_one_bookkeeping_matches_independent_rethrows(ex, tiny):
     assert summary["n_cases"] == n
 
 
-def test_best_field_of_a_deterministic_case(ex, tiny):
+def test_best_field_of_a_deterministic_case(tiny):
     # A desired count that every 0deg training throw from a start reached with one field
     # only is answered by that field, whichever tie-break.
-    data, model, _ = tiny
+    data, model = tiny
     sel = (data.angle == 0) & data.throwable
     start, count = data.start_config[sel], data.count_after[sel]
     for s in np.unique(start):
         for c in np.unique(count[start == s]):
             fields = np.unique(data.field[sel][(start == s) & (count == c)])
             if len(fields) == 1:
-                ev = ex.start_evidence(model, np.array([s])) | {
-                    "end.count": ex.torch.as_tensor([c])
-                }
-                for rule in ("index", "aim"):
-                    assert int(ex.choose(model, ev, rule)[0]) == int(fields[0])
+                ev = ct.start_evidence(model, np.array([s])) | {"end.count": torch.as_tensor([c])}
+                for rule in ct.RULES:
+                    assert int(ct.choose(model, ev, rule)[0]) == int(fields[0])
                 return
     pytest.skip("no desired count reached by a single field in the tiny data set")
 
 
-def test_main_runs_at_tiny_scale(ex, tiny, tmp_path):
-    args = ex.parse_args(
-        [
-            "--scale",
-            "tiny",
-            "--data-dir",
-            str(tiny[2]),  # reuses the tiny data set
-            "--out",
-            str(tmp_path / "out"),
-            "--n-demos",
-            "30",
-        ]
-    )
-    results = ex.main(args)
-    saved = json.loads((tmp_path / "out" / "can_tossing.json").read_text())
-    assert saved["n_cases"] == results["n_cases"] > 0
-    assert tuple(saved["histogram"]) == ACCURACY_BINS
-    assert sum(saved["histogram"].values()) == saved["n_cases"]
-    assert 0.0 <= saved["exact_fraction"] <= 1.0
-    assert saved["paper"]["n_cases"] == 8603
-    assert set(saved["table_one"]) == {"counts", "actions"}
-    assert 0.0 <= saved["emulation"]["same_end_config"] <= 1.0
-    imitation = saved["imitation"]
+def test_run_at_tiny_scale(tiny_data_dir, tmp_path):
+    config = ct.CanTossingConfig(scale="tiny", data_dir=tiny_data_dir, n_demos=30, progress=False)
+    result = ct.run_can_tossing(config)
+    assert result.n_cases > 0
+    assert tuple(result.histogram) == ACCURACY_BINS
+    assert sum(result.histogram.values()) == result.n_cases
+    assert 0.0 <= result.exact_fraction <= 1.0
+    assert result.paper["n_cases"] == 8603
+    assert set(result.table_one) == set(ct.PROTOCOLS)
+    assert result.table_one["counts"]["aim"]["n_cases"] == result.n_cases  # the headline
+    assert 0.0 <= result.emulation["same_end_config"] <= 1.0
+    imitation = result.imitation
     assert len(imitation["surprise"]) == imitation["n_throws"] == 30
     # a throw that failed against the usual outcomes also failed against the unperturbed one
     assert not np.any(np.array(imitation["failed_ordinary"]) & ~np.array(imitation["failed"]))
     # the pooled surprise: its aim error chosen on the validation draw, scores in [0, 1]
     validation = imitation["validation"]
-    assert [v["sigma"] for v in validation["by_sigma"]] == list(ex.AIM_SIGMAS)
+    assert [v["sigma"] for v in validation["by_sigma"]] == list(ct.AIM_SIGMAS)
     scored = [v for v in validation["by_sigma"] if v["auc_ordinary"] is not None]
-    best = max(scored, key=lambda v: v["auc_ordinary"])["sigma"] if scored else ex.AIM_SIGMAS[0]
+    best = max(scored, key=lambda v: v["auc_ordinary"])["sigma"] if scored else ct.AIM_SIGMAS[0]
     assert imitation["aim_sigma"] == best
     pooled = np.array(imitation["pooled_surprise"])
     assert len(pooled) == 30 and np.all((pooled >= 0) & (pooled <= 1 + 1e-12))
@@ -158,6 +143,31 @@ def test_main_runs_at_tiny_scale(ex, tiny, tmp_path):
             assert imitation[key] == pytest.approx(roc_auc(pooled, positive))
         else:
             assert imitation[key] is None
-    assert "pooled surprise" in (tmp_path / "out" / "can_tossing.md").read_text()
-    assert (tmp_path / "out" / "can_tossing.md").read_text().count("\n| ") >= 9
-    assert (tmp_path / "out" / "can_tossing_table1.png").stat().st_size > 10_000
+
+    files = result.save(tmp_path)
+    assert {f.name for f in files} >= {"can_tossing.json", "can_tossing.md"}
+    again = ct.CanTossingResult.load(tmp_path / "can_tossing.json")
+    assert again.to_json() == result.to_json()
+    report = (tmp_path / "can_tossing.md").read_text()
+    assert "pooled surprise" in report and report.count("\n| ") >= 9
+    assert (tmp_path / "can_tossing_table1.png").stat().st_size > 10_000
+
+
+@pytest.mark.parametrize(
+    ("field", "value", "words"),
+    [
+        ("n_demos", -10, "expected an integer >= 1"),
+        ("aim_error", 1e9, "expected a number in (0, 0.32] m"),
+        ("aim_error", 0.0, "out of range"),
+        ("aim_error", float("nan"), "out of range"),
+        ("seed", -1, "expected an integer >= 0"),
+        ("n_ordinary", 2.5, "not an integer"),
+        ("scale", "huge", "not one of 'full', 'quick', 'tiny'"),
+        ("cases", "rows", "not one of 'counts', 'actions'"),
+        ("executor", "threads:4", "not an executor"),
+    ],
+)
+def test_config_names_the_field_at_fault(field, value, words):
+    with pytest.raises(ConfigError, match=field) as raised:
+        ct.CanTossingConfig(**{field: value})
+    assert raised.value.field == field and words in str(raised.value)
