@@ -63,6 +63,7 @@ from inference.evaluation import (
 )
 from models.can_network import config_index, count
 from sim2d import field_throws, geometry, materials
+from sim2d.executors import open_executor
 
 __all__ = [
     "CanTossingConfig",
@@ -146,6 +147,7 @@ PAPER_CASES = 8603
 # Seed purposes: every evaluation throw draws its aim jitter from SeedSequence([seed,
 # purpose]), never from the data set's per-throw seeds (SeedSequence of five numbers).
 TABLE_I, DEMO, REPLAY, PERTURB, PICK, VALIDATE = 1, 2, 3, 4, 5, 6
+CHUNK = 100  # throws per executor task
 #: Aim errors (in fields) the pooled imitation surprise chooses among; 0: no pooling.
 AIM_SIGMAS = (0.0, 0.25, 0.5, 0.75, 1.0, 1.5)
 
@@ -201,26 +203,67 @@ def start_evidence(model: CanModel, start: np.ndarray) -> dict:
     }
 
 
-def play(start, fields, jitter: float, seeds, desc: str, progress: bool = True) -> np.ndarray:
-    """End configurations of the 0° throws ``(start[i], fields[i])`` with seeded jitter."""
+def field_throw_ends(start, fields, seeds, jitter: float) -> np.ndarray:
+    """``(n,)`` end configurations of the 0° throws ``(start[i], fields[i])`` with seeded
+    jitter (an executor task: arrays in, an array out)."""
     return np.array(
         [
             field_throws.throw_at_field(
                 int(s), int(f), ANGLE, jitter=jitter, seed=int(k)
             ).end_config
-            for s, f, k in tqdm(
-                list(zip(start, fields, seeds, strict=True)),
-                desc=desc,
-                leave=False,
-                disable=not progress,
-            )
+            for s, f, k in zip(start, fields, seeds, strict=True)
         ],
         dtype=np.int64,
     )
 
 
+def ball_ends(start, positions, velocities) -> np.ndarray:
+    """``(n,)`` end configurations of the ball states ``(positions[i], velocities[i])``
+    ``(n, 2)`` each, m and m/s at the entry line, played into ``start[i]`` (an executor task)."""
+    return np.array(
+        [
+            field_throws.play_ball(int(s), p, v).end_config
+            for s, p, v in zip(start, positions, velocities, strict=True)
+        ],
+        dtype=np.int64,
+    )
+
+
+def _in_chunks(task, columns, extra, desc: str, progress: bool, executor) -> np.ndarray:
+    """``task(*columns, *extra)`` over the rows of ``columns``, in chunks of ``CHUNK`` rows on
+    ``executor`` (None: here, row by row); the results in row order, the same on every
+    executor."""
+    n = len(columns[0])
+    if executor is None:
+        rows = tqdm(range(n), desc=desc, leave=False, disable=not progress)
+        parts = [task(*(c[i : i + 1] for c in columns), *extra) for i in rows]
+        return np.concatenate(parts or [np.zeros(0, np.int64)])
+    futures = [
+        executor.submit(task, *(c[i : i + CHUNK] for c in columns), *extra)
+        for i in range(0, n, CHUNK)
+    ]
+    done = tqdm(futures, desc=desc, leave=False, disable=not progress, unit="chunk")
+    return np.concatenate([f.result() for f in done] or [np.zeros(0, np.int64)])
+
+
+def play(
+    start, fields, jitter: float, seeds, desc: str, progress: bool = True, executor=None
+) -> np.ndarray:
+    """End configurations of the 0° throws ``(start[i], fields[i])`` with seeded jitter,
+    simulated on ``executor`` (an object with ``submit``; None: in this process)."""
+    columns = [np.asarray(start), np.asarray(fields), np.asarray(seeds)]
+    return _in_chunks(field_throw_ends, columns, (jitter,), desc, progress, executor)
+
+
 def play_table_one(
-    model: CanModel, data, mode: str, seed: int, rule: str, *, progress: bool = True
+    model: CanModel,
+    data,
+    mode: str,
+    seed: int,
+    rule: str,
+    *,
+    progress: bool = True,
+    executor=None,
 ) -> dict[str, np.ndarray]:
     """Table I's cases played: per case ``start``, ``desired``, ``field``, ``seed``,
     ``achieved`` (count) and ``reachable`` (some 0° training throw reached ``desired``)."""
@@ -231,7 +274,7 @@ def play_table_one(
     fields = choose(model, evidence, rule)
     seeds = fresh_seeds(seed, TABLE_I, len(start))  # the same for both rules
     desc = f"Table I ({mode}, {rule})"
-    end = play(start, fields, data.metadata["jitter"], seeds, desc, progress)
+    end = play(start, fields, data.metadata["jitter"], seeds, desc, progress, executor)
     return {
         "start": start,
         "desired": desired,
@@ -255,10 +298,14 @@ def summarise(cases: dict[str, np.ndarray]) -> dict:
     }
 
 
-def table_one(model: CanModel, data, mode: str, seed: int, *, progress: bool = True) -> dict:
+def table_one(
+    model: CanModel, data, mode: str, seed: int, *, progress: bool = True, executor=None
+) -> dict:
     """Table I for both tie-break rules, on the same cases and the same seeds."""
     return {
-        rule: summarise(play_table_one(model, data, mode, seed, rule, progress=progress))
+        rule: summarise(
+            play_table_one(model, data, mode, seed, rule, progress=progress, executor=executor)
+        )
         for rule in RULES
     }
 
@@ -273,12 +320,14 @@ def demonstrations(data, n: int, rng) -> tuple[np.ndarray, np.ndarray]:
 
 
 def emulation(
-    model: CanModel, data, n: int, seed: int, rule: str, *, progress: bool = True
+    model: CanModel, data, n: int, seed: int, rule: str, *, progress: bool = True, executor=None
 ) -> dict:
     """Infer a field that causes a demonstrated effect, throw it, compare the effects."""
     jitter = data.metadata["jitter"]
     start, field = demonstrations(data, n, np.random.default_rng([seed, PICK]))
-    shown = play(start, field, jitter, fresh_seeds(seed, DEMO, n), "demonstrations", progress)
+    shown = play(
+        start, field, jitter, fresh_seeds(seed, DEMO, n), "demonstrations", progress, executor
+    )
     known = np.isin(shown, model.states)  # end configurations the network has a state for
     ev = start_evidence(model, start) | {"end.count": torch.as_tensor(count(shown))}
     fields = choose(model, ev, rule)  # count only: the fallback for unknown configurations
@@ -287,8 +336,8 @@ def emulation(
         ev_known = ev_known | {"end.config": shown[known]}
         fields[known] = choose(model, ev_known, rule)
     seeds = fresh_seeds(seed, REPLAY, 2 * n)
-    copied = play(start, fields, jitter, seeds[:n], "emulation", progress)
-    again = play(start, field, jitter, seeds[n:], "demonstrated field again", progress)
+    copied = play(start, fields, jitter, seeds[:n], "emulation", progress, executor)
+    again = play(start, field, jitter, seeds[n:], "demonstrated field again", progress, executor)
 
     return {
         "n_demonstrations": n,
@@ -324,6 +373,7 @@ def perturbed_throws(
     n_ordinary: int = 8,
     *,
     progress: bool = True,
+    executor=None,
 ) -> dict[str, np.ndarray]:
     """``n`` throws aimed ``aim_error`` m off, with their failure labels, ``(n,)`` each.
 
@@ -336,21 +386,18 @@ def perturbed_throws(
     """
     rng = np.random.default_rng([seed, purpose])
     start, field = demonstrations(data, n, rng)
-    nominal, observed = [], []
-    for s, f, (pos, vel) in tqdm(
-        list(zip(start, field, perturbed_aims(start, field, aim_error, rng), strict=True)),
-        desc="perturbed throws",
-        leave=False,
-        disable=not progress,
-    ):
-        nominal.append(field_throws.throw_at_field(int(s), int(f), ANGLE).end_config)
-        observed.append(field_throws.play_ball(int(s), pos, vel).end_config)
-    nominal, observed = np.array(nominal), np.array(observed)
+    aims = perturbed_aims(start, field, aim_error, rng)
+    positions = np.array([p for p, _ in aims]).reshape(-1, 2)
+    velocities = np.array([v for _, v in aims]).reshape(-1, 2)
+    nominal = play(start, field, 0.0, np.zeros(n, np.uint32), "intended throws", progress, executor)
+    observed = _in_chunks(
+        ball_ends, [start, positions, velocities], (), "perturbed throws", progress, executor
+    )
     failed = observed != nominal
     seeds = fresh_seeds(seed, purpose, n * n_ordinary).reshape(n_ordinary, n)
     jitter = data.metadata["jitter"]
     usual = [
-        play(start, field, jitter, k, f"ordinary throws {j + 1}/{n_ordinary}", progress)
+        play(start, field, jitter, k, f"ordinary throws {j + 1}/{n_ordinary}", progress, executor)
         for j, k in enumerate(seeds)
     ]
     failed_ordinary = failed & np.all([observed != u for u in usual], axis=0)
@@ -400,6 +447,7 @@ def imitation(
     n_ordinary: int = 8,
     *,
     progress: bool = True,
+    executor=None,
 ) -> dict:
     """Surprise of perturbed throws' effects under the intended field, and its ROC.
 
@@ -409,7 +457,8 @@ def imitation(
     that has the best ``failed_ordinary`` AUC on a validation draw (seed purpose
     ``VALIDATE``; ties to the smaller aim error).
     """
-    throws = perturbed_throws(data, n, aim_error, seed, PERTURB, n_ordinary, progress=progress)
+    run = {"progress": progress, "executor": executor}
+    throws = perturbed_throws(data, n, aim_error, seed, PERTURB, n_ordinary, **run)
     start, field, observed = throws["start"], throws["field"], throws["observed"]
     failed, failed_ordinary = throws["failed"], throws["failed_ordinary"]
     # An end configuration the network has no state for was never seen: surprise 1.
@@ -424,7 +473,7 @@ def imitation(
         surprise[known] = imitation_check(model.net, model.params, ev).surprise.numpy()
 
     tables: dict = {}
-    held_out = perturbed_throws(data, n, aim_error, seed, VALIDATE, n_ordinary, progress=progress)
+    held_out = perturbed_throws(data, n, aim_error, seed, VALIDATE, n_ordinary, **run)
     validation = []
     for sigma in AIM_SIGMAS:
         scores = pooled_surprise(model, held_out, sigma, tables)
@@ -513,15 +562,21 @@ class CanTossingResult(Result):
 
 
 def run_can_tossing(config: CanTossingConfig) -> CanTossingResult:
-    """Fit the can network on the 0° throws and measure Table I, emulation and imitation."""
-    data = can_dataset(
-        config.data_dir, config.scale, executor=config.executor, progress=config.progress
-    )
-    model = fit_can_network(data, ANGLE)
+    """Fit the can network on the 0° throws and measure Table I, emulation and imitation.
+
+    Every simulation (the data set, then the evaluation throws in chunks) runs on
+    ``config.executor``; the numbers do not depend on where.
+    """
     progress = config.progress
-    tables = {
-        mode: table_one(model, data, mode, config.seed, progress=progress) for mode in PROTOCOLS
-    }
+    with open_executor(config.executor) as executor:
+        data = can_dataset(config.data_dir, config.scale, executor=executor, progress=progress)
+        model = fit_can_network(data, ANGLE)
+        run = {"progress": progress, "executor": executor}
+        tables = {mode: table_one(model, data, mode, config.seed, **run) for mode in PROTOCOLS}
+        emulated = emulation(model, data, config.n_demos, config.seed, config.rule, **run)
+        imitated = imitation(
+            model, data, config.n_demos, config.aim_error, config.seed, config.n_ordinary, **run
+        )
     return CanTossingResult(
         scale=config.scale,
         cases=config.cases,
@@ -529,18 +584,8 @@ def run_can_tossing(config: CanTossingConfig) -> CanTossingResult:
         **tables[config.cases][config.rule],
         table_one=tables,
         paper=PAPER,
-        emulation=emulation(
-            model, data, config.n_demos, config.seed, config.rule, progress=progress
-        ),
-        imitation=imitation(
-            model,
-            data,
-            config.n_demos,
-            config.aim_error,
-            config.seed,
-            config.n_ordinary,
-            progress=progress,
-        ),
+        emulation=emulated,
+        imitation=imitated,
     )
 
 

@@ -85,7 +85,7 @@ def _git(root: Path, *args: str) -> str | None:
 
 
 def machine_description() -> str:
-    """CPU cores usable here, memory, CPU model, OS, Python, torch and its thread count."""
+    """CPU cores usable here, memory, CPU model, OS, Python and torch."""
     import torch
 
     try:
@@ -112,7 +112,6 @@ def machine_description() -> str:
         f"{platform.system()} {platform.machine()}",
         f"Python {platform.python_version()}",
         f"torch {torch.__version__}",
-        f"{torch.get_num_threads()} torch thread(s)",
     ]
     return ", ".join(parts)
 

@@ -1,6 +1,7 @@
 """experiments.can_tossing: Table I's cases on a hand-made slice, its bookkeeping against
 independent re-throws, the whole experiment at the tiny scale, and its settings' checks."""
 
+from concurrent.futures import Future
 from types import SimpleNamespace
 
 import numpy as np
@@ -95,6 +96,33 @@ def test_table_one_bookkeeping_matches_independent_rethrows(tiny):
     assert list(summary["histogram"].values()) == by_hand
     assert summary["exact_fraction"] == pytest.approx((diff == 0).mean())
     assert summary["n_cases"] == n
+
+
+class InOrder:
+    """An executor that runs each task when it is submitted, and counts them."""
+
+    def __init__(self):
+        self.submitted = 0
+
+    def submit(self, fn, *args):
+        self.submitted += 1
+        future = Future()
+        future.set_result(fn(*args))
+        return future
+
+
+def test_plays_in_chunks_on_an_executor_equal_the_plays_here(tiny, monkeypatch):
+    data, _ = tiny
+    start, desired = ct.table_one_cases(data, "counts")
+    fields = np.full(len(start), 7 * 15 + 7)  # the middle field: throwable at 0deg
+    seeds = ct.fresh_seeds(3, ct.TABLE_I, len(start))
+    here = ct.play(start, fields, 0.003, seeds, "here", progress=False)
+    monkeypatch.setattr(ct, "CHUNK", 4)
+    executor = InOrder()
+    there = ct.play(start, fields, 0.003, seeds, "there", progress=False, executor=executor)
+    np.testing.assert_array_equal(here, there)
+    assert executor.submitted == -(-len(start) // 4)
+    assert len(ct.play(start[:0], fields[:0], 0.003, seeds[:0], "none", False, executor)) == 0
 
 
 def test_best_field_of_a_deterministic_case(tiny):
