@@ -164,8 +164,8 @@ def table_one_cases(data, mode: str = "counts") -> tuple[np.ndarray, np.ndarray]
     ``actions``: one case per (start, field) whose first throw changed the count, plus
     one unchanged case per start.
     """
-    sel = (data.angle == ANGLE) & data.throwable & (data.start_config != 0)
     check_choice("mode", mode, PROTOCOLS)
+    sel = (data.angle == ANGLE) & data.throwable & (data.start_config != 0)
     if mode == "actions":
         sel &= (data.repeat == 0) & (data.count_after != data.count_before)
         start, desired = data.start_config[sel], data.count_after[sel]
@@ -197,6 +197,7 @@ def choose(model: CanModel, evidence: dict, rule: str) -> np.ndarray:
 
 
 def start_evidence(model: CanModel, start: np.ndarray) -> dict:
+    """Query evidence of the start configurations ``(n,)`` masks: configuration and count."""
     return {
         "initial.config": start,
         "initial.count": count(start),
