@@ -15,11 +15,14 @@ Writes all_goals.json, all_goals.md and all_goals.png to ``--out``.
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from experiments.all_goals import AllGoalsConfig, plot, run_all_goals
+import torch
+
+from experiments.all_goals import AllGoalsConfig, AllGoalsResult, run_all_goals
+from experiments.config import config_or_exit
 
 QUICK = dict(step=0.01, train_repeats=2, bound_repeats=4, episodes=10, n_throws=5000, bins=8)
+SIZED = ("step", "train_repeats", "bound_repeats", "episodes", "n_throws", "bins")
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -28,14 +31,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     )
     d = AllGoalsConfig()
     parser.add_argument("--quick", action="store_true", help=f"smaller settings: {QUICK}")
-    parser.add_argument("--data-dir", default=d.data_dir)
+    parser.add_argument("--data-dir", default=str(d.data_dir))
     parser.add_argument("--out", default="results")
     parser.add_argument("--table-z", type=float, nargs="+", default=list(d.table_z))
     parser.add_argument("--step", type=float, help=f"m between aim heights ({d.step})")
-    parser.add_argument("--train-repeats", type=int, help=f"throws per height ({d.train_repeats})")
-    parser.add_argument(
-        "--bound-repeats", type=int, help=f"half plan, half score ({d.bound_repeats})"
-    )
+    parser.add_argument("--train-repeats", type=int, help=f"per height ({d.train_repeats})")
+    parser.add_argument("--bound-repeats", type=int, help=f"even ({d.bound_repeats})")
     parser.add_argument("--horizon", type=int, default=d.horizon, help="throws per goal")
     parser.add_argument("--episodes", type=int, help=f"plays per goal ({d.episodes})")
     parser.add_argument("--n-throws", type=int, help=f"throw network's data ({d.n_throws})")
@@ -46,32 +47,29 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--seed", type=int, default=d.seed)
     parser.add_argument("--quiet", action="store_true")
     args = parser.parse_args(argv)
-    try:
-        args.config = config(args)
-    except ValueError as error:
-        parser.error(str(error))
+    sized = dict(QUICK) if args.quick else {}
+    sized |= {k: getattr(args, k) for k in SIZED if getattr(args, k) is not None}
+    args.config = config_or_exit(
+        parser,
+        lambda: AllGoalsConfig(
+            data_dir=args.data_dir,
+            table_z=tuple(args.table_z),
+            horizon=args.horizon,
+            jitter=args.jitter,
+            noise=args.noise,
+            executor=args.executor,
+            seed=args.seed,
+            progress=not args.quiet,
+            **sized,
+        ),  # fmt: skip
+    )
     return args
 
 
-def config(args: argparse.Namespace) -> AllGoalsConfig:
-    sized = dict(QUICK) if args.quick else {}
-    for key in ("step", "train_repeats", "bound_repeats", "episodes", "n_throws", "bins"):
-        if getattr(args, key) is not None:
-            sized[key] = getattr(args, key)
-    return AllGoalsConfig(
-        data_dir=args.data_dir, table_z=tuple(args.table_z), horizon=args.horizon,
-        jitter=args.jitter, noise=args.noise, executor=args.executor, seed=args.seed,
-        progress=not args.quiet, **sized,
-    )  # fmt: skip
-
-
-def main(args: argparse.Namespace):
+def main(args: argparse.Namespace) -> AllGoalsResult:
+    torch.set_num_threads(1)
     result = run_all_goals(args.config)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    (out / "all_goals.json").write_text(result.to_json())
-    (out / "all_goals.md").write_text(result.to_markdown())
-    plot(result, out / "all_goals.png")
+    result.save(args.out)
     print(result.to_markdown())
     return result
 

@@ -30,31 +30,45 @@ paper planner's success; overall, the mean of success / bound over reachable goa
 
 from __future__ import annotations
 
-import json
 import math
 import time
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
 import torch
 
+from experiments.combined import Robot
+from experiments.config import (
+    ConfigError,
+    Result,
+    check_choice,
+    check_executor,
+    check_float,
+    check_int,
+)
+from experiments.throwing import MAX_BINS, fit_throws, get_data
 from inference import fit, predict
 from inference.compiled import compile_parameter_query
 from inference.planning import exact_plan, paper_planner, policy_value
 from models.can_network import can_network, can_rows
-from models.throw_network import TARGET, throw_data, throw_network
+from models.throw_network import TARGET
 from sim2d import geometry
-from sim2d.combined import CAN_BAND, exact_throws, explore, play_policy, play_throw
+from sim2d.combined import (
+    CAN_BAND,
+    TABLE_TOP_Z,
+    exact_throws,
+    explore,
+    play_policy,
+    play_throw,
+)
 from sim2d.configurations import stable_configurations
-from sim2d.executors import open_executor, parse_spec
-from sim2d.throw import TARGET_AREA, ReleaseNoise, sample_targets, throw
+from sim2d.executors import open_executor
+from sim2d.throw import TARGET_AREA, ReleaseNoise, throw
 
 __all__ = [
     "AllGoalsConfig",
     "AllGoalsResult",
-    "GoalResult",
-    "TableResult",
     "cross_fitted_bound",
     "plot",
     "run_all_goals",
@@ -65,14 +79,47 @@ BOUND_SEED = 1
 PLAY_SEED = 3
 #: the issue's goal: the exact planner's success over the bound, averaged over goals
 GOAL_RATIO = 0.90
+MAX_STEP = 0.1  # m between aim heights: coarser says little about a 6.4 cm can
+MAX_HORIZON = 20  # throws
+MAX_JITTER = 0.05  # m
 
 
 @dataclass(frozen=True)
 class AllGoalsConfig:
-    """What to simulate and how hard to test. Every number is checked on creation."""
+    """Settings of :func:`run_all_goals`; every field is checked on construction.
 
-    data_dir: str = "data"
-    table_z: tuple[float, ...] = (0.75, 0.35)
+    Attributes
+    ----------
+    data_dir : Path
+        Where the simulations are saved (and resumed from).
+    table_z : tuple of float
+        Table-top heights above the robot's floor, m; one experiment each.
+    step : float
+        m between the aim heights on the pyramid's face (the can network's actions).
+    train_repeats : int
+        The robot's experience: throws per state and aim height.
+    bound_repeats : int
+        The physics bound's throws per state and aim height (even: half plan, half score).
+    horizon : int
+        Throws allowed per goal.
+    episodes : int
+        Plays of the exact planner's policy per goal.
+    n_throws, bins : int
+        The throw network's training throws and clusters per axis.
+    jitter : float
+        The can world's aim jitter added to every throw's entry height, m.
+    noise : bool
+        Throw with release noise.
+    seed : int
+        Seeds the throw network's data.
+    executor : str or None
+        Where the simulations run (:mod:`sim2d.executors`); None: every core here.
+    progress : bool
+        Progress bars.
+    """
+
+    data_dir: Path = Path("data")
+    table_z: tuple[float, ...] = (TABLE_TOP_Z, 0.35)
     step: float = 0.005
     train_repeats: int = 6
     bound_repeats: int = 24
@@ -87,105 +134,65 @@ class AllGoalsConfig:
     progress: bool = True
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "table_z", tuple(float(z) for z in self.table_z))
-        checks = {
-            "table_z": bool(self.table_z) and all(0.0 < z < 2.0 for z in self.table_z),
-            "step": 0.0 < self.step <= 0.1,
-            "train_repeats": self.train_repeats >= 1,
-            "bound_repeats": self.bound_repeats >= 2 and self.bound_repeats % 2 == 0,
-            "horizon": 1 <= self.horizon <= 20,
-            "episodes": self.episodes >= 1,
-            "n_throws": self.n_throws >= 100,
-            "bins": 1 <= self.bins <= 64,
-            "jitter": 0.0 <= self.jitter <= 0.05,
-            "seed": self.seed >= 0,
-        }
-        bad = [name for name, ok in checks.items() if not ok]
-        if bad:
-            expected = {
-                "table_z": "heights in (0, 2) m, at least one",
-                "step": "in (0, 0.1] m",
-                "train_repeats": ">= 1",
-                "bound_repeats": "an even number >= 2 (half plan, half score)",
-                "horizon": "in 1..20",
-                "episodes": ">= 1",
-                "n_throws": ">= 100",
-                "bins": "in 1..64",
-                "jitter": "in [0, 0.05] m",
-                "seed": ">= 0",
-            }
-            raise ValueError(
-                "; ".join(f"{b} = {getattr(self, b)!r}: expected {expected[b]}" for b in bad)
+        object.__setattr__(self, "data_dir", Path(self.data_dir))
+        heights = tuple(self.table_z) if isinstance(self.table_z, (list, tuple)) else None
+        if not heights:
+            raise ConfigError("table_z", f"{self.table_z!r}: expected one or more heights, m")
+        object.__setattr__(
+            self,
+            "table_z",
+            tuple(
+                check_float("table_z", z, 0.0, TARGET_AREA.z_max, low_open=True, unit="m")
+                for z in heights
+            ),
+        )
+        check_float("step", self.step, 0.0, MAX_STEP, low_open=True, unit="m")
+        check_int("train_repeats", self.train_repeats, 1)
+        check_int("bound_repeats", self.bound_repeats, 2)
+        if self.bound_repeats % 2:
+            raise ConfigError(
+                "bound_repeats", f"{self.bound_repeats} is odd; expected an even number"
             )
-        if self.executor is not None:
-            parse_spec(self.executor)
+        check_int("horizon", self.horizon, 1, MAX_HORIZON)
+        check_int("episodes", self.episodes, 1)
+        check_int("n_throws", self.n_throws, 10)
+        check_int("bins", self.bins, 1, MAX_BINS)
+        check_float("jitter", self.jitter, 0.0, MAX_JITTER, unit="m")
+        check_choice("noise", self.noise, (False, True))
+        check_int("seed", self.seed, 0)
+        check_executor("executor", self.executor)
+
+    def to_dict(self) -> dict:
+        """The settings as JSON values."""
+        return asdict(self) | {"data_dir": str(self.data_dir), "table_z": list(self.table_z)}
 
 
 @dataclass
-class GoalResult:
-    """One goal at one table height (success rates are fractions)."""
+class AllGoalsResult(Result):
+    """What :func:`run_all_goals` measured.
 
-    goal: int
-    removed: list[int]
-    bound: float
-    bound_in_sample: float
-    exact_measured: float
-    exact_predicted: float
-    exact_throws: float
-    paper_measured: float
-    paper_plays: int
+    ``tables``: per table height, ``table_z``, the robot's ``impact_deg``, ``n_heights``
+    (aim heights), ``n_goals`` and ``reachable`` goals, the overall figures
+    ``exact_over_bound`` and ``paper_over_bound`` (means over reachable goals of each
+    planner's measured success over the held-out bound), ``exact_over_bound_in_sample``,
+    ``exact_total_over_bound_total`` and ``seconds``; and ``goals``, one dict per
+    reachable goal: ``goal`` (mask), ``removed`` (cans), ``bound`` (held out),
+    ``bound_in_sample``, ``exact_measured``, ``exact_predicted``, ``exact_throws`` (mean
+    throws used), ``paper_measured``, ``paper_plays``. Success figures are fractions.
+    """
 
-
-@dataclass
-class TableResult:
-    """Every reachable goal at one table height, and the overall figures."""
-
-    table_z: float
-    impact_deg: float
-    n_heights: int
-    n_goals: int
-    goals: list[GoalResult]
-    exact_over_bound: float
-    paper_over_bound: float
-    exact_total_over_bound_total: float
-    exact_over_bound_in_sample: float
+    settings: dict
+    tables: list[dict]
+    goal_ratio: float
     seconds: float
 
-    @property
-    def reachable(self) -> int:
-        return len(self.goals)
-
-
-@dataclass
-class AllGoalsResult:
-    config: AllGoalsConfig
-    tables: list[TableResult]
-    seconds: float = 0.0
-    goal_ratio: float = GOAL_RATIO
-    extra: dict = field(default_factory=dict)
-
-    def to_json(self) -> str:
-        data = asdict(self)
-        data["config"]["table_z"] = list(self.config.table_z)
-        return json.dumps(data, indent=2)
-
-    @classmethod
-    def from_json(cls, text: str) -> AllGoalsResult:
-        data = json.loads(text)
-        config = AllGoalsConfig(**data.pop("config"))
-        tables = [
-            TableResult(**(t | {"goals": [GoalResult(**g) for g in t["goals"]]}))
-            for t in data.pop("tables")
-        ]
-        return cls(config, tables, **data)
-
     def to_markdown(self) -> str:
-        c = self.config
+        c = self.settings
         lines = [
-            f"**Every reachable goal** (within {c.horizon} throws; bound: the best plan on "
-            f"half of {c.bound_repeats} simulated repeats per aim height, scored on the other "
-            f"half, both ways round; learned system trained on "
-            f"{c.train_repeats} other repeats; exact planner played {c.episodes} times per goal)",
+            f"**Every reachable goal** (within {c['horizon']} throws; bound: the best plan on "
+            f"half of {c['bound_repeats']} simulated repeats per aim height, scored on the "
+            f"other half, both ways round; learned system trained on {c['train_repeats']} "
+            f"other repeats; exact planner played {c['episodes']} times per goal)",
             "",
             "| table top (m) | robot impact (deg) | reachable goals "
             "| exact planner / bound | paper planner / bound | goal "
@@ -193,62 +200,51 @@ class AllGoalsResult:
             "|---|---|---|---|---|---|---|",
         ]
         for t in self.tables:
-            met = "met" if t.exact_over_bound >= self.goal_ratio else "missed"
+            met = "met" if t["exact_over_bound"] >= self.goal_ratio else "missed"
             lines.append(
-                f"| {t.table_z} | {t.impact_deg:.1f} | {t.reachable} of {t.n_goals} "
-                f"| {100 * t.exact_over_bound:.1f} % | {100 * t.paper_over_bound:.1f} % "
+                f"| {t['table_z']} | {t['impact_deg']:.1f} | {t['reachable']} of {t['n_goals']} "
+                f"| {100 * t['exact_over_bound']:.1f} % | {100 * t['paper_over_bound']:.1f} % "
                 f"| >= {100 * self.goal_ratio:.0f} %: {met} "
-                f"| {100 * t.exact_over_bound_in_sample:.1f} % |"
+                f"| {100 * t['exact_over_bound_in_sample']:.1f} % |"
             )
         for t in self.tables:
             lines += [
                 "",
-                f"Table top {t.table_z} m, per goal (cans removed; success in %):",
+                f"Table top {t['table_z']} m, per goal (cans removed; success in %):",
                 "",
                 "| cans removed | bound (in sample) | exact planner (predicted) | throws "
                 "| paper planner |",
                 "|---|---|---|---|---|",
             ]
-            for g in sorted(t.goals, key=lambda g: (len(g.removed), g.removed)):
+            for g in sorted(t["goals"], key=lambda g: (len(g["removed"]), g["removed"])):
                 lines.append(
-                    f"| {' '.join(map(str, g.removed))} | {100 * g.bound:.1f} "
-                    f"({100 * g.bound_in_sample:.1f}) "
-                    f"| {100 * g.exact_measured:.1f} ({100 * g.exact_predicted:.1f}) "
-                    f"| {g.exact_throws:.2f} | {100 * g.paper_measured:.1f} |"
+                    f"| {' '.join(map(str, g['removed']))} | {100 * g['bound']:.1f} "
+                    f"({100 * g['bound_in_sample']:.1f}) "
+                    f"| {100 * g['exact_measured']:.1f} ({100 * g['exact_predicted']:.1f}) "
+                    f"| {g['exact_throws']:.2f} | {100 * g['paper_measured']:.1f} |"
                 )
         return "\n".join(lines) + "\n"
+
+    def save(self, out) -> list[Path]:
+        """Write ``all_goals.json``, ``all_goals.md`` and the figure ``all_goals.png``."""
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        files = [out / "all_goals.json", out / "all_goals.md", out / "all_goals.png"]
+        files[0].write_text(self.to_json())
+        files[1].write_text(self.to_markdown())
+        plot(self, files[2])
+        return files
 
 
 # --- the learned side --------------------------------------------------------------------
 
 
-@dataclass(frozen=True)
-class Robot:
-    """The throw network: aims for desired hits and the hits it predicts for aims."""
-
-    net: object
-    params: object
-    query: object
-
-    def aim(self, hits: np.ndarray) -> np.ndarray:
-        aims = self.query.infer({"end.hit": torch.as_tensor(hits)}).mean.numpy()
-        return np.clip(aims, TARGET_AREA.low, TARGET_AREA.high)
-
-    def hit_distribution(self, aims: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        mix = predict(
-            self.net, self.params, {"action": ["throw"] * len(aims), "param.target": aims}
-        )
-        return mix.continuous["hit"].mean.numpy(), mix.continuous["hit"].cov.numpy()
-
-
 def train_robot(n_throws: int, bins: int, seed: int, noise: ReleaseNoise | None) -> Robot:
-    """The throw network fitted on ``n_throws`` random throws."""
+    """The throw network fitted on ``n_throws`` random throws, as the robot that aims."""
     rng = np.random.default_rng(seed)
-    targets = sample_targets(n_throws, rng)
-    hits = throw(targets, rng=rng, noise=noise).hit
-    net = throw_network((bins, bins))
-    params = fit(net, throw_data(net, targets, hits)).params
-    return Robot(net, params, compile_parameter_query(net, params, TARGET))
+    targets, hits = get_data(n_throws, rng, noise)
+    net, params, _ = fit_throws((bins, bins), targets, hits)
+    return Robot(compile_parameter_query(net, params, TARGET), net, params, noise, rng)
 
 
 def can_model(states: list[int], heights: np.ndarray, outcomes: dict[int, np.ndarray]):
@@ -374,12 +370,13 @@ def impact_angle(robot: Robot, heights: np.ndarray, table_z: float) -> float:
     return float(np.degrees(np.arctan2(v[:, 2], v[:, 0])).mean())
 
 
-def run_table(config: AllGoalsConfig, table_z: float, robot: Robot, executor) -> TableResult:
+def run_table(config: AllGoalsConfig, table_z: float, robot: Robot, executor) -> dict:
+    """One table height's entry of :attr:`AllGoalsResult.tables`."""
     started = time.perf_counter()
     states = sorted(stable_configurations())
     full = geometry.FULL_PYRAMID
     heights = exact_throws(config.step, table_z=table_z)[0]
-    base = Path(config.data_dir)
+    base = config.data_dir
     common = dict(
         depth=config.horizon, table_z=table_z, step=config.step, jitter=config.jitter,
         executor=executor, progress=config.progress,
@@ -431,34 +428,39 @@ def run_table(config: AllGoalsConfig, table_z: float, robot: Robot, executor) ->
         episodes, paper = exact_f.result(), paper_f.result()
         bar.update(1)
         results.append(
-            GoalResult(
+            rows[g]
+            | dict(
                 goal=g,
                 removed=sorted(set(range(geometry.N_CANS)) - set(geometry.mask_to_cans(g))),
                 exact_measured=float(np.mean(episodes["end"] == g)),
                 exact_throws=float(episodes["throws"].mean()),
                 paper_measured=paper["rate"],
                 paper_plays=paper["plays"],
-                **rows[g],
             )
         )
     bar.close()
-    bounds = np.array([r.bound for r in results])
-    in_sample = np.array([r.bound_in_sample for r in results])
-    exact = np.array([r.exact_measured for r in results])
-    paper = np.array([r.paper_measured for r in results])
-    return TableResult(
+
+    def mean_ratio(key: str, over: str) -> float:
+        if not results:
+            return math.nan
+        return float(np.mean([r[key] / r[over] for r in results]))
+
+    return dict(
         table_z=table_z,
         impact_deg=impact_angle(robot, heights, table_z),
         n_heights=len(heights),
         n_goals=len(goals),
-        goals=results,
-        exact_over_bound=float(np.mean(exact / bounds)) if len(results) else math.nan,
-        paper_over_bound=float(np.mean(paper / bounds)) if len(results) else math.nan,
-        exact_over_bound_in_sample=float(np.mean(exact / in_sample)) if len(results) else math.nan,
-        exact_total_over_bound_total=float(exact.sum() / bounds.sum())
-        if len(results)
-        else math.nan,
+        reachable=len(results),
+        exact_over_bound=mean_ratio("exact_measured", "bound"),
+        paper_over_bound=mean_ratio("paper_measured", "bound"),
+        exact_over_bound_in_sample=mean_ratio("exact_measured", "bound_in_sample"),
+        exact_total_over_bound_total=(
+            sum(r["exact_measured"] for r in results) / sum(r["bound"] for r in results)
+            if results
+            else math.nan
+        ),
         seconds=time.perf_counter() - started,
+        goals=results,
     )
 
 
@@ -476,7 +478,12 @@ def run_all_goals(config: AllGoalsConfig) -> AllGoalsResult:
     robot = train_robot(config.n_throws, config.bins, config.seed, noise)
     with open_executor(config.executor) as executor:
         tables = [run_table(config, z, robot, executor) for z in config.table_z]
-    return AllGoalsResult(config, tables, time.perf_counter() - started)
+    return AllGoalsResult(
+        settings=config.to_dict(),
+        tables=tables,
+        goal_ratio=GOAL_RATIO,
+        seconds=time.perf_counter() - started,
+    )
 
 
 def plot(result: AllGoalsResult, path) -> None:
@@ -490,23 +497,28 @@ def plot(result: AllGoalsResult, path) -> None:
     n = len(result.tables)
     fig, axes = plt.subplots(n, 1, figsize=(12.5, 3.4 * n), squeeze=False)
     for ax, t in zip(axes[:, 0], result.tables, strict=True):
-        goals = sorted(t.goals, key=lambda g: (-g.bound, len(g.removed), g.removed))
+        goals = sorted(t["goals"], key=lambda g: (-g["bound"], len(g["removed"]), g["removed"]))
         x = np.arange(len(goals))
-        ax.bar(x, [100 * g.bound for g in goals], color="0.85", label="physics bound (held out)")
-        ax.plot(x, [100 * g.bound_in_sample for g in goals], "_", color="0.4", ms=9,
+
+        def percent(key, goals=goals):
+            return [100 * g[key] for g in goals]
+
+        ax.bar(x, percent("bound"), color="0.85", label="physics bound (held out)")
+        ax.plot(x, percent("bound_in_sample"), "_", color="0.4", ms=9,
                 label="physics bound (in sample)")  # fmt: skip
-        ax.plot(x, [100 * g.exact_measured for g in goals], "o", color="C0",
-                label=f"exact planner, measured ({100 * t.exact_over_bound:.0f} % of bound)")  # fmt: skip
-        ax.plot(x, [100 * g.exact_predicted for g in goals], "o", mfc="none", color="C0",
+        ax.plot(x, percent("exact_measured"), "o", color="C0",
+                label=f"exact planner, measured ({100 * t['exact_over_bound']:.0f} % of bound)")  # fmt: skip
+        ax.plot(x, percent("exact_predicted"), "o", mfc="none", color="C0",
                 label="exact planner, predicted by the models")  # fmt: skip
-        ax.plot(x, [100 * g.paper_measured for g in goals], "x", color="C3",
-                label=f"paper planner ({100 * t.paper_over_bound:.0f} % of bound)")  # fmt: skip
-        ax.set_xticks(x, [" ".join(map(str, g.removed)) for g in goals], rotation=70, fontsize=7)
+        ax.plot(x, percent("paper_measured"), "x", color="C3",
+                label=f"paper planner ({100 * t['paper_over_bound']:.0f} % of bound)")  # fmt: skip
+        labels = [" ".join(map(str, g["removed"])) for g in goals]
+        ax.set_xticks(x, labels, rotation=70, fontsize=7)
         ax.set_ylabel("success (%)")
         ax.set_ylim(0, 105)
         ax.set_title(
-            f"table top {t.table_z} m (ball descends at {-t.impact_deg:.0f} deg): "
-            f"{t.reachable} reachable goals, cans removed below"
+            f"table top {t['table_z']} m (ball descends at {-t['impact_deg']:.0f} deg): "
+            f"{t['reachable']} reachable goals, cans removed below"
         )
         ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
     fig.tight_layout()

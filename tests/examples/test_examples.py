@@ -41,6 +41,11 @@ def tiny_arguments(name: str, out: Path, data: Path) -> list:
         "can_tossing": [*cans, "--n-demos", 2],
         "combined": [*cans, "--n-throws", 300, "--bins", 2, "--episodes", 1, "--horizon", 1],
         "physics_bounds": [*cans, "--repeats", 2, "--combined-repeats", 2, "--step", 0.1],
+        "all_goals": [
+            *["--step", 0.05, "--train-repeats", 1, "--bound-repeats", 2, "--horizon", 1],
+            *["--episodes", 1, "--n-throws", 300, "--bins", 2, "--table-z", 0.75],
+            *["--data-dir", data, "--out", out, "--quiet"],
+        ],
         "reproduce": ["--quick", "--only", "throw_kinematics", "--out", out, "--data-dir", data],
     }[name]
 
@@ -53,6 +58,7 @@ WRITES = {
     "can_tossing": ["can_tossing.json", "can_tossing.md", "can_tossing_table1.png"],
     "combined": ["combined.json", "combined.md"],
     "physics_bounds": ["physics_bounds.json", "physics_bounds.md"],
+    "all_goals": ["all_goals.json", "all_goals.md", "all_goals.png"],
     "reproduce": ["run.json", "summary.md", "throw/flight_paths.png"],
 }
 
@@ -76,6 +82,8 @@ def test_a_bad_number_exits_with_a_usage_error():
     done = run("throwing", "--n-train", "-10", check=False)
     assert done.returncode == 2
     assert "error: --n-train: -10 is out of range; expected an integer >= 10" in done.stderr
+    done = run("all_goals", "--bound-repeats", "5", check=False)
+    assert done.returncode == 2 and "error: --bound-repeats: 5 is odd" in done.stderr
 
 
 @pytest.mark.parametrize(
