@@ -147,3 +147,22 @@ def test_run_record(tmp_path):
     assert record.date.endswith("UTC") and record.commit
     record.save(tmp_path)
     assert summary.RunRecord.load(tmp_path / "run.json") == record
+
+
+def test_every_goal_rows_state_both_planners_beside_the_bound(tmp_path):
+    goal = {"bound": 0.5, "bound_in_sample": 0.75, "exact_measured": 0.25, "paper_measured": 0.0}
+    other = {"bound": 1.0, "bound_in_sample": 1.0, "exact_measured": 1.0, "paper_measured": 0.5}
+    table = {
+        "table_z": 0.35,
+        "reachable": 2,
+        "exact_over_bound": 0.75,
+        "paper_over_bound": 0.25,
+        "goals": [goal, other],
+    }
+    result = {"settings": {"horizon": 6}, "goal_ratio": 0.9, "tables": [table]}
+    (tmp_path / "all_goals.json").write_text(json.dumps(result))
+    (row,) = [r for r in summary.summary_markdown(tmp_path).splitlines() if "every goal" in r]
+    assert "table 0.35 m, 2 goals" in row and "within 6 throws" in row
+    assert "exact planner 62.5 % mean success, 75.0 % of the bound" in row
+    assert "paper planner 25.0 %, 25.0 %" in row
+    assert row.endswith("| 75.0 % mean held out, 87.5 % in sample |")
