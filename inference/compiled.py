@@ -264,7 +264,7 @@ def compile_discrete(net: EffectNetwork, params: NetworkParams) -> CompiledNetwo
         n = cpd.seen(params[spec.name])  # over the discrete parents, in table-axis order
         # move the parents' axes to their positions in ``order``
         perm = sorted(range(len(cpd.parents)), key=lambda i: order.index(cpd.parents[i]))
-        n = n.permute(*perm)
+        n = n.permute(perm)
         shape = [net.site(s).size if s in cpd.parents else 1 for s in order]
         seen[spec.name] = n.reshape(shape)
     return CompiledNetwork(net, order, factors, seen)

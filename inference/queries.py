@@ -276,7 +276,9 @@ def predict(
         )
 
     states = {f: net.feature(f).states for f in discrete}
-    unseen_mass = _chunked(net, params, enc, set(), unseen).clamp(0, 1)
+    # the unseen flag reads the targets' parents: latent end parents must be traced
+    end_parents = {q for s in unseen_sites for q in net.cpd(s).parents if net.site(q).role == "end"}
+    unseen_mass = _chunked(net, params, enc, end_parents, unseen).clamp(0, 1)
     return Prediction(discrete, continuous, unseen_mass, states)
 
 
