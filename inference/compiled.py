@@ -299,7 +299,7 @@ class CompiledParameterQuery:
     def infer(self, evidence: Mapping[str, object], *, mixture: bool = False) -> ParameterPosterior:
         """Same contract and result as :func:`inference.infer_parameter`."""
         p = self.parameter
-        y_site = end_site(p.affects)
+        y_site = end_site(p.features[0])
         enc = self.net.encode(evidence)
         if y_site not in enc:
             raise ValueError(f"the query needs the observed end state {y_site!r}")
@@ -366,6 +366,12 @@ def compile_parameter_query(
     """Precompute :class:`CompiledParameterQuery` for ``parameter`` of ``net``."""
     check_params(net, params)
     m = net.mixture(parameter)
+    if m.child is None or m.affected != (m.child,) or net.acting_on(m.child) != (m,):
+        raise ValueError(
+            f"the compiled query serves a parameter acting on one continuous feature alone; "
+            f"{parameter!r} acts on {list(m.affected)} (with {[q.parameter.name for q in net.acting_on(m.child)] if m.child else []}): "
+            "use inference.infer_parameter"
+        )
     child = net.cpd(m.child)
     return CompiledParameterQuery(
         net, m.parameter, child.parents, child.inputs, **m.query_tables(params, child)

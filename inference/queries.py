@@ -439,7 +439,7 @@ def infer_parameter(
     posterior mean of the parameter; the paper's best-cluster answer stays in ``mean``.
     """
     m = net.mixture(parameter)
-    p, child = m.parameter, net.cpd(m.child)
+    p = m.parameter
     enc = _prepare(net, params, evidence)
     if enc.n_rows == 0:
         placeholder = placeholder_row(enc)
@@ -450,10 +450,12 @@ def infer_parameter(
         raise ValueError(
             f"evidence gives {param_site(p.name)!r} or {cluster_site(p.name)!r}, which this query infers"
         )
-    y_site = end_site(p.affects)
-    if y_site not in enc:
+    observed = [s for s in m.affected if s in enc]
+    if not observed or m.child is not None and m.child not in enc and len(m.affected) == 1:
+        y_site = m.child or m.affected[0]
         raise ValueError(
             f"infer_parameter needs the observed end state {y_site!r} of the feature {p.name!r} acts on"
+            + (f" (or one of {list(m.affected)})" if len(m.affected) > 1 else "")
         )
     if ACTION not in enc:
         if len(p.actions) != 1:
@@ -466,22 +468,60 @@ def infer_parameter(
         raise ValueError(
             f"row {row}: action {net.actions[int(enc[ACTION][row])]!r} does not use {p.name!r}"
         )
+    if m.child is None or m.child not in enc:  # only discrete effects observed
+        return _parameter_from_cluster(net, params, m, enc, observed, mixture)
+    child = net.cpd(m.child)
+    acting = net.acting_on(m.child)
+    for q in acting:  # the other parameters on the same feature: given, with their cells
+        if q is m:
+            continue
+        theta = enc.get(q.value.site)
+        if theta is None or bool(torch.isnan(theta).any()):
+            raise ValueError(
+                f"infer_parameter({p.name!r}) needs {q.value.site!r} in every row: it acts on "
+                f"{m.child!r} too"
+            )
+        enc = enc | net.encode_indices({q.cluster.site: q.cells(theta, enc[q.action])})
     missing = [s for s in child.parents if s not in enc and s != m.cluster.site]
     if missing:
         raise ValueError(
-            f"infer_parameter needs the discrete parents {missing} of {y_site!r} as evidence"
+            f"infer_parameter needs the discrete parents {missing} of {m.child!r} as evidence"
         )
     probs = _chunked(net, params, enc, set(), lambda e, _: e.marginal(cluster_site(p.name)))
     best = probs.argmax(-1)
-    mean, cov = m.condition(params, child, enc, best)
+    mean, cov = m.condition(params, child, enc, best, acting=acting)
     index = tuple(enc[s] if s != m.cluster.site else best for s in child.parents)
-    unseen = (~child.seen(params[y_site])[index]).to(DTYPE)
+    unseen = (~child.seen(params[m.child])[index]).to(DTYPE)
     full = None
     if mixture:
         every = torch.arange(p.n_clusters).expand(enc.n_rows, -1)  # (n, C)
-        means, covs = m.condition(params, child, enc, every)
+        means, covs = m.condition(params, child, enc, every, acting=acting)
         full = GaussianMixture(probs, means, covs)
     return ParameterPosterior(probs, best, mean, cov, unseen, outside_range(p, mean), full)
+
+
+def _parameter_from_cluster(net, params, m, enc, observed, mixture) -> ParameterPosterior:
+    """The answer when only discrete features the parameter acts on are observed: they
+    depend on its cell, so the parameter given its best cluster is that cluster's
+    Gaussian."""
+
+    def fn(e: Enumerated, _):
+        post = e.posterior()
+        unseen = (post * _unseen_mass(net, params, e, observed)).reshape(-1, post.shape[-1])
+        return e.marginal(m.cluster.site), unseen.sum(0)
+
+    probs, unseen = _chunked(net, params, enc, set(), fn)
+    best = probs.argmax(-1)
+    prior = params[m.value.site]
+    mean, cov = prior.bias[best], prior.covariance[best]
+    full = None
+    if mixture:
+        n = enc.n_rows
+        every = (prior.bias.expand(n, *prior.bias.shape), prior.covariance.expand(n, -1, -1, -1))
+        full = GaussianMixture(probs, *every)
+    return ParameterPosterior(
+        probs, best, mean, cov, unseen.clamp(0, 1), outside_range(m.parameter, mean), full
+    )
 
 
 def outside_range(p: Parameter, value: torch.Tensor) -> torch.Tensor:

@@ -141,8 +141,12 @@ class Parameter:
         Cells per dimension; the cluster site has ``prod(bins)`` states, row-major.
     actions : sequence of str
         The actions that use the parameter. For other actions it is not observed.
-    affects : str
-        The continuous feature whose end state the parameter acts on.
+    affects : str or sequence of str
+        The feature(s) whose end state the parameter acts on. A continuous feature takes
+        the value as a linear input (at most one per parameter: integrating an unknown
+        value out of two would couple them); a discrete feature depends on the value's
+        cell (the cluster joins its parents), which keeps every query exact. A feature
+        may be affected by several parameters.
     """
 
     name: str
@@ -150,10 +154,20 @@ class Parameter:
     high: tuple[float, ...]
     bins: tuple[int, ...]
     actions: tuple[str, ...]
-    affects: str
+    affects: str | tuple[str, ...]
 
     def __post_init__(self) -> None:
         _check_name(self.name, "parameter")
+        if not isinstance(self.affects, str):
+            affects = tuple(self.affects) if hasattr(self.affects, "__iter__") else ()
+            if not affects or not all(isinstance(f, str) for f in affects):
+                raise ValueError(
+                    f"parameter {self.name!r}: affects must be a feature name or a non-empty "
+                    f"sequence of them, got {self.affects!r}"
+                )
+            if len(set(affects)) != len(affects):
+                raise ValueError(f"parameter {self.name!r} affects a feature twice: {affects}")
+            object.__setattr__(self, "affects", affects[0] if len(affects) == 1 else affects)
         object.__setattr__(self, "low", _numbers(self.name, "low", self.low, float))
         object.__setattr__(self, "high", _numbers(self.name, "high", self.high, float))
         object.__setattr__(self, "bins", _numbers(self.name, "bins", self.bins, int))
@@ -183,6 +197,11 @@ class Parameter:
     @property
     def dim(self) -> int:
         return len(self.low)
+
+    @property
+    def features(self) -> tuple[str, ...]:
+        """The features the parameter affects."""
+        return (self.affects,) if isinstance(self.affects, str) else self.affects
 
     @property
     def n_clusters(self) -> int:
@@ -292,20 +311,23 @@ class EffectNetwork:
         if len(set(names)) != len(names):
             raise ValueError(f"feature and parameter names must be distinct, got {names}")
         by_name = {f.name: f for f in self.features}
-        affected = [p.affects for p in self.parameters]
         for p in self.parameters:
-            target = by_name.get(p.affects)
-            if not isinstance(target, Continuous):
+            unknown = [f for f in p.features if f not in by_name]
+            if unknown:
                 raise ValueError(
-                    f"parameter {p.name!r} affects {p.affects!r}, which must be a continuous "
-                    f"feature of this network (continuous features: "
-                    f"{[f.name for f in self.features if isinstance(f, Continuous)]})"
+                    f"parameter {p.name!r} affects {unknown}, which are not features of this "
+                    f"network (features: {list(by_name)})"
+                )
+            continuous = [f for f in p.features if isinstance(by_name[f], Continuous)]
+            if len(continuous) > 1:
+                raise ValueError(
+                    f"parameter {p.name!r} affects the continuous features {continuous}; at most "
+                    "one per parameter (an unknown value integrated out of both would couple "
+                    "them). Declare one parameter per continuous feature"
                 )
             unknown = set(p.actions) - set(self.actions)
             if unknown:
                 raise ValueError(f"parameter {p.name!r} names unknown actions {sorted(unknown)}")
-        if len(set(affected)) != len(affected):
-            raise ValueError("at most one parameter may affect each feature")
         declared: dict[str, SiteSpec] = {}
         for f in self.features:
             if f.initial:
@@ -358,6 +380,10 @@ class EffectNetwork:
                 f"unknown parameter {parameter!r}; parameters: {list(self._mixtures)}"
             ) from None
 
+    def acting_on(self, site: str) -> tuple[ParameterMixture, ...]:
+        """The parameters whose values are inputs of the continuous ``site``, in input order."""
+        return tuple(m for m in self._mixtures.values() if m.child == site)
+
     def feature(self, name: str) -> Feature:
         for f in self.features:
             if f.name == name:
@@ -367,8 +393,8 @@ class EffectNetwork:
         )
 
     def parameter_of(self, feature: str) -> Parameter | None:
-        """The action parameter that acts on ``feature``, if any."""
-        return next((p for p in self.parameters if p.affects == feature), None)
+        """The first action parameter that acts on ``feature``, if any."""
+        return next((p for p in self.parameters if feature in p.features), None)
 
     def discrete_parents(self, feature: str) -> tuple[str, ...]:
         """Discrete parent sites of ``end.<feature>``, in table-axis order."""
@@ -473,7 +499,7 @@ class EffectNetwork:
                     "high": list(p.high),
                     "bins": list(p.bins),
                     "actions": list(p.actions),
-                    "affects": p.affects,
+                    "affects": p.affects if isinstance(p.affects, str) else list(p.affects),
                 }
                 for p in self.parameters
             ],
@@ -604,11 +630,12 @@ def _parents(net: EffectNetwork, sites: Mapping[str, SiteSpec]) -> dict[str, tup
             _check_parent(site, spec, q, sites)
         parents[site] = ps
     for p in net.parameters:
-        if ACTION not in parents[end_site(p.affects)]:
-            raise ValueError(
-                f"parameter {p.name!r} affects {p.affects!r}, so the action must be a parent "
-                f"of {end_site(p.affects)!r} (it decides whether the parameter is used)"
-            )
+        for f in p.features:
+            if ACTION not in parents[end_site(f)]:
+                raise ValueError(
+                    f"parameter {p.name!r} affects {f!r}, so the action must be a parent of "
+                    f"{end_site(f)!r} (it decides whether the parameter is used)"
+                )
     return parents
 
 
@@ -712,11 +739,11 @@ def _build_cpds(
             torch.tensor([a in p.actions for a in net.actions]),
             cluster_site(p.name),
             param_site(p.name),
-            end_site(p.affects),
+            tuple(end_site(f) for f in p.features),
+            next((end_site(f) for f in p.features if not sites[end_site(f)].discrete), None),
         )
         for p in net.parameters
     }
-    by_child = {m.child: m for m in mixtures.values()}
     declared = dict(net.kinds)
     cpds: dict[str, CPD] = {}
     for site, spec in sites.items():
@@ -728,14 +755,12 @@ def _build_cpds(
         ps = [q for q in sites if q in parents[site]]  # site (topological) order
         discrete = [q for q in ps if sites[q].discrete]
         inputs = [q for q in ps if not sites[q].discrete]
-        mixture = by_child.get(site)
-        if mixture is not None:
-            discrete.append(mixture.cluster.site)
-            inputs.append(mixture.value.site)
-        card = tuple(
-            sites[q].size if q in sites else mixture.parameter.n_clusters for q in discrete
-        )
-        width = sum(sites[q].size if q in sites else mixture.parameter.dim for q in inputs)
+        acting = [m for m in mixtures.values() if site in m.affected]
+        discrete += [m.cluster.site for m in acting]
+        if not spec.discrete:
+            inputs += [m.value.site for m in acting]
+        card = tuple(sites[q].size for q in discrete)
+        width = sum(sites[q].size for q in inputs)
         kind = declared.get(site) or default_kind(spec.discrete, width)
         refused = kind.refuses(spec.discrete, width)
         if refused is not None:
@@ -745,13 +770,18 @@ def _build_cpds(
                 f"{kind.name!r}: {refused}"
             )
         extra = {}
-        if mixture is not None:
+        if acting and not spec.discrete:
             if not issubclass(kind, LinearGaussianCPD):
                 raise ValueError(
-                    f"site {site!r} is affected by parameter {mixture.parameter.name!r}, so "
+                    f"site {site!r} is affected by parameter {acting[0].parameter.name!r}, so "
                     f"its kind must be a linear Gaussian, not {kind.name!r}"
                 )
-            extra["zero_weights"] = mixture.zero_weights(tuple(discrete), card, width)
+            zero = torch.zeros(math.prod(card), width, dtype=torch.bool)
+            end = width
+            for m in reversed(acting):  # the parameters are the last inputs, in this order
+                zero |= m.zero_weights(tuple(discrete), card, width, end)
+                end -= m.parameter.dim
+            extra["zero_weights"] = zero
         cpds[site] = kind(site, tuple(discrete), card, spec.size, tuple(inputs), width, **extra)
     for m in mixtures.values():
         cpds[m.cluster.site] = m.cluster

@@ -52,6 +52,7 @@ import torch
 from pyro import poutine
 
 from models.cpds import ParameterMixture, concat_inputs
+from models.cpds.mixture import affected_loc_tril
 from models.declaration import DTYPE, EffectNetwork, Parameter
 from models.evidence import Evidence
 from models.params import NetworkParams
@@ -103,10 +104,13 @@ def effect_model(
     masks = dict(masks or {})
     wanted = None if end_sites is None else net.end_sites_needed(end_sites)
     mixtures = {m.cluster.site: m for m in net.mixtures}
-    children = {m.child: m for m in net.mixtures}
+    acting: dict[str, tuple[ParameterMixture, ...]] = {}  # continuous site -> its parameters
+    for m in net.mixtures:
+        if m.child is not None:
+            acting[m.child] = (*acting.get(m.child, ()), m)
     cache: dict[str, torch.Tensor] = {}  # per-call tables (a table's logs, once)
     values: dict[str, torch.Tensor] = {}
-    known: dict[str, torch.Tensor] = {}  # per affected site: rows where its parameter is known
+    known: dict[str, torch.Tensor] = {}  # per parameter: the rows where its value is known
     with pyro.plate("rows", n, dim=-1):
         for spec in net.sites:
             site = spec.name
@@ -116,7 +120,7 @@ def effect_model(
                 continue  # no kept site depends on it (see end_sites)
             if site in mixtures:
                 m = mixtures[site]
-                cluster, theta, known[m.child] = _parameter(
+                cluster, theta, known[m.parameter.name] = _parameter(
                     m, params, values[m.action], data, masks, collapse, n, cache
                 )
                 values[site], values[m.value.site] = cluster, theta
@@ -124,10 +128,10 @@ def effect_model(
             cpd = net.cpd(site)
             index = [values[s] for s in cpd.parents]
             inputs = [values[s] for s in cpd.inputs]
-            if site in children:
-                m = children[site]
-                loc, tril = m.child_loc_tril(
-                    params, cpd, index, inputs, values[m.action], known[site]
+            if site in acting:
+                action = values[acting[site][0].action]
+                loc, tril = affected_loc_tril(
+                    acting[site], params, cpd, index, inputs, action, known
                 )
                 fn = dist.MultivariateNormal(loc, scale_tril=tril)
             else:

@@ -31,6 +31,7 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import torch
+from pyro.ops.indexing import Vindex
 
 from models.cpds.base import concat_inputs
 from models.cpds.linear_gaussian import LinearGaussian, LinearGaussianCPD
@@ -47,7 +48,9 @@ class ParameterMixture:
     """The cluster and value sites of one action parameter (see the module).
 
     ``uses`` ``(A,)`` bool: which actions use the parameter. ``action`` is the action
-    site's name, ``child`` the affected end site.
+    site's name, ``affected`` the end sites the parameter acts on, ``child`` the
+    continuous one among them (a linear input), if any; the discrete ones have the
+    cluster as a parent.
     """
 
     parameter: Parameter
@@ -55,7 +58,8 @@ class ParameterMixture:
     uses: torch.Tensor = field(compare=False, repr=False)
     cluster: TableCPD
     value: LinearGaussianCPD
-    child: str
+    affected: tuple[str, ...]
+    child: str | None
 
     name = "parameter_mixture"
 
@@ -67,7 +71,8 @@ class ParameterMixture:
         uses: torch.Tensor,
         cluster: str,
         value: str,
-        child: str,
+        affected: tuple[str, ...],
+        child: str | None,
     ) -> ParameterMixture:
         """The mixture's kinds: ``cluster`` given the action (actions not using the
         parameter pinned on cell 0), ``value`` given the cluster."""
@@ -79,6 +84,7 @@ class ParameterMixture:
             uses,
             TableCPD(cluster, (action,), (n_actions,), c, pinned=~uses),
             LinearGaussianCPD(value, (cluster,), (c,), k),
+            affected,
             child,
         )
 
@@ -108,13 +114,15 @@ class ParameterMixture:
         return factor
 
     # ---------------------------------------------------------------- the affected feature
-    def zero_weights(self, parents: tuple[str, ...], card: tuple[int, ...], width: int):
+    def zero_weights(
+        self, parents: tuple[str, ...], card: tuple[int, ...], width: int, end: int
+    ) -> torch.Tensor:
         """``(G, width)`` bool for the affected feature's linear Gaussian (parents
-        ``parents`` with cardinalities ``card``, the parameter its last ``dim`` inputs):
-        its weights on the parameter in configurations of actions not using it."""
+        ``parents`` with cardinalities ``card``, the parameter its inputs ``end - dim`` to
+        ``end``): its weights on the parameter in configurations of actions not using it."""
         unused = self._on_action_axis(~self.uses, parents, 0).expand(*card).reshape(-1)
         out = torch.zeros(unused.shape[0], width, dtype=torch.bool)
-        out[:, width - self.parameter.dim :] = unused[:, None]
+        out[:, end - self.parameter.dim : end] = unused[:, None]
         return out
 
     def _on_action_axis(self, per_action: torch.Tensor, parents, trailing: int) -> torch.Tensor:
@@ -177,11 +185,15 @@ class ParameterMixture:
         values: Mapping[str, torch.Tensor],
         cluster: torch.Tensor,
         prior: tuple[torch.Tensor, torch.Tensor] | None = None,
+        acting: tuple[ParameterMixture, ...] = (),
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """The parameter's Gaussian given the affected feature's value ``values[child]``,
         its other parents' values and a cluster per row: ``cluster`` ``(n,)``, or
         ``(n, C)`` for several clusters per row (the results then carry the ``C`` dim).
-        ``prior``: the cluster's mean and covariance, if already gathered."""
+        ``prior``: the cluster's mean and covariance, if already gathered. ``acting``:
+        every parameter acting on the child, in input order, when there are several; the
+        others count where ``values`` gives them (not NaN) and are integrated out, given
+        their cluster in ``values``, where not."""
         extra = cluster.dim() - 1  # trailing dims the row-wise values must broadcast over
 
         def rows(t: torch.Tensor) -> torch.Tensor:
@@ -189,19 +201,39 @@ class ParameterMixture:
 
         index = tuple(rows(values[s]) if s != self.cluster.site else cluster for s in child.parents)
         cpd = params[child.site]
-        k = self.parameter.dim
         weight = cpd.weight[index]
-        w_x, w_p = weight[..., : weight.shape[-1] - k], weight[..., weight.shape[-1] - k :]
+        others = acting if len(acting) > 1 else (self,)
+        q_other = weight.shape[-1] - sum(m.parameter.dim for m in others)
+        start = q_other
+        noise = cpd.covariance[index]
         offset = cpd.bias[index]
-        others = [values[s] for s in child.inputs[:-1]]
-        if others:
-            offset = offset + (w_x @ rows(torch.cat(others, -1))[..., None]).squeeze(-1)
+        for m in others:
+            k = m.parameter.dim
+            w = weight[..., start : start + k]
+            start += k
+            if m is self:
+                w_p = w
+                continue
+            theta = values.get(m.value.site)
+            c = rows(values[m.cluster.site])
+            value, hidden = params[m.value.site].bias[c], None
+            if theta is not None:
+                given = rows(~torch.isnan(theta).any(-1))
+                value = torch.where(given[..., None], rows(theta.nan_to_num()), value)
+                hidden = ~given
+            uses = rows(m.in_use(values[m.action]))
+            offset = offset + (w @ torch.where(uses[..., None], value, 0.0)[..., None]).squeeze(-1)
+            spread = w @ params[m.value.site].covariance[c] @ w.mT
+            hidden = uses if hidden is None else uses & hidden
+            noise = noise + hidden[..., None, None] * spread
+        w_x = weight[..., :q_other]
+        inputs = [values[s] for s in child.inputs[: len(child.inputs) - len(others)]]
+        if inputs:
+            offset = offset + (w_x @ rows(torch.cat(inputs, -1))[..., None]).squeeze(-1)
         if prior is None:
             value = params[self.value.site]
             prior = value.bias[cluster], value.covariance[cluster]
-        return condition_linear_gaussian(
-            *prior, w_p, offset, cpd.covariance[index], rows(values[child.site])
-        )
+        return condition_linear_gaussian(*prior, w_p, offset, noise, rows(values[child.site]))
 
     def query_tables(self, params: Mapping, child: LinearGaussianCPD) -> dict[str, torch.Tensor]:
         """Tables of the inverse query, per configuration of the child's parents: the
@@ -251,3 +283,47 @@ class ParameterMixture:
         mean = p.cluster_centres() + offset * width
         tril = torch.diag_embed((width / 8).expand(p.n_clusters, p.dim))
         return LinearGaussian(value.weight, mean, tril, value.n)
+
+
+def affected_loc_tril(
+    acting: tuple[ParameterMixture, ...],
+    params: Mapping,
+    child: LinearGaussianCPD,
+    index: list[torch.Tensor],
+    inputs: list[torch.Tensor],
+    action: torch.Tensor,
+    known: Mapping[str, torch.Tensor],
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """A continuous feature's mean and Cholesky factor given the parameters ``acting`` on
+    it (their values its last inputs, their clusters its last parents, in this order):
+    each value counts where it is ``known`` (rows, by parameter name) and is integrated
+    out where not: ``y ~ N(b + W_x x + sum_j W_j mu_j, R + sum_j W_j S_j W_j^T)`` over
+    the unknown ``j`` (independent given their clusters)."""
+    if len(acting) == 1:
+        m = acting[0]
+        return m.child_loc_tril(params, child, index, inputs, action, known[m.parameter.name])
+    cpd = params[child.site]
+    loc, tril = child.loc_tril(cpd, index, None)
+    weight = Vindex(cpd.weight)[(*index, slice(None), slice(None))]
+    cov = tril @ tril.mT
+    q_other = weight.shape[-1] - sum(m.parameter.dim for m in acting)
+    x = concat_inputs(inputs[: len(inputs) - len(acting)])
+    if x is not None:
+        loc = loc + (weight[..., :q_other] @ x.unsqueeze(-1)).squeeze(-1)
+    start = q_other
+    clusters = index[len(index) - len(acting) :]
+    thetas = inputs[len(inputs) - len(acting) :]
+    for m, c, theta in zip(acting, clusters, thetas, strict=True):
+        k = m.parameter.dim
+        w = weight[..., start : start + k]
+        start += k
+        given, uses = known[m.parameter.name], m.in_use(action)
+        prior = params[m.value.site]
+        value = torch.where(given[..., None], theta.nan_to_num(), Vindex(prior.bias)[c, :])
+        value = torch.where(uses[..., None], value, 0.0)
+        loc = loc + (w @ value.unsqueeze(-1)).squeeze(-1)
+        hidden = uses & ~given
+        if bool(hidden.any()):
+            spread = w @ Vindex(prior.covariance)[c, :, :] @ w.mT
+            cov = cov + hidden[..., None, None] * spread
+    return loc, torch.linalg.cholesky(cov)
