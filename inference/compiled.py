@@ -369,8 +369,8 @@ def compile_parameter_query(
     if m.child is None or m.affected != (m.child,) or net.acting_on(m.child) != (m,):
         raise ValueError(
             f"the compiled query serves a parameter acting on one continuous feature alone; "
-            f"{parameter!r} acts on {list(m.affected)} (with {[q.parameter.name for q in net.acting_on(m.child)] if m.child else []}): "
-            "use inference.infer_parameter"
+            f"{parameter!r} acts on {list(m.affected)}, or shares one with another "
+            "parameter: use inference.infer_parameter"
         )
     child = net.cpd(m.child)
     return CompiledParameterQuery(

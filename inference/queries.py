@@ -468,10 +468,10 @@ def infer_parameter(
         raise ValueError(
             f"row {row}: action {net.actions[int(enc[ACTION][row])]!r} does not use {p.name!r}"
         )
-    if m.child is None or m.child not in enc:  # only discrete effects observed
+    children = [net.cpd(s) for s in m.continuous if s in enc]
+    if not children:  # only discrete effects observed
         return _parameter_from_cluster(net, params, m, enc, observed, mixture)
-    child = net.cpd(m.child)
-    acting = net.acting_on(m.child)
+    acting = net.acting_on(m.child) if m.child is not None else (m,)
     for q in acting:  # the other parameters on the same feature: given, with their cells
         if q is m:
             continue
@@ -482,20 +482,25 @@ def infer_parameter(
                 f"{m.child!r} too"
             )
         enc = enc | net.encode_indices({q.cluster.site: q.cells(theta, enc[q.action])})
-    missing = [s for s in child.parents if s not in enc and s != m.cluster.site]
-    if missing:
-        raise ValueError(
-            f"infer_parameter needs the discrete parents {missing} of {m.child!r} as evidence"
-        )
+    for child in children:
+        missing = [s for s in child.parents if s not in enc and s != m.cluster.site]
+        if missing:
+            raise ValueError(
+                f"infer_parameter needs the discrete parents {missing} of {child.site!r} as "
+                "evidence"
+            )
     probs = _chunked(net, params, enc, set(), lambda e, _: e.marginal(cluster_site(p.name)))
     best = probs.argmax(-1)
-    mean, cov = m.condition(params, child, enc, best, acting=acting)
-    index = tuple(enc[s] if s != m.cluster.site else best for s in child.parents)
-    unseen = (~child.seen(params[m.child])[index]).to(DTYPE)
+    mean, cov = m.posterior(params, children, enc, best, acting=acting)
+    unseen = torch.zeros(enc.n_rows, dtype=torch.bool)
+    for child in children:
+        index = tuple(enc[s] if s != m.cluster.site else best for s in child.parents)
+        unseen = unseen | ~child.seen(params[child.site])[index]
+    unseen = unseen.to(DTYPE)
     full = None
     if mixture:
         every = torch.arange(p.n_clusters).expand(enc.n_rows, -1)  # (n, C)
-        means, covs = m.condition(params, child, enc, every, acting=acting)
+        means, covs = m.posterior(params, children, enc, every, acting=acting)
         full = GaussianMixture(probs, means, covs)
     return ParameterPosterior(probs, best, mean, cov, unseen, outside_range(p, mean), full)
 

@@ -130,9 +130,10 @@ def _parameter_draw(
     cluster = data[c_site]
     prior = params[p_site]
     mean, cov = prior.bias[cluster], prior.covariance[cluster]
-    if m.child is not None and m.child in data:
-        acting = net.acting_on(m.child)
-        mean, cov = m.condition(params, net.cpd(m.child), data, cluster, (mean, cov), acting)
+    children = [net.cpd(s) for s in m.continuous if s in data]
+    if children:
+        acting = net.acting_on(m.child) if m.child is not None else (m,)
+        mean, cov = m.posterior(params, children, data, cluster, (mean, cov), acting)
     eps = torch.randn(n, p.dim, dtype=DTYPE)
     drawn = mean + (torch.linalg.cholesky(cov) @ eps[..., None]).squeeze(-1)
     return torch.where(todo[:, None], drawn, theta)

@@ -8,7 +8,7 @@ The paper's Fig. 1 structure is built from a small, frozen declaration::
         |    \\  /    |     /
         |     \\/     |    /    cluster.p --> param.p     (optional action parameter)
         v     /\\     v   v        |             |
-    end.f1   end.f2   ...  <-------+-------------+  (only the feature the parameter affects)
+    end.f1   end.f2   ...  <-------+-------------+  (only the features the parameter affects)
 
 By default (the paper's Fig. 1) every initial site is a parent of every end site, the
 action is a parent of every end site, and there are no edges among end sites;
@@ -16,7 +16,8 @@ action is a parent of every end site, and there are no edges among end sites;
 site before an initial one), and ``kinds=`` other conditional-distribution kinds. An action parameter (paper §III, "tap with
 force F") adds a continuous site ``param.<name>`` and a discrete site ``cluster.<name>``
 that cuts the parameter's range into equidistant cells; per cluster one joint Gaussian of
-the parameter and the feature it affects (a mixture of Gaussians).
+the parameter and the continuous features it affects (a mixture of Gaussians); a
+discrete feature it affects depends on the cluster.
 
 A declaration holds structure only. Fitted numbers live in :mod:`models.params`.
 """
@@ -143,10 +144,11 @@ class Parameter:
         The actions that use the parameter. For other actions it is not observed.
     affects : str or sequence of str
         The feature(s) whose end state the parameter acts on. A continuous feature takes
-        the value as a linear input (at most one per parameter: integrating an unknown
-        value out of two would couple them); a discrete feature depends on the value's
-        cell (the cluster joins its parents), which keeps every query exact. A feature
-        may be affected by several parameters.
+        the value as a linear input; a discrete feature depends on the value's cell (the
+        cluster joins its parents), which keeps every query exact. A feature may be
+        affected by several parameters, and a parameter may act on several continuous
+        features if it is the only parameter acting on each (an unknown value couples
+        them; queries integrate it out of their joint).
     """
 
     name: str
@@ -319,11 +321,18 @@ class EffectNetwork:
                     f"network (features: {list(by_name)})"
                 )
             continuous = [f for f in p.features if isinstance(by_name[f], Continuous)]
-            if len(continuous) > 1:
+            crowded = [
+                f
+                for f in continuous
+                if len(continuous) > 1
+                and any(f in q.features for q in self.parameters if q is not p)
+            ]
+            if crowded:
                 raise ValueError(
-                    f"parameter {p.name!r} affects the continuous features {continuous}; at most "
-                    "one per parameter (an unknown value integrated out of both would couple "
-                    "them). Declare one parameter per continuous feature"
+                    f"parameter {p.name!r} acts on several continuous features, so it must "
+                    f"be the only parameter acting on each; {crowded} have others (an "
+                    "unknown value would couple the parameters). Merge them into one "
+                    "parameter of higher dimension"
                 )
             unknown = set(p.actions) - set(self.actions)
             if unknown:
@@ -382,7 +391,7 @@ class EffectNetwork:
 
     def acting_on(self, site: str) -> tuple[ParameterMixture, ...]:
         """The parameters whose values are inputs of the continuous ``site``, in input order."""
-        return tuple(m for m in self._mixtures.values() if m.child == site)
+        return tuple(m for m in self._mixtures.values() if site in m.continuous)
 
     def feature(self, name: str) -> Feature:
         for f in self.features:
@@ -740,7 +749,7 @@ def _build_cpds(
             cluster_site(p.name),
             param_site(p.name),
             tuple(end_site(f) for f in p.features),
-            next((end_site(f) for f in p.features if not sites[end_site(f)].discrete), None),
+            tuple(end_site(f) for f in p.features if not sites[end_site(f)].discrete),
         )
         for p in net.parameters
     }

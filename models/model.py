@@ -105,9 +105,14 @@ def effect_model(
     wanted = None if end_sites is None else net.end_sites_needed(end_sites)
     mixtures = {m.cluster.site: m for m in net.mixtures}
     acting: dict[str, tuple[ParameterMixture, ...]] = {}  # continuous site -> its parameters
+    shared = [m for m in net.mixtures if len(m.continuous) > 1]
     for m in net.mixtures:
         if m.child is not None:
             acting[m.child] = (*acting.get(m.child, ()), m)
+    # A value acting on several continuous sites couples them where it is unknown: they
+    # are sampled last (they have no children), the observed ones first, each given
+    # the value's Gaussian conditioned on those before it.
+    deferred = {s for m in shared for s in m.continuous}
     cache: dict[str, torch.Tensor] = {}  # per-call tables (a table's logs, once)
     values: dict[str, torch.Tensor] = {}
     known: dict[str, torch.Tensor] = {}  # per parameter: the rows where its value is known
@@ -118,6 +123,8 @@ def effect_model(
                 continue  # sampled with its cluster
             if wanted is not None and spec.role == "end" and site not in wanted:
                 continue  # no kept site depends on it (see end_sites)
+            if site in deferred:
+                continue
             if site in mixtures:
                 m = mixtures[site]
                 cluster, theta, known[m.parameter.name] = _parameter(
@@ -140,6 +147,20 @@ def effect_model(
                 values[site] = _discrete(site, fn, data, masks)
             else:
                 values[site] = _continuous(site, pyro.sample(site, fn, obs=data.get(site)))
+        for m in shared:
+            sites = [s for s in m.continuous if wanted is None or s in wanted]
+            belief = None
+            for site in sorted(sites, key=lambda s: s not in data):  # observed ones first
+                cpd = net.cpd(site)
+                index = [values[s] for s in cpd.parents]
+                inputs = [values[s] for s in cpd.inputs]
+                action = values[m.action]
+                args = (params, cpd, index, inputs, action)
+                loc, tril = m.shared_loc_tril(*args, known[m.parameter.name], belief)
+                fn = dist.MultivariateNormal(loc, scale_tril=tril)
+                values[site] = _continuous(site, pyro.sample(site, fn, obs=data.get(site)))
+                if site in data:
+                    belief = m.update(*args, values[site], belief)
     return values
 
 

@@ -48,9 +48,9 @@ class ParameterMixture:
     """The cluster and value sites of one action parameter (see the module).
 
     ``uses`` ``(A,)`` bool: which actions use the parameter. ``action`` is the action
-    site's name, ``affected`` the end sites the parameter acts on, ``child`` the
-    continuous one among them (a linear input), if any; the discrete ones have the
-    cluster as a parent.
+    site's name, ``affected`` the end sites the parameter acts on, ``continuous`` those
+    among them that take its value as a linear input; the discrete ones have the cluster
+    as a parent.
     """
 
     parameter: Parameter
@@ -59,9 +59,14 @@ class ParameterMixture:
     cluster: TableCPD
     value: LinearGaussianCPD
     affected: tuple[str, ...]
-    child: str | None
+    continuous: tuple[str, ...]
 
     name = "parameter_mixture"
+
+    @property
+    def child(self) -> str | None:
+        """The one continuous site the parameter acts on, if there is exactly one."""
+        return self.continuous[0] if len(self.continuous) == 1 else None
 
     @classmethod
     def of(
@@ -72,7 +77,7 @@ class ParameterMixture:
         cluster: str,
         value: str,
         affected: tuple[str, ...],
-        child: str | None,
+        continuous: tuple[str, ...],
     ) -> ParameterMixture:
         """The mixture's kinds: ``cluster`` given the action (actions not using the
         parameter pinned on cell 0), ``value`` given the cluster."""
@@ -85,7 +90,7 @@ class ParameterMixture:
             TableCPD(cluster, (action,), (n_actions,), c, pinned=~uses),
             LinearGaussianCPD(value, (cluster,), (c,), k),
             affected,
-            child,
+            continuous,
         )
 
     @property
@@ -234,6 +239,65 @@ class ParameterMixture:
             value = params[self.value.site]
             prior = value.bias[cluster], value.covariance[cluster]
         return condition_linear_gaussian(*prior, w_p, offset, noise, rows(values[child.site]))
+
+    def belief(self, params: Mapping, cluster: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The value's Gaussian given the cluster: mean ``(..., k)`` and covariance."""
+        prior = params[self.value.site]
+        return Vindex(prior.bias)[cluster, :], Vindex(prior.covariance)[cluster, :, :]
+
+    def _split(self, params, child, index, inputs, action):
+        """The child's offset ``b + W_x x`` and its weights on the value (zero for
+        actions not using it), gathered at the parents."""
+        cpd = params[child.site]
+        k = self.parameter.dim
+        offset, tril = child.loc_tril(cpd, index, None)
+        weight = Vindex(cpd.weight)[(*index, slice(None), slice(None))]
+        q = weight.shape[-1]
+        x = concat_inputs(inputs[:-1])
+        if x is not None:
+            offset = offset + (weight[..., : q - k] @ x.unsqueeze(-1)).squeeze(-1)
+        uses = self.in_use(action).to(weight.dtype)[..., None, None]
+        return offset, tril, weight[..., q - k :] * uses
+
+    def shared_loc_tril(
+        self, params, child, index, inputs, action, known, belief
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Like :meth:`child_loc_tril` for a value acting on several continuous sites:
+        where unknown, integrated out under ``belief`` (the value's Gaussian given the
+        cluster and the affected sites observed so far; ``None``: the cluster's own)."""
+        if belief is None:
+            return self.child_loc_tril(params, child, index, inputs, action, known)
+        offset, tril, w_p = self._split(params, child, index, inputs, action)
+        theta = inputs[-1].nan_to_num()
+        mean = torch.where(known[..., None], theta, belief[0])
+        loc = offset + (w_p @ mean.unsqueeze(-1)).squeeze(-1)
+        spread = (~known).to(w_p.dtype)[..., None, None] * (w_p @ belief[1] @ w_p.mT)
+        return loc, torch.linalg.cholesky(tril @ tril.mT + spread)
+
+    def update(
+        self, params, child, index, inputs, action, y, belief
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """``belief`` (``None``: the cluster's Gaussian, gathered at the child's last
+        discrete parent) conditioned on the child's observed value ``y``."""
+        if belief is None:
+            belief = self.belief(params, index[-1])
+        offset, tril, w_p = self._split(params, child, index, inputs, action)
+        return condition_linear_gaussian(*belief, w_p, offset, tril @ tril.mT, y)
+
+    def posterior(
+        self,
+        params: Mapping,
+        children: list[LinearGaussianCPD],
+        values: Mapping[str, torch.Tensor],
+        cluster: torch.Tensor,
+        prior: tuple[torch.Tensor, torch.Tensor] | None = None,
+        acting: tuple[ParameterMixture, ...] = (),
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`condition` on each of ``children`` (observed continuous sites the value
+        acts on) in turn: the value's Gaussian given all of them."""
+        for child in children:
+            prior = self.condition(params, child, values, cluster, prior, acting)
+        return prior
 
     def query_tables(self, params: Mapping, child: LinearGaussianCPD) -> dict[str, torch.Tensor]:
         """Tables of the inverse query, per configuration of the child's parents: the

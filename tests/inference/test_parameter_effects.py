@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 import torch
 
-from inference import fit, infer_action, infer_parameter, predict, simulate
+from inference import fit, imitation_check, infer_action, infer_parameter, predict, simulate
 from inference.compiled import compile_parameter_query
 from models import Continuous, Discrete, EffectNetwork, Parameter, load, random_params, save
 
@@ -202,7 +202,82 @@ def test_one_parameter_on_a_continuous_and_a_discrete_feature(tmp_path):
     assert fit(net, rows).params["end.upright"].probs.shape == (2, 2, 3, 2)
 
 
-def test_two_continuous_features_per_parameter_are_refused():
-    force = Parameter("force", 0.0, 1.0, 2, ("push",), ("a", "b"))
-    with pytest.raises(ValueError, match=r"continuous features \['a', 'b'\]; at most one"):
-        EffectNetwork((Continuous("a"), Continuous("b")), ACTIONS, (force,))
+def throwing():
+    """One aim acting on two continuous features (where the ball lands, how far it
+    rolls): an unknown aim couples them."""
+    aim = Parameter("aim", 0.0, 2.0, 2, ("throw",), ("land", "roll"))
+    net = EffectNetwork(
+        (Continuous("land", 2), Continuous("roll", 1)),
+        ("throw", "drop"),
+        (aim,),
+        parents={"end.land": ("initial.land", "action"), "end.roll": ("initial.roll", "action")},
+    )
+    return net, random_params(net, 5)
+
+
+def joint_by_hand(params, x_land, x_roll, c):
+    """Per cluster ``c`` of the action throw: the joint Gaussian of (end.land, end.roll)
+    with the aim integrated out, and the two sites' weights on the aim."""
+    land, roll = params["end.land"], params["end.roll"]
+    prior = params["param.aim"]
+    m, s = prior.bias[c].numpy(), prior.covariance[c].numpy()
+    w1, w2 = land.weight[0, c].numpy(), roll.weight[0, c].numpy()  # (2, 3), (1, 2)
+    mu1 = land.bias[0, c].numpy() + w1[:, :2] @ x_land + w1[:, 2:] @ m
+    mu2 = roll.bias[0, c].numpy() + w2[:, :1] @ x_roll + w2[:, 1:] @ m
+    w = np.vstack([w1[:, 2:], w2[:, 1:]])  # (3, 1): both sites' weights on the aim
+    noise = np.zeros((3, 3))
+    noise[:2, :2], noise[2:, 2:] = land.covariance[0, c].numpy(), roll.covariance[0, c].numpy()
+    return np.concatenate([mu1, mu2]), w @ s @ w.T + noise, w, m, s
+
+
+def test_a_shared_parameter_couples_its_features():
+    net, params = throwing()
+    x_land, x_roll, y_land = np.array([0.1, -0.2]), np.array([0.3]), np.array([0.5, 1.0])
+    ev = {"initial.land": [x_land], "initial.roll": [x_roll], "action": ["throw"]}
+    clusters = params["cluster.aim"].probs[0].numpy()
+    # end.roll given end.land: Gaussian conditioning of the joint, per cluster
+    pred = predict(net, params, ev | {"end.land": [y_land]}).continuous["roll"]
+    weights, means, covs = [], [], []
+    for c in range(2):
+        mu, cov, *_ = joint_by_hand(params, x_land, x_roll, c)
+        weights.append(clusters[c] * normal_pdf(y_land, mu[:2], cov[:2, :2]))
+        gain = cov[2:, :2] @ np.linalg.inv(cov[:2, :2])
+        means.append(mu[2:] + gain @ (y_land - mu[:2]))
+        covs.append(cov[2:, 2:] - gain @ cov[:2, 2:])
+    weights = np.array(weights) / sum(weights)
+    mean = sum(w * m for w, m in zip(weights, means, strict=True))
+    spread = sum(w * (c + np.outer(m, m)) for w, m, c in zip(weights, means, covs, strict=True))
+    np.testing.assert_allclose(pred.mean[0].numpy(), mean, rtol=1e-9)
+    np.testing.assert_allclose(pred.cov[0].numpy(), spread - np.outer(mean, mean), rtol=1e-9)
+    # both observed: the joint likelihood, and the aim given both
+    y_roll = np.array([0.7])
+    both = ev | {"end.land": [y_land], "end.roll": [y_roll]}
+    answer = infer_parameter(net, params, "aim", both)
+    y = np.concatenate([y_land, y_roll])
+    joint = [
+        clusters[c] * normal_pdf(y, *joint_by_hand(params, x_land, x_roll, c)[:2]) for c in range(2)
+    ]
+    np.testing.assert_allclose(answer.cluster_probs[0].numpy(), np.array(joint) / sum(joint))
+    best = int(np.argmax(joint))
+    mu, cov, w, m, s = joint_by_hand(params, x_land, x_roll, best)
+    expected = m + s @ w.T @ np.linalg.solve(cov, y - mu)
+    np.testing.assert_allclose(answer.mean[0].numpy(), expected, rtol=1e-9)
+    check = imitation_check(net, params, both, n_samples=10)
+    total = np.log(sum(joint))
+    np.testing.assert_allclose(float(check.log_likelihood[0]), total, rtol=1e-9)
+
+
+def test_a_shared_parameter_is_drawn_from_its_posterior():
+    net, params = throwing()
+    ev = {"initial.land": [[0.1, -0.2]], "initial.roll": [[0.3]], "action": ["throw"]}
+    ev |= {"end.land": [[0.5, 1.0]], "end.roll": [[0.7]]}
+    drawn = simulate(net, params, 4000, ev, seed=0)["param.aim"]
+    exact = infer_parameter(net, params, "aim", ev, mixture=True).mixture
+    torch.testing.assert_close(drawn.mean(0), exact.mean[0], atol=0.02, rtol=0)
+
+
+def test_a_parameter_on_several_continuous_features_acts_alone():
+    aim = Parameter("aim", 0.0, 1.0, 2, ("push",), ("a", "b"))
+    spin = Parameter("spin", 0.0, 1.0, 2, ("push",), "a")
+    with pytest.raises(ValueError, match=r"only parameter acting on each; \['a'\] have others"):
+        EffectNetwork((Continuous("a"), Continuous("b")), ACTIONS, (aim, spin))
