@@ -35,7 +35,12 @@ row, or not given at all, is then *unknown* in that row and is integrated out in
 form: the affected feature follows the marginal
 ``MVN(W_x x + W_p mean[c] + b, cov + W_p cov_p[c] W_p^T)`` given the cluster ``c`` (a
 linear-Gaussian identity), so no continuous site is latent and every discrete sum is
-exact. In the default form a parameter is an ordinary sample site: given, or sampled.
+exact. Several parameters on one feature add their terms; a parameter acting on several
+continuous features couples them, which are then sampled last (they have no children),
+the observed ones first, each given the value's Gaussian conditioned on those before it
+(:class:`models.cpds.ParameterMixture`). A discrete feature a parameter acts on depends
+on its cluster, an enumerated site. In the default form a parameter is an ordinary
+sample site: given, or sampled.
 
 Values that reach the model through Pyro's handlers are the model's own: state indices
 for discrete sites (``net.encode`` turns labels into them), numbers for continuous ones
@@ -53,7 +58,7 @@ from pyro import poutine
 
 from models.cpds import ParameterMixture, concat_inputs
 from models.cpds.mixture import affected_loc_tril
-from models.declaration import DTYPE, EffectNetwork, Parameter
+from models.declaration import DTYPE, EffectNetwork
 from models.evidence import Evidence
 from models.params import NetworkParams
 
@@ -260,14 +265,3 @@ def _continuous(site: str, value: object) -> torch.Tensor:
     if isinstance(value, torch.Tensor) and value.is_floating_point():
         return value if value.dtype == DTYPE else value.to(DTYPE)
     raise ValueError(f"site {site!r} received {value!r}: expected a float tensor of shape (n, dim)")
-
-
-def collapsed_tables(
-    net: EffectNetwork, params: NetworkParams, parameter: Parameter
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """The affected feature's CPD with ``parameter`` integrated out, per configuration:
-    ``offset`` ``(P..., d)``, ``scale_tril`` ``(P..., d, d)`` and ``w_x`` ``(P..., d, p - k)``
-    (see :meth:`models.cpds.ParameterMixture.marginal`)."""
-    m = net.mixture(parameter.name)
-    marginal = m.marginal(params, net.cpd(m.child))
-    return marginal.bias, marginal.scale_tril, marginal.weight

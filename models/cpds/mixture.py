@@ -1,19 +1,22 @@
-"""An action parameter: its cluster, its value, and how they act on the affected feature.
+"""An action parameter: its cluster, its value, and how they act on the features.
 
 Paper §III: a continuous parameter ``param.p`` (a force, a target) with a discrete
 ``cluster.p`` over equidistant cells of its range, one Gaussian per cell (a mixture of
-Gaussians), and the affected feature's linear Gaussian taking the parameter as its last
-continuous input and the cluster as its last discrete parent::
+Gaussians). A continuous feature it acts on takes the value as its last continuous
+input and the cluster as its last discrete parent (a linear Gaussian); a discrete
+feature takes the cluster only (its table or softmax has a cell axis)::
 
     action --> cluster.p --> param.p
-       \\           \\           \\
-        +-----------+-----------+--> end.g      (linear Gaussian)
+       \\           \\   \\         \\
+        +-----------+---+---------+--> end.g      (continuous: linear Gaussian)
+                         \\
+                          +-----------> end.h      (discrete: depends on the cell)
 
 :class:`ParameterMixture` owns the two sites' kinds (a pinned table and a linear
 Gaussian) and every rule that ties them together:
 
 * **An action that does not use the parameter ignores it.** Its cluster is pinned on
-  cell 0 (not fitted), its value's density is left out, and the affected feature's
+  cell 0 (not fitted), its value's density is left out, and the affected features'
   weights on the parameter are zero for it (fixed in the fit, ignored in the model).
 * **The cluster is the parameter's equidistant cell** (:meth:`cells`); in the model a
   factor makes it so (:meth:`cell_factor`).
@@ -21,6 +24,9 @@ Gaussian) and every rule that ties them together:
   ``y = W_x x + W_p theta + b + e``, ``y ~ N(W_x x + W_p m_c + b, R + W_p S_c W_p^T)``
   (:meth:`marginal`), and ``theta`` given ``y`` is the linear-Gaussian posterior
   (:meth:`condition`); :meth:`query_tables` precomputes both for the compiled query.
+  Several parameters on one feature add their terms (:func:`affected_loc_tril`); a
+  value acting on several continuous features is conditioned on each observed one in
+  turn (:meth:`update`, :meth:`posterior`).
 """
 
 from __future__ import annotations
