@@ -266,3 +266,31 @@ def test_a_discrete_parent_of_an_initial_gaussian_is_inferred_by_bayes():
     heavy = prior * density / (prior * density).sum()  # Bayes on the initial feature
     expected = heavy @ params["end.heavy"].probs[:, 0]  # then the table, action "lift"
     torch.testing.assert_close(posterior.discrete["heavy"][0], expected)
+
+
+def test_a_latent_discrete_end_parent_of_a_gaussian_is_summed_out():
+    net = EffectNetwork(
+        (Discrete("a", (0, 1)), Continuous("pos", 1)),
+        ("push", "pull"),
+        parents={"end.a": ("initial.a", "action"), "end.pos": ("initial.pos", "action", "end.a")},
+    )
+    assert net.cpd("end.pos").parents == ("action", "end.a")
+    params = random_params(net, 6)
+    x, y = 0.4, 1.3
+    table, lg, prior = params["end.a"].probs, params["end.pos"], params["action"].probs
+
+    def density(action, a):
+        mean = lg.bias[action, a, 0] + lg.weight[action, a, 0, 0] * x
+        sd = lg.scale_tril[action, a, 0, 0]
+        return torch.exp(-0.5 * ((y - mean) / sd) ** 2) / (sd * math.sqrt(2 * math.pi))
+
+    likelihood = torch.stack(
+        [sum(table[1, act, a] * density(act, a) for a in range(2)) for act in range(2)]
+    )
+    posterior = infer_action(
+        net, params, {"initial.a": [1], "initial.pos": [[x]], "end.pos": [[y]]}
+    )
+    torch.testing.assert_close(posterior.probs[0], prior * likelihood / (prior @ likelihood))
+    pred = predict(net, params, {"initial.a": [1], "initial.pos": [[x]], "action": ["pull"]})
+    means = lg.bias[1, :, 0] + lg.weight[1, :, 0, 0] * x
+    torch.testing.assert_close(pred.continuous["pos"].mean[0, 0], table[1, 1] @ means)
