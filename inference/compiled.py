@@ -11,7 +11,6 @@ the two against each other.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
@@ -33,12 +32,10 @@ from models.declaration import (
     DTYPE,
     EffectNetwork,
     Parameter,
-    cluster_site,
     end_site,
-    param_site,
 )
 from models.evidence import Evidence
-from models.model import collapsed_tables, effect_model
+from models.model import effect_model
 from models.params import NetworkParams, check_params
 
 
@@ -109,10 +106,14 @@ class CompiledNetwork:
             return self.plans[observed]
         total = torch.zeros((), dtype=DTYPE)
         unseen = None
+        needed = self.net.end_sites_needed(observed)
         for site, table in self.factors.items():
             role = self.net.site(site).role
-            if role == "end" and site not in observed:
-                continue  # a leaf nobody asked about sums to one
+            if role == "end" and site not in needed:
+                continue  # no observed site depends on it: it sums to one
+            if role == "end" and site not in observed:  # a latent parent of an observed one
+                total = total + table
+                continue
             total = total + table
             if role == "end":
                 miss = ~self.seen[site]
@@ -259,12 +260,12 @@ def compile_discrete(net: EffectNetwork, params: NetworkParams) -> CompiledNetwo
     for spec in net.sites:
         if spec.role != "end":
             continue
-        n = params[spec.name].n > 0  # over the discrete parents, in discrete_parents order
-        parents = net.discrete_parents(spec.feature)
+        cpd = net.cpd(spec.name)
+        n = cpd.seen(params[spec.name])  # over the discrete parents, in table-axis order
         # move the parents' axes to their positions in ``order``
-        perm = sorted(range(len(parents)), key=lambda i: order.index(parents[i]))
-        n = n.permute(*perm)
-        shape = [net.site(s).size if s in parents else 1 for s in order]
+        perm = sorted(range(len(cpd.parents)), key=lambda i: order.index(cpd.parents[i]))
+        n = n.permute(perm)
+        shape = [net.site(s).size if s in cpd.parents else 1 for s in order]
         seen[spec.name] = n.reshape(shape)
     return CompiledNetwork(net, order, factors, seen)
 
@@ -273,9 +274,9 @@ def compile_discrete(net: EffectNetwork, params: NetworkParams) -> CompiledNetwo
 class CompiledParameterQuery:
     """The inverse parameter query with its Gaussian tables precomputed.
 
-    Built from :func:`models.model.collapsed_tables` (the marginal of the affected feature
-    that the model itself samples when the parameter is unobserved) and the parameter's
-    cluster Gaussians: per parent configuration, the marginal's Cholesky factor and the
+    Built by :meth:`models.cpds.ParameterMixture.query_tables` from the marginal of the
+    affected feature that the model itself samples when the parameter is unobserved and
+    the parameter's cluster Gaussians: per parent configuration, the marginal's Cholesky factor and the
     conditioning gain are computed once, so a query is gathers, one Gaussian log-density
     per cluster and one matrix-vector product. Same results as
     :func:`inference.infer_parameter`.
@@ -284,6 +285,7 @@ class CompiledParameterQuery:
     net: EffectNetwork
     parameter: Parameter
     parents: tuple[str, ...]  # discrete parents of the affected end site, cluster last
+    inputs: tuple[str, ...]  # its continuous parents, the parameter last
     log_cluster: torch.Tensor  # (A, C)
     offset: torch.Tensor  # (P..., d)
     whiten: torch.Tensor  # (P..., d, d): inverse of the marginal's Cholesky factor
@@ -297,7 +299,7 @@ class CompiledParameterQuery:
     def infer(self, evidence: Mapping[str, object], *, mixture: bool = False) -> ParameterPosterior:
         """Same contract and result as :func:`inference.infer_parameter`."""
         p = self.parameter
-        y_site = end_site(p.affects)
+        y_site = end_site(p.features[0])
         enc = self.net.encode(evidence)
         if y_site not in enc:
             raise ValueError(f"the query needs the observed end state {y_site!r}")
@@ -325,7 +327,7 @@ class CompiledParameterQuery:
         shared = n > 0 and all(bool((i == i[0]).all()) for i in index)
         gather = tuple(i[:1] for i in index) if shared else index
         loc = self.offset[gather]  # (n or 1, C, d)
-        others = [enc[s] for s in self.net.continuous_parents(p.affects)[:-1]]
+        others = [enc[s] for s in self.inputs[:-1]]
         x = torch.cat(others, -1) if others else None
         if x is not None:
             loc = loc + (self.w_x[gather] @ x[:, None, :, None]).squeeze(-1)
@@ -363,35 +365,14 @@ def compile_parameter_query(
 ) -> CompiledParameterQuery:
     """Precompute :class:`CompiledParameterQuery` for ``parameter`` of ``net``."""
     check_params(net, params)
-    p = next((q for q in net.parameters if q.name == parameter), None)
-    if p is None:
+    m = net.mixture(parameter)
+    if m.child is None or m.affected != (m.child,) or net.acting_on(m.child) != (m,):
         raise ValueError(
-            f"unknown parameter {parameter!r}; parameters: {[q.name for q in net.parameters]}"
+            f"the compiled query serves a parameter acting on one continuous feature alone; "
+            f"{parameter!r} acts on {list(m.affected)}, or shares one with another "
+            "parameter: use inference.infer_parameter"
         )
-    offset, tril, w_x = collapsed_tables(net, params, p)
-    cpd = params[end_site(p.affects)]
-    prior = params[param_site(p.name)]
-    k = p.dim
-    w_p = cpd.weight[..., -k:]
-    # gain = S_c W_p^T (W_p S_c W_p^T + R)^-1, with the marginal's Cholesky factor
-    cross = prior.covariance @ w_p.mT  # (P..., k, d)
-    gain = torch.cholesky_solve(cross.mT, tril).mT
-    post_cov = prior.covariance - gain @ w_p @ prior.covariance
-    log_cluster = params[cluster_site(p.name)].probs.clamp_min(1e-300).log()
+    child = net.cpd(m.child)
     return CompiledParameterQuery(
-        net,
-        p,
-        net.discrete_parents(p.affects),
-        log_cluster,
-        offset,
-        torch.linalg.solve_triangular(
-            tril, torch.eye(tril.shape[-1], dtype=tril.dtype), upper=False
-        ),
-        -tril.diagonal(dim1=-2, dim2=-1).log().sum(-1)
-        - 0.5 * tril.shape[-1] * math.log(2 * math.pi),
-        w_x,
-        gain,
-        prior.bias,
-        0.5 * (post_cov + post_cov.mT),
-        cpd.n > 0,
+        net, m.parameter, child.parents, child.inputs, **m.query_tables(params, child)
     )

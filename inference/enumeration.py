@@ -5,7 +5,8 @@ latent discrete site gets an enumeration dim (-2, -3, ... to the left of the row
 and every site's ``log_prob`` broadcasts over the dims of the sites it depends on.
 Adding the log-probabilities gives the joint log-weight of all enumerated values per row;
 ``logsumexp`` over dims gives evidence and marginals. Unobserved end sites that are not
-asked for are left out: they have no children, so summing them out contributes exactly 1.
+asked for, and that no observed or asked-for end site depends on, are left out: summing
+them out contributes exactly 1.
 Unobserved parameters never appear as latent sites: the model integrates them out in
 closed form. Nothing here samples.
 """
@@ -136,9 +137,10 @@ def row_chunks(n: int, enum_size: int, budget: int = 1 << 23) -> list[slice]:
 
 def enumeration_size(net: EffectNetwork, evidence: Evidence, keep: Iterable[str] = ()) -> int:
     """Upper bound on the product of enumerated site sizes for this evidence."""
+    ends = net.end_sites_needed({*evidence, *keep})
     latent = [
         s.size
         for s in net.sites
-        if s.discrete and s.name not in evidence and (s.role != "end" or s.name in set(keep))
+        if s.discrete and s.name not in evidence and (s.role != "end" or s.name in ends)
     ]
     return math.prod(latent)

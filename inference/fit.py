@@ -36,29 +36,15 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
 import pyro
-import pyro.distributions as dist
 import torch
 from pyro.infer import TraceEnum_ELBO
 from tqdm.auto import tqdm
 
 from inference.statistics import Statistics, params_from_statistics, statistics
-from models.declaration import (
-    ACTION,
-    DTYPE,
-    EffectNetwork,
-    cluster_site,
-    param_site,
-)
+from models.declaration import ACTION, EffectNetwork, cluster_site, param_site
 from models.evidence import Evidence
 from models.model import effect_model
-from models.params import (
-    LinearGaussian,
-    NetworkParams,
-    Softmax,
-    Table,
-    cell_zero_for_unused,
-    expected_shapes,
-)
+from models.params import NetworkParams, initial_params
 
 
 @dataclass(frozen=True)
@@ -113,9 +99,10 @@ def fit(
         if masks:
             raise ValueError("masks need the rows in memory: give data as one mapping")
         stats = fit_statistics(net, data, progress=progress)
-        if stats.softmax:
+        if stats.gradient:
+            kinds = "/".join(sorted({net.cpd(s).name for s in stats.gradient}))
             raise ValueError(
-                f"sites {list(stats.softmax)} are softmax CPDs (no closed form): their "
+                f"sites {list(stats.gradient)} are {kinds} CPDs (no closed form): their "
                 "gradient fit needs the rows in memory; give data as one mapping"
             )
         cpds = params_from_statistics(net, stats, pseudo_count, min_variance)
@@ -133,7 +120,7 @@ def fit(
         net, statistics(net, enc.rows(complete)), pseudo_count, min_variance
     )
     params = NetworkParams(cpds, pseudo_count)
-    gradient_sites = [s for s, c in cpds.items() if isinstance(c, Softmax)]
+    gradient_sites = [s for s in cpds if not net.cpd(s).closed_form]
     if not complete.all():
         gradient_sites = list(cpds)
     if not gradient_sites:
@@ -211,28 +198,14 @@ def fit_gradient(
     _check_settings(pseudo_count=pseudo_count, steps=steps, lr=lr, l2=l2, tol=tol)
     enc = _complete(net, data)
     masks = _masks(net, masks, enc.n_rows)
-    init = init or _default_params(net, pseudo_count)
+    init = init or initial_params(net, pseudo_count)
     sites = list(init.cpds) if sites is None else list(sites)
     unknown = [s for s in sites if s not in init.cpds]
     if unknown:
         raise ValueError(f"sites {unknown} are not sites of this network")
-    cluster_of_site = {cluster_site(p.name): p for p in net.parameters}
-    lower_cholesky = dist.transforms.LowerCholeskyTransform()
 
-    # Unconstrained tensors, one set per fitted CPD.
-    free: dict[str, dict[str, torch.Tensor]] = {}
-    for site in sites:
-        c = init.cpds[site]
-        if isinstance(c, Table):
-            free[site] = {"logits": c.probs.clamp_min(1e-12).log()}
-        elif isinstance(c, LinearGaussian):
-            free[site] = {
-                "weight": c.weight,
-                "bias": c.bias,
-                "tril": lower_cholesky.inv(c.scale_tril),
-            }
-        else:
-            free[site] = {"weight": c.weight, "bias": c.bias}
+    # Unconstrained tensors, one set per fitted CPD, each kind's own parametrisation.
+    free = {site: net.cpd(site).free(init.cpds[site]) for site in sites}
     tensors = [t.detach().clone().requires_grad_() for f in free.values() for t in f.values()]
     it = iter(tensors)
     free = {site: {k: next(it) for k in f} for site, f in free.items()}
@@ -240,16 +213,7 @@ def fit_gradient(
     def current() -> NetworkParams:
         cpds = dict(init.cpds)
         for site, f in free.items():
-            c = init.cpds[site]
-            if isinstance(c, Table):
-                probs = f["logits"].softmax(-1)
-                if site in cluster_of_site:  # actions not using the parameter: cell 0
-                    probs = cell_zero_for_unused(net, cluster_of_site[site], probs)
-                cpds[site] = Table(probs, c.n)
-            elif isinstance(c, LinearGaussian):
-                cpds[site] = LinearGaussian(f["weight"], f["bias"], lower_cholesky(f["tril"]), c.n)
-            else:
-                cpds[site] = Softmax(f["weight"], f["bias"], c.n)
+            cpds[site] = net.cpd(site).bound(f, init.cpds[site])
         return NetworkParams(cpds, init.pseudo_count)
 
     n = enc.n_rows
@@ -267,7 +231,7 @@ def fit_gradient(
         pass
 
     elbo = TraceEnum_ELBO(max_plate_nesting=1)
-    slopes = [f["weight"] for site, f in free.items() if isinstance(init.cpds[site], Softmax)]
+    slopes = [t for site, f in free.items() for t in net.cpd(site).penalised(f)]
     losses: list[float] = []
 
     def objective() -> torch.Tensor:
@@ -378,9 +342,10 @@ def _complete(net: EffectNetwork, data: Mapping[str, object]) -> Evidence:
             f"rows whose action does not use them; mark missing discrete values with `masks`.)"
         )
     clusters = {}
-    for p in net.parameters:
+    for m in net.mixtures:
+        p = m.parameter
         p_site = param_site(p.name)
-        uses = net.parameter_in_use(p, enc[ACTION])
+        uses = m.in_use(enc[ACTION])
         present = ~torch.isnan(enc[p_site]).any(-1)
         for bad, why in (
             (uses & ~present, "uses the parameter, but the row gives no value"),
@@ -392,7 +357,7 @@ def _complete(net: EffectNetwork, data: Mapping[str, object]) -> Evidence:
                     f"site {p_site!r}: row {row} has action "
                     f"{net.actions[int(enc[ACTION][row])]!r}, which {why}"
                 )
-        derived = torch.where(uses, p.cluster_of(enc[p_site].nan_to_num()), 0)
+        derived = m.cells(enc[p_site], enc[ACTION])
         given = enc.get(cluster_site(p.name))
         if given is not None and not torch.equal(given, derived):
             raise ValueError(
@@ -417,34 +382,3 @@ def _check_magnitude(site: str, value: torch.Tensor) -> None:
             f"site {site!r}: row {row} holds {value[row].tolist()}, beyond +-{MAX_MAGNITUDE:g}; "
             "its squares overflow the fit's statistics. Rescale the feature (other units)"
         )
-
-
-def _default_params(net: EffectNetwork, alpha: float) -> NetworkParams:
-    """Uniform tables, zero-slope unit Gaussians and zero softmax: the gradient route's start."""
-    cpds = {}
-    for site, (kind, shapes) in expected_shapes(net).items():
-        if kind == "Table":
-            k = shapes["probs"][-1]
-            cpds[site] = Table(
-                torch.full(shapes["probs"], 1.0 / k, dtype=DTYPE),
-                torch.zeros(shapes["n"], dtype=DTYPE),
-            )
-        elif kind == "LinearGaussian":
-            d = shapes["bias"][-1]
-            eye = torch.eye(d, dtype=DTYPE).expand(shapes["scale_tril"]).clone()
-            cpds[site] = LinearGaussian(
-                torch.zeros(shapes["weight"], dtype=DTYPE),
-                torch.zeros(shapes["bias"], dtype=DTYPE),
-                eye,
-                torch.zeros(shapes["n"], dtype=DTYPE),
-            )
-        else:
-            cpds[site] = Softmax(
-                torch.zeros(shapes["weight"], dtype=DTYPE),
-                torch.zeros(shapes["bias"], dtype=DTYPE),
-                torch.zeros(shapes["n"], dtype=DTYPE),
-            )
-    for p in net.parameters:  # actions not using a parameter sit on cell 0
-        t = cpds[cluster_site(p.name)]
-        cpds[cluster_site(p.name)] = Table(cell_zero_for_unused(net, p, t.probs), t.n)
-    return NetworkParams(cpds, alpha)

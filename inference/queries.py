@@ -46,7 +46,6 @@ from models.declaration import (
     param_site,
 )
 from models.evidence import Evidence
-from models.gaussian import condition_linear_gaussian
 from models.params import NetworkParams, check_params
 
 
@@ -247,9 +246,9 @@ def _unseen_mass(
     values = {name: s["value"] for name, s in e.trace.nodes.items() if s["type"] == "sample"}
     flag = torch.zeros((), dtype=torch.bool)
     for site in sites:
-        feature = net.site(site).feature
-        index = [values[s] for s in net.discrete_parents(feature)]
-        flag = flag | (Vindex(params[site].n)[tuple(index)] == 0)
+        cpd = net.cpd(site)
+        index = [values[s] for s in cpd.parents]
+        flag = flag | ~Vindex(cpd.seen(params[site]))[tuple(index)]
     return flag.to(DTYPE)
 
 
@@ -277,7 +276,9 @@ def predict(
         )
 
     states = {f: net.feature(f).states for f in discrete}
-    unseen_mass = _chunked(net, params, enc, set(), unseen).clamp(0, 1)
+    # the unseen flag reads the targets' parents: latent end parents must be traced
+    end_parents = {q for s in unseen_sites for q in net.cpd(s).parents if net.site(q).role == "end"}
+    unseen_mass = _chunked(net, params, enc, end_parents, unseen).clamp(0, 1)
     return Prediction(discrete, continuous, unseen_mass, states)
 
 
@@ -437,11 +438,8 @@ def infer_parameter(
     cluster's conditional Gaussian, weighted by the cluster posterior), whose mean is the
     posterior mean of the parameter; the paper's best-cluster answer stays in ``mean``.
     """
-    p = next((q for q in net.parameters if q.name == parameter), None)
-    if p is None:
-        raise ValueError(
-            f"unknown parameter {parameter!r}; parameters: {[q.name for q in net.parameters]}"
-        )
+    m = net.mixture(parameter)
+    p = m.parameter
     enc = _prepare(net, params, evidence)
     if enc.n_rows == 0:
         placeholder = placeholder_row(enc)
@@ -452,79 +450,86 @@ def infer_parameter(
         raise ValueError(
             f"evidence gives {param_site(p.name)!r} or {cluster_site(p.name)!r}, which this query infers"
         )
-    y_site = end_site(p.affects)
-    if y_site not in enc:
+    observed = [s for s in m.affected if s in enc]
+    if not observed or m.child is not None and m.child not in enc and len(m.affected) == 1:
+        y_site = m.child or m.affected[0]
         raise ValueError(
             f"infer_parameter needs the observed end state {y_site!r} of the feature {p.name!r} acts on"
+            + (f" (or one of {list(m.affected)})" if len(m.affected) > 1 else "")
         )
     if ACTION not in enc:
         if len(p.actions) != 1:
             raise ValueError(f"give the action (one of {list(p.actions)}) that used {p.name!r}")
         action = torch.full((enc.n_rows,), net.action_index(p.actions[0]))
         enc = Evidence(net, dict(enc) | {ACTION: action}, enc.n_rows)
-    not_using = ~net.parameter_in_use(p, enc[ACTION])
+    not_using = ~m.in_use(enc[ACTION])
     if not_using.any():
         row = int(not_using.nonzero()[0])
         raise ValueError(
             f"row {row}: action {net.actions[int(enc[ACTION][row])]!r} does not use {p.name!r}"
         )
-    missing = [
-        s for s in net.discrete_parents(p.affects) if s not in enc and s != cluster_site(p.name)
-    ]
-    if missing:
-        raise ValueError(
-            f"infer_parameter needs the discrete parents {missing} of {y_site!r} as evidence"
-        )
+    children = [net.cpd(s) for s in m.continuous if s in enc]
+    if not children:  # only discrete effects observed
+        return _parameter_from_cluster(net, params, m, enc, observed, mixture)
+    acting = net.acting_on(m.child) if m.child is not None else (m,)
+    for q in acting:  # the other parameters on the same feature: given, with their cells
+        if q is m:
+            continue
+        theta = enc.get(q.value.site)
+        if theta is None or bool(torch.isnan(theta).any()):
+            raise ValueError(
+                f"infer_parameter({p.name!r}) needs {q.value.site!r} in every row: it acts on "
+                f"{m.child!r} too"
+            )
+        enc = enc | net.encode_indices({q.cluster.site: q.cells(theta, enc[q.action])})
+    for child in children:
+        missing = [s for s in child.parents if s not in enc and s != m.cluster.site]
+        if missing:
+            raise ValueError(
+                f"infer_parameter needs the discrete parents {missing} of {child.site!r} as "
+                "evidence"
+            )
     probs = _chunked(net, params, enc, set(), lambda e, _: e.marginal(cluster_site(p.name)))
     best = probs.argmax(-1)
-    mean, cov = _condition_on_cluster(net, params, p, enc, best)
-    index = tuple(
-        enc[s] if s != cluster_site(p.name) else best for s in net.discrete_parents(p.affects)
-    )
-    unseen = (params[y_site].n[index] == 0).to(DTYPE)
+    mean, cov = m.posterior(params, children, enc, best, acting=acting)
+    unseen = torch.zeros(enc.n_rows, dtype=torch.bool)
+    for child in children:
+        index = tuple(enc[s] if s != m.cluster.site else best for s in child.parents)
+        unseen = unseen | ~child.seen(params[child.site])[index]
+    unseen = unseen.to(DTYPE)
     full = None
     if mixture:
         every = torch.arange(p.n_clusters).expand(enc.n_rows, -1)  # (n, C)
-        means, covs = _condition_on_cluster(net, params, p, enc, every)
+        means, covs = m.posterior(params, children, enc, every, acting=acting)
         full = GaussianMixture(probs, means, covs)
     return ParameterPosterior(probs, best, mean, cov, unseen, outside_range(p, mean), full)
+
+
+def _parameter_from_cluster(net, params, m, enc, observed, mixture) -> ParameterPosterior:
+    """The answer when only discrete features the parameter acts on are observed: they
+    depend on its cell, so the parameter given its best cluster is that cluster's
+    Gaussian."""
+
+    def fn(e: Enumerated, _):
+        post = e.posterior()
+        unseen = (post * _unseen_mass(net, params, e, observed)).reshape(-1, post.shape[-1])
+        return e.marginal(m.cluster.site), unseen.sum(0)
+
+    probs, unseen = _chunked(net, params, enc, set(), fn)
+    best = probs.argmax(-1)
+    prior = params[m.value.site]
+    mean, cov = prior.bias[best], prior.covariance[best]
+    full = None
+    if mixture:
+        n = enc.n_rows
+        every = (prior.bias.expand(n, *prior.bias.shape), prior.covariance.expand(n, -1, -1, -1))
+        full = GaussianMixture(probs, *every)
+    return ParameterPosterior(
+        probs, best, mean, cov, unseen.clamp(0, 1), outside_range(m.parameter, mean), full
+    )
 
 
 def outside_range(p: Parameter, value: torch.Tensor) -> torch.Tensor:
     """``(n,)`` bool: a parameter value ``(n, d)`` outside ``[low, high]`` in some dim."""
     low, high = value.new_tensor(p.low), value.new_tensor(p.high)
     return ((value < low) | (value > high)).any(-1)
-
-
-def _condition_on_cluster(
-    net, params, p: Parameter, enc, cluster
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """The parameter's Gaussian given ``end.g`` and a cluster per row: ``cluster`` ``(n,)``,
-    or ``(n, C)`` for several clusters per row (the results then carry the ``C`` dim)."""
-    y_site = end_site(p.affects)
-    extra = cluster.dim() - 1  # trailing dims the row-wise evidence must broadcast over
-
-    def rows(t: torch.Tensor) -> torch.Tensor:
-        return t.reshape(t.shape[:1] + (1,) * extra + t.shape[1:])
-
-    index = tuple(
-        rows(enc[s]) if s != cluster_site(p.name) else cluster
-        for s in net.discrete_parents(p.affects)
-    )
-    cpd = params[y_site]
-    k = p.dim
-    weight = cpd.weight[index]
-    w_x, w_p = weight[..., : weight.shape[-1] - k], weight[..., weight.shape[-1] - k :]
-    offset = cpd.bias[index]
-    others = [enc[s] for s in net.continuous_parents(p.affects)[:-1]]
-    if others:
-        offset = offset + (w_x @ rows(torch.cat(others, -1))[..., None]).squeeze(-1)
-    prior = params[param_site(p.name)]
-    return condition_linear_gaussian(
-        prior.bias[cluster],
-        prior.covariance[cluster],
-        w_p,
-        offset,
-        cpd.covariance[index],
-        rows(enc[y_site]),
-    )

@@ -24,17 +24,9 @@ import torch
 from pyro import poutine
 
 from inference.enumeration import enumerate_model
-from models.declaration import (
-    ACTION,
-    DTYPE,
-    EffectNetwork,
-    Parameter,
-    cluster_site,
-    end_site,
-    param_site,
-)
+from models.cpds import ParameterMixture
+from models.declaration import ACTION, DTYPE, EffectNetwork
 from models.evidence import Evidence
-from models.gaussian import condition_linear_gaussian
 from models.model import effect_model
 from models.params import NetworkParams, check_params
 
@@ -96,13 +88,13 @@ def draw(
             except ValueError as exc:
                 raise ValueError(f"simulate given evidence beyond the roots: {exc}") from None
             data |= _posterior_draw(e)
-            for p in net.parameters:
-                data[param_site(p.name)] = _parameter_draw(net, params, p, data)
+            for m in net.mixtures:
+                data[m.value.site] = _parameter_draw(net, params, m, data)
         trace = poutine.trace(effect_model).get_trace(net, params, Evidence(net, data, n))
     out = {s.name: trace.nodes[s.name]["value"] for s in net.sites}
-    for p in net.parameters:  # the parameter of an action that does not use it: absent
-        uses = net.parameter_in_use(p, out[ACTION])
-        site = param_site(p.name)
+    for m in net.mixtures:  # the parameter of an action that does not use it: absent
+        uses = m.in_use(out[m.action])
+        site = m.value.site
         out[site] = torch.where(uses[:, None], out[site], torch.nan)
     return out
 
@@ -124,30 +116,24 @@ def _posterior_draw(e) -> dict[str, torch.Tensor]:
     return out
 
 
-def _parameter_draw(net: EffectNetwork, params: NetworkParams, p: Parameter, data) -> torch.Tensor:
+def _parameter_draw(
+    net: EffectNetwork, params: NetworkParams, m: ParameterMixture, data
+) -> torch.Tensor:
     """``param.p`` in every row: given, else drawn given its cluster (and ``end.g``)."""
-    p_site, c_site, y_site = param_site(p.name), cluster_site(p.name), end_site(p.affects)
-    action = data[ACTION]
+    p, (c_site, p_site) = m.parameter, m.sites
+    action = data[m.action]
     n = action.shape[0]
     theta = data.get(p_site, torch.full((n, p.dim), torch.nan, dtype=DTYPE)).clone()
-    todo = torch.isnan(theta).any(-1) & net.parameter_in_use(p, action)
+    todo = torch.isnan(theta).any(-1) & m.in_use(action)
     if not todo.any():
         return theta
     cluster = data[c_site]
     prior = params[p_site]
     mean, cov = prior.bias[cluster], prior.covariance[cluster]
-    if y_site in data:
-        cpd = params[y_site]
-        index = tuple(data[s] for s in net.discrete_parents(p.affects))
-        weight = cpd.weight[index]
-        w_x, w_p = weight[..., : weight.shape[-1] - p.dim], weight[..., weight.shape[-1] - p.dim :]
-        offset = cpd.bias[index]
-        others = [data[s] for s in net.continuous_parents(p.affects)[:-1]]
-        if others:
-            offset = offset + (w_x @ torch.cat(others, -1)[..., None]).squeeze(-1)
-        mean, cov = condition_linear_gaussian(
-            mean, cov, w_p, offset, cpd.covariance[index], data[y_site]
-        )
+    children = [net.cpd(s) for s in m.continuous if s in data]
+    if children:
+        acting = net.acting_on(m.child) if m.child is not None else (m,)
+        mean, cov = m.posterior(params, children, data, cluster, (mean, cov), acting)
     eps = torch.randn(n, p.dim, dtype=DTYPE)
     drawn = mean + (torch.linalg.cholesky(cov) @ eps[..., None]).squeeze(-1)
     return torch.where(todo[:, None], drawn, theta)

@@ -1,5 +1,16 @@
 """Effect networks as Pyro models: declarations, fitted parameters, the model function."""
 
+from models.cpds import (
+    CPD,
+    KINDS,
+    LinearGaussian,
+    LinearGaussianCPD,
+    ParameterMixture,
+    Softmax,
+    SoftmaxCPD,
+    Table,
+    TableCPD,
+)
 from models.declaration import (
     ACTION,
     Continuous,
@@ -14,18 +25,16 @@ from models.declaration import (
 from models.evidence import Evidence
 from models.interop import PgmpyNetwork, from_pgmpy, read_bif, to_pgmpy, write_bif
 from models.model import effect_model
-from models.params import (
-    LinearGaussian,
-    NetworkParams,
-    Softmax,
-    Table,
-    load,
-    random_params,
-    save,
-)
+from models.params import NetworkParams, load, random_params, save
 
 __all__ = [
     "ACTION",
+    "CPD",
+    "KINDS",
+    "LinearGaussianCPD",
+    "ParameterMixture",
+    "SoftmaxCPD",
+    "TableCPD",
     "Continuous",
     "Discrete",
     "EffectNetwork",

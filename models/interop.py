@@ -45,7 +45,7 @@ from models.declaration import (
     end_site,
     initial_site,
 )
-from models.params import NetworkParams, Table, check_params, expected_shapes
+from models.params import NetworkParams, Table, check_params
 
 if TYPE_CHECKING:
     from pgmpy.models import DiscreteBayesianNetwork
@@ -100,13 +100,13 @@ def to_pgmpy(net: EffectNetwork, params: NetworkParams) -> PgmpyNetwork:
     """
     DiscreteBayesianNetwork, TabularCPD = _pgmpy()
     check_params(net, params)
-    kinds = expected_shapes(net)
-    kept = [
-        s
-        for s in net.sites
-        if s.role in ("initial", "action", "end") and s.discrete and kinds[s.name][0] == "Table"
-    ]
-    kept_names = {s.name for s in kept}
+    kept, kept_names = [], set()
+    for s in net.sites:  # parents first: a table whose parents are all kept is kept
+        cpd = net.cpd(s.name)
+        if s.role in ("initial", "action", "end") and cpd.tabular:
+            if set(cpd.parents) <= kept_names:
+                kept.append(s)
+                kept_names.add(s.name)
     left_out = tuple(s.name for s in net.sites if s.name not in kept_names)
     states = {s.name: list(_site_states(net, s.name)) for s in kept}
 
@@ -115,8 +115,7 @@ def to_pgmpy(net: EffectNetwork, params: NetworkParams) -> PgmpyNetwork:
     cpds = []
     for s in kept:
         probs = params[s.name].probs.detach().cpu().numpy().astype(np.float64)
-        parents = list(net.discrete_parents(s.feature)) if s.role == "end" else []
-        assert set(parents) <= kept_names, (s.name, parents)  # tables have table parents
+        parents = list(net.cpd(s.name).parents)
         model.add_edges_from((p, s.name) for p in parents)
         cpds.append(
             TabularCPD(
@@ -413,14 +412,12 @@ def _from_pgmpy(model, *, n, actions_node, kind, order, pseudo_count, relabel):
     node_of = {ACTION: actions_node}
     node_of |= {initial_site(f.name): initial_site(f.name) for f in features if f.initial}
     node_of |= {end_site(f.name): end_site(f.name) for f in features}
-    shapes = expected_shapes(net)
+    shapes = {s.name: net.cpd(s.name).shapes() for s in net.sites}
     counts = _counts(n, shapes)
     tables = {}
     for site, node in node_of.items():
         cpd = cpds[node]
-        parents = (
-            list(net.discrete_parents(net.site(site).feature)) if site.startswith("end.") else []
-        )
+        parents = list(net.cpd(site).parents)
         axes = [node_of[p] for p in parents] + [node]
         values = np.asarray(cpd.values, dtype=np.float64)
         values = values.transpose([list(cpd.variables).index(v) for v in axes])
@@ -440,7 +437,7 @@ def _from_pgmpy(model, *, n, actions_node, kind, order, pseudo_count, relabel):
             )
         values = np.where(np.abs(total - 1) > EXACT_SUM, values / total, values)
         probs = torch.as_tensor(values, dtype=DTYPE)
-        assert tuple(probs.shape) == shapes[site][1]["probs"], (site, probs.shape)
+        assert tuple(probs.shape) == shapes[site]["probs"], (site, probs.shape)
         tables[site] = Table(probs, counts[site])
     params = NetworkParams({s: tables[s] for s in shapes}, float(pseudo_count))
     check_params(net, params)
@@ -525,7 +522,7 @@ def _counts(n, shapes) -> dict[str, torch.Tensor]:
     else:
         given = dict.fromkeys(shapes, n)
     counts = {}
-    for site, (_, shape) in shapes.items():
+    for site, shape in shapes.items():
         value = given[site]
         if isinstance(value, torch.Tensor):
             value = value.detach().cpu().numpy()

@@ -1,14 +1,17 @@
 """The effect network as a Pyro model: the one definition fitting and every query run on.
 
-Sites, for features ``f`` and an action parameter ``p`` acting on feature ``g``::
+Sites, for features ``f`` and an action parameter ``p`` acting on feature ``g``, in the
+order of ``net.sites`` (parents first); each site's distribution is its kind's
+(:meth:`EffectNetwork.cpd`, :mod:`models.cpds`) given its declared parents (Fig. 1's:
+every initial site and the action for every end site)::
 
     initial.f  ~ Categorical(table)              | MVN(mean, cov)            (roots)
     action     ~ Categorical(table)                                           (enumerated)
     cluster.p  ~ Categorical(table[action])      one-hot on cell 0 for actions not using p
     param.p    ~ MVN(mean[cluster], cov[cluster])   density left out for actions not using p
-    end.f      ~ Categorical(table[initial discrete..., action])                discrete f
-               | Categorical(softmax(W[...] @ initial continuous + b[...]))    with cont. parents
-               | MVN(W[...] @ [initial continuous, param] + b[...], cov[...])   continuous f
+    end.f      ~ Categorical(table[discrete parents...])                        discrete f
+               | Categorical(softmax(W[...] @ continuous parents + b[...]))    with cont. parents
+               | MVN(W[...] @ [continuous parents, param] + b[...], cov[...])   continuous f
 
 Every discrete site carries ``infer={"enumerate": "parallel"}``; rows live in
 ``pyro.plate("rows", n, dim=-1)``, so enumeration takes dims -2, -3, ... . The set of
@@ -32,7 +35,12 @@ row, or not given at all, is then *unknown* in that row and is integrated out in
 form: the affected feature follows the marginal
 ``MVN(W_x x + W_p mean[c] + b, cov + W_p cov_p[c] W_p^T)`` given the cluster ``c`` (a
 linear-Gaussian identity), so no continuous site is latent and every discrete sum is
-exact. In the default form a parameter is an ordinary sample site: given, or sampled.
+exact. Several parameters on one feature add their terms; a parameter acting on several
+continuous features couples them, which are then sampled last (they have no children),
+the observed ones first, each given the value's Gaussian conditioned on those before it
+(:class:`models.cpds.ParameterMixture`). A discrete feature a parameter acts on depends
+on its cluster, an enumerated site. In the default form a parameter is an ordinary
+sample site: given, or sampled.
 
 Values that reach the model through Pyro's handlers are the model's own: state indices
 for discrete sites (``net.encode`` turns labels into them), numbers for continuous ones
@@ -47,23 +55,12 @@ import pyro
 import pyro.distributions as dist
 import torch
 from pyro import poutine
-from pyro.ops.indexing import Vindex
-from torch.distributions.utils import probs_to_logits
 
-from models.declaration import (
-    ACTION,
-    DTYPE,
-    Continuous,
-    Discrete,
-    EffectNetwork,
-    Parameter,
-    cluster_site,
-    end_site,
-    initial_site,
-    param_site,
-)
+from models.cpds import ParameterMixture, concat_inputs
+from models.cpds.mixture import affected_loc_tril
+from models.declaration import DTYPE, EffectNetwork
 from models.evidence import Evidence
-from models.params import LinearGaussian, NetworkParams, Softmax, Table
+from models.params import NetworkParams
 
 ENUM = {"enumerate": "parallel"}
 
@@ -95,9 +92,9 @@ def effect_model(
         Optional ``(n,)`` bool per discrete site: False where that row's value is missing
         (it is then enumerated for that row; used when fitting with gaps).
     end_sites
-        End sites to sample (default: all). End sites have no children, so leaving out
-        one that is neither observed nor asked about changes no other site's marginal;
-        queries use this to skip work.
+        End sites to sample (default: all), with the end sites they depend on. An end
+        site that no kept site depends on changes no other site's marginal when left
+        out; queries use this to skip work.
     collapse
         Integrate unknown parameter values (NaN rows, or the site not given) out in
         closed form instead of sampling them: the form of the exact queries.
@@ -110,73 +107,66 @@ def effect_model(
     data = net.encode(data) if data is not None else Evidence(net, {}, 0)
     n = _rows(data, n_rows)
     masks = dict(masks or {})
-    log_tables = _LogTables(params)
+    wanted = None if end_sites is None else net.end_sites_needed(end_sites)
+    mixtures = {m.cluster.site: m for m in net.mixtures}
+    acting: dict[str, tuple[ParameterMixture, ...]] = {}  # continuous site -> its parameters
+    shared = [m for m in net.mixtures if len(m.continuous) > 1]
+    for m in net.mixtures:
+        if m.child is not None:
+            acting[m.child] = (*acting.get(m.child, ()), m)
+    # A value acting on several continuous sites couples them where it is unknown: they
+    # are sampled last (they have no children), the observed ones first, each given
+    # the value's Gaussian conditioned on those before it.
+    deferred = {s for m in shared for s in m.continuous}
+    cache: dict[str, torch.Tensor] = {}  # per-call tables (a table's logs, once)
     values: dict[str, torch.Tensor] = {}
+    known: dict[str, torch.Tensor] = {}  # per parameter: the rows where its value is known
     with pyro.plate("rows", n, dim=-1):
-        for f in net.features:
-            if f.initial:
-                site = initial_site(f.name)
-                cpd = params[site]
-                if isinstance(f, Discrete):
-                    fn = dist.Categorical(logits=log_tables[site])
-                    values[site] = _discrete(site, fn, data, masks)
-                else:
-                    fn = dist.MultivariateNormal(cpd.bias, scale_tril=cpd.scale_tril)
-                    values[site] = _continuous(site, pyro.sample(site, fn, obs=data.get(site)))
-
-        action = _discrete(ACTION, dist.Categorical(logits=log_tables[ACTION]), data, masks)
-        values[ACTION] = action
-
-        known: dict[str, torch.Tensor | None] = {}
-        for p in net.parameters:
-            theta, known[p.name] = _parameter(
-                net, params, log_tables, p, action, data, masks, collapse, n
-            )
-            values[cluster_site(p.name)] = theta[0]
-            values[param_site(p.name)] = theta[1]
-
-        for f in net.features:
-            site = end_site(f.name)
-            if end_sites is not None and site not in end_sites:
+        for spec in net.sites:
+            site = spec.name
+            if spec.role == "param":
+                continue  # sampled with its cluster
+            if wanted is not None and spec.role == "end" and site not in wanted:
+                continue  # no kept site depends on it (see end_sites)
+            if site in deferred:
                 continue
-            index = [values[s] for s in net.discrete_parents(f.name)]
-            cpd = params[site]
-            if isinstance(f, Discrete):
-                if isinstance(cpd, Table):
-                    fn = dist.Categorical(logits=Vindex(log_tables[site])[(*index, slice(None))])
-                else:
-                    assert isinstance(cpd, Softmax)
-                    x = _concat([values[s] for s in net.continuous_parents(f.name)])
-                    logits = _linear(Vindex(cpd.weight)[(*index, slice(None), slice(None))], x)
-                    fn = dist.Categorical(logits=logits + Vindex(cpd.bias)[(*index, slice(None))])
+            if site in mixtures:
+                m = mixtures[site]
+                cluster, theta, known[m.parameter.name] = _parameter(
+                    m, params, values[m.action], data, masks, collapse, n, cache
+                )
+                values[site], values[m.value.site] = cluster, theta
+                continue
+            cpd = net.cpd(site)
+            index = [values[s] for s in cpd.parents]
+            inputs = [values[s] for s in cpd.inputs]
+            if site in acting:
+                action = values[acting[site][0].action]
+                loc, tril = affected_loc_tril(
+                    acting[site], params, cpd, index, inputs, action, known
+                )
+                fn = dist.MultivariateNormal(loc, scale_tril=tril)
+            else:
+                fn = cpd.distribution(params[site], index, concat_inputs(inputs), cache)
+            if spec.discrete:
                 values[site] = _discrete(site, fn, data, masks)
             else:
-                assert isinstance(f, Continuous) and isinstance(cpd, LinearGaussian)
-                fn = _continuous_end(net, params, f, index, values, known)
                 values[site] = _continuous(site, pyro.sample(site, fn, obs=data.get(site)))
+        for m in shared:
+            sites = [s for s in m.continuous if wanted is None or s in wanted]
+            belief = None
+            for site in sorted(sites, key=lambda s: s not in data):  # observed ones first
+                cpd = net.cpd(site)
+                index = [values[s] for s in cpd.parents]
+                inputs = [values[s] for s in cpd.inputs]
+                action = values[m.action]
+                args = (params, cpd, index, inputs, action)
+                loc, tril = m.shared_loc_tril(*args, known[m.parameter.name], belief)
+                fn = dist.MultivariateNormal(loc, scale_tril=tril)
+                values[site] = _continuous(site, pyro.sample(site, fn, obs=data.get(site)))
+                if site in data:
+                    belief = m.update(*args, values[site], belief)
     return values
-
-
-class _LogTables:
-    """Log-probabilities of the model's tables, each taken once per model call, on demand.
-
-    A Categorical built from probabilities takes their log lazily, over its whole batch:
-    for a table gathered at enumerated parents (and broadcast over rows) that is the
-    enumerated tensor, far larger than the table. Gathering log-probabilities instead
-    takes each log once, on the table. The values are those ``Categorical(probs)``
-    computes (normalised, clamped to ``[eps, 1 - eps]``, then log), so a zero
-    probability stays finite, as it was.
-    """
-
-    def __init__(self, params: NetworkParams):
-        self._params = params
-        self._logs: dict[str, torch.Tensor] = {}
-
-    def __getitem__(self, site: str) -> torch.Tensor:
-        if site not in self._logs:
-            probs = self._params[site].probs
-            self._logs[site] = probs_to_logits(probs / probs.sum(-1, keepdim=True))
-        return self._logs[site]
 
 
 def _rows(data: Evidence, n_rows: int | None) -> int:
@@ -194,26 +184,25 @@ def _rows(data: Evidence, n_rows: int | None) -> int:
     return n
 
 
-def _parameter(net, params, log_tables, p: Parameter, action, data, masks, collapse, n):
+def _parameter(m: ParameterMixture, params, action, data, masks, collapse, n, cache):
     """Sample ``cluster.p`` and ``param.p``; return them, and the rows where the value is
     known (bool, the parameter's batch shape)."""
-    c_site, p_site = cluster_site(p.name), param_site(p.name)
-    uses = net.parameter_in_use(p, action)  # (E..., n or 1)
+    c_site, p_site = m.sites
+    p = m.parameter
+    uses = m.in_use(action)  # (E..., n or 1)
     x = data.get(p_site)
-    cluster_fn = dist.Categorical(logits=Vindex(log_tables[c_site])[action, :])
+    cluster_fn = m.cluster.distribution(params[c_site], [action], None, cache)
     if c_site in data or x is None:
         cluster = _discrete(c_site, cluster_fn, data, masks)
     else:
         # The cell of a given parameter is the cluster; rows whose action does not use
         # the parameter sit on cell 0; rows with an unknown value leave it latent.
         given = ~torch.isnan(x).any(-1)
-        cell = torch.where(uses, p.cluster_of(x.nan_to_num()), 0)
+        cell = m.cells(x, action)
         observed = given | ~uses
         mask = None if bool(observed.all()) else observed
         cluster = _discrete(c_site, cluster_fn, {c_site: cell}, {c_site: mask})
-    cpd = params[p_site]
-    loc = Vindex(cpd.bias)[cluster, :]
-    tril = Vindex(cpd.scale_tril)[cluster, :, :]
+    loc, tril = m.value.loc_tril(params[p_site], [cluster], None)
     if collapse:
         obs = x if x is not None else torch.full((n, p.dim), torch.nan, dtype=DTYPE)
         with poutine.mask(mask=uses):
@@ -233,49 +222,8 @@ def _parameter(net, params, log_tables, p: Parameter, action, data, masks, colla
                 obs=x.nan_to_num() if x is not None else None,
             )
     theta = _continuous(p_site, theta)
-    known = ~torch.isnan(theta).any(-1)
-    cell_factor = torch.zeros((), dtype=DTYPE)
-    if bool(known.any()):
-        wrong_cell = uses & known & (p.cluster_of(theta.nan_to_num()) != cluster)
-        cell_factor = cell_factor.masked_fill(wrong_cell, -torch.inf)
-    pyro.factor(f"{c_site}.cell", cell_factor)
-    return (cluster, theta), known
-
-
-def _continuous_end(net, params, f: Continuous, index, values, known) -> dist.MultivariateNormal:
-    """The affected feature given the parameter where known, integrated out where not."""
-    site = end_site(f.name)
-    cpd = params[site]
-    parents = net.continuous_parents(f.name)
-    p = net.parameter_of(f.name)
-    parts = [values[s] for s in parents]
-    known_rows = known[p.name] if p is not None else None
-    everywhere = known_rows is None or bool(known_rows.all())
-    nowhere = known_rows is not None and not bool(known_rows.any())
-    if not nowhere:  # the parameter known in some rows: condition on it there
-        loc = Vindex(cpd.bias)[(*index, slice(None))]
-        tril = Vindex(cpd.scale_tril)[(*index, slice(None), slice(None))]
-        weight = Vindex(cpd.weight)[(*index, slice(None), slice(None))]
-        if p is not None:
-            uses = net.parameter_in_use(p, values[ACTION])
-            parts[-1] = torch.where(uses[..., None], parts[-1].nan_to_num(), 0.0)
-        x = _concat(parts)
-        if x is not None:
-            loc = loc + _linear(weight, x)
-    if not everywhere:
-        # Rows with an unknown parameter: y = W_x x + W_p theta + b + e, theta ~ N(m_c, S_c).
-        offset, marginal_tril, w_x = collapsed_tables(net, params, p)
-        m_loc = Vindex(offset)[(*index, slice(None))]
-        m_tril = Vindex(marginal_tril)[(*index, slice(None), slice(None))]
-        xs = _concat(parts[:-1])
-        if xs is not None:
-            m_loc = m_loc + _linear(Vindex(w_x)[(*index, slice(None), slice(None))], xs)
-        if nowhere:
-            loc, tril = m_loc, m_tril
-        else:
-            loc = torch.where(known_rows[..., None], loc, m_loc)
-            tril = torch.where(known_rows[..., None, None], tril, m_tril)
-    return dist.MultivariateNormal(loc, scale_tril=tril)
+    pyro.factor(f"{c_site}.cell", m.cell_factor(theta, cluster, action))
+    return cluster, theta, ~torch.isnan(theta).any(-1)
 
 
 class _UnknownWhereNaN(dist.MultivariateNormal):
@@ -317,41 +265,3 @@ def _continuous(site: str, value: object) -> torch.Tensor:
     if isinstance(value, torch.Tensor) and value.is_floating_point():
         return value if value.dtype == DTYPE else value.to(DTYPE)
     raise ValueError(f"site {site!r} received {value!r}: expected a float tensor of shape (n, dim)")
-
-
-def _concat(parts: list[torch.Tensor]) -> torch.Tensor | None:
-    if not parts:
-        return None
-    if len(parts) == 1:
-        return parts[0]
-    batch = torch.broadcast_shapes(*[p.shape[:-1] for p in parts])
-    return torch.cat([p.expand(*batch, p.shape[-1]) for p in parts], dim=-1)
-
-
-def _linear(weight: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
-    """``weight @ x`` over the last dims: ``(..., d, p) x (..., p) -> (..., d)``."""
-    return (weight @ x.unsqueeze(-1)).squeeze(-1)
-
-
-def collapsed_tables(
-    net: EffectNetwork, params: NetworkParams, parameter: Parameter
-) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """The affected feature's CPD with ``parameter`` integrated out, per configuration.
-
-    Returns ``offset`` ``(P..., d)`` (``b + W_p m_c``), ``scale_tril`` ``(P..., d, d)``
-    (Cholesky of ``R + W_p S_c W_p^T``) and ``w_x`` ``(P..., d, p - k)``, over the
-    affected end site's discrete parents ``P...`` (the action second to last, the cluster
-    last). For actions not using the parameter ``W_p`` counts as zero (the rule of
-    :meth:`EffectNetwork.parameter_in_use`).
-    """
-    cpd = params[end_site(parameter.affects)]
-    prior = params[param_site(parameter.name)]
-    k = parameter.dim
-    q = cpd.weight.shape[-1]
-    w_x, w_p = cpd.weight[..., : q - k], cpd.weight[..., q - k :]  # (..., A, C, d, *)
-    actions = torch.arange(len(net.actions))
-    uses = net.parameter_in_use(parameter, actions).to(w_p.dtype)
-    w_p = w_p * uses[:, None, None, None]
-    offset = cpd.bias + _linear(w_p, prior.bias)  # prior.bias (C, k) aligns with the cluster axis
-    cov = cpd.covariance + w_p @ prior.covariance @ w_p.mT
-    return offset, torch.linalg.cholesky(cov), w_x

@@ -13,65 +13,21 @@ alone (uniform table, pooled Gaussian) and which queries report as unseen.
 from __future__ import annotations
 
 import json
+from collections.abc import Iterable
 from dataclasses import dataclass, fields
 from pathlib import Path
 
 import torch
 
-from models.declaration import (
-    ACTION,
-    DTYPE,
-    EffectNetwork,
-    cluster_site,
-    end_site,
-    initial_site,
-    param_site,
-)
+from models.cpds import CPD as KindCPD
+from models.cpds import LinearGaussian, Softmax, Table, map_tensors
+from models.declaration import EffectNetwork
 
 FORMAT = "effect-networks"
 FORMAT_VERSION = 1
 
 
-@dataclass(frozen=True)
-class Table:
-    """Categorical child of discrete parents: ``probs`` ``(P..., K)``, ``n`` ``(P...)``."""
-
-    probs: torch.Tensor
-    n: torch.Tensor
-
-
-@dataclass(frozen=True)
-class LinearGaussian:
-    """Conditional linear Gaussian: ``x_child ~ N(weight @ x_parents + bias, scale_tril @ scale_tril.T)``.
-
-    ``weight`` ``(P..., d, p)``, ``bias`` ``(P..., d)``, ``scale_tril`` ``(P..., d, d)``,
-    ``n`` ``(P...)``. ``p`` may be 0 (no continuous parents).
-    """
-
-    weight: torch.Tensor
-    bias: torch.Tensor
-    scale_tril: torch.Tensor
-    n: torch.Tensor
-
-    @property
-    def covariance(self) -> torch.Tensor:
-        return self.scale_tril @ self.scale_tril.mT
-
-
-@dataclass(frozen=True)
-class Softmax:
-    """Discrete child of continuous parents: ``logits = weight @ x_parents + bias``.
-
-    ``weight`` ``(P..., K, p)``, ``bias`` ``(P..., K)``, ``n`` ``(P...)``.
-    """
-
-    weight: torch.Tensor
-    bias: torch.Tensor
-    n: torch.Tensor
-
-
-CPD = Table | LinearGaussian | Softmax
-_CPD_TYPES = {cls.__name__: cls for cls in (Table, LinearGaussian, Softmax)}
+CPD = Table | LinearGaussian | Softmax  # the toolkit's containers (a user kind adds its own)
 
 
 @dataclass(frozen=True)
@@ -87,73 +43,20 @@ class NetworkParams:
     def map(self, fn) -> NetworkParams:
         """Apply ``fn`` to every tensor (e.g. ``lambda t: t.double()``)."""
         return NetworkParams(
-            {
-                k: type(c)(**{f.name: fn(getattr(c, f.name)) for f in fields(c)})
-                for k, c in self.cpds.items()
-            },
-            self.pseudo_count,
+            {k: map_tensors(c, fn) for k, c in self.cpds.items()}, self.pseudo_count
         )
-
-
-def expected_shapes(net: EffectNetwork) -> dict[str, tuple[str, dict[str, tuple[int, ...]]]]:
-    """The CPD type and tensor shapes every site of ``net`` must have."""
-    shapes: dict[str, tuple[str, dict[str, tuple[int, ...]]]] = {}
-
-    def parents_card(sites):
-        return tuple(net.site(s).size for s in sites)
-
-    def continuous_dim(sites):
-        return sum(net.site(s).size for s in sites)
-
-    for f in net.features:
-        if f.initial:
-            s = net.site(initial_site(f.name))
-            shapes[s.name] = _shape_of(s.discrete, (), s.size, 0)
-    shapes[ACTION] = ("Table", {"probs": (len(net.actions),), "n": ()})
-    for p in net.parameters:
-        shapes[cluster_site(p.name)] = (
-            "Table",
-            {"probs": (len(net.actions), p.n_clusters), "n": (len(net.actions),)},
-        )
-        shapes[param_site(p.name)] = _shape_of(False, (p.n_clusters,), p.dim, 0)
-    for f in net.features:
-        s = net.site(end_site(f.name))
-        card = parents_card(net.discrete_parents(f.name))
-        cont = continuous_dim(net.continuous_parents(f.name))
-        shapes[s.name] = _shape_of(s.discrete, card, s.size, cont)
-    return shapes
-
-
-def _shape_of(discrete: bool, card: tuple[int, ...], size: int, cont: int):
-    if discrete and cont == 0:
-        return "Table", {"probs": (*card, size), "n": card}
-    if discrete:
-        return "Softmax", {"weight": (*card, size, cont), "bias": (*card, size), "n": card}
-    return "LinearGaussian", {
-        "weight": (*card, size, cont),
-        "bias": (*card, size),
-        "scale_tril": (*card, size, size),
-        "n": card,
-    }
 
 
 def check_params(net: EffectNetwork, params: NetworkParams) -> None:
     """Raise ``ValueError`` unless ``params`` has the right CPD for every site of ``net``."""
-    expected = expected_shapes(net)
-    missing = set(expected) - set(params.cpds)
-    extra = set(params.cpds) - set(expected)
+    missing = {s.name for s in net.sites} - set(params.cpds)
+    extra = set(params.cpds) - {s.name for s in net.sites}
     if missing or extra:
         raise ValueError(
             f"parameters do not match the network: missing {sorted(missing)}, extra {sorted(extra)}"
         )
-    for site, (kind, shapes) in expected.items():
-        cpd = params.cpds[site]
-        if type(cpd).__name__ != kind:
-            raise ValueError(f"site {site!r}: expected a {kind} CPD, got {type(cpd).__name__}")
-        for name, shape in shapes.items():
-            got = tuple(getattr(cpd, name).shape)
-            if got != shape:
-                raise ValueError(f"site {site!r}: {kind}.{name} has shape {got}, expected {shape}")
+    for spec in net.sites:
+        net.cpd(spec.name).check(params.cpds[spec.name])
 
 
 def save(path: str | Path, net: EffectNetwork, params: NetworkParams) -> Path:
@@ -175,8 +78,11 @@ def save(path: str | Path, net: EffectNetwork, params: NetworkParams) -> Path:
     return path
 
 
-def load(path: str | Path) -> tuple[EffectNetwork, NetworkParams]:
-    """Load a network saved by :func:`save`.
+def load(
+    path: str | Path, kinds: Iterable[type[KindCPD]] = ()
+) -> tuple[EffectNetwork, NetworkParams]:
+    """Load a network saved by :func:`save`; ``kinds``: the classes of the user-defined
+    kinds it names (the toolkit's own are known).
 
     Raises
     ------
@@ -201,11 +107,13 @@ def load(path: str | Path) -> tuple[EffectNetwork, NetworkParams]:
             f"{FORMAT_VERSION}. Re-fit the network or load it with the matching toolkit version."
         )
     try:
-        net = EffectNetwork.from_dict(json.loads(payload["declaration"]))
+        net = EffectNetwork.from_dict(json.loads(payload["declaration"]), kinds)
         cpds = {}
         for site, entry in payload["cpds"].items():
             entry = dict(entry)
-            cls = _CPD_TYPES[entry.pop("type")]
+            cls = net.cpd(site).params_type
+            if entry.pop("type") != cls.__name__:
+                raise ValueError(f"site {site!r} holds no {cls.__name__}")
             cpds[site] = cls(**entry)
         params = NetworkParams(cpds, float(payload["pseudo_count"]))
     except (KeyError, TypeError, ValueError, json.JSONDecodeError) as exc:
@@ -216,21 +124,11 @@ def load(path: str | Path) -> tuple[EffectNetwork, NetworkParams]:
     return net, params
 
 
-def cell_zero_for_unused(net: EffectNetwork, parameter, probs: torch.Tensor) -> torch.Tensor:
-    """A cluster table ``(A, C)`` with the rows of actions not using ``parameter`` on cell 0.
-
-    The rule of :meth:`EffectNetwork.parameter_in_use` for the cluster site: such an
-    action ignores the parameter, so its cluster is fixed, not fitted.
-    """
-    fixed = torch.zeros(parameter.n_clusters, dtype=probs.dtype)
-    fixed[0] = 1.0
-    return torch.where(net.uses_parameter(parameter)[:, None], probs, fixed)
-
-
 def random_params(net: EffectNetwork, seed: int, *, unseen: float = 0.0) -> NetworkParams:
     """Valid random parameters for ``net``: for tests, priors and simulation studies.
 
-    Tables are Dirichlet-like draws (softmax of scaled normals), linear Gaussians have
+    Each kind draws its own (:meth:`models.cpds.CPD.initialize`): tables are
+    Dirichlet-like draws (softmax of scaled normals), linear Gaussians have
     standard-normal weights and offsets and well-conditioned covariances, softmax CPDs
     normal weights. Each parameter's cluster Gaussian lies inside its own cell (mean
     drawn in the cell's middle half, standard deviation an eighth of the cell), as a
@@ -240,34 +138,13 @@ def random_params(net: EffectNetwork, seed: int, *, unseen: float = 0.0) -> Netw
     if not 0.0 <= unseen <= 1.0:
         raise ValueError(f"unseen must lie in [0, 1], got {unseen!r}")
     g = torch.Generator().manual_seed(int(seed))
-
-    def normal(shape):
-        return torch.randn(shape, generator=g, dtype=DTYPE)
-
-    cpds = {}
-    for site, (kind, shapes) in expected_shapes(net).items():
-        n = (torch.rand(shapes["n"], generator=g, dtype=DTYPE) >= unseen).to(DTYPE) * 5
-        if kind == "Table":
-            cpds[site] = Table((2 * normal(shapes["probs"])).softmax(-1), n)
-        elif kind == "LinearGaussian":
-            d = shapes["bias"][-1]
-            a = normal(shapes["scale_tril"])
-            cov = a @ a.mT / d + 0.3 * torch.eye(d, dtype=DTYPE)
-            cpds[site] = LinearGaussian(
-                normal(shapes["weight"]), normal(shapes["bias"]), torch.linalg.cholesky(cov), n
-            )
-        else:
-            cpds[site] = Softmax(normal(shapes["weight"]), normal(shapes["bias"]), n)
-    for p in net.parameters:
-        c_site, p_site = cluster_site(p.name), param_site(p.name)
-        t = cpds[c_site]
-        cpds[c_site] = Table(cell_zero_for_unused(net, p, t.probs), t.n)
-        width = (torch.tensor(p.high, dtype=DTYPE) - torch.tensor(p.low, dtype=DTYPE)) / (
-            torch.tensor(p.bins, dtype=DTYPE)
-        )
-        offset = (torch.rand(p.n_clusters, p.dim, generator=g, dtype=DTYPE) - 0.5) * 0.5
-        mean = p.cluster_centres() + offset * width
-        tril = torch.diag_embed((width / 8).expand(p.n_clusters, p.dim))
-        prior = cpds[p_site]
-        cpds[p_site] = LinearGaussian(prior.weight, mean, tril, prior.n)
+    cpds = {s.name: net.cpd(s.name).initialize(g, unseen) for s in net.sites}
+    for m in net.mixtures:
+        cpds[m.value.site] = m.randomize(cpds[m.value.site], g)
     return NetworkParams(cpds, 0.01)
+
+
+def initial_params(net: EffectNetwork, pseudo_count: float) -> NetworkParams:
+    """Every kind's neutral start (uniform tables, zero-slope unit Gaussians, zero
+    softmax): the gradient route's default."""
+    return NetworkParams({s.name: net.cpd(s.name).initialize() for s in net.sites}, pseudo_count)

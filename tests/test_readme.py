@@ -37,6 +37,10 @@ def test_readme_snippets_run(tmp_path, monkeypatch):
     assert os.path.exists("net.pt")
     assert abs(float(namespace["where"][0, 0]) - 0.35) < 0.02
     assert namespace["best"] == ("remove",)
+    assert namespace["kind"] == "table"
+    assert float(namespace["still"][0]) > 0.99
+    assert float(namespace["diagonal"]) == 0.0
+    assert namespace["plane"].cpd("end.xy").name == "diagonal_gaussian"
     assert float(namespace["gone"][0]) > 0.99
     assert float(namespace["surprise"][0]) > 0.99
     assert abs(float(namespace["force_needed"][0, 0]) - 10.0) < 0.5

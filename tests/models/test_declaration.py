@@ -65,8 +65,8 @@ def test_bad_declarations():
         Discrete("x", (1,))
     with pytest.raises(ValueError, match="kind"):
         Continuous("x", 1, kind="thing")
-    with pytest.raises(ValueError, match="must be a continuous feature"):
-        EffectNetwork((Discrete("v", (0, 1)),), ("a",), (Parameter("f", 0.0, 1.0, 2, ("a",), "v"),))
+    with pytest.raises(ValueError, match=r"affects \['w'\], which are not features"):
+        EffectNetwork((Discrete("v", (0, 1)),), ("a",), (Parameter("f", 0.0, 1.0, 2, ("a",), "w"),))
     with pytest.raises(ValueError, match="unknown actions"):
         EffectNetwork((Continuous("x"),), ("a",), (Parameter("f", 0.0, 1.0, 2, ("b",), "x"),))
     with pytest.raises(ValueError, match="low < high"):

@@ -1,0 +1,48 @@
+"""Conditional-distribution kinds: each one class that owns its behaviour.
+
+=====================  ==================================  ==========================
+kind (``name``)        site                                fitted numbers
+=====================  ==================================  ==========================
+``table``              discrete child, discrete parents    :class:`Table`
+``softmax``            discrete child, continuous parents  :class:`Softmax`
+``linear_gaussian``    continuous child                    :class:`LinearGaussian`
+=====================  ==================================  ==========================
+
+and :class:`ParameterMixture`, the cluster/value pair of an action parameter. A network
+picks for each site the first kind of :data:`KINDS` that does not refuse it
+(:meth:`CPD.refuses`), unless its declaration names another (``kinds=``). Adding a kind
+to the toolkit is one module here plus its entry in :data:`KINDS`; a user's own kind is
+a subclass of :class:`CPD` (or of a built-in kind) passed to the declaration.
+"""
+
+from models.cpds.base import CPD, concat_inputs, map_tensors
+from models.cpds.linear_gaussian import LinearGaussian, LinearGaussianCPD, Moments
+from models.cpds.mixture import ParameterMixture
+from models.cpds.softmax import Softmax, SoftmaxCPD
+from models.cpds.table import Counts, Table, TableCPD
+
+#: The toolkit's kinds, in the order a site's default kind is chosen.
+KINDS: tuple[type[CPD], ...] = (TableCPD, SoftmaxCPD, LinearGaussianCPD)
+
+
+def default_kind(discrete: bool, width: int) -> type[CPD]:
+    """The first kind of :data:`KINDS` that models such a site."""
+    return next(k for k in KINDS if k.refuses(discrete, width) is None)
+
+
+__all__ = [
+    "CPD",
+    "KINDS",
+    "Counts",
+    "LinearGaussian",
+    "LinearGaussianCPD",
+    "Moments",
+    "ParameterMixture",
+    "Softmax",
+    "SoftmaxCPD",
+    "Table",
+    "TableCPD",
+    "concat_inputs",
+    "default_kind",
+    "map_tensors",
+]

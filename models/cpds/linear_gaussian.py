@@ -1,0 +1,218 @@
+"""A continuous child: the conditional linear Gaussian.
+
+Per discrete-parent configuration a linear map of the continuous parents, an offset and
+a full covariance: ``y ~ N(weight[P...] @ x + bias[P...], scale_tril scale_tril^T)``.
+The maximum-likelihood estimate is per-configuration least squares of ``y`` on
+``[x, 1]`` with the residual covariance, computed from sums that merge by addition
+(:class:`Moments`). Pseudo-count policy (``alpha``): a configuration gets ``alpha``
+pseudo-rows of the pooled statistics of its site, so an unseen one is the pooled fit
+and a rarely seen one is shrunk towards it; covariances get ``min_variance`` on the
+diagonal, so a configuration with fewer rows than dimensions stays positive definite.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, fields
+
+import pyro.distributions as dist
+import torch
+from pyro.ops.indexing import Vindex
+
+from models.cpds.base import CPD
+from models.evidence import DTYPE
+
+
+@dataclass(frozen=True)
+class LinearGaussian:
+    """Conditional linear Gaussian: ``x_child ~ N(weight @ x_parents + bias, scale_tril @ scale_tril.T)``.
+
+    ``weight`` ``(P..., d, p)``, ``bias`` ``(P..., d)``, ``scale_tril`` ``(P..., d, d)``,
+    ``n`` ``(P...)``. ``p`` may be 0 (no continuous parents).
+    """
+
+    weight: torch.Tensor
+    bias: torch.Tensor
+    scale_tril: torch.Tensor
+    n: torch.Tensor
+
+    @property
+    def covariance(self) -> torch.Tensor:
+        return self.scale_tril @ self.scale_tril.mT
+
+
+@dataclass(frozen=True)
+class Moments:
+    """A linear Gaussian's sums per parent configuration ``G`` (flattened ``P...``):
+    ``zz`` ``(G, q, q)``, ``zy`` ``(G, q, d)``, ``yy`` ``(G, d, d)``, rows ``n`` ``(G,)``,
+    with ``z = [x, 1]``."""
+
+    zz: torch.Tensor
+    zy: torch.Tensor
+    yy: torch.Tensor
+    n: torch.Tensor
+
+    def __add__(self, other: Moments) -> Moments:
+        return Moments(*(getattr(self, f.name) + getattr(other, f.name) for f in fields(self)))
+
+    def add_(self, other: Moments) -> None:
+        for f in fields(self):
+            getattr(self, f.name).add_(getattr(other, f.name))
+
+
+_LOWER_CHOLESKY = dist.transforms.LowerCholeskyTransform()
+
+
+@dataclass(frozen=True)
+class LinearGaussianCPD(CPD):
+    """A conditional linear Gaussian.
+
+    ``zero_weights`` ``(G, p)`` bool, or ``None``: weights fixed at zero per flattened
+    configuration by the structure (an action that does not use a parameter ignores
+    it); the least squares runs without those columns there.
+    """
+
+    zero_weights: torch.Tensor | None = field(default=None, compare=False, repr=False)
+
+    name = "linear_gaussian"
+    params_type = LinearGaussian
+    discrete = False
+
+    def shapes(self) -> dict[str, tuple[int, ...]]:
+        card, d = self.card, self.size
+        return {
+            "weight": (*card, d, self.width),
+            "bias": (*card, d),
+            "scale_tril": (*card, d, d),
+            "n": card,
+        }
+
+    def initialize(
+        self, generator: torch.Generator | None = None, unseen: float = 0.0
+    ) -> LinearGaussian:
+        shapes, d = self.shapes(), self.size
+        if generator is None:
+            eye = torch.eye(d, dtype=DTYPE).expand(shapes["scale_tril"]).clone()
+            zeros = (torch.zeros(shapes[k], dtype=DTYPE) for k in ("weight", "bias"))
+            return LinearGaussian(*zeros, eye, torch.zeros(self.card, dtype=DTYPE))
+        n = self.counts_reached(generator, unseen)
+        a = self.noise(generator, shapes["scale_tril"])
+        cov = a @ a.mT / d + 0.3 * torch.eye(d, dtype=DTYPE)
+        weight = self.noise(generator, shapes["weight"])
+        bias = self.noise(generator, shapes["bias"])
+        return LinearGaussian(weight, bias, torch.linalg.cholesky(cov), n)
+
+    def loc_tril(
+        self, params: LinearGaussian, index, x: torch.Tensor | None
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """The mean ``(..., d)`` and Cholesky factor ``(..., d, d)`` given the parents."""
+        if not index:
+            loc, tril = params.bias, params.scale_tril
+        else:
+            loc = Vindex(params.bias)[(*index, slice(None))]
+            tril = Vindex(params.scale_tril)[(*index, slice(None), slice(None))]
+        if x is not None:
+            weight = Vindex(params.weight)[(*index, slice(None), slice(None))]
+            loc = loc + (weight @ x.unsqueeze(-1)).squeeze(-1)
+        return loc, tril
+
+    def distribution(self, params: LinearGaussian, index, x, cache) -> dist.MultivariateNormal:
+        loc, tril = self.loc_tril(params, index, x)
+        return dist.MultivariateNormal(loc, scale_tril=tril)
+
+    def statistics(self, index: torch.Tensor, x: torch.Tensor | None, y: torch.Tensor) -> Moments:
+        groups = math.prod(self.card)
+        n_rows, d = y.shape
+        ones = torch.ones(n_rows, 1, dtype=DTYPE)
+        z = torch.cat([x, ones], -1) if x is not None else ones
+        q = z.shape[-1]
+        zz = torch.zeros(groups, q, q, dtype=DTYPE).index_add_(
+            0, index, z[:, :, None] * z[:, None, :]
+        )
+        zy = torch.zeros(groups, q, d, dtype=DTYPE).index_add_(
+            0, index, z[:, :, None] * y[:, None, :]
+        )
+        yy = torch.zeros(groups, d, d, dtype=DTYPE).index_add_(
+            0, index, y[:, :, None] * y[:, None, :]
+        )
+        if not all(bool(t.isfinite().all()) for t in (zz, zy, yy)):
+            raise ValueError(
+                f"site {self.site!r}: the fit's second moments overflow float64; rescale the data"
+            )
+        return Moments(zz, zy, yy, torch.bincount(index, minlength=groups).to(DTYPE))
+
+    def m_step(self, stats: Moments, alpha: float, min_variance: float) -> LinearGaussian:
+        """Per-configuration least squares of y on [x, 1] with pooled pseudo-rows."""
+        s, card, site = stats, self.card, self.site
+        szz, szy, syy, n = s.zz, s.zy, s.yy, s.n
+        groups, q, d = szy.shape
+        n_rows = float(n.sum())
+        if n_rows:
+            # alpha pseudo-rows of the pooled statistics (an unseen configuration = the pooled fit)
+            w = alpha / n_rows
+            szz, szy, syy = szz + w * szz.sum(0), szy + w * szy.sum(0), syy + w * syy.sum(0)
+        if not all(bool(t.isfinite().all()) for t in (szz, szy, syy)):
+            raise ValueError(
+                f"site {site!r}: the fit's second moments overflow float64; rescale the data"
+            )
+        zero_weights = self.zero_weights
+        if zero_weights is not None and bool(zero_weights.any()):
+            drop = torch.cat([zero_weights, torch.zeros(groups, 1, dtype=torch.bool)], -1)
+            keep = (~drop).to(DTYPE)
+            szz = szz * keep[:, :, None] * keep[:, None, :] + torch.diag_embed(drop.to(DTYPE))
+            szy = szy * keep[:, :, None]
+        total = n + (alpha if n_rows else 0.0)
+        unseen = total == 0
+        if unseen.any():  # alpha == 0: fall back on the pooled fit all the same
+            szz, szy, syy, total = szz.clone(), szy.clone(), syy.clone(), total.clone()
+            szz[unseen], szy[unseen], syy[unseen], total[unseen] = (
+                s.zz.sum(0),
+                s.zy.sum(0),
+                s.yy.sum(0),
+                n_rows,
+            )
+        ridge = 1e-10 * szz.diagonal(dim1=-2, dim2=-1).mean(-1).clamp_min(1e-12)
+        beta = torch.linalg.solve(szz + ridge[:, None, None] * torch.eye(q, dtype=DTYPE), szy)
+        resid = syy - szy.mT @ beta - beta.mT @ szy + beta.mT @ szz @ beta
+        cov = resid / total.clamp_min(1e-300)[:, None, None]
+        cov = 0.5 * (cov + cov.mT) + min_variance * torch.eye(d, dtype=DTYPE)
+        tril = safe_cholesky(cov, site)
+        return LinearGaussian(
+            beta[:, : q - 1, :].mT.reshape(*card, d, q - 1),
+            beta[:, q - 1, :].reshape(*card, d),
+            tril.reshape(*card, d, d),
+            n.reshape(card),
+        )
+
+    def free(self, params: LinearGaussian) -> dict[str, torch.Tensor]:
+        return {
+            "weight": params.weight,
+            "bias": params.bias,
+            "tril": _LOWER_CHOLESKY.inv(params.scale_tril),
+        }
+
+    def bound(self, free: dict[str, torch.Tensor], params: LinearGaussian) -> LinearGaussian:
+        return LinearGaussian(free["weight"], free["bias"], _LOWER_CHOLESKY(free["tril"]), params.n)
+
+
+def safe_cholesky(cov: torch.Tensor, site: str, tries: int = 24) -> torch.Tensor:
+    """Cholesky factors, adding a growing jitter where a covariance is not quite PD."""
+    tril, info = torch.linalg.cholesky_ex(cov)
+    jitter = 1e-12
+    for _ in range(tries):
+        bad = info > 0
+        if not bad.any():
+            return tril
+        scale = cov[bad].diagonal(dim1=-2, dim2=-1).abs().mean(-1).clamp_min(1.0)
+        cov[bad] = cov[bad] + (jitter * scale)[:, None, None] * torch.eye(
+            cov.shape[-1], dtype=cov.dtype
+        )
+        tril, info = torch.linalg.cholesky_ex(cov)
+        jitter *= 10
+    if (info > 0).any():
+        group = int((info > 0).nonzero()[0])
+        raise ValueError(
+            f"site {site!r}: configuration {group} has no positive definite covariance "
+            f"({cov[group].tolist()}); check its rows for inf, NaN or huge values"
+        )
+    return tril

@@ -1,0 +1,399 @@
+"""An action parameter: its cluster, its value, and how they act on the features.
+
+Paper §III: a continuous parameter ``param.p`` (a force, a target) with a discrete
+``cluster.p`` over equidistant cells of its range, one Gaussian per cell (a mixture of
+Gaussians). A continuous feature it acts on takes the value as its last continuous
+input and the cluster as its last discrete parent (a linear Gaussian); a discrete
+feature takes the cluster only (its table or softmax has a cell axis)::
+
+    action --> cluster.p --> param.p
+       \\           \\   \\         \\
+        +-----------+---+---------+--> end.g      (continuous: linear Gaussian)
+                         \\
+                          +-----------> end.h      (discrete: depends on the cell)
+
+:class:`ParameterMixture` owns the two sites' kinds (a pinned table and a linear
+Gaussian) and every rule that ties them together:
+
+* **An action that does not use the parameter ignores it.** Its cluster is pinned on
+  cell 0 (not fitted), its value's density is left out, and the affected features'
+  weights on the parameter are zero for it (fixed in the fit, ignored in the model).
+* **The cluster is the parameter's equidistant cell** (:meth:`cells`); in the model a
+  factor makes it so (:meth:`cell_factor`).
+* **An unknown value is integrated out in closed form**: for ``theta ~ N(m_c, S_c)`` and
+  ``y = W_x x + W_p theta + b + e``, ``y ~ N(W_x x + W_p m_c + b, R + W_p S_c W_p^T)``
+  (:meth:`marginal`), and ``theta`` given ``y`` is the linear-Gaussian posterior
+  (:meth:`condition`); :meth:`query_tables` precomputes both for the compiled query.
+  Several parameters on one feature add their terms (:func:`affected_loc_tril`); a
+  value acting on several continuous features is conditioned on each observed one in
+  turn (:meth:`update`, :meth:`posterior`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import torch
+from pyro.ops.indexing import Vindex
+
+from models.cpds.base import concat_inputs
+from models.cpds.linear_gaussian import LinearGaussian, LinearGaussianCPD
+from models.cpds.table import TableCPD
+from models.evidence import DTYPE
+from models.gaussian import condition_linear_gaussian
+
+if TYPE_CHECKING:
+    from models.declaration import Parameter
+
+
+@dataclass(frozen=True)
+class ParameterMixture:
+    """The cluster and value sites of one action parameter (see the module).
+
+    ``uses`` ``(A,)`` bool: which actions use the parameter. ``action`` is the action
+    site's name, ``affected`` the end sites the parameter acts on, ``continuous`` those
+    among them that take its value as a linear input; the discrete ones have the cluster
+    as a parent.
+    """
+
+    parameter: Parameter
+    action: str
+    uses: torch.Tensor = field(compare=False, repr=False)
+    cluster: TableCPD
+    value: LinearGaussianCPD
+    affected: tuple[str, ...]
+    continuous: tuple[str, ...]
+
+    name = "parameter_mixture"
+
+    @property
+    def child(self) -> str | None:
+        """The one continuous site the parameter acts on, if there is exactly one."""
+        return self.continuous[0] if len(self.continuous) == 1 else None
+
+    @classmethod
+    def of(
+        cls,
+        parameter: Parameter,
+        action: str,
+        uses: torch.Tensor,
+        cluster: str,
+        value: str,
+        affected: tuple[str, ...],
+        continuous: tuple[str, ...],
+    ) -> ParameterMixture:
+        """The mixture's kinds: ``cluster`` given the action (actions not using the
+        parameter pinned on cell 0), ``value`` given the cluster."""
+        c, k = parameter.n_clusters, parameter.dim
+        n_actions = uses.shape[0]
+        return cls(
+            parameter,
+            action,
+            uses,
+            TableCPD(cluster, (action,), (n_actions,), c, pinned=~uses),
+            LinearGaussianCPD(value, (cluster,), (c,), k),
+            affected,
+            continuous,
+        )
+
+    @property
+    def sites(self) -> tuple[str, str]:
+        return self.cluster.site, self.value.site
+
+    def in_use(self, action: torch.Tensor) -> torch.Tensor:
+        """Whether ``action`` (state indices, any shape) uses the parameter."""
+        return self.uses[action]
+
+    def cells(self, theta: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
+        """The cluster of each row: the value's cell, or 0 where the action does not use
+        the parameter (NaN values count as 0 there)."""
+        return torch.where(self.in_use(action), self.parameter.cluster_of(theta.nan_to_num()), 0)
+
+    def cell_factor(
+        self, theta: torch.Tensor, cluster: torch.Tensor, action: torch.Tensor
+    ) -> torch.Tensor:
+        """Log-factor: 0 where a known value lies in its cluster's cell, ``-inf`` where not."""
+        known = ~torch.isnan(theta).any(-1)
+        factor = torch.zeros((), dtype=DTYPE)
+        if bool(known.any()):
+            uses = self.in_use(action)
+            wrong = uses & known & (self.parameter.cluster_of(theta.nan_to_num()) != cluster)
+            factor = factor.masked_fill(wrong, -torch.inf)
+        return factor
+
+    # ---------------------------------------------------------------- the affected feature
+    def zero_weights(
+        self, parents: tuple[str, ...], card: tuple[int, ...], width: int, end: int
+    ) -> torch.Tensor:
+        """``(G, width)`` bool for the affected feature's linear Gaussian (parents
+        ``parents`` with cardinalities ``card``, the parameter its inputs ``end - dim`` to
+        ``end``): its weights on the parameter in configurations of actions not using it."""
+        unused = self._on_action_axis(~self.uses, parents, 0).expand(*card).reshape(-1)
+        out = torch.zeros(unused.shape[0], width, dtype=torch.bool)
+        out[:, end - self.parameter.dim : end] = unused[:, None]
+        return out
+
+    def _on_action_axis(self, per_action: torch.Tensor, parents, trailing: int) -> torch.Tensor:
+        """``(A,)`` shaped to broadcast on the action axis of tables over ``parents``
+        followed by ``trailing`` more dims."""
+        after = len(parents) - 1 - parents.index(self.action)
+        return per_action.reshape(-1, *([1] * (after + trailing)))
+
+    def marginal(self, params: Mapping, child: LinearGaussianCPD) -> LinearGaussian:
+        """The affected feature's CPD with the parameter integrated out, per configuration:
+        ``weight`` ``W_x`` ``(P..., d, p - k)``, ``bias`` ``b + W_p m_c`` ``(P..., d)``,
+        ``scale_tril`` the Cholesky factor of ``R + W_p S_c W_p^T``. For actions not using
+        the parameter ``W_p`` counts as zero."""
+        cpd = params[child.site]
+        prior = params[self.value.site]
+        k = self.parameter.dim
+        q = cpd.weight.shape[-1]
+        w_x, w_p = cpd.weight[..., : q - k], cpd.weight[..., q - k :]
+        uses = self._on_action_axis(self.uses.to(w_p.dtype), child.parents, 2)
+        w_p = w_p * uses
+        # prior.bias (C, k) aligns with the cluster axis, the child's last parent
+        offset = cpd.bias + (w_p @ prior.bias.unsqueeze(-1)).squeeze(-1)
+        cov = cpd.covariance + w_p @ prior.covariance @ w_p.mT
+        return LinearGaussian(w_x, offset, torch.linalg.cholesky(cov), cpd.n)
+
+    def child_loc_tril(
+        self,
+        params: Mapping,
+        child: LinearGaussianCPD,
+        index: list[torch.Tensor],
+        inputs: list[torch.Tensor],
+        action: torch.Tensor,
+        known: torch.Tensor,
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """The affected feature's mean and Cholesky factor: given the parameter where it is
+        ``known`` (bool rows), integrated out where not. ``inputs``: the child's
+        continuous parents' values, the parameter last."""
+        everywhere = bool(known.all())
+        nowhere = not bool(known.any())
+        inputs = list(inputs)
+        if not nowhere:  # the parameter known in some rows: condition on it there
+            uses = self.in_use(action)
+            inputs[-1] = torch.where(uses[..., None], inputs[-1].nan_to_num(), 0.0)
+            loc, tril = child.loc_tril(params[child.site], index, concat_inputs(inputs))
+        if not everywhere:
+            m_loc, m_tril = child.loc_tril(
+                self.marginal(params, child), index, concat_inputs(inputs[:-1])
+            )
+            if nowhere:
+                loc, tril = m_loc, m_tril
+            else:
+                loc = torch.where(known[..., None], loc, m_loc)
+                tril = torch.where(known[..., None, None], tril, m_tril)
+        return loc, tril
+
+    def condition(
+        self,
+        params: Mapping,
+        child: LinearGaussianCPD,
+        values: Mapping[str, torch.Tensor],
+        cluster: torch.Tensor,
+        prior: tuple[torch.Tensor, torch.Tensor] | None = None,
+        acting: tuple[ParameterMixture, ...] = (),
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """The parameter's Gaussian given the affected feature's value ``values[child]``,
+        its other parents' values and a cluster per row: ``cluster`` ``(n,)``, or
+        ``(n, C)`` for several clusters per row (the results then carry the ``C`` dim).
+        ``prior``: the cluster's mean and covariance, if already gathered. ``acting``:
+        every parameter acting on the child, in input order, when there are several; the
+        others count where ``values`` gives them (not NaN) and are integrated out, given
+        their cluster in ``values``, where not."""
+        extra = cluster.dim() - 1  # trailing dims the row-wise values must broadcast over
+
+        def rows(t: torch.Tensor) -> torch.Tensor:
+            return t.reshape(t.shape[:1] + (1,) * extra + t.shape[1:])
+
+        index = tuple(rows(values[s]) if s != self.cluster.site else cluster for s in child.parents)
+        cpd = params[child.site]
+        weight = cpd.weight[index]
+        others = acting if len(acting) > 1 else (self,)
+        q_other = weight.shape[-1] - sum(m.parameter.dim for m in others)
+        start = q_other
+        noise = cpd.covariance[index]
+        offset = cpd.bias[index]
+        for m in others:
+            k = m.parameter.dim
+            w = weight[..., start : start + k]
+            start += k
+            if m is self:
+                w_p = w
+                continue
+            theta = values.get(m.value.site)
+            c = rows(values[m.cluster.site])
+            value, hidden = params[m.value.site].bias[c], None
+            if theta is not None:
+                given = rows(~torch.isnan(theta).any(-1))
+                value = torch.where(given[..., None], rows(theta.nan_to_num()), value)
+                hidden = ~given
+            uses = rows(m.in_use(values[m.action]))
+            offset = offset + (w @ torch.where(uses[..., None], value, 0.0)[..., None]).squeeze(-1)
+            spread = w @ params[m.value.site].covariance[c] @ w.mT
+            hidden = uses if hidden is None else uses & hidden
+            noise = noise + hidden[..., None, None] * spread
+        w_x = weight[..., :q_other]
+        inputs = [values[s] for s in child.inputs[: len(child.inputs) - len(others)]]
+        if inputs:
+            offset = offset + (w_x @ rows(torch.cat(inputs, -1))[..., None]).squeeze(-1)
+        if prior is None:
+            value = params[self.value.site]
+            prior = value.bias[cluster], value.covariance[cluster]
+        return condition_linear_gaussian(*prior, w_p, offset, noise, rows(values[child.site]))
+
+    def belief(self, params: Mapping, cluster: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """The value's Gaussian given the cluster: mean ``(..., k)`` and covariance."""
+        prior = params[self.value.site]
+        return Vindex(prior.bias)[cluster, :], Vindex(prior.covariance)[cluster, :, :]
+
+    def _split(self, params, child, index, inputs, action):
+        """The child's offset ``b + W_x x`` and its weights on the value (zero for
+        actions not using it), gathered at the parents."""
+        cpd = params[child.site]
+        k = self.parameter.dim
+        offset, tril = child.loc_tril(cpd, index, None)
+        weight = Vindex(cpd.weight)[(*index, slice(None), slice(None))]
+        q = weight.shape[-1]
+        x = concat_inputs(inputs[:-1])
+        if x is not None:
+            offset = offset + (weight[..., : q - k] @ x.unsqueeze(-1)).squeeze(-1)
+        uses = self.in_use(action).to(weight.dtype)[..., None, None]
+        return offset, tril, weight[..., q - k :] * uses
+
+    def shared_loc_tril(
+        self, params, child, index, inputs, action, known, belief
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """Like :meth:`child_loc_tril` for a value acting on several continuous sites:
+        where unknown, integrated out under ``belief`` (the value's Gaussian given the
+        cluster and the affected sites observed so far; ``None``: the cluster's own)."""
+        if belief is None:
+            return self.child_loc_tril(params, child, index, inputs, action, known)
+        offset, tril, w_p = self._split(params, child, index, inputs, action)
+        theta = inputs[-1].nan_to_num()
+        mean = torch.where(known[..., None], theta, belief[0])
+        loc = offset + (w_p @ mean.unsqueeze(-1)).squeeze(-1)
+        spread = (~known).to(w_p.dtype)[..., None, None] * (w_p @ belief[1] @ w_p.mT)
+        return loc, torch.linalg.cholesky(tril @ tril.mT + spread)
+
+    def update(
+        self, params, child, index, inputs, action, y, belief
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """``belief`` (``None``: the cluster's Gaussian, gathered at the child's last
+        discrete parent) conditioned on the child's observed value ``y``."""
+        if belief is None:
+            belief = self.belief(params, index[-1])
+        offset, tril, w_p = self._split(params, child, index, inputs, action)
+        return condition_linear_gaussian(*belief, w_p, offset, tril @ tril.mT, y)
+
+    def posterior(
+        self,
+        params: Mapping,
+        children: list[LinearGaussianCPD],
+        values: Mapping[str, torch.Tensor],
+        cluster: torch.Tensor,
+        prior: tuple[torch.Tensor, torch.Tensor] | None = None,
+        acting: tuple[ParameterMixture, ...] = (),
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """:meth:`condition` on each of ``children`` (observed continuous sites the value
+        acts on) in turn: the value's Gaussian given all of them."""
+        for child in children:
+            prior = self.condition(params, child, values, cluster, prior, acting)
+        return prior
+
+    def query_tables(self, params: Mapping, child: LinearGaussianCPD) -> dict[str, torch.Tensor]:
+        """Tables of the inverse query, per configuration of the child's parents: the
+        marginal's offset, inverse Cholesky factor (``whiten``) and log-normaliser, the
+        other inputs' weights, the conditioning gain and posterior covariance, the
+        cluster's log-prior given the action, the cluster means and the seen flags."""
+        marginal = self.marginal(params, child)
+        tril = marginal.scale_tril
+        cpd = params[child.site]
+        prior = params[self.value.site]
+        w_p = cpd.weight[..., -self.parameter.dim :]
+        # gain = S_c W_p^T (W_p S_c W_p^T + R)^-1, with the marginal's Cholesky factor
+        cross = prior.covariance @ w_p.mT  # (P..., k, d)
+        gain = torch.cholesky_solve(cross.mT, tril).mT
+        post_cov = prior.covariance - gain @ w_p @ prior.covariance
+        eye = torch.eye(tril.shape[-1], dtype=tril.dtype)
+        return {
+            "log_cluster": params[self.cluster.site].probs.clamp_min(1e-300).log(),
+            "offset": marginal.bias,
+            "whiten": torch.linalg.solve_triangular(tril, eye, upper=False),
+            "log_norm": -tril.diagonal(dim1=-2, dim2=-1).log().sum(-1)
+            - 0.5 * tril.shape[-1] * math.log(2 * math.pi),
+            "w_x": marginal.weight,
+            "gain": gain,
+            "prior_mean": prior.bias,
+            "post_cov": 0.5 * (post_cov + post_cov.mT),
+            "seen": child.seen(cpd),
+        }
+
+    # ---------------------------------------------------------------- fitting
+    def statistics(self, action: torch.Tensor, cluster: torch.Tensor, theta: torch.Tensor):
+        """The two sites' statistics, over the rows whose action uses the parameter."""
+        uses = self.in_use(action)
+        return {
+            self.cluster.site: self.cluster.statistics(action[uses], None, cluster[uses]),
+            self.value.site: self.value.statistics(cluster[uses], None, theta[uses]),
+        }
+
+    def randomize(self, value: LinearGaussian, generator: torch.Generator) -> LinearGaussian:
+        """Random cluster Gaussians, each inside its own cell as a fitted one is: mean in
+        the cell's middle half, standard deviation an eighth of the cell."""
+        p = self.parameter
+        width = (torch.tensor(p.high, dtype=DTYPE) - torch.tensor(p.low, dtype=DTYPE)) / (
+            torch.tensor(p.bins, dtype=DTYPE)
+        )
+        offset = (torch.rand(p.n_clusters, p.dim, generator=generator, dtype=DTYPE) - 0.5) * 0.5
+        mean = p.cluster_centres() + offset * width
+        tril = torch.diag_embed((width / 8).expand(p.n_clusters, p.dim))
+        return LinearGaussian(value.weight, mean, tril, value.n)
+
+
+def affected_loc_tril(
+    acting: tuple[ParameterMixture, ...],
+    params: Mapping,
+    child: LinearGaussianCPD,
+    index: list[torch.Tensor],
+    inputs: list[torch.Tensor],
+    action: torch.Tensor,
+    known: Mapping[str, torch.Tensor],
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """A continuous feature's mean and Cholesky factor given the parameters ``acting`` on
+    it (their values its last inputs, their clusters its last parents, in this order):
+    each value counts where it is ``known`` (rows, by parameter name) and is integrated
+    out where not: ``y ~ N(b + W_x x + sum_j W_j mu_j, R + sum_j W_j S_j W_j^T)`` over
+    the unknown ``j`` (independent given their clusters)."""
+    if len(acting) == 1:
+        m = acting[0]
+        return m.child_loc_tril(params, child, index, inputs, action, known[m.parameter.name])
+    cpd = params[child.site]
+    loc, tril = child.loc_tril(cpd, index, None)
+    weight = Vindex(cpd.weight)[(*index, slice(None), slice(None))]
+    cov = tril @ tril.mT
+    q_other = weight.shape[-1] - sum(m.parameter.dim for m in acting)
+    x = concat_inputs(inputs[: len(inputs) - len(acting)])
+    if x is not None:
+        loc = loc + (weight[..., :q_other] @ x.unsqueeze(-1)).squeeze(-1)
+    start = q_other
+    clusters = index[len(index) - len(acting) :]
+    thetas = inputs[len(inputs) - len(acting) :]
+    for m, c, theta in zip(acting, clusters, thetas, strict=True):
+        k = m.parameter.dim
+        w = weight[..., start : start + k]
+        start += k
+        given, uses = known[m.parameter.name], m.in_use(action)
+        prior = params[m.value.site]
+        value = torch.where(given[..., None], theta.nan_to_num(), Vindex(prior.bias)[c, :])
+        value = torch.where(uses[..., None], value, 0.0)
+        loc = loc + (w @ value.unsqueeze(-1)).squeeze(-1)
+        hidden = uses & ~given
+        if bool(hidden.any()):
+            spread = w @ Vindex(prior.covariance)[c, :, :] @ w.mT
+            cov = cov + hidden[..., None, None] * spread
+    return loc, torch.linalg.cholesky(cov)
