@@ -51,7 +51,7 @@ def steps(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
         (
             "physics_bounds",
             [*scale, *executor]
-            + (["--repeats", "8", "--step", "0.008", "--combined-repeats", "4"] if quick else []),
+            + (["--repeats", "8", "--step", "0.01", "--combined-repeats", "4"] if quick else []),
         ),
         (
             "all_goals",  # the quick scale: the standard table only

@@ -10,7 +10,7 @@ Goals are the stable sub-configurations of the full pyramid. For each table heig
 2. **Physics bound.** The empirical transitions of one half of the bound's repeats give
    the best plan within ``horizon`` throws (finite-horizon dynamic programming); its
    success is scored on the other half (held out), both ways round and averaged
-   (:func:`cross_fitted_bound`). A goal is *reachable* when that held-out success is
+   (:func:`experiments.physics_bounds.cross_fitted_bound`). A goal is *reachable* when that held-out success is
    above zero.
 3. **The learned system.** The can network (configuration before, aim height as the
    action, configuration after) is fitted by maximum likelihood on the robot's
@@ -47,21 +47,20 @@ from experiments.config import (
     check_float,
     check_int,
 )
+from experiments.physics_bounds import (
+    BOUND_SEED,
+    cross_fitted_bound,
+    empirical_transition,
+    robot_throws,
+)
 from experiments.throwing import MAX_BINS, fit_throws, get_data
 from inference import fit, predict
 from inference.compiled import compile_parameter_query
-from inference.planning import exact_plan, paper_planner, policy_value
+from inference.planning import exact_plan, paper_planner
 from models.can_network import can_network, can_rows
 from models.throw_network import TARGET
 from sim2d import geometry
-from sim2d.combined import (
-    CAN_BAND,
-    TABLE_TOP_Z,
-    exact_throws,
-    explore,
-    play_policy,
-    play_throw,
-)
+from sim2d.combined import CAN_BAND, TABLE_TOP_Z, exact_throws, play_policy, play_throw
 from sim2d.configurations import stable_configurations
 from sim2d.executors import open_executor
 from sim2d.throw import TARGET_AREA, ReleaseNoise, throw
@@ -69,13 +68,11 @@ from sim2d.throw import TARGET_AREA, ReleaseNoise, throw
 __all__ = [
     "AllGoalsConfig",
     "AllGoalsResult",
-    "cross_fitted_bound",
     "plot",
     "run_all_goals",
 ]
 
-TRAIN_SEED = 2  # the robot's experience; the physics bound uses seed 1, the can data set 0
-BOUND_SEED = 1
+TRAIN_SEED = 2  # the robot's experience; the physics bound's uses seed 1, the can data set 0
 PLAY_SEED = 3
 #: the issue's goal: the exact planner's success over the bound, averaged over goals
 GOAL_RATIO = 0.90
@@ -299,45 +296,6 @@ def learned_transition(
     return t, aims
 
 
-def empirical_transition(
-    states: list[int], outcomes: dict[int, np.ndarray], cols: slice
-) -> torch.Tensor:
-    """``T[s, a, s']`` counted from the simulated outcomes' repeats ``cols``."""
-    index = {s: i for i, s in enumerate(states)}
-    n_a = next(iter(outcomes.values())).shape[0]
-    t = torch.zeros(len(states), n_a, len(states), dtype=torch.float64)
-    for s in states:
-        if s not in outcomes:  # never reached within the horizon, or no cans: stays
-            t[index[s], :, index[s]] = 1.0
-            continue
-        nxt = outcomes[s][:, cols]
-        for a in range(n_a):
-            values, counts = np.unique(nxt[a], return_counts=True)
-            t[index[s], a, [index[int(v)] for v in values]] = torch.as_tensor(
-                counts / counts.sum(), dtype=torch.float64
-            )
-    return t
-
-
-def cross_fitted_bound(
-    halves: tuple[torch.Tensor, torch.Tensor], goal: int, start: int, horizon: int
-) -> tuple[float, float]:
-    """The best plan's success from ``start``: planned on one half of the simulations and
-    scored on the other, both ways round, averaged (held out); and the plans' own values
-    on the halves they were made on, averaged (in sample).
-
-    The held-out figure is low by the luck the plan's choice fitted in its half, the
-    in-sample one high by the same luck; the true best lies between them.
-    """
-    held, in_sample = 0.0, 0.0
-    for made, scored in ((0, 1), (1, 0)):
-        plan = exact_plan(halves[made], goal, horizon)
-        value = policy_value(halves[scored], plan.policy, goal, horizon)
-        held += float(value[horizon, start]) / 2
-        in_sample += float(plan.value[horizon, start]) / 2
-    return held, in_sample
-
-
 def _paper_task(start, goal, most_probable, states, aims, table_z, jitter, noise, seed):
     """The paper planner towards ``goal``, playing in the world; an executor task."""
     index = {s: i for i, s in enumerate(states)}
@@ -376,20 +334,12 @@ def run_table(config: AllGoalsConfig, table_z: float, robot: Robot, executor) ->
     states = sorted(stable_configurations())
     full = geometry.FULL_PYRAMID
     heights = exact_throws(config.step, table_z=table_z)[0]
-    base = config.data_dir
     common = dict(
-        depth=config.horizon, table_z=table_z, step=config.step, jitter=config.jitter,
+        table_z=table_z, step=config.step, jitter=config.jitter, horizon=config.horizon,
         executor=executor, progress=config.progress,
     )  # fmt: skip
-    name = f"robot_throws_{table_z}_{config.step}_{config.jitter}"
-    train = explore(
-        base / f"{name}_{config.train_repeats}_seed{TRAIN_SEED}", full,
-        repeats=config.train_repeats, seed=TRAIN_SEED, **common,
-    )  # fmt: skip
-    bound = explore(
-        base / f"{name}_{config.bound_repeats}_seed{BOUND_SEED}", full,
-        repeats=config.bound_repeats, seed=BOUND_SEED, **common,
-    )  # fmt: skip
+    train = robot_throws(config.data_dir, repeats=config.train_repeats, seed=TRAIN_SEED, **common)
+    bound = robot_throws(config.data_dir, repeats=config.bound_repeats, seed=BOUND_SEED, **common)
     half = config.bound_repeats // 2
     halves = (
         empirical_transition(states, bound, slice(None, half)),

@@ -9,11 +9,11 @@ be read against it:
   jitter, fresh seeds; :func:`sim2d.can_dataset.generate_dataset`). For each case the
   field is chosen by its success on the first half of the repeats and scored on the
   second half (held out, so that luck in the choice does not count; :func:`held_out_best`).
-* **Combined.** From every state between the full pyramid and each scenario's goal, the
-  robot throws at every reachable height of the pyramid's face (exact inverse kinematics,
+* **Combined.** From every state its throws reach from the full pyramid, the robot
+  throws at every reachable height of the pyramid's face (exact inverse kinematics,
   ``step`` apart) ``combined_repeats`` times with the data set's jitter
-  (:mod:`sim2d.combined`). The best policy over ``horizon`` throws is planned on half the
-  repeats and scored on the other half (:func:`inference.planning.policy_value`).
+  (:func:`robot_throws`). The best policy over ``horizon`` throws is planned on half the
+  repeats and scored on the other half, both ways round (:func:`cross_fitted_values`).
 
 Both bounds' simulations are saved under ``data_dir`` as they finish and resumed when
 interrupted.
@@ -40,10 +40,9 @@ from experiments.config import (
     check_int,
 )
 from inference.planning import exact_plan, policy_value
-from sim2d import field_throws, geometry, materials
+from sim2d import field_throws, geometry
 from sim2d.can_dataset import generate_dataset, load_dataset
-from sim2d.chunks import locked, read_npz, run_chunks
-from sim2d.combined import TABLE_TOP_Z, throws_from
+from sim2d.combined import TABLE_TOP_Z, explore
 from sim2d.configurations import stable_configurations
 from sim2d.executors import open_executor
 from sim2d.throw import TARGET_AREA
@@ -52,8 +51,11 @@ __all__ = [
     "PhysicsBoundsConfig",
     "PhysicsBoundsResult",
     "combined_bound",
-    "combined_outcomes",
+    "cross_fitted_bound",
+    "cross_fitted_values",
+    "empirical_transition",
     "held_out_best",
+    "robot_throws",
     "run_physics_bounds",
     "table_one_bound",
 ]
@@ -78,7 +80,7 @@ class PhysicsBoundsConfig:
     step : float
         Combined: metres between the robot's throw heights, in ``(0, PYRAMID_HEIGHT]``.
     combined_repeats : int
-        Combined: throws per (state, height), >= 2.
+        Combined: throws per (state, height), even (half plan, half score).
     horizon : int
         Combined: throws allowed, ``1..MAX_HORIZON``.
     progress : bool
@@ -90,8 +92,8 @@ class PhysicsBoundsConfig:
     executor: str | None = None
     repeats: int = 16
     table_z: tuple[float, ...] = (TABLE_TOP_Z,)
-    step: float = 0.002
-    combined_repeats: int = 8
+    step: float = 0.005
+    combined_repeats: int = 24
     horizon: int = 6
     progress: bool = True
 
@@ -107,6 +109,10 @@ class PhysicsBoundsConfig:
             check_float("table_z", z, 0.0, TARGET_AREA.z_max, unit="m")
         check_float("step", self.step, 0.0, geometry.PYRAMID_HEIGHT, low_open=True, unit="m")
         check_int("combined_repeats", self.combined_repeats, 2)
+        if self.combined_repeats % 2:
+            raise ConfigError(
+                "combined_repeats", f"{self.combined_repeats} is odd; expected an even number"
+            )
         check_int("horizon", self.horizon, 1, MAX_HORIZON)
 
 
@@ -158,63 +164,107 @@ def table_one_bound(config: PhysicsBoundsConfig, executor=None) -> dict[str, dic
     return out
 
 
-def combined_outcomes(
-    config: PhysicsBoundsConfig, table_z: float, jitter: float, states, executor
-) -> dict:
-    """``{state: (heights, repeats) next states}``, saved per state under ``data_dir``
-    (resumable; :func:`sim2d.chunks.run_chunks`)."""
-    states = sorted(states)
-    repeats, step = config.combined_repeats, config.step
-    tasks = [(s, table_z, step, repeats, jitter, BOUND_SEED) for s in states]
-    protocol = {
-        "producer": "sim2d.combined.throws_from",
-        "tasks": [list(t) for t in tasks],
-        "constants": materials.physical_constants(),
-    }
-    folder = config.data_dir / f"combined_bound_{config.scale}_{table_z}_{step}_{repeats}.parts"
-    with locked(folder):
-        files = run_chunks(
-            folder, protocol, throws_from, tasks, executor=executor,
-            progress=config.progress, desc=f"combined bound (table {table_z} m)",
-        )  # fmt: skip
-        return {s: read_npz(f)["next_states"] for s, f in zip(states, files, strict=True)}
+def robot_throws(
+    data_dir,
+    *,
+    table_z: float,
+    step: float,
+    repeats: int,
+    jitter: float,
+    horizon: int,
+    seed: int = BOUND_SEED,
+    executor=None,
+    progress: bool = True,
+) -> dict[int, np.ndarray]:
+    """The robot's exact throws at every face height from every state reachable from the
+    full pyramid within ``horizon - 1`` throws (:func:`sim2d.combined.explore`).
+
+    Saved under ``data_dir`` in a folder named by the arguments, so every experiment that
+    asks for the same throws (the combined bound here, :mod:`experiments.all_goals`)
+    shares them; resumed when interrupted. ``{state: (heights, repeats) next states}``.
+    """
+    name = f"robot_throws_{table_z}_{step}_{jitter}_{repeats}_seed{seed}"
+    return explore(
+        Path(data_dir) / name, geometry.FULL_PYRAMID, depth=horizon, table_z=table_z,
+        step=step, repeats=repeats, jitter=jitter, seed=seed, executor=executor,
+        progress=progress,
+    )  # fmt: skip
+
+
+def empirical_transition(
+    states: list[int], outcomes: dict[int, np.ndarray], cols: slice
+) -> torch.Tensor:
+    """``T[s, a, s']`` counted from the simulated outcomes' repeats ``cols``; a state
+    without outcomes (never reached, or no cans) stays where it is."""
+    index = {s: i for i, s in enumerate(states)}
+    n_a = next(iter(outcomes.values())).shape[0]
+    t = torch.zeros(len(states), n_a, len(states), dtype=torch.float64)
+    for s in states:
+        if s not in outcomes:
+            t[index[s], :, index[s]] = 1.0
+            continue
+        nxt = outcomes[s][:, cols]
+        for a in range(n_a):
+            values, counts = np.unique(nxt[a], return_counts=True)
+            t[index[s], a, [index[int(v)] for v in values]] = torch.as_tensor(
+                counts / counts.sum(), dtype=torch.float64
+            )
+    return t
+
+
+def cross_fitted_values(
+    halves: tuple[torch.Tensor, torch.Tensor], goal: int, horizon: int
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(held_out, in_sample)``, each ``(horizon + 1, S)``: the best plan made on one half
+    of the simulations scored on the other, both ways round and averaged; and the plans'
+    own values on the halves they were made on, averaged.
+
+    The held-out figure is low by the luck the plan's choice fitted in its half, the
+    in-sample one high by the same luck; the true best lies between them.
+    """
+    held, in_sample = 0.0, 0.0
+    for made, scored in ((0, 1), (1, 0)):
+        plan = exact_plan(halves[made], goal, horizon)
+        held = held + policy_value(halves[scored], plan.policy, goal, horizon) / 2
+        in_sample = in_sample + plan.value / 2
+    return held, in_sample
+
+
+def cross_fitted_bound(
+    halves: tuple[torch.Tensor, torch.Tensor], goal: int, start: int, horizon: int
+) -> tuple[float, float]:
+    """:func:`cross_fitted_values` from ``start`` with ``horizon`` actions left."""
+    held, in_sample = cross_fitted_values(halves, goal, horizon)
+    return float(held[horizon, start]), float(in_sample[horizon, start])
 
 
 def combined_bound(
     config: PhysicsBoundsConfig, table_z: float, jitter: float, executor=None
 ) -> dict:
-    """Per scenario: the best plan's held-out success, over the robot's exact throws."""
-    stable = stable_configurations()
-    goals = {
-        name: geometry.FULL_PYRAMID & ~geometry.cans_to_mask(removed)
-        for name, removed in SCENARIOS.items()
-    }
-    needed = {s for goal in goals.values() for s in stable if s & goal == goal}
-    by_state = combined_outcomes(config, table_z, jitter, needed, executor)
-    horizon = config.horizon
+    """Per scenario: the best plan's success over the robot's exact throws, held out
+    (cross-fitted) and in sample, within ``horizon`` throws and in one throw."""
+    outcomes = robot_throws(
+        config.data_dir, table_z=table_z, step=config.step, repeats=config.combined_repeats,
+        jitter=jitter, horizon=config.horizon, executor=executor, progress=config.progress,
+    )  # fmt: skip
+    states = sorted(stable_configurations())
+    index = {s: i for i, s in enumerate(states)}
+    half = config.combined_repeats // 2
+    halves = (
+        empirical_transition(states, outcomes, slice(None, half)),
+        empirical_transition(states, outcomes, slice(half, None)),
+    )
+    full, horizon = index[geometry.FULL_PYRAMID], config.horizon
     out = {}
-    for name, goal in goals.items():
-        states = sorted(s for s in stable if s & goal == goal)
-        outcomes = [by_state[s] for s in states]
-        index = {s: i for i, s in enumerate(states)}
-        half = config.combined_repeats // 2
-        t = [torch.zeros(len(states), outcomes[0].shape[0], len(states), dtype=torch.float64)]
-        t.append(t[0].clone())  # (planned on, scored on)
-        for i, o in enumerate(outcomes):
-            for part, cols in ((0, slice(None, half)), (1, slice(half, None))):
-                for a, row in enumerate(o[:, cols]):
-                    for nxt in row:  # a next state outside the goal's supersets is a failure
-                        if nxt in index:
-                            t[part][i, a, index[nxt]] += 1.0 / len(row)
-        plan = exact_plan(t[0], index[goal], horizon)
-        value = policy_value(t[1], plan.policy, index[goal], horizon)
-        full = index[geometry.FULL_PYRAMID]
+    for name, removed in SCENARIOS.items():
+        goal = geometry.FULL_PYRAMID & ~geometry.cans_to_mask(removed)
+        held, in_sample = cross_fitted_values(halves, index[goal], horizon)
         out[name] = {
-            "success_bound": float(value[horizon, full]),
-            "success_in_sample": float(plan.value[horizon, full]),
-            "one_throw_bound": float(value[1, full]),
-            "n_states": len(states),
-            "n_heights": int(outcomes[0].shape[0]),
+            "success_bound": float(held[horizon, full]),
+            "success_in_sample": float(in_sample[horizon, full]),
+            "one_throw_bound": float(held[1, full]),
+            "n_states": len(outcomes),
+            "n_heights": int(next(iter(outcomes.values())).shape[0]),
         }
     return out
 

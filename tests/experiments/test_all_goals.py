@@ -7,6 +7,7 @@ import pytest
 import torch
 
 from experiments import all_goals
+from experiments import physics_bounds as pb
 from experiments.all_goals import AllGoalsConfig, AllGoalsResult
 from experiments.config import ConfigError
 from sim2d import geometry
@@ -24,9 +25,9 @@ def test_empirical_transition_counts_the_chosen_repeats():
         3: np.array([[3, 1, 1, 0], [0, 0, 0, 0]]),
         1: np.array([[1, 1, 0, 0], [1, 0, 1, 0]]),
     }
-    first = all_goals.empirical_transition(states, outcomes, slice(None, 2))
+    first = pb.empirical_transition(states, outcomes, slice(None, 2))
     assert first[2, 0].tolist() == [0.0, 0.5, 0.5] and first[2, 1].tolist() == [1.0, 0.0, 0.0]
-    second = all_goals.empirical_transition(states, outcomes, slice(2, None))
+    second = pb.empirical_transition(states, outcomes, slice(2, None))
     assert second[1, 1].tolist() == [0.5, 0.5, 0.0]
     assert first[0, :, 0].tolist() == [1.0, 1.0]  # no outcomes: the state stays
     assert torch.allclose(second.sum(-1), torch.ones(3, 2, dtype=torch.float64))
@@ -105,8 +106,8 @@ def test_cross_fitted_bound_scores_each_half_s_plan_on_the_other():
         t[1, :, 1] = 1.0
         return t
 
-    held, in_sample = all_goals.cross_fitted_bound((half(1.0, 0.5), half(0.5, 1.0)), 1, 0, 1)
+    held, in_sample = pb.cross_fitted_bound((half(1.0, 0.5), half(0.5, 1.0)), 1, 0, 1)
     assert held == pytest.approx(0.5) and in_sample == pytest.approx(1.0)
     same = half(0.3, 0.6)
-    held, in_sample = all_goals.cross_fitted_bound((same, same), 1, 0, 2)
+    held, in_sample = pb.cross_fitted_bound((same, same), 1, 0, 2)
     assert held == pytest.approx(1 - 0.4**2) and in_sample == pytest.approx(held)

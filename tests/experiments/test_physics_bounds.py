@@ -5,6 +5,7 @@ from concurrent.futures import Future
 
 import numpy as np
 import pytest
+import torch
 
 from experiments import physics_bounds as pb
 from experiments.can_tossing import PROTOCOLS, table_one_cases
@@ -65,23 +66,34 @@ class Counting:
         return future
 
 
-def test_the_combined_bound_resumes_from_its_saved_states(tmp_path):
-    config = pb.PhysicsBoundsConfig(
-        scale="tiny", data_dir=tmp_path, step=0.2, combined_repeats=2, progress=False
-    )
-    states = [1023, 15]
+def test_the_robot_s_throws_resume_and_are_shared_by_name(tmp_path):
+    kw = dict(table_z=0.75, step=0.2, repeats=2, jitter=0.003, horizon=2, progress=False)
     first = Counting()
-    outcomes = pb.combined_outcomes(config, 0.75, 0.003, states, first)
-    assert first.submitted == 2 and set(outcomes) == {15, 1023}
+    outcomes = pb.robot_throws(tmp_path, executor=first, **kw)
+    assert first.submitted == len(outcomes) >= 2 and 1023 in outcomes
     again = Counting()
-    assert pb.combined_outcomes(config, 0.75, 0.003, states, again).keys() == outcomes.keys()
+    assert pb.robot_throws(tmp_path, executor=again, **kw).keys() == outcomes.keys()
     assert again.submitted == 0
-    folder = next(tmp_path.glob("combined_bound_*.parts"))
-    (folder / "chunk-000001.npz").unlink()  # chunks are in sorted state order: 1023
+    (folder,) = tmp_path.glob("robot_throws_*_seed1")
+    next((folder / "layer-1").glob("chunk-*.npz")).unlink()
     resumed = Counting()
-    redone = pb.combined_outcomes(config, 0.75, 0.003, states, resumed)
+    redone = pb.robot_throws(tmp_path, executor=resumed, **kw)
     assert resumed.submitted == 1
-    assert all(np.array_equal(redone[s], outcomes[s]) for s in states)
+    assert all(np.array_equal(redone[s], outcomes[s]) for s in outcomes)
+    other = Counting()
+    pb.robot_throws(tmp_path, executor=other, seed=2, **kw)  # another seed: other throws
+    assert other.submitted > 0 and len(list(tmp_path.glob("robot_throws_*"))) == 2
+
+
+def test_cross_fitted_values_average_both_splits():
+    # start 0 -> goal 1 with two actions: one half favours action 0, the other action 1
+    t = torch.zeros(2, 2, 2, 2, dtype=torch.float64)  # (half, s, a, s')
+    t[0, 0, 0], t[0, 0, 1] = torch.tensor([0.0, 1.0]), torch.tensor([0.6, 0.4])
+    t[1, 0, 0], t[1, 0, 1] = torch.tensor([0.8, 0.2]), torch.tensor([0.1, 0.9])
+    t[:, 1, :, 1] = 1.0
+    held, in_sample = pb.cross_fitted_values((t[0], t[1]), 1, 1)
+    assert held[1, 0].item() == pytest.approx((0.2 + 0.4) / 2)
+    assert in_sample[1, 0].item() == pytest.approx((1.0 + 0.9) / 2)
 
 
 @pytest.mark.parametrize(
@@ -89,6 +101,7 @@ def test_the_combined_bound_resumes_from_its_saved_states(tmp_path):
     [
         ("repeats", 1),
         ("combined_repeats", 1),
+        ("combined_repeats", 3),
         ("step", 0.0),
         ("step", 5.0),
         ("table_z", ()),
