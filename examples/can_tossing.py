@@ -1,528 +1,37 @@
-"""The can-tossing experiment: Table I, emulation and imitation with the Fig. 2 network.
+"""The paper's can-tossing experiment (§IV-A): Table I, emulation and imitation.
 
-Rudolph, Mühlig, Gienger, Böhme, "Learning the Consequences of Actions: Representing
-Effects as Feature Changes", §IV-A and Table I. The can network (initial configuration
-and count, field, end configuration and count) is fitted by maximum likelihood on the
-0° throws of the can data set only, then:
-
-* Table I: for every non-empty start configuration and every desired count some 0°
-  training throw reached from it, plus the unchanged count, the best field given
-  (configuration, count, desired count) is thrown at 0° with the data set's aim jitter
-  and a fresh seed; desired minus achieved count is tallied in the paper's bins.
-  ``--cases actions`` reads the paper's "one action that leaves the setup unchanged and
-  all actions that somehow change the number of cans" literally instead: one case per
-  (configuration, field) whose first training throw changed the count.
-  Two ways to pick among fields tied in the exact posterior (``--rule``): ``index``
-  (the query's argmax, lowest index) and ``aim`` (the tied field whose neighbours also
-  succeed under the model: :func:`inference.evaluation.aim_robust_best`). Both are
-  measured, on the same seeds; ``--rule`` selects the headline.
-* Emulation: a demonstrated throw's observed end configuration is the evidence; the
-  best field for it is thrown, and we count how often it reproduces the demonstrated end
-  configuration (and count). The demonstrated field re-thrown with a fresh seed is the
-  reference: how often the world reproduces its own effect.
-* Imitation: throws with a large aim error (``--aim-error`` m per axis); a throw failed
-  when its end configuration differs from the unperturbed intended throw's. The
-  surprise of the observed end state under the intended field
-  (:func:`inference.imitation_check`) should separate the two: ROC AUC. The network's
-  table for one (configuration, field) rests on three jittered throws and misses
-  outcomes the field produces now and then; the pooled surprise scores the observed end
-  configuration under the intended field's predictive averaged over an aim error of
-  ``sigma`` fields (:func:`inference.evaluation.aim_pooled`), ``sigma`` chosen on a
-  separate validation draw of perturbed throws.
-
-Writes ``can_tossing.json``, ``can_tossing.md``, ``can_tossing_table1.png`` and
-``can_tossing_roc.png`` to ``--out``::
+The can network is fitted on the can data set's 0° throws (generated under ``--data-dir``
+on first use, then reused) and judged by throwing again: Table I under both protocols
+and both tie-breaks, emulation of demonstrated throws, and the imitation surprise's ROC
+(:mod:`experiments.can_tossing`). Writes ``can_tossing.json``, ``can_tossing.md``,
+``can_tossing_table1.png`` and ``can_tossing_roc.png`` to ``--out``::
 
     .venv/bin/python examples/can_tossing.py --scale full
+    .venv/bin/python examples/can_tossing.py --scale tiny --n-demos 30 --out /tmp/cans
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import sys
-from pathlib import Path
 
-import numpy as np
 import torch
-from tqdm.auto import tqdm
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from can_common import CanModel, can_dataset, fit_can_network  # noqa: E402
-
-from inference import imitation_check  # noqa: E402
-from inference.evaluation import (  # noqa: E402
-    ACCURACY_BINS,
-    accuracy_histogram,
-    aim_pooled,
-    aim_robust_best,
-    roc_auc,
-    roc_curve,
-    tail_surprise,
+from experiments.can_tossing import (
+    PROTOCOLS,
+    RULES,
+    CanTossingConfig,
+    CanTossingResult,
+    run_can_tossing,
 )
-from models.can_network import config_index, count  # noqa: E402
-from sim2d import field_throws, geometry, materials  # noqa: E402
-
-ANGLE = 0  # the paper trains and evaluates at 0°
-PAPER_TABLE_I = dict(zip(ACCURACY_BINS, (36, 63, 309, 7780, 269, 113, 33), strict=True))
-PAPER_PERCENT = dict(zip(ACCURACY_BINS, (0.41, 0.73, 3.59, 90.43, 3.12, 1.31, 0.38), strict=True))
-PAPER_CASES = 8603
-# Seed purposes: every evaluation throw draws its aim jitter from SeedSequence([seed,
-# purpose]), never from the data set's per-throw seeds (SeedSequence of five numbers).
-TABLE_I, DEMO, REPLAY, PERTURB, PICK, VALIDATE = 1, 2, 3, 4, 5, 6
-#: Aim errors (in fields) the pooled imitation surprise chooses among; 0: no pooling.
-AIM_SIGMAS = (0.0, 0.25, 0.5, 0.75, 1.0, 1.5)
-
-
-def fresh_seeds(seed: int, purpose: int, n: int) -> np.ndarray:
-    """``(n,)`` uint32 throw seeds for one purpose, disjoint from the training seeds'."""
-    return np.random.SeedSequence([seed, purpose]).generate_state(max(n, 1))[:n]
-
-
-def table_one_cases(data, mode: str = "counts") -> tuple[np.ndarray, np.ndarray]:
-    """Table I's cases from the 0° training throws: ``(start masks, desired counts)``.
-
-    ``counts``: every distinct count reached from a start, plus the unchanged one.
-    ``actions``: one case per (start, field) whose first throw changed the count, plus
-    one unchanged case per start.
-    """
-    sel = (data.angle == ANGLE) & data.throwable & (data.start_config != 0)
-    if mode == "actions":
-        sel &= (data.repeat == 0) & (data.count_after != data.count_before)
-        start, desired = data.start_config[sel], data.count_after[sel]
-    elif mode == "counts":
-        pairs = np.unique(np.stack([data.start_config[sel], data.count_after[sel]], 1), axis=0)
-        start, desired = pairs[:, 0], pairs[:, 1]
-    else:
-        raise ValueError(f"mode must be 'counts' or 'actions', got {mode!r}")
-    starts = np.unique(data.start_config[(data.angle == ANGLE) & (data.start_config != 0)])
-    unchanged = count(starts)
-    if mode == "counts":  # only where the unchanged count is not already a case
-        have = {(int(s), int(c)) for s, c in zip(start, desired, strict=True)}
-        keep = [(int(s), int(c)) not in have for s, c in zip(starts, unchanged, strict=True)]
-        starts, unchanged = starts[keep], unchanged[keep]
-    start = np.r_[start, starts].astype(np.int64)
-    desired = np.r_[desired, unchanged].astype(np.int64)
-    order = np.lexsort((desired, start))
-    return start[order], desired[order]
-
-
-def choose(model: CanModel, evidence: dict, rule: str) -> np.ndarray:
-    """Best field per row for ``evidence``: the query's argmax or the aim-robust one."""
-    post = model.compiled.infer_action(evidence, allowed=model.throwable)
-    if rule == "index":
-        return post.best.numpy()
-    allowed = model.throwable.expand_as(post.probs) & (post.unseen < 0.5)
-    allowed = torch.where(allowed.any(-1, keepdim=True), allowed, model.throwable)
-    return aim_robust_best(
-        post.probs, (geometry.N_ROWS, geometry.N_COLUMNS), allowed=allowed
-    ).numpy()
-
-
-def start_evidence(model: CanModel, start: np.ndarray) -> dict:
-    return {
-        "initial.config": start,
-        "initial.count": count(start),
-    }
-
-
-def play(start, fields, jitter: float, seeds, desc: str) -> np.ndarray:
-    """End configurations of the 0° throws ``(start[i], fields[i])`` with seeded jitter."""
-    return np.array(
-        [
-            field_throws.throw_at_field(
-                int(s), int(f), ANGLE, jitter=jitter, seed=int(k)
-            ).end_config
-            for s, f, k in tqdm(
-                list(zip(start, fields, seeds, strict=True)), desc=desc, leave=False
-            )
-        ],
-        dtype=np.int64,
-    )
-
-
-def play_table_one(model, data, mode: str, seed: int, rule: str) -> dict[str, np.ndarray]:
-    """Table I's cases played: per case ``start``, ``desired``, ``field``, ``seed``,
-    ``achieved`` (count) and ``reachable`` (some 0° training throw reached ``desired``)."""
-    start, desired = table_one_cases(data, mode)
-    sel = (data.angle == ANGLE) & data.throwable
-    seen = np.unique(data.start_config[sel] * 16 + data.count_after[sel])
-    evidence = start_evidence(model, start) | {"end.count": torch.as_tensor(desired)}
-    fields = choose(model, evidence, rule)
-    seeds = fresh_seeds(seed, TABLE_I, len(start))  # the same for both rules
-    end = play(start, fields, data.metadata["jitter"], seeds, f"Table I ({mode}, {rule})")
-    return {
-        "start": start,
-        "desired": desired,
-        "field": fields,
-        "seed": seeds,
-        "achieved": count(end),
-        "reachable": np.isin(start * 16 + desired, seen),
-    }
-
-
-def summarise(cases: dict[str, np.ndarray]) -> dict:
-    """Table I's numbers from :func:`play_table_one`'s cases."""
-    exact = cases["desired"] == cases["achieved"]
-    reachable = cases["reachable"]
-    return {
-        "n_cases": len(exact),
-        "histogram": accuracy_histogram(cases["desired"], cases["achieved"]),
-        "exact_fraction": float(exact.mean()),
-        "n_unreachable": int((~reachable).sum()),
-        "exact_fraction_reachable": float(exact[reachable].mean()) if reachable.any() else None,
-    }
-
-
-def table_one(model, data, mode: str, seed: int) -> dict:
-    """Table I for both tie-break rules, on the same cases and the same seeds."""
-    return {
-        rule: summarise(play_table_one(model, data, mode, seed, rule)) for rule in ("index", "aim")
-    }
-
-
-def demonstrations(data, n: int, rng) -> tuple[np.ndarray, np.ndarray]:
-    """``n`` random (non-empty start, throwable 0° field) pairs from the data set."""
-    starts = np.unique(data.start_config[(data.angle == ANGLE) & (data.start_config != 0)])
-    throwable = np.flatnonzero(
-        [field_throws.is_throwable(f, ANGLE) for f in range(geometry.N_FIELDS)]
-    )
-    return rng.choice(starts, n), rng.choice(throwable, n)
-
-
-def emulation(model, data, n: int, seed: int, rule: str) -> dict:
-    """Infer a field that causes a demonstrated effect, throw it, compare the effects."""
-    jitter = data.metadata["jitter"]
-    start, field = demonstrations(data, n, np.random.default_rng([seed, PICK]))
-    shown = play(start, field, jitter, fresh_seeds(seed, DEMO, n), "demonstrations")
-    known = np.isin(shown, model.states)  # end configurations the network has a state for
-    ev = start_evidence(model, start) | {"end.count": torch.as_tensor(count(shown))}
-    fields = choose(model, ev, rule)  # count only: the fallback for unknown configurations
-    if known.any():
-        ev_known = model.net.encode(ev).rows(torch.as_tensor(known))
-        ev_known = ev_known | {"end.config": shown[known]}
-        fields[known] = choose(model, ev_known, rule)
-    seeds = fresh_seeds(seed, REPLAY, 2 * n)
-    copied = play(start, fields, jitter, seeds[:n], "emulation")
-    again = play(start, field, jitter, seeds[n:], "demonstrated field again")
-
-    return {
-        "n_demonstrations": n,
-        "n_unknown_end_config": int((~known).sum()),
-        "same_end_config": float(np.mean(copied == shown)),
-        "same_count": float(np.mean(count(copied) == count(shown))),
-        "same_field_chosen": float(np.mean(fields == field)),
-        "reference_same_end_config": float(np.mean(again == shown)),
-        "reference_same_count": float(np.mean(count(again) == count(shown))),
-    }
-
-
-def perturbed_aims(start, field, aim_error: float, rng) -> list[tuple[np.ndarray, np.ndarray]]:
-    """Ball states at the entry line for aims ``aim_error`` off (redrawn until throwable)."""
-    states = []
-    for f in field:
-        while True:
-            offset = rng.normal(0.0, aim_error, 2)
-            position, velocity = field_throws.launch_state(int(f), ANGLE, offset=offset)
-            target_z = geometry.field_centres()[f, 1] + offset[1]
-            if min(position[1], target_z) >= materials.BALL_RADIUS + materials.TABLE_CLEARANCE:
-                states.append((position, velocity))
-                break
-    return states
-
-
-def perturbed_throws(
-    data, n: int, aim_error: float, seed: int, purpose: int, n_ordinary: int = 8
-) -> dict[str, np.ndarray]:
-    """``n`` throws aimed ``aim_error`` m off, with their failure labels, ``(n,)`` each.
-
-    ``start``, ``field`` (intended), ``observed`` (end configuration) and two labels:
-    ``failed``: the end configuration differs from the unperturbed intended throw's;
-    ``failed_ordinary``: it differs from every outcome of the intended throw executed as
-    usual (unperturbed, and ``n_ordinary`` times with the data set's aim jitter) -- the
-    world is chaotic enough at a 3 mm jitter that the unperturbed throw's outcome is often
-    not the intended action's usual one. ``purpose`` seeds the draw (``PERTURB``: test).
-    """
-    rng = np.random.default_rng([seed, purpose])
-    start, field = demonstrations(data, n, rng)
-    nominal, observed = [], []
-    for s, f, (pos, vel) in tqdm(
-        list(zip(start, field, perturbed_aims(start, field, aim_error, rng), strict=True)),
-        desc="perturbed throws",
-        leave=False,
-    ):
-        nominal.append(field_throws.throw_at_field(int(s), int(f), ANGLE).end_config)
-        observed.append(field_throws.play_ball(int(s), pos, vel).end_config)
-    nominal, observed = np.array(nominal), np.array(observed)
-    failed = observed != nominal
-    seeds = fresh_seeds(seed, purpose, n * n_ordinary).reshape(n_ordinary, n)
-    usual = [
-        play(start, field, data.metadata["jitter"], k, f"ordinary throws {j + 1}/{n_ordinary}")
-        for j, k in enumerate(seeds)
-    ]
-    failed_ordinary = failed & np.all([observed != u for u in usual], axis=0)
-    return {
-        "start": start,
-        "field": field,
-        "observed": observed,
-        "failed": failed,
-        "failed_ordinary": failed_ordinary,
-    }
-
-
-def pooled_surprise(model, throws: dict, sigma: float, tables: dict) -> np.ndarray:
-    """``(n,)`` surprise of each observed end configuration under the intended field's
-    predictive pooled over an aim error of ``sigma`` fields; an end configuration the
-    network has no state for was never seen: 1. ``tables`` caches
-    ``model.end_config_probs`` per start configuration."""
-    start, observed = throws["start"], throws["observed"]
-    surprise = np.ones(len(start))
-    known = np.isin(observed, model.states)
-    for s in np.unique(start[known]):
-        rows = known & (start == s)
-        if s not in tables:
-            tables[s] = model.end_config_probs(int(s))
-        pooled = aim_pooled(
-            tables[s],
-            (geometry.N_ROWS, geometry.N_COLUMNS),
-            throws["field"][rows],
-            allowed=model.throwable,
-            sigma=sigma,
-        )
-        surprise[rows] = tail_surprise(pooled, config_index(model.net, observed[rows])).numpy()
-    return surprise
-
-
-def auc_or_none(scores, positive) -> float | None:
-    """ROC AUC, or None where one class is empty."""
-    return roc_auc(scores, positive) if 0 < np.sum(positive) < len(positive) else None
-
-
-def imitation(model, data, n: int, aim_error: float, seed: int, n_ordinary: int = 8) -> dict:
-    """Surprise of perturbed throws' effects under the intended field, and its ROC.
-
-    Labels: :func:`perturbed_throws`. Scores: the network's surprise
-    (:func:`inference.imitation_check` on the observed end configuration and count), and
-    the pooled surprise (:func:`pooled_surprise`) with the aim error from ``AIM_SIGMAS``
-    that has the best ``failed_ordinary`` AUC on a validation draw (seed purpose
-    ``VALIDATE``; ties to the smaller aim error).
-    """
-    throws = perturbed_throws(data, n, aim_error, seed, PERTURB, n_ordinary)
-    start, field, observed = throws["start"], throws["field"], throws["observed"]
-    failed, failed_ordinary = throws["failed"], throws["failed_ordinary"]
-    # An end configuration the network has no state for was never seen: surprise 1.
-    known = np.isin(observed, model.states)
-    surprise = np.ones(n)
-    if known.any():
-        ev = start_evidence(model, start[known]) | {
-            "action": [model.net.actions[f] for f in field[known]],
-            "end.config": observed[known],
-            "end.count": count(observed[known]),
-        }
-        surprise[known] = imitation_check(model.net, model.params, ev).surprise.numpy()
-
-    tables: dict = {}
-    held_out = perturbed_throws(data, n, aim_error, seed, VALIDATE, n_ordinary)
-    validation = []
-    for sigma in AIM_SIGMAS:
-        scores = pooled_surprise(model, held_out, sigma, tables)
-        validation.append(
-            {
-                "sigma": sigma,
-                "auc": auc_or_none(scores, held_out["failed"]),
-                "auc_ordinary": auc_or_none(scores, held_out["failed_ordinary"]),
-            }
-        )
-    scored = [v for v in validation if v["auc_ordinary"] is not None]
-    sigma = max(scored, key=lambda v: v["auc_ordinary"])["sigma"] if scored else AIM_SIGMAS[0]
-    pooled = pooled_surprise(model, throws, sigma, tables)
-    return {
-        "n_throws": n,
-        "aim_error_m": aim_error,
-        "n_failed": int(failed.sum()),
-        "n_unknown_end_config": int((~known).sum()),
-        "auc": auc_or_none(surprise, failed),
-        "n_failed_ordinary": int(failed_ordinary.sum()),
-        "auc_ordinary": auc_or_none(surprise, failed_ordinary),
-        "aim_sigma": sigma,
-        "auc_pooled": auc_or_none(pooled, failed),
-        "auc_ordinary_pooled": auc_or_none(pooled, failed_ordinary),
-        "validation": {
-            "n_throws": n,
-            "n_failed": int(held_out["failed"].sum()),
-            "n_failed_ordinary": int(held_out["failed_ordinary"].sum()),
-            "by_sigma": validation,
-        },
-        "surprise": surprise.tolist(),
-        "pooled_surprise": pooled.tolist(),
-        "failed": failed.tolist(),
-        "failed_ordinary": failed_ordinary.tolist(),
-    }
-
-
-def main(args: argparse.Namespace) -> dict:
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    data = can_dataset(Path(args.data_dir), args.scale, executor=args.executor)
-    model = fit_can_network(data, ANGLE)
-    tables = {mode: table_one(model, data, mode, args.seed) for mode in ("counts", "actions")}
-    head = tables[args.cases][args.rule]
-    results = {
-        "scale": args.scale,
-        "cases": args.cases,
-        "rule": args.rule,
-        **head,
-        "table_one": tables,
-        "paper": {
-            "n_cases": PAPER_CASES,
-            "histogram": PAPER_TABLE_I,
-            "percent": PAPER_PERCENT,
-            "exact_fraction": 0.9043,
-        },
-        "emulation": emulation(model, data, args.n_demos, args.seed, args.rule),
-        "imitation": imitation(model, data, args.n_demos, args.aim_error, args.seed),
-    }
-    report = markdown(results)
-    print(report)
-    (out / "can_tossing.md").write_text(report)
-    (out / "can_tossing.json").write_text(json.dumps(results, indent=1))
-    plot_table_one(tables, out / "can_tossing_table1.png")
-    if results["imitation"]["auc"] is not None:
-        plot_roc(results["imitation"], out / "can_tossing_roc.png")
-    return results
-
-
-def markdown(r: dict) -> str:
-    tabs = r["table_one"]
-    cols = [(m, rule) for m in ("counts", "actions") for rule in ("index", "aim")]
-    lines = [
-        f"# Can tossing (scale {r['scale']}; headline: cases {r['cases']}, rule {r['rule']})",
-        "",
-        "| accuracy | "
-        + " | ".join(f"{m}/{rule} # | %" for m, rule in cols)
-        + " | paper # | paper % |",
-        "|---|" + "---:|---:|" * (len(cols) + 1),
-    ]
-    for b in ACCURACY_BINS:
-        cells = []
-        for m, rule in cols:
-            t = tabs[m][rule]
-            cells += [str(t["histogram"][b]), f"{100 * t['histogram'][b] / t['n_cases']:.2f}"]
-        lines.append(
-            f"| {b} | " + " | ".join(cells) + f" | {PAPER_TABLE_I[b]} | {PAPER_PERCENT[b]:.2f} |"
-        )
-    cells = [f"{tabs[m][rule]['n_cases']} | " for m, rule in cols]
-    lines.append("| cases | " + " | ".join(cells) + f" | {PAPER_CASES} | |")
-    lines.append("")
-    for m, rule in cols:
-        t = tabs[m][rule]
-        line = f"- {m}/{rule}: exact {100 * t['exact_fraction']:.2f} %"
-        if t["n_unreachable"] and t["exact_fraction_reachable"] is not None:
-            line += (
-                f"; {t['n_unreachable']} cases ask for a count no 0° training throw reached, "
-                f"exact among the others {100 * t['exact_fraction_reachable']:.2f} %"
-            )
-        lines.append(line)
-    e, i = r["emulation"], r["imitation"]
-    v = i["validation"]
-    lines += [
-        f"- emulation ({e['n_demonstrations']} demonstrations): same end configuration "
-        f"{100 * e['same_end_config']:.1f} %, same count {100 * e['same_count']:.1f} % "
-        f"(demonstrated field re-thrown: {100 * e['reference_same_end_config']:.1f} % / "
-        f"{100 * e['reference_same_count']:.1f} %)",
-        f"- imitation ({i['n_throws']} throws, aim error {100 * i['aim_error_m']:.1f} cm, "
-        f"{i['n_failed']} failed): ROC AUC of surprise "
-        + ("n/a (one class only)" if i["auc"] is None else f"{i['auc']:.3f}")
-        + f"; against the intended throw's usual outcomes ({i['n_failed_ordinary']} failed): "
-        + ("n/a" if i["auc_ordinary"] is None else f"{i['auc_ordinary']:.3f}"),
-        f"- imitation, pooled surprise (aim error {i['aim_sigma']:g} fields): ROC AUC "
-        + f"{_auc_text(i['auc_pooled'])}; against the usual outcomes "
-        + f"{_auc_text(i['auc_ordinary_pooled'])}. Aim error chosen on a validation draw "
-        + f"({v['n_throws']} throws, {v['n_failed']} / {v['n_failed_ordinary']} failed) by "
-        + "the second AUC: "
-        + ", ".join(
-            f"{b['sigma']:g}: {_auc_text(b['auc'])} / {_auc_text(b['auc_ordinary'])}"
-            for b in v["by_sigma"]
-        ),
-        "",
-    ]
-    return "\n".join(lines)
-
-
-def _auc_text(auc: float | None) -> str:
-    return "n/a" if auc is None else f"{auc:.3f}"
-
-
-def plot_table_one(tables: dict, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    series = {
-        f"ours, {m}, {rule}": [100 * t["histogram"][b] / t["n_cases"] for b in ACCURACY_BINS]
-        for m in tables
-        for rule, t in tables[m].items()
-    }
-    series["paper"] = [PAPER_PERCENT[b] for b in ACCURACY_BINS]
-    fig, ax = plt.subplots(figsize=(8, 4.2))
-    x = np.arange(len(ACCURACY_BINS))
-    width = 0.8 / len(series)
-    for k, (label, values) in enumerate(series.items()):
-        ax.bar(x + (k - (len(series) - 1) / 2) * width, values, width, label=label)
-    ax.set_xticks(x, ACCURACY_BINS)
-    ax.set_yscale("log")
-    ax.set_xlabel("desired minus achieved count")
-    ax.set_ylabel("% of cases (log scale)")
-    ax.set_title("Table I: best field for a desired count, thrown at 0°")
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
-
-
-def plot_roc(result: dict, path: Path) -> None:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, ax = plt.subplots(figsize=(5.6, 5.0))
-    for (key, label), colour in zip(
-        (
-            ("failed", "not the unperturbed throw's outcome"),
-            ("failed_ordinary", "none of the usual outcomes"),
-        ),
-        ("C0", "C1"),
-        strict=True,
-    ):
-        suffix = "" if key == "failed" else "_ordinary"
-        for scores, style, name in (
-            ("surprise", "-", "surprise"),
-            ("pooled_surprise", "--", f"pooled, {result['aim_sigma']:g} fields"),
-        ):
-            auc = result[f"auc{suffix}" + ("_pooled" if scores == "pooled_surprise" else "")]
-            if auc is not None:
-                fpr, tpr = roc_curve(result[scores], result[key])
-                ax.plot(fpr, tpr, style, color=colour, label=f"failed: {label}; {name} ({auc:.3f})")
-    ax.plot([0, 1], [0, 1], ":", color="0.5", label="chance")
-    ax.set_xlabel("false-positive rate (successful throws flagged)")
-    ax.set_ylabel("true-positive rate (failed throws flagged)")
-    ax.set_title(
-        f"Imitation: {result['n_throws']} throws aimed {100 * result['aim_error_m']:.0f} cm off",
-        fontsize=10,
-    )
-    ax.legend(loc="lower right", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    plt.close(fig)
+from experiments.cans import SCALES
+from experiments.config import config_or_exit
 
 
 def parse_args(argv=None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--scale", choices=("full", "quick", "tiny"), default="full")
+    parser.add_argument("--scale", choices=tuple(SCALES), default="full")
     parser.add_argument("--data-dir", default="data")
     parser.add_argument(
         "--executor",
@@ -531,13 +40,36 @@ def parse_args(argv=None) -> argparse.Namespace:
     )
     parser.add_argument("--out", default="results")
     parser.add_argument("--seed", type=int, default=0, help="seed of the evaluation throws")
-    parser.add_argument("--rule", choices=("index", "aim"), default="aim", help="tie-break")
-    parser.add_argument("--cases", choices=("counts", "actions"), default="counts")
+    parser.add_argument("--rule", choices=RULES, default="aim", help="headline tie-break")
+    parser.add_argument("--cases", choices=PROTOCOLS, default="counts", help="headline protocol")
     parser.add_argument("--n-demos", type=int, default=300, help="emulation/imitation throws")
     parser.add_argument("--aim-error", type=float, default=0.03, help="imitation, m per axis")
-    return parser.parse_args(argv)
+    parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    args = parser.parse_args(argv)
+    args.config = config_or_exit(
+        parser,
+        lambda: CanTossingConfig(
+            scale=args.scale,
+            data_dir=args.data_dir,
+            executor=args.executor,
+            seed=args.seed,
+            rule=args.rule,
+            cases=args.cases,
+            n_demos=args.n_demos,
+            aim_error=args.aim_error,
+            progress=not args.quiet,
+        ),
+    )
+    return args
+
+
+def main(args: argparse.Namespace) -> CanTossingResult:
+    torch.set_num_threads(1)
+    result = run_can_tossing(args.config)
+    result.save(args.out)
+    print(result.to_markdown())
+    return result
 
 
 if __name__ == "__main__":
-    torch.set_num_threads(1)
     main(parse_args())

@@ -1,55 +1,53 @@
 """The can world at a glance: the pyramid and its fields, one throw before/after, a GIF.
 
-Writes ``pyramid.png``, ``throw.png`` and ``throw.gif`` to ``--out`` (default
-``results/can_world``) and prints the throw's outcome. The world is fixed in
-``sim2d`` (geometry, materials, world); the paper's experiment is Rudolph et al., §IV-A.
+Writes ``pyramid.png``, ``throw.png`` and ``throw.gif`` to ``--out`` and prints the
+throw's outcome (:func:`experiments.pictures.draw_can_world`)::
 
-    python examples/can_world.py --field 15 --angle 0     # low, flat, at the near can
+    .venv/bin/python examples/can_world.py --field 15 --angle 0   # low, flat, at the near can
 """
 
 from __future__ import annotations
 
 import argparse
-from pathlib import Path
 
-from sim2d import geometry, recording, render
+from experiments.config import config_or_exit
+from experiments.pictures import DEFAULT_FIELD, CanWorldConfig, CanWorldPictures, draw_can_world
+from sim2d import geometry
 
 
-def main(argv=None) -> dict[str, Path]:
-    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--out", type=Path, default=Path("results/can_world"))
+def parse_args(argv=None) -> argparse.Namespace:
+    parser = argparse.ArgumentParser(
+        description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
+    )
+    parser.add_argument("--out", default="results/can_world")
     parser.add_argument("--config", type=int, default=geometry.FULL_PYRAMID, help="start mask")
-    # default: a descending throw at the top row's middle, which takes the top three cans
-    parser.add_argument("--field", type=int, default=12 * geometry.N_COLUMNS + 7, help="0..194")
+    parser.add_argument("--field", type=int, default=DEFAULT_FIELD, help="0..194")
     parser.add_argument("--angle", type=int, default=1, help="0: 0deg, 1: 30deg, 2: -30deg")
     parser.add_argument("--jitter", type=float, default=0.003, help="aim error sd, metres")
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--frame-interval", type=float, default=0.02, help="GIF frame, s")
+    parser.add_argument("--fps", type=int, default=25, help="GIF frames per second")
     args = parser.parse_args(argv)
+    args.config = config_or_exit(
+        parser,
+        lambda: CanWorldConfig(
+            config=args.config,
+            field=args.field,
+            angle=args.angle,
+            jitter=args.jitter,
+            seed=args.seed,
+            frame_interval=args.frame_interval,
+            fps=args.fps,
+        ),
+    )
+    return args
 
-    trace = recording.record_throw(
-        args.config,
-        args.field,
-        args.angle,
-        jitter=args.jitter,
-        seed=args.seed,
-        frame_interval=args.frame_interval,
-    )
-    o = trace.outcome
-    print(
-        f"field {args.field}, angle {geometry.ANGLE_NAMES[args.angle]}: {o.count_before} -> "
-        f"{o.count_after} cans, thrown off {list(geometry.mask_to_cans(o.thrown_off))}, "
-        f"ball touched {list(geometry.mask_to_cans(o.touched))}, {o.sim_time:.2f} s simulated"
-    )
-    files = {
-        "pyramid": render.plot_pyramid(args.out / "pyramid.png", args.config),
-        "throw": render.plot_throw(args.out / "throw.png", trace, args.field, args.angle),
-        "gif": render.animate_throw(args.out / "throw.gif", trace, args.field, args.angle),
-    }
-    for name, path in files.items():
-        print(f"{name}: {path}")
-    return files
+
+def main(args: argparse.Namespace) -> CanWorldPictures:
+    pictures = draw_can_world(args.config, args.out)
+    print(pictures.to_markdown())
+    return pictures
 
 
 if __name__ == "__main__":
-    main()
+    main(parse_args())

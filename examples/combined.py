@@ -1,335 +1,31 @@
-r"""The paper's combined system: the throw network aims, the can network plans (§IV-C).
+"""The paper's combined system (§IV-C): the throw network aims, the can network plans.
 
-Rudolph, Mühlig, Gienger & Böhme, "Learning the Consequences of Actions: Representing
-Effects as Feature Changes", §IV-C and Tables II-IV. Two networks trained apart are
-chained: the can network (Fig. 2) picks the field to hit, the throw network (Fig. 4)
-turns that hit point into the point the robot aims at, and the robot's throw is played
-through its kinematics into the can world.
+Trains the throw network on the robot's throws and the can network on the can data set
+(under ``--data-dir``, generated on first use), then plays the paper's three scenarios
+(Tables II-IV) with the paper's round planner and with an exact planner
+(:mod:`experiments.combined`). Writes ``combined.json`` and ``combined.md`` to ``--out``::
 
-Set-up (:mod:`sim2d.combined`): the pyramid stands on a
-table ``--table-z`` above the robot's floor with its near face in the throw's target plane;
-a throw within the can depth enters the can world with its in-plane velocity, plus the can
-data set's aim jitter (``--jitter``); intermediate states follow the recorded settle rule.
-A field's hit point is where the can network's training throw through that field first
-meets the cans (the network was trained on that angle's parabolas). The can network is
-trained on the angle whose direction is closest to the robot's measured impact direction.
-
-Planners (:mod:`inference.planning`): the paper's round planner, whose actions in a
-round are the fields whose most probable end configuration is the (intermediate) goal;
-and an exact planner that maximises the probability of reaching the goal within
-``--horizon`` throws under the learned models, with the throw's uncertainty (the throw
-network's predicted hit Gaussian) included; its success rate is measured by playing its
-policy ``--episodes`` times.
-
-    python examples/combined.py [--scale full|quick|tiny] [--noise] [--proposals can|combined]
-                                [--table-z 0.75] [--jitter 0.003]
+    .venv/bin/python examples/combined.py [--scale full|quick|tiny] [--noise]
+        [--proposals can|combined] [--table-z 0.75] [--jitter 0.003]
 """
 
 from __future__ import annotations
 
 import argparse
-import json
-import math
-import sys
-import time
-from dataclasses import dataclass, field
-from pathlib import Path
 
-import numpy as np
 import torch
-from tqdm.auto import tqdm
 
-sys.path.insert(0, str(Path(__file__).resolve().parent))
-from can_common import CanModel, can_dataset, fit_can_network  # noqa: E402
-from throwing import fit_throws, get_data  # noqa: E402
-
-from inference import predict  # noqa: E402
-from inference.compiled import compile_parameter_query  # noqa: E402
-from inference.planning import exact_plan, paper_planner  # noqa: E402
-from models.throw_network import TARGET  # noqa: E402
-from sim2d import geometry, materials  # noqa: E402
-from sim2d.combined import CAN_BAND, TABLE_TOP_Z, first_contact, play_throw, settle  # noqa: E402
-from sim2d.configurations import stable_configurations  # noqa: E402
-from sim2d.throw import TARGET_AREA, ReleaseNoise, throw  # noqa: E402
-
-SCENARIOS = {
-    "top_three": geometry.TOP_THREE,
-    "near_flank": geometry.NEAR_FLANK,
-    "far_flank": geometry.FAR_FLANK,
-}
-PAPER_RATES = {"top_three": 0.5713, "near_flank": 0.6857, "far_flank": 0.5771}
-TABLES = {"top_three": "Table II", "near_flank": "Table III", "far_flank": "Table IV"}
-
-
-@dataclass
-class Robot:
-    """The throw side: the learned inverse (hit -> aim) and the kinematics that throw."""
-
-    query: object  # CompiledParameterQuery of the throw network
-    net: object
-    params: object
-    noise: ReleaseNoise | None
-    rng: np.random.Generator
-
-    def aim(self, hits: np.ndarray) -> np.ndarray:
-        aims = self.query.infer({"end.hit": torch.as_tensor(hits)}).mean.numpy()
-        return np.clip(aims, TARGET_AREA.low, TARGET_AREA.high)
-
-    def hit_distribution(self, aims: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The throw network's predicted hit for each aim: means ``(n, 2)``, covs ``(n, 2, 2)``."""
-        mix = predict(
-            self.net, self.params, {"action": ["throw"] * len(aims), "param.target": aims}
-        )
-        hit = mix.continuous["hit"]
-        return hit.mean.numpy(), hit.cov.numpy()
-
-
-@dataclass
-class World:
-    """Everything one throw needs: the can model, the robot, and the geometry between them."""
-
-    can: CanModel
-    robot: Robot
-    stable: frozenset[int]
-    table_z: float = TABLE_TOP_Z
-    jitter: float = 0.0  # m, the can data set's aim jitter added to every throw's entry height
-    _heights: dict = field(default_factory=dict)
-
-    def heights(self, state: int) -> np.ndarray:
-        """``(195,)`` near-face heights (can frame) to hit so that the robot's ball meets the
-        cans of ``state`` where the training throw through each field does (NaN: unthrowable).
-
-        Solved with the robot's own forward kinematics: a few fixed-point steps of
-        "aim, read the velocity at the plane, run it back from the contact point".
-        """
-        if state not in self._heights:
-            fields = np.flatnonzero(self.can.throwable.numpy())
-            contact = np.array([first_contact(state, f, self.can.angle) for f in fields])
-            z2 = contact[:, 1].copy()
-            for _ in range(4):
-                aims = self.robot.aim(np.stack([np.zeros_like(z2), z2 + self.table_z], -1))
-                v = throw(aims).velocity_at_plane
-                t = (contact[:, 0] - geometry.PYRAMID_X) / v[:, 0]
-                z2 = contact[:, 1] - v[:, 2] * t + 0.5 * materials.GRAVITY * t * t
-            heights = np.full(geometry.N_FIELDS, np.nan)
-            heights[fields] = z2
-            self._heights[state] = heights
-        return self._heights[state]
-
-    def play(self, state: int, field: int) -> int:
-        """Aim at ``field`` from ``state``, throw, play the ball into the cans; the next state."""
-        desired = np.array([[0.0, self.heights(state)[field] + self.table_z]])
-        result = throw(self.robot.aim(desired), rng=self.robot.rng, noise=self.robot.noise)
-        seed = int(self.robot.rng.integers(2**32))
-        return play_throw(
-            state,
-            result.hit[0],
-            result.velocity_at_plane[0],
-            table_z=self.table_z,
-            jitter=self.jitter,
-            seed=seed,
-            stable=self.stable,
-        )
-
-    def proposals(self, state: int, goal: int) -> list[int]:
-        """The paper's actions: fields whose most probable end configuration is ``goal``."""
-        states = self.can.states
-        if state not in states or goal not in states:
-            return []
-        probs = self.can.end_config_probs(state)
-        seen = self.can.params["end.config"].n[states.index(state), bin(state).count("1")] > 0
-        ok = (probs.argmax(-1) == states.index(goal)) & seen & self.can.throwable
-        return ok.nonzero().flatten().tolist()
-
-
-def build_world(args, data) -> tuple[World, dict]:
-    """Train both networks; choose the can network's angle by the robot's impact direction."""
-    rng = np.random.default_rng(args.seed)
-    noise = ReleaseNoise() if args.noise else None
-    targets, hits = get_data(args.n_throws, rng, noise)
-    net, params, _ = fit_throws((args.bins, args.bins), targets, hits)
-    robot = Robot(compile_parameter_query(net, params, TARGET), net, params, noise, rng)
-    # the robot's impact direction at the pyramid, throwing at every field height
-    probe = np.linspace(0.05, geometry.PYRAMID_HEIGHT, 12) + args.table_z
-    v = throw(robot.aim(np.stack([np.zeros_like(probe), probe], -1))).velocity_at_plane
-    impact_deg = float(np.degrees(np.arctan2(v[:, 2], v[:, 0])).mean())
-    angle_deg = [math.degrees(math.atan2(vz, vx)) for vx, vz in geometry.ANGLES]
-    angle = int(np.argmin([abs(a - impact_deg) for a in angle_deg]))
-    can = fit_can_network(data, angle)
-    why = {
-        "robot_impact_deg_mean": impact_deg,
-        "angle_deg": dict(zip(geometry.ANGLE_NAMES, angle_deg, strict=True)),
-        "chosen_angle": geometry.ANGLE_NAMES[angle],
-    }
-    jitter = data.metadata["jitter"] if args.jitter is None else args.jitter
-    world = World(can, robot, frozenset(stable_configurations()), args.table_z, jitter)
-    return world, why | {"table_z": args.table_z, "jitter": jitter}
-
-
-def transition_model(world: World, states: list[int]) -> torch.Tensor:
-    """``T[s, f, s']``: the learned chance that aiming at field ``f`` from ``s`` gives ``s'``.
-
-    The hit's height is drawn from the throw network's predicted Gaussian and read as the
-    field whose matched near-face height (:meth:`World.heights`) is nearest to it; a hit
-    outside the can band leaves the state unchanged. States the can network never saw as
-    a start get no actions (their rows stay zero).
-    """
-    index = {s: i for i, s in enumerate(states)}
-    t = torch.zeros(len(states), geometry.N_FIELDS, len(states), dtype=torch.float64)
-    can_states = world.can.states
-    settled_index = [index.get(settle(end, world.stable), -1) for end in can_states]
-    for s in states:
-        if s not in can_states:
-            continue
-        heights = world.heights(s)
-        fields = np.flatnonzero(world.can.throwable.numpy())
-        order = fields[np.argsort(heights[fields])]
-        edges = (heights[order][1:] + heights[order][:-1]) / 2
-        desired = np.stack([np.zeros(len(order)), heights[order] + world.table_z], -1)
-        mean, cov = world.robot.hit_distribution(world.robot.aim(desired))
-        # chance that the hit's height falls in each field's slice: (aimed, hit) over `order`
-        height = torch.distributions.Normal(
-            torch.as_tensor(mean[:, 1] - world.table_z)[:, None],
-            torch.as_tensor(np.sqrt(cov[:, 1, 1]))[:, None],
-        )
-        bounds = torch.as_tensor(np.concatenate([[-np.inf], edges, [np.inf]]))
-        p_field = height.cdf(bounds[None, 1:]) - height.cdf(bounds[None, :-1])
-        lateral = torch.distributions.Normal(
-            torch.as_tensor(mean[:, 0]), torch.as_tensor(np.sqrt(cov[:, 0, 0]))
-        )
-        p_band = lateral.cdf(torch.tensor(CAN_BAND)) - lateral.cdf(torch.tensor(-CAN_BAND))
-        probs = world.can.end_config_probs(s, order).double()  # (hit field, network state)
-        settled = torch.zeros(len(order), len(states), dtype=torch.float64)
-        for j, target in enumerate(settled_index):
-            if target >= 0:
-                settled[:, target] += probs[:, j]
-        outcome = p_band[:, None] * (p_field @ settled)  # (aimed, s')
-        outcome[:, index[s]] += 1 - p_band
-        t[index[s], torch.as_tensor(order)] = outcome
-    return t
-
-
-def run_scenario(world: World, name: str, args) -> dict:
-    removed = SCENARIOS[name]
-    start = geometry.FULL_PYRAMID
-    goal = start & ~geometry.cans_to_mask(removed)
-    to_set = lambda mask: frozenset(geometry.mask_to_cans(mask))  # noqa: E731
-    to_mask = geometry.cans_to_mask
-    # the learned transitions over every physically possible superset of the goal
-    states = sorted(s for s in world.stable if s & goal == goal)
-    t = transition_model(world, states)
-
-    def propose(s, g):
-        if args.proposals == "can":  # the paper's: the can network alone
-            return world.proposals(to_mask(s), to_mask(g))
-        # the combined model's most probable outcome of aiming at each field
-        s, g = to_mask(s), to_mask(g)
-        if s not in states or g not in states:
-            return []
-        row = t[states.index(s)]
-        failure = 1 - row.sum(-1)  # mass on states that lost a goal can
-        ok = (
-            (row.sum(-1) > 0)
-            & (row.argmax(-1) == states.index(g))
-            & (row[:, states.index(g)] > failure)
-        )
-        return ok.nonzero().flatten().tolist()
-
-    rounds, rate = paper_planner(
-        to_set(start), to_set(goal), propose, lambda s, f: to_set(world.play(to_mask(s), f))
-    )
-    names = {r.state: f"round {i + 1}" for i, r in enumerate(rounds)}
-    plan = exact_plan(t, states.index(goal), args.horizon, allowed=t.sum(-1) > 0)
-    successes = 0
-    for _ in range(args.episodes):
-        state = start
-        for h in range(args.horizon, 0, -1):
-            state = world.play(state, int(plan.policy[h, states.index(state)]))
-            if state == goal or state & goal != goal:
-                break
-        successes += state == goal
-    return {
-        "success_rate": rate,
-        "paper_success_rate": PAPER_RATES[name],
-        "rounds": [r.as_dict(names) for r in rounds],
-        "success_rate_exact_planner": successes / args.episodes,
-        "exact_planner_predicted": float(plan.value[args.horizon, states.index(start)]),
-        "exact_planner_first_field": int(plan.policy[args.horizon, states.index(start)]),
-    }
-
-
-def table_markdown(name: str, s: dict) -> str:
-    rows = s["rounds"]
-    head = "| round | " + " | ".join(str(i + 1) for i in range(len(rows))) + " |"
-    lines = [
-        f"**{TABLES[name]}: {name.replace('_', ' ')}** (paper: {100 * s['paper_success_rate']:.2f} %)",
-        "",
-        head,
-        "|---" * (len(rows) + 1) + "|",
-    ]
-    for key, label in (
-        ("cans_to_throw", "cans to throw"),
-        ("actions", "actions"),
-        ("success", "success (i)"),
-        ("fail_too_many", "fail (ii)"),
-        ("fail_no_hit", "fail (iii)"),
-    ):
-        lines.append(f"| {label} | " + " | ".join(str(r[key]) for r in rows) + " |")
-    inter = [", ".join(f"{k} ({t})" for t, k in r["intermediate"].items()) or "-" for r in rows]
-    lines.append("| interm. (iv) | " + " | ".join(inter) + " |")
-    lines.append(
-        "| success rate | " + " | ".join(f"{100 * r['success_rate']:.2f} %" for r in rows) + " |"
-    )
-    lines.append("")
-    lines.append(
-        f"Exact planner: {100 * s['success_rate_exact_planner']:.1f} % measured "
-        f"({100 * s['exact_planner_predicted']:.1f} % predicted by the models)."
-    )
-    return "\n".join(lines)
-
-
-def main(args: argparse.Namespace) -> dict:
-    torch.set_num_threads(1)
-    started = time.perf_counter()
-    data = can_dataset(
-        Path(args.data_dir), args.scale, progress=not args.quiet, executor=args.executor
-    )
-    world, why = build_world(args, data)
-    print(
-        f"robot impact direction {why['robot_impact_deg_mean']:.1f} deg; can network trained on "
-        f"{why['chosen_angle']} ({why['angle_deg'][why['chosen_angle']]:.1f} deg), the closest; "
-        f"table top {why['table_z']} m, aim jitter {1000 * why['jitter']:.1f} mm"
-    )
-    scenarios = {}
-    for name in tqdm(SCENARIOS, desc="scenarios", disable=args.quiet):
-        scenarios[name] = run_scenario(world, name, args)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    result = {
-        "scenarios": scenarios,
-        "angle_choice": why,
-        "release_noise": args.noise,
-        "proposals": args.proposals,
-        "scale": args.scale,
-        "seconds": time.perf_counter() - started,
-    }
-    (out / "combined.json").write_text(json.dumps(result, indent=2))
-    markdown = "\n\n".join(table_markdown(n, s) for n, s in scenarios.items())
-    (out / "combined.md").write_text(markdown + "\n")
-    print(markdown)
-    print(f"\n{'scenario':<12}{'paper':>9}{'ours (paper planner)':>22}{'ours (exact planner)':>22}")
-    for n, s in scenarios.items():
-        print(
-            f"{n:<12}{100 * s['paper_success_rate']:>8.2f}%{100 * s['success_rate']:>21.2f}%{100 * s['success_rate_exact_planner']:>21.1f}%"
-        )
-    return result
+from experiments.cans import SCALES
+from experiments.combined import PROPOSALS, CombinedConfig, CombinedResult, run_combined
+from experiments.config import config_or_exit
+from sim2d.combined import TABLE_TOP_Z
 
 
 def parse_args(argv=None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--scale", choices=("full", "quick", "tiny"), default="full")
+    parser.add_argument("--scale", choices=tuple(SCALES), default="full")
     parser.add_argument("--data-dir", default="data")
     parser.add_argument(
         "--executor",
@@ -337,38 +33,52 @@ def parse_args(argv=None) -> argparse.Namespace:
         help="data set: process:N | dask-local:N | dask://HOST:PORT | ray (default: every core)",
     )
     parser.add_argument("--out", default="results")
-    parser.add_argument(
-        "--n-throws", type=int, default=29_000, help="throws to train the throw network"
-    )
+    parser.add_argument("--n-throws", type=int, default=29_000, help="throw network's data")
     parser.add_argument("--bins", type=int, default=16, help="throw-network clusters per axis")
     parser.add_argument("--horizon", type=int, default=6, help="throws the exact planner may use")
-    parser.add_argument(
-        "--episodes", type=int, default=50, help="plays of the exact planner's policy"
-    )
-    parser.add_argument(
-        "--noise",
-        action="store_true",
-        help="throw with release noise (0.5 deg, 2 %%; default: none)",
-    )
+    parser.add_argument("--episodes", type=int, default=50, help="plays of the exact policy")
+    parser.add_argument("--noise", action="store_true", help="release noise (0.5 deg, 2 %%)")
     parser.add_argument(
         "--proposals",
-        choices=("combined", "can"),
+        choices=PROPOSALS,
         default="can",
-        help="paper planner's actions: most probable outcome under the can and throw networks "
-        "together (aiming with the robot's scatter), or under the can network alone (the paper's)",
+        help="paper planner's actions: most probable outcome under the can network alone (the "
+        "paper's) or under the can and throw networks together",
     )
+    parser.add_argument("--table-z", type=float, default=TABLE_TOP_Z, help="table top, m")
     parser.add_argument(
-        "--table-z", type=float, default=TABLE_TOP_Z, help="table top above the floor, m"
-    )
-    parser.add_argument(
-        "--jitter",
-        type=float,
-        default=None,
-        help="aim jitter added to every throw's entry height, m (default: the data set's)",
+        "--jitter", type=float, default=None, help="aim jitter, m (default: the data set's)"
     )
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--quiet", action="store_true")
-    return parser.parse_args(argv)
+    parser.add_argument("--quiet", action="store_true", help="no progress bars")
+    args = parser.parse_args(argv)
+    args.config = config_or_exit(
+        parser,
+        lambda: CombinedConfig(
+            scale=args.scale,
+            data_dir=args.data_dir,
+            executor=args.executor,
+            n_throws=args.n_throws,
+            bins=args.bins,
+            horizon=args.horizon,
+            episodes=args.episodes,
+            noise=args.noise,
+            proposals=args.proposals,
+            table_z=args.table_z,
+            jitter=args.jitter,
+            seed=args.seed,
+            progress=not args.quiet,
+        ),
+    )
+    return args
+
+
+def main(args: argparse.Namespace) -> CombinedResult:
+    torch.set_num_threads(1)
+    result = run_combined(args.config)
+    result.save(args.out)
+    print(result.to_markdown())
+    return result
 
 
 if __name__ == "__main__":

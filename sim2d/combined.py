@@ -17,14 +17,16 @@ Everything here is physics and geometry; nothing is learned.
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Iterable, Sequence
+from pathlib import Path
 
 import numpy as np
 
 from sim2d import geometry, materials
+from sim2d.chunks import locked, read_npz, run_chunks
 from sim2d.configurations import stable_configurations
 from sim2d.field_throws import aim_offset, launch_state, play_ball
-from sim2d.throw import exact_target_for_hit, is_reachable_hit, throw
+from sim2d.throw import ReleaseNoise, exact_target_for_hit, is_reachable_hit, throw
 
 #: m, the table top above the robot's floor: a standard table. The pyramid then spans
 #: 0.75-1.39 m, inside the throw's reachable hits (0.35-1.63 m near y = 0).
@@ -182,3 +184,145 @@ def throws_from(
         dtype=np.int64,
     ).reshape(len(result.hit), repeats)
     return {"heights": heights, "next_states": next_states}
+
+
+def explore(
+    folder,
+    start: int,
+    *,
+    depth: int,
+    table_z: float = TABLE_TOP_Z,
+    step: float = 0.002,
+    repeats: int = 8,
+    jitter: float = 0.0,
+    seed: int = 0,
+    executor=None,
+    progress: bool = True,
+) -> dict[int, np.ndarray]:
+    """:func:`throws_from` for every state that these throws reach from ``start`` within
+    ``depth - 1`` throws: the states a plan of ``depth`` throws may act in.
+
+    Breadth first: layer 0 is ``start``; layer k + 1 holds the states that layer k's
+    throws produced and no earlier layer holds (the empty state has nothing to throw at).
+    Each layer is saved in its own parts folder under ``folder`` (one task per state, on
+    ``executor``; :func:`sim2d.chunks.run_chunks`), so an interrupted run resumes; the
+    layers follow from the seeds, so a resumed run finds the same ones.
+
+    Returns
+    -------
+    dict
+        ``{state: (n_heights, repeats) int}`` next states; the heights are
+        :func:`exact_throws`'s for ``step`` and ``table_z``.
+    """
+    if depth < 1:
+        raise ValueError(f"depth = {depth!r}: expected at least 1")
+    if repeats < 1:
+        raise ValueError(f"repeats = {repeats!r}: expected at least 1")
+    if start not in stable_configurations():
+        raise ValueError(f"start {start} is not a physically possible configuration")
+    n_heights = len(exact_throws(step, table_z=table_z)[0])
+
+    def check(k: int, arrays: dict[str, np.ndarray]) -> str | None:
+        shape = arrays["next_states"].shape if "next_states" in arrays else None
+        if shape != (n_heights, repeats):
+            return f"has next_states of shape {shape}, expected {(n_heights, repeats)}"
+        return None
+
+    folder = Path(folder)
+    outcomes: dict[int, np.ndarray] = {}
+    layer = [int(start)] if start else []
+    with locked(folder):
+        for k in range(depth):
+            if not layer:
+                break
+            tasks = [
+                (s, float(table_z), float(step), int(repeats), float(jitter), int(seed))
+                for s in layer
+            ]
+            protocol = {
+                "producer": "sim2d.combined.throws_from",
+                "tasks": [list(t) for t in tasks],
+                "constants": materials.physical_constants(),
+            }
+            files = run_chunks(
+                folder / f"layer-{k}", protocol, throws_from, tasks, executor=executor,
+                check=check, sizes=[n_heights * repeats] * len(tasks), progress=progress,
+                desc=f"throws, table {table_z} m, seed {seed}, layer {k}",
+            )  # fmt: skip
+            for s, f in zip(layer, files, strict=True):
+                outcomes[s] = read_npz(f)["next_states"]
+            reached = set(np.unique(np.concatenate([outcomes[s].ravel() for s in layer])).tolist())
+            layer = sorted(s for s in reached if s and s not in outcomes)
+    return outcomes
+
+
+def play_policy(
+    start: int,
+    goal: int,
+    policy: np.ndarray,
+    states: Sequence[int],
+    aims: np.ndarray,
+    *,
+    episodes: int,
+    table_z: float = TABLE_TOP_Z,
+    jitter: float = 0.0,
+    noise: ReleaseNoise | None = None,
+    seed: int = 0,
+) -> dict[str, np.ndarray]:
+    """Play a state-to-action table from ``start`` ``episodes`` times; an executor task.
+
+    Parameters
+    ----------
+    policy : (H + 1, S) int
+        ``policy[h, i]``: the action to take in ``states[i]`` with ``h`` throws left
+        (``-1``: stop). Row 0 is unused.
+    states : sequence of int
+        The masks indexing the policy's columns; a state not among them ends the episode.
+    aims : (A, 2) float
+        The robot's aim ``[y, z]`` for each action (thrown with :func:`sim2d.throw.throw`,
+        with ``noise`` if given).
+
+    An episode ends at the goal, when a goal can is lost, when the policy stops, or after
+    ``H`` throws. Every throw gets its own seeds from ``SeedSequence([seed, episode])``.
+
+    Returns
+    -------
+    dict
+        ``end`` ``(episodes,)`` int: the state each episode ended in; ``throws``
+        ``(episodes,)`` int: the throws it used.
+    """
+    policy = np.asarray(policy, dtype=np.int64)
+    aims = np.asarray(aims, dtype=float)
+    index = {int(s): i for i, s in enumerate(states)}
+    if policy.ndim != 2 or policy.shape[1] != len(index):
+        raise ValueError(f"policy must be (H + 1, {len(index)}), got {policy.shape}")
+    if aims.ndim != 2 or aims.shape[1] != 2:
+        raise ValueError(f"aims must be (A, 2), got {aims.shape}")
+    if episodes < 1:
+        raise ValueError(f"episodes = {episodes!r}: expected at least 1")
+    horizon = policy.shape[0] - 1
+    stable = frozenset(stable_configurations())
+    end = np.zeros(episodes, dtype=np.int64)
+    used = np.zeros(episodes, dtype=np.int64)
+    for e in range(episodes):
+        rng = np.random.default_rng(np.random.SeedSequence([seed, e]))
+        state = int(start)
+        for h in range(horizon, 0, -1):
+            if state == goal or state & goal != goal or state not in index:
+                break
+            action = int(policy[h, index[state]])
+            if action < 0:
+                break
+            result = throw(aims[action : action + 1], rng=rng, noise=noise)
+            state = play_throw(
+                state,
+                result.hit[0],
+                result.velocity_at_plane[0],
+                table_z=table_z,
+                jitter=jitter,
+                seed=int(rng.integers(2**32)),
+                stable=stable,
+            )
+            used[e] += 1
+        end[e] = state
+    return {"end": end, "throws": used}

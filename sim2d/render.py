@@ -153,6 +153,25 @@ def _ball_patch(xz, colour=_BALL_COLOUR, alpha: float = 1.0):
     return Circle(tuple(xz), m.BALL_RADIUS, fc=colour, ec="k", lw=0.6, alpha=alpha, zorder=6)
 
 
+def _legend(ax, *, path: bool = False) -> None:
+    """The throw pictures' key: ball, cans thrown off, cans kept (and the ball's path and
+    aimed field centre when ``path``)."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    handles = [
+        Line2D([], [], ls="", marker="o", ms=7, mfc=_BALL_COLOUR, mec="k", label="ball"),
+        Patch(fc=_GONE_COLOUR, ec="k", label="cans thrown off"),
+        Patch(fc=_CAN_COLOUR, ec="k", label="cans kept"),
+    ]
+    if path:
+        handles += [
+            Line2D([], [], c=_BALL_COLOUR, lw=1, ls="--", label="ball's path"),
+            Line2D([], [], c="k", ls="", marker="+", ms=9, mew=1.5, label="aimed field centre"),
+        ]
+    ax.legend(handles=handles, loc="upper left", bbox_to_anchor=(1.01, 1.0), fontsize=7)
+
+
 def _describe(recording: ThrowRecording, field: int, angle: int) -> str:
     o = recording.outcome
     row, column = divmod(field, g.N_COLUMNS)
@@ -168,7 +187,8 @@ def plot_throw(path, recording: ThrowRecording, field: int, angle: int) -> Path:
     """Before and after one throw: start scene with the ball's path, and the scene at rest.
 
     ``recording`` comes from :func:`sim2d.recording.record_throw` with the same field and angle.
-    Cans thrown off are red in both panels.
+    Cans thrown off are red in both panels; a legend names ball, cans thrown off and cans
+    kept.
     """
     o = recording.outcome
     colours = [_GONE_COLOUR if o.thrown_off >> i & 1 else _CAN_COLOUR for i in range(g.N_CANS)]
@@ -180,10 +200,12 @@ def plot_throw(path, recording: ThrowRecording, field: int, angle: int) -> Path:
     before.plot(*ball.T, c=_BALL_COLOUR, lw=1, ls="--")
     before.add_patch(_ball_patch(recording.ball[0]))
     before.plot(*g.field_centres()[field], "k+", ms=12, mew=1.5, zorder=7)
+    _legend(before, path=True)
     _setup_axes(after, f"after {o.sim_time:.2f} s")
     _draw_cans(after, recording.cans[-1], colours)
     if not np.isnan(recording.ball[-1, 0]):
         after.add_patch(_ball_patch(recording.ball[-1]))
+    _legend(after)
     fig.suptitle(_describe(recording, field, angle), fontsize=11)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
@@ -194,7 +216,8 @@ def plot_throw(path, recording: ThrowRecording, field: int, angle: int) -> Path:
 def animate_throw(
     path, recording: ThrowRecording, field: int, angle: int, *, fps: int = 25
 ) -> Path:
-    """An animated GIF of a recorded throw (one frame per recorded instant)."""
+    """An animated GIF of a recorded throw (one frame per recorded instant, ``fps`` frames a
+    second), with the legend of :func:`plot_throw`."""
     from matplotlib.animation import PillowWriter
 
     o = recording.outcome
@@ -212,5 +235,6 @@ def animate_throw(
             _draw_cans(ax, recording.cans[k], colours, labels=True)
             if not np.isnan(recording.ball[k, 0]):
                 ax.add_patch(_ball_patch(recording.ball[k]))
+            _legend(ax)
             writer.grab_frame()
     return path

@@ -1,10 +1,22 @@
-"""Test-session settings: one torch thread.
+"""Test-session settings (one torch thread) and the tiny can data set.
 
 The suite's tensors are small; on a shared 2-core machine torch's thread pool spends
 more time synchronising than computing (a gradient fit ran ten times slower with two
 threads under load), and one thread makes every float sum run in one order.
 """
 
+import pytest
 import torch
 
 torch.set_num_threads(1)
+
+
+@pytest.fixture(scope="session")
+def tiny_data_dir(tmp_path_factory):
+    """A data folder holding the tiny can data set (3 configurations, one repeat), made once
+    for the session and shared by the experiments' and the examples' tests."""
+    from experiments.cans import can_dataset
+
+    folder = tmp_path_factory.mktemp("data")
+    can_dataset(folder, "tiny", progress=False)
+    return folder

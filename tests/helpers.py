@@ -2,8 +2,7 @@
 
 from __future__ import annotations
 
-import importlib
-import sys
+import importlib.util
 from pathlib import Path
 
 from models import Continuous, Discrete, EffectNetwork, random_params
@@ -12,10 +11,11 @@ EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
 
 def load_example(name: str):
-    """Import ``examples/<name>.py`` as a module (its sibling modules importable too)."""
-    if str(EXAMPLES) not in sys.path:
-        sys.path.insert(0, str(EXAMPLES))
-    return importlib.import_module(name)
+    """Import ``examples/<name>.py`` as a module named ``example_<name>`` (no sys.path edit)."""
+    spec = importlib.util.spec_from_file_location(f"example_{name}", EXAMPLES / f"{name}.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module
 
 
 def discrete_network(cards: list[int], n_actions: int) -> EffectNetwork:

@@ -49,3 +49,6 @@ def test_readme_snippets_run(tmp_path, monkeypatch):
     assert int(namespace["cluster"]) == 4  # 10 N: cell 4 of 8 over 0..20 N
     assert '"param.force" -> "end.position"' in namespace["graph"].source
     assert len(namespace["rows"]["action"]) == 500
+    no_parameter, _, clusters = namespace["rms"].values()
+    assert clusters < no_parameter and namespace["same"]
+    assert os.path.exists("tap/tap_and_remove.png")

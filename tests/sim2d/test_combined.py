@@ -72,3 +72,71 @@ def test_exact_throws_hit_the_heights_they_aim_at():
     assert heights.min() >= 0 and heights.max() < geometry.PYRAMID_HEIGHT + materials.BALL_RADIUS
     with pytest.raises(ValueError, match="step"):
         exact_throws(0.0)
+
+
+class _Serial:
+    """An executor that runs each task at once in this process, counting them."""
+
+    def __init__(self):
+        self.calls = 0
+
+    def submit(self, fn, *args, **kwargs):
+        import concurrent.futures
+
+        self.calls += 1
+        future = concurrent.futures.Future()
+        future.set_result(fn(*args, **kwargs))
+        return future
+
+
+def test_explore_covers_every_state_its_throws_reach_and_resumes(tmp_path):
+    from sim2d.combined import explore, throws_from
+
+    kw = dict(depth=2, step=0.05, repeats=2, jitter=0.003, seed=5)
+    serial = _Serial()
+    out = explore(tmp_path / "x", geometry.FULL_PYRAMID, executor=serial, progress=False, **kw)
+    full = out[geometry.FULL_PYRAMID]
+    assert np.array_equal(
+        full, throws_from(geometry.FULL_PYRAMID, TABLE_TOP_Z, 0.05, 2, 0.003, 5)["next_states"]
+    )
+    # layer 1: exactly the non-empty states the full pyramid's throws produced
+    assert set(out) - {geometry.FULL_PYRAMID} == {int(s) for s in np.unique(full) if s} - {
+        geometry.FULL_PYRAMID
+    }
+    assert serial.calls == len(out)
+    again = _Serial()
+    same = explore(tmp_path / "x", geometry.FULL_PYRAMID, executor=again, progress=False, **kw)
+    assert again.calls == 0 and set(same) == set(out)
+    assert all(np.array_equal(same[s], out[s]) for s in out)
+
+
+def test_explore_refuses_bad_arguments(tmp_path):
+    from sim2d.combined import explore
+
+    with pytest.raises(ValueError, match="depth"):
+        explore(tmp_path, geometry.FULL_PYRAMID, depth=0)
+    with pytest.raises(ValueError, match="not a physically possible"):
+        explore(tmp_path, geometry.cans_to_mask([9]), depth=1)
+
+
+def test_play_policy_stops_at_the_goal_and_replays_with_its_seed():
+    from sim2d.combined import play_policy
+
+    states = sorted(stable_configurations())
+    full = geometry.FULL_PYRAMID
+    top = full & ~geometry.cans_to_mask([9])
+    # aim at the top can's middle, every state, every step
+    aim = exact_target_for_hit(np.array([[0.0, TABLE_TOP_Z + geometry.PYRAMID_HEIGHT - 0.05]]))
+    policy = np.zeros((4, len(states)), dtype=np.int64)
+    kw = dict(episodes=5, jitter=0.003, seed=11)
+    a = play_policy(full, top, policy, states, aim, **kw)
+    b = play_policy(full, top, policy, states, aim, **kw)
+    assert np.array_equal(a["end"], b["end"]) and np.array_equal(a["throws"], b["throws"])
+    assert ((a["throws"] >= 1) & (a["throws"] <= 3)).all()
+    # an episode that ends early ended at the goal or lost a goal can
+    early = a["throws"] < 3
+    assert all(e == top or e & top != top for e in a["end"][early])
+    stop = play_policy(full, top, np.full((4, len(states)), -1), states, aim, **kw)
+    assert (stop["end"] == full).all() and (stop["throws"] == 0).all()
+    with pytest.raises(ValueError, match="policy"):
+        play_policy(full, top, policy[:, :3], states, aim, **kw)

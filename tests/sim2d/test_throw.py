@@ -30,7 +30,6 @@ from sim2d.throw import (
     sample_targets,
     throw,
 )
-from tests.helpers import load_example
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -326,15 +325,3 @@ def test_sim2d_throw_imports_neither_torch_nor_pyro_nor_matplotlib():
         "assert not bad, bad"
     )
     subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)
-
-
-# --- the example ----------------------------------------------------------------------
-
-
-def test_example_runs_with_tiny_arguments(tmp_path):
-    summary = load_example("throw_kinematics").main(
-        ["--out", str(tmp_path), "--grid", "3", "--n", "500"]
-    )
-    assert (tmp_path / "target_to_hit.png").stat().st_size > 0
-    assert (tmp_path / "flight_paths.png").stat().st_size > 0
-    assert 0.0 < summary["clamped_share"] < 1.0

@@ -1,7 +1,8 @@
-"""Steps the can experiments share: the data set at a scale, and the can network per angle.
+"""The can data set at a scale, and the can network (Fig. 2) fitted on one angle's throws.
 
-Used by ``can_tossing.py``, ``combined.py`` and ``reproduce.py``; composes sim2d (data),
-models (the Fig. 2 network) and inference (fitting, compiled queries).
+Shared by the can experiments (:mod:`experiments.can_tossing`, :mod:`experiments.combined`,
+:mod:`experiments.physics_bounds`); composes sim2d (data), models (the network) and
+inference (fitting, compiled queries).
 """
 
 from __future__ import annotations
@@ -12,13 +13,15 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from inference import fit
+from inference import fit, predict
 from inference.compiled import CompiledNetwork, compile_discrete
 from models import EffectNetwork, NetworkParams
 from models.can_network import can_network, can_rows
 from sim2d import field_throws, geometry
 from sim2d.can_dataset import CanDataset, generate_dataset, load_dataset
 from sim2d.configurations import stable_configurations
+
+__all__ = ["SCALES", "CanModel", "can_dataset", "fit_can_network", "start_configurations"]
 
 #: Scales: how many start configurations (None: all) and repeats per throw.
 SCALES = {
@@ -49,7 +52,12 @@ def can_dataset(
 ) -> CanDataset:
     """Generate (or reuse, or resume) the can data set at ``scale`` and load it.
 
-    ``executor``: where it is simulated (:func:`sim2d.can_dataset.generate_dataset`)."""
+    Saved as ``data_dir/can_dataset.npz`` at full scale, ``can_dataset_<scale>.npz``
+    otherwise; ``executor``: where it is simulated
+    (:func:`sim2d.can_dataset.generate_dataset`).
+    """
+    if scale not in SCALES:
+        raise ValueError(f"scale={scale!r} is not one of {', '.join(map(repr, SCALES))}")
     spec = SCALES[scale]
     configs = start_configurations(spec["n_configs"])
     name = "can_dataset.npz" if scale == "full" else f"can_dataset_{scale}.npz"
@@ -89,8 +97,6 @@ class CanModel:
 
     def end_config_probs(self, start: int, fields: np.ndarray | None = None) -> torch.Tensor:
         """``(n_fields, n_states)``: predicted end configuration for each field from ``start``."""
-        from inference import predict
-
         fields = np.arange(len(self.net.actions)) if fields is None else np.asarray(fields)
         n = len(fields)
         ev = {

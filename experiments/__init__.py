@@ -1,0 +1,20 @@
+"""The paper's experiments as a library: one module per experiment.
+
+Each experiment is a function of a frozen, checked settings dataclass that returns a
+result dataclass (``to_json``, ``from_json``/``load``, ``to_markdown``, ``save``); its
+figures are drawn by functions beside it. The scripts in ``examples/`` parse a command
+line into the settings, call the function and save the result.
+
+=====================  ==============================================================
+:mod:`.tap_and_remove`  §III: remove and tap, with and without a parameter site
+:mod:`.throwing`        §IV-B: the throw network's inverse, re-thrown
+:mod:`.can_tossing`     §IV-A: Table I under both protocols, emulation, imitation
+:mod:`.combined`        §IV-C: both networks chained, Tables II-IV, both planners
+:mod:`.physics_bounds`  the best any model could do, found by simulation
+:mod:`.all_goals`       beyond the paper: every reachable goal, beside its bound
+:mod:`.pictures`        figures of the can world and of the robot's throw
+:mod:`.cans`            the can data set at a scale and the can network on it
+:mod:`.config`          checks of settings, and the results' JSON round trip
+:mod:`.summary`         the results table from the JSON files, for README.md
+=====================  ==============================================================
+"""

@@ -1,0 +1,476 @@
+"""The combined system judged on every goal the physics can reach, beside the physics bound.
+
+Goals are the stable sub-configurations of the full pyramid. For each table height:
+
+1. **Simulation.** From every stable state the robot throws, with exact inverse kinematics,
+   at every reachable height of the pyramid's near face (``step`` apart), each throw with
+   the can world's aim jitter: ``train_repeats`` times with one seed (the robot's
+   experience, which the learned system trains on) and ``bound_repeats`` times with
+   another (the physics bound's, never seen by the learned system).
+2. **Physics bound.** The empirical transitions of one half of the bound's repeats give
+   the best plan within ``horizon`` throws (finite-horizon dynamic programming); its
+   success is scored on the other half (held out), both ways round and averaged
+   (:func:`experiments.physics_bounds.cross_fitted_bound`). A goal is *reachable* when that held-out success is
+   above zero.
+3. **The learned system.** The can network (configuration before, aim height as the
+   action, configuration after) is fitted by maximum likelihood on the robot's
+   experience; the throw network on ``n_throws`` random throws. Aiming at a height means:
+   the throw network's inverse gives the aim, its forward model the predicted hit (a
+   Gaussian), which spreads the aim over the heights the can network knows; a hit beside
+   the cans or outside the face changes nothing. That chain gives the learned transition
+   ``P(next | state, aimed height)``.
+4. **Planners, played in the world.** The exact planner maximises the learned probability
+   of the goal within ``horizon`` throws and is played ``episodes`` times (fresh seeds);
+   the paper's round planner takes, per round, every aim whose most probable outcome is
+   the goal (or an intermediate goal) and plays each once.
+
+Reported per goal: the bound, the exact planner's measured and predicted success, the
+paper planner's success; overall, the mean of success / bound over reachable goals.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from experiments.combined import Robot
+from experiments.config import (
+    ConfigError,
+    Result,
+    check_choice,
+    check_executor,
+    check_float,
+    check_int,
+)
+from experiments.physics_bounds import (
+    BOUND_SEED,
+    cross_fitted_bound,
+    empirical_transition,
+    robot_throws,
+)
+from experiments.throwing import MAX_BINS, fit_throws, get_data
+from inference import fit, predict
+from inference.compiled import compile_parameter_query
+from inference.planning import exact_plan, paper_planner
+from models.can_network import can_network, can_rows
+from models.throw_network import TARGET
+from sim2d import geometry
+from sim2d.combined import CAN_BAND, TABLE_TOP_Z, exact_throws, play_policy, play_throw
+from sim2d.configurations import stable_configurations
+from sim2d.executors import open_executor
+from sim2d.throw import TARGET_AREA, ReleaseNoise, throw
+
+__all__ = [
+    "AllGoalsConfig",
+    "AllGoalsResult",
+    "plot",
+    "run_all_goals",
+]
+
+TRAIN_SEED = 2  # the robot's experience; the physics bound's uses seed 1, the can data set 0
+PLAY_SEED = 3
+#: the issue's goal: the exact planner's success over the bound, averaged over goals
+GOAL_RATIO = 0.90
+MAX_STEP = 0.1  # m between aim heights: coarser says little about a 6.4 cm can
+MAX_HORIZON = 20  # throws
+MAX_JITTER = 0.05  # m
+
+
+@dataclass(frozen=True)
+class AllGoalsConfig:
+    """Settings of :func:`run_all_goals`; every field is checked on construction.
+
+    Attributes
+    ----------
+    data_dir : Path
+        Where the simulations are saved (and resumed from).
+    table_z : tuple of float
+        Table-top heights above the robot's floor, m; one experiment each.
+    step : float
+        m between the aim heights on the pyramid's face (the can network's actions).
+    train_repeats : int
+        The robot's experience: throws per state and aim height.
+    bound_repeats : int
+        The physics bound's throws per state and aim height (even: half plan, half score).
+    horizon : int
+        Throws allowed per goal.
+    episodes : int
+        Plays of the exact planner's policy per goal.
+    n_throws, bins : int
+        The throw network's training throws and clusters per axis.
+    jitter : float
+        The can world's aim jitter added to every throw's entry height, m.
+    noise : bool
+        Throw with release noise.
+    seed : int
+        Seeds the throw network's data.
+    executor : str or None
+        Where the simulations run (:mod:`sim2d.executors`); None: every core here.
+    progress : bool
+        Progress bars.
+    """
+
+    data_dir: Path = Path("data")
+    table_z: tuple[float, ...] = (TABLE_TOP_Z, 0.35)
+    step: float = 0.005
+    train_repeats: int = 6
+    bound_repeats: int = 24
+    horizon: int = 6
+    episodes: int = 50
+    n_throws: int = 29_000
+    bins: int = 16
+    jitter: float = 0.003
+    noise: bool = False
+    seed: int = 0
+    executor: str | None = None
+    progress: bool = True
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "data_dir", Path(self.data_dir))
+        heights = tuple(self.table_z) if isinstance(self.table_z, (list, tuple)) else None
+        if not heights:
+            raise ConfigError("table_z", f"{self.table_z!r}: expected one or more heights, m")
+        object.__setattr__(
+            self,
+            "table_z",
+            tuple(
+                check_float("table_z", z, 0.0, TARGET_AREA.z_max, low_open=True, unit="m")
+                for z in heights
+            ),
+        )
+        check_float("step", self.step, 0.0, MAX_STEP, low_open=True, unit="m")
+        check_int("train_repeats", self.train_repeats, 1)
+        check_int("bound_repeats", self.bound_repeats, 2)
+        if self.bound_repeats % 2:
+            raise ConfigError(
+                "bound_repeats", f"{self.bound_repeats} is odd; expected an even number"
+            )
+        check_int("horizon", self.horizon, 1, MAX_HORIZON)
+        check_int("episodes", self.episodes, 1)
+        check_int("n_throws", self.n_throws, 10)
+        check_int("bins", self.bins, 1, MAX_BINS)
+        check_float("jitter", self.jitter, 0.0, MAX_JITTER, unit="m")
+        check_choice("noise", self.noise, (False, True))
+        check_int("seed", self.seed, 0)
+        check_executor("executor", self.executor)
+
+    def to_dict(self) -> dict:
+        """The settings as JSON values."""
+        return asdict(self) | {"data_dir": str(self.data_dir), "table_z": list(self.table_z)}
+
+
+@dataclass
+class AllGoalsResult(Result):
+    """What :func:`run_all_goals` measured.
+
+    ``tables``: per table height, ``table_z``, the robot's ``impact_deg``, ``n_heights``
+    (aim heights), ``n_goals`` and ``reachable`` goals, the overall figures
+    ``exact_over_bound`` and ``paper_over_bound`` (means over reachable goals of each
+    planner's measured success over the held-out bound), ``exact_over_bound_in_sample``,
+    ``exact_total_over_bound_total`` and ``seconds``; and ``goals``, one dict per
+    reachable goal: ``goal`` (mask), ``removed`` (cans), ``bound`` (held out),
+    ``bound_in_sample``, ``exact_measured``, ``exact_predicted``, ``exact_throws`` (mean
+    throws used), ``paper_measured``, ``paper_plays``. Success figures are fractions.
+    """
+
+    settings: dict
+    tables: list[dict]
+    goal_ratio: float
+    seconds: float
+
+    def to_markdown(self) -> str:
+        c = self.settings
+        lines = [
+            f"**Every reachable goal** (within {c['horizon']} throws; bound: the best plan on "
+            f"half of {c['bound_repeats']} simulated repeats per aim height, scored on the "
+            f"other half, both ways round; learned system trained on {c['train_repeats']} "
+            f"other repeats; exact planner played {c['episodes']} times per goal)",
+            "",
+            "| table top (m) | robot impact (deg) | reachable goals "
+            "| exact planner / bound | paper planner / bound | goal "
+            "| exact planner / in-sample bound |",
+            "|---|---|---|---|---|---|---|",
+        ]
+        for t in self.tables:
+            met = "met" if t["exact_over_bound"] >= self.goal_ratio else "missed"
+            lines.append(
+                f"| {t['table_z']} | {t['impact_deg']:.1f} | {t['reachable']} of {t['n_goals']} "
+                f"| {100 * t['exact_over_bound']:.1f} % | {100 * t['paper_over_bound']:.1f} % "
+                f"| >= {100 * self.goal_ratio:.0f} %: {met} "
+                f"| {100 * t['exact_over_bound_in_sample']:.1f} % |"
+            )
+        for t in self.tables:
+            lines += [
+                "",
+                f"Table top {t['table_z']} m, per goal (cans removed; success in %):",
+                "",
+                "| cans removed | bound (in sample) | exact planner (predicted) | throws "
+                "| paper planner |",
+                "|---|---|---|---|---|",
+            ]
+            for g in sorted(t["goals"], key=lambda g: (len(g["removed"]), g["removed"])):
+                lines.append(
+                    f"| {' '.join(map(str, g['removed']))} | {100 * g['bound']:.1f} "
+                    f"({100 * g['bound_in_sample']:.1f}) "
+                    f"| {100 * g['exact_measured']:.1f} ({100 * g['exact_predicted']:.1f}) "
+                    f"| {g['exact_throws']:.2f} | {100 * g['paper_measured']:.1f} |"
+                )
+        return "\n".join(lines) + "\n"
+
+    def save(self, out) -> list[Path]:
+        """Write ``all_goals.json``, ``all_goals.md`` and the figure ``all_goals.png``."""
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        files = [out / "all_goals.json", out / "all_goals.md", out / "all_goals.png"]
+        files[0].write_text(self.to_json())
+        files[1].write_text(self.to_markdown())
+        plot(self, files[2])
+        return files
+
+
+# --- the learned side --------------------------------------------------------------------
+
+
+def train_robot(n_throws: int, bins: int, seed: int, noise: ReleaseNoise | None) -> Robot:
+    """The throw network fitted on ``n_throws`` random throws, as the robot that aims."""
+    rng = np.random.default_rng(seed)
+    targets, hits = get_data(n_throws, rng, noise)
+    net, params, _ = fit_throws((bins, bins), targets, hits)
+    return Robot(compile_parameter_query(net, params, TARGET), net, params, noise, rng)
+
+
+def can_model(states: list[int], heights: np.ndarray, outcomes: dict[int, np.ndarray]):
+    """The can network with aim heights as actions, fitted on the robot's experience.
+
+    Returns ``P[s, b, s']``: the predicted next state for each state and height bin.
+    """
+    net = can_network(states, len(heights))
+    starts, actions, ends = [], [], []
+    for s, nxt in outcomes.items():
+        starts.append(np.full(nxt.size, s))
+        actions.append(np.repeat(np.arange(nxt.shape[0]), nxt.shape[1]))
+        ends.append(nxt.reshape(-1))
+    rows = can_rows(net, np.concatenate(starts), np.concatenate(actions), np.concatenate(ends))
+    params = fit(net, rows).params
+    n_a = len(heights)
+    probs = torch.zeros(len(states), n_a, len(states), dtype=torch.float64)
+    for i, s in enumerate(states):
+        ev = {
+            "initial.config": np.full(n_a, s),
+            "initial.count": np.full(n_a, bin(s).count("1")),
+            "action": list(net.actions),
+        }
+        probs[i] = predict(net, params, ev).discrete["config"].double()
+    return probs
+
+
+def learned_transition(
+    can_probs: torch.Tensor, robot: Robot, heights: np.ndarray, table_z: float
+) -> tuple[torch.Tensor, np.ndarray]:
+    """``T[s, a, s']`` of aiming at ``heights[a]``, and the robot's aims ``(A, 2)``."""
+    desired = np.stack([np.zeros_like(heights), heights + table_z], -1)
+    aims = robot.aim(desired)
+    mean, cov = robot.hit_distribution(aims)
+    half = np.diff(heights).mean() / 2 if len(heights) > 1 else 0.01
+    edges = torch.as_tensor(np.concatenate([heights - half, [heights[-1] + half]]))
+    z = torch.distributions.Normal(
+        torch.as_tensor(mean[:, 1] - table_z)[:, None],
+        torch.as_tensor(np.sqrt(cov[:, 1, 1]))[:, None],
+    )
+    cdf = z.cdf(edges[None, :])
+    p_bin = cdf[:, 1:] - cdf[:, :-1]  # (aimed, hit bin); the rest falls off the face
+    y = torch.distributions.Normal(
+        torch.as_tensor(mean[:, 0]), torch.as_tensor(np.sqrt(cov[:, 0, 0]))
+    )
+    p_band = y.cdf(torch.tensor(CAN_BAND)) - y.cdf(torch.tensor(-CAN_BAND))
+    p_hit = p_band[:, None] * p_bin  # (A, B)
+    t = torch.einsum("ab,sbt->sat", p_hit, can_probs)
+    stay = (1 - p_hit.sum(-1)).clamp_min(0.0)  # (A,)
+    idx = torch.arange(can_probs.shape[0])
+    t[idx, :, idx] += stay[None, :]
+    return t, aims
+
+
+def _paper_task(start, goal, most_probable, states, aims, table_z, jitter, noise, seed):
+    """The paper planner towards ``goal``, playing in the world; an executor task."""
+    index = {s: i for i, s in enumerate(states)}
+    to_set = lambda mask: frozenset(geometry.mask_to_cans(mask))  # noqa: E731
+    rng = np.random.default_rng(np.random.SeedSequence([seed, goal]))
+    stable = frozenset(states)
+
+    def propose(s, g):
+        s, g = geometry.cans_to_mask(s), geometry.cans_to_mask(g)
+        if s not in index or g not in index:
+            return []
+        return np.flatnonzero(most_probable[index[s]] == index[g]).tolist()
+
+    def play(s, a):
+        result = throw(aims[a : a + 1], rng=rng, noise=noise)
+        nxt = play_throw(
+            geometry.cans_to_mask(s), result.hit[0], result.velocity_at_plane[0],
+            table_z=table_z, jitter=jitter, seed=int(rng.integers(2**32)), stable=stable,
+        )  # fmt: skip
+        return to_set(nxt)
+
+    rounds, rate = paper_planner(to_set(start), to_set(goal), propose, play, max_rounds=200)
+    return {"rate": float(rate), "plays": sum(len(r.actions) for r in rounds)}
+
+
+def impact_angle(robot: Robot, heights: np.ndarray, table_z: float) -> float:
+    """Mean descent angle (degrees, negative: downwards) of the robot's ball at the face."""
+    aims = robot.aim(np.stack([np.zeros_like(heights), heights + table_z], -1))
+    v = throw(aims).velocity_at_plane
+    return float(np.degrees(np.arctan2(v[:, 2], v[:, 0])).mean())
+
+
+def run_table(config: AllGoalsConfig, table_z: float, robot: Robot, executor) -> dict:
+    """One table height's entry of :attr:`AllGoalsResult.tables`."""
+    started = time.perf_counter()
+    states = sorted(stable_configurations())
+    full = geometry.FULL_PYRAMID
+    heights = exact_throws(config.step, table_z=table_z)[0]
+    common = dict(
+        table_z=table_z, step=config.step, jitter=config.jitter, horizon=config.horizon,
+        executor=executor, progress=config.progress,
+    )  # fmt: skip
+    train = robot_throws(config.data_dir, repeats=config.train_repeats, seed=TRAIN_SEED, **common)
+    bound = robot_throws(config.data_dir, repeats=config.bound_repeats, seed=BOUND_SEED, **common)
+    half = config.bound_repeats // 2
+    halves = (
+        empirical_transition(states, bound, slice(None, half)),
+        empirical_transition(states, bound, slice(half, None)),
+    )
+    t_learned, aims = learned_transition(can_model(states, heights, train), robot, heights, table_z)
+    most_probable = t_learned.argmax(-1).numpy()
+    index = {s: i for i, s in enumerate(states)}
+    h = config.horizon
+    goals = [g for g in states if g != full]
+    rows, futures = {}, {}
+    for g in goals:
+        held, in_sample = cross_fitted_bound(halves, index[g], index[full], h)
+        if held <= 0:
+            continue
+        learned = exact_plan(t_learned, index[g], h)
+        rows[g] = dict(
+            bound=held,
+            bound_in_sample=in_sample,
+            exact_predicted=float(learned.value[h, index[full]]),
+        )
+        play = dict(
+            episodes=config.episodes, table_z=table_z, jitter=config.jitter,
+            noise=ReleaseNoise() if config.noise else None, seed=PLAY_SEED * 1_000_003 + g,
+        )  # fmt: skip
+        futures[g] = (
+            executor.submit(play_policy, full, g, learned.policy.numpy(), states, aims, **play),
+            executor.submit(
+                _paper_task, full, g, most_probable, states, aims, table_z, config.jitter,
+                play["noise"], PLAY_SEED,
+            ),
+        )  # fmt: skip
+    results = []
+    bar = _bar(len(futures), f"goals (table {table_z} m)", config.progress)
+    for g, (exact_f, paper_f) in futures.items():
+        episodes, paper = exact_f.result(), paper_f.result()
+        bar.update(1)
+        results.append(
+            rows[g]
+            | dict(
+                goal=g,
+                removed=sorted(set(range(geometry.N_CANS)) - set(geometry.mask_to_cans(g))),
+                exact_measured=float(np.mean(episodes["end"] == g)),
+                exact_throws=float(episodes["throws"].mean()),
+                paper_measured=paper["rate"],
+                paper_plays=paper["plays"],
+            )
+        )
+    bar.close()
+
+    def mean_ratio(key: str, over: str) -> float:
+        if not results:
+            return math.nan
+        return float(np.mean([r[key] / r[over] for r in results]))
+
+    return dict(
+        table_z=table_z,
+        impact_deg=impact_angle(robot, heights, table_z),
+        n_heights=len(heights),
+        n_goals=len(goals),
+        reachable=len(results),
+        exact_over_bound=mean_ratio("exact_measured", "bound"),
+        paper_over_bound=mean_ratio("paper_measured", "bound"),
+        exact_over_bound_in_sample=mean_ratio("exact_measured", "bound_in_sample"),
+        exact_total_over_bound_total=(
+            sum(r["exact_measured"] for r in results) / sum(r["bound"] for r in results)
+            if results
+            else math.nan
+        ),
+        seconds=time.perf_counter() - started,
+        goals=results,
+    )
+
+
+def _bar(total: int, desc: str, progress: bool):
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, desc=desc, disable=not progress)
+
+
+def run_all_goals(config: AllGoalsConfig) -> AllGoalsResult:
+    """Measure the bound and both planners on every reachable goal at each table height."""
+    started = time.perf_counter()
+    noise = ReleaseNoise() if config.noise else None
+    torch.set_num_threads(1)
+    robot = train_robot(config.n_throws, config.bins, config.seed, noise)
+    with open_executor(config.executor) as executor:
+        tables = [run_table(config, z, robot, executor) for z in config.table_z]
+    return AllGoalsResult(
+        settings=config.to_dict(),
+        tables=tables,
+        goal_ratio=GOAL_RATIO,
+        seconds=time.perf_counter() - started,
+    )
+
+
+def plot(result: AllGoalsResult, path) -> None:
+    """Per goal and table height: the bound, the exact planner (measured and predicted) and
+    the paper planner, goals ordered by their bound."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    n = len(result.tables)
+    fig, axes = plt.subplots(n, 1, figsize=(12.5, 3.4 * n), squeeze=False)
+    for ax, t in zip(axes[:, 0], result.tables, strict=True):
+        goals = sorted(t["goals"], key=lambda g: (-g["bound"], len(g["removed"]), g["removed"]))
+        x = np.arange(len(goals))
+
+        def percent(key, goals=goals):
+            return [100 * g[key] for g in goals]
+
+        ax.bar(x, percent("bound"), color="0.85", label="physics bound (held out)")
+        ax.plot(x, percent("bound_in_sample"), "_", color="0.4", ms=9,
+                label="physics bound (in sample)")  # fmt: skip
+        ax.plot(x, percent("exact_measured"), "o", color="C0",
+                label=f"exact planner, measured ({100 * t['exact_over_bound']:.0f} % of bound)")  # fmt: skip
+        ax.plot(x, percent("exact_predicted"), "o", mfc="none", color="C0",
+                label="exact planner, predicted by the models")  # fmt: skip
+        ax.plot(x, percent("paper_measured"), "x", color="C3",
+                label=f"paper planner ({100 * t['paper_over_bound']:.0f} % of bound)")  # fmt: skip
+        labels = [" ".join(map(str, g["removed"])) for g in goals]
+        ax.set_xticks(x, labels, rotation=70, fontsize=7)
+        ax.set_ylabel("success (%)")
+        ax.set_ylim(0, 105)
+        ax.set_title(
+            f"table top {t['table_z']} m (ball descends at {-t['impact_deg']:.0f} deg): "
+            f"{t['reachable']} reachable goals, cans removed below"
+        )
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)

@@ -1,0 +1,717 @@
+"""Can tossing (the paper's §IV-A): Table I, emulation and imitation with the can network.
+
+The can network (Fig. 2: initial configuration and count, field, end configuration and
+count) is fitted by maximum likelihood on the 0° throws of the can data set only
+(:mod:`experiments.cans`), then judged by throwing again in the simulated world:
+
+* **Table I.** For each case ``(start configuration, desired count)`` the best field
+  given (configuration, count, desired count) is thrown at 0° with the data set's aim
+  jitter and a fresh seed; desired minus achieved count is tallied in the paper's bins.
+  Two protocols (:func:`table_one_cases`): ``counts``, one case per start and desired
+  count some 0° training throw reached from it, plus the unchanged count; ``actions``,
+  the paper's wording ("one action that leaves the setup unchanged and all actions that
+  somehow change the number of cans"), one case per (start, field) whose first training
+  throw changed the count, plus one unchanged case per start. Two ways to pick among
+  fields tied in the exact posterior: ``index`` (the query's argmax, lowest index) and
+  ``aim`` (the tied field whose neighbours also succeed under the model:
+  :func:`inference.evaluation.aim_robust_best`). All four are measured on the same
+  seeds; the settings name the headline.
+* **Emulation.** A demonstrated throw's observed end configuration is the evidence; the
+  best field for it is thrown, and we count how often it reproduces the demonstrated end
+  configuration (and count). The demonstrated field re-thrown with a fresh seed is the
+  reference: how often the world reproduces its own effect.
+* **Imitation.** Throws with a large aim error (``aim_error`` m per axis); a throw failed
+  when its end configuration differs from the unperturbed intended throw's. The
+  surprise of the observed end state under the intended field
+  (:func:`inference.imitation_check`) should separate the two: ROC AUC. The network's
+  table for one (configuration, field) rests on a few jittered throws and misses
+  outcomes the field produces now and then; the pooled surprise scores the observed end
+  configuration under the intended field's predictive averaged over an aim error of
+  ``sigma`` fields (:func:`inference.evaluation.aim_pooled`), ``sigma`` chosen on a
+  separate validation draw of perturbed throws.
+
+Every evaluation throw draws its aim jitter from ``SeedSequence([seed, purpose])``, never
+from the data set's per-throw seeds.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from experiments.cans import SCALES, CanModel, can_dataset, fit_can_network
+from experiments.config import (
+    Result,
+    check_choice,
+    check_executor,
+    check_float,
+    check_int,
+)
+from inference import imitation_check
+from inference.evaluation import (
+    ACCURACY_BINS,
+    accuracy_histogram,
+    aim_pooled,
+    aim_robust_best,
+    roc_auc,
+    roc_curve,
+    tail_surprise,
+)
+from models.can_network import config_index, count
+from sim2d import field_throws, geometry, materials
+from sim2d.executors import open_executor
+
+__all__ = [
+    "CanTossingConfig",
+    "CanTossingResult",
+    "PROTOCOLS",
+    "RULES",
+    "emulation",
+    "imitation",
+    "play_table_one",
+    "plot_roc",
+    "plot_table_one",
+    "run_can_tossing",
+    "summarise",
+    "table_one",
+    "table_one_cases",
+]
+
+PROTOCOLS = ("counts", "actions")  # Table I's cases, see table_one_cases
+RULES = ("index", "aim")  # tie-breaks among fields of equal posterior
+#: The largest imitation aim error, m per axis: half the pyramid's height. Beyond it most
+#: perturbed throws miss the cans altogether and the ROC would measure only that.
+MAX_AIM_ERROR = geometry.PYRAMID_HEIGHT / 2
+
+
+@dataclass(frozen=True)
+class CanTossingConfig:
+    """Settings of :func:`run_can_tossing`; every field is checked on construction.
+
+    Attributes
+    ----------
+    scale : str
+        The can data set's scale, a key of :data:`experiments.cans.SCALES`.
+    data_dir : Path
+        Where the can data set is generated (or reused).
+    executor : str or None
+        Where the data set is simulated (:mod:`sim2d.executors`); None: every core here.
+    seed : int
+        Seeds every evaluation throw (>= 0).
+    rule, cases : str
+        The headline's tie-break (``RULES``) and protocol (``PROTOCOLS``); all four are
+        measured either way.
+    n_demos : int
+        Emulation demonstrations, and imitation throws (each of the test and the
+        validation draw).
+    aim_error : float
+        Imitation's aim error, m per axis, in ``(0, MAX_AIM_ERROR]``.
+    n_ordinary : int
+        Imitation: ordinary (jittered) throws of the intended field that tell its usual
+        outcomes.
+    progress : bool
+        Progress bars.
+    """
+
+    scale: str = "full"
+    data_dir: Path = Path("data")
+    executor: str | None = None
+    seed: int = 0
+    rule: str = "aim"
+    cases: str = "counts"
+    n_demos: int = 300
+    aim_error: float = 0.03
+    n_ordinary: int = 8
+    progress: bool = True
+
+    def __post_init__(self):
+        check_choice("scale", self.scale, SCALES)
+        object.__setattr__(self, "data_dir", Path(self.data_dir))
+        check_executor("executor", self.executor)
+        check_int("seed", self.seed, 0)
+        check_choice("rule", self.rule, RULES)
+        check_choice("cases", self.cases, PROTOCOLS)
+        check_int("n_demos", self.n_demos, 1)
+        check_float("aim_error", self.aim_error, 0.0, MAX_AIM_ERROR, low_open=True, unit="m")
+        check_int("n_ordinary", self.n_ordinary, 1)
+
+
+ANGLE = 0  # the paper trains and evaluates at 0°
+PAPER_TABLE_I = dict(zip(ACCURACY_BINS, (36, 63, 309, 7780, 269, 113, 33), strict=True))
+PAPER_PERCENT = dict(zip(ACCURACY_BINS, (0.41, 0.73, 3.59, 90.43, 3.12, 1.31, 0.38), strict=True))
+PAPER_CASES = 8603
+# Seed purposes: every evaluation throw draws its aim jitter from SeedSequence([seed,
+# purpose]), never from the data set's per-throw seeds (SeedSequence of five numbers).
+TABLE_I, DEMO, REPLAY, PERTURB, PICK, VALIDATE = 1, 2, 3, 4, 5, 6
+CHUNK = 100  # throws per executor task
+#: Aim errors (in fields) the pooled imitation surprise chooses among; 0: no pooling.
+AIM_SIGMAS = (0.0, 0.25, 0.5, 0.75, 1.0, 1.5)
+
+
+def fresh_seeds(seed: int, purpose: int, n: int) -> np.ndarray:
+    """``(n,)`` uint32 throw seeds for one purpose, disjoint from the training seeds'."""
+    return np.random.SeedSequence([seed, purpose]).generate_state(max(n, 1))[:n]
+
+
+def table_one_cases(data, mode: str = "counts") -> tuple[np.ndarray, np.ndarray]:
+    """Table I's cases from the 0° training throws: ``(start masks, desired counts)``.
+
+    ``counts``: every distinct count reached from a start, plus the unchanged one.
+    ``actions``: one case per (start, field) whose first throw changed the count, plus
+    one unchanged case per start.
+    """
+    check_choice("mode", mode, PROTOCOLS)
+    sel = (data.angle == ANGLE) & data.throwable & (data.start_config != 0)
+    if mode == "actions":
+        sel &= (data.repeat == 0) & (data.count_after != data.count_before)
+        start, desired = data.start_config[sel], data.count_after[sel]
+    else:
+        pairs = np.unique(np.stack([data.start_config[sel], data.count_after[sel]], 1), axis=0)
+        start, desired = pairs[:, 0], pairs[:, 1]
+    starts = np.unique(data.start_config[(data.angle == ANGLE) & (data.start_config != 0)])
+    unchanged = count(starts)
+    if mode == "counts":  # only where the unchanged count is not already a case
+        have = {(int(s), int(c)) for s, c in zip(start, desired, strict=True)}
+        keep = [(int(s), int(c)) not in have for s, c in zip(starts, unchanged, strict=True)]
+        starts, unchanged = starts[keep], unchanged[keep]
+    start = np.r_[start, starts].astype(np.int64)
+    desired = np.r_[desired, unchanged].astype(np.int64)
+    order = np.lexsort((desired, start))
+    return start[order], desired[order]
+
+
+def choose(model: CanModel, evidence: dict, rule: str) -> np.ndarray:
+    """Best field per row for ``evidence``: the query's argmax or the aim-robust one."""
+    post = model.compiled.infer_action(evidence, allowed=model.throwable)
+    if rule == "index":
+        return post.best.numpy()
+    allowed = model.throwable.expand_as(post.probs) & (post.unseen < 0.5)
+    allowed = torch.where(allowed.any(-1, keepdim=True), allowed, model.throwable)
+    return aim_robust_best(
+        post.probs, (geometry.N_ROWS, geometry.N_COLUMNS), allowed=allowed
+    ).numpy()
+
+
+def start_evidence(model: CanModel, start: np.ndarray) -> dict:
+    """Query evidence of the start configurations ``(n,)`` masks: configuration and count."""
+    return {
+        "initial.config": start,
+        "initial.count": count(start),
+    }
+
+
+def field_throw_ends(start, fields, seeds, jitter: float) -> np.ndarray:
+    """``(n,)`` end configurations of the 0° throws ``(start[i], fields[i])`` with seeded
+    jitter (an executor task: arrays in, an array out)."""
+    return np.array(
+        [
+            field_throws.throw_at_field(
+                int(s), int(f), ANGLE, jitter=jitter, seed=int(k)
+            ).end_config
+            for s, f, k in zip(start, fields, seeds, strict=True)
+        ],
+        dtype=np.int64,
+    )
+
+
+def ball_ends(start, positions, velocities) -> np.ndarray:
+    """``(n,)`` end configurations of the ball states ``(positions[i], velocities[i])``
+    ``(n, 2)`` each, m and m/s at the entry line, played into ``start[i]`` (an executor task)."""
+    return np.array(
+        [
+            field_throws.play_ball(int(s), p, v).end_config
+            for s, p, v in zip(start, positions, velocities, strict=True)
+        ],
+        dtype=np.int64,
+    )
+
+
+def _in_chunks(task, columns, extra, desc: str, progress: bool, executor) -> np.ndarray:
+    """``task(*columns, *extra)`` over the rows of ``columns``, in chunks of ``CHUNK`` rows on
+    ``executor`` (None: here, row by row); the results in row order, the same on every
+    executor."""
+    n = len(columns[0])
+    if executor is None:
+        rows = tqdm(range(n), desc=desc, leave=False, disable=not progress)
+        parts = [task(*(c[i : i + 1] for c in columns), *extra) for i in rows]
+        return np.concatenate(parts or [np.zeros(0, np.int64)])
+    futures = [
+        executor.submit(task, *(c[i : i + CHUNK] for c in columns), *extra)
+        for i in range(0, n, CHUNK)
+    ]
+    done = tqdm(futures, desc=desc, leave=False, disable=not progress, unit="chunk")
+    return np.concatenate([f.result() for f in done] or [np.zeros(0, np.int64)])
+
+
+def play(
+    start, fields, jitter: float, seeds, desc: str, progress: bool = True, executor=None
+) -> np.ndarray:
+    """End configurations of the 0° throws ``(start[i], fields[i])`` with seeded jitter,
+    simulated on ``executor`` (an object with ``submit``; None: in this process)."""
+    columns = [np.asarray(start), np.asarray(fields), np.asarray(seeds)]
+    return _in_chunks(field_throw_ends, columns, (jitter,), desc, progress, executor)
+
+
+def play_table_one(
+    model: CanModel,
+    data,
+    mode: str,
+    seed: int,
+    rule: str,
+    *,
+    progress: bool = True,
+    executor=None,
+) -> dict[str, np.ndarray]:
+    """Table I's cases played: per case ``start``, ``desired``, ``field``, ``seed``,
+    ``achieved`` (count) and ``reachable`` (some 0° training throw reached ``desired``)."""
+    start, desired = table_one_cases(data, mode)
+    sel = (data.angle == ANGLE) & data.throwable
+    seen = np.unique(data.start_config[sel] * 16 + data.count_after[sel])
+    evidence = start_evidence(model, start) | {"end.count": torch.as_tensor(desired)}
+    fields = choose(model, evidence, rule)
+    seeds = fresh_seeds(seed, TABLE_I, len(start))  # the same for both rules
+    desc = f"Table I ({mode}, {rule})"
+    end = play(start, fields, data.metadata["jitter"], seeds, desc, progress, executor)
+    return {
+        "start": start,
+        "desired": desired,
+        "field": fields,
+        "seed": seeds,
+        "achieved": count(end),
+        "reachable": np.isin(start * 16 + desired, seen),
+    }
+
+
+def summarise(cases: dict[str, np.ndarray]) -> dict:
+    """Table I's numbers from :func:`play_table_one`'s cases."""
+    exact = cases["desired"] == cases["achieved"]
+    reachable = cases["reachable"]
+    return {
+        "n_cases": len(exact),
+        "histogram": accuracy_histogram(cases["desired"], cases["achieved"]),
+        "exact_fraction": float(exact.mean()),
+        "n_unreachable": int((~reachable).sum()),
+        "exact_fraction_reachable": float(exact[reachable].mean()) if reachable.any() else None,
+    }
+
+
+def table_one(
+    model: CanModel, data, mode: str, seed: int, *, progress: bool = True, executor=None
+) -> dict:
+    """Table I for both tie-break rules, on the same cases and the same seeds."""
+    return {
+        rule: summarise(
+            play_table_one(model, data, mode, seed, rule, progress=progress, executor=executor)
+        )
+        for rule in RULES
+    }
+
+
+def demonstrations(data, n: int, rng) -> tuple[np.ndarray, np.ndarray]:
+    """``n`` random (non-empty start, throwable 0° field) pairs from the data set."""
+    starts = np.unique(data.start_config[(data.angle == ANGLE) & (data.start_config != 0)])
+    throwable = np.flatnonzero(
+        [field_throws.is_throwable(f, ANGLE) for f in range(geometry.N_FIELDS)]
+    )
+    return rng.choice(starts, n), rng.choice(throwable, n)
+
+
+def emulation(
+    model: CanModel, data, n: int, seed: int, rule: str, *, progress: bool = True, executor=None
+) -> dict:
+    """Infer a field that causes a demonstrated effect, throw it, compare the effects."""
+    jitter = data.metadata["jitter"]
+    start, field = demonstrations(data, n, np.random.default_rng([seed, PICK]))
+    shown = play(
+        start, field, jitter, fresh_seeds(seed, DEMO, n), "demonstrations", progress, executor
+    )
+    known = np.isin(shown, model.states)  # end configurations the network has a state for
+    ev = start_evidence(model, start) | {"end.count": torch.as_tensor(count(shown))}
+    fields = choose(model, ev, rule)  # count only: the fallback for unknown configurations
+    if known.any():
+        ev_known = model.net.encode(ev).rows(torch.as_tensor(known))
+        ev_known = ev_known | {"end.config": shown[known]}
+        fields[known] = choose(model, ev_known, rule)
+    seeds = fresh_seeds(seed, REPLAY, 2 * n)
+    copied = play(start, fields, jitter, seeds[:n], "emulation", progress, executor)
+    again = play(start, field, jitter, seeds[n:], "demonstrated field again", progress, executor)
+
+    return {
+        "n_demonstrations": n,
+        "n_unknown_end_config": int((~known).sum()),
+        "same_end_config": float(np.mean(copied == shown)),
+        "same_count": float(np.mean(count(copied) == count(shown))),
+        "same_field_chosen": float(np.mean(fields == field)),
+        "reference_same_end_config": float(np.mean(again == shown)),
+        "reference_same_count": float(np.mean(count(again) == count(shown))),
+    }
+
+
+def perturbed_aims(start, field, aim_error: float, rng) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Ball states at the entry line for aims ``aim_error`` off (redrawn until throwable)."""
+    states = []
+    for f in field:
+        while True:
+            offset = rng.normal(0.0, aim_error, 2)
+            position, velocity = field_throws.launch_state(int(f), ANGLE, offset=offset)
+            target_z = geometry.field_centres()[f, 1] + offset[1]
+            if min(position[1], target_z) >= materials.BALL_RADIUS + materials.TABLE_CLEARANCE:
+                states.append((position, velocity))
+                break
+    return states
+
+
+def perturbed_throws(
+    data,
+    n: int,
+    aim_error: float,
+    seed: int,
+    purpose: int,
+    n_ordinary: int = 8,
+    *,
+    progress: bool = True,
+    executor=None,
+) -> dict[str, np.ndarray]:
+    """``n`` throws aimed ``aim_error`` m off, with their failure labels, ``(n,)`` each.
+
+    ``start``, ``field`` (intended), ``observed`` (end configuration) and two labels:
+    ``failed``: the end configuration differs from the unperturbed intended throw's;
+    ``failed_ordinary``: it differs from every outcome of the intended throw executed as
+    usual (unperturbed, and ``n_ordinary`` times with the data set's aim jitter) -- the
+    world is chaotic enough at a 3 mm jitter that the unperturbed throw's outcome is often
+    not the intended action's usual one. ``purpose`` seeds the draw (``PERTURB``: test).
+    """
+    rng = np.random.default_rng([seed, purpose])
+    start, field = demonstrations(data, n, rng)
+    aims = perturbed_aims(start, field, aim_error, rng)
+    positions = np.array([p for p, _ in aims]).reshape(-1, 2)
+    velocities = np.array([v for _, v in aims]).reshape(-1, 2)
+    nominal = play(start, field, 0.0, np.zeros(n, np.uint32), "intended throws", progress, executor)
+    observed = _in_chunks(
+        ball_ends, [start, positions, velocities], (), "perturbed throws", progress, executor
+    )
+    failed = observed != nominal
+    seeds = fresh_seeds(seed, purpose, n * n_ordinary).reshape(n_ordinary, n)
+    jitter = data.metadata["jitter"]
+    usual = [
+        play(start, field, jitter, k, f"ordinary throws {j + 1}/{n_ordinary}", progress, executor)
+        for j, k in enumerate(seeds)
+    ]
+    failed_ordinary = failed & np.all([observed != u for u in usual], axis=0)
+    return {
+        "start": start,
+        "field": field,
+        "observed": observed,
+        "failed": failed,
+        "failed_ordinary": failed_ordinary,
+    }
+
+
+def pooled_surprise(model: CanModel, throws: dict, sigma: float, tables: dict) -> np.ndarray:
+    """``(n,)`` surprise of each observed end configuration under the intended field's
+    predictive pooled over an aim error of ``sigma`` fields; an end configuration the
+    network has no state for was never seen: 1. ``tables`` caches
+    ``model.end_config_probs`` per start configuration."""
+    start, observed = throws["start"], throws["observed"]
+    surprise = np.ones(len(start))
+    known = np.isin(observed, model.states)
+    for s in np.unique(start[known]):
+        rows = known & (start == s)
+        if s not in tables:
+            tables[s] = model.end_config_probs(int(s))
+        pooled = aim_pooled(
+            tables[s],
+            (geometry.N_ROWS, geometry.N_COLUMNS),
+            throws["field"][rows],
+            allowed=model.throwable,
+            sigma=sigma,
+        )
+        surprise[rows] = tail_surprise(pooled, config_index(model.net, observed[rows])).numpy()
+    return surprise
+
+
+def auc_or_none(scores, positive) -> float | None:
+    """ROC AUC, or None where one class is empty."""
+    return roc_auc(scores, positive) if 0 < np.sum(positive) < len(positive) else None
+
+
+def imitation(
+    model: CanModel,
+    data,
+    n: int,
+    aim_error: float,
+    seed: int,
+    n_ordinary: int = 8,
+    *,
+    progress: bool = True,
+    executor=None,
+) -> dict:
+    """Surprise of perturbed throws' effects under the intended field, and its ROC.
+
+    Labels: :func:`perturbed_throws`. Scores: the network's surprise
+    (:func:`inference.imitation_check` on the observed end configuration and count), and
+    the pooled surprise (:func:`pooled_surprise`) with the aim error from ``AIM_SIGMAS``
+    that has the best ``failed_ordinary`` AUC on a validation draw (seed purpose
+    ``VALIDATE``; ties to the smaller aim error).
+    """
+    run = {"progress": progress, "executor": executor}
+    throws = perturbed_throws(data, n, aim_error, seed, PERTURB, n_ordinary, **run)
+    start, field, observed = throws["start"], throws["field"], throws["observed"]
+    failed, failed_ordinary = throws["failed"], throws["failed_ordinary"]
+    # An end configuration the network has no state for was never seen: surprise 1.
+    known = np.isin(observed, model.states)
+    surprise = np.ones(n)
+    if known.any():
+        ev = start_evidence(model, start[known]) | {
+            "action": [model.net.actions[f] for f in field[known]],
+            "end.config": observed[known],
+            "end.count": count(observed[known]),
+        }
+        surprise[known] = imitation_check(model.net, model.params, ev).surprise.numpy()
+
+    tables: dict = {}
+    held_out = perturbed_throws(data, n, aim_error, seed, VALIDATE, n_ordinary, **run)
+    validation = []
+    for sigma in AIM_SIGMAS:
+        scores = pooled_surprise(model, held_out, sigma, tables)
+        validation.append(
+            {
+                "sigma": sigma,
+                "auc": auc_or_none(scores, held_out["failed"]),
+                "auc_ordinary": auc_or_none(scores, held_out["failed_ordinary"]),
+            }
+        )
+    scored = [v for v in validation if v["auc_ordinary"] is not None]
+    sigma = max(scored, key=lambda v: v["auc_ordinary"])["sigma"] if scored else AIM_SIGMAS[0]
+    pooled = pooled_surprise(model, throws, sigma, tables)
+    return {
+        "n_throws": n,
+        "aim_error_m": aim_error,
+        "n_failed": int(failed.sum()),
+        "n_unknown_end_config": int((~known).sum()),
+        "auc": auc_or_none(surprise, failed),
+        "n_failed_ordinary": int(failed_ordinary.sum()),
+        "auc_ordinary": auc_or_none(surprise, failed_ordinary),
+        "aim_sigma": sigma,
+        "auc_pooled": auc_or_none(pooled, failed),
+        "auc_ordinary_pooled": auc_or_none(pooled, failed_ordinary),
+        "validation": {
+            "n_throws": n,
+            "n_failed": int(held_out["failed"].sum()),
+            "n_failed_ordinary": int(held_out["failed_ordinary"].sum()),
+            "by_sigma": validation,
+        },
+        "surprise": surprise.tolist(),
+        "pooled_surprise": pooled.tolist(),
+        "failed": failed.tolist(),
+        "failed_ordinary": failed_ordinary.tolist(),
+    }
+
+
+PAPER = {
+    "n_cases": PAPER_CASES,
+    "histogram": PAPER_TABLE_I,
+    "percent": PAPER_PERCENT,
+    "exact_fraction": 0.9043,
+}
+
+
+@dataclass
+class CanTossingResult(Result):
+    """What :func:`run_can_tossing` measured (fractions in [0, 1]).
+
+    The headline Table I (protocol ``cases``, tie-break ``rule``) is spread into
+    ``n_cases``, ``histogram`` (bin label of ``ACCURACY_BINS`` -> cases),
+    ``exact_fraction``, ``n_unreachable`` (cases asking for a count no 0° training
+    throw reached from their start) and ``exact_fraction_reachable``; ``table_one``
+    holds all four as ``{protocol: {rule: {...}}}``. ``paper`` holds the paper's Table I;
+    ``emulation`` and ``imitation`` are :func:`emulation`'s and :func:`imitation`'s.
+    """
+
+    scale: str
+    cases: str
+    rule: str
+    n_cases: int
+    histogram: dict[str, int]
+    exact_fraction: float
+    n_unreachable: int
+    exact_fraction_reachable: float | None
+    table_one: dict[str, dict[str, dict]]
+    paper: dict
+    emulation: dict
+    imitation: dict
+
+    def to_markdown(self) -> str:
+        return markdown(self)
+
+    def save(self, out) -> list[Path]:
+        """Write ``can_tossing.json``, ``.md``, ``_table1.png`` and (when the imitation
+        has both classes) ``_roc.png`` to the folder ``out``; their paths."""
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        files = [out / "can_tossing.json", out / "can_tossing.md"]
+        files[0].write_text(self.to_json())
+        files[1].write_text(self.to_markdown())
+        files.append(plot_table_one(self, out / "can_tossing_table1.png"))
+        if self.imitation["auc"] is not None:
+            files.append(plot_roc(self.imitation, out / "can_tossing_roc.png"))
+        return files
+
+
+def run_can_tossing(config: CanTossingConfig) -> CanTossingResult:
+    """Fit the can network on the 0° throws and measure Table I, emulation and imitation.
+
+    Every simulation (the data set, then the evaluation throws in chunks) runs on
+    ``config.executor``; the numbers do not depend on where.
+    """
+    progress = config.progress
+    with open_executor(config.executor) as executor:
+        data = can_dataset(config.data_dir, config.scale, executor=executor, progress=progress)
+        model = fit_can_network(data, ANGLE)
+        run = {"progress": progress, "executor": executor}
+        tables = {mode: table_one(model, data, mode, config.seed, **run) for mode in PROTOCOLS}
+        emulated = emulation(model, data, config.n_demos, config.seed, config.rule, **run)
+        imitated = imitation(
+            model, data, config.n_demos, config.aim_error, config.seed, config.n_ordinary, **run
+        )
+    return CanTossingResult(
+        scale=config.scale,
+        cases=config.cases,
+        rule=config.rule,
+        **tables[config.cases][config.rule],
+        table_one=tables,
+        paper=PAPER,
+        emulation=emulated,
+        imitation=imitated,
+    )
+
+
+def markdown(r: CanTossingResult) -> str:
+    """The report: Table I under both protocols and rules beside the paper's, emulation and
+    imitation."""
+    tabs = r.table_one
+    cols = [(m, rule) for m in ("counts", "actions") for rule in ("index", "aim")]
+    lines = [
+        f"# Can tossing (scale {r.scale}; headline: cases {r.cases}, rule {r.rule})",
+        "",
+        "| accuracy | "
+        + " | ".join(f"{m}/{rule} # | %" for m, rule in cols)
+        + " | paper # | paper % |",
+        "|---|" + "---:|---:|" * (len(cols) + 1),
+    ]
+    for b in ACCURACY_BINS:
+        cells = []
+        for m, rule in cols:
+            t = tabs[m][rule]
+            cells += [str(t["histogram"][b]), f"{100 * t['histogram'][b] / t['n_cases']:.2f}"]
+        lines.append(
+            f"| {b} | " + " | ".join(cells) + f" | {PAPER_TABLE_I[b]} | {PAPER_PERCENT[b]:.2f} |"
+        )
+    cells = [f"{tabs[m][rule]['n_cases']} | " for m, rule in cols]
+    lines.append("| cases | " + " | ".join(cells) + f" | {PAPER_CASES} | |")
+    lines.append("")
+    for m, rule in cols:
+        t = tabs[m][rule]
+        line = f"- {m}/{rule}: exact {100 * t['exact_fraction']:.2f} %"
+        if t["n_unreachable"] and t["exact_fraction_reachable"] is not None:
+            line += (
+                f"; {t['n_unreachable']} cases ask for a count no 0° training throw reached, "
+                f"exact among the others {100 * t['exact_fraction_reachable']:.2f} %"
+            )
+        lines.append(line)
+    e, i = r.emulation, r.imitation
+    v = i["validation"]
+    lines += [
+        f"- emulation ({e['n_demonstrations']} demonstrations): same end configuration "
+        f"{100 * e['same_end_config']:.1f} %, same count {100 * e['same_count']:.1f} % "
+        f"(demonstrated field re-thrown: {100 * e['reference_same_end_config']:.1f} % / "
+        f"{100 * e['reference_same_count']:.1f} %)",
+        f"- imitation ({i['n_throws']} throws, aim error {100 * i['aim_error_m']:.1f} cm, "
+        f"{i['n_failed']} failed): ROC AUC of surprise "
+        + ("n/a (one class only)" if i["auc"] is None else f"{i['auc']:.3f}")
+        + f"; against the intended throw's usual outcomes ({i['n_failed_ordinary']} failed): "
+        + ("n/a" if i["auc_ordinary"] is None else f"{i['auc_ordinary']:.3f}"),
+        f"- imitation, pooled surprise (aim error {i['aim_sigma']:g} fields): ROC AUC "
+        + f"{_auc_text(i['auc_pooled'])}; against the usual outcomes "
+        + f"{_auc_text(i['auc_ordinary_pooled'])}. Aim error chosen on a validation draw "
+        + f"({v['n_throws']} throws, {v['n_failed']} / {v['n_failed_ordinary']} failed) by "
+        + "the second AUC: "
+        + ", ".join(
+            f"{b['sigma']:g}: {_auc_text(b['auc'])} / {_auc_text(b['auc_ordinary'])}"
+            for b in v["by_sigma"]
+        ),
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def _auc_text(auc: float | None) -> str:
+    return "n/a" if auc is None else f"{auc:.3f}"
+
+
+def plot_table_one(result: CanTossingResult, path) -> Path:
+    """Bar chart of Table I's bins: each protocol and rule beside the paper; saved to ``path``."""
+    from matplotlib.figure import Figure
+
+    tables = result.table_one
+    series = {
+        f"ours, {m}, {rule}": [100 * t["histogram"][b] / t["n_cases"] for b in ACCURACY_BINS]
+        for m in tables
+        for rule, t in tables[m].items()
+    }
+    series["paper"] = [PAPER_PERCENT[b] for b in ACCURACY_BINS]
+    fig = Figure(figsize=(8, 4.2))
+    ax = fig.subplots()
+    x = np.arange(len(ACCURACY_BINS))
+    width = 0.8 / len(series)
+    for k, (label, values) in enumerate(series.items()):
+        ax.bar(x + (k - (len(series) - 1) / 2) * width, values, width, label=label)
+    ax.set_xticks(x, ACCURACY_BINS)
+    ax.set_yscale("log")
+    ax.set_xlabel("desired minus achieved count")
+    ax.set_ylabel("% of cases (log scale)")
+    ax.set_title("Table I: best field for a desired count, thrown at 0°")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    return Path(path)
+
+
+def plot_roc(result: dict, path) -> Path:
+    """ROC curves of the imitation surprise (``result``: :func:`imitation`'s); saved to ``path``."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(5.6, 5.0))
+    ax = fig.subplots()
+    for (key, label), colour in zip(
+        (
+            ("failed", "not the unperturbed throw's outcome"),
+            ("failed_ordinary", "none of the usual outcomes"),
+        ),
+        ("C0", "C1"),
+        strict=True,
+    ):
+        suffix = "" if key == "failed" else "_ordinary"
+        for scores, style, name in (
+            ("surprise", "-", "surprise"),
+            ("pooled_surprise", "--", f"pooled, {result['aim_sigma']:g} fields"),
+        ):
+            auc = result[f"auc{suffix}" + ("_pooled" if scores == "pooled_surprise" else "")]
+            if auc is not None:
+                fpr, tpr = roc_curve(result[scores], result[key])
+                ax.plot(fpr, tpr, style, color=colour, label=f"failed: {label}; {name} ({auc:.3f})")
+    ax.plot([0, 1], [0, 1], ":", color="0.5", label="chance")
+    ax.set_xlabel("false-positive rate (successful throws flagged)")
+    ax.set_ylabel("true-positive rate (failed throws flagged)")
+    ax.set_title(
+        f"Imitation: {result['n_throws']} throws aimed {100 * result['aim_error_m']:.0f} cm off",
+        fontsize=10,
+    )
+    ax.legend(loc="lower right", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    return Path(path)

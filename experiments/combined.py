@@ -1,0 +1,439 @@
+r"""The combined system (the paper's §IV-C): the throw network aims, the can network plans.
+
+Two networks trained apart are chained: the can network (Fig. 2) picks the field to hit,
+the throw network (Fig. 4) turns that hit point into the point the robot aims at, and the
+robot's throw is played through its kinematics into the can world. Three scenarios
+(Tables II-IV), each from the full pyramid: throw off the top three cans, the near flank,
+the far flank.
+
+Set-up (:mod:`sim2d.combined`): the pyramid stands on a table ``table_z`` above the
+robot's floor with its near face in the throw's target plane; a throw within the can
+depth enters the can world with its in-plane velocity, plus the can data set's aim jitter
+(``jitter``); intermediate states follow the recorded settle rule. A field's hit point is
+where the can network's training throw through that field first meets the cans (the
+network was trained on that angle's parabolas). The can network is trained on the angle
+whose direction is closest to the robot's measured impact direction.
+
+Planners (:mod:`inference.planning`): the paper's round planner, whose actions in a round
+are the fields whose most probable end configuration is the (intermediate) goal; and an
+exact planner that maximises the probability of reaching the goal within ``horizon``
+throws under the learned models, with the throw's uncertainty (the throw network's
+predicted hit Gaussian) included; its success rate is measured by playing its policy
+``episodes`` times.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from experiments.cans import SCALES, CanModel, can_dataset, fit_can_network
+from experiments.config import (
+    Result,
+    check_choice,
+    check_executor,
+    check_float,
+    check_int,
+)
+from experiments.throwing import MAX_BINS, fit_throws, get_data
+from inference import predict
+from inference.compiled import compile_parameter_query
+from inference.planning import exact_plan, paper_planner
+from models.throw_network import TARGET
+from sim2d import geometry, materials
+from sim2d.combined import CAN_BAND, TABLE_TOP_Z, first_contact, play_throw, settle
+from sim2d.configurations import stable_configurations
+from sim2d.throw import TARGET_AREA, ReleaseNoise, throw
+
+__all__ = [
+    "CombinedConfig",
+    "CombinedResult",
+    "PAPER_RATES",
+    "PROPOSALS",
+    "SCENARIOS",
+    "Robot",
+    "World",
+    "build_world",
+    "run_combined",
+    "run_scenario",
+    "transition_model",
+]
+
+PROPOSALS = ("can", "combined")  # the paper planner's actions, see CombinedConfig
+MAX_HORIZON = 50  # throws
+MAX_JITTER = 0.05  # m: beyond a field's height, the aim says nothing
+
+
+@dataclass(frozen=True)
+class CombinedConfig:
+    """Settings of :func:`run_combined`; every field is checked on construction.
+
+    Attributes
+    ----------
+    scale, data_dir, executor
+        The can data set (:func:`experiments.cans.can_dataset`).
+    n_throws : int
+        Throws that train the throw network.
+    bins : int
+        Throw-network clusters per axis, ``1..MAX_BINS``.
+    horizon : int
+        Throws the exact planner may use, ``1..MAX_HORIZON``.
+    episodes : int
+        Plays of the exact planner's policy.
+    noise : bool
+        Throw with release noise (0.5 deg, 2 %).
+    proposals : str
+        The paper planner's actions: ``"can"``, fields whose most probable outcome under
+        the can network alone is the goal (the paper's); ``"combined"``, under the can
+        and throw networks together (aiming with the robot's scatter).
+    table_z : float
+        Table top above the robot's floor, m, in ``[0, TARGET_AREA.z_max]``.
+    jitter : float or None
+        Aim jitter added to every throw's entry height, m, in ``[0, MAX_JITTER]``; None:
+        the data set's.
+    seed : int
+        Seeds the throw network's data and every play (>= 0).
+    progress : bool
+        Progress bars.
+    """
+
+    scale: str = "full"
+    data_dir: Path = Path("data")
+    executor: str | None = None
+    n_throws: int = 29_000
+    bins: int = 16
+    horizon: int = 6
+    episodes: int = 50
+    noise: bool = False
+    proposals: str = "can"
+    table_z: float = TABLE_TOP_Z
+    jitter: float | None = None
+    seed: int = 0
+    progress: bool = True
+
+    def __post_init__(self):
+        check_choice("scale", self.scale, SCALES)
+        object.__setattr__(self, "data_dir", Path(self.data_dir))
+        check_executor("executor", self.executor)
+        check_int("n_throws", self.n_throws, 10)
+        check_int("bins", self.bins, 1, MAX_BINS)
+        check_int("horizon", self.horizon, 1, MAX_HORIZON)
+        check_int("episodes", self.episodes, 1)
+        check_choice("noise", self.noise, (False, True))
+        check_choice("proposals", self.proposals, PROPOSALS)
+        check_float("table_z", self.table_z, 0.0, TARGET_AREA.z_max, unit="m")
+        if self.jitter is not None:
+            check_float("jitter", self.jitter, 0.0, MAX_JITTER, unit="m")
+        check_int("seed", self.seed, 0)
+
+
+SCENARIOS = {
+    "top_three": geometry.TOP_THREE,
+    "near_flank": geometry.NEAR_FLANK,
+    "far_flank": geometry.FAR_FLANK,
+}
+PAPER_RATES = {"top_three": 0.5713, "near_flank": 0.6857, "far_flank": 0.5771}
+TABLES = {"top_three": "Table II", "near_flank": "Table III", "far_flank": "Table IV"}
+
+
+@dataclass
+class Robot:
+    """The throw side: the learned inverse (hit -> aim) and the kinematics that throw."""
+
+    query: object  # CompiledParameterQuery of the throw network
+    net: object
+    params: object
+    noise: ReleaseNoise | None
+    rng: np.random.Generator
+
+    def aim(self, hits: np.ndarray) -> np.ndarray:
+        aims = self.query.infer({"end.hit": torch.as_tensor(hits)}).mean.numpy()
+        return np.clip(aims, TARGET_AREA.low, TARGET_AREA.high)
+
+    def hit_distribution(self, aims: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The throw network's predicted hit for each aim: means ``(n, 2)``, covs ``(n, 2, 2)``."""
+        mix = predict(
+            self.net, self.params, {"action": ["throw"] * len(aims), "param.target": aims}
+        )
+        hit = mix.continuous["hit"]
+        return hit.mean.numpy(), hit.cov.numpy()
+
+
+@dataclass
+class World:
+    """Everything one throw needs: the can model, the robot, and the geometry between them."""
+
+    can: CanModel
+    robot: Robot
+    stable: frozenset[int]
+    table_z: float = TABLE_TOP_Z
+    jitter: float = 0.0  # m, the can data set's aim jitter added to every throw's entry height
+    _heights: dict = field(default_factory=dict)
+
+    def heights(self, state: int) -> np.ndarray:
+        """``(195,)`` near-face heights (can frame) to hit so that the robot's ball meets the
+        cans of ``state`` where the training throw through each field does (NaN: unthrowable).
+
+        Solved with the robot's own forward kinematics: a few fixed-point steps of
+        "aim, read the velocity at the plane, run it back from the contact point".
+        """
+        if state not in self._heights:
+            fields = np.flatnonzero(self.can.throwable.numpy())
+            contact = np.array([first_contact(state, f, self.can.angle) for f in fields])
+            z2 = contact[:, 1].copy()
+            for _ in range(4):
+                aims = self.robot.aim(np.stack([np.zeros_like(z2), z2 + self.table_z], -1))
+                v = throw(aims).velocity_at_plane
+                t = (contact[:, 0] - geometry.PYRAMID_X) / v[:, 0]
+                z2 = contact[:, 1] - v[:, 2] * t + 0.5 * materials.GRAVITY * t * t
+            heights = np.full(geometry.N_FIELDS, np.nan)
+            heights[fields] = z2
+            self._heights[state] = heights
+        return self._heights[state]
+
+    def play(self, state: int, field: int) -> int:
+        """Aim at ``field`` from ``state``, throw, play the ball into the cans; the next state."""
+        desired = np.array([[0.0, self.heights(state)[field] + self.table_z]])
+        result = throw(self.robot.aim(desired), rng=self.robot.rng, noise=self.robot.noise)
+        seed = int(self.robot.rng.integers(2**32))
+        return play_throw(
+            state,
+            result.hit[0],
+            result.velocity_at_plane[0],
+            table_z=self.table_z,
+            jitter=self.jitter,
+            seed=seed,
+            stable=self.stable,
+        )
+
+    def proposals(self, state: int, goal: int) -> list[int]:
+        """The paper's actions: fields whose most probable end configuration is ``goal``."""
+        states = self.can.states
+        if state not in states or goal not in states:
+            return []
+        probs = self.can.end_config_probs(state)
+        seen = self.can.params["end.config"].n[states.index(state), bin(state).count("1")] > 0
+        ok = (probs.argmax(-1) == states.index(goal)) & seen & self.can.throwable
+        return ok.nonzero().flatten().tolist()
+
+
+def build_world(config: CombinedConfig, data) -> tuple[World, dict]:
+    """Train both networks; choose the can network's angle by the robot's impact direction."""
+    rng = np.random.default_rng(config.seed)
+    noise = ReleaseNoise() if config.noise else None
+    targets, hits = get_data(config.n_throws, rng, noise)
+    net, params, _ = fit_throws((config.bins, config.bins), targets, hits)
+    robot = Robot(compile_parameter_query(net, params, TARGET), net, params, noise, rng)
+    # the robot's impact direction at the pyramid, throwing at every field height
+    probe = np.linspace(0.05, geometry.PYRAMID_HEIGHT, 12) + config.table_z
+    v = throw(robot.aim(np.stack([np.zeros_like(probe), probe], -1))).velocity_at_plane
+    impact_deg = float(np.degrees(np.arctan2(v[:, 2], v[:, 0])).mean())
+    angle_deg = [math.degrees(math.atan2(vz, vx)) for vx, vz in geometry.ANGLES]
+    angle = int(np.argmin([abs(a - impact_deg) for a in angle_deg]))
+    can = fit_can_network(data, angle)
+    why = {
+        "robot_impact_deg_mean": impact_deg,
+        "angle_deg": dict(zip(geometry.ANGLE_NAMES, angle_deg, strict=True)),
+        "chosen_angle": geometry.ANGLE_NAMES[angle],
+    }
+    jitter = data.metadata["jitter"] if config.jitter is None else config.jitter
+    world = World(can, robot, frozenset(stable_configurations()), config.table_z, jitter)
+    return world, why | {"table_z": config.table_z, "jitter": jitter}
+
+
+def transition_model(world: World, states: list[int]) -> torch.Tensor:
+    """``T[s, f, s']``: the learned chance that aiming at field ``f`` from ``s`` gives ``s'``.
+
+    The hit's height is drawn from the throw network's predicted Gaussian and read as the
+    field whose matched near-face height (:meth:`World.heights`) is nearest to it; a hit
+    outside the can band leaves the state unchanged. States the can network never saw as
+    a start get no actions (their rows stay zero).
+    """
+    index = {s: i for i, s in enumerate(states)}
+    t = torch.zeros(len(states), geometry.N_FIELDS, len(states), dtype=torch.float64)
+    can_states = world.can.states
+    settled_index = [index.get(settle(end, world.stable), -1) for end in can_states]
+    for s in states:
+        if s not in can_states:
+            continue
+        heights = world.heights(s)
+        fields = np.flatnonzero(world.can.throwable.numpy())
+        order = fields[np.argsort(heights[fields])]
+        edges = (heights[order][1:] + heights[order][:-1]) / 2
+        desired = np.stack([np.zeros(len(order)), heights[order] + world.table_z], -1)
+        mean, cov = world.robot.hit_distribution(world.robot.aim(desired))
+        # chance that the hit's height falls in each field's slice: (aimed, hit) over `order`
+        height = torch.distributions.Normal(
+            torch.as_tensor(mean[:, 1] - world.table_z)[:, None],
+            torch.as_tensor(np.sqrt(cov[:, 1, 1]))[:, None],
+        )
+        bounds = torch.as_tensor(np.concatenate([[-np.inf], edges, [np.inf]]))
+        p_field = height.cdf(bounds[None, 1:]) - height.cdf(bounds[None, :-1])
+        lateral = torch.distributions.Normal(
+            torch.as_tensor(mean[:, 0]), torch.as_tensor(np.sqrt(cov[:, 0, 0]))
+        )
+        p_band = lateral.cdf(torch.tensor(CAN_BAND)) - lateral.cdf(torch.tensor(-CAN_BAND))
+        probs = world.can.end_config_probs(s, order).double()  # (hit field, network state)
+        settled = torch.zeros(len(order), len(states), dtype=torch.float64)
+        for j, target in enumerate(settled_index):
+            if target >= 0:
+                settled[:, target] += probs[:, j]
+        outcome = p_band[:, None] * (p_field @ settled)  # (aimed, s')
+        outcome[:, index[s]] += 1 - p_band
+        t[index[s], torch.as_tensor(order)] = outcome
+    return t
+
+
+def run_scenario(world: World, name: str, config: CombinedConfig) -> dict:
+    """Both planners from the full pyramid to scenario ``name``'s goal, played in the world."""
+    removed = SCENARIOS[name]
+    start = geometry.FULL_PYRAMID
+    goal = start & ~geometry.cans_to_mask(removed)
+    to_set = lambda mask: frozenset(geometry.mask_to_cans(mask))  # noqa: E731
+    to_mask = geometry.cans_to_mask
+    # the learned transitions over every physically possible superset of the goal
+    states = sorted(s for s in world.stable if s & goal == goal)
+    t = transition_model(world, states)
+
+    def propose(s, g):
+        if config.proposals == "can":  # the paper's: the can network alone
+            return world.proposals(to_mask(s), to_mask(g))
+        # the combined model's most probable outcome of aiming at each field
+        s, g = to_mask(s), to_mask(g)
+        if s not in states or g not in states:
+            return []
+        row = t[states.index(s)]
+        failure = 1 - row.sum(-1)  # mass on states that lost a goal can
+        ok = (
+            (row.sum(-1) > 0)
+            & (row.argmax(-1) == states.index(g))
+            & (row[:, states.index(g)] > failure)
+        )
+        return ok.nonzero().flatten().tolist()
+
+    rounds, rate = paper_planner(
+        to_set(start), to_set(goal), propose, lambda s, f: to_set(world.play(to_mask(s), f))
+    )
+    names = {r.state: f"round {i + 1}" for i, r in enumerate(rounds)}
+    plan = exact_plan(t, states.index(goal), config.horizon, allowed=t.sum(-1) > 0)
+    successes = 0
+    for _ in range(config.episodes):
+        state = start
+        for h in range(config.horizon, 0, -1):
+            state = world.play(state, int(plan.policy[h, states.index(state)]))
+            if state == goal or state & goal != goal:
+                break
+        successes += state == goal
+    return {
+        "success_rate": rate,
+        "paper_success_rate": PAPER_RATES[name],
+        "rounds": [r.as_dict(names) for r in rounds],
+        "success_rate_exact_planner": successes / config.episodes,
+        "exact_planner_predicted": float(plan.value[config.horizon, states.index(start)]),
+        "exact_planner_first_field": int(plan.policy[config.horizon, states.index(start)]),
+    }
+
+
+def table_markdown(name: str, s: dict) -> str:
+    """Scenario ``name``'s rounds in the paper's table format, and the exact planner."""
+    rows = s["rounds"]
+    head = "| round | " + " | ".join(str(i + 1) for i in range(len(rows))) + " |"
+    lines = [
+        f"**{TABLES[name]}: {name.replace('_', ' ')}** (paper: {100 * s['paper_success_rate']:.2f} %)",
+        "",
+        head,
+        "|---" * (len(rows) + 1) + "|",
+    ]
+    for key, label in (
+        ("cans_to_throw", "cans to throw"),
+        ("actions", "actions"),
+        ("success", "success (i)"),
+        ("fail_too_many", "fail (ii)"),
+        ("fail_no_hit", "fail (iii)"),
+    ):
+        lines.append(f"| {label} | " + " | ".join(str(r[key]) for r in rows) + " |")
+    inter = [", ".join(f"{k} ({t})" for t, k in r["intermediate"].items()) or "-" for r in rows]
+    lines.append("| interm. (iv) | " + " | ".join(inter) + " |")
+    lines.append(
+        "| success rate | " + " | ".join(f"{100 * r['success_rate']:.2f} %" for r in rows) + " |"
+    )
+    lines.append("")
+    lines.append(
+        f"Exact planner: {100 * s['success_rate_exact_planner']:.1f} % measured "
+        f"({100 * s['exact_planner_predicted']:.1f} % predicted by the models)."
+    )
+    return "\n".join(lines)
+
+
+@dataclass
+class CombinedResult(Result):
+    """What :func:`run_combined` measured.
+
+    ``scenarios``: per scenario name (``SCENARIOS``) the paper planner's ``success_rate``
+    and ``rounds`` (the paper's table), the paper's ``paper_success_rate``, and the exact
+    planner's measured ``success_rate_exact_planner``, its ``exact_planner_predicted``
+    success under the models and its first field. ``angle_choice``: the robot's impact
+    direction, the angle the can network was trained on, the table height and jitter.
+    """
+
+    scenarios: dict[str, dict]
+    angle_choice: dict
+    release_noise: bool
+    proposals: str
+    scale: str
+    seconds: float
+
+    def to_markdown(self) -> str:
+        tables = [table_markdown(n, s) for n, s in self.scenarios.items()]
+        why = self.angle_choice
+        lines = [
+            "| scenario | paper | ours (paper planner) | ours (exact planner) |",
+            "|---|---:|---:|---:|",
+        ]
+        for n, s in self.scenarios.items():
+            lines.append(
+                f"| {n} | {100 * s['paper_success_rate']:.2f} % | {100 * s['success_rate']:.2f} % "
+                f"| {100 * s['success_rate_exact_planner']:.1f} % |"
+            )
+        head = (
+            f"Robot impact direction {why['robot_impact_deg_mean']:.1f} deg; can network trained "
+            f"on {why['chosen_angle']} ({why['angle_deg'][why['chosen_angle']]:.1f} deg), the "
+            f"closest; table top {why['table_z']} m, aim jitter {1000 * why['jitter']:.1f} mm."
+        )
+        return "\n\n".join([head, *tables, "\n".join(lines)]) + "\n"
+
+    def save(self, out) -> list[Path]:
+        """Write ``combined.json`` and ``combined.md`` to the folder ``out``."""
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        files = [out / "combined.json", out / "combined.md"]
+        files[0].write_text(self.to_json())
+        files[1].write_text(self.to_markdown())
+        return files
+
+
+def run_combined(config: CombinedConfig) -> CombinedResult:
+    """Train both networks and play the three scenarios with both planners."""
+    started = time.perf_counter()
+    data = can_dataset(
+        config.data_dir, config.scale, progress=config.progress, executor=config.executor
+    )
+    world, why = build_world(config, data)
+    scenarios = {
+        name: run_scenario(world, name, config)
+        for name in tqdm(SCENARIOS, desc="scenarios", disable=not config.progress)
+    }
+    return CombinedResult(
+        scenarios=scenarios,
+        angle_choice=why,
+        release_noise=config.noise,
+        proposals=config.proposals,
+        scale=config.scale,
+        seconds=time.perf_counter() - started,
+    )

@@ -1,0 +1,131 @@
+"""What every experiment shares: checks of its settings and its result files.
+
+An experiment is a function of one frozen settings dataclass (``...Config``) that
+returns a result dataclass. A settings dataclass checks every field in
+``__post_init__`` with the functions here, which raise :class:`ConfigError` (a
+``ValueError``) naming the field, the value and what was expected; a script turns it
+into a command-line error with :func:`config_or_exit`. A result dataclass derives from
+:class:`Result`: ``to_json`` / ``from_json`` / ``load`` round-trip its fields (plain
+JSON values: numbers, strings, lists, dicts with string keys), ``to_markdown`` is its
+report, and ``save(out)`` writes its files.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import math
+import numbers
+import operator
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, fields
+from pathlib import Path
+from typing import Any, TypeVar
+
+from sim2d.executors import parse_spec
+
+__all__ = [
+    "ConfigError",
+    "Result",
+    "check_choice",
+    "check_executor",
+    "check_float",
+    "check_int",
+    "config_or_exit",
+]
+
+T = TypeVar("T")
+
+
+class ConfigError(ValueError):
+    """An experiment setting out of range; ``field`` names it."""
+
+    def __init__(self, field: str, message: str):
+        super().__init__(f"{field}: {message}")
+        self.field = field
+
+
+def check_int(field: str, value, low: int, high: int | None = None) -> int:
+    """``value`` as an int in ``[low, high]`` (``high`` None: no upper limit)."""
+    expected = f"an integer >= {low}" if high is None else f"an integer in {low}..{high}"
+    if isinstance(value, bool):
+        raise ConfigError(field, f"{value!r} is a bool; expected {expected}")
+    try:
+        number = operator.index(value)
+    except TypeError:
+        raise ConfigError(field, f"{value!r} is not an integer; expected {expected}") from None
+    if number < low or (high is not None and number > high):
+        raise ConfigError(field, f"{value!r} is out of range; expected {expected}")
+    return number
+
+
+def check_float(
+    field: str, value, low: float, high: float, *, low_open: bool = False, unit: str = ""
+) -> float:
+    """``value`` as a finite float in ``[low, high]`` (``(low, high]`` with ``low_open``)."""
+    bracket = "(" if low_open else "["
+    expected = f"a number in {bracket}{low:g}, {high:g}]" + (f" {unit}" if unit else "")
+    if isinstance(value, bool) or not isinstance(value, numbers.Real):
+        raise ConfigError(field, f"{value!r} is not a number; expected {expected}")
+    number = float(value)
+    below = number <= low if low_open else number < low
+    if not math.isfinite(number) or below or number > high:
+        raise ConfigError(field, f"{value!r} is out of range; expected {expected}")
+    return number
+
+
+def check_choice(field: str, value: T, choices: Iterable[T]) -> T:
+    """``value`` if it is one of ``choices``."""
+    choices = tuple(choices)
+    if value not in choices:
+        raise ConfigError(field, f"{value!r} is not one of {', '.join(map(repr, choices))}")
+    return value
+
+
+def check_executor(field: str, value: str | None) -> str | None:
+    """An executor specification (:mod:`sim2d.executors`), or None for every core here."""
+    if value is not None:
+        try:
+            parse_spec(value)
+        except ValueError as error:
+            raise ConfigError(field, str(error)) from None
+    return value
+
+
+def config_or_exit(parser: argparse.ArgumentParser, make: Callable[[], T]) -> T:
+    """``make()``, or the parser's usage error (exit status 2) naming the option at fault.
+
+    A :class:`ConfigError` on field ``n_train`` is reported as ``--n-train: ...``.
+    """
+    try:
+        return make()
+    except ConfigError as error:
+        flag = "--" + error.field.replace("_", "-")
+        parser.error(f"{flag}{str(error)[len(error.field) :]}")
+    raise AssertionError("parser.error returns only by raising")  # pragma: no cover
+
+
+@dataclass
+class Result:
+    """Base of the experiments' results: JSON round trip of the dataclass's fields."""
+
+    def to_dict(self) -> dict[str, Any]:
+        """The fields by name (values are shared, not copied)."""
+        return {f.name: getattr(self, f.name) for f in fields(self)}
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), indent=1) + "\n"
+
+    @classmethod
+    def from_json(cls: type[T], text: str) -> T:
+        """The result :meth:`to_json` wrote; refuses a file of another experiment."""
+        data = json.loads(text)
+        names = [f.name for f in fields(cls)]
+        missing = [n for n in names if n not in data]
+        if missing:
+            raise ValueError(f"not a {cls.__name__}: the JSON lacks {missing}")
+        return cls(**{n: data[n] for n in names})
+
+    @classmethod
+    def load(cls: type[T], path) -> T:
+        return cls.from_json(Path(path).read_text())

@@ -1,0 +1,126 @@
+"""Every example runs as a script with tiny arguments; bad numbers are usage errors.
+
+The experiments themselves are tested in tests/experiments; here each script is run the
+way a user runs it (a subprocess in the repository root), and its command line is checked.
+"""
+
+import json
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+from tests.helpers import load_example
+
+ROOT = Path(__file__).resolve().parents[2]
+EXAMPLES = sorted(p.stem for p in (ROOT / "examples").glob("*.py"))
+
+
+def run(name: str, *argv, check: bool = True) -> subprocess.CompletedProcess:
+    done = subprocess.run(
+        [sys.executable, str(ROOT / "examples" / f"{name}.py"), *map(str, argv)],
+        cwd=ROOT,
+        capture_output=True,
+        text=True,
+        timeout=300,
+    )
+    if check:
+        assert done.returncode == 0, done.stderr[-3000:]
+    return done
+
+
+def tiny_arguments(name: str, out: Path, data: Path) -> list:
+    """Arguments that make each example run in seconds."""
+    cans = ["--scale", "tiny", "--data-dir", data, "--out", out, "--quiet"]
+    return {
+        "tap_and_remove": ["--n", 100, "--bins", 2, "--out", out],
+        "can_world": ["--frame-interval", 0.5, "--out", out],
+        "throw_kinematics": ["--grid", 2, "--n", 10, "--out", out],
+        "throwing": ["--n-train", 100, "--n-test", 10, "--bins", 1, 2, "--out", out, "--quiet"],
+        "can_tossing": [*cans, "--n-demos", 2],
+        "combined": [*cans, "--n-throws", 300, "--bins", 2, "--episodes", 1, "--horizon", 1],
+        "physics_bounds": [*cans, "--repeats", 2, "--combined-repeats", 2, "--step", 0.1],
+        "all_goals": [
+            *["--step", 0.05, "--train-repeats", 1, "--bound-repeats", 2, "--horizon", 1],
+            *["--episodes", 1, "--n-throws", 300, "--bins", 2, "--table-z", 0.75],
+            *["--data-dir", data, "--out", out, "--quiet"],
+        ],
+        "reproduce": ["--quick", "--only", "throw_kinematics", "--out", out, "--data-dir", data],
+    }[name]
+
+
+WRITES = {
+    "tap_and_remove": ["tap_and_remove.json", "tap_and_remove.png"],
+    "can_world": ["pyramid.png", "throw.png", "throw.gif"],
+    "throw_kinematics": ["target_to_hit.png", "flight_paths.png"],
+    "throwing": ["throwing.json", "throwing.md", "throwing_errors.png"],
+    "can_tossing": ["can_tossing.json", "can_tossing.md", "can_tossing_table1.png"],
+    "combined": ["combined.json", "combined.md"],
+    "physics_bounds": ["physics_bounds.json", "physics_bounds.md"],
+    "all_goals": ["all_goals.json", "all_goals.md", "all_goals.png"],
+    "reproduce": ["run.json", "summary.md", "throw/flight_paths.png"],
+}
+
+
+def test_every_example_is_covered():
+    assert set(EXAMPLES) == set(WRITES)
+
+
+@pytest.mark.parametrize("name", EXAMPLES)
+def test_example_runs_as_a_script(name, tmp_path, tiny_data_dir):
+    out = tmp_path / "out"
+    run(name, *tiny_arguments(name, out, tiny_data_dir))
+    for file in WRITES[name]:
+        assert (out / file).stat().st_size > 0, file
+    if name == "reproduce":
+        assert json.loads((out / "run.json").read_text())["scale"] == "quick"
+        assert "| throw_kinematics |" in (out / "summary.md").read_text()
+
+
+def test_a_bad_number_exits_with_a_usage_error():
+    done = run("throwing", "--n-train", "-10", check=False)
+    assert done.returncode == 2
+    assert "error: --n-train: -10 is out of range; expected an integer >= 10" in done.stderr
+    done = run("all_goals", "--bound-repeats", "5", check=False)
+    assert done.returncode == 2 and "error: --bound-repeats: 5 is odd" in done.stderr
+
+
+@pytest.mark.parametrize(
+    ("name", "argv", "words"),
+    [
+        ("can_tossing", ["--aim-error", "1e9"], "--aim-error: 1000000000.0 is out of range"),
+        ("can_tossing", ["--n-demos", "0"], "--n-demos: 0 is out of range"),
+        ("combined", ["--episodes", "-1"], "--episodes: -1 is out of range"),
+        ("combined", ["--table-z", "nan"], "--table-z: nan is out of range"),
+        ("physics_bounds", ["--repeats", "1"], "--repeats: 1 is out of range"),
+        ("physics_bounds", ["--step", "0"], "--step: 0.0 is out of range"),
+        ("throwing", ["--bins", "4", "0"], "--bins: 0 is out of range"),
+        ("throwing", ["--threads", "0"], "--threads: 0 is out of range"),
+        ("tap_and_remove", ["--n", "-10"], "--n: -10 is out of range"),
+        ("can_world", ["--field", "999"], "--field: 999 is out of range"),
+        ("throw_kinematics", ["--grid", "0"], "--grid: 0 is out of range"),
+        ("reproduce", ["--executor", "threads"], "--executor: executor='threads'"),
+        ("reproduce", ["--only", "can_tossing", "can_tosing"], "unknown step(s) ['can_tosing']"),
+    ],
+)
+def test_command_lines_are_checked(name, argv, words, capsys):
+    with pytest.raises(SystemExit) as exited:
+        load_example(name).parse_args(argv)
+    assert exited.value.code == 2
+    assert words in capsys.readouterr().err
+
+
+def test_the_executor_reaches_every_simulating_step():
+    reproduce = load_example("reproduce")
+    steps = dict(reproduce.steps(reproduce.parse_args(["--quick", "--executor", "dask://s:8786"])))
+    for name in ("can_tossing", "combined", "physics_bounds"):
+        i = steps[name].index("--executor")
+        assert steps[name][i + 1] == "dask://s:8786", name
+    assert all(
+        "--executor" not in a for a in dict(reproduce.steps(reproduce.parse_args([]))).values()
+    )
+    # every step's arguments parse, at both scales
+    for argv in ([], ["--quick"]):
+        for name, step_argv in reproduce.steps(reproduce.parse_args(argv)):
+            load_example(name).parse_args(step_argv)

@@ -1,0 +1,113 @@
+"""Every reachable goal: the learned and empirical transitions, and a tiny run end to end."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from experiments import all_goals
+from experiments import physics_bounds as pb
+from experiments.all_goals import AllGoalsConfig, AllGoalsResult
+from experiments.config import ConfigError
+from sim2d import geometry
+from sim2d.combined import TABLE_TOP_Z, exact_throws
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return all_goals.train_robot(2000, 3, seed=0, noise=None)
+
+
+def test_empirical_transition_counts_the_chosen_repeats():
+    states = [0, 1, 3]
+    outcomes = {
+        3: np.array([[3, 1, 1, 0], [0, 0, 0, 0]]),
+        1: np.array([[1, 1, 0, 0], [1, 0, 1, 0]]),
+    }
+    first = pb.empirical_transition(states, outcomes, slice(None, 2))
+    assert first[2, 0].tolist() == [0.0, 0.5, 0.5] and first[2, 1].tolist() == [1.0, 0.0, 0.0]
+    second = pb.empirical_transition(states, outcomes, slice(2, None))
+    assert second[1, 1].tolist() == [0.5, 0.5, 0.0]
+    assert first[0, :, 0].tolist() == [1.0, 1.0]  # no outcomes: the state stays
+    assert torch.allclose(second.sum(-1), torch.ones(3, 2, dtype=torch.float64))
+
+
+def test_learned_transition_is_a_distribution_and_keeps_a_quiet_world(robot):
+    heights = exact_throws(0.05)[0]
+    n_s = 4
+    rng = np.random.default_rng(0)
+    can = torch.as_tensor(rng.dirichlet(np.ones(n_s), size=(n_s, len(heights))))
+    t, aims = all_goals.learned_transition(can, robot, heights, TABLE_TOP_Z)
+    assert t.shape == (n_s, len(heights), n_s) and aims.shape == (len(heights), 2)
+    assert torch.allclose(t.sum(-1), torch.ones(n_s, len(heights), dtype=torch.float64))
+    # when no hit changes anything, no aim does
+    still = torch.eye(n_s, dtype=torch.float64)[:, None, :].expand(n_s, len(heights), n_s)
+    quiet, _ = all_goals.learned_transition(still, robot, heights, TABLE_TOP_Z)
+    assert torch.allclose(quiet, still)
+
+
+def test_can_model_learns_a_deterministic_world():
+    states = [0, 1, 3]
+    heights = np.array([0.1, 0.2])
+    outcomes = {3: np.array([[1, 1, 1], [3, 3, 3]]), 1: np.array([[0, 0, 0], [1, 1, 1]])}
+    p = all_goals.can_model(states, heights, outcomes)
+    assert p.shape == (3, 2, 3)
+    assert p[2, 0].argmax() == 1 and p[2, 1].argmax() == 2 and p[1, 0].argmax() == 0
+    assert p[2, 0, 1] > 0.7
+
+
+@pytest.mark.parametrize(
+    "field, value",
+    [
+        ("step", 0.0),
+        ("bound_repeats", 3),
+        ("episodes", 0),
+        ("table_z", ()),
+        ("table_z", (0.75, float("nan"))),
+        ("jitter", -1.0),
+        ("executor", "cluster"),
+    ],
+)
+def test_config_names_the_bad_field(field, value):
+    with pytest.raises(ConfigError, match=field) as error:
+        AllGoalsConfig(**{field: value})
+    assert error.value.field == field
+
+
+def test_tiny_run_end_to_end(tmp_path):
+    config = AllGoalsConfig(
+        data_dir=tmp_path, table_z=(0.75,), step=0.05, train_repeats=1, bound_repeats=2,
+        horizon=2, episodes=2, n_throws=500, bins=2, progress=False, executor="process:2",
+    )  # fmt: skip
+    result = all_goals.run_all_goals(config)
+    (table,) = result.tables
+    assert table["n_goals"] == len(all_goals.stable_configurations()) - 1  # all but the full
+    assert 0 < table["reachable"] == len(table["goals"]) <= table["n_goals"]
+    for g in table["goals"]:
+        assert g["goal"] & ~geometry.FULL_PYRAMID == 0 and g["removed"]
+        assert 0 < g["bound"] <= 1 and 0 < g["bound_in_sample"] <= 1
+        assert 0 <= g["exact_measured"] <= 1 and 0 <= g["paper_measured"] <= 1
+        assert 0 <= g["exact_predicted"] <= 1 + 1e-9 and 0 <= g["exact_throws"] <= 2
+    files = result.save(tmp_path / "out")
+    again = AllGoalsResult.load(files[0])
+    assert json.loads(again.to_json()) == json.loads(result.to_json())
+    text = result.to_markdown()
+    assert "exact planner / bound" in text and text.count("\n| ") >= 2 + table["reachable"]
+    assert files[2].stat().st_size > 10_000
+
+
+def test_cross_fitted_bound_scores_each_half_s_plan_on_the_other():
+    # state 0 (start) -> state 1 (goal); two actions whose success the halves disagree on
+    def half(p0, p1):
+        t = torch.zeros(2, 2, 2, dtype=torch.float64)
+        t[0, 0] = torch.tensor([1 - p0, p0], dtype=torch.float64)
+        t[0, 1] = torch.tensor([1 - p1, p1], dtype=torch.float64)
+        t[1, :, 1] = 1.0
+        return t
+
+    held, in_sample = pb.cross_fitted_bound((half(1.0, 0.5), half(0.5, 1.0)), 1, 0, 1)
+    assert held == pytest.approx(0.5) and in_sample == pytest.approx(1.0)
+    same = half(0.3, 0.6)
+    held, in_sample = pb.cross_fitted_bound((same, same), 1, 0, 2)
+    assert held == pytest.approx(1 - 0.4**2) and in_sample == pytest.approx(held)

@@ -1,0 +1,168 @@
+"""experiments.summary builds the results table from small fake JSON files, and refreshes
+the README block between its markers only."""
+
+import json
+
+import pytest
+
+from experiments import summary
+
+
+def fake_results(folder):
+    """The fields the summary reads, with easily recognised values."""
+    files = {
+        "run.json": {
+            "scale": "quick",
+            "commit": "abc1234+",
+            "date": "2026-01-02 03:04 UTC",
+            "machine": "2 cores, a test machine",
+            "step_seconds": {"throwing": 6.25, "can_tossing": 100.0},
+            "total_seconds": 106.25,
+        },
+        "throwing.json": {
+            "paper_rms_y_m": 0.0178,
+            "paper_rms_z_m": 0.0305,
+            "rms_y_m": 0.0041,
+            "rms_z_m": 0.0085,
+            "n_clusters": 36,
+            "rms_y_m_single_gaussian": 0.02,
+            "rms_z_m_single_gaussian": 0.0532,
+            "rms_y_m_noisy": 0.019,
+            "rms_z_m_noisy": 0.025,
+            "noise_scatter_y_m": 0.016,
+            "noise_scatter_z_m": 0.022,
+        },
+        "can_tossing.json": {
+            "rule": "aim",
+            "paper": {"exact_fraction": 0.9043, "n_cases": 8603},
+            "table_one": {
+                "counts": {
+                    "aim": {"exact_fraction": 0.8235, "n_cases": 102},
+                    "index": {"exact_fraction": 0.70, "n_cases": 102},
+                },
+                "actions": {
+                    "aim": {"exact_fraction": 0.9573, "n_cases": 13129},
+                    "index": {"exact_fraction": 0.8914, "n_cases": 13129},
+                },
+            },
+            "emulation": {
+                "same_end_config": 0.96,
+                "n_demonstrations": 300,
+                "reference_same_end_config": 0.85,
+            },
+            "imitation": {
+                "auc": 0.939,
+                "auc_ordinary": 0.974,
+                "aim_sigma": 0.5,
+                "auc_pooled": 0.952,
+                "auc_ordinary_pooled": None,
+                "n_throws": 300,
+            },
+        },
+        "physics_bounds.json": {
+            "table_one": {
+                "counts": {
+                    "exact_fraction_bound": 0.7794,
+                    "exact_fraction_in_sample": 0.864,
+                    "repeats": 8,
+                },
+                "actions": {
+                    "exact_fraction_bound": 0.9612,
+                    "exact_fraction_in_sample": 0.97,
+                    "repeats": 8,
+                },
+            },
+            "combined": {
+                "0.75": {
+                    name: {"success_bound": b, "success_in_sample": 1.0}
+                    for name, b in (("top_three", 0.5), ("near_flank", 0.0), ("far_flank", 0.0))
+                }
+            },
+        },
+        "combined.json": {
+            "angle_choice": {"table_z": 0.75},
+            "scenarios": {
+                name: {
+                    "paper_success_rate": 0.5713,
+                    "success_rate": 0.2,
+                    "success_rate_exact_planner": 0.9,
+                }
+                for name in ("top_three", "near_flank", "far_flank")
+            },
+        },
+    }
+    (folder / "tap_and_remove").mkdir()
+    files["tap_and_remove/tap_and_remove.json"] = {"rms_m": {"no parameter site": 0.2964}}
+    for name, content in files.items():
+        (folder / name).write_text(json.dumps(content))
+
+
+def test_summary_from_fake_results(tmp_path):
+    fake_results(tmp_path)
+    text = summary.summary_markdown(tmp_path)
+    head = text.splitlines()[0]
+    assert head == (
+        "Scale: quick. Commit: abc1234+. Date: 2026-01-02 03:04 UTC. "
+        "Machine: 2 cores, a test machine."
+    )
+    assert "| 0.0178 / 0.0305 | 0.0041 / 0.0085 (36 clusters;" in text
+    assert "no parameter site 0.2964 m" in text
+    # Table I under both protocols, ours beside the bound
+    counts = next(line for line in text.splitlines() if "reachable desired count" in line)
+    assert "82.35 % of 102 (tie-break index: 70.00 %)" in counts
+    assert "77.94 % held out, 86.40 % in sample (8 repeats)" in counts
+    actions = next(line for line in text.splitlines() if "count-changing action" in line)
+    assert "95.73 % of 13,129" in actions and "96.12 % held out" in actions
+    assert "90.43 % of 8,603" in actions
+    assert "0.952 / n/a" in text  # a missing AUC is said so
+    top = next(line for line in text.splitlines() if "Table II" in line)
+    assert "20.00 % (paper planner); 90.0 % (exact planner) | 50.0 % held out" in top
+    assert "| throwing | 6.2 |" in text and "| total | 106.2 |" in text
+    assert summary.write_summary(tmp_path).read_text() == text
+
+
+def test_summary_of_missing_results_says_so(tmp_path):
+    (tmp_path / "throwing.json").write_text("{}")
+    (tmp_path / "throwing.json").unlink()
+    text = summary.summary_markdown(tmp_path)
+    assert text.startswith("Run: unknown")
+    assert text.count("\n| ") == 1  # the table's head only
+
+
+def test_refresh_readme_replaces_only_the_block(tmp_path):
+    readme = tmp_path / "README.md"
+    readme.write_text(f"intro\n{summary.BEGIN}\nold\n{summary.END}\noutro\n")
+    assert summary.refresh_readme(readme, "new table\n")
+    assert readme.read_text() == f"intro\n{summary.BEGIN}\nnew table\n{summary.END}\noutro\n"
+    assert not summary.refresh_readme(readme, "new table")
+    readme.write_text("no markers\n")
+    with pytest.raises(ValueError, match="needs one"):
+        summary.refresh_readme(readme, "x")
+
+
+def test_run_record(tmp_path):
+    record = summary.run_record("full", {"a": 1.5, "b": 2.0})
+    assert record.total_seconds == 3.5 and record.scale == "full"
+    assert "cores" in record.machine and "torch" in record.machine
+    assert record.date.endswith("UTC") and record.commit
+    record.save(tmp_path)
+    assert summary.RunRecord.load(tmp_path / "run.json") == record
+
+
+def test_every_goal_rows_state_both_planners_beside_the_bound(tmp_path):
+    goal = {"bound": 0.5, "bound_in_sample": 0.75, "exact_measured": 0.25, "paper_measured": 0.0}
+    other = {"bound": 1.0, "bound_in_sample": 1.0, "exact_measured": 1.0, "paper_measured": 0.5}
+    table = {
+        "table_z": 0.35,
+        "reachable": 2,
+        "exact_over_bound": 0.75,
+        "paper_over_bound": 0.25,
+        "goals": [goal, other],
+    }
+    result = {"settings": {"horizon": 6}, "goal_ratio": 0.9, "tables": [table]}
+    (tmp_path / "all_goals.json").write_text(json.dumps(result))
+    (row,) = [r for r in summary.summary_markdown(tmp_path).splitlines() if "every goal" in r]
+    assert "table 0.35 m, 2 goals" in row and "within 6 throws" in row
+    assert "exact planner 62.5 % mean success, 75.0 % of the bound" in row
+    assert "paper planner 25.0 %, 25.0 %" in row
+    assert row.endswith("| 75.0 % mean held out, 87.5 % in sample |")
