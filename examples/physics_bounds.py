@@ -22,7 +22,6 @@ from experiments.physics_bounds import (
     PhysicsBoundsResult,
     run_physics_bounds,
 )
-from sim2d.combined import TABLE_TOP_Z
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -32,11 +31,14 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--scale", choices=tuple(SCALES), default="full")
     parser.add_argument("--data-dir", default="data")
     parser.add_argument("--out", default="results")
-    parser.add_argument("--repeats", type=int, default=16, help="Table I: throws per field")
-    parser.add_argument("--table-z", type=float, nargs="+", default=[TABLE_TOP_Z])
-    parser.add_argument("--step", type=float, default=0.002, help="combined: m between heights")
-    parser.add_argument("--combined-repeats", type=int, default=8, help="combined: per height")
-    parser.add_argument("--horizon", type=int, default=6, help="combined: throws allowed")
+    d = PhysicsBoundsConfig()
+    parser.add_argument("--repeats", type=int, default=d.repeats, help="Table I: per field")
+    parser.add_argument("--table-z", type=float, nargs="+", default=list(d.table_z))
+    parser.add_argument("--step", type=float, default=d.step, help="combined: m between heights")
+    parser.add_argument(
+        "--combined-repeats", type=int, default=d.combined_repeats, help="combined: even"
+    )
+    parser.add_argument("--horizon", type=int, default=d.horizon, help="combined: throws")
     parser.add_argument(
         "--executor",
         default=None,

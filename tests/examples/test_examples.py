@@ -124,3 +124,19 @@ def test_the_executor_reaches_every_simulating_step():
     for argv in ([], ["--quick"]):
         for name, step_argv in reproduce.steps(reproduce.parse_args(argv)):
             load_example(name).parse_args(step_argv)
+
+
+@pytest.mark.parametrize("name", [n for n in EXAMPLES if n != "reproduce"])
+def test_an_example_s_defaults_are_its_experiment_s(name):
+    """A script with no arguments runs the library's default settings (progress aside)."""
+    args = load_example(name).parse_args([])
+    config = getattr(args, "config", None)
+    if config is None:
+        pytest.skip(f"{name} has no settings dataclass")
+    default = type(config)()
+    differ = {
+        f: (getattr(config, f), getattr(default, f))
+        for f in config.__dataclass_fields__
+        if f != "progress" and getattr(config, f) != getattr(default, f)
+    }
+    assert not differ, differ
