@@ -7,16 +7,23 @@ log-probability table (one dim per enumerated site). A query then indexes the ta
 the evidence (one gather per factor), adds them and normalises: the same numbers as
 :mod:`inference.queries`, read from the same model, without re-tracing. The tests check
 the two against each other.
+
+Both compiled queries report ``implausible`` as the traced ones do
+(:mod:`inference.plausibility`): the discrete action query from the evidence
+probability against the same query's table with the end sites left out, the parameter
+query from the chi-square tail of the closest cluster's Gaussian.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import torch
 from pyro import poutine
 
+from inference.plausibility import IMPLAUSIBLE_BELOW, check_threshold
 from inference.queries import (
     ActionPosterior,
     GaussianMixture,
@@ -166,8 +173,10 @@ class CompiledNetwork:
         *,
         allowed: torch.Tensor | None = None,
         avoid_unseen: bool = True,
+        implausible_below: float = IMPLAUSIBLE_BELOW,
     ) -> ActionPosterior:
         """Same contract and result as :func:`inference.infer_action`."""
+        below = check_threshold(implausible_below)
         enc = self.net.encode(evidence)
         if ACTION in enc:
             raise ValueError("evidence names the action; infer_action infers it")
@@ -177,7 +186,12 @@ class CompiledNetwork:
         allowed = allowed_actions(self.net, allowed, n)
         if n == 0:
             return no_rows(
-                self.infer_action(placeholder_row(enc), allowed=allowed, avoid_unseen=avoid_unseen)
+                self.infer_action(
+                    placeholder_row(enc),
+                    allowed=allowed,
+                    avoid_unseen=avoid_unseen,
+                    implausible_below=below,
+                )
             )
         plan = self.plan(frozenset(enc))
         index = tuple(enc[s] for s in plan.observed)
@@ -229,7 +243,24 @@ class CompiledNetwork:
         else:
             best = first_best(score, top)
         names = tuple(self.net.actions[i] for i in best.tolist())
-        return ActionPosterior(probs, best, names, log_evidence, unseen_mass, self.net.actions)
+        flag = self._evidence_below(enc, log_evidence, below)
+        return ActionPosterior(
+            probs, best, names, log_evidence, unseen_mass, self.net.actions, flag
+        )
+
+    def _evidence_below(self, enc: Evidence, log_evidence: torch.Tensor, below: float):
+        """``(n,)`` bool: p(observed end sites | the rest of the evidence) below ``below``."""
+        ends = {end_site(f.name) for f in self.net.features}
+        given = frozenset(s for s in enc if s not in ends)
+        if len(given) == len(enc):
+            return torch.zeros(enc.n_rows, dtype=torch.bool)
+        plan = self.plan(given)
+        index = tuple(enc[s] for s in plan.observed)
+        if plan.answers is not None:
+            log_prior = plan.answers.log_evidence[_Answers.row(index, plan.log_table.shape[:-1])]
+        else:
+            log_prior = plan.log_table[index].reshape(enc.n_rows, -1).logsumexp(-1)
+        return (log_evidence - log_prior) < math.log(below)
 
 
 def compile_discrete(net: EffectNetwork, params: NetworkParams) -> CompiledNetwork:
@@ -296,8 +327,15 @@ class CompiledParameterQuery:
     post_cov: torch.Tensor  # (P..., k, k)
     seen: torch.Tensor  # (P...) bool
 
-    def infer(self, evidence: Mapping[str, object], *, mixture: bool = False) -> ParameterPosterior:
+    def infer(
+        self,
+        evidence: Mapping[str, object],
+        *,
+        mixture: bool = False,
+        implausible_below: float = IMPLAUSIBLE_BELOW,
+    ) -> ParameterPosterior:
         """Same contract and result as :func:`inference.infer_parameter`."""
+        below = check_threshold(implausible_below)
         p = self.parameter
         y_site = end_site(p.features[0])
         enc = self.net.encode(evidence)
@@ -338,8 +376,13 @@ class CompiledParameterQuery:
             z = torch.einsum("cij,ncj->nci", self.whiten[gather][0], diff)
         else:
             z = torch.einsum("ncij,ncj->nci", self.whiten[index], diff)
-        log_lik = self.log_norm[gather] - 0.5 * z.square().sum(-1)
-        log_post = log_lik + self.log_cluster[enc[ACTION]]
+        d2 = z.square().sum(-1)  # (n, C) squared Mahalanobis distances
+        log_lik = self.log_norm[gather] - 0.5 * d2
+        log_cluster = self.log_cluster[enc[ACTION]]
+        log_post = log_lik + log_cluster
+        closest = d2.masked_fill(~torch.isfinite(log_cluster), torch.inf).min(-1).values
+        dof = torch.tensor(y.shape[-1] / 2, dtype=DTYPE)
+        implausible = torch.special.gammaincc(dof, closest / 2) < below
         probs = log_post.softmax(-1)
         best = probs.argmax(-1)
         rows = torch.arange(n)
@@ -357,7 +400,9 @@ class CompiledParameterQuery:
             )
             mix = GaussianMixture(probs, means, covs)
         cov = self.post_cov[full]
-        return ParameterPosterior(probs, best, mean, cov, unseen, outside_range(p, mean), mix)
+        return ParameterPosterior(
+            probs, best, mean, cov, unseen, outside_range(p, mean), mix, implausible
+        )
 
 
 def compile_parameter_query(

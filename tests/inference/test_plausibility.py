@@ -10,6 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from inference import fit, imitation_check, infer_action, infer_parameter, predict
+from inference.compiled import compile_discrete, compile_parameter_query
 from inference.plausibility import IMPLAUSIBLE_BELOW, plausibility
 from models import Continuous, Discrete, EffectNetwork, Parameter
 from models.declaration import DTYPE
@@ -181,3 +182,47 @@ def test_far_out_evidence_is_flagged_by_every_query():
         lambda ev: predict(NET, params, ev | {"action": ["tap"]}),
     ):
         assert query(far).implausible.tolist() == [True]
+
+
+@settings(max_examples=20, deadline=None)
+@given(
+    cards=st.lists(st.integers(2, 3), min_size=1, max_size=3),
+    n_actions=st.integers(1, 4),
+    seed=st.integers(0, 1000),
+    data=st.data(),
+)
+def test_compiled_action_query_flags_what_the_traced_one_flags(cards, n_actions, seed, data):
+    net = discrete_network(cards, n_actions)
+    params = random_params(net, seed, unseen=0.3)
+    compiled = compile_discrete(net, params)
+    g = torch.Generator().manual_seed(seed)
+    ev = {}
+    for i, k in enumerate(cards):
+        ev[f"initial.f{i}"] = torch.randint(0, k, (9,), generator=g)
+        if data.draw(st.booleans()):
+            ev[f"end.f{i}"] = torch.randint(0, k, (9,), generator=g)
+    ev = net.encode_indices(ev)
+    p = plausibility(net, params, ev).discrete
+    for below in (0.5 * float(p.min()), float(p.median()), 0.999):
+        if not any(abs(float(x) / below - 1) < 1e-6 for x in p):  # no row on the threshold
+            a = compiled.infer_action(ev, implausible_below=below)
+            b = infer_action(net, params, ev, implausible_below=below)
+            assert torch.equal(a.implausible, b.implausible)
+            assert torch.equal(a.implausible, p < below)
+
+
+def test_compiled_parameter_query_flags_what_the_traced_one_flags():
+    params = random_params(NET, 21)
+    query = compile_parameter_query(NET, params, "force")
+    g = torch.Generator().manual_seed(1)
+    n = 40
+    ev = {
+        "initial.visible": torch.randint(0, 2, (n,), generator=g).bool().tolist(),
+        "initial.pos": torch.randn(n, 2, generator=g, dtype=DTYPE),
+        "action": ["tap", "push"] * (n // 2),
+        "end.pos": torch.randn(n, 2, generator=g, dtype=DTYPE) * torch.logspace(0, 3, n)[:, None],
+    }
+    a = query.infer(ev)
+    b = infer_parameter(NET, params, "force", ev)
+    assert torch.equal(a.implausible, b.implausible)
+    assert 0 < int(a.implausible.sum()) < n
