@@ -106,11 +106,16 @@ class CompiledNetwork:
     factors: dict[str, torch.Tensor]
     seen: dict[str, torch.Tensor]  # end site -> bool table over ``order`` axes
     plans: dict[frozenset, _Plan] = field(default_factory=dict, repr=False)
+    # per pattern without end sites: log p(evidence) per observed configuration
+    priors: dict[frozenset, torch.Tensor] = field(default_factory=dict, repr=False)
 
     def plan(self, observed: frozenset) -> _Plan:
         """The summed table for this evidence pattern (built once, then cached)."""
-        if observed in self.plans:
-            return self.plans[observed]
+        if observed not in self.plans:
+            self.plans[observed] = self._build_plan(observed)
+        return self.plans[observed]
+
+    def _build_plan(self, observed: frozenset) -> _Plan:
         total = torch.zeros((), dtype=DTYPE)
         unseen = None
         needed = self.net.end_sites_needed(observed)
@@ -159,9 +164,7 @@ class CompiledNetwork:
         answers = None
         if latent == (ACTION,) and total.numel() <= ANSWERS_BUDGET:
             answers = _Answers.of(total)
-        plan = _Plan(tuple(self.order[a] for a in obs_axes), latent, total, unseen, answers)
-        self.plans[observed] = plan
-        return plan
+        return _Plan(tuple(self.order[a] for a in obs_axes), latent, total, unseen, answers)
 
     @property
     def order_sizes(self) -> tuple[int, ...]:
@@ -254,12 +257,13 @@ class CompiledNetwork:
         given = frozenset(s for s in enc if s not in ends)
         if len(given) == len(enc):
             return torch.zeros(enc.n_rows, dtype=torch.bool)
-        plan = self.plan(given)
-        index = tuple(enc[s] for s in plan.observed)
-        if plan.answers is not None:
-            log_prior = plan.answers.log_evidence[_Answers.row(index, plan.log_table.shape[:-1])]
-        else:
-            log_prior = plan.log_table[index].reshape(enc.n_rows, -1).logsumexp(-1)
+        if given not in self.priors:
+            plan = self.plans.get(given) or self._build_plan(given)
+            table = plan.log_table
+            k = len(plan.observed)
+            self.priors[given] = table.reshape(*table.shape[:k], -1).logsumexp(-1)
+        order = [s for s in self.order if s in given]  # the plan's observed axes
+        log_prior = self.priors[given][tuple(enc[s] for s in order)]
         return (log_evidence - log_prior) < math.log(below)
 
 

@@ -198,9 +198,11 @@ def test_compiled_action_query_flags_what_the_traced_one_flags(cards, n_actions,
     g = torch.Generator().manual_seed(seed)
     ev = {}
     for i, k in enumerate(cards):
-        ev[f"initial.f{i}"] = torch.randint(0, k, (9,), generator=g)
-        if data.draw(st.booleans()):
-            ev[f"end.f{i}"] = torch.randint(0, k, (9,), generator=g)
+        for role in ("initial", "end"):
+            if data.draw(st.booleans()):
+                ev[f"{role}.f{i}"] = torch.randint(0, k, (9,), generator=g)
+    if not ev:
+        ev["end.f0"] = torch.randint(0, cards[0], (9,), generator=g)
     ev = net.encode_indices(ev)
     p = plausibility(net, params, ev).discrete
     for below in (0.5 * float(p.min()), float(p.median()), 0.999):
