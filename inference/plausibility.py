@@ -59,20 +59,33 @@ def check_threshold(below: float) -> float:
     return float(below)
 
 
-def plausibility(net: EffectNetwork, params: NetworkParams, evidence: Evidence) -> Plausibility:
-    """The two plausibility numbers of every row of encoded ``evidence`` (at least one row)."""
+def plausibility(
+    net: EffectNetwork,
+    params: NetworkParams,
+    evidence: Evidence,
+    *,
+    log_evidence: torch.Tensor | None = None,
+    log_prior: torch.Tensor | None = None,
+) -> Plausibility:
+    """The two plausibility numbers of every row of encoded ``evidence`` (at least one row).
+
+    A query that has already summed the model may pass ``log_evidence`` ``(n,)``
+    (log p(evidence)) and ``log_prior`` (log p(evidence without its end sites)) to save
+    the sums; ``log_evidence`` is used only where no continuous end site is observed.
+    """
     ends = [end_site(f.name) for f in net.features if end_site(f.name) in evidence]
     discrete = [s for s in ends if net.site(s).discrete]
     continuous = [s for s in ends if not net.site(s).discrete]
     ones = torch.ones(evidence.n_rows, dtype=DTYPE)
     p_discrete = ones
     if discrete:
-        given = evidence.without(*continuous)
-        prior = evidence.without(*ends)
-        log_p = _over_rows(net, params, given, lambda e, _: e.log_evidence) - _over_rows(
-            net, params, prior, lambda e, _: e.log_evidence
-        )
-        p_discrete = log_p.exp().clamp(0, 1)
+        if log_evidence is None or continuous:
+            given = evidence.without(*continuous)
+            log_evidence = _over_rows(net, params, given, lambda e, _: e.log_evidence)
+        if log_prior is None:
+            prior = evidence.without(*ends)
+            log_prior = _over_rows(net, params, prior, lambda e, _: e.log_evidence)
+        p_discrete = (log_evidence - log_prior).exp().clamp(0, 1)
     tail = ones
     if continuous:
         d2, dof = _closest_distance(net, params, evidence, continuous)

@@ -390,7 +390,7 @@ def infer_action(
         score = torch.where((seen_score.max(-1, keepdim=True).values >= 0), seen_score, score)
     best = first_best(score)
     names = tuple(net.actions[i] for i in best.tolist())
-    flag = plausibility(net, params, enc).implausible(below)
+    flag = plausibility(net, params, enc, log_evidence=log_evidence).implausible(below)
     return ActionPosterior(probs, best, names, log_evidence, unseen, net.actions, flag)
 
 
@@ -428,9 +428,9 @@ def imitation_check(
             )
         )
     prior = enc.without(*observed)
-    log_lik = _chunked(net, params, enc, set(), lambda e, _: e.log_evidence) - _chunked(
-        net, params, prior, set(), lambda e, _: e.log_evidence
-    )
+    log_joint = _chunked(net, params, enc, set(), lambda e, _: e.log_evidence)
+    log_prior = _chunked(net, params, prior, set(), lambda e, _: e.log_evidence)
+    log_lik = log_joint - log_prior
     if all(net.site(s).discrete for s in observed):
         surprise = _discrete_surprise(net, params, prior, observed, log_lik)
     else:
@@ -440,7 +440,8 @@ def imitation_check(
         post = e.posterior()
         return (post * _unseen_mass(net, params, e, observed)).reshape(-1, post.shape[-1]).sum(0)
 
-    flag = plausibility(net, params, enc).implausible(below)
+    flag = plausibility(net, params, enc, log_evidence=log_joint, log_prior=log_prior)
+    flag = flag.implausible(below)
     unseen_mass = _chunked(net, params, enc, set(), unseen).clamp(0, 1)
     return ImitationCheck(log_lik, surprise, unseen_mass, flag)
 
