@@ -7,16 +7,23 @@ log-probability table (one dim per enumerated site). A query then indexes the ta
 the evidence (one gather per factor), adds them and normalises: the same numbers as
 :mod:`inference.queries`, read from the same model, without re-tracing. The tests check
 the two against each other.
+
+Both compiled queries report ``implausible`` as the traced ones do
+(:mod:`inference.plausibility`): the discrete action query from the evidence
+probability against the same query's table with the end sites left out, the parameter
+query from the chi-square tail of the closest cluster's Gaussian.
 """
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import torch
 from pyro import poutine
 
+from inference.plausibility import IMPLAUSIBLE_BELOW, check_threshold
 from inference.queries import (
     ActionPosterior,
     GaussianMixture,
@@ -99,11 +106,16 @@ class CompiledNetwork:
     factors: dict[str, torch.Tensor]
     seen: dict[str, torch.Tensor]  # end site -> bool table over ``order`` axes
     plans: dict[frozenset, _Plan] = field(default_factory=dict, repr=False)
+    # per pattern without end sites: log p(evidence) per observed configuration
+    priors: dict[frozenset, torch.Tensor] = field(default_factory=dict, repr=False)
 
     def plan(self, observed: frozenset) -> _Plan:
         """The summed table for this evidence pattern (built once, then cached)."""
-        if observed in self.plans:
-            return self.plans[observed]
+        if observed not in self.plans:
+            self.plans[observed] = self._build_plan(observed)
+        return self.plans[observed]
+
+    def _build_plan(self, observed: frozenset) -> _Plan:
         total = torch.zeros((), dtype=DTYPE)
         unseen = None
         needed = self.net.end_sites_needed(observed)
@@ -152,9 +164,7 @@ class CompiledNetwork:
         answers = None
         if latent == (ACTION,) and total.numel() <= ANSWERS_BUDGET:
             answers = _Answers.of(total)
-        plan = _Plan(tuple(self.order[a] for a in obs_axes), latent, total, unseen, answers)
-        self.plans[observed] = plan
-        return plan
+        return _Plan(tuple(self.order[a] for a in obs_axes), latent, total, unseen, answers)
 
     @property
     def order_sizes(self) -> tuple[int, ...]:
@@ -166,8 +176,10 @@ class CompiledNetwork:
         *,
         allowed: torch.Tensor | None = None,
         avoid_unseen: bool = True,
+        implausible_below: float = IMPLAUSIBLE_BELOW,
     ) -> ActionPosterior:
         """Same contract and result as :func:`inference.infer_action`."""
+        below = check_threshold(implausible_below)
         enc = self.net.encode(evidence)
         if ACTION in enc:
             raise ValueError("evidence names the action; infer_action infers it")
@@ -177,7 +189,12 @@ class CompiledNetwork:
         allowed = allowed_actions(self.net, allowed, n)
         if n == 0:
             return no_rows(
-                self.infer_action(placeholder_row(enc), allowed=allowed, avoid_unseen=avoid_unseen)
+                self.infer_action(
+                    placeholder_row(enc),
+                    allowed=allowed,
+                    avoid_unseen=avoid_unseen,
+                    implausible_below=below,
+                )
             )
         plan = self.plan(frozenset(enc))
         index = tuple(enc[s] for s in plan.observed)
@@ -229,7 +246,25 @@ class CompiledNetwork:
         else:
             best = first_best(score, top)
         names = tuple(self.net.actions[i] for i in best.tolist())
-        return ActionPosterior(probs, best, names, log_evidence, unseen_mass, self.net.actions)
+        flag = self._evidence_below(enc, log_evidence, below)
+        return ActionPosterior(
+            probs, best, names, log_evidence, unseen_mass, self.net.actions, flag
+        )
+
+    def _evidence_below(self, enc: Evidence, log_evidence: torch.Tensor, below: float):
+        """``(n,)`` bool: p(observed end sites | the rest of the evidence) below ``below``."""
+        ends = {end_site(f.name) for f in self.net.features}
+        given = frozenset(s for s in enc if s not in ends)
+        if len(given) == len(enc):
+            return torch.zeros(enc.n_rows, dtype=torch.bool)
+        if given not in self.priors:
+            plan = self.plans.get(given) or self._build_plan(given)
+            table = plan.log_table
+            k = len(plan.observed)
+            self.priors[given] = table.reshape(*table.shape[:k], -1).logsumexp(-1)
+        order = [s for s in self.order if s in given]  # the plan's observed axes
+        log_prior = self.priors[given][tuple(enc[s] for s in order)]
+        return (log_evidence - log_prior) < math.log(below)
 
 
 def compile_discrete(net: EffectNetwork, params: NetworkParams) -> CompiledNetwork:
@@ -296,8 +331,15 @@ class CompiledParameterQuery:
     post_cov: torch.Tensor  # (P..., k, k)
     seen: torch.Tensor  # (P...) bool
 
-    def infer(self, evidence: Mapping[str, object], *, mixture: bool = False) -> ParameterPosterior:
+    def infer(
+        self,
+        evidence: Mapping[str, object],
+        *,
+        mixture: bool = False,
+        implausible_below: float = IMPLAUSIBLE_BELOW,
+    ) -> ParameterPosterior:
         """Same contract and result as :func:`inference.infer_parameter`."""
+        below = check_threshold(implausible_below)
         p = self.parameter
         y_site = end_site(p.features[0])
         enc = self.net.encode(evidence)
@@ -338,8 +380,13 @@ class CompiledParameterQuery:
             z = torch.einsum("cij,ncj->nci", self.whiten[gather][0], diff)
         else:
             z = torch.einsum("ncij,ncj->nci", self.whiten[index], diff)
-        log_lik = self.log_norm[gather] - 0.5 * z.square().sum(-1)
-        log_post = log_lik + self.log_cluster[enc[ACTION]]
+        d2 = z.square().sum(-1)  # (n, C) squared Mahalanobis distances
+        log_lik = self.log_norm[gather] - 0.5 * d2
+        log_cluster = self.log_cluster[enc[ACTION]]
+        log_post = log_lik + log_cluster
+        closest = d2.masked_fill(~torch.isfinite(log_cluster), torch.inf).min(-1).values
+        dof = torch.tensor(y.shape[-1] / 2, dtype=DTYPE)
+        implausible = torch.special.gammaincc(dof, closest / 2) < below
         probs = log_post.softmax(-1)
         best = probs.argmax(-1)
         rows = torch.arange(n)
@@ -357,7 +404,9 @@ class CompiledParameterQuery:
             )
             mix = GaussianMixture(probs, means, covs)
         cov = self.post_cov[full]
-        return ParameterPosterior(probs, best, mean, cov, unseen, outside_range(p, mean), mix)
+        return ParameterPosterior(
+            probs, best, mean, cov, unseen, outside_range(p, mean), mix, implausible
+        )
 
 
 def compile_parameter_query(

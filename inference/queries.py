@@ -18,7 +18,10 @@
   closed-form Gaussian conditioning.
 
 Every query reports ``unseen``: the posterior probability that its answer rests on a
-parent configuration no training row reached (answered from the pseudo-count prior alone).
+parent configuration no training row reached (answered from the pseudo-count prior alone),
+and ``implausible``: a row whose observed end state the model gives almost no probability
+(:mod:`inference.plausibility`; threshold ``implausible_below``). Both warn; the answer
+is still given.
 
 Evidence follows one convention (:mod:`models.evidence`): state labels for discrete
 sites, numbers for continuous ones; a parameter row of NaN is unknown and integrated out
@@ -35,6 +38,7 @@ import torch
 from pyro.ops.indexing import Vindex
 
 from inference.enumeration import Enumerated, enumerate_model, enumeration_size, row_chunks
+from inference.plausibility import IMPLAUSIBLE_BELOW, check_threshold, plausibility
 from inference.simulate import draw
 from models.declaration import (
     ACTION,
@@ -79,6 +83,7 @@ class Prediction:
     continuous: dict[str, GaussianMixture]
     unseen: torch.Tensor  # (n,) probability of resting on an unseen configuration
     states: dict[str, tuple] = field(default_factory=dict)
+    implausible: torch.Tensor | None = None  # (n,) bool; see inference.plausibility
 
     def prob(self, feature: str, state: Hashable) -> torch.Tensor:
         """``(n,)`` probability that ``feature`` ends in ``state`` (a label)."""
@@ -102,7 +107,10 @@ class Prediction:
 
 @dataclass(frozen=True)
 class ActionPosterior:
-    """``probs`` ``(n, A)`` over ``actions``; ``best`` ``(n,)`` index; ``unseen`` ``(n, A)``."""
+    """``probs`` ``(n, A)`` over ``actions``; ``best`` ``(n,)`` index; ``unseen`` ``(n, A)``;
+    ``implausible`` ``(n,)`` bool: the observed end state has (almost) no probability
+    under the model (see :mod:`inference.plausibility`; ``None`` from the compiled
+    queries), so ``best`` answers a question the model cannot explain."""
 
     probs: torch.Tensor
     best: torch.Tensor
@@ -110,6 +118,7 @@ class ActionPosterior:
     log_evidence: torch.Tensor
     unseen: torch.Tensor
     actions: tuple[str, ...] = ()
+    implausible: torch.Tensor | None = None
 
     def prob(self, action: str) -> torch.Tensor:
         """``(n,)`` posterior probability of the action named ``action``."""
@@ -120,11 +129,13 @@ class ActionPosterior:
 
 @dataclass(frozen=True)
 class ImitationCheck:
-    """``log_likelihood`` and ``surprise`` (in [0, 1]) of each observed end state, ``(n,)``."""
+    """``log_likelihood`` and ``surprise`` (in [0, 1]) of each observed end state, ``(n,)``;
+    ``implausible`` ``(n,)`` bool (see :mod:`inference.plausibility`)."""
 
     log_likelihood: torch.Tensor
     surprise: torch.Tensor
     unseen: torch.Tensor
+    implausible: torch.Tensor | None = None
 
 
 @dataclass(frozen=True)
@@ -135,6 +146,8 @@ class ParameterPosterior:
     ``outside`` ``(n,)`` bool: that mean lies outside the parameter's ``[low, high]`` (an
     action the declaration does not cover). ``mixture``: with ``mixture=True``, the full
     posterior of the parameter, one Gaussian per cluster weighted by ``cluster_probs``.
+    ``implausible`` ``(n,)`` bool: the observed end state has (almost) no probability
+    under the model (see :mod:`inference.plausibility`; ``None`` from the compiled query).
     """
 
     cluster_probs: torch.Tensor
@@ -144,6 +157,7 @@ class ParameterPosterior:
     unseen: torch.Tensor
     outside: torch.Tensor | None = None
     mixture: GaussianMixture | None = None
+    implausible: torch.Tensor | None = None
 
 
 TIE_TOLERANCE = 1e-9  # relative: scores this close to the maximum count as tied
@@ -253,12 +267,21 @@ def _unseen_mass(
 
 
 def predict(
-    net: EffectNetwork, params: NetworkParams, evidence: Mapping[str, object]
+    net: EffectNetwork,
+    params: NetworkParams,
+    evidence: Mapping[str, object],
+    *,
+    implausible_below: float = IMPLAUSIBLE_BELOW,
 ) -> Prediction:
-    """End-state distribution of every end feature not in ``evidence``."""
+    """End-state distribution of every end feature not in ``evidence``.
+
+    ``implausible`` flags rows whose observed end features (if any are given) have a
+    probability below ``implausible_below`` (:mod:`inference.plausibility`).
+    """
+    below = check_threshold(implausible_below)
     enc = _prepare(net, params, evidence)
     if enc.n_rows == 0:
-        return no_rows(predict(net, params, placeholder_row(enc)))
+        return no_rows(predict(net, params, placeholder_row(enc), implausible_below=below))
     targets = [f.name for f in net.features if end_site(f.name) not in enc]
     discrete, continuous = {}, {}
     unseen_sites = [end_site(f) for f in targets]
@@ -279,7 +302,8 @@ def predict(
     # the unseen flag reads the targets' parents: latent end parents must be traced
     end_parents = {q for s in unseen_sites for q in net.cpd(s).parents if net.site(q).role == "end"}
     unseen_mass = _chunked(net, params, enc, end_parents, unseen).clamp(0, 1)
-    return Prediction(discrete, continuous, unseen_mass, states)
+    flag = plausibility(net, params, enc).implausible(below)
+    return Prediction(discrete, continuous, unseen_mass, states, flag)
 
 
 def _mixture(net, params, enc, site) -> GaussianMixture:
@@ -309,6 +333,7 @@ def infer_action(
     *,
     allowed: torch.Tensor | None = None,
     avoid_unseen: bool = True,
+    implausible_below: float = IMPLAUSIBLE_BELOW,
 ) -> ActionPosterior:
     """Exact posterior over actions given the initial state and a (partial) end state.
 
@@ -320,7 +345,12 @@ def infer_action(
     avoid_unseen
         Never choose as ``best`` an action whose configuration no training row reached
         (its likelihood is the uniform prior's), unless every allowed action is unseen.
+    implausible_below
+        ``implausible`` flags rows whose observed end state has a probability below this
+        under the model, every action summed out (:mod:`inference.plausibility`); such a
+        row still gets its posterior and ``best``.
     """
+    below = check_threshold(implausible_below)
     enc = _prepare(net, params, evidence)
     if ACTION in enc:
         raise ValueError(
@@ -330,7 +360,12 @@ def infer_action(
     if enc.n_rows == 0:
         return no_rows(
             infer_action(
-                net, params, placeholder_row(enc), allowed=allowed, avoid_unseen=avoid_unseen
+                net,
+                params,
+                placeholder_row(enc),
+                allowed=allowed,
+                avoid_unseen=avoid_unseen,
+                implausible_below=below,
             )
         )
     observed_end = [end_site(f.name) for f in net.features if end_site(f.name) in enc]
@@ -355,7 +390,8 @@ def infer_action(
         score = torch.where((seen_score.max(-1, keepdim=True).values >= 0), seen_score, score)
     best = first_best(score)
     names = tuple(net.actions[i] for i in best.tolist())
-    return ActionPosterior(probs, best, names, log_evidence, unseen, net.actions)
+    flag = plausibility(net, params, enc, log_evidence=log_evidence).implausible(below)
+    return ActionPosterior(probs, best, names, log_evidence, unseen, net.actions, flag)
 
 
 def imitation_check(
@@ -365,8 +401,14 @@ def imitation_check(
     *,
     n_samples: int = 2000,
     seed: int = 0,
+    implausible_below: float = IMPLAUSIBLE_BELOW,
 ) -> ImitationCheck:
-    """How surprising is each observed end state under the executed action?"""
+    """How surprising is each observed end state under the executed action?
+
+    ``implausible`` flags rows whose observed end state has a probability below
+    ``implausible_below`` given the executed action (:mod:`inference.plausibility`).
+    """
+    below = check_threshold(implausible_below)
     enc = _prepare(net, params, evidence)
     if ACTION not in enc:
         raise ValueError(
@@ -380,11 +422,15 @@ def imitation_check(
     if not isinstance(n_samples, int) or n_samples < 1:
         raise ValueError(f"n_samples must be a positive int, got {n_samples!r}")
     if enc.n_rows == 0:
-        return no_rows(imitation_check(net, params, placeholder_row(enc), n_samples=1, seed=seed))
+        return no_rows(
+            imitation_check(
+                net, params, placeholder_row(enc), n_samples=1, seed=seed, implausible_below=below
+            )
+        )
     prior = enc.without(*observed)
-    log_lik = _chunked(net, params, enc, set(), lambda e, _: e.log_evidence) - _chunked(
-        net, params, prior, set(), lambda e, _: e.log_evidence
-    )
+    log_joint = _chunked(net, params, enc, set(), lambda e, _: e.log_evidence)
+    log_prior = _chunked(net, params, prior, set(), lambda e, _: e.log_evidence)
+    log_lik = log_joint - log_prior
     if all(net.site(s).discrete for s in observed):
         surprise = _discrete_surprise(net, params, prior, observed, log_lik)
     else:
@@ -394,7 +440,10 @@ def imitation_check(
         post = e.posterior()
         return (post * _unseen_mass(net, params, e, observed)).reshape(-1, post.shape[-1]).sum(0)
 
-    return ImitationCheck(log_lik, surprise, _chunked(net, params, enc, set(), unseen).clamp(0, 1))
+    flag = plausibility(net, params, enc, log_evidence=log_joint, log_prior=log_prior)
+    flag = flag.implausible(below)
+    unseen_mass = _chunked(net, params, enc, set(), unseen).clamp(0, 1)
+    return ImitationCheck(log_lik, surprise, unseen_mass, flag)
 
 
 def _discrete_surprise(net, params, prior, observed, log_lik) -> torch.Tensor:
@@ -431,13 +480,18 @@ def infer_parameter(
     evidence: Mapping[str, object],
     *,
     mixture: bool = False,
+    implausible_below: float = IMPLAUSIBLE_BELOW,
 ) -> ParameterPosterior:
     """The paper's inverse parameter query: best cluster by enumeration, then the parameter.
 
     With ``mixture=True`` the result also holds the parameter's full posterior (every
     cluster's conditional Gaussian, weighted by the cluster posterior), whose mean is the
     posterior mean of the parameter; the paper's best-cluster answer stays in ``mean``.
+    ``implausible`` flags rows whose observed end state has a probability below
+    ``implausible_below`` given the action, the parameter integrated out
+    (:mod:`inference.plausibility`).
     """
+    below = check_threshold(implausible_below)
     m = net.mixture(parameter)
     p = m.parameter
     enc = _prepare(net, params, evidence)
@@ -445,7 +499,11 @@ def infer_parameter(
         placeholder = placeholder_row(enc)
         if ACTION in placeholder:  # a placeholder action that uses the parameter
             placeholder = placeholder.without(ACTION) | {ACTION: [p.actions[0]]}
-        return no_rows(infer_parameter(net, params, parameter, placeholder, mixture=mixture))
+        return no_rows(
+            infer_parameter(
+                net, params, parameter, placeholder, mixture=mixture, implausible_below=below
+            )
+        )
     if param_site(p.name) in enc or cluster_site(p.name) in enc:
         raise ValueError(
             f"evidence gives {param_site(p.name)!r} or {cluster_site(p.name)!r}, which this query infers"
@@ -468,9 +526,11 @@ def infer_parameter(
         raise ValueError(
             f"row {row}: action {net.actions[int(enc[ACTION][row])]!r} does not use {p.name!r}"
         )
+    flag = plausibility(net, params, enc).implausible(below)
     children = [net.cpd(s) for s in m.continuous if s in enc]
     if not children:  # only discrete effects observed
-        return _parameter_from_cluster(net, params, m, enc, observed, mixture)
+        answer = _parameter_from_cluster(net, params, m, enc, observed, mixture)
+        return replace(answer, implausible=flag)
     acting = net.acting_on(m.child) if m.child is not None else (m,)
     for q in acting:  # the other parameters on the same feature: given, with their cells
         if q is m:
@@ -502,7 +562,9 @@ def infer_parameter(
         every = torch.arange(p.n_clusters).expand(enc.n_rows, -1)  # (n, C)
         means, covs = m.posterior(params, children, enc, every, acting=acting)
         full = GaussianMixture(probs, means, covs)
-    return ParameterPosterior(probs, best, mean, cov, unseen, outside_range(p, mean), full)
+    return ParameterPosterior(
+        probs, best, mean, cov, unseen, outside_range(p, mean), full, implausible=flag
+    )
 
 
 def _parameter_from_cluster(net, params, m, enc, observed, mixture) -> ParameterPosterior:

@@ -1,0 +1,230 @@
+"""The ``implausible`` flag against brute-force enumeration and closed-form Gaussian tails."""
+
+import itertools
+import math
+
+import numpy as np
+import pytest
+import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from inference import fit, imitation_check, infer_action, infer_parameter, predict
+from inference.compiled import compile_discrete, compile_parameter_query
+from inference.plausibility import IMPLAUSIBLE_BELOW, plausibility
+from models import Continuous, Discrete, EffectNetwork, Parameter
+from models.declaration import DTYPE
+from tests.helpers import discrete_network, random_params
+
+
+def brute_evidence_prob(net, params, init, end, action=None):
+    """p(end | init[, action]) by summing the joint over every full assignment;
+    ``end`` maps a feature index to its observed state, the others are summed out."""
+    cards = [f.cardinality for f in net.features]
+    actions = range(len(net.actions)) if action is None else [action]
+    total = 0.0
+    for a in actions:
+        for full_end in itertools.product(*[range(k) for k in cards]):
+            if any(full_end[i] != v for i, v in end.items()):
+                continue
+            p = float(params["action"].probs[a]) if action is None else 1.0
+            for f, v in zip(net.features, full_end, strict=True):
+                p *= float(params[f"end.{f.name}"].probs[(*init, a, v)])
+            total += p
+    return total
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    cards=st.lists(st.integers(2, 3), min_size=1, max_size=3),
+    n_actions=st.integers(1, 3),
+    seed=st.integers(0, 10_000),
+    data=st.data(),
+)
+def test_discrete_plausibility_is_the_evidence_probability(cards, n_actions, seed, data):
+    net = discrete_network(cards, n_actions)
+    params = random_params(net, seed)
+    init = [data.draw(st.integers(0, k - 1)) for k in cards]
+    observed = data.draw(st.sets(st.integers(0, len(cards) - 1), min_size=1))
+    end = {i: data.draw(st.integers(0, cards[i] - 1)) for i in sorted(observed)}
+    action = data.draw(st.none() | st.integers(0, n_actions - 1))
+    evidence = {f"initial.f{i}": [v] for i, v in enumerate(init)}
+    evidence |= {f"end.f{i}": [v] for i, v in end.items()}
+    if action is not None:
+        evidence["action"] = [net.actions[action]]
+    got = plausibility(net, params, net.encode(evidence))
+    want = brute_evidence_prob(net, params, init, end, action)
+    assert float(got.discrete[0]) == pytest.approx(want, rel=1e-9, abs=1e-15)
+    assert float(got.tail[0]) == 1.0  # nothing continuous observed
+    # the flag is that probability against the threshold, in every query
+    cases = [(want * 0.99, False)] + ([(want * 1.01, True)] if want * 1.01 < 1 else [])
+    for below, flagged in cases:
+        if action is None:
+            answer = infer_action(net, params, evidence, implausible_below=below)
+        else:
+            answer = imitation_check(net, params, evidence, implausible_below=below)
+        assert bool(answer.implausible[0]) is flagged
+
+
+def door_rows(n: int, seed: int) -> dict:
+    """A door that no action opens while it is locked (the issue's example)."""
+    rng = np.random.default_rng(seed)
+    doors = rng.choice(["locked", "shut", "open"], n)
+    actions = rng.choice(["wait", "push", "unlock"], n)
+    end = []
+    for d, a in zip(doors, actions, strict=True):
+        if d == "locked":
+            end.append("shut" if a == "unlock" and rng.random() < 0.9 else "locked")
+        elif d == "shut":
+            end.append("open" if a == "push" and rng.random() < 0.8 else "shut")
+        else:
+            end.append("open")
+    return {"initial.door": doors, "action": actions, "end.door": np.array(end)}
+
+
+DOOR = EffectNetwork((Discrete("door", ("locked", "shut", "open")),), ("wait", "push", "unlock"))
+
+
+def test_a_locked_door_that_ends_open_is_flagged_and_still_answered():
+    params = fit(DOOR, door_rows(3000, 0)).params
+    evidence = {"initial.door": ["locked", "shut"], "end.door": ["open", "open"]}
+    posterior = infer_action(DOOR, params, evidence)
+    assert posterior.implausible.tolist() == [True, False]
+    assert posterior.best_names[1] == "push"
+    torch.testing.assert_close(posterior.probs.sum(-1), torch.ones(2, dtype=DTYPE))
+    check = imitation_check(DOOR, params, evidence | {"action": ["unlock", "push"]})
+    assert check.implausible.tolist() == [True, False]
+    forward = predict(DOOR, params, {"initial.door": ["locked"], "action": ["wait"]})
+    assert forward.implausible.tolist() == [False]  # no end state observed
+
+
+def test_a_lenient_threshold_lets_the_locked_door_through():
+    params = fit(DOOR, door_rows(3000, 0)).params
+    evidence = {"initial.door": ["locked"], "end.door": ["open"]}
+    p = float(plausibility(DOOR, params, DOOR.encode(evidence)).discrete[0])
+    assert 0 < p < IMPLAUSIBLE_BELOW
+    assert not bool(infer_action(DOOR, params, evidence, implausible_below=p / 2).implausible[0])
+
+
+@pytest.mark.parametrize("below", [0, 1, -0.1, 2.0, "0.1"])
+def test_a_threshold_outside_zero_one_is_refused(below):
+    params = random_params(DOOR, 0)
+    with pytest.raises(ValueError, match="implausible_below"):
+        infer_action(
+            DOOR, params, {"initial.door": ["shut"], "end.door": ["open"]}, implausible_below=below
+        )
+
+
+def mahalanobis(x, mean, cov):
+    diff = x - mean
+    return float(diff @ torch.linalg.solve(cov, diff))
+
+
+@pytest.mark.parametrize("dim", [1, 2])
+def test_continuous_tail_is_the_closed_form_gaussian_tail(dim):
+    """With the action given there is one component: tail = P(χ²_d > D²), which is
+    erfc(|z| / √2) in one dimension and exp(-D² / 2) in two."""
+    net = EffectNetwork(
+        (Discrete("visible", (False, True)), Continuous("pos", dim)), ("remove", "tap")
+    )
+    params = random_params(net, 3)
+    g = torch.Generator().manual_seed(1)
+    cpd = params["end.pos"]
+    for scale in (0.5, 2.0, 6.0, 20.0):
+        pos0 = torch.randn(dim, generator=g, dtype=DTYPE)
+        vis0 = 1
+        d2 = {}
+        for a in range(2):
+            mean = cpd.weight[vis0, a] @ pos0 + cpd.bias[vis0, a]
+            d2[a] = mean, cpd.covariance[vis0, a]
+        mean, cov = d2[0]
+        pos1 = mean + scale * torch.linalg.cholesky(cov) @ torch.ones(dim, dtype=DTYPE)
+        evidence = {
+            "initial.visible": [True],
+            "initial.pos": pos0[None],
+            "action": ["remove"],
+            "end.pos": pos1[None],
+        }
+        got = plausibility(net, params, net.encode(evidence))
+        dist2 = mahalanobis(pos1, mean, cov)
+        want = math.erfc(math.sqrt(dist2 / 2)) if dim == 1 else math.exp(-dist2 / 2)
+        assert float(got.tail[0]) == pytest.approx(want, rel=1e-8, abs=1e-300)
+        assert float(got.discrete[0]) == 1.0
+        check = imitation_check(net, params, evidence)
+        assert bool(check.implausible[0]) is (want < IMPLAUSIBLE_BELOW)
+        # without the action: the closest of the two actions' components
+        closest = min(mahalanobis(pos1, *d2[a]) for a in range(2))
+        want = math.erfc(math.sqrt(closest / 2)) if dim == 1 else math.exp(-closest / 2)
+        unknown = {k: v for k, v in evidence.items() if k != "action"}
+        got = plausibility(net, params, net.encode(unknown))
+        assert float(got.tail[0]) == pytest.approx(want, rel=1e-8, abs=1e-300)
+        posterior = infer_action(net, params, unknown)
+        assert bool(posterior.implausible[0]) is (want < IMPLAUSIBLE_BELOW)
+        torch.testing.assert_close(posterior.probs.sum(-1), torch.ones(1, dtype=DTYPE))
+
+
+NET = EffectNetwork(
+    (Discrete("visible", (False, True)), Continuous("pos", 2)),
+    ("remove", "tap", "push"),
+    (Parameter("force", (0.0,), (10.0,), (3,), ("tap", "push"), "pos"),),
+)
+
+
+def test_far_out_evidence_is_flagged_by_every_query():
+    params = random_params(NET, 5)
+    near = torch.zeros(1, 2, dtype=DTYPE)
+    evidence = {"initial.visible": [True], "initial.pos": near, "end.visible": [True]}
+    far = evidence | {"end.pos": torch.full((1, 2), 1e4, dtype=DTYPE)}
+    for query in (
+        lambda ev: infer_action(NET, params, ev),
+        lambda ev: imitation_check(NET, params, ev | {"action": ["tap"]}),
+        lambda ev: infer_parameter(NET, params, "force", ev | {"action": ["tap"]}),
+        lambda ev: predict(NET, params, ev | {"action": ["tap"]}),
+    ):
+        assert query(far).implausible.tolist() == [True]
+
+
+@settings(max_examples=20, deadline=None)
+@given(
+    cards=st.lists(st.integers(2, 3), min_size=1, max_size=3),
+    n_actions=st.integers(1, 4),
+    seed=st.integers(0, 1000),
+    data=st.data(),
+)
+def test_compiled_action_query_flags_what_the_traced_one_flags(cards, n_actions, seed, data):
+    net = discrete_network(cards, n_actions)
+    params = random_params(net, seed, unseen=0.3)
+    compiled = compile_discrete(net, params)
+    g = torch.Generator().manual_seed(seed)
+    ev = {}
+    for i, k in enumerate(cards):
+        for role in ("initial", "end"):
+            if data.draw(st.booleans()):
+                ev[f"{role}.f{i}"] = torch.randint(0, k, (9,), generator=g)
+    if not ev:
+        ev["end.f0"] = torch.randint(0, cards[0], (9,), generator=g)
+    ev = net.encode_indices(ev)
+    p = plausibility(net, params, ev).discrete
+    for below in (0.5 * float(p.min()), float(p.median()), 0.999):
+        if not any(abs(float(x) / below - 1) < 1e-6 for x in p):  # no row on the threshold
+            a = compiled.infer_action(ev, implausible_below=below)
+            b = infer_action(net, params, ev, implausible_below=below)
+            assert torch.equal(a.implausible, b.implausible)
+            assert torch.equal(a.implausible, p < below)
+
+
+def test_compiled_parameter_query_flags_what_the_traced_one_flags():
+    params = random_params(NET, 21)
+    query = compile_parameter_query(NET, params, "force")
+    g = torch.Generator().manual_seed(1)
+    n = 40
+    ev = {
+        "initial.visible": torch.randint(0, 2, (n,), generator=g).bool().tolist(),
+        "initial.pos": torch.randn(n, 2, generator=g, dtype=DTYPE),
+        "action": ["tap", "push"] * (n // 2),
+        "end.pos": torch.randn(n, 2, generator=g, dtype=DTYPE) * torch.logspace(0, 3, n)[:, None],
+    }
+    a = query.infer(ev)
+    b = infer_parameter(NET, params, "force", ev)
+    assert torch.equal(a.implausible, b.implausible)
+    assert 0 < int(a.implausible.sum()) < n
