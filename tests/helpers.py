@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+from concurrent.futures import Future
 from pathlib import Path
 
 from models import Continuous, Discrete, EffectNetwork, random_params
@@ -23,4 +24,17 @@ def discrete_network(cards: list[int], n_actions: int) -> EffectNetwork:
     return EffectNetwork(feats, tuple(f"a{i}" for i in range(n_actions)))
 
 
-__all__ = ["Continuous", "discrete_network", "load_example", "random_params"]
+__all__ = ["Continuous", "InlineExecutor", "discrete_network", "load_example", "random_params"]
+
+
+class InlineExecutor:
+    """An executor that runs each task at once, in this process, and counts the tasks."""
+
+    def __init__(self):
+        self.submitted = 0
+
+    def submit(self, fn, *args, **kwargs) -> Future:
+        self.submitted += 1
+        future = Future()
+        future.set_result(fn(*args, **kwargs))
+        return future

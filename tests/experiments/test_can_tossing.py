@@ -1,7 +1,6 @@
 """experiments.can_tossing: Table I's cases on a hand-made slice, its bookkeeping against
 independent re-throws, the whole experiment at the tiny scale, and its settings' checks."""
 
-from concurrent.futures import Future
 from types import SimpleNamespace
 
 import numpy as np
@@ -13,6 +12,7 @@ from experiments.cans import can_dataset, fit_can_network
 from experiments.config import ConfigError
 from inference.evaluation import ACCURACY_BINS, roc_auc
 from sim2d import field_throws
+from tests.helpers import InlineExecutor
 
 
 @pytest.fixture(scope="module")
@@ -98,19 +98,6 @@ def test_table_one_bookkeeping_matches_independent_rethrows(tiny):
     assert summary["n_cases"] == n
 
 
-class InOrder:
-    """An executor that runs each task when it is submitted, and counts them."""
-
-    def __init__(self):
-        self.submitted = 0
-
-    def submit(self, fn, *args):
-        self.submitted += 1
-        future = Future()
-        future.set_result(fn(*args))
-        return future
-
-
 def test_plays_in_chunks_on_an_executor_equal_the_plays_here(tiny, monkeypatch):
     data, _ = tiny
     start, desired = ct.table_one_cases(data, "counts")
@@ -118,7 +105,7 @@ def test_plays_in_chunks_on_an_executor_equal_the_plays_here(tiny, monkeypatch):
     seeds = ct.fresh_seeds(3, ct.TABLE_I, len(start))
     here = ct.play(start, fields, 0.003, seeds, "here", progress=False)
     monkeypatch.setattr(ct, "CHUNK", 4)
-    executor = InOrder()
+    executor = InlineExecutor()
     there = ct.play(start, fields, 0.003, seeds, "there", progress=False, executor=executor)
     np.testing.assert_array_equal(here, there)
     assert executor.submitted == -(-len(start) // 4)

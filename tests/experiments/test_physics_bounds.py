@@ -1,8 +1,6 @@
 """experiments.physics_bounds: the held-out choice on hand-made cases, both Table I
 protocols on the same throws, a tiny run end to end, and resuming the combined bound."""
 
-from concurrent.futures import Future
-
 import numpy as np
 import pytest
 import torch
@@ -11,6 +9,7 @@ from experiments import physics_bounds as pb
 from experiments.can_tossing import PROTOCOLS, table_one_cases
 from experiments.cans import can_dataset
 from experiments.config import ConfigError
+from tests.helpers import InlineExecutor
 
 
 def test_held_out_best_scores_the_choice_on_the_other_half():
@@ -53,34 +52,21 @@ def test_tiny_run_end_to_end(tiny_data_dir, tmp_path):
     assert "| actions |" in (tmp_path / "physics_bounds.md").read_text()
 
 
-class Counting:
-    """Runs each task at submission, in this process, and counts them."""
-
-    def __init__(self):
-        self.submitted = 0
-
-    def submit(self, fn, *args):
-        self.submitted += 1
-        future = Future()
-        future.set_result(fn(*args))
-        return future
-
-
 def test_the_robot_s_throws_resume_and_are_shared_by_name(tmp_path):
     kw = dict(table_z=0.75, step=0.2, repeats=2, jitter=0.003, horizon=2, progress=False)
-    first = Counting()
+    first = InlineExecutor()
     outcomes = pb.robot_throws(tmp_path, executor=first, **kw)
     assert first.submitted == len(outcomes) >= 2 and 1023 in outcomes
-    again = Counting()
+    again = InlineExecutor()
     assert pb.robot_throws(tmp_path, executor=again, **kw).keys() == outcomes.keys()
     assert again.submitted == 0
     (folder,) = tmp_path.glob("robot_throws_*_seed1")
     next((folder / "layer-1").glob("chunk-*.npz")).unlink()
-    resumed = Counting()
+    resumed = InlineExecutor()
     redone = pb.robot_throws(tmp_path, executor=resumed, **kw)
     assert resumed.submitted == 1
     assert all(np.array_equal(redone[s], outcomes[s]) for s in outcomes)
-    other = Counting()
+    other = InlineExecutor()
     pb.robot_throws(tmp_path, executor=other, seed=2, **kw)  # another seed: other throws
     assert other.submitted > 0 and len(list(tmp_path.glob("robot_throws_*"))) == 2
 

@@ -15,6 +15,7 @@ from sim2d.combined import (
 )
 from sim2d.configurations import stable_configurations
 from sim2d.throw import exact_target_for_hit, throw
+from tests.helpers import InlineExecutor
 
 
 def test_settle_keeps_stable_sets_and_drops_unsupported_cans():
@@ -74,26 +75,11 @@ def test_exact_throws_hit_the_heights_they_aim_at():
         exact_throws(0.0)
 
 
-class _Serial:
-    """An executor that runs each task at once in this process, counting them."""
-
-    def __init__(self):
-        self.calls = 0
-
-    def submit(self, fn, *args, **kwargs):
-        import concurrent.futures
-
-        self.calls += 1
-        future = concurrent.futures.Future()
-        future.set_result(fn(*args, **kwargs))
-        return future
-
-
 def test_explore_covers_every_state_its_throws_reach_and_resumes(tmp_path):
     from sim2d.combined import explore, throws_from
 
     kw = dict(depth=2, step=0.05, repeats=2, jitter=0.003, seed=5)
-    serial = _Serial()
+    serial = InlineExecutor()
     out = explore(tmp_path / "x", geometry.FULL_PYRAMID, executor=serial, progress=False, **kw)
     full = out[geometry.FULL_PYRAMID]
     assert np.array_equal(
@@ -103,10 +89,10 @@ def test_explore_covers_every_state_its_throws_reach_and_resumes(tmp_path):
     assert set(out) - {geometry.FULL_PYRAMID} == {int(s) for s in np.unique(full) if s} - {
         geometry.FULL_PYRAMID
     }
-    assert serial.calls == len(out)
-    again = _Serial()
+    assert serial.submitted == len(out)
+    again = InlineExecutor()
     same = explore(tmp_path / "x", geometry.FULL_PYRAMID, executor=again, progress=False, **kw)
-    assert again.calls == 0 and set(same) == set(out)
+    assert again.submitted == 0 and set(same) == set(out)
     assert all(np.array_equal(same[s], out[s]) for s in out)
 
 
