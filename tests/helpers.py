@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import importlib.util
+import itertools
 from concurrent.futures import Future
 from pathlib import Path
 
@@ -24,7 +25,14 @@ def discrete_network(cards: list[int], n_actions: int) -> EffectNetwork:
     return EffectNetwork(feats, tuple(f"a{i}" for i in range(n_actions)))
 
 
-__all__ = ["Continuous", "InlineExecutor", "discrete_network", "load_example", "random_params"]
+__all__ = [
+    "Continuous",
+    "InlineExecutor",
+    "brute_joint",
+    "discrete_network",
+    "load_example",
+    "random_params",
+]
 
 
 class InlineExecutor:
@@ -38,3 +46,20 @@ class InlineExecutor:
         future = Future()
         future.set_result(fn(*args, **kwargs))
         return future
+
+
+def brute_joint(net, params):
+    """p(initial..., action, end...) as a dict over full assignments, from the tables."""
+    names = [f.name for f in net.features]
+    cards = [f.cardinality for f in net.features]
+    joint = {}
+    for init in itertools.product(*[range(k) for k in cards]):
+        for a in range(len(net.actions)):
+            for end in itertools.product(*[range(k) for k in cards]):
+                p = float(params["action"].probs[a])
+                for name, v in zip(names, init, strict=True):
+                    p *= float(params[f"initial.{name}"].probs[v])
+                for name, v in zip(names, end, strict=True):
+                    p *= float(params[f"end.{name}"].probs[(*init, a, v)])
+                joint[(init, a, end)] = p
+    return joint

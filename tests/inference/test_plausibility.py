@@ -1,6 +1,5 @@
 """The ``implausible`` flag against brute-force enumeration and closed-form Gaussian tails."""
 
-import itertools
 import math
 
 import numpy as np
@@ -14,24 +13,19 @@ from inference.compiled import compile_discrete, compile_parameter_query
 from inference.plausibility import IMPLAUSIBLE_BELOW, plausibility
 from models import Continuous, Discrete, EffectNetwork, Parameter
 from models.declaration import DTYPE
-from tests.helpers import discrete_network, random_params
+from tests.helpers import brute_joint, discrete_network, random_params
 
 
 def brute_evidence_prob(net, params, init, end, action=None):
-    """p(end | init[, action]) by summing the joint over every full assignment;
+    """p(end | init[, action]) from the joint enumerated over every full assignment;
     ``end`` maps a feature index to its observed state, the others are summed out."""
-    cards = [f.cardinality for f in net.features]
-    actions = range(len(net.actions)) if action is None else [action]
-    total = 0.0
-    for a in actions:
-        for full_end in itertools.product(*[range(k) for k in cards]):
-            if any(full_end[i] != v for i, v in end.items()):
-                continue
-            p = float(params["action"].probs[a]) if action is None else 1.0
-            for f, v in zip(net.features, full_end, strict=True):
-                p *= float(params[f"end.{f.name}"].probs[(*init, a, v)])
-            total += p
-    return total
+    given_init = [
+        (k, p)
+        for k, p in brute_joint(net, params).items()
+        if k[0] == tuple(init) and (action is None or k[1] == action)
+    ]
+    match = sum(p for (_, _, e), p in given_init if all(e[i] == v for i, v in end.items()))
+    return match / sum(p for _, p in given_init)
 
 
 @settings(max_examples=25, deadline=None)

@@ -10,24 +10,7 @@ from hypothesis import strategies as st
 from inference import imitation_check, infer_action, predict
 from models import Discrete, EffectNetwork
 from models.declaration import DTYPE
-from tests.helpers import discrete_network, random_params
-
-
-def brute_joint(net, params):
-    """p(initial..., action, end...) as a dict over full assignments, from the tables."""
-    names = [f.name for f in net.features]
-    cards = [f.cardinality for f in net.features]
-    joint = {}
-    for init in itertools.product(*[range(k) for k in cards]):
-        for a in range(len(net.actions)):
-            for end in itertools.product(*[range(k) for k in cards]):
-                p = float(params["action"].probs[a])
-                for name, v in zip(names, init, strict=True):
-                    p *= float(params[f"initial.{name}"].probs[v])
-                for name, v in zip(names, end, strict=True):
-                    p *= float(params[f"end.{name}"].probs[(*init, a, v)])
-                joint[(init, a, end)] = p
-    return joint
+from tests.helpers import brute_joint, discrete_network, random_params
 
 
 def brute_posterior(joint, keep, target):
