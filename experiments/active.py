@@ -257,7 +257,7 @@ class ActiveResult(Result):
     whole pool; ``bound[protocol]`` the simulator's held-out best; ``pairs_covered
     [learner]`` distinct pairs played at each budget, per seed; ``cases_seen[learner][protocol]`` the fraction of
     cases whose desired count some chosen throw reached from their start (mean over seeds;
-    :func:`cases_seen`; the full data: 1 for the ``actions`` cases by construction); ``goal[learner][protocol][rule]``
+    :func:`cases_seen`); ``goal[learner][protocol][rule]``
     the fewest throws (of the budgets) within one point of ``full``, or None;
     ``seconds[learner]`` the learner's choosing time; ``settings`` the config.
     """
