@@ -47,6 +47,20 @@ def test_the_pool_is_table_one_s_training_throws_and_the_oracle_replays_them(tin
         assert torch.equal(params[site].probs, full.params[site].probs), site
 
 
+def test_bound_by_repeats_chooses_on_the_first_m_replays_and_scores_on_the_second_half():
+    # one start (mask 7), three fields, 4 replays each: counts reached
+    replays = np.array([[[2, 3, 3, 3], [3, 3, 2, 2], [2, 2, 3, 3]]])
+    throwable = np.array([True, True, True])
+    cases = {"counts": (np.array([7]), np.array([3]))}
+    # held out (replays 3-4): fields 0 and 2 succeed, field 1 never. m = 1 and m = 2 both
+    # choose field 1 (it succeeded on its first replays): held out 0
+    got = ex.bound_by_repeats(replays, [7], cases, throwable)
+    assert got == {"counts": [0.0, 0.0]}
+    replays[0, 1] = [2, 2, 2, 2]  # m = 1: a three-way tie, the lowest field 0; m = 2: field 0
+    got = ex.bound_by_repeats(replays, [7], cases, throwable)
+    assert got == {"counts": [1.0, 1.0]}
+
+
 def test_cases_seen_counts_cases_some_row_reached():
     rows = {"initial.config": torch.tensor([0, 0, 1]), "end.count": torch.tensor([3, 2, 5])}
     cases = (torch.tensor([0, 0, 1, 1]), torch.tensor([2, 4, 5, 3]))
@@ -69,6 +83,7 @@ def test_a_tiny_run_end_to_end(tiny_run, tiny_data_dir, tmp_path):
     for p in PROTOCOLS:
         assert r.n_cases[p] == len(table_one_cases(data, p)[0])
         assert 0 <= r.bound[p] <= 1
+        assert r.bound_by_repeats[p] == [pytest.approx(r.bound[p])]  # 2 replays: m = 1 only
         for name, c in r.curves.items():
             for rule in RULES:
                 assert len(c[p][rule]) == len(r.budgets)
