@@ -215,7 +215,8 @@ def explore(
     strategy
         One of ``STRATEGIES`` (see the module).
     pseudo_count
-        The Dirichlet prior of every row and the fit's pseudo-count policy.
+        The Dirichlet prior of every row and the fit's pseudo-count policy (> 0 unless
+        ``strategy`` is ``"random"``).
     prior_strength
         Weight ``s >= 0`` of the prior shared by an initial state's rows in the scores.
     sites
@@ -232,6 +233,11 @@ def explore(
     _check_settings(pseudo_count=pseudo_count, prior_strength=prior_strength)
     if strategy not in STRATEGIES:
         raise ValueError(f"strategy must be one of {STRATEGIES}, got {strategy!r}")
+    if strategy != "random" and pseudo_count == 0:
+        raise ValueError(
+            f"pseudo_count must be > 0 for strategy={strategy!r}: it is the Dirichlet prior "
+            "the scores are computed under (0 is improper for an unplayed row)"
+        )
     ends = [s.name for s in net.sites if s.role == "end"]
     sites = tuple(ends) if sites is None else tuple(sites)
     bad = [s for s in sites if s not in ends]

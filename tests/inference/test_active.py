@@ -198,6 +198,9 @@ def test_refusals_name_the_problem():
         explore(NET, pool, oracle, 3, strategy="greedy")
     with pytest.raises(ValueError, match="pseudo_count"):
         explore(NET, pool, oracle, 3, pseudo_count=-1.0)
+    with pytest.raises(ValueError, match="pseudo_count must be > 0"):
+        explore(NET, pool, oracle, 3, pseudo_count=0.0)
+    assert len(explore(NET, pool, oracle, 3, pseudo_count=0.0, strategy="random").chosen) == 3
     with pytest.raises(ValueError, match="pool must give"):
         explore(NET, {"initial.f0": [0], "action": ["a0"]}, oracle, 1)
     with pytest.raises(ValueError, match="oracle"):
