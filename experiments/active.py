@@ -498,7 +498,8 @@ def markdown(r: ActiveResult) -> str:
 
 def plot_curves(result: ActiveResult, path) -> Path:
     """Exact fraction against throws used, one panel per protocol (tie-break ``aim``
-    solid, ``index`` dotted), the full data and the bound as lines; saved to ``path``."""
+    solid, ``index`` dotted, for the learners and the full data), the physics bound
+    dashed; saved to ``path``."""
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(11, 4.4), layout="constrained")
@@ -511,10 +512,13 @@ def plot_curves(result: ActiveResult, path) -> Path:
             ax.plot(x, 100 * np.asarray(c[p]["index"]), ":", color=colour)
         full = 100 * result.full[p]["aim"]
         ax.axhline(full, color="k", lw=1, label=f"full data ({result.n_pool:,} throws)")
+        ax.axhline(100 * result.full[p]["index"], color="k", ls=":", lw=1)
         ax.axhspan(full - 100 * GOAL_POINTS, full, color="0.85", label="within 1 point")
         ax.axhline(100 * result.bound[p], color="k", ls="--", lw=1, label="physics bound")
         ax.axvline(100 * GOAL_FRACTION, color="0.5", ls=":", lw=1)
         ax.set_xscale("log")
+        ax.set_xticks(x, [f"{v:.3g}" for v in x])
+        ax.minorticks_off()
         ax.set_xlabel("throws used, % of the full data's 0° throws (log scale)")
         ax.set_ylabel("Table I exact, % of cases (held-out replays)")
         ax.set_title(f"{p} ({result.n_cases[p]:,} cases); dotted: tie-break index", fontsize=10)
