@@ -315,8 +315,8 @@ def explore(
                 f"the oracle must return {k} rows of every end site {ends}; got "
                 f"{played.n_rows} rows of {sorted(played)}"
             )
-        for s, t in tables.items():
-            value = played[s].numpy() if s in played else t.pool_value[batch]
+        for s, t in tables.items():  # initial sites and the action: the pool's values
+            value = played[s].numpy() if s in ends else t.pool_value[batch]
             t.add(batch, value)
         for s in ends:
             outcomes[s] += played[s].tolist()
