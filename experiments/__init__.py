@@ -12,6 +12,7 @@ line into the settings, call the function and save the result.
 :mod:`.combined`        §IV-C: both networks chained, Tables II-IV, both planners
 :mod:`.physics_bounds`  the best any model could do, found by simulation
 :mod:`.all_goals`       beyond the paper: every reachable goal, beside its bound
+:mod:`.active`          beyond the paper: Table I from a fraction of the throws
 :mod:`.pictures`        figures of the can world and of the robot's throw
 :mod:`.cans`            the can data set at a scale and the can network on it
 :mod:`.config`          checks of settings, and the results' JSON round trip

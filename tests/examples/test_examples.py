@@ -46,6 +46,7 @@ def tiny_arguments(name: str, out: Path, data: Path) -> list:
             *["--episodes", 1, "--n-throws", 300, "--bins", 2, "--table-z", 0.75],
             *["--data-dir", data, "--out", out, "--quiet"],
         ],
+        "active": [*cans, "--repeats", 2, "--fractions", 0.3, 1.0, "--batch-size", 20],
         "reproduce": ["--quick", "--only", "throw_kinematics", "--out", out, "--data-dir", data],
     }[name]
 
@@ -59,6 +60,7 @@ WRITES = {
     "combined": ["combined.json", "combined.md"],
     "physics_bounds": ["physics_bounds.json", "physics_bounds.md"],
     "all_goals": ["all_goals.json", "all_goals.md", "all_goals.png"],
+    "active": ["active.json", "active.md", "active.png"],
     "reproduce": ["run.json", "summary.md", "throw/flight_paths.png"],
 }
 
@@ -100,6 +102,9 @@ def test_a_bad_number_exits_with_a_usage_error():
         ("tap_and_remove", ["--n", "-10"], "--n: -10 is out of range"),
         ("can_world", ["--field", "999"], "--field: 999 is out of range"),
         ("throw_kinematics", ["--grid", "0"], "--grid: 0 is out of range"),
+        ("active", ["--fractions", "0.5", "0"], "--fractions: 0.0 is out of range"),
+        ("active", ["--fractions", "0.5", "0.2"], "--fractions: (0.5, 0.2) must increase"),
+        ("active", ["--sites", "end.colour"], "--sites: 'end.colour' is not one of"),
         ("reproduce", ["--executor", "threads"], "--executor: executor='threads'"),
         ("reproduce", ["--only", "can_tossing", "can_tosing"], "unknown step(s) ['can_tosing']"),
     ],
@@ -114,7 +119,7 @@ def test_command_lines_are_checked(name, argv, words, capsys):
 def test_the_executor_reaches_every_simulating_step():
     reproduce = load_example("reproduce")
     steps = dict(reproduce.steps(reproduce.parse_args(["--quick", "--executor", "dask://s:8786"])))
-    for name in ("can_tossing", "combined", "physics_bounds"):
+    for name in ("can_tossing", "combined", "physics_bounds", "active"):
         i = steps[name].index("--executor")
         assert steps[name][i + 1] == "dask://s:8786", name
     assert all(

@@ -27,7 +27,8 @@ def test_reproduce_quick_writes_every_result(tmp_path):
         + ["--out", str(out), "--data-dir", str(data)]
     )
     assert code == 0
-    for name in ("throwing.json", "can_tossing.json", "combined.json", "summary.md", "run.json"):
+    names = ("throwing.json", "can_tossing.json", "combined.json", "active.json")
+    for name in (*names, "summary.md", "run.json"):
         assert (out / name).exists(), name
     combined = json.loads((out / "combined.json").read_text())
     assert set(combined["scenarios"]) == {"top_three", "near_flank", "far_flank"}

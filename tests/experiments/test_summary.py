@@ -166,3 +166,30 @@ def test_every_goal_rows_state_both_planners_beside_the_bound(tmp_path):
     assert "exact planner 62.5 % mean success, 75.0 % of the bound" in row
     assert "paper planner 25.0 %, 25.0 %" in row
     assert row.endswith("| 75.0 % mean held out, 87.5 % in sample |")
+
+
+def test_active_rows_give_each_learner_at_ten_percent_beside_the_full_data(tmp_path):
+    curve = {"aim": [0.5, 0.8, 0.9], "index": [0.4, 0.7, 0.8]}
+    result = {
+        "fractions": [0.05, 0.1, 0.2],
+        "budgets": [50, 100, 200],
+        "n_pool": 1000,
+        "repeats": 16,
+        "curves": {
+            "eig": {"counts": curve, "actions": curve},
+            "random": {"counts": curve, "actions": {"aim": [0.1, 0.2, 0.3], "index": [0] * 3}},
+        },
+        "full": {p: {"aim": 0.805, "index": 0.7} for p in ("counts", "actions")},
+        "goal": {
+            "eig": {p: {"aim": 100, "index": 100} for p in ("counts", "actions")},
+            "random": {p: {"aim": None, "index": None} for p in ("counts", "actions")},
+        },
+        "bound": {"counts": 0.77, "actions": 0.95},
+    }
+    (tmp_path / "active.json").write_text(json.dumps(result))
+    rows = [r for r in summary.summary_markdown(tmp_path).splitlines() if "active" in r]
+    assert len(rows) == 2
+    counts, actions = rows
+    assert "reachable desired count" in counts and "10 % of the 1,000 0° throws" in counts
+    assert "eig 80.00 %, random 80.00 %; full data 80.50 % (goal: within 1 point: eig)" in counts
+    assert "random 20.00 %" in actions and actions.endswith("| 95.00 % held out |")

@@ -1,0 +1,527 @@
+"""Beyond the paper: learn the can network from a fraction of the throws (active exploration).
+
+Table I's can network is fitted on every 0° throw of the can data set (every stable
+configuration x every throwable field x its repeats). Here a learner chooses which
+throws to make (:func:`inference.active.explore`) and the learning curve of Table I's
+exact fraction against the number of throws used is measured for each strategy, beside
+the network fitted on every throw.
+
+* **Pool and oracle.** The pool is the 0° throwable throws :func:`experiments.cans.
+  fit_can_network` fits on: one candidate per recorded throw, so each (configuration,
+  field) pair is listed once per recorded repeat and can be played at most that often.
+  Playing candidate ``i`` returns the end configuration and count that recorded throw
+  reached. The oracle is fair: every recorded throw is an independent draw of the world
+  (its own seeded aim jitter), the learner sees only the throws it asks for, and the
+  full-data network is fitted on exactly the same throws, so the curves and the
+  full-data figure share one source and no simulation noise between them.
+* **Scoring on held-out replays.** Table I's cases (:func:`experiments.can_tossing.
+  table_one_cases`, both protocols, from the full data set so that every curve point
+  answers the same cases) get their best field from the learned network exactly as
+  Table I does (:func:`experiments.can_tossing.choose`, both tie-break rules). The field
+  is scored on ``repeats`` fresh throws of (start, field) that no network was fitted on
+  (the physics bound's replays, :mod:`experiments.physics_bounds`, seed
+  ``BOUND_SEED``): the case's success is the fraction of replays that reach the desired
+  count, its expectation over the aim jitter rather than one throw's luck. The simulator's
+  own best field, chosen on half of the replays and scored on the other half, is the
+  bound (:func:`experiments.physics_bounds.held_out_best`).
+* **Strategies.** ``eig`` (plain Dirichlet information gain with the fit's pseudo-count
+  as prior), ``eig_shared`` (the same with a prior shared by a start configuration's
+  fields, weight ``prior_strength``), ``uncertainty`` (predictive entropy) and
+  ``random``; every gain is about ``sites`` (default ``end.count``, the site Table I's
+  query reads).
+
+The goal: within one point of the full data's exact fraction with at most 10 % of its
+throws (the 0° throws Table I fits on).
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from experiments.can_tossing import (
+    ANGLE,
+    PROTOCOLS,
+    RULES,
+    choose,
+    start_evidence,
+    table_one_cases,
+)
+from experiments.cans import SCALES, CanModel, can_dataset, start_configurations
+from experiments.config import (
+    ConfigError,
+    Result,
+    check_choice,
+    check_executor,
+    check_float,
+    check_int,
+)
+from experiments.physics_bounds import BOUND_SEED, held_out_best
+from inference import fit
+from inference.active import explore
+from inference.compiled import compile_discrete
+from models.can_network import can_network, can_rows, config_index
+from sim2d import field_throws, geometry
+from sim2d.can_dataset import generate_dataset, load_dataset
+from sim2d.executors import open_executor
+
+__all__ = [
+    "LEARNERS",
+    "QUICK",
+    "ActiveConfig",
+    "ActiveResult",
+    "can_pool",
+    "bound_by_repeats",
+    "cases_seen",
+    "plot_curves",
+    "replay_counts",
+    "run_active",
+    "table_one_on_replays",
+]
+
+#: The strategies compared: ``{name: (inference.active strategy, shared prior?)}``.
+LEARNERS = {
+    "eig": ("eig", False),
+    "eig_shared": ("eig", True),
+    "uncertainty": ("uncertainty", False),
+    "random": ("random", False),
+}
+GOAL_FRACTION = 0.10  # of the full data's throws
+GOAL_POINTS = 0.01  # within one point of the full data's exact fraction
+#: The quick scale's settings (examples/active.py --quick).
+QUICK = {"scale": "quick", "repeats": 8, "fractions": (0.05, 0.1, 0.2, 0.5), "batch_size": 20}
+
+
+@dataclass(frozen=True)
+class ActiveConfig:
+    """Settings of :func:`run_active`; every field is checked on construction.
+
+    Attributes
+    ----------
+    scale, data_dir, executor
+        The can data set (:func:`experiments.cans.can_dataset`) and where the replays are
+        simulated if they are not under ``data_dir`` yet.
+    repeats : int
+        Held-out replays per (start, field), >= 2 (the physics bound's file at this
+        count is reused).
+    fractions : tuple of float
+        Budgets, as fractions of the pool (the 0° throws), each in ``(0, 1]``; increasing.
+    learners : tuple of str
+        Keys of ``LEARNERS``.
+    batch_size : int
+        Throws chosen before they are played.
+    prior_strength : float
+        Weight of the shared prior of ``eig_shared`` (> 0).
+    sites : tuple of str
+        End sites the gains are about: ``end.count``, ``end.config`` or both.
+    seed, n_seeds : int
+        The learners run with seeds ``seed .. seed + n_seeds - 1`` (ties, random
+        choices); the curves are their means.
+    checkpoint_dir : Path or None
+        Where each learner's state is saved after every batch (and resumed from); None:
+        not saved.
+    progress : bool
+        Progress bars.
+    """
+
+    scale: str = "full"
+    data_dir: Path = Path("data")
+    executor: str | None = None
+    repeats: int = 16
+    fractions: tuple[float, ...] = (0.02, 0.05, 0.1, 0.2, 0.5)
+    learners: tuple[str, ...] = tuple(LEARNERS)
+    batch_size: int = 100
+    prior_strength: float = 1.0
+    sites: tuple[str, ...] = ("end.count",)
+    seed: int = 0
+    n_seeds: int = 1
+    checkpoint_dir: Path | None = None
+    progress: bool = True
+
+    def __post_init__(self):
+        check_choice("scale", self.scale, SCALES)
+        object.__setattr__(self, "data_dir", Path(self.data_dir))
+        check_executor("executor", self.executor)
+        check_int("repeats", self.repeats, 2)
+        object.__setattr__(self, "fractions", tuple(self.fractions))
+        if not self.fractions:
+            raise ConfigError("fractions", "no budget given; expected at least one")
+        for f in self.fractions:
+            check_float("fractions", f, 0.0, 1.0, low_open=True)
+        if list(self.fractions) != sorted(set(self.fractions)):
+            raise ConfigError("fractions", f"{self.fractions} must increase strictly")
+        object.__setattr__(self, "learners", tuple(self.learners))
+        if not self.learners:
+            raise ConfigError("learners", "no learner given; expected at least one")
+        for name in self.learners:
+            check_choice("learners", name, LEARNERS)
+        check_int("batch_size", self.batch_size, 1)
+        check_float("prior_strength", self.prior_strength, 0.0, 1e6, low_open=True)
+        object.__setattr__(self, "sites", tuple(self.sites))
+        if not self.sites:
+            raise ConfigError("sites", "no site given; expected end.count and/or end.config")
+        for s in self.sites:
+            check_choice("sites", s, ("end.count", "end.config"))
+        check_int("seed", self.seed, 0)
+        check_int("n_seeds", self.n_seeds, 1)
+        if self.checkpoint_dir is not None:
+            object.__setattr__(self, "checkpoint_dir", Path(self.checkpoint_dir))
+
+
+def can_pool(data):
+    """The can network over the data set's configurations and the pool of its 0° throwable
+    throws: ``(net, pool rows (encoded initial sites and action), oracle, end configs)``.
+
+    ``oracle(index)`` returns the recorded end configuration and count of the throws
+    ``index`` of the pool.
+    """
+    sel = (data.angle == ANGLE) & data.throwable
+    states = sorted(set(data.start_config.tolist()) | set(data.end_config[sel].tolist()))
+    net = can_network(states)
+    rows = can_rows(net, data.start_config[sel], data.field[sel], data.end_config[sel])
+    pool = rows.without("end.config", "end.count")
+    ends = rows.rows(slice(None)).without("initial.config", "initial.count", "action")
+
+    def oracle(index: np.ndarray):
+        return ends.rows(torch.as_tensor(index))
+
+    return net, pool, oracle, rows
+
+
+def replay_counts(config: ActiveConfig, executor=None) -> tuple[np.ndarray, list[int]]:
+    """``(configs, 195, repeats)`` end counts of the held-out replays of every non-empty
+    start configuration's 0° fields (sorted configurations), and those configurations."""
+    configs = [c for c in start_configurations(SCALES[config.scale]["n_configs"]) if c]
+    path = generate_dataset(
+        config.data_dir / f"can_bound_{config.scale}_{config.repeats}.npz",
+        configs=configs,
+        angles=(ANGLE,),
+        repeats=config.repeats,
+        seed=BOUND_SEED,
+        executor=executor,
+        progress=config.progress,
+    )
+    sims = load_dataset(path)
+    order = np.lexsort((sims.repeat, sims.field, sims.start_config))
+    counts = sims.count_after[order].reshape(len(configs), geometry.N_FIELDS, config.repeats)
+    return counts.astype(np.int64), sorted(configs)
+
+
+def table_one_on_replays(model: CanModel, cases: dict, replays, configs) -> dict:
+    """Table I's exact fraction per protocol and rule, each case's chosen field scored by
+    the fraction of its replays that reach the desired count.
+
+    ``cases``: ``{protocol: (start masks, desired counts)}``; ``replays``: as
+    :func:`replay_counts` returns.
+    """
+    row = {c: i for i, c in enumerate(configs)}
+    out = {}
+    for protocol, (start, desired) in cases.items():
+        evidence = start_evidence(model, start) | {"end.count": torch.as_tensor(desired)}
+        index = np.array([row[int(s)] for s in start])
+        out[protocol] = {}
+        for rule in RULES:
+            field = choose(model, evidence, rule)
+            success = replays[index, field] == desired[:, None]
+            out[protocol][rule] = float(success.mean())
+    return out
+
+
+def bound_by_repeats(replays, configs, cases, throwable) -> dict[str, list[float]]:
+    """How many throws per pair a chooser that knows the simulator needs: per protocol, the
+    exact fraction when each case's field is the one that succeeded most often on the
+    first ``m`` replays of every throwable field (``m = 1 .. repeats // 2``), scored on the
+    second half of the replays (:func:`experiments.physics_bounds.held_out_best` at
+    ``m`` = half). Choosing with ``m`` throws of every pair costs ``m`` throws per pair."""
+    row = {c: i for i, c in enumerate(configs)}
+    half = replays.shape[-1] // 2
+    out = {}
+    for p, (start, desired) in cases.items():
+        success = replays[[row[int(s)] for s in start]][:, throwable] == desired[:, None, None]
+        held = success[..., half:].mean(-1)
+        out[p] = []
+        for m in range(1, half + 1):
+            chosen = success[..., :m].mean(-1).argmax(-1)
+            out[p].append(float(np.take_along_axis(held, chosen[:, None], -1).mean()))
+    return out
+
+
+def cases_seen(rows, cases) -> float:
+    """The fraction of cases ``(start state indices, desired counts)`` whose desired count
+    some row of ``rows`` reached from the case's start: without such a row the network
+    can only guess a field for the case."""
+    played = set(zip(rows["initial.config"].tolist(), rows["end.count"].tolist(), strict=True))
+    start, desired = cases
+    hit = [(s, d) in played for s, d in zip(start.tolist(), desired.tolist(), strict=True)]
+    return float(np.mean(hit))
+
+
+def _model(net, rows, throwable) -> CanModel:
+    params = fit(net, rows).params
+    return CanModel(ANGLE, net, params, compile_discrete(net, params), throwable)
+
+
+@dataclass
+class ActiveResult(Result):
+    """What :func:`run_active` measured (fractions in [0, 1]).
+
+    ``n_pool`` the 0° throws (the full data Table I fits on), ``n_dataset`` every throw
+    of the data set, ``n_pairs`` distinct (configuration, field) pairs in the pool;
+    ``budgets`` the throws of each curve point; ``curves[learner][protocol][rule]`` the
+    exact fraction at each budget; ``full[protocol][rule]`` the network fitted on the
+    whole pool; ``bound[protocol]`` the simulator's held-out best; ``bound_by_repeats[protocol]`` the same chosen on
+    ``1 .. repeats // 2`` replays of every pair (:func:`bound_by_repeats`); ``pairs_covered
+    [learner]`` distinct pairs played at each budget, per seed; ``cases_seen[learner][protocol]`` the fraction of
+    cases whose desired count some chosen throw reached from their start (mean over seeds;
+    :func:`cases_seen`); ``goal[learner][protocol][rule]``
+    the fewest throws (of the budgets) within one point of ``full``, or None;
+    ``seconds[learner]`` the learner's choosing time; ``settings`` the config.
+    """
+
+    scale: str
+    n_pool: int
+    n_dataset: int
+    n_pairs: int
+    n_cases: dict
+    repeats: int
+    budgets: list
+    fractions: list
+    curves: dict
+    full: dict
+    bound: dict
+    bound_by_repeats: dict
+    pairs_covered: dict
+    cases_seen: dict
+    curves_by_seed: dict
+    goal: dict
+    seconds: dict
+    settings: dict
+
+    def to_markdown(self) -> str:
+        return markdown(self)
+
+    def save(self, out) -> list[Path]:
+        """Write ``active.json``, ``active.md`` and ``active.png`` to the folder ``out``."""
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        files = [out / "active.json", out / "active.md"]
+        files[0].write_text(self.to_json())
+        files[1].write_text(self.to_markdown())
+        files.append(plot_curves(self, out / "active.png"))
+        return files
+
+
+def run_active(config: ActiveConfig) -> ActiveResult:
+    """Learning curves of Table I against the throws used, per learner, beside the full data."""
+    with open_executor(config.executor) as executor:
+        data = can_dataset(
+            config.data_dir, config.scale, executor=executor, progress=config.progress
+        )
+        replays, configs = replay_counts(config, executor)
+    net, pool, oracle, rows = can_pool(data)
+    n = pool.n_rows
+    budgets = [max(1, round(f * n)) for f in config.fractions]
+    throwable = torch.tensor(
+        [field_throws.is_throwable(f, ANGLE) for f in range(geometry.N_FIELDS)]
+    )
+    cases = {p: table_one_cases(data, p) for p in PROTOCOLS}
+    pair = (pool["initial.config"] * geometry.N_FIELDS + pool["action"]).numpy()
+
+    full = table_one_on_replays(_model(net, rows, throwable), cases, replays, configs)
+    row = {c: i for i, c in enumerate(configs)}
+    bound = {}
+    for p, (start, desired) in cases.items():
+        fields = throwable.numpy()
+        success = replays[[row[int(s)] for s in start]][:, fields] == desired[:, None, None]
+        bound[p] = float(held_out_best(success).mean())
+
+    by_repeats = bound_by_repeats(replays, configs, cases, throwable.numpy())
+    curves, by_seed, covered, seen, seconds = {}, {}, {}, {}, {}
+    cases_rows = {
+        p: (config_index(net, start), torch.as_tensor(desired))
+        for p, (start, desired) in cases.items()
+    }
+    for name in config.learners:
+        strategy, shared = LEARNERS[name]
+        runs, seen_runs, covered[name], seconds[name] = [], [], [], 0.0
+        for seed in range(config.seed, config.seed + config.n_seeds):
+            checkpoint = None
+            if config.checkpoint_dir is not None:
+                checkpoint = config.checkpoint_dir / f"active_{config.scale}_{name}_{seed}.pt"
+            start_time = time.process_time()
+            learned = explore(
+                net,
+                pool,
+                oracle,
+                budgets[-1],
+                batch_size=config.batch_size,
+                strategy=strategy,
+                prior_strength=config.prior_strength if shared else 0.0,
+                sites=config.sites,
+                seed=seed,
+                checkpoint=checkpoint,
+                progress=config.progress,
+            )
+            seconds[name] += time.process_time() - start_time
+            points = []
+            for b in tqdm(budgets, desc=f"Table I ({name})", disable=not config.progress):
+                model = _model(net, learned.rows.rows(slice(0, b)), throwable)
+                points.append(table_one_on_replays(model, cases, replays, configs))
+            runs.append(points)
+            covered[name].append([len(np.unique(pair[learned.chosen[:b]])) for b in budgets])
+            seen_runs.append(
+                {
+                    p: [cases_seen(learned.rows.rows(slice(0, b)), c) for b in budgets]
+                    for p, c in cases_rows.items()
+                }
+            )
+        by_seed[name] = {
+            p: {rule: [[pt[p][rule] for pt in points] for points in runs] for rule in RULES}
+            for p in PROTOCOLS
+        }
+        curves[name] = {
+            p: {rule: np.mean(by_seed[name][p][rule], 0).tolist() for rule in RULES}
+            for p in PROTOCOLS
+        }
+        seen[name] = {p: np.mean([r[p] for r in seen_runs], 0).tolist() for p in PROTOCOLS}
+
+    goal = {
+        name: {
+            p: {
+                rule: next(
+                    (
+                        b
+                        for b, v in zip(budgets, curves[name][p][rule], strict=True)
+                        if v >= full[p][rule] - GOAL_POINTS
+                    ),
+                    None,
+                )
+                for rule in RULES
+            }
+            for p in PROTOCOLS
+        }
+        for name in curves
+    }
+    settings = {
+        k: (str(v) if isinstance(v, Path) else list(v) if isinstance(v, tuple) else v)
+        for k, v in vars(config).items()
+    }
+    return ActiveResult(
+        scale=config.scale,
+        n_pool=n,
+        n_dataset=len(data.angle),
+        n_pairs=len(np.unique(pair)),
+        n_cases={p: len(c[0]) for p, c in cases.items()},
+        repeats=config.repeats,
+        budgets=budgets,
+        fractions=list(config.fractions),
+        curves=curves,
+        full=full,
+        bound=bound,
+        bound_by_repeats=by_repeats,
+        pairs_covered=covered,
+        cases_seen=seen,
+        curves_by_seed=by_seed,
+        goal=goal,
+        seconds=seconds,
+        settings=settings,
+    )
+
+
+def markdown(r: ActiveResult) -> str:
+    """The report: per protocol and rule, each learner's exact fraction at every budget."""
+    lines = [
+        f"# Active exploration of the can world (scale {r.scale})",
+        "",
+        f"Pool: the {r.n_pool:,} throwable 0° throws Table I fits on ({r.n_pairs:,} "
+        f"(configuration, field) pairs; the whole data set has {r.n_dataset:,} throws). "
+        f"Exact fraction of Table I's cases, each chosen field scored on {r.repeats} "
+        "held-out replays. Goal: within 1 point of the full data with at most "
+        f"{100 * GOAL_FRACTION:.0f} % of its throws.",
+        "",
+    ]
+    head = " | ".join(f"{100 * f:g} % ({b:,})" for f, b in zip(r.fractions, r.budgets, strict=True))
+    for p in PROTOCOLS:
+        for rule in RULES:
+            lines += [
+                f"## {p} ({r.n_cases[p]:,} cases), tie-break {rule}",
+                "",
+                f"| learner | {head} | fewest throws within 1 point |",
+                "|---|" + "---:|" * (len(r.budgets) + 1),
+            ]
+            for name, c in r.curves.items():
+                cells = " | ".join(f"{100 * v:.2f}" for v in c[p][rule])
+                g = r.goal[name][p][rule]
+                reached = "not reached" if g is None else f"{g:,} ({100 * g / r.n_pool:.1f} %)"
+                lines.append(f"| {name} | {cells} | {reached} |")
+            lines += [
+                f"| full data ({r.n_pool:,}) | "
+                + " | ".join(f"{100 * r.full[p][rule]:.2f}" for _ in r.budgets)
+                + " | |",
+                "",
+            ]
+        lines += [
+            f"Physics bound ({p}): {100 * r.bound[p]:.2f} % (the simulator's best field "
+            "chosen on half of the replays, scored on the other half); chosen on 1, 2, ... "
+            "replays of every pair (1 per pair is "
+            f"{100 * r.n_pairs / r.n_pool:.0f} % of the pool's throws): "
+            + ", ".join(f"{100 * v:.2f}" for v in r.bound_by_repeats[p])
+            + ". Cases whose desired "
+            "count some chosen throw reached from their start, % at each budget: "
+            + "; ".join(
+                f"{name} " + ", ".join(f"{100 * v:.1f}" for v in seen[p])
+                for name, seen in r.cases_seen.items()
+            )
+            + ".",
+            "",
+        ]
+    lines += [
+        f"Mean over {r.settings['n_seeds']} seed(s). Distinct (configuration, field) pairs "
+        "played (mean): "
+        + "; ".join(
+            f"{name} " + ", ".join(f"{c:,.0f}" for c in np.mean(cov, 0))
+            for name, cov in r.pairs_covered.items()
+        )
+        + ".",
+        "Choosing time (CPU s, whole run): "
+        + ", ".join(f"{name} {s:.1f}" for name, s in r.seconds.items())
+        + ".",
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def plot_curves(result: ActiveResult, path) -> Path:
+    """Exact fraction against throws used, one panel per protocol (tie-break ``aim``
+    solid, ``index`` dotted, for the learners and the full data), the physics bound
+    dashed; saved to ``path``."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(11, 4.4), layout="constrained")
+    axes = fig.subplots(1, len(PROTOCOLS))
+    x = 100 * np.asarray(result.budgets) / result.n_pool
+    for ax, p in zip(axes, PROTOCOLS, strict=True):
+        for k, (name, c) in enumerate(result.curves.items()):
+            colour = f"C{k}"
+            ax.plot(x, 100 * np.asarray(c[p]["aim"]), "o-", color=colour, label=name)
+            ax.plot(x, 100 * np.asarray(c[p]["index"]), ":", color=colour)
+        full = 100 * result.full[p]["aim"]
+        ax.axhline(full, color="k", lw=1, label=f"full data ({result.n_pool:,} throws)")
+        ax.axhline(100 * result.full[p]["index"], color="k", ls=":", lw=1)
+        ax.axhspan(full - 100 * GOAL_POINTS, full, color="0.85", label="within 1 point")
+        ax.axhline(100 * result.bound[p], color="k", ls="--", lw=1, label="physics bound")
+        ax.axvline(100 * GOAL_FRACTION, color="0.5", ls=":", lw=1)
+        ax.set_xscale("log")
+        ax.set_xticks(x, [f"{v:.3g}" for v in x])
+        ax.minorticks_off()
+        ax.set_xlabel("throws used, % of the full data's 0° throws (log scale)")
+        ax.set_ylabel("Table I exact, % of cases (held-out replays)")
+        ax.set_title(f"{p} ({result.n_cases[p]:,} cases); dotted: tie-break index", fontsize=10)
+    axes[0].legend(fontsize=8, loc="lower right")
+    fig.savefig(path, dpi=120)
+    return Path(path)

@@ -1,0 +1,148 @@
+"""experiments.active: the pool and its oracle are the data set's 0° throws, the whole
+pool's learner is the full-data network, a tiny run end to end, and the settings' checks."""
+
+import numpy as np
+import pytest
+import torch
+
+from experiments import active as ex
+from experiments.can_tossing import PROTOCOLS, RULES, table_one_cases
+from experiments.cans import can_dataset, fit_can_network
+from experiments.config import ConfigError
+from models.can_network import config_index
+
+
+@pytest.fixture(scope="module")
+def tiny_run(tiny_data_dir):
+    config = ex.ActiveConfig(
+        scale="tiny",
+        data_dir=tiny_data_dir,
+        repeats=2,
+        fractions=(0.1, 0.5, 1.0),
+        batch_size=16,
+        n_seeds=2,
+        progress=False,
+    )
+    return config, ex.run_active(config)
+
+
+def test_the_pool_is_table_one_s_training_throws_and_the_oracle_replays_them(tiny_data_dir):
+    data = can_dataset(tiny_data_dir, "tiny", progress=False)
+    net, pool, oracle, rows = ex.can_pool(data)
+    sel = (data.angle == 0) & data.throwable
+    assert pool.n_rows == int(sel.sum())
+    assert set(pool) == {"initial.config", "initial.count", "action"}
+    index = np.array([5, 0, pool.n_rows - 1])
+    ends = oracle(index)
+    masks = np.asarray(net.feature("config").states)[ends["end.config"].numpy()]
+    np.testing.assert_array_equal(masks, data.end_config[sel][index])
+    np.testing.assert_array_equal(pool["action"].numpy()[index], data.field[sel][index])
+    # the network and its fit on the whole pool are Table I's own
+    full = fit_can_network(data, 0)
+    assert net == full.net
+    from inference import fit
+
+    params = fit(net, rows).params
+    for site in params.cpds:
+        assert torch.equal(params[site].probs, full.params[site].probs), site
+
+
+def test_bound_by_repeats_chooses_on_the_first_m_replays_and_scores_on_the_second_half():
+    # one start (mask 7), three fields, 4 replays each: counts reached
+    replays = np.array([[[2, 3, 3, 3], [3, 3, 2, 2], [2, 2, 3, 3]]])
+    throwable = np.array([True, True, True])
+    cases = {"counts": (np.array([7]), np.array([3]))}
+    # held out (replays 3-4): fields 0 and 2 succeed, field 1 never. m = 1 and m = 2 both
+    # choose field 1 (it succeeded on its first replays): held out 0
+    got = ex.bound_by_repeats(replays, [7], cases, throwable)
+    assert got == {"counts": [0.0, 0.0]}
+    replays[0, 1] = [2, 2, 2, 2]  # m = 1: a three-way tie, the lowest field 0; m = 2: field 0
+    got = ex.bound_by_repeats(replays, [7], cases, throwable)
+    assert got == {"counts": [1.0, 1.0]}
+
+
+def test_cases_seen_counts_cases_some_row_reached():
+    rows = {"initial.config": torch.tensor([0, 0, 1]), "end.count": torch.tensor([3, 2, 5])}
+    cases = (torch.tensor([0, 0, 1, 1]), torch.tensor([2, 4, 5, 3]))
+    assert ex.cases_seen(rows, cases) == pytest.approx(0.5)
+
+
+def test_a_tiny_run_end_to_end(tiny_run, tiny_data_dir, tmp_path):
+    config, r = tiny_run
+    data = can_dataset(tiny_data_dir, "tiny", progress=False)
+    assert r.n_pool == int(((data.angle == 0) & data.throwable).sum())
+    assert r.budgets == [round(f * r.n_pool) for f in config.fractions]
+    assert set(r.curves) == set(ex.LEARNERS)
+    net, _, _, rows = ex.can_pool(data)
+    seen_by_all = {}
+    for p in PROTOCOLS:
+        start, desired = table_one_cases(data, p)
+        case_rows = (config_index(net, start), torch.as_tensor(desired))
+        seen_by_all[p] = ex.cases_seen(rows, case_rows)
+    assert seen_by_all["actions"] > 0.9
+    for p in PROTOCOLS:
+        assert r.n_cases[p] == len(table_one_cases(data, p)[0])
+        assert 0 <= r.bound[p] <= 1
+        assert r.bound_by_repeats[p] == [pytest.approx(r.bound[p])]  # 2 replays: m = 1 only
+        for name, c in r.curves.items():
+            for rule in RULES:
+                assert len(c[p][rule]) == len(r.budgets)
+                assert all(0 <= v <= 1 for v in c[p][rule])
+                per_seed = np.asarray(r.curves_by_seed[name][p][rule])
+                assert per_seed.shape == (2, len(r.budgets))
+                np.testing.assert_allclose(per_seed.mean(0), c[p][rule])
+                # the whole pool, whatever the order of choice, is the full data
+                assert c[p][rule][-1] == pytest.approx(r.full[p][rule])
+            for p in PROTOCOLS:  # the whole pool: every case's count some throw reached
+                assert r.cases_seen[name][p][-1] == pytest.approx(seen_by_all[p])
+            assert all(cov[-1] == r.n_pairs for cov in r.pairs_covered[name])
+    files = r.save(tmp_path)
+    assert [f.name for f in files] == ["active.json", "active.md", "active.png"]
+    assert ex.ActiveResult.load(tmp_path / "active.json").to_json() == r.to_json()
+    text = (tmp_path / "active.md").read_text()
+    assert "| eig |" in text and "Physics bound (counts)" in text
+
+
+def test_the_choice_is_scored_on_the_replays_of_the_chosen_field(tiny_run, tiny_data_dir):
+    """Brute force: one case at a time, the replays of the field Table I's choice names."""
+    config, r = tiny_run
+    data = can_dataset(tiny_data_dir, "tiny", progress=False)
+    model = fit_can_network(data, 0)
+    replays, configs = ex.replay_counts(config)
+    cases = {p: table_one_cases(data, p) for p in PROTOCOLS}
+    got = ex.table_one_on_replays(model, cases, replays, configs)
+    from experiments.can_tossing import choose, start_evidence
+
+    for p, (start, desired) in cases.items():
+        for rule in RULES:
+            rates = []
+            for s, d in zip(start, desired, strict=True):
+                ev = start_evidence(model, np.array([s])) | {"end.count": torch.tensor([d])}
+                f = int(choose(model, ev, rule)[0])
+                rates.append(np.mean(replays[configs.index(int(s)), f] == d))
+            assert got[p][rule] == pytest.approx(np.mean(rates)), (p, rule)
+            assert got[p][rule] == pytest.approx(r.full[p][rule])
+    assert config_index(model.net, np.array(configs)).shape == (len(configs),)
+
+
+@pytest.mark.parametrize(
+    ("field", "value"),
+    [
+        ("fractions", ()),
+        ("fractions", (0.5, 0.2)),
+        ("fractions", (0.0, 0.5)),
+        ("fractions", (0.5, 1.5)),
+        ("learners", ("eig", "bandit")),
+        ("learners", ()),
+        ("sites", ("end.colour",)),
+        ("prior_strength", 0.0),
+        ("batch_size", 0),
+        ("repeats", 1),
+        ("n_seeds", 0),
+        ("scale", "huge"),
+    ],
+)
+def test_settings_are_checked(field, value):
+    with pytest.raises(ConfigError) as error:
+        ex.ActiveConfig(**{field: value})
+    assert error.value.field == field
