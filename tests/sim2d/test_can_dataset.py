@@ -357,7 +357,7 @@ def test_pool_workers_end_with_the_generator(tmp_path, sig):
     parts = Path(f"{out}.parts")
     proc = subprocess.Popen(
         [sys.executable, "-m", "sim2d.generate", str(out), "--configs", "1023", "--angles", "1",
-         "--repeats", "4", "--chunk-size", "10", "--executor", "process:2", "--quiet"],
+         "--repeats", "40", "--chunk-size", "10", "--executor", "process:2", "--quiet"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )  # fmt: skip
     try:
