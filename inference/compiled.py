@@ -41,7 +41,8 @@ from models.declaration import (
     Parameter,
     end_site,
 )
-from models.evidence import Evidence
+from models.evidence import Evidence, is_partial
+from models.gaussian import mask_unobserved
 from models.model import effect_model
 from models.params import NetworkParams, check_params
 
@@ -373,6 +374,8 @@ class CompiledParameterQuery:
         x = torch.cat(others, -1) if others else None
         if x is not None:
             loc = loc + (self.w_x[gather] @ x[:, None, :, None]).squeeze(-1)
+        if is_partial(y):
+            return self._infer_partial(enc, y, index, loc, mixture, below)
         # log N(y; loc, L L^T) = log_norm - |L^-1 (y - loc)|^2 / 2, with L^-1 and log_norm
         # precomputed from the model's own marginal Cholesky factor L
         diff = y[:, None, :] - loc  # (n, C, d)
@@ -406,6 +409,46 @@ class CompiledParameterQuery:
         cov = self.post_cov[full]
         return ParameterPosterior(
             probs, best, mean, cov, unseen, outside_range(p, mean), mix, implausible
+        )
+
+    def _infer_partial(self, enc, y, index, loc, mixture, below) -> ParameterPosterior:
+        """The query for ``y`` observed in some dimensions (NaN in the others): each
+        cluster's marginal and conditioning restricted to the observed dimensions. The
+        tables hold them for all dimensions; the marginal covariance ``L L^T``, the
+        cross-covariance ``gain L L^T`` and the cluster covariance ``post_cov + gain L
+        L^T gain^T`` are read back from them, then every observed-dimension quantity is
+        taken from those (:func:`models.gaussian.mask_unobserved`)."""
+        n = y.shape[0]
+        eye = torch.eye(y.shape[-1], dtype=DTYPE)
+        tril = torch.linalg.solve_triangular(self.whiten[index], eye, upper=False)
+        marginal = tril @ tril.mT  # (n, C, d, d)
+        gain = self.gain[index]
+        cross = gain @ marginal  # (n, C, k, d)
+        prior_cov = self.post_cov[index] + gain @ cross.mT
+        y_, loc_, cov_, seen = mask_unobserved(y[:, None, :], loc, marginal)
+        chol = torch.linalg.cholesky(cov_)
+        resid = (y_ - loc_)[..., None]
+        d2 = torch.linalg.solve_triangular(chol, resid, upper=False).square().sum((-2, -1))
+        dof = seen[:, 0].sum(-1).to(DTYPE)  # (n,)
+        log_det = chol.diagonal(dim1=-2, dim2=-1).log().sum(-1)
+        log_lik = -0.5 * d2 - log_det - 0.5 * dof[:, None] * math.log(2 * math.pi)
+        cross = torch.where(seen[..., None, :], cross, 0.0)
+        gain = torch.cholesky_solve(cross.mT, chol).mT  # (n, C, k, d)
+        means = self.prior_mean + (gain @ resid).squeeze(-1)
+        covs = prior_cov - gain @ cross.mT
+        covs = 0.5 * (covs + covs.mT)
+        log_cluster = self.log_cluster[enc[ACTION]]
+        probs = (log_lik + log_cluster).softmax(-1)
+        closest = d2.masked_fill(~torch.isfinite(log_cluster), torch.inf).min(-1).values
+        tail = torch.special.gammaincc(dof.clamp_min(1) / 2, closest / 2)
+        implausible = torch.where(dof > 0, tail, 1.0) < below
+        best = probs.argmax(-1)
+        rows = torch.arange(n)
+        mean, cov = means[rows, best], covs[rows, best]
+        unseen = (~self.seen[(*index, best)]).to(DTYPE)
+        mix = GaussianMixture(probs, means, covs) if mixture else None
+        return ParameterPosterior(
+            probs, best, mean, cov, unseen, outside_range(self.parameter, mean), mix, implausible
         )
 
 
