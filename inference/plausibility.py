@@ -85,7 +85,11 @@ def plausibility(
             log_evidence = _over_rows(net, params, given, lambda e, _: e.log_evidence)
         if log_prior is None:
             prior = evidence.without(*ends)
-            log_prior = _over_rows(net, params, prior, lambda e, _: e.log_evidence)
+            log_prior = (  # nothing observed: probability 1
+                _over_rows(net, params, prior, lambda e, _: e.log_evidence)
+                if len(prior)
+                else torch.zeros(evidence.n_rows, dtype=DTYPE)
+            )
         p_discrete = (log_evidence - log_prior).exp().clamp(0, 1)
     tail = ones
     if continuous:
