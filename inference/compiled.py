@@ -332,6 +332,11 @@ class CompiledParameterQuery:
     prior_mean: torch.Tensor  # (C, k)
     post_cov: torch.Tensor  # (P..., k, k)
     seen: torch.Tensor  # (P...) bool
+    # Where the feature has no continuous input but the parameter: the squared distances
+    # of every cluster as one product, d2 = features(y - centre) @ quadratic, with
+    # features (y_i y_j for i <= j, y_i, 1) and the forms' coefficients per cluster.
+    centre: torch.Tensor | None = field(default=None, repr=False)  # (d,)
+    quadratic: torch.Tensor | None = field(default=None, repr=False)  # (P'..., F, C)
 
     def infer(
         self,
@@ -379,16 +384,25 @@ class CompiledParameterQuery:
             return self._infer_partial(enc, y, index, loc, mixture, below)
         # log N(y; loc, L L^T) = log_norm - |L^-1 (y - loc)|^2 / 2, with L^-1 and log_norm
         # precomputed from the model's own marginal Cholesky factor L
-        diff = y[:, None, :] - loc  # (n, C, d)
-        if shared:
-            z = torch.einsum("cij,ncj->nci", self.whiten[gather][0], diff)
+        if self.quadratic is not None and x is None:
+            features = quadratic_features(y - self.centre)  # (n, F)
+            if shared:
+                d2 = features @ self.quadratic[gather][0]
+            else:
+                d2 = (features[:, None, :] @ self.quadratic[index]).squeeze(-2)
         else:
-            z = torch.einsum("ncij,ncj->nci", self.whiten[index], diff)
-        d2 = z.square().sum(-1)  # (n, C) squared Mahalanobis distances
-        log_lik = self.log_norm[gather] - 0.5 * d2
-        log_cluster = self.log_cluster[enc[ACTION]]
-        log_post = log_lik + log_cluster
-        closest = d2.masked_fill(~torch.isfinite(log_cluster), torch.inf).min(-1).values
+            diff = y[:, None, :] - loc  # (n, C, d)
+            if shared:
+                z = torch.einsum("cij,ncj->nci", self.whiten[gather][0], diff)
+            else:
+                z = torch.einsum("ncij,ncj->nci", self.whiten[index], diff)
+            d2 = z.square().sum(-1)  # (n, C) squared Mahalanobis distances
+        log_cluster = self.log_cluster[enc[ACTION][:1] if shared else enc[ACTION]]
+        log_post = torch.add(self.log_norm[gather] + log_cluster, d2, alpha=-0.5)
+        impossible = ~torch.isfinite(log_cluster)  # (1 or n, C)
+        if bool(impossible.any()):
+            d2 = d2.masked_fill(impossible, torch.inf)
+        closest = d2.min(-1).values.clamp_min(0.0)  # rounding may leave -1e-12
         dof = torch.tensor(y.shape[-1] / 2, dtype=DTYPE)
         implausible = torch.special.gammaincc(dof, closest / 2) < below
         probs = log_post.softmax(-1)
@@ -616,6 +630,28 @@ def compile_parameter_query(
         log_cluster = params[m.cluster.site].probs.log()  # -inf: a cluster the action never takes
         return CompiledJointParameterQuery(net, params, m.parameter, log_cluster)
     child = net.cpd(m.child)
-    return CompiledParameterQuery(
-        net, m.parameter, child.parents, child.inputs, **m.query_tables(params, child)
-    )
+    tables = m.query_tables(params, child)
+    if tables["w_x"].shape[-1] == 0:  # no other continuous input: every mean is fixed
+        tables |= _quadratic_forms(tables["offset"], tables["whiten"])
+    return CompiledParameterQuery(net, m.parameter, child.parents, child.inputs, **tables)
+
+
+def quadratic_features(y: torch.Tensor) -> torch.Tensor:
+    """``(n, F)``: ``y_i y_j`` for ``i <= j`` (row-major), ``y_i``, and 1, of ``y`` ``(n, d)``."""
+    i, j = torch.triu_indices(y.shape[-1], y.shape[-1])
+    return torch.cat([y[:, i] * y[:, j], y, torch.ones_like(y[:, :1])], -1)
+
+
+def _quadratic_forms(offset: torch.Tensor, whiten: torch.Tensor) -> dict[str, torch.Tensor]:
+    """The coefficients of ``|whiten (y - offset)|^2`` in :func:`quadratic_features` of
+    ``y - centre``, per configuration ``(P'..., C)`` laid out as ``(P'..., F, C)``."""
+    d = offset.shape[-1]
+    centre = offset.reshape(-1, d).mean(0)
+    a = whiten.mT @ whiten  # (P..., C, d, d) precision
+    loc = offset - centre
+    b = (a @ loc[..., None]).squeeze(-1)  # (P..., C, d)
+    c = (loc * b).sum(-1)  # (P..., C)
+    i, j = torch.triu_indices(d, d)
+    pairs = a[..., i, j] * torch.where(i == j, 1.0, 2.0).to(a.dtype)
+    coeffs = torch.cat([pairs, -2 * b, c[..., None]], -1)  # (P..., C, F)
+    return {"centre": centre, "quadratic": coeffs.mT.contiguous()}

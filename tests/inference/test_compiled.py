@@ -212,3 +212,24 @@ def test_compiled_query_refuses_a_feature_shared_by_two_parameters():
     net, params = sliding()
     with pytest.raises(ValueError, match=r"'force' shares \['end.pos'\] with another parameter"):
         compile_parameter_query(net, params, "force")
+
+
+def test_compiled_query_without_other_inputs_reads_its_distances_as_one_product():
+    """A feature whose only continuous input is the parameter (the throw's hit): the
+    squared distances to every cluster come from quadratic forms; same answers."""
+    from inference import infer_parameter
+    from inference.compiled import compile_parameter_query
+    from models import Continuous, Parameter
+
+    target = Parameter("target", (0.0, 0.0), (1.0, 2.0), (3, 4), ("throw", "lob"), "hit")
+    net = EffectNetwork((Continuous("hit", 2, initial=False),), ("throw", "lob"), (target,))
+    params = random_params(net, 3, unseen=0.2)
+    query = compile_parameter_query(net, params, "target")
+    assert query.quadratic is not None and query.quadratic.shape == (2, 6, 12)
+    g = torch.Generator().manual_seed(0)
+    hits = 3 * torch.randn(20, 2, generator=g, dtype=torch.float64)
+    for actions in (["throw"] * 20, ["throw", "lob"] * 10):
+        ev = {"end.hit": hits, "action": actions}
+        assert_same_answer(
+            query.infer(ev, mixture=True), infer_parameter(net, params, "target", ev, mixture=True)
+        )
