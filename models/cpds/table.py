@@ -165,7 +165,11 @@ class GatheredCategorical(dist.TorchDistribution):
         return GatheredCategorical(self.logs, self.index, batch_shape)
 
     def log_prob(self, value: torch.Tensor) -> torch.Tensor:
-        index = (*self.index, value.long())
+        value = value.long()
+        k = self.logs.shape[-1]
+        if value.numel() and (int(value.min()) < 0 or int(value.max()) >= k):
+            raise ValueError(f"a state index outside 0..{k - 1}: {value.unique().tolist()}")
+        index = (*self.index, value)
         lp = gather(self.logs, index)
         return lp.expand(torch.broadcast_shapes(lp.shape, self.batch_shape))
 
