@@ -1,6 +1,7 @@
 """The table kind's lazy gather against pyro's Vindex and torch's Categorical."""
 
 import pyro.distributions as dist
+import pytest
 import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -60,7 +61,5 @@ def test_gathered_categorical_is_the_categorical_of_the_gathered_rows():
     assert wide.log_prob(value).shape == (2, 3, 1, 6)
     torch.manual_seed(0)
     assert lazy.sample((7,)).shape == (7, 3, 1, 6)
-    import pytest
-
     with pytest.raises(ValueError, match=r"state index outside 0..4"):
         lazy.log_prob(torch.tensor([5]))
