@@ -391,12 +391,17 @@ def infer_action(
     observed_end = [end_site(f.name) for f in net.features if end_site(f.name) in enc]
 
     def fn(e: Enumerated, _):
-        probs = e.marginal(ACTION)
         post = e.posterior()
-        flag = _unseen_mass(net, params, e, observed_end) if observed_end else torch.zeros(())
         dim = e.dims[ACTION]
-        joint = (post * flag).expand_as(post)
         others = [d for d in range(post.dim() - 1) if d != post.dim() + dim]
+        if post.shape[dim] == 1:  # no kept factor depends on the action (see marginal)
+            probs = e.marginal(ACTION)
+        else:  # the joint posterior summed over the other sites: one pass, not three
+            probs = (post.sum(others) if others else post).T
+        flag = _unseen_mass(net, params, e, observed_end) if observed_end else torch.zeros(())
+        if not bool(flag.any()):
+            return probs, torch.zeros_like(probs), e.log_evidence
+        joint = (post * flag).expand_as(post)
         per_action = joint.sum(others).T if others else joint.T
         return probs, per_action / probs.clamp_min(1e-300), e.log_evidence
 
