@@ -34,6 +34,7 @@ from inference.queries import (
     outside_range,
     placeholder_row,
 )
+from models.cpds import concat_inputs
 from models.declaration import (
     ACTION,
     DTYPE,
@@ -41,7 +42,8 @@ from models.declaration import (
     Parameter,
     end_site,
 )
-from models.evidence import Evidence
+from models.evidence import Evidence, is_partial
+from models.gaussian import mask_unobserved, partial_log_density
 from models.model import effect_model
 from models.params import NetworkParams, check_params
 
@@ -290,7 +292,8 @@ def compile_discrete(net: EffectNetwork, params: NetworkParams) -> CompiledNetwo
     factors = {}
     for name in sites:
         lp = trace.nodes[name]["log_prob"].squeeze(-1)  # drop the rows plate (size 1)
-        factors[name] = lp.reshape(*[1] * (rank - lp.dim()), *lp.shape)
+        # contiguous: an enumerated table's log_prob may be a strided view of its table
+        factors[name] = lp.reshape(*[1] * (rank - lp.dim()), *lp.shape).contiguous()
     seen = {}
     for spec in net.sites:
         if spec.role != "end":
@@ -330,6 +333,11 @@ class CompiledParameterQuery:
     prior_mean: torch.Tensor  # (C, k)
     post_cov: torch.Tensor  # (P..., k, k)
     seen: torch.Tensor  # (P...) bool
+    # Where the feature has no continuous input but the parameter: the squared distances
+    # of every cluster as one product, d2 = features(y - centre) @ quadratic, with
+    # features (y_i y_j for i <= j, y_i, 1) and the forms' coefficients per cluster.
+    centre: torch.Tensor | None = field(default=None, repr=False)  # (d,)
+    quadratic: torch.Tensor | None = field(default=None, repr=False)  # (P'..., F, C)
 
     def infer(
         self,
@@ -373,18 +381,29 @@ class CompiledParameterQuery:
         x = torch.cat(others, -1) if others else None
         if x is not None:
             loc = loc + (self.w_x[gather] @ x[:, None, :, None]).squeeze(-1)
+        if is_partial(y):
+            return self._infer_partial(enc, y, index, loc, mixture, below)
         # log N(y; loc, L L^T) = log_norm - |L^-1 (y - loc)|^2 / 2, with L^-1 and log_norm
         # precomputed from the model's own marginal Cholesky factor L
-        diff = y[:, None, :] - loc  # (n, C, d)
-        if shared:
-            z = torch.einsum("cij,ncj->nci", self.whiten[gather][0], diff)
+        if self.quadratic is not None and x is None:
+            features = quadratic_features(y - self.centre)  # (n, F)
+            if shared:
+                d2 = features @ self.quadratic[gather][0]
+            else:
+                d2 = (features[:, None, :] @ self.quadratic[index]).squeeze(-2)
         else:
-            z = torch.einsum("ncij,ncj->nci", self.whiten[index], diff)
-        d2 = z.square().sum(-1)  # (n, C) squared Mahalanobis distances
-        log_lik = self.log_norm[gather] - 0.5 * d2
-        log_cluster = self.log_cluster[enc[ACTION]]
-        log_post = log_lik + log_cluster
-        closest = d2.masked_fill(~torch.isfinite(log_cluster), torch.inf).min(-1).values
+            diff = y[:, None, :] - loc  # (n, C, d)
+            if shared:
+                z = torch.einsum("cij,ncj->nci", self.whiten[gather][0], diff)
+            else:
+                z = torch.einsum("ncij,ncj->nci", self.whiten[index], diff)
+            d2 = z.square().sum(-1)  # (n, C) squared Mahalanobis distances
+        log_cluster = self.log_cluster[enc[ACTION][:1] if shared else enc[ACTION]]
+        log_post = torch.add(self.log_norm[gather] + log_cluster, d2, alpha=-0.5)
+        impossible = ~torch.isfinite(log_cluster)  # (1 or n, C)
+        if bool(impossible.any()):
+            d2 = d2.masked_fill(impossible, torch.inf)
+        closest = d2.min(-1).values.clamp_min(0.0)  # rounding may leave -1e-12
         dof = torch.tensor(y.shape[-1] / 2, dtype=DTYPE)
         implausible = torch.special.gammaincc(dof, closest / 2) < below
         probs = log_post.softmax(-1)
@@ -408,20 +427,232 @@ class CompiledParameterQuery:
             probs, best, mean, cov, unseen, outside_range(p, mean), mix, implausible
         )
 
+    def _infer_partial(self, enc, y, index, loc, mixture, below) -> ParameterPosterior:
+        """The query for ``y`` observed in some dimensions (NaN in the others): each
+        cluster's marginal and conditioning restricted to the observed dimensions. The
+        tables hold them for all dimensions; the marginal covariance ``L L^T``, the
+        cross-covariance ``gain L L^T`` and the cluster covariance ``post_cov + gain L
+        L^T gain^T`` are read back from them, then every observed-dimension quantity is
+        taken from those (:func:`models.gaussian.mask_unobserved`)."""
+        n = y.shape[0]
+        eye = torch.eye(y.shape[-1], dtype=DTYPE)
+        tril = torch.linalg.solve_triangular(self.whiten[index], eye, upper=False)
+        marginal = tril @ tril.mT  # (n, C, d, d)
+        gain = self.gain[index]
+        cross = gain @ marginal  # (n, C, k, d)
+        prior_cov = self.post_cov[index] + gain @ cross.mT
+        y_, loc_, cov_, seen = mask_unobserved(y[:, None, :], loc, marginal)
+        chol = torch.linalg.cholesky(cov_)
+        resid = (y_ - loc_)[..., None]
+        d2 = torch.linalg.solve_triangular(chol, resid, upper=False).square().sum((-2, -1))
+        dof = seen[:, 0].sum(-1).to(DTYPE)  # (n,)
+        log_det = chol.diagonal(dim1=-2, dim2=-1).log().sum(-1)
+        log_lik = -0.5 * d2 - log_det - 0.5 * dof[:, None] * math.log(2 * math.pi)
+        cross = torch.where(seen[..., None, :], cross, 0.0)
+        gain = torch.cholesky_solve(cross.mT, chol).mT  # (n, C, k, d)
+        means = self.prior_mean + (gain @ resid).squeeze(-1)
+        covs = prior_cov - gain @ cross.mT
+        covs = 0.5 * (covs + covs.mT)
+        log_cluster = self.log_cluster[enc[ACTION]]
+        probs = (log_lik + log_cluster).softmax(-1)
+        closest = d2.masked_fill(~torch.isfinite(log_cluster), torch.inf).min(-1).values
+        tail = torch.special.gammaincc(dof.clamp_min(1) / 2, closest / 2)
+        implausible = torch.where(dof > 0, tail, 1.0) < below
+        best = probs.argmax(-1)
+        rows = torch.arange(n)
+        mean, cov = means[rows, best], covs[rows, best]
+        unseen = (~self.seen[(*index, best)]).to(DTYPE)
+        mix = GaussianMixture(probs, means, covs) if mixture else None
+        return ParameterPosterior(
+            probs, best, mean, cov, unseen, outside_range(self.parameter, mean), mix, implausible
+        )
+
+
+@dataclass(frozen=True)
+class CompiledJointParameterQuery:
+    """The inverse query of a parameter acting on several features, without tracing.
+
+    The observed continuous features it acts on are jointly Gaussian given its cluster
+    (its unknown value couples them); their joint density is taken in the model's own
+    order, each feature given the value's Gaussian conditioned on those before it
+    (:meth:`models.cpds.ParameterMixture.shared_loc_tril` and ``update``, the rules the
+    model samples with), batched over rows and clusters; the observed discrete features
+    it acts on add their kind's log-probability per cluster. Same results as
+    :func:`inference.infer_parameter` for evidence of the initial state, the action, the
+    affected features and their parents.
+    """
+
+    net: EffectNetwork
+    params: NetworkParams = field(repr=False)
+    parameter: Parameter
+    log_cluster: torch.Tensor  # (A, C)
+
+    def infer(
+        self,
+        evidence: Mapping[str, object],
+        *,
+        mixture: bool = False,
+        implausible_below: float = IMPLAUSIBLE_BELOW,
+    ) -> ParameterPosterior:
+        """Same contract and result as :func:`inference.infer_parameter`."""
+        below = check_threshold(implausible_below)
+        net, params, p = self.net, self.params, self.parameter
+        m = net.mixture(p.name)
+        enc = net.encode(evidence)
+        observed = [s for s in m.affected if s in enc]
+        if not observed:
+            raise ValueError(f"the query needs an observed end state of one of {list(m.affected)}")
+        n = enc.n_rows
+        if ACTION not in enc:
+            if len(p.actions) != 1:
+                raise ValueError(f"give the action (one of {list(p.actions)}) that used {p.name!r}")
+            enc = enc | net.encode_indices(
+                {ACTION: torch.full((n,), net.action_index(p.actions[0]))}
+            )
+        not_using = ~m.in_use(enc[ACTION])
+        if not_using.any():
+            row = int(not_using.nonzero()[0])
+            raise ValueError(
+                f"row {row}: action {net.actions[int(enc[ACTION][row])]!r} does not use {p.name!r}"
+            )
+        depending = _depending_on(net, set(m.affected)) & set(enc)
+        if depending:
+            raise ValueError(
+                f"evidence on {sorted(depending)}, which depend on features {p.name!r} acts "
+                "on: use inference.infer_parameter"
+            )
+        for site in observed:
+            missing = [q for q in net.cpd(site).parents if q not in enc and q != m.cluster.site]
+            if missing:
+                raise ValueError(
+                    f"the query needs the discrete parents {missing} of {site!r} as evidence"
+                )
+        if n == 0:  # a placeholder row whose action uses the parameter
+            placeholder = placeholder_row(enc).without(ACTION)
+            placeholder |= net.encode_indices({ACTION: [net.action_index(p.actions[0])]})
+            return no_rows(self.infer(placeholder, mixture=mixture, implausible_below=below))
+        clusters = torch.arange(p.n_clusters)  # (C,), broadcast against rows (n, 1)
+        action = enc[ACTION][:, None]
+        log_cluster = self.log_cluster[enc[ACTION]]  # (n, C)
+        log_discrete = torch.zeros_like(log_cluster)
+        cache: dict[str, torch.Tensor] = {}
+        for site in (s for s in observed if net.site(s).discrete):
+            cpd = net.cpd(site)
+            index = [clusters if q == m.cluster.site else enc[q][:, None] for q in cpd.parents]
+            x = [enc[q][:, None, :] for q in cpd.inputs]
+            fn = cpd.distribution(params[site], index, concat_inputs(x), cache)
+            log_discrete = log_discrete + fn.log_prob(enc[site][:, None])
+        children = [s for s in m.continuous if s in enc]
+        d2 = torch.zeros_like(log_cluster)
+        log_lik = log_discrete.clone()
+        dof = torch.zeros(n, dtype=DTYPE)
+        belief = None
+        known = torch.zeros(n, 1, dtype=torch.bool)
+        unknown = torch.full((n, 1, p.dim), torch.nan, dtype=DTYPE)
+        for site in sorted(children, key=lambda s: is_partial(enc[s])):  # as the model does
+            cpd = net.cpd(site)
+            index = [clusters if q == m.cluster.site else enc[q][:, None] for q in cpd.parents]
+            x = [enc[q][:, None, :] for q in cpd.inputs if q != m.value.site] + [unknown]
+            args = (params, cpd, index, x, action)
+            loc, tril = m.shared_loc_tril(*args, known, belief)
+            y = enc[site][:, None, :]
+            log_lik = log_lik + partial_log_density(y, loc, tril)
+            y_, loc_, cov_, seen = mask_unobserved(y, loc, tril @ tril.mT)
+            z = torch.linalg.solve_triangular(
+                torch.linalg.cholesky(cov_), (y_ - loc_)[..., None], upper=False
+            )
+            d2 = d2 + z.square().sum((-2, -1))
+            dof = dof + seen[:, 0].sum(-1)
+            belief = m.update(*args, y, belief)
+        probs = (log_lik + log_cluster).softmax(-1)
+        best = probs.argmax(-1)
+        rows = torch.arange(n)
+        prior = params[m.value.site]
+        if belief is None:  # only discrete effects observed: each cluster's own Gaussian
+            belief = (prior.bias.expand(n, -1, -1), prior.covariance.expand(n, -1, -1, -1))
+        means, covs = belief
+        mean, cov = means[rows, best], covs[rows, best]
+        if children:
+            unseen = torch.zeros(n, dtype=torch.bool)
+            for site in children:
+                cpd = net.cpd(site)
+                index = tuple(best if q == m.cluster.site else enc[q] for q in cpd.parents)
+                unseen = unseen | ~cpd.seen(params[site])[index]
+            unseen = unseen.to(DTYPE)
+        else:
+            flag = torch.zeros_like(log_cluster, dtype=torch.bool)
+            for site in observed:
+                cpd = net.cpd(site)
+                index = tuple(
+                    clusters if q == m.cluster.site else enc[q][:, None] for q in cpd.parents
+                )
+                flag = flag | ~cpd.seen(params[site])[index]
+            unseen = (probs * flag).sum(-1).clamp(0, 1)
+        possible = torch.isfinite(log_cluster + log_discrete)
+        closest = d2.masked_fill(~possible, torch.inf).min(-1).values
+        tail = torch.special.gammaincc(dof.clamp_min(1) / 2, closest / 2)
+        tail = torch.where(dof > 0, tail, 1.0)
+        p_discrete = (log_cluster + log_discrete).logsumexp(-1).exp()
+        implausible = (tail < below) | (p_discrete < below)
+        mix = GaussianMixture(probs, means, covs) if mixture else None
+        return ParameterPosterior(
+            probs, best, mean, cov, unseen, outside_range(p, mean), mix, implausible
+        )
+
+
+def _depending_on(net: EffectNetwork, sites: set[str]) -> set[str]:
+    """The end sites with one of ``sites`` among their ancestors (not ``sites`` themselves)."""
+    out: set[str] = set()
+    for spec in net.sites:  # parents before children
+        if spec.role == "end" and spec.name not in sites:
+            if any(q in sites or q in out for q in net.cpd(spec.name).parents):
+                out.add(spec.name)
+    return out
+
 
 def compile_parameter_query(
     net: EffectNetwork, params: NetworkParams, parameter: str
-) -> CompiledParameterQuery:
-    """Precompute :class:`CompiledParameterQuery` for ``parameter`` of ``net``."""
+) -> CompiledParameterQuery | CompiledJointParameterQuery:
+    """Precompute the inverse query of ``parameter``: :class:`CompiledParameterQuery`
+    (its tables) for a parameter acting on one continuous feature,
+    :class:`CompiledJointParameterQuery` for one acting on several features. A
+    continuous feature that several parameters act on is refused (use
+    :func:`inference.infer_parameter`)."""
     check_params(net, params)
     m = net.mixture(parameter)
-    if m.child is None or m.affected != (m.child,) or net.acting_on(m.child) != (m,):
+    shared = [s for s in m.continuous if net.acting_on(s) != (m,)]
+    if shared:
         raise ValueError(
-            f"the compiled query serves a parameter acting on one continuous feature alone; "
-            f"{parameter!r} acts on {list(m.affected)}, or shares one with another "
-            "parameter: use inference.infer_parameter"
+            f"the compiled query serves a parameter whose continuous features no other "
+            f"parameter acts on; {parameter!r} shares {shared} with another parameter: use "
+            "inference.infer_parameter"
         )
+    if m.child is None or m.affected != (m.child,):
+        log_cluster = params[m.cluster.site].probs.log()  # -inf: a cluster the action never takes
+        return CompiledJointParameterQuery(net, params, m.parameter, log_cluster)
     child = net.cpd(m.child)
-    return CompiledParameterQuery(
-        net, m.parameter, child.parents, child.inputs, **m.query_tables(params, child)
-    )
+    tables = m.query_tables(params, child)
+    if tables["w_x"].shape[-1] == 0:  # no other continuous input: every mean is fixed
+        tables |= _quadratic_forms(tables["offset"], tables["whiten"])
+    return CompiledParameterQuery(net, m.parameter, child.parents, child.inputs, **tables)
+
+
+def quadratic_features(y: torch.Tensor) -> torch.Tensor:
+    """``(n, F)``: ``y_i y_j`` for ``i <= j`` (row-major), ``y_i``, and 1, of ``y`` ``(n, d)``."""
+    i, j = torch.triu_indices(y.shape[-1], y.shape[-1])
+    return torch.cat([y[:, i] * y[:, j], y, torch.ones_like(y[:, :1])], -1)
+
+
+def _quadratic_forms(offset: torch.Tensor, whiten: torch.Tensor) -> dict[str, torch.Tensor]:
+    """The coefficients of ``|whiten (y - offset)|^2`` in :func:`quadratic_features` of
+    ``y - centre``, per configuration ``(P'..., C)`` laid out as ``(P'..., F, C)``."""
+    d = offset.shape[-1]
+    centre = offset.reshape(-1, d).mean(0)
+    a = whiten.mT @ whiten  # (P..., C, d, d) precision
+    loc = offset - centre
+    b = (a @ loc[..., None]).squeeze(-1)  # (P..., C, d)
+    c = (loc * b).sum(-1)  # (P..., C)
+    i, j = torch.triu_indices(d, d)
+    pairs = a[..., i, j] * torch.where(i == j, 1.0, 2.0).to(a.dtype)
+    coeffs = torch.cat([pairs, -2 * b, c[..., None]], -1)  # (P..., C, F)
+    return {"centre": centre, "quadratic": coeffs.mT.contiguous()}

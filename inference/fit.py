@@ -42,7 +42,7 @@ from tqdm.auto import tqdm
 
 from inference.statistics import Statistics, params_from_statistics, statistics
 from models.declaration import ACTION, EffectNetwork, cluster_site, param_site
-from models.evidence import Evidence
+from models.evidence import Evidence, is_partial
 from models.model import effect_model
 from models.params import NetworkParams, initial_params
 
@@ -366,6 +366,12 @@ def _complete(net: EffectNetwork, data: Mapping[str, object]) -> Evidence:
         clusters[cluster_site(p.name)] = derived
     for site, value in enc.items():
         if not net.site(site).discrete:
+            if net.site(site).role == "end" and is_partial(value):
+                row = int(torch.isnan(value).any(-1).nonzero()[0])
+                raise ValueError(
+                    f"site {site!r}: row {row} is observed in some dimensions only (Partial); "
+                    "fit needs every dimension of every continuous feature"
+                )
             _check_magnitude(site, value)
     return enc | net.encode_indices(clusters) if clusters else enc
 

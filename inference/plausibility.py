@@ -11,9 +11,9 @@ Two numbers per evidence row, each 1 where the row observes no end feature of it
   probability ``P(χ²_d > D²)`` of their squared Mahalanobis distance ``D²`` to the
   closest Gaussian component the evidence leaves possible (every configuration of the
   latent discrete sites with non-zero weight, the observed discrete ones included), with
-  ``d`` the summed dimensions. Under its own component an observation has
-  ``D² ~ χ²_d``, so ``tail`` is the probability that a draw from the model's best
-  component lies at least this far out.
+  ``d`` the summed dimensions (the observed ones, where the evidence is partial). Under
+  its own component an observation has ``D² ~ χ²_d``, so ``tail`` is the probability
+  that a draw from the model's best component lies at least this far out.
 
 A row is *implausible* when either number is below a threshold (default
 :data:`IMPLAUSIBLE_BELOW`). The flag warns: queries still answer such rows.
@@ -27,7 +27,8 @@ import torch
 
 from inference.enumeration import enumerate_model, enumeration_size, row_chunks
 from models.declaration import DTYPE, EffectNetwork, end_site
-from models.evidence import Evidence
+from models.evidence import Evidence, is_partial, observed_dims
+from models.gaussian import mask_unobserved
 from models.params import NetworkParams
 
 IMPLAUSIBLE_BELOW = 1e-4
@@ -84,19 +85,25 @@ def plausibility(
             log_evidence = _over_rows(net, params, given, lambda e, _: e.log_evidence)
         if log_prior is None:
             prior = evidence.without(*ends)
-            log_prior = _over_rows(net, params, prior, lambda e, _: e.log_evidence)
+            log_prior = (  # nothing observed: probability 1
+                _over_rows(net, params, prior, lambda e, _: e.log_evidence)
+                if len(prior)
+                else torch.zeros(evidence.n_rows, dtype=DTYPE)
+            )
         p_discrete = (log_evidence - log_prior).exp().clamp(0, 1)
     tail = ones
     if continuous:
         d2, dof = _closest_distance(net, params, evidence, continuous)
-        tail = torch.special.gammaincc(torch.tensor(dof / 2, dtype=DTYPE), d2 / 2)
+        tail = torch.special.gammaincc(dof.clamp_min(1) / 2, d2 / 2)
+        tail = torch.where(dof > 0, tail, 1.0)  # a row that observes no dimension
     return Plausibility(p_discrete, tail)
 
 
-def _closest_distance(net, params, evidence, sites) -> tuple[torch.Tensor, int]:
+def _closest_distance(net, params, evidence, sites) -> tuple[torch.Tensor, torch.Tensor]:
     """``(n,)`` smallest squared Mahalanobis distance over possible configurations, and
-    the summed dimension of ``sites``."""
-    dof = sum(net.site(s).size for s in sites)
+    ``(n,)`` the summed dimension of ``sites`` observed in each row (partial evidence:
+    the distance of the observed dimensions under their marginal)."""
+    dof = sum(observed_dims(evidence[s]).sum(-1) for s in sites).to(DTYPE)
 
     def fn(e, _):
         d2 = torch.zeros((), dtype=DTYPE)
@@ -114,6 +121,9 @@ def _mahalanobis(fn, value: torch.Tensor) -> torch.Tensor:
     """Squared Mahalanobis distance of ``value`` under the Gaussian ``fn``, batch-shaped."""
     diff = value - fn.loc
     tril = fn.scale_tril
+    if is_partial(value):  # the observed dimensions' marginal
+        value, loc, cov, _ = mask_unobserved(value, fn.loc, tril @ tril.mT)
+        diff, tril = value - loc, torch.linalg.cholesky(cov)
     shape = torch.broadcast_shapes(diff.shape[:-1], tril.shape[:-2])
     z = torch.linalg.solve_triangular(
         tril.expand(*shape, *tril.shape[-2:]),

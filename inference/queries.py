@@ -49,7 +49,8 @@ from models.declaration import (
     end_site,
     param_site,
 )
-from models.evidence import Evidence
+from models.evidence import Evidence, is_partial
+from models.gaussian import condition_on_observed
 from models.params import NetworkParams, check_params
 
 
@@ -282,7 +283,20 @@ def predict(
     enc = _prepare(net, params, evidence)
     if enc.n_rows == 0:
         return no_rows(predict(net, params, placeholder_row(enc), implausible_below=below))
-    targets = [f.name for f in net.features if end_site(f.name) not in enc]
+    targets = [
+        f.name
+        for f in net.features
+        if end_site(f.name) not in enc or is_partial(enc[end_site(f.name)])
+    ]
+    for m in net.mixtures:  # see effect_model: each is given those sampled before it
+        partly = [s for s in m.continuous if s in enc and is_partial(enc[s])]
+        theta = enc.get(m.value.site)
+        if len(partly) > 1 and (theta is None or bool(torch.isnan(theta).any())):
+            raise ValueError(
+                f"predict: {partly} are observed in part and share the parameter "
+                f"{m.parameter.name!r}, whose value is not given; predict one at a time "
+                "(the other observed in full or left out), or give the parameter"
+            )
     discrete, continuous = {}, {}
     unseen_sites = [end_site(f) for f in targets]
     for f in targets:
@@ -307,13 +321,19 @@ def predict(
 
 
 def _mixture(net, params, enc, site) -> GaussianMixture:
-    def fn(e: Enumerated, _):
+    """The site's mixture over the enumerated sites; a partly observed site's components
+    are conditioned on its observed dimensions (which hold their value, variance 0)."""
+    partial = site in enc
+
+    def fn(e: Enumerated, chunk: Evidence):
         post = e.posterior()  # (E..., n)
         d_fn = e.trace.nodes[site]["fn"]
         n = post.shape[-1]
         shape = post.shape
         loc = d_fn.loc.expand(*shape, d_fn.loc.shape[-1])
         cov = d_fn.covariance_matrix.expand(*shape, *d_fn.covariance_matrix.shape[-2:])
+        if partial:
+            loc, cov = condition_on_observed(chunk[site], loc, cov)
         w = post.reshape(-1, n).T
         return (
             w,
@@ -321,7 +341,7 @@ def _mixture(net, params, enc, site) -> GaussianMixture:
             cov.reshape(-1, n, *cov.shape[-2:]).transpose(0, 1),
         )
 
-    w, m, c = _chunked(net, params, enc, set(), fn, trace_only={site})
+    w, m, c = _chunked(net, params, enc, set(), fn, trace_only=set() if partial else {site})
     keep = w.sum(0) > 0  # drop components no row can reach
     return GaussianMixture(w[:, keep], m[:, keep], c[:, keep])
 
@@ -371,12 +391,17 @@ def infer_action(
     observed_end = [end_site(f.name) for f in net.features if end_site(f.name) in enc]
 
     def fn(e: Enumerated, _):
-        probs = e.marginal(ACTION)
         post = e.posterior()
-        flag = _unseen_mass(net, params, e, observed_end) if observed_end else torch.zeros(())
         dim = e.dims[ACTION]
-        joint = (post * flag).expand_as(post)
         others = [d for d in range(post.dim() - 1) if d != post.dim() + dim]
+        if post.shape[dim] == 1:  # no kept factor depends on the action (see marginal)
+            probs = e.marginal(ACTION)
+        else:  # the joint posterior summed over the other sites: one pass, not three
+            probs = (post.sum(others) if others else post).T
+        flag = _unseen_mass(net, params, e, observed_end) if observed_end else torch.zeros(())
+        if not bool(flag.any()):
+            return probs, torch.zeros_like(probs), e.log_evidence
+        joint = (post * flag).expand_as(post)
         per_action = joint.sum(others).T if others else joint.T
         return probs, per_action / probs.clamp_min(1e-300), e.log_evidence
 
@@ -434,7 +459,7 @@ def imitation_check(
     if all(net.site(s).discrete for s in observed):
         surprise = _discrete_surprise(net, params, prior, observed, log_lik)
     else:
-        surprise = _sampled_surprise(net, params, prior, observed, log_lik, n_samples, seed)
+        surprise = _sampled_surprise(net, params, enc, observed, log_lik, n_samples, seed)
 
     def unseen(e, _):
         post = e.posterior()
@@ -461,13 +486,21 @@ def _discrete_surprise(net, params, prior, observed, log_lik) -> torch.Tensor:
     return (joint.exp() * more_likely).sum(-1).clamp(0, 1)
 
 
-def _sampled_surprise(net, params, prior, observed, log_lik, n_samples, seed) -> torch.Tensor:
+def _sampled_surprise(net, params, enc, observed, log_lik, n_samples, seed) -> torch.Tensor:
     """Monte Carlo estimate of the same tail probability, seeded: outcomes of every
-    observed end feature drawn jointly from the model given the prior evidence."""
+    observed end feature drawn jointly from the model given the prior evidence (the
+    evidence without ``observed``), observed in the same dimensions as the evidence."""
     n = log_lik.shape[0]
-    rows = prior.repeat(n_samples)
+    rows = enc.without(*observed).repeat(n_samples)
     drawn = draw(net, params, rows, seed=seed)
-    outcomes = Evidence(net, {s: drawn[s] for s in observed}, rows.n_rows)
+    outcome = {}
+    for s in observed:
+        given = enc[s]
+        outcome[s] = drawn[s]
+        if given.is_floating_point() and is_partial(given):
+            unobserved = torch.isnan(given).repeat_interleave(n_samples, 0)
+            outcome[s] = torch.where(unobserved, torch.nan, drawn[s])
+    outcomes = Evidence(net, outcome, rows.n_rows)
     sample_ll = _chunked(net, params, rows | outcomes, set(), lambda e, _: e.log_evidence)
     sample_ll = sample_ll - _chunked(net, params, rows, set(), lambda e, _: e.log_evidence)
     return (sample_ll.reshape(n, n_samples) > log_lik[:, None]).to(DTYPE).mean(-1)

@@ -10,7 +10,8 @@ model's exact conditional:
 2. an unknown parameter is drawn from its Gaussian posterior given its cluster and the
    observed affected feature (a closed-form identity), or from its cluster's Gaussian
    when that feature is not observed;
-3. every remaining site is drawn forward by the model itself.
+3. every remaining site is drawn forward by the model itself; the unobserved dimensions
+   of a partly observed feature from its Gaussian conditioned on the observed ones.
 
 Evidence on roots only (initial states, the action) skips step 1: they are independent,
 so conditioning on them is clamping them.
@@ -26,7 +27,8 @@ from pyro import poutine
 from inference.enumeration import enumerate_model
 from models.cpds import ParameterMixture
 from models.declaration import ACTION, DTYPE, EffectNetwork
-from models.evidence import Evidence
+from models.evidence import Evidence, is_partial
+from models.gaussian import condition_on_observed
 from models.model import effect_model
 from models.params import NetworkParams, check_params
 
@@ -92,11 +94,25 @@ def draw(
                 data[m.value.site] = _parameter_draw(net, params, m, data)
         trace = poutine.trace(effect_model).get_trace(net, params, Evidence(net, data, n))
     out = {s.name: trace.nodes[s.name]["value"] for s in net.sites}
+    for site, value in evidence.items():  # partial evidence: the rest of the feature
+        if value.is_floating_point() and is_partial(value):
+            out[site] = _unobserved_draw(trace.nodes[site]["fn"], value)
     for m in net.mixtures:  # the parameter of an action that does not use it: absent
         uses = m.in_use(out[m.action])
         site = m.value.site
         out[site] = torch.where(uses[:, None], out[site], torch.nan)
     return out
+
+
+def _unobserved_draw(fn, y: torch.Tensor) -> torch.Tensor:
+    """``y`` ``(n, d)`` with its NaN dimensions drawn from ``fn`` (the feature's Gaussian
+    given its parents) conditioned on the observed ones."""
+    mean, cov = condition_on_observed(y, fn.loc, fn.covariance_matrix)
+    seen = ~torch.isnan(y)
+    cov = cov + torch.diag_embed(seen.to(DTYPE))  # observed dims: variance 0, kept as given
+    eps = torch.randn(*mean.shape, dtype=DTYPE)
+    drawn = mean + (torch.linalg.cholesky(cov) @ eps[..., None]).squeeze(-1)
+    return torch.where(seen, y, drawn)
 
 
 def _posterior_draw(e) -> dict[str, torch.Tensor]:

@@ -22,7 +22,7 @@ from models.declaration import (
     initial_site,
     param_site,
 )
-from models.evidence import Evidence
+from models.evidence import Evidence, Partial
 from models.interop import PgmpyNetwork, from_pgmpy, read_bif, to_pgmpy, write_bif
 from models.model import effect_model
 from models.params import NetworkParams, load, random_params, save
@@ -42,6 +42,7 @@ __all__ = [
     "LinearGaussian",
     "NetworkParams",
     "Parameter",
+    "Partial",
     "PgmpyNetwork",
     "Softmax",
     "Table",

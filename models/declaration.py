@@ -444,7 +444,9 @@ class EffectNetwork:
         Keys are site names (``initial.f``, ``end.f``, ``action``, ``param.p``,
         ``cluster.p``). Discrete values are state labels in any container (a label, a
         list, a numpy array, a torch tensor); action names for ``action``. Continuous
-        values are numbers of shape ``(n, dim)`` (or ``(dim,)`` for one row). All values
+        values are numbers of shape ``(n, dim)`` (or ``(dim,)`` for one row); a
+        continuous end feature observed in some dimensions only is
+        ``Partial(value, observed=mask)`` (:class:`models.evidence.Partial`). All values
         must have the same number of rows ``n``. Already encoded :class:`Evidence` is
         returned as it is. See :mod:`models.evidence` for the whole convention.
 

@@ -18,6 +18,12 @@ a flat ``(n,)`` is ``n`` rows), any float or int dtype; they are stored as float
 NaN is refused except in an action parameter ``param.<p>``, where a row of NaN means
 "unknown": rows whose action does not use the parameter may leave it NaN, and queries
 integrate an unknown value out, row by row.
+
+**Partial continuous evidence.** ``Partial(value, observed=mask)`` gives some dimensions
+of a continuous *end* feature: ``mask`` is bool, ``(dim,)`` shared by every row or
+``(n, dim)`` per row. Queries marginalise the unobserved dimensions (for a Gaussian:
+drop their rows and columns). Encoded, the unobserved dimensions hold NaN; that is the
+only NaN an encoded end feature holds (a NaN given as a plain value is still an error).
 """
 
 from __future__ import annotations
@@ -32,6 +38,36 @@ if TYPE_CHECKING:
     from models.declaration import EffectNetwork, SiteSpec
 
 DTYPE = torch.float64  # every continuous value and every probability is float64
+
+
+class Partial:
+    """Some dimensions of a continuous end feature: evidence ``{"end.xy": Partial(value,
+    observed=[True, False])}`` observes ``x`` and leaves ``y`` unknown.
+
+    ``value``: numbers of shape ``(n, dim)`` (or ``(dim,)`` for one row), as for full
+    evidence; entries in unobserved dimensions are ignored (they may be NaN).
+    ``observed``: bool, ``(dim,)`` for every row or ``(n, dim)`` per row; a row with no
+    dimension observed leaves the feature unobserved in that row.
+    """
+
+    __slots__ = ("observed", "value")
+
+    def __init__(self, value: object, observed: object):
+        self.value = value
+        self.observed = observed
+
+    def __repr__(self) -> str:
+        return f"Partial({self.value!r}, observed={self.observed!r})"
+
+
+def observed_dims(value: torch.Tensor) -> torch.Tensor:
+    """``(n, d)`` bool: the observed dimensions of an encoded continuous end feature."""
+    return ~torch.isnan(value)
+
+
+def is_partial(value: torch.Tensor) -> bool:
+    """Whether an encoded continuous end feature leaves some dimension unobserved."""
+    return bool(torch.isnan(value).any())
 
 
 class Evidence(Mapping):
@@ -231,6 +267,8 @@ def _encode_indices(spec: SiteSpec, value: object) -> torch.Tensor:
 
 
 def _encode_continuous(spec: SiteSpec, value: object) -> torch.Tensor:
+    if isinstance(value, Partial):
+        return _encode_partial(spec, value)
     try:
         x = torch.as_tensor(
             value.detach() if isinstance(value, torch.Tensor) else np.asarray(value),
@@ -261,6 +299,53 @@ def _encode_continuous(spec: SiteSpec, value: object) -> torch.Tensor:
         )
         raise ValueError(f"site {spec.name!r}: {what} in row {row}: {x[row].tolist()}")
     return x
+
+
+def _encode_partial(spec: SiteSpec, partial: Partial) -> torch.Tensor:
+    if spec.role != "end":
+        raise ValueError(
+            f"site {spec.name!r}: Partial evidence is for continuous end features only "
+            f"(an initial state is needed in full; an unknown parameter is a row of NaN)"
+        )
+    mask = partial.observed
+    mask = torch.as_tensor(mask.detach() if isinstance(mask, torch.Tensor) else np.asarray(mask))
+    if mask.dtype != torch.bool:
+        raise ValueError(
+            f"site {spec.name!r}: Partial's observed must be bool (True = observed), got "
+            f"dtype {mask.dtype}"
+        )
+    value = partial.value
+    try:
+        x = torch.as_tensor(
+            value.detach() if isinstance(value, torch.Tensor) else np.asarray(value),
+            dtype=DTYPE,
+        )
+    except (TypeError, ValueError, RuntimeError) as exc:
+        raise ValueError(
+            f"site {spec.name!r}: expected numbers of shape (n, {spec.size}), got {value!r}"
+        ) from exc
+    if x.dim() == 1 and spec.size > 1 or x.dim() == 0:
+        x = x.reshape(1, -1)
+    elif x.dim() == 1:
+        x = x.reshape(-1, 1)
+    if x.dim() != 2 or x.shape[-1] != spec.size:
+        raise ValueError(
+            f"site {spec.name!r}: expected shape (n, {spec.size}), got {tuple(np.shape(value))}"
+        )
+    if mask.shape not in ((spec.size,), (x.shape[0], spec.size)):
+        raise ValueError(
+            f"site {spec.name!r}: Partial's observed has shape {tuple(mask.shape)}; expected "
+            f"({spec.size},) for every row or ({x.shape[0]}, {spec.size}) per row"
+        )
+    mask = mask.expand(x.shape)
+    bad = mask & ~torch.isfinite(x)
+    if bad.any():
+        row = int(bad.any(-1).nonzero()[0])
+        raise ValueError(
+            f"site {spec.name!r}: NaN or inf in an observed dimension of row {row}: "
+            f"{x[row].tolist()}"
+        )
+    return torch.where(mask, x, torch.nan)
 
 
 def decode(net: EffectNetwork, site: str, index: torch.Tensor) -> list:

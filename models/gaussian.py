@@ -5,10 +5,16 @@ For ``theta ~ N(m, S)`` and ``y = W theta + b + e`` with ``e ~ N(0, R)``:
 * marginal: ``y ~ N(W m + b, W S W^T + R)``
 * posterior: ``theta | y ~ N(m + K (y - W m - b), S - K W S)``, ``K = S W^T (W S W^T + R)^-1``
 
+A ``y`` with NaN in some dimensions is observed in the others only
+(:func:`mask_unobserved`): the marginal of the observed dimensions, its rows and
+columns of the covariance, is what conditions.
+
 All functions broadcast over leading batch dims.
 """
 
 from __future__ import annotations
+
+import math
 
 import torch
 
@@ -33,11 +39,64 @@ def condition_linear_gaussian(
     noise_cov: torch.Tensor,
     y: torch.Tensor,
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Posterior mean ``(..., k)`` and covariance ``(..., k, k)`` of ``theta`` given ``y``."""
+    """Posterior mean ``(..., k)`` and covariance ``(..., k, k)`` of ``theta`` given ``y``
+    (given its dimensions that are not NaN, where some are)."""
     y_loc, y_cov = linear_gaussian_marginal(mean, cov, weight, offset, noise_cov)
+    if bool(torch.isnan(y).any()):
+        y, y_loc, y_cov, seen = mask_unobserved(y, y_loc, y_cov)
+        weight = torch.where(seen[..., None], weight, 0.0)
     cross = cov @ weight.mT  # (..., k, d)
     chol = torch.linalg.cholesky(y_cov)
     gain = torch.cholesky_solve(cross.mT, chol).mT  # S W^T (W S W^T + R)^-1
     post_mean = mean + (gain @ (y - y_loc).unsqueeze(-1)).squeeze(-1)
     post_cov = cov - gain @ weight @ cov
     return post_mean, 0.5 * (post_cov + post_cov.mT)
+
+
+def mask_unobserved(
+    y: torch.Tensor, loc: torch.Tensor, cov: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    """A Gaussian ``N(loc, cov)`` of ``y`` ``(..., d)`` observed where ``y`` is not NaN,
+    rewritten so that the unobserved dimensions carry no information: there ``y`` and
+    ``loc`` are 0 and ``cov`` has 1 on the diagonal and 0 elsewhere in their rows and
+    columns. Then ``N(y'; loc', cov') = N(y_o; loc_o, cov_oo) N(0; 0, 1)^u`` (the
+    observed dimensions' marginal, a Gaussian's rows and columns dropped, times a
+    constant) and conditioning on ``y'`` is conditioning on ``y_o``. Returns ``y'``,
+    ``loc'``, ``cov'`` (broadcast together) and the observed mask ``(..., d)``."""
+    seen = ~torch.isnan(y)
+    shape = torch.broadcast_shapes(y.shape[:-1], loc.shape[:-1], cov.shape[:-2])
+    d = y.shape[-1]
+    seen = seen.expand(*shape, d)
+    y = torch.where(seen, y.nan_to_num(), 0.0)
+    loc = torch.where(seen, loc, 0.0)
+    both = seen[..., :, None] & seen[..., None, :]
+    eye = torch.eye(d, dtype=cov.dtype)
+    cov = torch.where(both, cov, eye)
+    return y, loc, cov, seen
+
+
+def partial_log_density(
+    y: torch.Tensor, loc: torch.Tensor, scale_tril: torch.Tensor
+) -> torch.Tensor:
+    """``log N(y_o; loc_o, cov_oo)`` over the dimensions ``o`` where ``y`` is not NaN
+    (0 where none is), ``cov = scale_tril scale_tril^T``; batch-shaped."""
+    y, loc, cov, seen = mask_unobserved(y, loc, scale_tril @ scale_tril.mT)
+    tril = torch.linalg.cholesky(cov)
+    z = torch.linalg.solve_triangular(tril, (y - loc)[..., None], upper=False).squeeze(-1)
+    log_det = tril.diagonal(dim1=-2, dim2=-1).log().sum(-1)
+    k = seen.sum(-1).to(y.dtype)
+    return -0.5 * z.square().sum(-1) - log_det - 0.5 * k * math.log(2 * math.pi)
+
+
+def condition_on_observed(
+    y: torch.Tensor, loc: torch.Tensor, cov: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """``N(loc, cov)`` of ``y`` ``(..., d)`` conditioned on its dimensions that are not
+    NaN: the unobserved dimensions get ``loc_u + S_uo S_oo^-1 (y_o - loc_o)`` and
+    ``S_uu - S_uo S_oo^-1 S_ou``; the observed ones their value, with zero variance."""
+    seen = ~torch.isnan(y)
+    eye = torch.eye(y.shape[-1], dtype=cov.dtype)
+    noise = torch.zeros_like(eye)
+    mean, post = condition_linear_gaussian(loc, cov, eye, torch.zeros_like(y), noise, y)
+    both = seen[..., :, None] | seen[..., None, :]
+    return torch.where(seen, y.nan_to_num(), mean), torch.where(both, 0.0, post)

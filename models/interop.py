@@ -1,12 +1,16 @@
 """Interoperation with pgmpy: a network's discrete part as a pgmpy network, and back.
 
 An effect network whose features are all discrete is an ordinary discrete Bayesian
-network (paper Fig. 1)::
+network; with the paper's Fig. 1 structure::
 
     initial.f1  initial.f2  action        roots, one table each
           \\   \\  /  /   /
            end.f1   end.f2               one table per end site, over every initial
-                                          node and the action (no end -> end edges)
+                                          node and the action
+
+and with declared parent sets (``EffectNetwork(parents=...)``) any structure in which
+the action is a root, initial nodes have only initial parents, and end nodes have
+initial nodes, the action and other end nodes as parents.
 
 * :func:`to_pgmpy` writes that part as a ``pgmpy.models.DiscreteBayesianNetwork``: one
   node per site (``initial.<f>``, ``action``, ``end.<f>``), the declared state labels
@@ -15,8 +19,10 @@ network (paper Fig. 1)::
   :meth:`EffectNetwork.discrete_parents`. Everything else is left out and named:
   continuous features, action parameters (``param.<p>``, ``cluster.<p>``) and discrete
   end sites with continuous parents (softmax CPDs).
-* :func:`from_pgmpy` reads a pgmpy network of that shape back into a declaration and
-  parameters. A pgmpy CPD holds probabilities only, so the caller states the training
+* :func:`from_pgmpy` reads a pgmpy network of such a structure back into a declaration
+  (its parent sets declared where they are not Fig. 1's) and parameters; a structure a
+  declaration cannot express (an action with parents, an initial node with an end or
+  action parent, a node of another name, a parameter's node) is refused, naming it. A pgmpy CPD holds probabilities only, so the caller states the training
   rows behind every parent configuration (``n``; ``n == 0`` marks a configuration as
   unseen, which every query reports).
 * :func:`write_bif` and :func:`read_bif` do the same through a BIF file (pgmpy's
@@ -141,13 +147,15 @@ def from_pgmpy(
     order: Sequence[str] | None = None,
     pseudo_count: float = 0.01,
 ) -> tuple[EffectNetwork, NetworkParams]:
-    """Read a pgmpy network with the effect-network structure (paper Fig. 1).
+    """Read a discrete pgmpy network with an effect network's structure.
 
     The network's nodes are ``initial.<f>``, ``end.<f>`` (``f`` a Python identifier)
-    and the action node. Initial nodes and the action node are roots; each end node's
-    parents are exactly every initial node and the action node. Every ``initial.<f>``
-    needs its ``end.<f>``; an ``end.<f>`` without ``initial.<f>`` declares
-    ``Discrete(f, ..., initial=False)``.
+    and the action node. The action node is a root; an initial node's parents are
+    initial nodes; an end node's parents are any initial nodes, the action node and
+    other end nodes (Fig. 1: every initial node and the action). Each node's parents
+    become its declared ``parents=`` (stored where they differ from Fig. 1's). Every
+    ``initial.<f>`` needs its ``end.<f>``; an ``end.<f>`` without ``initial.<f>``
+    declares ``Discrete(f, ..., initial=False)``.
 
     Parameters
     ----------
@@ -165,8 +173,9 @@ def from_pgmpy(
         states it for every configuration of every table. A mapping states it per site
         of the result (``initial.<f>``, ``action``, ``end.<f>``; the action site is
         ``"action"`` whatever ``actions_node`` is): every site, each a number or an
-        array of the site's parent shape (``()`` for roots; for end sites the
-        cardinalities of ``net.discrete_parents(f)``). ``0`` marks a configuration
+        array of the site's parent shape: the cardinalities of
+        ``net.cpd(site).parents`` (``()`` for roots; parents in the network's site
+        order, parents before children). ``0`` marks a configuration
         unseen; queries report it.
     actions_node : str
         Name of the action node in ``model``.
@@ -188,9 +197,10 @@ def from_pgmpy(
     ImportError
         If pgmpy is not installed.
     ValueError
-        Naming the node and what was expected: a node with another name, a missing
-        action node, a root with parents, an end node whose parents are not every
-        initial node and the action, a missing or non-tabular CPD, a CPD pgmpy's
+        Naming the node and what was expected: a node with another name (or a
+        parameter's ``cluster.<p>``/``param.<p>``), a missing action node, an action
+        node with parents, an initial node with other than initial parents, a missing
+        or non-tabular CPD, a CPD pgmpy's
         ``check_model`` refuses, an initial and end node with different labels, or
         counts of the wrong shape or sign.
     """
@@ -340,7 +350,7 @@ def _from_pgmpy(model, *, n, actions_node, kind, order, pseudo_count, relabel):
         raise ValueError(f"pseudo_count must be a finite number >= 0, got {pseudo_count!r}")
     nodes = list(model.nodes())
     initial, ends = _classify(nodes, actions_node)
-    _check_structure(model, initial, ends, actions_node)
+    _check_structure(model, initial, actions_node)
 
     cpds = {}
     for node in nodes:
@@ -407,7 +417,7 @@ def _from_pgmpy(model, *, n, actions_node, kind, order, pseudo_count, relabel):
         )
     perm[actions_node] = list(range(len(actions)))
     labels[actions_node] = actions
-    net = EffectNetwork(tuple(features), actions)
+    net = EffectNetwork(tuple(features), actions, parents=_declared(model, features, actions_node))
 
     node_of = {ACTION: actions_node}
     node_of |= {initial_site(f.name): initial_site(f.name) for f in features if f.initial}
@@ -456,6 +466,12 @@ def _classify(nodes: list[str], actions_node: str) -> tuple[list[str], list[str]
         if node == actions_node:
             continue
         role, _, feature = str(node).partition(".")
+        if role in ("cluster", "param"):
+            raise ValueError(
+                f"node {node!r}: an action parameter has a continuous value (a Gaussian per "
+                "cluster), which a discrete pgmpy network cannot hold; read the network "
+                "without it, then declare the Parameter and fit it"
+            )
         if role not in ("initial", "end") or not feature.isidentifier():
             raise ValueError(
                 f"node {node!r} is not an effect-network site: expected the action node "
@@ -474,24 +490,35 @@ def _classify(nodes: list[str], actions_node: str) -> tuple[list[str], list[str]
     return initial, ends
 
 
-def _check_structure(model, initial: list[str], ends: list[str], actions_node: str) -> None:
-    for node in [*map(initial_site, initial), actions_node]:
-        parents = sorted(model.get_parents(node))
-        if parents:
+def _check_structure(model, initial: list[str], actions_node: str) -> None:
+    """Refuse, naming the node, parents a declaration cannot express."""
+    parents = sorted(model.get_parents(actions_node))
+    if parents:
+        raise ValueError(
+            f"node {actions_node!r} (the action) has parents {parents}; in an effect network "
+            "the action is a root (it is chosen, not caused)"
+        )
+    for node in map(initial_site, initial):
+        bad = sorted(q for q in model.get_parents(node) if not str(q).startswith("initial."))
+        if bad:
             raise ValueError(
-                f"node {node!r} has parents {parents}; expected none: initial nodes and the "
-                "action node are roots (paper Fig. 1)"
+                f"node {node!r} has parents {bad}; an initial node's parents can only be other "
+                "initial nodes (the initial state is before the action)"
             )
-    expected = {*map(initial_site, initial), actions_node}
-    for f in ends:
-        node = end_site(f)
-        parents = set(model.get_parents(node))
-        if parents != expected:
-            raise ValueError(
-                f"node {node!r} has parents {sorted(parents)}; expected exactly "
-                f"{sorted(expected)} (every initial node and the action node): missing "
-                f"{sorted(expected - parents)}, extra {sorted(parents - expected)}"
-            )
+
+
+def _declared(model, features: list[Discrete], actions_node: str) -> dict[str, tuple[str, ...]]:
+    """Every initial and end site's parents in ``model`` as sites (the action node as
+    ``action``): initial sites first, then the action, then end sites, each in feature
+    order."""
+    order = [initial_site(f.name) for f in features if f.initial]
+    order += [actions_node, *(end_site(f.name) for f in features)]
+    site = {node: node for node in order} | {actions_node: ACTION}
+    return {
+        node: tuple(site[q] for q in order if q in set(model.get_parents(node)))
+        for node in order
+        if node != actions_node
+    }
 
 
 def _relabel(node: str, raw: list, labels: Sequence[Hashable] | None) -> list:

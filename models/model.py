@@ -37,10 +37,14 @@ form: the affected feature follows the marginal
 linear-Gaussian identity), so no continuous site is latent and every discrete sum is
 exact. Several parameters on one feature add their terms; a parameter acting on several
 continuous features couples them, which are then sampled last (they have no children),
-the observed ones first, each given the value's Gaussian conditioned on those before it
+the observed ones first (those observed in part after those observed in full), each
+given the value's Gaussian conditioned on those before it
 (:class:`models.cpds.ParameterMixture`). A discrete feature a parameter acts on depends
 on its cluster, an enumerated site. In the default form a parameter is an ordinary
 sample site: given, or sampled.
+
+An end feature observed in some dimensions only (:class:`models.evidence.Partial`:
+NaN in the others) contributes the density of those dimensions' marginal.
 
 Values that reach the model through Pyro's handlers are the model's own: state indices
 for discrete sites (``net.encode`` turns labels into them), numbers for continuous ones
@@ -59,7 +63,8 @@ from pyro import poutine
 from models.cpds import ParameterMixture, concat_inputs
 from models.cpds.mixture import affected_loc_tril
 from models.declaration import DTYPE, EffectNetwork
-from models.evidence import Evidence
+from models.evidence import Evidence, is_partial
+from models.gaussian import partial_log_density
 from models.params import NetworkParams
 
 ENUM = {"enumerate": "parallel"}
@@ -151,11 +156,13 @@ def effect_model(
             if spec.discrete:
                 values[site] = _discrete(site, fn, data, masks)
             else:
-                values[site] = _continuous(site, pyro.sample(site, fn, obs=data.get(site)))
+                values[site] = _observe(site, fn, data.get(site))
         for m in shared:
             sites = [s for s in m.continuous if wanted is None or s in wanted]
             belief = None
-            for site in sorted(sites, key=lambda s: s not in data):  # observed ones first
+            # observed ones first, then those observed in part (each of them given every
+            # fully observed one), then the latent ones
+            for site in sorted(sites, key=lambda s: (s not in data, _partly(data, s))):
                 cpd = net.cpd(site)
                 index = [values[s] for s in cpd.parents]
                 inputs = [values[s] for s in cpd.inputs]
@@ -163,7 +170,7 @@ def effect_model(
                 args = (params, cpd, index, inputs, action)
                 loc, tril = m.shared_loc_tril(*args, known[m.parameter.name], belief)
                 fn = dist.MultivariateNormal(loc, scale_tril=tril)
-                values[site] = _continuous(site, pyro.sample(site, fn, obs=data.get(site)))
+                values[site] = _observe(site, fn, data.get(site))
                 if site in data:
                     belief = m.update(*args, values[site], belief)
     return values
@@ -235,6 +242,26 @@ class _UnknownWhereNaN(dist.MultivariateNormal):
             shape = torch.broadcast_shapes(self.batch_shape, value.shape[:-1])
             return torch.zeros(shape, dtype=self.loc.dtype)
         return torch.where(given, super().log_prob(value.nan_to_num()), 0.0)
+
+
+def _partly(data: Mapping, site: str) -> bool:
+    return site in data and is_partial(data[site])
+
+
+class _PartlyObserved(dist.MultivariateNormal):
+    """A Gaussian observed in the dimensions where its value is not NaN: the density of
+    those dimensions' marginal (partial evidence, :class:`models.evidence.Partial`)."""
+
+    def log_prob(self, value: torch.Tensor) -> torch.Tensor:
+        return partial_log_density(value, self.loc, self.scale_tril)
+
+
+def _observe(site: str, fn: dist.MultivariateNormal, obs: torch.Tensor | None) -> torch.Tensor:
+    """Sample a continuous site: latent, observed, or observed in some dimensions (NaN in
+    the others: their marginal is the site's factor)."""
+    if obs is not None and is_partial(obs):
+        fn = _PartlyObserved(fn.loc, scale_tril=fn.scale_tril)
+    return _continuous(site, pyro.sample(site, fn, obs=obs))
 
 
 def _discrete(site: str, fn: dist.Categorical, data: Mapping, masks: Mapping) -> torch.Tensor:

@@ -41,6 +41,9 @@ def test_readme_snippets_run(tmp_path, monkeypatch):
     assert float(namespace["still"][0]) > 0.99
     assert float(namespace["diagonal"]) == 0.0
     assert namespace["plane"].cpd("end.xy").name == "diagonal_gaussian"
+    assert abs(float(namespace["which"].sum()) - 1) < 1e-12
+    assert float(namespace["rest"].cov[0, 0, 0]) == 0.0
+    assert float(namespace["rest"].mean[0, 0]) == 0.4 and torch.isfinite(namespace["y_given_x"])
     assert float(namespace["gone"][0]) > 0.99
     assert float(namespace["surprise"][0]) > 0.99
     assert abs(float(namespace["force_needed"][0, 0]) - 10.0) < 0.5

@@ -15,6 +15,7 @@ import pyro.distributions as dist
 import torch
 from pyro.ops.indexing import Vindex
 from torch.distributions.utils import probs_to_logits
+from torch.utils.weak import WeakIdKeyDictionary
 
 from models.cpds.base import CPD
 from models.evidence import DTYPE
@@ -89,21 +90,28 @@ class TableCPD(CPD):
         batch: for a table gathered at enumerated parents that is the enumerated
         tensor, far larger than the table. The values are those ``Categorical(probs)``
         computes (normalised, clamped to ``[eps, 1 - eps]``, then log), so a zero
-        probability stays finite.
+        probability stays finite. A table that is not being fitted by gradient keeps its
+        logs (until its ``probs`` change in place), so repeated queries take them once.
         """
         if cache is not None and self.site in cache:
             return cache[self.site]
         probs = params.probs
-        logs = probs_to_logits(probs / probs.sum(-1, keepdim=True))
+        kept = params.__dict__.get("_logs")  # fitted tables: once per Table, not per call
+        if kept is not None and kept[0] is probs and kept[1] == probs._version:
+            logs = kept[2]
+        else:
+            logs = probs_to_logits(probs / probs.sum(-1, keepdim=True))
+            if not probs.requires_grad:
+                object.__setattr__(params, "_logs", (probs, probs._version, logs))
         if cache is not None:
             cache[self.site] = logs
         return logs
 
-    def distribution(self, params: Table, index, x, cache) -> dist.Categorical:
+    def distribution(self, params: Table, index, x, cache) -> dist.TorchDistribution:
         logs = self.log_table(params, cache)
         if not index:
             return dist.Categorical(logits=logs)
-        return dist.Categorical(logits=Vindex(logs)[(*index, slice(None))])
+        return GatheredCategorical(logs, tuple(index))
 
     def statistics(self, index: torch.Tensor, x, y: torch.Tensor) -> Counts:
         return counts(index, y, self.card, self.size)
@@ -117,6 +125,138 @@ class TableCPD(CPD):
 
     def bound(self, free: dict[str, torch.Tensor], params: Table) -> Table:
         return Table(self.pin(free["logits"].softmax(-1)), params.n)
+
+
+class GatheredCategorical(dist.TorchDistribution):
+    """``Categorical(logits=logs[index...])``, gathered lazily.
+
+    A table gathered at enumerated parents is the enumerated tensor times the child's
+    states (for an observed child with 42 states under 90,090 parent configurations and
+    30 rows: 113 million values), of which ``log_prob`` keeps one per configuration.
+    This distribution gathers ``logs[(*index, value)]`` in one step instead; only
+    ``sample`` (forward draws) gathers the whole rows. ``logs`` ``(P..., K)`` must be
+    normalised log-probabilities (:meth:`TableCPD.log_table`); ``index`` one integer
+    tensor per parent, broadcasting to the batch shape.
+    """
+
+    arg_constraints: dict = {}
+    has_enumerate_support = True
+
+    def __init__(self, logs: torch.Tensor, index: tuple, batch_shape=None, validate_args=None):
+        self.logs, self.index = logs, index
+        if batch_shape is None:
+            batch_shape = torch.broadcast_shapes(*(i.shape for i in index))
+        super().__init__(torch.Size(batch_shape), torch.Size(), validate_args=False)
+
+    @property
+    def support(self):
+        return dist.constraints.integer_interval(0, self.logs.shape[-1] - 1)
+
+    @property
+    def logits(self) -> torch.Tensor:
+        rows = Vindex(self.logs)[(*self.index, slice(None))]
+        return rows.expand(*self.batch_shape, rows.shape[-1])
+
+    @property
+    def probs(self) -> torch.Tensor:
+        return self.logits.exp()
+
+    def expand(self, batch_shape, _instance=None):
+        return GatheredCategorical(self.logs, self.index, batch_shape)
+
+    def log_prob(self, value: torch.Tensor) -> torch.Tensor:
+        value = value.long()
+        k = self.logs.shape[-1]
+        if value.numel() and (int(value.min()) < 0 or int(value.max()) >= k):
+            raise ValueError(f"a state index outside 0..{k - 1}: {value.unique().tolist()}")
+        index = (*self.index, value)
+        lp = gather(self.logs, index)
+        return lp.expand(torch.broadcast_shapes(lp.shape, self.batch_shape))
+
+    def sample(self, sample_shape: tuple[int, ...] = ()) -> torch.Tensor:
+        return dist.Categorical(logits=self.logits).sample(torch.Size(sample_shape))
+
+    def enumerate_support(self, expand: bool = True) -> torch.Tensor:
+        k = self.logs.shape[-1]
+        values = torch.arange(k).reshape((k,) + (1,) * len(self.batch_shape))
+        return values.expand((k, *self.batch_shape)) if expand else values
+
+
+def gather(table: torch.Tensor, index: tuple[torch.Tensor, ...]) -> torch.Tensor:
+    """``Vindex(table)[index]``: one integer index per axis of ``table``, broadcast.
+
+    Under enumeration most indices are either a whole axis (an enumerated site's values
+    ``arange(K)`` on its own dim) or one value per row (shape ``(n,)``). Then the
+    answer is a strided view of ``table`` with the row-indexed axes selected in one
+    ``index_select`` (a copy of the answer's size, no broadcast index arithmetic);
+    any other index goes through :class:`pyro.ops.indexing.Vindex`.
+    """
+    shape = torch.broadcast_shapes(*(i.shape for i in index))
+    whole: dict[int, int] = {}  # axis -> its (negative) dim in the answer
+    rows: list[int] = []
+    for axis, i in enumerate(index):
+        size = table.shape[axis]
+        big = [d for d in range(-i.dim(), 0) if i.shape[d] != 1]
+        if (
+            i.dim() == 1
+            and len(shape) >= 1
+            and i.shape[0] == shape[-1]
+            and (i.shape[0] != size or len(big) != 1 or not _is_range(i))
+        ):
+            rows.append(axis)
+        elif len(big) == 1 and i.shape[big[0]] == size and big[0] != -1 and _is_range(i):
+            whole[axis] = big[0]
+        elif i.numel() == 1 and size == 1:
+            continue  # a single state: the axis has size 1
+        else:
+            return Vindex(table)[index]
+    if len(set(whole.values())) != len(whole):
+        return Vindex(table)[index]
+    # the other axes in the answer's order (outer enumeration dims first), so that the
+    # answer is laid out as the enumerated tensors it is added to
+    kept = sorted((a for a in range(table.dim()) if a not in rows), key=lambda a: whole.get(a, 0))
+    if not rows:
+        moved = table.permute(kept)
+    else:
+        n = shape[-1]
+        row = torch.zeros(n, dtype=torch.long)
+        for axis in rows:
+            row = row * table.shape[axis] + index[axis]
+        # rows first: each row's values are one contiguous block, copied whole (the
+        # answer's rows are its outermost stride; the enumeration dims keep their order)
+        picked = _rows_first(table, tuple(rows), tuple(kept)).index_select(0, row)
+        moved = picked.reshape(n, *(table.shape[a] for a in kept))
+    offset = 1 if rows else 0
+    strides = [0] * len(shape)
+    for position, axis in enumerate(kept):
+        if axis in whole:
+            strides[len(shape) + whole[axis]] = moved.stride(position + offset)
+    if rows:
+        strides[-1] = moved.stride(0)
+    return moved.as_strided(shape, strides, moved.storage_offset())
+
+
+_ROWS_FIRST: WeakIdKeyDictionary = WeakIdKeyDictionary()
+
+
+def _rows_first(table: torch.Tensor, rows: tuple[int, ...], kept: tuple[int, ...]) -> torch.Tensor:
+    """``table`` with the axes ``rows`` first, merged, and the axes ``kept`` flattened
+    behind them, contiguous: ``(prod(rows), rest)``. Kept per table (a cached log table
+    is gathered this way on every query of one evidence pattern)."""
+    per_table = _ROWS_FIRST.setdefault(table, {})
+    key = (rows, kept)
+    if table.requires_grad or key not in per_table:
+        size = math.prod(table.shape[a] for a in rows)
+        moved = table.permute(*rows, *kept).reshape(size, -1).contiguous()
+        if table.requires_grad:
+            return moved
+        per_table[key] = moved
+    return per_table[key]
+
+
+def _is_range(i: torch.Tensor) -> bool:
+    flat = i.reshape(-1)
+    return bool((flat == torch.arange(flat.shape[0])).all())
 
 
 def counts(index: torch.Tensor, child: torch.Tensor, card: tuple[int, ...], k: int) -> Counts:

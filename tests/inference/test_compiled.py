@@ -121,3 +121,115 @@ def test_answers_per_configuration_equal_the_answers_per_row(seed, zero_n, data)
     for name in ("probs", "log_evidence", "unseen"):
         torch.testing.assert_close(getattr(a, name), getattr(b, name), atol=1e-12, rtol=0)
     assert torch.equal(a.best, b.best) and a.best_names == b.best_names
+
+
+# ---------------------------------------------------------------- a parameter on several features
+def assert_same_answer(a, b):
+    for name in ("cluster_probs", "mean", "cov", "unseen", "outside", "implausible"):
+        torch.testing.assert_close(getattr(a, name), getattr(b, name), atol=1e-9, rtol=1e-9)
+    assert torch.equal(a.best_cluster, b.best_cluster)
+    if b.mixture is not None:
+        for name in ("weights", "means", "covs"):
+            torch.testing.assert_close(getattr(a.mixture, name), getattr(b.mixture, name))
+
+
+@settings(max_examples=10, deadline=None)
+@given(seed=st.integers(0, 1000), which=st.sampled_from(["both", "land", "roll", "partial"]))
+def test_compiled_query_of_a_parameter_on_two_continuous_features(seed, which):
+    """One aim acting on end.land (2-D) and end.roll: their joint Gaussian per cluster."""
+    from inference import infer_parameter
+    from inference.compiled import CompiledJointParameterQuery, compile_parameter_query
+    from models import Partial
+    from tests.inference.test_parameter_effects import throwing
+
+    net, _ = throwing()
+    params = random_params(net, seed, unseen=0.3)
+    query = compile_parameter_query(net, params, "aim")
+    assert isinstance(query, CompiledJointParameterQuery)
+    g = torch.Generator().manual_seed(seed)
+    n = 12
+    ev = {
+        "initial.land": torch.randn(n, 2, generator=g, dtype=torch.float64),
+        "initial.roll": torch.randn(n, 1, generator=g, dtype=torch.float64),
+        "action": ["throw"] * n,
+    }
+    land = 2 * torch.randn(n, 2, generator=g, dtype=torch.float64)
+    roll = 2 * torch.randn(n, 1, generator=g, dtype=torch.float64)
+    if which in ("both", "land"):
+        ev["end.land"] = land
+    if which in ("both", "roll", "partial"):
+        ev["end.roll"] = roll
+    if which == "partial":
+        ev["end.land"] = Partial(land, observed=torch.rand(n, 2, generator=g) < 0.5)
+    for mixture in (False, True):
+        assert_same_answer(
+            query.infer(ev, mixture=mixture),
+            infer_parameter(net, params, "aim", ev, mixture=mixture),
+        )
+
+
+def test_compiled_query_of_a_parameter_on_a_continuous_and_a_discrete_feature():
+    from inference import infer_parameter
+    from inference.compiled import compile_parameter_query
+    from models import Continuous, Discrete, Parameter
+
+    force = Parameter("force", 0.0, 6.0, 3, ("push",), ("pos", "upright"))
+    net = EffectNetwork(
+        (Discrete("upright", (True, False)), Continuous("pos", 1)),
+        ("push", "wait"),
+        (force,),
+        parents={
+            "end.upright": ("initial.upright", "action"),
+            "end.pos": ("initial.pos", "action"),
+        },
+    )
+    params = random_params(net, 2, unseen=0.3)
+    query = compile_parameter_query(net, params, "force")
+    g = torch.Generator().manual_seed(0)
+    n = 10
+    ev = {
+        "initial.upright": torch.rand(n, generator=g) < 0.5,
+        "initial.pos": torch.randn(n, 1, generator=g, dtype=torch.float64),
+        "action": ["push"] * n,
+    }
+    pos = {"end.pos": 3 * torch.randn(n, 1, generator=g, dtype=torch.float64)}
+    upright = {"end.upright": torch.rand(n, generator=g) < 0.5}
+    for extra in (pos | upright, pos, upright):
+        assert_same_answer(
+            query.infer(ev | extra, mixture=True),
+            infer_parameter(net, params, "force", ev | extra, mixture=True),
+        )
+    empty = query.infer({k: v[:0] for k, v in (ev | pos).items()})
+    assert empty.mean.shape == (0, 1) and empty.cluster_probs.shape == (0, 3)
+    with pytest.raises(ValueError, match=r"discrete parents \['initial.upright'\]"):
+        query.infer({k: v for k, v in (ev | upright).items() if k != "initial.upright"})
+
+
+def test_compiled_query_refuses_a_feature_shared_by_two_parameters():
+    from inference.compiled import compile_parameter_query
+    from tests.inference.test_parameter_effects import sliding
+
+    net, params = sliding()
+    with pytest.raises(ValueError, match=r"'force' shares \['end.pos'\] with another parameter"):
+        compile_parameter_query(net, params, "force")
+
+
+def test_compiled_query_without_other_inputs_reads_its_distances_as_one_product():
+    """A feature whose only continuous input is the parameter (the throw's hit): the
+    squared distances to every cluster come from quadratic forms; same answers."""
+    from inference import infer_parameter
+    from inference.compiled import compile_parameter_query
+    from models import Continuous, Parameter
+
+    target = Parameter("target", (0.0, 0.0), (1.0, 2.0), (3, 4), ("throw", "lob"), "hit")
+    net = EffectNetwork((Continuous("hit", 2, initial=False),), ("throw", "lob"), (target,))
+    params = random_params(net, 3, unseen=0.2)
+    query = compile_parameter_query(net, params, "target")
+    assert query.quadratic is not None and query.quadratic.shape == (2, 6, 12)
+    g = torch.Generator().manual_seed(0)
+    hits = 3 * torch.randn(20, 2, generator=g, dtype=torch.float64)
+    for actions in (["throw"] * 20, ["throw", "lob"] * 10):
+        ev = {"end.hit": hits, "action": actions}
+        assert_same_answer(
+            query.infer(ev, mixture=True), infer_parameter(net, params, "target", ev, mixture=True)
+        )

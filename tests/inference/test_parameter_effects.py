@@ -141,7 +141,7 @@ def test_one_parameter_is_inferred_given_the_other():
     np.testing.assert_allclose(answer.mean[0].numpy(), expected, rtol=1e-9)
     with pytest.raises(ValueError, match=r"needs 'param.angle' in every row"):
         infer_parameter(net, params, "force", {k: v for k, v in ev.items() if k != "param.angle"})
-    with pytest.raises(ValueError, match="compiled query serves a parameter acting on one"):
+    with pytest.raises(ValueError, match=r"shares \[.end.pos.\] with another parameter"):
         compile_parameter_query(net, params, "force")
 
 

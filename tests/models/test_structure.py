@@ -294,3 +294,53 @@ def test_a_latent_discrete_end_parent_of_a_gaussian_is_summed_out():
     pred = predict(net, params, {"initial.a": [1], "initial.pos": [[x]], "action": ["pull"]})
     means = lg.bias[1, :, 0] + lg.weight[1, :, 0, 0] * x
     torch.testing.assert_close(pred.continuous["pos"].mean[0, 0], table[1, 1] @ means)
+
+
+def push_world(n=3000, seed=0):
+    """The issue's push world: a position and two discrete features. Push moves the
+    object 0.3 m and makes contact, grasp makes contact and holds it, wait does nothing;
+    positions seen in training lie in [-1, 1]."""
+    rng = np.random.default_rng(seed)
+    action = rng.choice(["wait", "push", "grasp"], n)
+    pos = rng.uniform(-1, 1, (n, 1))
+    contact, held = rng.random(n) < 0.3, rng.random(n) < 0.2
+    moved = pos + np.where(action[:, None] == "push", 0.3, 0.0) + rng.normal(0, 0.01, (n, 1))
+    return {
+        "initial.contact": contact,
+        "initial.held": held,
+        "initial.pos": pos,
+        "action": action,
+        "end.contact": contact | (action != "wait"),
+        "end.held": held | (action == "grasp"),
+        "end.pos": moved,
+    }
+
+
+def test_the_issues_push_world_answers_right_with_the_spurious_edges_dropped():
+    features = (
+        Discrete("contact", (False, True)),
+        Discrete("held", (False, True)),
+        Continuous("pos", 1),
+    )
+    actions = ("wait", "push", "grasp")
+    declared = EffectNetwork(
+        features,
+        actions,
+        parents={
+            "end.contact": ("initial.contact", "action"),
+            "end.held": ("initial.held", "action"),
+        },
+    )
+    assert declared.cpd("end.contact").name == "table"  # no softmax over the position
+    params = fit(declared, push_world()).params
+    far = {"initial.contact": [False], "initial.held": [False], "initial.pos": [[5.0]]}
+    waiting = predict(declared, params, far | {"action": ["wait"]})
+    assert float(waiting.prob("contact", True)[0]) < 0.01  # was 0.995 with Fig. 1's softmax
+    unchanged = far | {"end.contact": [False], "end.held": [False], "end.pos": [[5.0]]}
+    post = infer_action(declared, params, unchanged)
+    assert post.best_names == ("wait",) and float(post.prob("wait")[0]) > 0.99  # not "grasp"
+    assert float(post.unseen[0, 0]) == 0.0 and not bool(post.implausible[0])
+    # evidence the model gives no probability: no action releases contact
+    released = {"initial.contact": [True], "initial.held": [False], "initial.pos": [[0.0]]}
+    released |= {"end.contact": [False], "end.held": [False], "end.pos": [[0.0]]}
+    assert bool(infer_action(declared, params, released).implausible[0])
