@@ -1,7 +1,8 @@
 """Reproduce the paper's experiments end to end and write ``results/``.
 
 Runs each example script in turn (each can also be run alone): the §III illustration,
-the worlds' pictures, throwing (§IV-B), can tossing (§IV-A, Table I), the combined
+the worlds' pictures, throwing (§IV-B) and beyond the paper its adaptive clusters and
+active throw targets, can tossing (§IV-A, Table I), the combined
 system (§IV-C, Tables II-IV), the physics' own bounds, and beyond the paper the
 combined system on every goal the physics reaches (:mod:`experiments.all_goals`). The can data set is generated
 once under ``--data-dir`` (resumable) and reused. Then writes ``run.json`` (scale,
@@ -43,6 +44,7 @@ def steps(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
         ),
         ("throw_kinematics", ["--out", f"{out}/throw"]),
         ("throwing", ["--out", out] + (["--quick"] if quick else [])),
+        ("adaptive_throw", ["--out", out] + (["--quick"] if quick else [])),
         ("can_tossing", [*scale, *executor] + (["--n-demos", "100"] if quick else [])),
         (
             "combined",
