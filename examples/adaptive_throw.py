@@ -34,7 +34,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--n-test", type=int, default=1_000)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--bins", type=int, nargs="+", default=[4, 8, 12, 16])
-    parser.add_argument("--em-steps", type=int, default=20)
+    parser.add_argument(
+        "--em-steps", type=int, nargs="+", default=[5, 20], help="EM checkpoints to measure"
+    )
     parser.add_argument("--budgets", type=int, nargs="+", default=[250, 500, 1000, 2000, 4000])
     parser.add_argument("--batch", type=int, default=50)
     parser.add_argument("--pool", type=int, default=2000)
@@ -48,7 +50,7 @@ def parse_args(argv=None) -> argparse.Namespace:
         "n_train": args.n_train,
         "n_test": args.n_test,
         "bins": tuple(args.bins),
-        "em_steps": args.em_steps,
+        "em_steps": tuple(args.em_steps),
         "budgets": tuple(args.budgets),
         "batch": args.batch,
         "pool": args.pool,

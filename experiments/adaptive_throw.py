@@ -9,8 +9,9 @@ uniform targets on the 2 m x 2 m area, their hits, re-throw RMS per axis ``y``, 
   expectation-maximisation over target and hit jointly (:func:`inference.fit_em`). For
   each grid size in ``bins``: cluster count, fit time and the noise-free re-throw RMS of
   both; for the largest, also trained and re-thrown with release noise, beside the
-  noise's own scatter. As an honest floor, what the training throws support at all: a
-  local quadratic inverse fitted per test hit to its ``neighbours`` nearest training hits.
+  noise's own scatter. As an honest floor, what the training throws support at all:
+  per test hit, Newton's method on a local quadratic forward model fitted to the
+  ``neighbours`` training throws nearest the current aim (:func:`local_inverse`).
 * **Active throw targets.** Learning the grid network from few throws, each batch of
   targets chosen among a pool of random candidates by the expected information gain
   about the clusters' regressions (:func:`inference.active_gaussian.select_by_information`)
@@ -60,7 +61,7 @@ QUICK = {
     "n_train": 2_000,
     "n_test": 200,
     "bins": (2, 4),
-    "em_steps": 5,
+    "em_steps": (2, 5),
     "budgets": (120, 240, 480),
     "batch": 40,
     "pool": 400,
@@ -80,12 +81,13 @@ class AdaptiveThrowConfig:
     bins : tuple of int
         Grid sizes (clusters per axis, each 1..50) for both layouts; the last is the
         side-by-side comparison's, with and without release noise.
-    em_steps : int
-        At most this many EM steps per adaptive fit.
+    em_steps : tuple of int
+        Checkpoints of each adaptive fit (increasing): its error and fit time are measured
+        after this many EM steps each (fewer if EM settles first).
     tol : float
         EM stops when a step gains less mean per-row log-likelihood (> 0).
     neighbours : int
-        Training hits per local quadratic inverse of the floor (>= 6).
+        Training throws per local quadratic fit of the floor (>= 6).
     budgets : tuple of int
         Throw counts at which the active and random curves are measured (increasing;
         the first is thrown at random targets by both).
@@ -99,7 +101,7 @@ class AdaptiveThrowConfig:
     n_test: int = 1_000
     seed: int = 0
     bins: tuple[int, ...] = (4, 8, 12, 16)
-    em_steps: int = 20
+    em_steps: tuple[int, ...] = (5, 20)
     tol: float = 1e-6
     neighbours: int = 40
     budgets: tuple[int, ...] = (250, 500, 1_000, 2_000, 4_000)
@@ -111,14 +113,13 @@ class AdaptiveThrowConfig:
         check_int("n_train", self.n_train, 50)
         check_int("n_test", self.n_test, 1)
         check_int("seed", self.seed, 0)
-        check_int("em_steps", self.em_steps, 1)
         check_float("tol", self.tol, 0.0, 1.0, low_open=True)
         check_int("neighbours", self.neighbours, 6)
         if self.neighbours > self.n_train:
             raise ConfigError("neighbours", f"{self.neighbours} exceeds n_train={self.n_train}")
         check_int("batch", self.batch, 1)
         check_int("pool", self.pool, self.batch)
-        for name in ("bins", "budgets"):
+        for name in ("bins", "budgets", "em_steps"):
             object.__setattr__(self, name, tuple(getattr(self, name)))
             if not getattr(self, name):
                 raise ConfigError(name, "empty; expected at least one value")
@@ -126,8 +127,12 @@ class AdaptiveThrowConfig:
             check_int("bins", k, 1, 50)
         for b in self.budgets:
             check_int("budgets", b, 10)
-        if any(b >= c for b, c in zip(self.budgets, self.budgets[1:], strict=False)):
-            raise ConfigError("budgets", f"{self.budgets} must increase")
+        for steps in self.em_steps:
+            check_int("em_steps", steps, 1)
+        for name in ("budgets", "em_steps"):
+            v = getattr(self, name)
+            if any(b >= c for b, c in zip(v, v[1:], strict=False)):
+                raise ConfigError(name, f"{v} must increase")
 
 
 def adaptive_throw_network(bins) -> EffectNetwork:
@@ -139,17 +144,23 @@ def adaptive_throw_network(bins) -> EffectNetwork:
 
 
 def _fit(layout, k, train, config):
-    """Fit one layout with ``k x k`` clusters; the model, fit seconds and EM's curve."""
+    """Fit one layout with ``k x k`` clusters: ``(model, seconds, EM curve)`` per EM
+    checkpoint (one for the grid); the seconds and the curve accumulate."""
     targets, hits = train
     start = time.perf_counter()
     if layout == "grid":
         net = throw_network((k, k))
-        params, curve = fit(net, throw_data(net, targets, hits)).params, ()
-    else:
-        net = adaptive_throw_network((k, k))
-        result = fit_em(net, throw_data(net, targets, hits), steps=config.em_steps, tol=config.tol)
-        params, curve = result.params, result.log_likelihoods
-    return (net, params), time.perf_counter() - start, curve
+        params = fit(net, throw_data(net, targets, hits)).params
+        return [((net, params), time.perf_counter() - start, [])]
+    net = adaptive_throw_network((k, k))
+    data = throw_data(net, targets, hits)
+    out, params, curve, done = [], None, [], 0
+    for steps in config.em_steps:
+        result = fit_em(net, data, init=params, steps=steps - done, tol=config.tol)
+        params, done = result.params, steps
+        curve += list(result.log_likelihoods[1:] if curve else result.log_likelihoods)
+        out.append(((net, params), time.perf_counter() - start, list(curve)))
+    return out
 
 
 def _rethrow(model, desired, window, rng=None, noise=None):
@@ -166,21 +177,24 @@ def _window(*hits):
     return every.min(0) - HIT_MARGIN_M, every.max(0) + HIT_MARGIN_M
 
 
-def local_inverse(train_targets, train_hits, desired, neighbours):
-    """Aims ``(n, 2)``: per desired hit, a quadratic map hit -> target least-squares
-    fitted to its ``neighbours`` nearest training hits (coordinates centred on it)."""
-    aims = np.empty_like(desired)
-    for start in range(0, len(desired), 256):
-        block = desired[start : start + 256]
-        d2 = ((block[:, None, :] - train_hits[None, :, :]) ** 2).sum(-1)
-        near = np.argpartition(d2, neighbours - 1, axis=1)[:, :neighbours]
-        for i, rows in enumerate(near):
-            u = train_hits[rows] - block[i]
+def local_inverse(train_targets, train_hits, desired, start, neighbours, iterations=4):
+    """Aims ``(n, 2)`` by Newton's method on a local quadratic forward model: per desired
+    hit, from ``start``, fit ``hit ~ quadratic(target - aim)`` to the ``neighbours``
+    training throws nearest the aim, solve its linear part for the step to the desired
+    hit (least squares: minimum norm where the throw is clamped), repeat."""
+    aims = np.clip(np.array(start, dtype=np.float64), TARGET_AREA.low, TARGET_AREA.high)
+    for _ in range(iterations):
+        for i, goal in enumerate(desired):
+            d2 = ((train_targets - aims[i]) ** 2).sum(-1)
+            rows = np.argpartition(d2, neighbours - 1)[:neighbours]
+            u = train_targets[rows] - aims[i]
             design = np.column_stack(
                 [np.ones(len(u)), u, u[:, 0] ** 2, u[:, 0] * u[:, 1], u[:, 1] ** 2]
             )
-            coef = np.linalg.lstsq(design, train_targets[rows], rcond=None)[0]
-            aims[start + i] = coef[0]
+            coef = np.linalg.lstsq(design, train_hits[rows], rcond=None)[0]  # (6, 2)
+            jacobian = coef[1:3].T  # d hit / d target at the aim
+            step = np.linalg.lstsq(jacobian, goal - coef[0], rcond=1e-8)[0]
+            aims[i] = np.clip(aims[i] + step, TARGET_AREA.low, TARGET_AREA.high)
     return aims
 
 
@@ -228,7 +242,7 @@ class AdaptiveThrowResult(Result):
     ``layouts``: per grid size and layout (``"grid"``, ``"adaptive"``) the cluster
     count, fit time, EM steps and noise-free re-throw RMS. ``noisy``: the largest grid's
     two layouts with release noise, and ``noise_scatter_*``. ``em_log_likelihoods``: the
-    largest adaptive fit's curve (mean per-row). ``floor``: the local quadratic inverse.
+    largest adaptive fit's curve (mean per-row). ``floor``: the local Newton inverse.
     ``active``: per strategy (``"random"``, ``"information"``) the curve of
     ``{n, bins, rms_y_m, rms_z_m}``. ``goals``: each goal's verdict.
     """
@@ -264,8 +278,8 @@ class AdaptiveThrowResult(Result):
             )
         f = self.floor
         lines += [
-            f"| - | local quadratic inverse, {f['neighbours']} nearest training hits per "
-            f"test hit (what the data support) | - | - | {cm * f['rms_y_m']:.3f} | "
+            f"| - | Newton on local quadratic fits to the {f['neighbours']} nearest training "
+            f"throws (what the data support) | - | - | {cm * f['rms_y_m']:.3f} | "
             f"{cm * f['rms_z_m']:.3f} |",
             "",
             "With release noise (trained and re-thrown with it):",
@@ -319,28 +333,28 @@ def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
     test = [(t[config.n_train :], h[config.n_train :]) for t, h in (exact, noisy)]
     window = [_window(tr[1], te[1]) for tr, te in zip(train, test, strict=True)]
 
-    layouts, curve = [], []
+    layouts, curve, grid_model = [], [], None
     runs = [(k, layout) for k in config.bins for layout in ("grid", "adaptive")]
     for k, layout in tqdm(runs, desc="layouts", disable=not config.progress):
-        model, seconds, ll = _fit(layout, k, train[0], config)
-        y, z = rms(_rethrow(model, test[0][1], window[0]))
-        layouts.append(
-            {
-                "layout": layout,
-                "bins": k,
-                "n_clusters": k * k,
-                "fit_s": seconds,
-                "em_steps": max(0, len(ll) - 1),
-                "rms_y_m": float(y),
-                "rms_z_m": float(z),
-            }
-        )
-        if layout == "adaptive" and k == config.bins[-1]:
-            curve = list(ll)
+        for model, seconds, ll in _fit(layout, k, train[0], config):
+            y, z = rms(_rethrow(model, test[0][1], window[0]))
+            layouts.append(
+                {
+                    "layout": layout,
+                    "bins": k,
+                    "n_clusters": k * k,
+                    "fit_s": seconds,
+                    "em_steps": max(0, len(ll) - 1),
+                    "rms_y_m": float(y),
+                    "rms_z_m": float(z),
+                }
+            )
+            curve = ll if layout == "adaptive" and k == config.bins[-1] else curve
+            grid_model = model if layout == "grid" and k == config.bins[-1] else grid_model
     k = config.bins[-1]
     noisy_rows, aims = [], None
     for layout in ("grid", "adaptive"):
-        model, seconds, _ = _fit(layout, k, train[1], config)
+        model, seconds, _ = _fit(layout, k, train[1], config)[-1]
         error = _rethrow(model, test[1][1], window[1], noise_rng, noise)
         y, z = rms(error)
         noisy_rows.append(
@@ -354,8 +368,10 @@ def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
             aims = np.clip(aims, TARGET_AREA.low, TARGET_AREA.high)
     scatter = rms(throw(aims, rng=noise_rng, noise=noise).hit - throw(aims).hit)
 
-    aims = local_inverse(*train[0], test[0][1], config.neighbours)
-    aims = np.clip(aims, TARGET_AREA.low, TARGET_AREA.high)
+    net, params = grid_model  # Newton from the grid's answers
+    evidence = hit_evidence(test[0][1], low=window[0][0], high=window[0][1])
+    start = infer_parameter(net, params, TARGET, evidence).mean.numpy()
+    aims = local_inverse(*train[0], test[0][1], start, config.neighbours)
     fy, fz = rms(throw(aims).hit - test[0][1])
     floor = {"neighbours": config.neighbours, "rms_y_m": float(fy), "rms_z_m": float(fz)}
 
@@ -365,14 +381,15 @@ def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
         )
         for i, strategy in enumerate(("random", "information"))
     }
-    best = [r for r in layouts if r["layout"] == "adaptive" and r["bins"] == k][0]
+    adaptive = [r for r in layouts if r["layout"] == "adaptive"]
+    worst_axis = [max(r["rms_y_m"], r["rms_z_m"]) for r in adaptive]
+    fast = [e for e, r in zip(worst_axis, adaptive, strict=True) if r["fit_s"] < GOAL_FIT_S]
     adaptive_noisy = noisy_rows[1]
     goals = {
-        "adaptive re-throw RMS <= 0.01 cm on both axes, noise-free": max(
-            best["rms_y_m"], best["rms_z_m"]
-        )
+        "adaptive re-throw RMS <= 0.01 cm on both axes, noise-free (any row)": min(worst_axis)
         <= GOAL_RMS_M,
-        f"adaptive fit under {GOAL_FIT_S:g} s on one core": best["fit_s"] < GOAL_FIT_S,
+        f"... with the fit under {GOAL_FIT_S:g} s on one core": bool(fast)
+        and min(fast) <= GOAL_RMS_M,
         "adaptive with release noise within 5 % of the noise's scatter": (
             adaptive_noisy["rms_y_m"] <= GOAL_NOISE_RATIO * scatter[0]
             and adaptive_noisy["rms_z_m"] <= GOAL_NOISE_RATIO * scatter[1]

@@ -169,7 +169,7 @@ def responsibilities(
     mixtures = _adaptive(net)
     check_params(net, params)
     resp, _ = _e_step(net, params, _complete(net, data), mixtures)
-    return {m.parameter.name: r for m, r in zip(mixtures, resp, strict=True)}
+    return {m.parameter.name: r.T for m, r in zip(mixtures, resp, strict=True)}
 
 
 def mixture_log_likelihood(
@@ -226,25 +226,31 @@ def _inputs(enc: Evidence, cpd, m: ParameterMixture) -> torch.Tensor | None:
 
 
 def _e_step(net, params, enc, mixtures) -> tuple[list[torch.Tensor], float]:
-    """Responsibilities ``(n, C)`` per mixture, and the mean per-row log-likelihood."""
+    """Responsibilities ``(C, n)`` per mixture, and the mean per-row log-likelihood."""
     n = enc.n_rows
     total = torch.zeros(n, dtype=DTYPE)
     resp = []
     for m in mixtures:
         action = enc[ACTION]
         uses = m.in_use(action)
-        log = params[m.cluster.site].probs[action].clamp_min(1e-300).log().T  # (C, n)
+        log_table = params[m.cluster.site].probs.clamp_min(1e-300).log()  # (A, C)
         theta = enc[m.value.site].nan_to_num()
         one = torch.zeros(n, dtype=torch.long)
-        value = _log_density(m.value, params[m.value.site], one, None, theta)
-        log = log + torch.where(uses, value, 0.0)
+        log = _log_density(m.value, params[m.value.site], one, None, theta)  # (C, n)
+        if not bool(uses.all()):
+            log = torch.where(uses, log, 0.0)
+        log.add_(log_table.T[:, action])
         for site in m.affected:
             cpd = net.cpd(site)
             group = _group(enc, cpd)
-            log = log + _log_density(cpd, params[site], group, _inputs(enc, cpd, m), enc[site])
-        norm = torch.logsumexp(log, 0)  # (n,)
-        total = total + norm
-        resp.append((log - norm).exp().T.contiguous())  # (n, C)
+            log.add_(_log_density(cpd, params[site], group, _inputs(enc, cpd, m), enc[site]))
+        # normalise in place: log-sum-exp over the clusters, then the posterior
+        top = log.max(0).values
+        log.sub_(top).exp_()
+        mass = log.sum(0)
+        log.div_(mass)
+        total = total + top + mass.log()
+        resp.append(log)  # (C, n)
     return resp, float(total.mean())
 
 
@@ -270,21 +276,25 @@ def _log_density(cpd, params, group, x, y) -> torch.Tensor:
         return out
     d = y.shape[-1]
     bias = params.bias.reshape(-1, c, d)
-    weight = params.weight.reshape(bias.shape[0], c, *params.weight.shape[-2:])
+    weight = params.weight.reshape(bias.shape[0], c, d, -1)
     tril = params.scale_tril.reshape(-1, c, d, d)
-    half_log_det = tril.diagonal(dim1=-2, dim2=-1).log().sum(-1)  # (G, C)
+    # whitened residual L^-1 (y - W x - b) = [L^-1, -L^-1 W] [y; x] - L^-1 b: one product
+    inverse = torch.linalg.solve_triangular(tril, torch.eye(d, dtype=DTYPE), upper=False)
+    maps = torch.cat([inverse, -inverse @ weight], -1)  # (G, C, d, d + p)
+    shift = (inverse @ bias[..., None])[..., 0]  # (G, C, d)
+    constant = tril.diagonal(dim1=-2, dim2=-1).log().sum(-1) + 0.5 * d * math.log(2 * math.pi)
+    data = torch.cat([y, x], -1) if x is not None else y
     for g, mine in _configurations(group):
-        y_g = y[mine].T  # (d, n_g)
-        loc = bias[g][:, :, None]  # (C, d, 1)
-        if x is not None and x.shape[-1]:
-            loc = loc + weight[g] @ x[mine].T  # (C, d, n_g)
-        white = torch.linalg.solve_triangular(tril[g], y_g - loc, upper=False)
-        white.square_()
-        quad = white[:, 0]
-        for k in range(1, d):
-            quad = quad + white[:, k]
-        value = quad.mul_(-0.5).sub_(half_log_det[g][:, None] + 0.5 * d * math.log(2 * math.pi))
-        out[:, mine] = value
+        rows = data[mine].T  # (d + p, n_g)
+        quad = None
+        for k in range(d):  # one whitened coordinate at a time: (C, n_g) each
+            white = maps[g][:, k] @ rows
+            white.sub_(shift[g][:, k, None]).square_()
+            quad = white if quad is None else quad.add_(white)
+        quad.mul_(-0.5).sub_(constant[g][:, None])
+        if isinstance(mine, slice):
+            return quad
+        out[:, mine] = quad
     return out
 
 
@@ -300,13 +310,13 @@ def _configurations(group: torch.Tensor):
 
 
 def _weighted_sums(group: torch.Tensor, resp: torch.Tensor, rows: torch.Tensor, groups: int):
-    """``out[g * C + c] = sum_{i: group_i = g} resp[i, c] * rows[i]`` for rows ``(n, ...)``:
+    """``out[g * C + c] = sum_{i: group_i = g} resp[c, i] * rows[i]`` for rows ``(n, ...)``:
     one matrix product per parent configuration present."""
-    c = resp.shape[1]
+    c = resp.shape[0]
     flat = rows.reshape(rows.shape[0], -1)
     out = torch.zeros(groups, c, flat.shape[1], dtype=DTYPE)
     for g, mine in _configurations(group):
-        out[g] = resp[mine].T @ flat[mine]
+        out[g] = resp[:, mine] @ flat[mine]
     return out.reshape(groups * c, *rows.shape[1:])
 
 
@@ -316,16 +326,19 @@ def _m_step(net, params, enc, mixtures, resp, alpha, min_variance) -> NetworkPar
     for m, r in zip(mixtures, resp, strict=True):
         action = enc[ACTION]
         uses = m.in_use(action)
-        r = torch.where(uses[:, None], r, 0.0)  # rows not using the parameter: pinned, unfitted
+        every = bool(uses.all())
+        if not every:  # rows not using the parameter: pinned, unfitted
+            r = torch.where(uses, r, 0.0)
         n_actions = m.cluster.card[0]
-        cluster_counts = torch.zeros(n_actions, r.shape[1], dtype=DTYPE).index_add_(0, action, r)
+        cluster_counts = torch.zeros(n_actions, r.shape[0], dtype=DTYPE).index_add_(0, action, r.T)
         cpds[m.cluster.site] = m.cluster.m_step(Counts(cluster_counts), alpha, min_variance)
         theta = enc[m.value.site].nan_to_num()
         one = torch.zeros(len(theta), dtype=torch.long)
         cpds[m.value.site] = m.value.m_step(_moments(one, r, None, theta, 1), alpha, min_variance)
-        pinned = torch.zeros_like(r)
-        pinned[:, 0] = 1.0
-        weights = torch.where(uses[:, None], r, pinned)  # rows not using p: pinned cluster 0
+        weights = r
+        if not every:  # the affected sites' rows not using p: on the pinned cluster 0
+            weights = r.clone()
+            weights[0, ~uses] = 1.0
         for site in m.affected:
             cpd = net.cpd(site)
             group = _group(enc, cpd)
@@ -341,11 +354,21 @@ def _m_step(net, params, enc, mixtures, resp, alpha, min_variance) -> NetworkPar
 
 
 def _moments(group, r, x, y, groups) -> Moments:
-    """A linear Gaussian's statistics with fractional rows: ``r`` ``(n, C)`` weights."""
-    ones = torch.ones(len(y), 1, dtype=DTYPE)
-    z = torch.cat([x, ones], -1) if x is not None else ones
-    zz = _weighted_sums(group, r, z[:, :, None] * z[:, None, :], groups)
-    zy = _weighted_sums(group, r, z[:, :, None] * y[:, None, :], groups)
-    yy = _weighted_sums(group, r, y[:, :, None] * y[:, None, :], groups)
-    ones = _weighted_sums(group, r, torch.ones(len(y), dtype=DTYPE), groups)
-    return Moments(zz, zy, yy, ones)
+    """A linear Gaussian's statistics with fractional rows: ``r`` ``(C, n)`` weights (one
+    weighted sum of every product at once)."""
+    n, d = y.shape
+    z = torch.cat([x, torch.ones(n, 1, dtype=DTYPE)], -1) if x is not None else None
+    z = z if z is not None else torch.ones(n, 1, dtype=DTYPE)
+    q = z.shape[1]
+    products = torch.cat(
+        [
+            (z[:, :, None] * z[:, None, :]).reshape(n, -1),
+            (z[:, :, None] * y[:, None, :]).reshape(n, -1),
+            (y[:, :, None] * y[:, None, :]).reshape(n, -1),
+        ],
+        -1,
+    )
+    sums = _weighted_sums(group, r, products, groups)  # (G C, q q + q d + d d)
+    zz, zy, yy = sums.split([q * q, q * d, d * d], -1)
+    rows = _weighted_sums(group, r, torch.ones(n, 1, dtype=DTYPE), groups)[:, 0]
+    return Moments(zz.reshape(-1, q, q), zy.reshape(-1, q, d), yy.reshape(-1, d, d), rows)

@@ -39,7 +39,7 @@ def tiny_arguments(name: str, out: Path, data: Path) -> list:
         "throw_kinematics": ["--grid", 2, "--n", 10, "--out", out],
         "throwing": ["--n-train", 100, "--n-test", 10, "--bins", 1, 2, "--out", out, "--quiet"],
         "adaptive_throw": [
-            *["--n-train", 300, "--n-test", 20, "--bins", 2, "--em-steps", 2],
+            *["--n-train", 300, "--n-test", 20, "--bins", 2, "--em-steps", 1, 2],
             *["--budgets", 40, 80, "--batch", 20, "--pool", 60, "--out", out, "--quiet"],
         ],
         "can_tossing": [*cans, "--n-demos", 2],

@@ -17,7 +17,7 @@ TINY = {
     "n_train": 400,
     "n_test": 40,
     "bins": (2, 3),
-    "em_steps": 3,
+    "em_steps": (1, 3),
     "budgets": (40, 80),
     "batch": 20,
     "pool": 60,
@@ -33,7 +33,9 @@ def test_runs_and_writes_its_results(tmp_path):
     assert [(r["layout"], r["n_clusters"]) for r in saved["layouts"]] == [
         ("grid", 4),
         ("adaptive", 4),
+        ("adaptive", 4),
         ("grid", 9),
+        ("adaptive", 9),
         ("adaptive", 9),
     ]
     assert all(r["em_steps"] == 0 for r in saved["layouts"] if r["layout"] == "grid")
@@ -48,21 +50,22 @@ def test_runs_and_writes_its_results(tmp_path):
 
 
 def test_the_local_inverse_is_exact_on_a_quadratic_map():
+    """A quadratic forward map is fitted exactly, and Newton converges on its inverse."""
     rng = np.random.default_rng(0)
-    targets = rng.uniform(-1, 1, (500, 2))
+    targets = rng.uniform(-1, 1.2, (2000, 2)) + [0.0, 1.0]
     hits = np.column_stack([targets[:, 0] + 0.1 * targets[:, 1] ** 2, 0.5 * targets[:, 1]])
-    # the inverse of this map is quadratic: t1 = 2 h1, t0 = h0 - 0.1 (2 h1)^2
-    desired = rng.uniform(-0.5, 0.5, (20, 2))
-    aims = local_inverse(targets, hits, desired, 12)
-    expected = np.column_stack([desired[:, 0] - 0.4 * desired[:, 1] ** 2, 2 * desired[:, 1]])
-    assert np.allclose(aims, expected, atol=1e-9)
+    want = rng.uniform(-0.5, 0.5, (20, 2)) + [0.0, 1.4]  # aims inside the target area
+    desired = np.column_stack([want[:, 0] + 0.1 * want[:, 1] ** 2, 0.5 * want[:, 1]])
+    aims = local_inverse(targets, hits, desired, want + 0.05, 12, iterations=8)
+    assert np.allclose(aims, want, atol=1e-9)
 
 
 @pytest.mark.parametrize(
     ("field", "value"),
     [
         ("n_train", 10),
-        ("em_steps", 0),
+        ("em_steps", (0,)),
+        ("em_steps", (5, 5)),
         ("tol", 0.0),
         ("neighbours", 3),
         ("bins", ()),
