@@ -216,7 +216,7 @@ def _active_curve(strategy, config, test_hits, window, rng):
             if strategy == "random":
                 chosen = pool[:k]
             else:
-                net = throw_network((_grid_for(len(targets)),) * 2)
+                net = throw_network((_grid_for(budget),) * 2)  # the grid to be fitted
                 candidates = {"action": [net.actions[0]] * len(pool), f"param.{TARGET}": pool}
                 index = select_by_information(
                     net, TARGET, throw_data(net, targets, hits), candidates, k
