@@ -178,24 +178,47 @@ def _window(*hits):
 
 
 def local_inverse(train_targets, train_hits, desired, start, neighbours, iterations=4):
-    """Aims ``(n, 2)`` by Newton's method on a local quadratic forward model: per desired
-    hit, from ``start``, fit ``hit ~ quadratic(target - aim)`` to the ``neighbours``
-    training throws nearest the aim, solve its linear part for the step to the desired
-    hit (least squares: minimum norm where the throw is clamped), repeat."""
+    """Aims ``(n, 2)`` by damped Newton steps on a local quadratic forward model: per
+    desired hit, from ``start``, fit ``hit ~ quadratic(target - aim)`` to the
+    ``neighbours`` training throws nearest the aim, step towards the target its model
+    says hits the desired point (least squares, so a clamped, flat direction takes no
+    step; at most the neighbourhood's radius), and keep the aim whose local model misses
+    least. Only the training throws are used."""
     aims = np.clip(np.array(start, dtype=np.float64), TARGET_AREA.low, TARGET_AREA.high)
-    for _ in range(iterations):
-        for i, goal in enumerate(desired):
-            d2 = ((train_targets - aims[i]) ** 2).sum(-1)
+    for i, goal in enumerate(desired):
+        aim, best, best_miss = aims[i].copy(), aims[i].copy(), np.inf
+        for _ in range(iterations + 1):
+            d2 = ((train_targets - aim) ** 2).sum(-1)
             rows = np.argpartition(d2, neighbours - 1)[:neighbours]
-            u = train_targets[rows] - aims[i]
+            u = train_targets[rows] - aim
             design = np.column_stack(
                 [np.ones(len(u)), u, u[:, 0] ** 2, u[:, 0] * u[:, 1], u[:, 1] ** 2]
             )
             coef = np.linalg.lstsq(design, train_hits[rows], rcond=None)[0]  # (6, 2)
+            miss = float(np.linalg.norm(goal - coef[0]))
+            if miss < best_miss:
+                best, best_miss = aim.copy(), miss
             jacobian = coef[1:3].T  # d hit / d target at the aim
-            step = np.linalg.lstsq(jacobian, goal - coef[0], rcond=1e-8)[0]
-            aims[i] = np.clip(aims[i] + step, TARGET_AREA.low, TARGET_AREA.high)
+            step = np.linalg.lstsq(jacobian, goal - coef[0], rcond=1e-3)[0]
+            radius = float(np.sqrt(d2[rows].max()))
+            norm = float(np.linalg.norm(step))
+            if norm > radius:
+                step *= radius / norm
+            aim = np.clip(aim + step, TARGET_AREA.low, TARGET_AREA.high)
+        aims[i] = best
     return aims
+
+
+def _spread(error) -> dict[str, float]:
+    """RMS per axis, and the median and 99th percentile of the error's length, metres."""
+    y, z = rms(error)
+    length = np.linalg.norm(error, axis=1)
+    return {
+        "rms_y_m": float(y),
+        "rms_z_m": float(z),
+        "median_m": float(np.median(length)),
+        "p99_m": float(np.quantile(length, 0.99)),
+    }
 
 
 def _grid_for(n: int) -> int:
@@ -239,8 +262,9 @@ def _active_curve(strategy, config, test_hits, window, rng):
 class AdaptiveThrowResult(Result):
     """What :func:`run_adaptive_throw` measured; RMS in metres per axis, times in s.
 
-    ``layouts``: per grid size and layout (``"grid"``, ``"adaptive"``) the cluster
-    count, fit time, EM steps and noise-free re-throw RMS. ``noisy``: the largest grid's
+    ``layouts``: per grid size and layout (``"grid"``, ``"adaptive"``, one row per EM
+    checkpoint) the cluster count, fit time, EM steps, noise-free re-throw RMS per axis
+    and the median and 99th percentile of the error's length (``median_m``, ``p99_m``). ``noisy``: the largest grid's
     two layouts with release noise, and ``noise_scatter_*``. ``em_log_likelihoods``: the
     largest adaptive fit's curve (mean per-row). ``floor``: the local Newton inverse.
     ``active``: per strategy (``"random"``, ``"information"``) the curve of
@@ -268,19 +292,20 @@ class AdaptiveThrowResult(Result):
             "",
             "Re-throw RMS (cm), noise-free; fit time on one torch thread:",
             "",
-            "| clusters | layout | fit (s) | EM steps | y (cm) | z (cm) |",
-            "|---:|---|---:|---:|---:|---:|",
+            "| clusters | layout | fit (s) | EM steps | y (cm) | z (cm) | median (cm) | 99 % (cm) |",
+            "|---:|---|---:|---:|---:|---:|---:|---:|",
         ]
         for row in self.layouts:
             lines.append(
                 f"| {row['n_clusters']} | {row['layout']} | {row['fit_s']:.2f} | "
-                f"{row['em_steps']} | {cm * row['rms_y_m']:.3f} | {cm * row['rms_z_m']:.3f} |"
+                f"{row['em_steps']} | {cm * row['rms_y_m']:.3f} | {cm * row['rms_z_m']:.3f} | "
+                f"{cm * row['median_m']:.4f} | {cm * row['p99_m']:.3f} |"
             )
         f = self.floor
         lines += [
             f"| - | Newton on local quadratic fits to the {f['neighbours']} nearest training "
             f"throws (what the data support) | - | - | {cm * f['rms_y_m']:.3f} | "
-            f"{cm * f['rms_z_m']:.3f} |",
+            f"{cm * f['rms_z_m']:.3f} | {cm * f['median_m']:.4f} | {cm * f['p99_m']:.3f} |",
             "",
             "With release noise (trained and re-thrown with it):",
             "",
@@ -337,7 +362,7 @@ def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
     runs = [(k, layout) for k in config.bins for layout in ("grid", "adaptive")]
     for k, layout in tqdm(runs, desc="layouts", disable=not config.progress):
         for model, seconds, ll in _fit(layout, k, train[0], config):
-            y, z = rms(_rethrow(model, test[0][1], window[0]))
+            error = _rethrow(model, test[0][1], window[0])
             layouts.append(
                 {
                     "layout": layout,
@@ -345,9 +370,8 @@ def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
                     "n_clusters": k * k,
                     "fit_s": seconds,
                     "em_steps": max(0, len(ll) - 1),
-                    "rms_y_m": float(y),
-                    "rms_z_m": float(z),
                 }
+                | _spread(error)
             )
             curve = ll if layout == "adaptive" and k == config.bins[-1] else curve
             grid_model = model if layout == "grid" and k == config.bins[-1] else grid_model
@@ -372,8 +396,7 @@ def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
     evidence = hit_evidence(test[0][1], low=window[0][0], high=window[0][1])
     start = infer_parameter(net, params, TARGET, evidence).mean.numpy()
     aims = local_inverse(*train[0], test[0][1], start, config.neighbours)
-    fy, fz = rms(throw(aims).hit - test[0][1])
-    floor = {"neighbours": config.neighbours, "rms_y_m": float(fy), "rms_z_m": float(fz)}
+    floor = {"neighbours": config.neighbours} | _spread(throw(aims).hit - test[0][1])
 
     active = {
         strategy: _active_curve(
