@@ -439,15 +439,23 @@ def plot_adaptive_throw(result: AdaptiveThrowResult, path) -> Path:
 
     fig = Figure(figsize=(13, 4.5), layout="constrained")
     ax, ax_ll, ax_active = fig.subplots(1, 3)
-    for layout, marker in (("grid", "o"), ("adaptive", "s")):
-        rows = [r for r in result.layouts if r["layout"] == layout]
+    steps = sorted({r["em_steps"] for r in result.layouts if r["layout"] == "adaptive"})
+    series = [("grid", 0, "o")] + [("adaptive", s, "s") for s in steps]
+    for layout, n_steps, marker in series:
+        # each grid size's row after this many EM steps (or its last, if EM settled first)
+        rows = {}
+        for r in result.layouts:
+            if r["layout"] == layout and r["em_steps"] <= n_steps:
+                rows[r["n_clusters"]] = r
+        rows = [rows[c] for c in sorted(rows)]
+        label = layout if layout == "grid" else f"adaptive, {n_steps} EM steps"
         for key, ls in (("rms_y_m", "-"), ("rms_z_m", "--")):
             ax.plot(
                 [r["n_clusters"] for r in rows],
                 [100 * r[key] for r in rows],
                 marker=marker,
                 ls=ls,
-                label=f"{layout} {key[4]}",
+                label=f"{label}: {key[4]}",
             )
     for key, ls in (("rms_y_m", "-"), ("rms_z_m", "--")):
         ax.axhline(100 * result.floor[key], color="grey", ls=ls, lw=1, label=f"floor {key[4]}")
@@ -459,6 +467,7 @@ def plot_adaptive_throw(result: AdaptiveThrowResult, path) -> Path:
         ylabel="re-throw RMS [cm]",
         title="Error against cluster count (noise-free)",
     )
+    _plain_ticks(ax, sorted({r["n_clusters"] for r in result.layouts}))
     ax.legend(fontsize=7)
     ax_ll.plot(result.em_log_likelihoods, "o-", ms=3)
     ax_ll.set(xlabel="EM step", ylabel="mean log-likelihood per row", title="EM, largest grid")
@@ -480,8 +489,17 @@ def plot_adaptive_throw(result: AdaptiveThrowResult, path) -> Path:
         ylabel="re-throw RMS [cm]",
         title="Active vs random throw targets",
     )
+    _plain_ticks(ax_active, [r["n"] for r in result.active["random"]])
     ax_active.legend(fontsize=7)
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=110)
     return path
+
+
+def _plain_ticks(ax, values) -> None:
+    """Log-scaled x axis labelled at ``values`` only, in plain numbers."""
+    from matplotlib.ticker import NullFormatter
+
+    ax.set_xticks(values, [str(v) for v in values])
+    ax.xaxis.set_minor_formatter(NullFormatter())
