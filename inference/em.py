@@ -117,6 +117,11 @@ def fit_em(
     _check_settings(pseudo_count=pseudo_count, min_variance=min_variance, steps=steps, tol=tol)
     start = time.perf_counter()
     mixtures = _adaptive(net)
+    if not isinstance(data, Mapping):
+        raise ValueError(
+            f"data must be one mapping of rows (EM revisits them every step), got "
+            f"{type(data).__name__}"
+        )
     enc = _complete(net, data)
     if init is None:
         init = NetworkParams(

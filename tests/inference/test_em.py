@@ -246,5 +246,8 @@ def test_bad_networks_are_value_errors():
     grid = tap_net(layout="grid")
     with pytest.raises(ValueError, match="no adaptive parameter"):
         fit_em(grid, tap_data(grid, n=50))
+    adaptive = tap_net()
+    with pytest.raises(ValueError, match="one mapping"):
+        fit_em(adaptive, iter([tap_data(adaptive, n=50)]))
     with pytest.raises(ValueError, match="layout"):
         Parameter("force", (0.0,), (1.0,), (2,), ("tap",), "pos", layout="learned")
