@@ -15,10 +15,10 @@ and alternates, for every adaptive parameter ``p`` acting on features ``g``,
   weighted by ``r`` (the same statistics and pseudo-count policy as :func:`fit`, with
   fractional row counts).
 
-Each step cannot lower the likelihood (with ``pseudo_count = 0`` and
-``min_variance = 0`` it is the textbook EM guarantee; the pseudo-count policy's
-shrinkage makes it a penalised likelihood that EM's bound still holds for in practice,
-and the tests check it). The sites no adaptive parameter touches are fitted once in
+Each step cannot lower the likelihood: the EM guarantee, exact with ``pseudo_count = 0``;
+the pseudo-count policy and the covariance floor make the M-step a slightly penalised
+fit, and the tests check over random data sets that the likelihood still never
+decreases. The sites no adaptive parameter touches are fitted once in
 closed form: their likelihood does not depend on the clusters.
 
 The queries of an EM-fitted network stay exact: the inverse query enumerates the
