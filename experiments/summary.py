@@ -169,8 +169,8 @@ def adaptive_throw_rows(r: Results) -> list[str]:
     if (t := r.get("adaptive_throw")) is None:
         return []
     k = max(row["n_clusters"] for row in t["layouts"])
-    grid, em = (
-        next(row for row in t["layouts"] if row["n_clusters"] == k and row["layout"] == layout)
+    grid, em = (  # the last row: the adaptive fit's last EM checkpoint
+        [row for row in t["layouts"] if row["n_clusters"] == k and row["layout"] == layout][-1]
         for layout in ("grid", "adaptive")
     )
     noisy = {row["layout"]: row for row in t["noisy"]}

@@ -176,6 +176,7 @@ def test_adaptive_throw_rows(tmp_path):
             ("grid", 4, 0.01, 0.01),
             ("adaptive", 4, 0.009, 0.009),
             ("grid", 256, 0.0021, 0.0020),
+            ("adaptive", 256, 0.0018, 0.0013),  # an earlier EM checkpoint
             ("adaptive", 256, 0.0008, 0.0006),
         )
     ]
