@@ -189,7 +189,7 @@ def adaptive_throw_rows(r: Results) -> list[str]:
         f"({k} clusters, noise-free; goal 0.01 cm, fit < 2 s) | - | adaptive {cm(em)} "
         f"(fit {em['fit_s']:.1f} s, {em['em_steps']} EM steps), grid {cm(grid)} "
         f"(fit {grid['fit_s']:.2f} s); with release noise, times the noise's own scatter: "
-        f"adaptive {ratio['adaptive']}, grid {ratio['grid']} (goal 1.05) | local quadratic "
+        f"adaptive {ratio['adaptive']}, grid {ratio['grid']} (goal 1.05) | local Newton "
         f"inverse of the training throws {cm(t['floor'])} |",
         f"| throw, beyond the paper: active throw targets (expected information gain) vs "
         f"random, re-thrown RMS y / z after {active['n']} throws | - | active {cm(active)}, "

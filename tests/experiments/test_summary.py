@@ -205,5 +205,5 @@ def test_adaptive_throw_rows(tmp_path):
     )
     assert "grid 0.210 / 0.200 cm (fit 1.50 s)" in text
     assert "adaptive 1.05 / 1.10, grid 1.15 / 1.15 (goal 1.05)" in text
-    assert "local quadratic inverse of the training throws 0.030 / 0.040 cm" in text
+    assert "local Newton inverse of the training throws 0.030 / 0.040 cm" in text
     assert "after 4000 throws | - | active 0.400 / 0.700 cm, random 0.500 / 0.600 cm" in text
