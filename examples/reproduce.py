@@ -1,10 +1,11 @@
 """Reproduce the paper's experiments end to end and write ``results/``.
 
 Runs each example script in turn (each can also be run alone): the §III illustration,
-the worlds' pictures, throwing (§IV-B), can tossing (§IV-A, Table I), the combined
-system (§IV-C, Tables II-IV), the physics' own bounds, and beyond the paper Table I
-learned from a fraction of the throws by active exploration (:mod:`experiments.active`)
-and the combined system on every goal the physics reaches (:mod:`experiments.all_goals`). The can data set is generated
+the worlds' pictures, throwing (§IV-B) and beyond the paper its adaptive clusters and
+active throw targets, can tossing (§IV-A, Table I), the combined system (§IV-C, Tables
+II-IV), the physics' own bounds, and beyond the paper Table I learned from a fraction of
+the throws by active exploration (:mod:`experiments.active`) and the combined system on
+every goal the physics reaches (:mod:`experiments.all_goals`). The can data set is generated
 once under ``--data-dir`` (resumable) and reused. Then writes ``run.json`` (scale,
 commit, date, machine, each step's wall time) and ``summary.md`` (the paper's numbers
 beside ours and the bounds: :mod:`experiments.summary`); a full-scale run of every step
@@ -44,6 +45,7 @@ def steps(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
         ),
         ("throw_kinematics", ["--out", f"{out}/throw"]),
         ("throwing", ["--out", out] + (["--quick"] if quick else [])),
+        ("adaptive_throw", ["--out", out] + (["--quick"] if quick else [])),
         ("can_tossing", [*scale, *executor] + (["--n-demos", "100"] if quick else [])),
         (
             "combined",

@@ -1,5 +1,6 @@
 """Fitting (maximum likelihood) and exact queries on effect networks."""
 
+from inference.em import EMResult, fit_em
 from inference.enumeration import Enumerated, enumerate_model
 from inference.fit import ConvergenceWarning, FitResult, fit, fit_gradient, fit_statistics
 from inference.queries import (
@@ -19,6 +20,7 @@ from inference.statistics import Statistics, params_from_statistics
 __all__ = [
     "ActionPosterior",
     "ConvergenceWarning",
+    "EMResult",
     "Enumerated",
     "FitResult",
     "GaussianMixture",
@@ -28,6 +30,7 @@ __all__ = [
     "Prediction",
     "enumerate_model",
     "fit",
+    "fit_em",
     "fit_gradient",
     "fit_statistics",
     "imitation_check",

@@ -95,6 +95,7 @@ def fit(
     _check_settings(
         pseudo_count=pseudo_count, min_variance=min_variance, steps=steps, lr=lr, l2=l2, tol=tol
     )
+    _refuse_adaptive(net, "fit")
     if not isinstance(data, Mapping):
         if masks:
             raise ValueError("masks need the rows in memory: give data as one mapping")
@@ -148,6 +149,7 @@ def fit_statistics(
     ``+``; :func:`inference.statistics.params_from_statistics` turns the sum into
     parameters.
     """
+    _refuse_adaptive(net, "fit_statistics")
     total = None
     for chunk in tqdm(chunks, desc="fit (chunks)", unit="chunk", disable=not progress):
         if not isinstance(chunk, Mapping):
@@ -196,6 +198,7 @@ def fit_gradient(
     a :class:`ConvergenceWarning` names the CPDs and ``FitResult.converged`` is False.
     """
     _check_settings(pseudo_count=pseudo_count, steps=steps, lr=lr, l2=l2, tol=tol)
+    _refuse_adaptive(net, "fit_gradient")
     enc = _complete(net, data)
     masks = _masks(net, masks, enc.n_rows)
     init = init or initial_params(net, pseudo_count)
@@ -290,6 +293,17 @@ def fit_gradient(
     with torch.no_grad():
         params = current().map(lambda t: t.detach().clone())
     return FitResult(params, tuple(losses), settled)
+
+
+def _refuse_adaptive(net: EffectNetwork, name: str) -> None:
+    """The closed form files each row under its value's cell: wrong for adaptive clusters."""
+    adaptive = [p.name for p in net.parameters if p.adaptive]
+    if adaptive:
+        raise ValueError(
+            f"{name} files each row under its parameter's cell, but the clusters of "
+            f"{adaptive} are adaptive (latent components): fit the network with "
+            "inference.fit_em"
+        )
 
 
 def _settled(before: float, after: float, tol: float) -> bool:

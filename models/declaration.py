@@ -127,6 +127,9 @@ class Continuous:
 
 Feature = Discrete | Continuous
 
+#: How a parameter's clusters relate to its value (:class:`Parameter`'s ``layout``).
+LAYOUTS = ("grid", "adaptive")
+
 
 @dataclass(frozen=True)
 class Parameter:
@@ -149,6 +152,13 @@ class Parameter:
         affected by several parameters, and a parameter may act on several continuous
         features if it is the only parameter acting on each (an unknown value couples
         them; queries integrate it out of their joint).
+    layout : {"grid", "adaptive"}
+        How the clusters relate to the value. ``"grid"`` (the paper's): the cluster *is*
+        the value's equidistant cell, a factor ties them, and :func:`inference.fit` fits
+        each cell's Gaussian in closed form. ``"adaptive"``: the ``prod(bins)`` clusters
+        are latent mixture components whose Gaussians may lie anywhere; nothing ties a
+        cluster to a cell, the cluster prior is the mixture's weights, and the cells only
+        seed :func:`inference.fit_em`, which fits the layout by expectation-maximisation.
     """
 
     name: str
@@ -157,6 +167,7 @@ class Parameter:
     bins: tuple[int, ...]
     actions: tuple[str, ...]
     affects: str | tuple[str, ...]
+    layout: str = "grid"
 
     def __post_init__(self) -> None:
         _check_name(self.name, "parameter")
@@ -195,6 +206,15 @@ class Parameter:
             )
         if not self.actions:
             raise ValueError(f"parameter {self.name!r}: name the actions that use it")
+        if self.layout not in LAYOUTS:
+            raise ValueError(
+                f"parameter {self.name!r}: layout must be one of {LAYOUTS}, got {self.layout!r}"
+            )
+
+    @property
+    def adaptive(self) -> bool:
+        """Whether the clusters are latent components (``layout="adaptive"``), not cells."""
+        return self.layout == "adaptive"
 
     @property
     def dim(self) -> int:
@@ -512,6 +532,7 @@ class EffectNetwork:
                     "actions": list(p.actions),
                     "affects": p.affects if isinstance(p.affects, str) else list(p.affects),
                 }
+                | ({"layout": p.layout} if p.adaptive else {})  # older files read alike
                 for p in self.parameters
             ],
         }

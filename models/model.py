@@ -28,7 +28,10 @@ Two rules shape the parameter sites:
 * **The cluster is the parameter's equidistant cell.** A factor ``cluster.p.cell`` is
   zero where ``cell(param.p) == cluster.p`` and ``-inf`` elsewhere, so conditioning on
   ``param.p`` (by ``data`` or by ``pyro.condition``) fixes the cluster. Forward sampling
-  ignores factors: a sampled parameter may leave its cell's Gaussian's cell.
+  ignores factors: a sampled parameter may leave its cell's Gaussian's cell. Under the
+  adaptive layout (``Parameter(layout="adaptive")``) there is no tie: the factor is
+  zero, the cluster stays latent (enumerated) given the value, and the model is a plain
+  mixture of Gaussians whose weights are the cluster table.
 
 ``collapse=True`` is the form the exact queries run. A parameter given as NaN in a
 row, or not given at all, is then *unknown* in that row and is integrated out in closed
@@ -199,7 +202,7 @@ def _parameter(m: ParameterMixture, params, action, data, masks, collapse, n, ca
     uses = m.in_use(action)  # (E..., n or 1)
     x = data.get(p_site)
     cluster_fn = m.cluster.distribution(params[c_site], [action], None, cache)
-    if c_site in data or x is None:
+    if c_site in data or x is None or p.adaptive:  # adaptive: no cell fixes the cluster
         cluster = _discrete(c_site, cluster_fn, data, masks)
     else:
         # The cell of a given parameter is the cluster; rows whose action does not use

@@ -19,7 +19,11 @@ Gaussian) and every rule that ties them together:
   cell 0 (not fitted), its value's density is left out, and the affected features'
   weights on the parameter are zero for it (fixed in the fit, ignored in the model).
 * **The cluster is the parameter's equidistant cell** (:meth:`cells`); in the model a
-  factor makes it so (:meth:`cell_factor`).
+  factor makes it so (:meth:`cell_factor`). Under the adaptive layout
+  (``Parameter(layout="adaptive")``) the cluster is a latent mixture component instead:
+  the factor is zero everywhere, a known value leaves its cluster latent (its posterior
+  is the mixture's responsibility), and the cells only seed the fit
+  (:func:`inference.fit_em`).
 * **An unknown value is integrated out in closed form**: for ``theta ~ N(m_c, S_c)`` and
   ``y = W_x x + W_p theta + b + e``, ``y ~ N(W_x x + W_p m_c + b, R + W_p S_c W_p^T)``
   (:meth:`marginal`), and ``theta`` given ``y`` is the linear-Gaussian posterior
@@ -115,10 +119,11 @@ class ParameterMixture:
     def cell_factor(
         self, theta: torch.Tensor, cluster: torch.Tensor, action: torch.Tensor
     ) -> torch.Tensor:
-        """Log-factor: 0 where a known value lies in its cluster's cell, ``-inf`` where not."""
+        """Log-factor: 0 where a known value lies in its cluster's cell, ``-inf`` where not
+        (0 everywhere under the adaptive layout: no cell ties the cluster)."""
         known = ~torch.isnan(theta).any(-1)
         factor = torch.zeros((), dtype=DTYPE)
-        if bool(known.any()):
+        if bool(known.any()) and not self.parameter.adaptive:
             uses = self.in_use(action)
             wrong = uses & known & (self.parameter.cluster_of(theta.nan_to_num()) != cluster)
             factor = factor.masked_fill(wrong, -torch.inf)

@@ -193,3 +193,44 @@ def test_active_rows_give_each_learner_at_ten_percent_beside_the_full_data(tmp_p
     assert "reachable desired count" in counts and "10 % of the 1,000 0° throws" in counts
     assert "eig 80.00 %, random 80.00 %; full data 80.50 % (goal: within 1 point: eig)" in counts
     assert "random 20.00 %" in actions and actions.endswith("| 95.00 % held out |")
+
+
+def test_adaptive_throw_rows(tmp_path):
+    row = {"fit_s": 1.5, "em_steps": 7}
+    layouts = [
+        {"layout": layout, "n_clusters": k, "rms_y_m": y, "rms_z_m": z, **row}
+        for layout, k, y, z in (
+            ("grid", 4, 0.01, 0.01),
+            ("adaptive", 4, 0.009, 0.009),
+            ("grid", 256, 0.0021, 0.0020),
+            ("adaptive", 256, 0.0018, 0.0013),  # an earlier EM checkpoint
+            ("adaptive", 256, 0.0008, 0.0006),
+        )
+    ]
+    (tmp_path / "adaptive_throw.json").write_text(
+        json.dumps(
+            {
+                "layouts": layouts,
+                "noisy": [
+                    {"layout": "grid", "rms_y_m": 0.023, "rms_z_m": 0.0115},
+                    {"layout": "adaptive", "rms_y_m": 0.021, "rms_z_m": 0.011},
+                ],
+                "noise_scatter_y_m": 0.02,
+                "noise_scatter_z_m": 0.01,
+                "floor": {"rms_y_m": 0.0003, "rms_z_m": 0.0004},
+                "active": {
+                    "random": [{"n": 4000, "rms_y_m": 0.005, "rms_z_m": 0.006}],
+                    "information": [{"n": 4000, "rms_y_m": 0.004, "rms_z_m": 0.007}],
+                },
+            }
+        )
+    )
+    text = summary.summary_markdown(tmp_path)
+    assert (
+        "(256 clusters, noise-free; goal 0.01 cm, fit < 2 s) | - | adaptive 0.080 / 0.060 cm"
+        in text
+    )
+    assert "grid 0.210 / 0.200 cm (fit 1.50 s)" in text
+    assert "adaptive 1.05 / 1.10, grid 1.15 / 1.15 (goal 1.05)" in text
+    assert "local Newton inverse of the training throws 0.030 / 0.040 cm" in text
+    assert "after 4000 throws | - | active 0.400 / 0.700 cm, random 0.500 / 0.600 cm" in text

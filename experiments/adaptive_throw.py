@@ -1,0 +1,505 @@
+"""Adaptive clusters and active throw targets on the throwing experiment.
+
+Two questions beyond the paper's §IV-B, on the same throws (:mod:`experiments.throwing`:
+uniform targets on the 2 m x 2 m area, their hits, re-throw RMS per axis ``y``, ``z``):
+
+* **Layouts.** The paper's grid of target clusters (each cluster *is* its cell, fitted
+  in closed form by :func:`inference.fit`) against adaptive clusters
+  (``Parameter(layout="adaptive")``) refined from the same cells by
+  expectation-maximisation over target and hit jointly (:func:`inference.fit_em`). For
+  each grid size in ``bins``: cluster count, fit time and the noise-free re-throw RMS of
+  both; for the largest, also trained and re-thrown with release noise, beside the
+  noise's own scatter. As an honest floor, what the training throws support at all:
+  per test hit, Newton's method on a local quadratic forward model fitted to the
+  ``neighbours`` training throws nearest the current aim (:func:`local_inverse`).
+* **Active throw targets.** Learning the grid network from few throws, each batch of
+  targets chosen among a pool of random candidates by the expected information gain
+  about the clusters' regressions (:func:`inference.active_gaussian.select_by_information`)
+  against random targets; re-throw RMS against the number of throws. The grid size
+  follows the data: ``clamp(round(sqrt(n / 30)), 2, 16)`` clusters per axis for ``n``
+  throws (about 30 throws per cluster), the same for both strategies.
+
+Timings are wall-clock seconds of the fit alone, in the calling process (the example
+runs it on one torch thread).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from tqdm.auto import tqdm
+
+from experiments.config import ConfigError, Result, check_float, check_int
+from experiments.throwing import HIT_MARGIN_M, get_data, rms
+from inference import fit, fit_em, infer_parameter
+from inference.active_gaussian import select_by_information
+from models.declaration import EffectNetwork
+from models.throw_network import TARGET, hit_evidence, throw_data, throw_network
+from sim2d.throw import TARGET_AREA, ReleaseNoise, sample_targets, throw
+
+__all__ = [
+    "QUICK",
+    "AdaptiveThrowConfig",
+    "AdaptiveThrowResult",
+    "adaptive_throw_network",
+    "local_inverse",
+    "plot_adaptive_throw",
+    "run_adaptive_throw",
+]
+
+GOAL_RMS_M = 0.0001  # 0.01 cm on both axes, noise-free
+GOAL_FIT_S = 2.0  # one core
+GOAL_NOISE_RATIO = 1.05  # within 5 % of the noise's own scatter
+ROWS_PER_CLUSTER = 30  # the active curves' grid rule
+#: A first look in seconds.
+QUICK = {
+    "n_train": 2_000,
+    "n_test": 200,
+    "bins": (2, 4),
+    "em_steps": (2, 5),
+    "budgets": (120, 240, 480),
+    "batch": 40,
+    "pool": 400,
+}
+
+
+@dataclass(frozen=True)
+class AdaptiveThrowConfig:
+    """Settings of :func:`run_adaptive_throw`; every field is checked on construction.
+
+    Attributes
+    ----------
+    n_train, n_test : int
+        Training throws and test hits (noise-free and, for the largest grid, noisy).
+    seed : int
+        Seeds targets, release noise and the active runs (>= 0).
+    bins : tuple of int
+        Grid sizes (clusters per axis, each 1..50) for both layouts; the last is the
+        side-by-side comparison's, with and without release noise.
+    em_steps : tuple of int
+        Checkpoints of each adaptive fit (increasing): its error and fit time are measured
+        after this many EM steps each (fewer if EM settles first).
+    tol : float
+        EM stops when a step gains less mean per-row log-likelihood (> 0).
+    neighbours : int
+        Training throws per local quadratic fit of the floor (>= 6).
+    budgets : tuple of int
+        Throw counts at which the active and random curves are measured (increasing;
+        the first is thrown at random targets by both).
+    batch, pool : int
+        Targets chosen per round, among ``pool`` random candidates (``batch <= pool``).
+    progress : bool
+        Progress bars.
+    """
+
+    n_train: int = 29_000
+    n_test: int = 1_000
+    seed: int = 0
+    bins: tuple[int, ...] = (4, 8, 12, 16)
+    em_steps: tuple[int, ...] = (5, 20)
+    tol: float = 1e-6
+    neighbours: int = 40
+    budgets: tuple[int, ...] = (250, 500, 1_000, 2_000, 4_000)
+    batch: int = 50
+    pool: int = 2_000
+    progress: bool = True
+
+    def __post_init__(self):
+        check_int("n_train", self.n_train, 50)
+        check_int("n_test", self.n_test, 1)
+        check_int("seed", self.seed, 0)
+        check_float("tol", self.tol, 0.0, 1.0, low_open=True)
+        check_int("neighbours", self.neighbours, 6)
+        if self.neighbours > self.n_train:
+            raise ConfigError("neighbours", f"{self.neighbours} exceeds n_train={self.n_train}")
+        check_int("batch", self.batch, 1)
+        check_int("pool", self.pool, self.batch)
+        for name in ("bins", "budgets", "em_steps"):
+            object.__setattr__(self, name, tuple(getattr(self, name)))
+            if not getattr(self, name):
+                raise ConfigError(name, "empty; expected at least one value")
+        for k in self.bins:
+            check_int("bins", k, 1, 50)
+        for b in self.budgets:
+            check_int("budgets", b, 10)
+        for steps in self.em_steps:
+            check_int("em_steps", steps, 1)
+        for name in ("budgets", "em_steps"):
+            v = getattr(self, name)
+            if any(b >= c for b, c in zip(v, v[1:], strict=False)):
+                raise ConfigError(name, f"{v} must increase")
+
+
+def adaptive_throw_network(bins) -> EffectNetwork:
+    """The throw network (:func:`models.throw_network.throw_network`) with adaptive
+    target clusters seeded by the ``bins`` grid."""
+    net = throw_network(bins)
+    target = dataclasses.replace(net.parameters[0], layout="adaptive")
+    return EffectNetwork(net.features, net.actions, (target,))
+
+
+def _fit(layout, k, train, config):
+    """Fit one layout with ``k x k`` clusters: ``(model, seconds, EM curve)`` per EM
+    checkpoint (one for the grid); the seconds and the curve accumulate."""
+    targets, hits = train
+    start = time.perf_counter()
+    if layout == "grid":
+        net = throw_network((k, k))
+        params = fit(net, throw_data(net, targets, hits)).params
+        return [((net, params), time.perf_counter() - start, [])]
+    net = adaptive_throw_network((k, k))
+    data = throw_data(net, targets, hits)
+    out, params, curve, done = [], None, [], 0
+    for steps in config.em_steps:
+        result = fit_em(net, data, init=params, steps=steps - done, tol=config.tol)
+        params, done = result.params, steps
+        curve += list(result.log_likelihoods[1:] if curve else result.log_likelihoods)
+        out.append(((net, params), time.perf_counter() - start, list(curve)))
+    return out
+
+
+def _rethrow(model, desired, window, rng=None, noise=None):
+    """Errors ``(n, 2)`` of re-throwing at the inferred aims (clipped into the area)."""
+    net, params = model
+    evidence = hit_evidence(desired, low=window[0], high=window[1])
+    aim = infer_parameter(net, params, TARGET, evidence).mean.numpy()
+    aim = np.clip(aim, TARGET_AREA.low, TARGET_AREA.high)
+    return throw(aim, rng=rng, noise=noise).hit - desired
+
+
+def _window(*hits):
+    every = np.concatenate(hits)
+    return every.min(0) - HIT_MARGIN_M, every.max(0) + HIT_MARGIN_M
+
+
+def local_inverse(train_targets, train_hits, desired, start, neighbours, iterations=4):
+    """Aims ``(n, 2)`` by damped Newton steps on a local quadratic forward model: per
+    desired hit, from ``start``, fit ``hit ~ quadratic(target - aim)`` to the
+    ``neighbours`` training throws nearest the aim, step towards the target its model
+    says hits the desired point (least squares, so a clamped, flat direction takes no
+    step; at most the neighbourhood's radius), and keep the aim whose local model misses
+    least. Only the training throws are used."""
+    aims = np.clip(np.array(start, dtype=np.float64), TARGET_AREA.low, TARGET_AREA.high)
+    for i, goal in enumerate(desired):
+        aim, best, best_miss = aims[i].copy(), aims[i].copy(), np.inf
+        for _ in range(iterations + 1):
+            d2 = ((train_targets - aim) ** 2).sum(-1)
+            rows = np.argpartition(d2, neighbours - 1)[:neighbours]
+            u = train_targets[rows] - aim
+            design = np.column_stack(
+                [np.ones(len(u)), u, u[:, 0] ** 2, u[:, 0] * u[:, 1], u[:, 1] ** 2]
+            )
+            coef = np.linalg.lstsq(design, train_hits[rows], rcond=None)[0]  # (6, 2)
+            miss = float(np.linalg.norm(goal - coef[0]))
+            if miss < best_miss:
+                best, best_miss = aim.copy(), miss
+            jacobian = coef[1:3].T  # d hit / d target at the aim
+            step = np.linalg.lstsq(jacobian, goal - coef[0], rcond=1e-3)[0]
+            radius = float(np.sqrt(d2[rows].max()))
+            norm = float(np.linalg.norm(step))
+            if norm > radius:
+                step *= radius / norm
+            aim = np.clip(aim + step, TARGET_AREA.low, TARGET_AREA.high)
+        aims[i] = best
+    return aims
+
+
+def _spread(error) -> dict[str, float]:
+    """RMS per axis, and the median and 99th percentile of the error's length, metres."""
+    y, z = rms(error)
+    length = np.linalg.norm(error, axis=1)
+    return {
+        "rms_y_m": float(y),
+        "rms_z_m": float(z),
+        "median_m": float(np.median(length)),
+        "p99_m": float(np.quantile(length, 0.99)),
+    }
+
+
+def _grid_for(n: int) -> int:
+    return int(min(16, max(2, round(math.sqrt(n / ROWS_PER_CLUSTER)))))
+
+
+def _active_curve(strategy, config, test_hits, window, rng):
+    """Re-throw RMS at each budget, the targets chosen by ``strategy``."""
+    targets = sample_targets(config.budgets[0], rng)
+    hits = throw(targets).hit
+    curve = []
+    bar = tqdm(total=config.budgets[-1], desc=f"active ({strategy})", disable=not config.progress)
+    bar.update(len(targets))
+    for budget in config.budgets:
+        while len(targets) < budget:
+            k = min(config.batch, budget - len(targets))
+            pool = sample_targets(config.pool, rng)
+            if strategy == "random":
+                chosen = pool[:k]
+            else:
+                net = throw_network((_grid_for(budget),) * 2)  # the grid to be fitted
+                candidates = {"action": [net.actions[0]] * len(pool), f"param.{TARGET}": pool}
+                index = select_by_information(
+                    net, TARGET, throw_data(net, targets, hits), candidates, k
+                )
+                chosen = pool[index.numpy()]
+            targets = np.concatenate([targets, chosen])
+            hits = np.concatenate([hits, throw(chosen).hit])
+            bar.update(len(chosen))
+        k = _grid_for(len(targets))
+        net = throw_network((k, k))
+        params = fit(net, throw_data(net, targets, hits)).params
+        error = _rethrow((net, params), test_hits, _window(window, hits))
+        y, z = rms(error)
+        curve.append({"n": len(targets), "bins": k, "rms_y_m": float(y), "rms_z_m": float(z)})
+    bar.close()
+    return curve
+
+
+@dataclass
+class AdaptiveThrowResult(Result):
+    """What :func:`run_adaptive_throw` measured; RMS in metres per axis, times in s.
+
+    ``layouts``: per grid size and layout (``"grid"``, ``"adaptive"``, one row per EM
+    checkpoint) the cluster count, fit time, EM steps, noise-free re-throw RMS per axis
+    and the median and 99th percentile of the error's length (``median_m``, ``p99_m``). ``noisy``: the largest grid's
+    two layouts with release noise, and ``noise_scatter_*``. ``em_log_likelihoods``: the
+    largest adaptive fit's curve (mean per-row). ``floor``: the local Newton inverse.
+    ``active``: per strategy (``"random"``, ``"information"``) the curve of
+    ``{n, bins, rms_y_m, rms_z_m}``. ``goals``: each goal's verdict.
+    """
+
+    n_train: int
+    n_test: int
+    seed: int
+    layouts: list[dict]
+    noisy: list[dict]
+    noise_scatter_y_m: float
+    noise_scatter_z_m: float
+    em_log_likelihoods: list[float]
+    floor: dict
+    active: dict[str, list[dict]]
+    goals: dict[str, bool]
+
+    def to_markdown(self) -> str:
+        """Both layouts side by side, the floor, the active curves and the goals, in cm."""
+        cm = 100.0
+        lines = [
+            f"# Adaptive clusters and active throw targets ({self.n_train} training throws, "
+            f"{self.n_test} test hits)",
+            "",
+            "Re-throw RMS (cm), noise-free; fit time on one torch thread:",
+            "",
+            "| clusters | layout | fit (s) | EM steps | y (cm) | z (cm) | median (cm) | 99 % (cm) |",
+            "|---:|---|---:|---:|---:|---:|---:|---:|",
+        ]
+        for row in self.layouts:
+            lines.append(
+                f"| {row['n_clusters']} | {row['layout']} | {row['fit_s']:.2f} | "
+                f"{row['em_steps']} | {cm * row['rms_y_m']:.3f} | {cm * row['rms_z_m']:.3f} | "
+                f"{cm * row['median_m']:.4f} | {cm * row['p99_m']:.3f} |"
+            )
+        f = self.floor
+        lines += [
+            f"| - | Newton on local quadratic fits to the {f['neighbours']} nearest training "
+            f"throws (what the data support) | - | - | {cm * f['rms_y_m']:.3f} | "
+            f"{cm * f['rms_z_m']:.3f} | {cm * f['median_m']:.4f} | {cm * f['p99_m']:.3f} |",
+            "",
+            "With release noise (trained and re-thrown with it):",
+            "",
+            "| clusters | layout | y (cm) | z (cm) | y / scatter | z / scatter |",
+            "|---:|---|---:|---:|---:|---:|",
+        ]
+        sy, sz = self.noise_scatter_y_m, self.noise_scatter_z_m
+        for row in self.noisy:
+            y, z = row["rms_y_m"], row["rms_z_m"]
+            lines.append(
+                f"| {row['n_clusters']} | {row['layout']} | {cm * y:.3f} | {cm * z:.3f} | "
+                f"{y / sy:.3f} | {z / sz:.3f} |"
+            )
+        lines += [
+            f"| | the noise's own scatter | {cm * sy:.3f} | {cm * sz:.3f} | 1 | 1 |",
+            "",
+            "Active throw targets (grid layout, about 30 throws per cluster), re-throw RMS "
+            "(cm) against the number of throws:",
+            "",
+            "| throws | clusters per axis | random y | random z | active y | active z |",
+            "|---:|---:|---:|---:|---:|---:|",
+        ]
+        for r, a in zip(self.active["random"], self.active["information"], strict=True):
+            lines.append(
+                f"| {r['n']} | {r['bins']} | {cm * r['rms_y_m']:.3f} | {cm * r['rms_z_m']:.3f} "
+                f"| {cm * a['rms_y_m']:.3f} | {cm * a['rms_z_m']:.3f} |"
+            )
+        lines += ["", "Goals:", ""]
+        lines += [f"- {name}: {'met' if ok else 'missed'}" for name, ok in self.goals.items()]
+        return "\n".join(lines) + "\n"
+
+    def save(self, out) -> list[Path]:
+        """Write ``adaptive_throw.json``, ``.md`` and ``adaptive_throw.png`` to ``out``."""
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        files = [out / "adaptive_throw.json", out / "adaptive_throw.md"]
+        files[0].write_text(self.to_json())
+        files[1].write_text(self.to_markdown())
+        return [*files, plot_adaptive_throw(self, out / "adaptive_throw.png")]
+
+
+def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
+    """Both layouts per grid size, the noisy comparison, the floor and the active curves."""
+    n = config.n_train + config.n_test
+    seeds = np.random.SeedSequence(config.seed).spawn(5)
+    exact = get_data(n, np.random.default_rng(seeds[0]), None)
+    noise, noise_rng = ReleaseNoise(), np.random.default_rng(seeds[1])
+    noisy = get_data(n, np.random.default_rng(seeds[2]), noise)
+    train = [(t[: config.n_train], h[: config.n_train]) for t, h in (exact, noisy)]
+    test = [(t[config.n_train :], h[config.n_train :]) for t, h in (exact, noisy)]
+    window = [_window(tr[1], te[1]) for tr, te in zip(train, test, strict=True)]
+
+    layouts, curve, grid_model = [], [], None
+    runs = [(k, layout) for k in config.bins for layout in ("grid", "adaptive")]
+    for k, layout in tqdm(runs, desc="layouts", disable=not config.progress):
+        for model, seconds, ll in _fit(layout, k, train[0], config):
+            error = _rethrow(model, test[0][1], window[0])
+            layouts.append(
+                {
+                    "layout": layout,
+                    "bins": k,
+                    "n_clusters": k * k,
+                    "fit_s": seconds,
+                    "em_steps": max(0, len(ll) - 1),
+                }
+                | _spread(error)
+            )
+            curve = ll if layout == "adaptive" and k == config.bins[-1] else curve
+            grid_model = model if layout == "grid" and k == config.bins[-1] else grid_model
+    k = config.bins[-1]
+    noisy_rows, aims = [], None
+    for layout in ("grid", "adaptive"):
+        model, seconds, _ = _fit(layout, k, train[1], config)[-1]
+        error = _rethrow(model, test[1][1], window[1], noise_rng, noise)
+        y, z = rms(error)
+        noisy_rows.append(
+            {"layout": layout, "bins": k, "n_clusters": k * k, "fit_s": seconds}
+            | {"rms_y_m": float(y), "rms_z_m": float(z)}
+        )
+        if aims is None:  # the noise's own scatter at the grid's aims
+            net, params = model
+            evidence = hit_evidence(test[1][1], low=window[1][0], high=window[1][1])
+            aims = infer_parameter(net, params, TARGET, evidence).mean.numpy()
+            aims = np.clip(aims, TARGET_AREA.low, TARGET_AREA.high)
+    scatter = rms(throw(aims, rng=noise_rng, noise=noise).hit - throw(aims).hit)
+
+    net, params = grid_model  # Newton from the grid's answers
+    evidence = hit_evidence(test[0][1], low=window[0][0], high=window[0][1])
+    start = infer_parameter(net, params, TARGET, evidence).mean.numpy()
+    aims = local_inverse(*train[0], test[0][1], start, config.neighbours)
+    floor = {"neighbours": config.neighbours} | _spread(throw(aims).hit - test[0][1])
+
+    active = {
+        strategy: _active_curve(
+            strategy, config, test[0][1], window[0], np.random.default_rng(seeds[3 + i])
+        )
+        for i, strategy in enumerate(("random", "information"))
+    }
+    adaptive = [r for r in layouts if r["layout"] == "adaptive"]
+    worst_axis = [max(r["rms_y_m"], r["rms_z_m"]) for r in adaptive]
+    fast = [e for e, r in zip(worst_axis, adaptive, strict=True) if r["fit_s"] < GOAL_FIT_S]
+    adaptive_noisy = noisy_rows[1]
+    goals = {
+        "adaptive re-throw RMS <= 0.01 cm on both axes, noise-free (any row)": min(worst_axis)
+        <= GOAL_RMS_M,
+        f"... with the fit under {GOAL_FIT_S:g} s on one core": bool(fast)
+        and min(fast) <= GOAL_RMS_M,
+        "adaptive with release noise within 5 % of the noise's scatter": (
+            adaptive_noisy["rms_y_m"] <= GOAL_NOISE_RATIO * scatter[0]
+            and adaptive_noisy["rms_z_m"] <= GOAL_NOISE_RATIO * scatter[1]
+        ),
+    }
+    return AdaptiveThrowResult(
+        n_train=config.n_train,
+        n_test=config.n_test,
+        seed=config.seed,
+        layouts=layouts,
+        noisy=noisy_rows,
+        noise_scatter_y_m=float(scatter[0]),
+        noise_scatter_z_m=float(scatter[1]),
+        em_log_likelihoods=curve,
+        floor=floor,
+        active=active,
+        goals={name: bool(ok) for name, ok in goals.items()},
+    )
+
+
+def plot_adaptive_throw(result: AdaptiveThrowResult, path) -> Path:
+    """Error against cluster count (both layouts, the floor) and the active curves."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(13, 4.5), layout="constrained")
+    ax, ax_ll, ax_active = fig.subplots(1, 3)
+    steps = sorted({r["em_steps"] for r in result.layouts if r["layout"] == "adaptive"})
+    series = [("grid", 0, "o")] + [("adaptive", s, "s") for s in steps]
+    for layout, n_steps, marker in series:
+        # each grid size's row after this many EM steps (or its last, if EM settled first)
+        rows = {}
+        for r in result.layouts:
+            if r["layout"] == layout and r["em_steps"] <= n_steps:
+                rows[r["n_clusters"]] = r
+        rows = [rows[c] for c in sorted(rows)]
+        label = layout if layout == "grid" else f"adaptive, {n_steps} EM steps"
+        for key, ls in (("rms_y_m", "-"), ("rms_z_m", "--")):
+            ax.plot(
+                [r["n_clusters"] for r in rows],
+                [100 * r[key] for r in rows],
+                marker=marker,
+                ls=ls,
+                label=f"{label}: {key[4]}",
+            )
+    for key, ls in (("rms_y_m", "-"), ("rms_z_m", "--")):
+        ax.axhline(100 * result.floor[key], color="grey", ls=ls, lw=1, label=f"floor {key[4]}")
+    ax.axhline(100 * GOAL_RMS_M, color="red", lw=1, label="goal")
+    ax.set(
+        xscale="log",
+        yscale="log",
+        xlabel="clusters",
+        ylabel="re-throw RMS [cm]",
+        title="Error against cluster count (noise-free)",
+    )
+    _plain_ticks(ax, sorted({r["n_clusters"] for r in result.layouts}))
+    ax.legend(fontsize=7)
+    ax_ll.plot(result.em_log_likelihoods, "o-", ms=3)
+    ax_ll.set(xlabel="EM step", ylabel="mean log-likelihood per row", title="EM, largest grid")
+    for strategy, color in (("random", "tab:blue"), ("information", "tab:orange")):
+        rows = result.active[strategy]
+        for key, ls in (("rms_y_m", "-"), ("rms_z_m", "--")):
+            ax_active.plot(
+                [r["n"] for r in rows],
+                [100 * r[key] for r in rows],
+                color=color,
+                ls=ls,
+                marker="o",
+                label=f"{strategy} {key[4]}",
+            )
+    ax_active.set(
+        xscale="log",
+        yscale="log",
+        xlabel="throws",
+        ylabel="re-throw RMS [cm]",
+        title="Active vs random throw targets",
+    )
+    _plain_ticks(ax_active, [r["n"] for r in result.active["random"]])
+    ax_active.legend(fontsize=7)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(path, dpi=110)
+    return path
+
+
+def _plain_ticks(ax, values) -> None:
+    """Log-scaled x axis labelled at ``values`` only, in plain numbers."""
+    from matplotlib.ticker import NullFormatter
+
+    ax.set_xticks(values, [str(v) for v in values])
+    ax.xaxis.set_minor_formatter(NullFormatter())
