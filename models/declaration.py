@@ -354,6 +354,15 @@ class EffectNetwork:
                     "unknown value would couple the parameters). Merge them into one "
                     "parameter of higher dimension"
                 )
+            shared = [
+                f for f in p.features if any(f in q.features for q in self.parameters if q is not p)
+            ]
+            if p.adaptive and shared:
+                raise ValueError(
+                    f"parameter {p.name!r} has the adaptive layout, so it must be the only "
+                    f"parameter acting on its features; {shared} have others (a given value "
+                    "of an adaptive parameter does not fix its cluster)"
+                )
             unknown = set(p.actions) - set(self.actions)
             if unknown:
                 raise ValueError(f"parameter {p.name!r} names unknown actions {sorted(unknown)}")

@@ -1,6 +1,7 @@
 """Adaptive parameter clusters: EM against hand-written steps, brute force and the model."""
 
 import math
+from dataclasses import replace
 
 import pytest
 import torch
@@ -253,3 +254,14 @@ def test_bad_networks_are_value_errors():
         fit_em(adaptive, iter([tap_data(adaptive, n=50)]))
     with pytest.raises(ValueError, match="layout"):
         Parameter("force", (0.0,), (1.0,), (2,), ("tap",), "pos", layout="learned")
+
+
+def test_an_adaptive_parameter_shares_its_feature_with_no_other():
+    """A given value of an adaptive parameter does not fix its cluster, so a second
+    parameter on the same feature could not be filed under its cell: refused up front."""
+    both = dict(features=(Continuous("pos", 1),), actions=("tap", "push"))
+    force = Parameter("force", (0.0,), (1.0,), (2,), ("tap",), "pos", layout="adaptive")
+    push = Parameter("push", (0.0,), (1.0,), (2,), ("push",), "pos")
+    with pytest.raises(ValueError, match="only parameter acting on its features"):
+        EffectNetwork(**both, parameters=(force, push))
+    EffectNetwork(**both, parameters=(replace(force, layout="grid"), push))  # grids may share
