@@ -8,18 +8,25 @@ The sample draws rows of the full data set (every stable configuration x 195 fie
 3 angles x 3 repeats) uniformly at random and simulates them on this core with three
 simulations, interleaved and repeated (median of the repeats):
 
-- format 1 (the peer): data-set format 1's stopping rules, stepped through pymunk's
-  public API: the simulation as it was before the can world was split;
-- format 1, binding: the same rules and numbers, stepped through pymunk's C binding
-  (bit for bit the peer's outcomes);
-- format 2 (new): the current stopping rules (:data:`sim2d.materials.STOPPING`) through
-  the binding: what ``generate_dataset`` runs.
+- format 1 (the peer): data-set format 1's stopping rules and format 2's stepping (1 ms,
+  10 solver iterations, the cans awake from the start) through pymunk's public API: the
+  simulation as it was before the can world was split;
+- format 2 (today's until format 3): the current stopping rules
+  (:data:`sim2d.materials.STOPPING`) with format 2's stepping
+  (:data:`sim2d.materials.STEPPING_FORMAT_2`) through pymunk's C binding;
+- format 3 (new): the current stopping rules and stepping
+  (:data:`sim2d.materials.STEPPING`: 2 ms, 5 iterations, the cans asleep until touched):
+  what ``generate_dataset`` runs.
 
-It prints each one's simulated throws/s and data-set rows/s per core, the speed-up over
-the peer beside the goal (3x), how many sample throws end in a different configuration
-than under the peer, and the full data set's wall time on this machine's cores estimated
-from the rows/s, beside the goal (90 s on 2 cores). ``--full`` measures that wall time.
-Unthrowable rows cost nothing (they are not simulated).
+Times are this process's CPU seconds (one core; on a shared machine wall time also counts
+other people's work). It prints each one's simulated throws/s and data-set rows/s per
+core, the speed-up over the peer beside the goal (3x), how many sample throws end in a
+different configuration than under format 2 (any change to the stepping changes about a
+fifth of them: the outcome of a throw is chaotic) and the statistics that should not
+change (the share of throws that hit, cans thrown off per throw), and the full data set's
+wall time on two free cores estimated from the rows/s, beside the goal (90 s on 2 cores).
+``--full`` measures that wall time. Unthrowable rows cost nothing (they are not
+simulated).
 """
 
 from __future__ import annotations
@@ -41,10 +48,15 @@ from sim2d.world import simulate
 
 GOAL_SPEEDUP = 3.0
 GOAL_FULL_SECONDS = 90.0  # on 2 cores
+PEER, TODAY, NEW = "format 1 (peer)", "format 2 (today)", "format 3 (new)"
 VARIANTS = {
-    "format 1 (peer)": {"stopping": materials.STOPPING_FORMAT_1, "reference": True},
-    "format 1, binding": {"stopping": materials.STOPPING_FORMAT_1, "reference": False},
-    "format 2 (new)": {"stopping": materials.STOPPING, "reference": False},
+    PEER: {
+        "stopping": materials.STOPPING_FORMAT_1,
+        "stepping": materials.STEPPING_FORMAT_2,
+        "reference": True,
+    },
+    TODAY: {"stopping": materials.STOPPING, "stepping": materials.STEPPING_FORMAT_2},
+    NEW: {"stopping": materials.STOPPING, "stepping": materials.STEPPING},
 }
 
 
@@ -61,11 +73,11 @@ def sample(n: int, seed: int) -> tuple[list, int, int]:
     return throws, n, len(rows)
 
 
-def run(throws, variant: dict) -> tuple[float, list[int]]:
-    """Seconds to simulate ``throws`` and their end configurations."""
-    start = time.perf_counter()
-    ends = [outcome_of(c, simulate(c, p, v, **variant)).end_config for c, p, v in throws]
-    return time.perf_counter() - start, ends
+def run(throws, variant: dict) -> tuple[float, list]:
+    """CPU seconds to simulate ``throws`` and their outcomes."""
+    start = time.process_time()
+    outcomes = [outcome_of(c, simulate(c, p, v, **variant)) for c, p, v in throws]
+    return time.process_time() - start, outcomes
 
 
 def main(argv=None) -> None:
@@ -83,30 +95,37 @@ def main(argv=None) -> None:
     throws, n_rows, total = sample(args.throws, args.seed)
     print(
         f"{len(stable)} stable configurations; sample: {n_rows} rows, {len(throws)} simulated "
-        f"throws; median of {args.repeats} interleaved runs on one core (shared machine)"
+        f"throws; median of {args.repeats} interleaved runs, CPU time of one core"
     )
     seconds = {name: [] for name in VARIANTS}
-    ends = {}
+    outcomes = {}
     for _ in range(args.repeats):
         for name, variant in VARIANTS.items():
-            elapsed, ends[name] = run(throws, variant)
+            elapsed, outcomes[name] = run(throws, variant)
             seconds[name].append(elapsed)
-    peer = statistics.median(seconds["format 1 (peer)"])
-    print(f"{'simulation':<20} {'throws/s':>9} {'rows/s':>8} {'speed-up':>9}  goal   differ")
+    peer = statistics.median(seconds[PEER])
+    print(
+        f"{'simulation':<17} {'throws/s':>8} {'rows/s':>7} {'speed-up':>8} {'goal':>4}  "
+        f"{'hit':>5} {'off/throw':>9}  end configuration differs from format 2"
+    )
     for name in VARIANTS:
         s = statistics.median(seconds[name])
-        differ = sum(a != b for a, b in zip(ends[name], ends["format 1 (peer)"], strict=True))
+        ends = [o.end_config for o in outcomes[name]]
+        differ = sum(a != o.end_config for a, o in zip(ends, outcomes[TODAY], strict=True))
+        hit = np.mean([o.hit_any_can for o in outcomes[name]])
+        off = np.mean([o.count_before - o.count_after for o in outcomes[name]])
         print(
-            f"{name:<20} {len(throws) / s:>9.0f} {n_rows / s:>8.0f} {peer / s:>8.2f}x"
-            f"  {'-' if name.endswith('(peer)') else f'{GOAL_SPEEDUP:.0f}x':>4}"
-            f"   {differ} of {len(throws)} end configurations"
+            f"{name:<17} {len(throws) / s:>8.0f} {n_rows / s:>7.0f} {peer / s:>7.2f}x"
+            f" {'-' if name == PEER else f'{GOAL_SPEEDUP:.0f}x':>4}  {hit:>5.1%} {off:>9.3f}"
+            f"  {differ} of {len(throws)}"
         )
-    new_rows_per_s = n_rows / statistics.median(seconds["format 2 (new)"])
-    print(
-        f"full data set: {total} rows; estimated on 2 free cores {total / (2 * new_rows_per_s):.0f} s "
-        f"(goal < {GOAL_FULL_SECONDS:.0f} s; format 1 peer: "
-        f"{total / (2 * n_rows / peer):.0f} s); this machine has {cores} cores"
-    )
+    for name in (TODAY, NEW):
+        rows_per_s = n_rows / statistics.median(seconds[name])
+        print(
+            f"full data set, {name}: {total} rows, estimated {total / (2 * rows_per_s):.0f} s "
+            f"on 2 free cores (goal < {GOAL_FULL_SECONDS:.0f} s; format 1 peer: "
+            f"{total / (2 * n_rows / peer):.0f} s); this machine has {cores} cores"
+        )
     if args.full:
         with tempfile.TemporaryDirectory() as tmp:
             out = args.out or Path(tmp) / "can_dataset.npz"
@@ -120,7 +139,7 @@ def main(argv=None) -> None:
                 f"{int(data.timed_out.sum())} timed out, {int((~data.throwable).sum())} "
                 f"unthrowable rows; written to {out}"
             )
-    print(f"time step {materials.TIME_STEP} s, cap {materials.MAX_SIM_TIME} s")
+    print(f"format 3: {materials.STEPPING}; cap {materials.MAX_SIM_TIME} s")
 
 
 if __name__ == "__main__":

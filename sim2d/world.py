@@ -5,6 +5,10 @@ standard positions and :func:`add_ball` the ball; :func:`simulate` runs one ball
 against a configuration with the fixed step until a stopping rule fires and returns
 what is left (:class:`Run`). It is the only simulation loop of a ball in the can world.
 
+How it steps is :class:`sim2d.materials.Stepping` (default :data:`sim2d.materials.STEPPING`:
+2 ms steps, 5 solver iterations, the cans asleep until touched, so that a throw costs
+nothing until the ball reaches a can and a miss costs next to nothing).
+
 Stopping rules, checked every ``CHECK_EVERY`` steps:
 
 - a body beyond ``scene_margin`` from the pyramid and moving away, or more than
@@ -78,6 +82,8 @@ class Run:
         Steps simulated.
     timed_out : bool
         The run reached ``MAX_SIM_TIME`` before a stopping rule fired.
+    time_step : float
+        Seconds per step.
     """
 
     end_positions: np.ndarray
@@ -85,13 +91,21 @@ class Run:
     touched: int
     steps: int
     timed_out: bool
+    time_step: float
+
+    @property
+    def sim_time(self) -> float:
+        """Simulated seconds, ``steps * time_step``."""
+        return self.steps * self.time_step
 
 
-def new_space(*, sleep_time: float = m.STOPPING.sleep_time) -> pymunk.Space:
+def new_space(
+    *, sleep_time: float = m.STOPPING.sleep_time, iterations: int = m.SOLVER_ITERATIONS
+) -> pymunk.Space:
     """A pymunk space with gravity, the solver settings and the table top (z <= 0)."""
     space = pymunk.Space()
     space.gravity = (0.0, -m.GRAVITY)
-    space.iterations = m.SOLVER_ITERATIONS
+    space.iterations = iterations
     space.collision_slop = m.COLLISION_SLOP
     space.sleep_time_threshold = sleep_time
     space.idle_speed_threshold = m.IDLE_SPEED
@@ -106,8 +120,13 @@ def new_space(*, sleep_time: float = m.STOPPING.sleep_time) -> pymunk.Space:
     return space
 
 
-def add_cans(space: pymunk.Space, config: int) -> dict[int, pymunk.Body]:
-    """Add the cans of ``config`` at their standard positions; ``{can index: body}``."""
+def add_cans(space: pymunk.Space, config: int, *, asleep: bool = False) -> dict[int, pymunk.Body]:
+    """Add the cans of ``config`` at their standard positions; ``{can index: body}``.
+
+    With ``asleep``, the cans are put to sleep as one group (the space must allow
+    sleeping): they stay exactly where they are until a body touches one of them, which
+    wakes them all.
+    """
     moment = pymunk.moment_for_box(m.CAN_MASS, (CAN_WIDTH, CAN_HEIGHT))
     positions = can_positions()
     bodies = {}
@@ -120,17 +139,30 @@ def add_cans(space: pymunk.Space, config: int) -> dict[int, pymunk.Body]:
         shape.collision_type = CAN_TYPE
         space.add(body, shape)
         bodies[i] = body
+    if asleep:
+        first = None
+        for body in bodies.values():
+            if first is None:
+                body.sleep()
+                first = body
+            else:
+                body.sleep_with_group(first)
     return bodies
 
 
-def add_ball(space: pymunk.Space, position, velocity) -> tuple[pymunk.Body, pymunk.Circle]:
-    """Add the ball with centre ``position`` and velocity ``velocity`` (SI, ``(x, z)``)."""
+def add_ball(
+    space: pymunk.Space, position, velocity, *, time_step: float = m.TIME_STEP
+) -> tuple[pymunk.Body, pymunk.Circle]:
+    """Add the ball with centre ``position`` and velocity ``velocity`` (SI, ``(x, z)``).
+
+    ``time_step`` is the step the space will be stepped with (see below).
+    """
     ball = pymunk.Body(m.BALL_MASS, pymunk.moment_for_circle(m.BALL_MASS, 0.0, m.BALL_RADIUS))
     ball.position = (float(position[0]), float(position[1]))
     # pymunk moves each body with its current velocity, then adds gravity. Starting with
     # the mean velocity of the first step (half a step of gravity later) puts the
     # positions at the step times exactly on the parabola of (position, velocity).
-    ball.velocity = (float(velocity[0]), float(velocity[1]) - 0.5 * m.GRAVITY * m.TIME_STEP)
+    ball.velocity = (float(velocity[0]), float(velocity[1]) - 0.5 * m.GRAVITY * time_step)
     shape = pymunk.Circle(ball, m.BALL_RADIUS)
     shape.friction = m.BALL_FRICTION_SHAPE
     shape.elasticity = m.BALL_ELASTICITY_SHAPE
@@ -171,6 +203,7 @@ def simulate(
     frame_every: int = 0,
     on_frame: FrameCallback | None = None,
     stopping: m.StoppingRules = m.STOPPING,
+    stepping: m.Stepping = m.STEPPING,
     reference: bool = False,
 ) -> Run:
     """Run one ball state against a configuration until a stopping rule fires.
@@ -187,6 +220,8 @@ def simulate(
         ``on_frame(step, cans, ball)``, see :data:`FrameCallback`.
     stopping : sim2d.materials.StoppingRules
         When the run is over.
+    stepping : sim2d.materials.Stepping
+        How the world is stepped.
     reference : bool
         Step and read bodies through pymunk's public API (slower, same numbers).
 
@@ -194,9 +229,9 @@ def simulate(
     -------
     Run
     """
-    space = new_space(sleep_time=stopping.sleep_time)
-    cans = add_cans(space, config)
-    ball, ball_shape = add_ball(space, position, velocity)
+    space = new_space(sleep_time=stopping.sleep_time, iterations=stepping.solver_iterations)
+    cans = add_cans(space, config, asleep=stepping.start_asleep)
+    ball, ball_shape = add_ball(space, position, velocity, time_step=stepping.time_step)
     step_space, space_handle, handle, pos, vel, sleeping = (
         _public_api if reference else _binding_api
     )(space)
@@ -221,7 +256,7 @@ def simulate(
     # the far face of the configuration's rightmost can, for the no-touch rule
     right = max((can_positions()[i, 0] for i in cans), default=-math.inf) + CAN_WIDTH / 2
     reach = math.hypot(CAN_WIDTH, CAN_HEIGHT) / 2 + m.BALL_RADIUS
-    radius, dt, every = m.BALL_RADIUS, m.TIME_STEP, m.CHECK_EVERY
+    radius, dt, every = m.BALL_RADIUS, stepping.time_step, m.CHECK_EVERY
     max_steps = round(m.MAX_SIM_TIME / dt)
 
     def leaving(body) -> bool:
@@ -262,7 +297,10 @@ def simulate(
             for _ in range(every):
                 step_space(space_handle, dt)
             step += every
-        for i in [i for i, h in can_handles.items() if leaving(h)]:
+        # Untouched cans that started asleep still stand exactly at their standard
+        # positions, inside the scene: only cans that may have moved are checked.
+        moved = touched or not stepping.start_asleep
+        for i in [i for i, h in can_handles.items() if leaving(h)] if moved else ():
             space.remove(cans[i], *cans[i].shapes)
             del cans[i], can_handles[i]
             removed |= 1 << i
@@ -294,4 +332,4 @@ def simulate(
     for i, h in can_handles.items():
         p = pos(h)
         end_positions[i] = (p.x, p.y)
-    return Run(end_positions, removed, touched, step, timed_out)
+    return Run(end_positions, removed, touched, step, timed_out, dt)
