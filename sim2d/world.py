@@ -56,7 +56,17 @@ from sim2d.geometry import (
     mask_to_cans,
 )
 
-__all__ = ["BALL_TYPE", "CAN_TYPE", "Run", "add_ball", "add_cans", "new_space", "simulate"]
+__all__ = [
+    "BALL_TYPE",
+    "CAN_TYPE",
+    "CLEAR_MARGIN",
+    "Run",
+    "add_ball",
+    "add_cans",
+    "clear_miss",
+    "new_space",
+    "simulate",
+]
 
 BALL_TYPE, CAN_TYPE = 1, 2  # pymunk collision types
 
@@ -171,6 +181,77 @@ def add_ball(
     return ball, shape
 
 
+#: How close (m) the ball may come to a can or the table top, at a step, for
+#: :func:`clear_miss` to answer without pymunk; pymunk finds contacts only at overlap.
+CLEAR_MARGIN = 0.01
+
+
+def clear_miss(
+    config: int,
+    position,
+    velocity,
+    *,
+    stopping: m.StoppingRules = m.STOPPING,
+    stepping: m.Stepping = m.STEPPING,
+) -> Run | None:
+    """The run of a ball that touches nothing, without pymunk; None if it may touch something.
+
+    With the cans asleep until touched (``stepping.start_asleep``), a ball that never
+    comes near a can or the table top flies alone under gravity: pymunk moves it with
+    semi-implicit Euler (each step the position moves by the velocity times the step, then
+    gravity is added to the velocity), which is repeated here with the same floating-point
+    operations in the same order, so the positions, the step at which a stopping rule
+    fires and hence the :class:`Run` are those :func:`simulate` would step to, bit for bit
+    (tested against the public API). The answer is None when at any step up to the end
+    the ball comes within ``CLEAR_MARGIN`` of a can of ``config`` or of the table top.
+    """
+    if not stepping.start_asleep:
+        raise ValueError(
+            f"stepping={stepping!r} starts the cans awake; clear_miss needs cans that stand "
+            "exactly still until touched (start_asleep=True)"
+        )
+    dt, every = stepping.time_step, m.CHECK_EVERY
+    max_steps = round(m.MAX_SIM_TIME / dt)
+    checks = -(-max_steps // every)  # simulate checks every `every` steps from `every` on
+    n = checks * every
+    # pymunk's integration: x_{k+1} = x_k + vx dt, vz_{k+1} = vz_k + (-g) dt, z_{k+1} =
+    # z_k + vz_k dt; np.add.accumulate adds left to right, one addition at a time.
+    vx = float(velocity[0])
+    vz0 = float(velocity[1]) - 0.5 * m.GRAVITY * dt  # as add_ball sets it
+    gdt = -m.GRAVITY * dt
+    vz = np.add.accumulate(np.concatenate(([vz0], np.full(n, gdt))))  # vz after k steps
+    xs = np.add.accumulate(np.concatenate(([float(position[0])], np.full(n, vx * dt))))
+    zs = np.add.accumulate(np.concatenate(([float(position[1])], vz[:-1] * dt)))
+    # the stopping rules at the checks (steps every, 2 every, ...)
+    at = np.arange(1, checks + 1) * every
+    x, z = xs[at], zs[at]
+    lo = PYRAMID_X - stopping.scene_margin
+    hi = PYRAMID_X + PYRAMID_WIDTH + stopping.scene_margin
+    leaving = (z < -m.FALLEN_DEPTH) | ((x < lo) & (vx <= 0.0)) | ((x > hi) & (vx >= 0.0))
+    centres = can_positions()[list(mask_to_cans(config))]
+    right = centres[:, 0].max() + CAN_WIDTH / 2 if len(centres) else -math.inf
+    ends = leaving | ((x - m.BALL_RADIUS > right) & (vx >= 0.0))
+    if config == 0:
+        ends[:] = True
+    fired = np.flatnonzero(ends)
+    stop = int(at[fired[0]]) if len(fired) else n
+    # clear of the cans and the table top at every step until then
+    px, pz = xs[: stop + 1], zs[: stop + 1]
+    near = m.BALL_RADIUS + CLEAR_MARGIN
+    table_lo, table_hi = PYRAMID_X - m.TABLE_MARGIN, PYRAMID_X + PYRAMID_WIDTH + m.TABLE_MARGIN
+    over_table = (px > table_lo - near) & (px < table_hi + near)
+    if np.any(over_table & (pz < near) & (pz > -m.TABLE_THICKNESS - near)):
+        return None
+    for cx, cz in centres:
+        dx = np.maximum(np.abs(px - cx) - CAN_WIDTH / 2, 0.0)
+        dz = np.maximum(np.abs(pz - cz) - CAN_HEIGHT / 2, 0.0)
+        if np.any(dx * dx + dz * dz < near * near):
+            return None
+    end_positions = np.full((N_CANS, 2), np.nan)
+    end_positions[list(mask_to_cans(config))] = centres
+    return Run(end_positions, 0, 0, stop, not len(fired), dt)
+
+
 def _public_api(space: pymunk.Space):
     """Step and body getters through pymunk's public API (the reference)."""
     return (
@@ -229,6 +310,10 @@ def simulate(
     -------
     Run
     """
+    if stepping.start_asleep and not reference and not (frame_every and on_frame):
+        run = clear_miss(config, position, velocity, stopping=stopping, stepping=stepping)
+        if run is not None:
+            return run
     space = new_space(sleep_time=stopping.sleep_time, iterations=stepping.solver_iterations)
     cans = add_cans(space, config, asleep=stepping.start_asleep)
     ball, ball_shape = add_ball(space, position, velocity, time_step=stepping.time_step)

@@ -11,7 +11,7 @@ from hypothesis import strategies as st
 from sim2d import field_throws, geometry, materials, recording
 from sim2d.configurations import settles, stable_configurations
 from sim2d.materials import STEPPING_FORMAT_2
-from sim2d.world import simulate
+from sim2d.world import clear_miss, simulate
 
 
 def field(row: int, column: int) -> int:
@@ -135,3 +135,38 @@ def test_format_2_stepping_keeps_the_same_standing_configurations():
     """The same subsets stand under format 2's stepping (1 ms, 10 iterations) as now."""
     old = [m for m in range(1 << geometry.N_CANS) if settles(m, stepping=STEPPING_FORMAT_2)]
     assert old == list(stable_configurations())
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    config=st.sampled_from([0, *stable_configurations()]),
+    height=st.floats(0.08, 1.5),
+    vx=st.floats(-2.0, 9.0),
+    vz=st.floats(-4.0, 4.0),
+)
+def test_a_clear_miss_without_pymunk_is_the_simulated_run_bit_for_bit(config, height, vx, vz):
+    """Where clear_miss answers, pymunk's public API steps to the very same run."""
+    position, velocity = (geometry.ENTRY_X, height), (vx, vz)
+    try:
+        field_throws.check_ball_position(config, np.array(position))
+    except ValueError:
+        return  # the ball starts inside a can
+    run = clear_miss(config, position, velocity)
+    reference = simulate(config, position, velocity, reference=True)
+    if run is None:
+        return
+    assert np.array_equal(run.end_positions, reference.end_positions, equal_nan=True)
+    assert (run.removed, run.touched, run.steps, run.timed_out) == (
+        reference.removed, reference.touched, reference.steps, reference.timed_out
+    )  # fmt: skip
+
+
+def test_clear_miss_answers_only_when_nothing_is_near():
+    full = geometry.FULL_PYRAMID
+    assert clear_miss(full, (geometry.ENTRY_X, 1.0), (7.0, 0.0)) is not None  # over the top
+    assert clear_miss(full, (geometry.ENTRY_X, 0.3), (7.0, 0.0)) is None  # into the cans
+    assert clear_miss(0, (geometry.ENTRY_X, 0.3), (7.0, 0.0)).steps == materials.CHECK_EVERY
+    # a ball that lands on the table behind the pyramid is left to pymunk
+    assert clear_miss(geometry.cans_to_mask([3]), (geometry.ENTRY_X, 0.5), (1.0, 0.0)) is None
+    with pytest.raises(ValueError, match="start_asleep"):
+        clear_miss(full, (geometry.ENTRY_X, 1.0), (7.0, 0.0), stepping=STEPPING_FORMAT_2)
