@@ -5,9 +5,10 @@ standard positions and :func:`add_ball` the ball; :func:`simulate` runs one ball
 against a configuration with the fixed step until a stopping rule fires and returns
 what is left (:class:`Run`). It is the only simulation loop of a ball in the can world.
 
-How it steps is :class:`sim2d.materials.Stepping` (default :data:`sim2d.materials.STEPPING`:
-2 ms steps, 5 solver iterations, the cans asleep until touched, so that a throw costs
-nothing until the ball reaches a can and a miss costs next to nothing).
+How it steps is :class:`sim2d.materials.Stepping` (default :data:`sim2d.materials.STEPPING`).
+With the cans asleep until touched (``start_asleep``), a throw costs next to nothing until
+the ball reaches a can, and a ball that passes clear of every can and the table top is
+not simulated at all (:func:`clear_miss`, the same run bit for bit).
 
 Stopping rules, checked every ``CHECK_EVERY`` steps:
 

@@ -13,6 +13,9 @@ from sim2d.configurations import settles, stable_configurations
 from sim2d.materials import STEPPING_FORMAT_2
 from sim2d.world import clear_miss, simulate
 
+#: The current step and solver iterations with the cans asleep until touched.
+ASLEEP = materials.Stepping(materials.TIME_STEP, materials.SOLVER_ITERATIONS, start_asleep=True)
+
 
 def field(row: int, column: int) -> int:
     return row * geometry.N_COLUMNS + column
@@ -65,7 +68,7 @@ def test_sim2d_can_world_imports_neither_torch_nor_pyro_nor_matplotlib():
     angle=st.sampled_from([0, 1, 2]),
     seed=st.integers(0, 2**31),
     stopping=st.sampled_from([materials.STOPPING, materials.STOPPING_FORMAT_1]),
-    stepping=st.sampled_from([materials.STEPPING, materials.STEPPING_FORMAT_2]),
+    stepping=st.sampled_from([materials.STEPPING, materials.STEPPING_FORMAT_2, ASLEEP]),
 )
 def test_stepping_through_the_binding_equals_the_public_api(
     config, fld, angle, seed, stopping, stepping
@@ -108,8 +111,7 @@ def test_a_body_removed_at_the_scene_margin_has_moved_enough_to_be_thrown_off():
 )
 def test_cans_that_start_asleep_stand_exactly_still_until_touched(config, height):
     """A ball flying over the pyramid leaves every can exactly where it stood."""
-    run = simulate(config, (geometry.ENTRY_X, height), (7.0, 0.0))
-    assert materials.STEPPING.start_asleep
+    run = simulate(config, (geometry.ENTRY_X, height), (7.0, 0.0), stepping=ASLEEP)
     assert not run.touched and not run.removed and not run.timed_out
     cans = list(geometry.mask_to_cans(config))
     assert np.array_equal(run.end_positions[cans], geometry.can_positions()[cans])
@@ -124,7 +126,7 @@ def test_cans_that_start_asleep_stand_exactly_still_until_touched(config, height
 def test_a_touch_wakes_the_whole_pyramid():
     """The ball nudges only the near bottom can (0.1 m/s), yet the top can moves too, and
     every other can ends at rest within a millimetre of its place."""
-    run = simulate(geometry.FULL_PYRAMID, (geometry.ENTRY_X, 0.07), (0.1, 0.0))
+    run = simulate(geometry.FULL_PYRAMID, (geometry.ENTRY_X, 0.07), (0.1, 0.0), stepping=ASLEEP)
     assert run.touched == 1 and not run.removed and not run.timed_out
     moved = np.abs(run.end_positions - geometry.can_positions())
     assert np.all(moved[9] > 0) and np.all(moved[1:] < 1e-3)
@@ -151,8 +153,8 @@ def test_a_clear_miss_without_pymunk_is_the_simulated_run_bit_for_bit(config, he
         field_throws.check_ball_position(config, np.array(position))
     except ValueError:
         return  # the ball starts inside a can
-    run = clear_miss(config, position, velocity)
-    reference = simulate(config, position, velocity, reference=True)
+    run = clear_miss(config, position, velocity, stepping=ASLEEP)
+    reference = simulate(config, position, velocity, stepping=ASLEEP, reference=True)
     if run is None:
         return
     assert np.array_equal(run.end_positions, reference.end_positions, equal_nan=True)
@@ -162,11 +164,13 @@ def test_a_clear_miss_without_pymunk_is_the_simulated_run_bit_for_bit(config, he
 
 
 def test_clear_miss_answers_only_when_nothing_is_near():
-    full = geometry.FULL_PYRAMID
-    assert clear_miss(full, (geometry.ENTRY_X, 1.0), (7.0, 0.0)) is not None  # over the top
-    assert clear_miss(full, (geometry.ENTRY_X, 0.3), (7.0, 0.0)) is None  # into the cans
-    assert clear_miss(0, (geometry.ENTRY_X, 0.3), (7.0, 0.0)).steps == materials.CHECK_EVERY
+    full, rules = geometry.FULL_PYRAMID, {"stepping": ASLEEP}
+    assert clear_miss(full, (geometry.ENTRY_X, 1.0), (7.0, 0.0), **rules) is not None  # over
+    assert clear_miss(full, (geometry.ENTRY_X, 0.3), (7.0, 0.0), **rules) is None  # into cans
+    assert clear_miss(0, (geometry.ENTRY_X, 0.3), (7.0, 0.0), **rules).steps == 10
     # a ball that lands on the table behind the pyramid is left to pymunk
-    assert clear_miss(geometry.cans_to_mask([3]), (geometry.ENTRY_X, 0.5), (1.0, 0.0)) is None
+    assert (
+        clear_miss(geometry.cans_to_mask([3]), (geometry.ENTRY_X, 0.5), (1.0, 0.0), **rules) is None
+    )
     with pytest.raises(ValueError, match="start_asleep"):
         clear_miss(full, (geometry.ENTRY_X, 1.0), (7.0, 0.0), stepping=STEPPING_FORMAT_2)
