@@ -39,13 +39,10 @@ into ``path`` at the end and then removed. ``<path>.lock`` keeps a second genera
 the same path. The chunks run on any executor (:mod:`sim2d.executors`); workers return
 arrays and this process writes the files, byte for byte the same on every executor.
 
-Format versions: 3 runs every throw under :data:`sim2d.materials.STOPPING` and steps
-the world as :data:`sim2d.materials.STEPPING` says (2 ms steps, 5 solver iterations, the
-cans asleep until touched; both are recorded under ``constants``); 2 stepped as
-:data:`sim2d.materials.STEPPING_FORMAT_2` (1 ms, 10 iterations, the cans awake from the
-start); 1 also ran the throws under :data:`sim2d.materials.STOPPING_FORMAT_1`, which
-removed bodies leaving the scene only 50 cm past the pyramid instead of 10 cm. A file of
-another version is refused.
+Format versions: 2 runs every throw under :data:`sim2d.materials.STOPPING` and steps the
+world as :data:`sim2d.materials.STEPPING` says (both recorded under ``constants``); 1 ran
+them under :data:`sim2d.materials.STOPPING_FORMAT_1`, which removed bodies leaving the
+scene only 50 cm past the pyramid instead of 10 cm. A file of another version is refused.
 """
 
 from __future__ import annotations
@@ -70,7 +67,7 @@ from sim2d.world import simulate
 
 __all__ = ["FORMAT_VERSION", "CanDataset", "generate_dataset", "load_dataset"]
 
-FORMAT_VERSION = 3
+FORMAT_VERSION = 2
 _DTYPES = {
     "start_config": np.int16,
     "field": np.int16,

@@ -82,13 +82,9 @@ def test_low_throw_at_near_bottom_can_brings_down_what_it_supports():
 
 
 def test_top_throw_takes_the_top_can():
-    outcomes = [
-        field_throws.throw_at_field(FULL, field(12, 7), 1, jitter=0.003, seed=seed)
-        for seed in range(20)
-    ]
-    assert all(o.thrown_off >> 9 & 1 for o in outcomes)
-    kept = sum(o.thrown_off & BOTTOM_ROW == 0 for o in outcomes)
-    assert kept >= 12, "a descending throw at the top mostly leaves the bottom row"
+    o = field_throws.throw_at_field(FULL, field(12, 7), 1)
+    assert o.thrown_off >> 9 & 1
+    assert o.thrown_off & BOTTOM_ROW == 0, "a descending throw at the top leaves the bottom row"
 
 
 @settings(max_examples=15, deadline=None)
