@@ -39,10 +39,10 @@ into ``path`` at the end and then removed. ``<path>.lock`` keeps a second genera
 the same path. The chunks run on any executor (:mod:`sim2d.executors`); workers return
 arrays and this process writes the files, byte for byte the same on every executor.
 
-Format versions: 2 runs every throw under :data:`sim2d.materials.STOPPING` (the
-stopping rules are recorded under ``constants``); 1 ran them under
-:data:`sim2d.materials.STOPPING_FORMAT_1`, which removed bodies leaving the scene only
-50 cm past the pyramid instead of 10 cm. A file of another version is refused.
+Format versions: 2 runs every throw under :data:`sim2d.materials.STOPPING` and steps the
+world as :data:`sim2d.materials.STEPPING` says (both recorded under ``constants``); 1 ran
+them under :data:`sim2d.materials.STOPPING_FORMAT_1`, which removed bodies leaving the
+scene only 50 cm past the pyramid instead of 10 cm. A file of another version is refused.
 """
 
 from __future__ import annotations

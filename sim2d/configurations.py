@@ -72,23 +72,26 @@ def fully_supported(mask: int) -> bool:
     return True
 
 
-def settles(mask: int) -> bool:
+def settles(mask: int, *, stepping: materials.Stepping = materials.STEPPING) -> bool:
     """Simulate one configuration for ``SETTLE_TIME``: does no can move more than 1 cm?
 
     Parameters
     ----------
     mask : int
         Any 10-bit configuration mask.
+    stepping : sim2d.materials.Stepping
+        The step and solver iterations (the cans start awake whatever it says).
     """
     mask = geometry.check_mask(mask)
-    space = world.new_space(sleep_time=math.inf)
+    space = world.new_space(sleep_time=math.inf, iterations=stepping.solver_iterations)
     bodies = world.add_cans(space, mask)
     positions = geometry.can_positions()
     start = {i: tuple(positions[i]) for i in bodies}
     limit = STABLE_TOLERANCE**2
-    for _ in range(round(SETTLE_TIME / materials.TIME_STEP) // _CHECK_EVERY):
+    dt = stepping.time_step
+    for _ in range(round(SETTLE_TIME / dt) // _CHECK_EVERY):
         for _ in range(_CHECK_EVERY):
-            space.step(materials.TIME_STEP)
+            space.step(dt)
         for i, body in bodies.items():
             dx = body.position.x - start[i][0]
             dz = body.position.y - start[i][1]

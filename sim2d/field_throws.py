@@ -222,7 +222,7 @@ def outcome_of(config: int, run: Run) -> ThrowOutcome:
         count_after=end_config.bit_count(),
         hit_any_can=bool(run.touched),
         touched=run.touched,
-        sim_time=run.steps * m.TIME_STEP,
+        sim_time=run.sim_time,
         timed_out=run.timed_out,
     )
 

@@ -5,6 +5,11 @@ standard positions and :func:`add_ball` the ball; :func:`simulate` runs one ball
 against a configuration with the fixed step until a stopping rule fires and returns
 what is left (:class:`Run`). It is the only simulation loop of a ball in the can world.
 
+How it steps is :class:`sim2d.materials.Stepping` (default :data:`sim2d.materials.STEPPING`).
+With the cans asleep until touched (``start_asleep``), a throw costs next to nothing until
+the ball reaches a can, and a ball that passes clear of every can and the table top is
+not simulated at all (:func:`clear_miss`, the same run bit for bit).
+
 Stopping rules, checked every ``CHECK_EVERY`` steps:
 
 - a body beyond ``scene_margin`` from the pyramid and moving away, or more than
@@ -52,7 +57,17 @@ from sim2d.geometry import (
     mask_to_cans,
 )
 
-__all__ = ["BALL_TYPE", "CAN_TYPE", "Run", "add_ball", "add_cans", "new_space", "simulate"]
+__all__ = [
+    "BALL_TYPE",
+    "CAN_TYPE",
+    "CLEAR_MARGIN",
+    "Run",
+    "add_ball",
+    "add_cans",
+    "clear_miss",
+    "new_space",
+    "simulate",
+]
 
 BALL_TYPE, CAN_TYPE = 1, 2  # pymunk collision types
 
@@ -78,6 +93,8 @@ class Run:
         Steps simulated.
     timed_out : bool
         The run reached ``MAX_SIM_TIME`` before a stopping rule fired.
+    time_step : float
+        Seconds per step.
     """
 
     end_positions: np.ndarray
@@ -85,13 +102,21 @@ class Run:
     touched: int
     steps: int
     timed_out: bool
+    time_step: float
+
+    @property
+    def sim_time(self) -> float:
+        """Simulated seconds, ``steps * time_step``."""
+        return self.steps * self.time_step
 
 
-def new_space(*, sleep_time: float = m.STOPPING.sleep_time) -> pymunk.Space:
+def new_space(
+    *, sleep_time: float = m.STOPPING.sleep_time, iterations: int = m.SOLVER_ITERATIONS
+) -> pymunk.Space:
     """A pymunk space with gravity, the solver settings and the table top (z <= 0)."""
     space = pymunk.Space()
     space.gravity = (0.0, -m.GRAVITY)
-    space.iterations = m.SOLVER_ITERATIONS
+    space.iterations = iterations
     space.collision_slop = m.COLLISION_SLOP
     space.sleep_time_threshold = sleep_time
     space.idle_speed_threshold = m.IDLE_SPEED
@@ -106,8 +131,13 @@ def new_space(*, sleep_time: float = m.STOPPING.sleep_time) -> pymunk.Space:
     return space
 
 
-def add_cans(space: pymunk.Space, config: int) -> dict[int, pymunk.Body]:
-    """Add the cans of ``config`` at their standard positions; ``{can index: body}``."""
+def add_cans(space: pymunk.Space, config: int, *, asleep: bool = False) -> dict[int, pymunk.Body]:
+    """Add the cans of ``config`` at their standard positions; ``{can index: body}``.
+
+    With ``asleep``, the cans are put to sleep as one group (the space must allow
+    sleeping): they stay exactly where they are until a body touches one of them, which
+    wakes them all.
+    """
     moment = pymunk.moment_for_box(m.CAN_MASS, (CAN_WIDTH, CAN_HEIGHT))
     positions = can_positions()
     bodies = {}
@@ -120,23 +150,107 @@ def add_cans(space: pymunk.Space, config: int) -> dict[int, pymunk.Body]:
         shape.collision_type = CAN_TYPE
         space.add(body, shape)
         bodies[i] = body
+    if asleep:
+        first = None
+        for body in bodies.values():
+            if first is None:
+                body.sleep()
+                first = body
+            else:
+                body.sleep_with_group(first)
     return bodies
 
 
-def add_ball(space: pymunk.Space, position, velocity) -> tuple[pymunk.Body, pymunk.Circle]:
-    """Add the ball with centre ``position`` and velocity ``velocity`` (SI, ``(x, z)``)."""
+def add_ball(
+    space: pymunk.Space, position, velocity, *, time_step: float = m.TIME_STEP
+) -> tuple[pymunk.Body, pymunk.Circle]:
+    """Add the ball with centre ``position`` and velocity ``velocity`` (SI, ``(x, z)``).
+
+    ``time_step`` is the step the space will be stepped with (see below).
+    """
     ball = pymunk.Body(m.BALL_MASS, pymunk.moment_for_circle(m.BALL_MASS, 0.0, m.BALL_RADIUS))
     ball.position = (float(position[0]), float(position[1]))
     # pymunk moves each body with its current velocity, then adds gravity. Starting with
     # the mean velocity of the first step (half a step of gravity later) puts the
     # positions at the step times exactly on the parabola of (position, velocity).
-    ball.velocity = (float(velocity[0]), float(velocity[1]) - 0.5 * m.GRAVITY * m.TIME_STEP)
+    ball.velocity = (float(velocity[0]), float(velocity[1]) - 0.5 * m.GRAVITY * time_step)
     shape = pymunk.Circle(ball, m.BALL_RADIUS)
     shape.friction = m.BALL_FRICTION_SHAPE
     shape.elasticity = m.BALL_ELASTICITY_SHAPE
     shape.collision_type = BALL_TYPE
     space.add(ball, shape)
     return ball, shape
+
+
+#: How close (m) the ball may come to a can or the table top, at a step, for
+#: :func:`clear_miss` to answer without pymunk; pymunk finds contacts only at overlap.
+CLEAR_MARGIN = 0.01
+
+
+def clear_miss(
+    config: int,
+    position,
+    velocity,
+    *,
+    stopping: m.StoppingRules = m.STOPPING,
+    stepping: m.Stepping = m.STEPPING,
+) -> Run | None:
+    """The run of a ball that touches nothing, without pymunk; None if it may touch something.
+
+    With the cans asleep until touched (``stepping.start_asleep``), a ball that never
+    comes near a can or the table top flies alone under gravity: pymunk moves it with
+    semi-implicit Euler (each step the position moves by the velocity times the step, then
+    gravity is added to the velocity), which is repeated here with the same floating-point
+    operations in the same order, so the positions, the step at which a stopping rule
+    fires and hence the :class:`Run` are those :func:`simulate` would step to, bit for bit
+    (tested against the public API). The answer is None when at any step up to the end
+    the ball comes within ``CLEAR_MARGIN`` of a can of ``config`` or of the table top.
+    """
+    if not stepping.start_asleep:
+        raise ValueError(
+            f"stepping={stepping!r} starts the cans awake; clear_miss needs cans that stand "
+            "exactly still until touched (start_asleep=True)"
+        )
+    dt, every = stepping.time_step, m.CHECK_EVERY
+    max_steps = round(m.MAX_SIM_TIME / dt)
+    checks = -(-max_steps // every)  # simulate checks every `every` steps from `every` on
+    n = checks * every
+    # pymunk's integration: x_{k+1} = x_k + vx dt, vz_{k+1} = vz_k + (-g) dt, z_{k+1} =
+    # z_k + vz_k dt; np.add.accumulate adds left to right, one addition at a time.
+    vx = float(velocity[0])
+    vz0 = float(velocity[1]) - 0.5 * m.GRAVITY * dt  # as add_ball sets it
+    gdt = -m.GRAVITY * dt
+    vz = np.add.accumulate(np.concatenate(([vz0], np.full(n, gdt))))  # vz after k steps
+    xs = np.add.accumulate(np.concatenate(([float(position[0])], np.full(n, vx * dt))))
+    zs = np.add.accumulate(np.concatenate(([float(position[1])], vz[:-1] * dt)))
+    # the stopping rules at the checks (steps every, 2 every, ...)
+    at = np.arange(1, checks + 1) * every
+    x, z = xs[at], zs[at]
+    lo = PYRAMID_X - stopping.scene_margin
+    hi = PYRAMID_X + PYRAMID_WIDTH + stopping.scene_margin
+    leaving = (z < -m.FALLEN_DEPTH) | ((x < lo) & (vx <= 0.0)) | ((x > hi) & (vx >= 0.0))
+    centres = can_positions()[list(mask_to_cans(config))]
+    right = centres[:, 0].max() + CAN_WIDTH / 2 if len(centres) else -math.inf
+    ends = leaving | ((x - m.BALL_RADIUS > right) & (vx >= 0.0))
+    if config == 0:
+        ends[:] = True
+    fired = np.flatnonzero(ends)
+    stop = int(at[fired[0]]) if len(fired) else n
+    # clear of the cans and the table top at every step until then
+    px, pz = xs[: stop + 1], zs[: stop + 1]
+    near = m.BALL_RADIUS + CLEAR_MARGIN
+    table_lo, table_hi = PYRAMID_X - m.TABLE_MARGIN, PYRAMID_X + PYRAMID_WIDTH + m.TABLE_MARGIN
+    over_table = (px > table_lo - near) & (px < table_hi + near)
+    if np.any(over_table & (pz < near) & (pz > -m.TABLE_THICKNESS - near)):
+        return None
+    for cx, cz in centres:
+        dx = np.maximum(np.abs(px - cx) - CAN_WIDTH / 2, 0.0)
+        dz = np.maximum(np.abs(pz - cz) - CAN_HEIGHT / 2, 0.0)
+        if np.any(dx * dx + dz * dz < near * near):
+            return None
+    end_positions = np.full((N_CANS, 2), np.nan)
+    end_positions[list(mask_to_cans(config))] = centres
+    return Run(end_positions, 0, 0, stop, not len(fired), dt)
 
 
 def _public_api(space: pymunk.Space):
@@ -171,6 +285,7 @@ def simulate(
     frame_every: int = 0,
     on_frame: FrameCallback | None = None,
     stopping: m.StoppingRules = m.STOPPING,
+    stepping: m.Stepping = m.STEPPING,
     reference: bool = False,
 ) -> Run:
     """Run one ball state against a configuration until a stopping rule fires.
@@ -187,6 +302,8 @@ def simulate(
         ``on_frame(step, cans, ball)``, see :data:`FrameCallback`.
     stopping : sim2d.materials.StoppingRules
         When the run is over.
+    stepping : sim2d.materials.Stepping
+        How the world is stepped.
     reference : bool
         Step and read bodies through pymunk's public API (slower, same numbers).
 
@@ -194,9 +311,13 @@ def simulate(
     -------
     Run
     """
-    space = new_space(sleep_time=stopping.sleep_time)
-    cans = add_cans(space, config)
-    ball, ball_shape = add_ball(space, position, velocity)
+    if stepping.start_asleep and not reference and not (frame_every and on_frame):
+        run = clear_miss(config, position, velocity, stopping=stopping, stepping=stepping)
+        if run is not None:
+            return run
+    space = new_space(sleep_time=stopping.sleep_time, iterations=stepping.solver_iterations)
+    cans = add_cans(space, config, asleep=stepping.start_asleep)
+    ball, ball_shape = add_ball(space, position, velocity, time_step=stepping.time_step)
     step_space, space_handle, handle, pos, vel, sleeping = (
         _public_api if reference else _binding_api
     )(space)
@@ -221,7 +342,7 @@ def simulate(
     # the far face of the configuration's rightmost can, for the no-touch rule
     right = max((can_positions()[i, 0] for i in cans), default=-math.inf) + CAN_WIDTH / 2
     reach = math.hypot(CAN_WIDTH, CAN_HEIGHT) / 2 + m.BALL_RADIUS
-    radius, dt, every = m.BALL_RADIUS, m.TIME_STEP, m.CHECK_EVERY
+    radius, dt, every = m.BALL_RADIUS, stepping.time_step, m.CHECK_EVERY
     max_steps = round(m.MAX_SIM_TIME / dt)
 
     def leaving(body) -> bool:
@@ -262,7 +383,10 @@ def simulate(
             for _ in range(every):
                 step_space(space_handle, dt)
             step += every
-        for i in [i for i, h in can_handles.items() if leaving(h)]:
+        # Untouched cans that started asleep still stand exactly at their standard
+        # positions, inside the scene: only cans that may have moved are checked.
+        moved = touched or not stepping.start_asleep
+        for i in [i for i, h in can_handles.items() if leaving(h)] if moved else ():
             space.remove(cans[i], *cans[i].shapes)
             del cans[i], can_handles[i]
             removed |= 1 << i
@@ -294,4 +418,4 @@ def simulate(
     for i, h in can_handles.items():
         p = pos(h)
         end_positions[i] = (p.x, p.y)
-    return Run(end_positions, removed, touched, step, timed_out)
+    return Run(end_positions, removed, touched, step, timed_out, dt)
