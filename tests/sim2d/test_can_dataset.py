@@ -350,6 +350,13 @@ def _children(pid: int) -> list[int]:
     return [p.pid for p in psutil.Process(pid).children(recursive=True)]
 
 
+def _default_signals():
+    """A suite started in the background (nohup, ``cmd &``) hands its children SIGINT
+    ignored; the generator under test must see the signals as a terminal would send them."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT, signal.SIGKILL])
 def test_pool_workers_end_with_the_generator(tmp_path, sig):
     psutil = pytest.importorskip("psutil")
@@ -359,6 +366,7 @@ def test_pool_workers_end_with_the_generator(tmp_path, sig):
         [sys.executable, "-m", "sim2d.generate", str(out), "--configs", "1023", "--angles", "1",
          "--repeats", "40", "--chunk-size", "10", "--executor", "process:2", "--quiet"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        preexec_fn=_default_signals,
     )  # fmt: skip
     try:
         deadline = time.monotonic() + 60
