@@ -266,9 +266,8 @@ def _encode_indices(spec: SiteSpec, value: object) -> torch.Tensor:
     return index
 
 
-def _encode_continuous(spec: SiteSpec, value: object) -> torch.Tensor:
-    if isinstance(value, Partial):
-        return _encode_partial(spec, value)
+def _rows(spec: SiteSpec, value: object) -> torch.Tensor:
+    """``value`` as float64 rows ``(n, size)``; a single row or a 1-d feature may drop an axis."""
     try:
         x = torch.as_tensor(
             value.detach() if isinstance(value, torch.Tensor) else np.asarray(value),
@@ -286,6 +285,13 @@ def _encode_continuous(spec: SiteSpec, value: object) -> torch.Tensor:
         raise ValueError(
             f"site {spec.name!r}: expected shape (n, {spec.size}), got {tuple(np.shape(value))}"
         )
+    return x
+
+
+def _encode_continuous(spec: SiteSpec, value: object) -> torch.Tensor:
+    if isinstance(value, Partial):
+        return _encode_partial(spec, value)
+    x = _rows(spec, value)
     bad = ~torch.isfinite(x)
     if spec.role == "param":
         nan_row = torch.isnan(x).all(-1, keepdim=True)
@@ -315,23 +321,7 @@ def _encode_partial(spec: SiteSpec, partial: Partial) -> torch.Tensor:
             f"dtype {mask.dtype}"
         )
     value = partial.value
-    try:
-        x = torch.as_tensor(
-            value.detach() if isinstance(value, torch.Tensor) else np.asarray(value),
-            dtype=DTYPE,
-        )
-    except (TypeError, ValueError, RuntimeError) as exc:
-        raise ValueError(
-            f"site {spec.name!r}: expected numbers of shape (n, {spec.size}), got {value!r}"
-        ) from exc
-    if x.dim() == 1 and spec.size > 1 or x.dim() == 0:
-        x = x.reshape(1, -1)
-    elif x.dim() == 1:
-        x = x.reshape(-1, 1)
-    if x.dim() != 2 or x.shape[-1] != spec.size:
-        raise ValueError(
-            f"site {spec.name!r}: expected shape (n, {spec.size}), got {tuple(np.shape(value))}"
-        )
+    x = _rows(spec, value)
     if mask.shape not in ((spec.size,), (x.shape[0], spec.size)):
         raise ValueError(
             f"site {spec.name!r}: Partial's observed has shape {tuple(mask.shape)}; expected "
