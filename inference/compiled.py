@@ -200,6 +200,8 @@ class CompiledNetwork:
                 )
             )
         plan = self.plan(frozenset(enc))
+        if n == 1 and plan.answers is not None and allowed is None and plan.unseen is None:
+            return self._one_answer(enc, plan, below)
         index = tuple(enc[s] for s in plan.observed)
         a = plan.latent.index(ACTION) + 1
         top = None
@@ -254,8 +256,32 @@ class CompiledNetwork:
             probs, best, names, log_evidence, unseen_mass, self.net.actions, flag
         )
 
-    def _evidence_below(self, enc: Evidence, log_evidence: torch.Tensor, below: float):
-        """``(n,)`` bool: p(observed end sites | the rest of the evidence) below ``below``."""
+    def _one_answer(self, enc: Evidence, plan: _Plan, below: float) -> ActionPosterior:
+        """One row of a pattern with answers per configuration, read by its position in
+        the flattened tables (slices, no index tensors): the same numbers as the batched
+        gather, in a few small operations."""
+        row = 0
+        for s, size in zip(plan.observed, plan.log_table.shape, strict=False):
+            row = row * size + int(enc[s])
+        answers = plan.answers
+        # numpy copies wrapped as tensors: cheaper than torch's own small operations, and
+        # the results own their memory (the answers stay the plan's)
+        probs = answers.probs.numpy()[row : row + 1].copy()
+        best = answers.best.numpy()[row : row + 1].copy()
+        log_evidence = answers.log_evidence.numpy()[row : row + 1].copy()
+        return ActionPosterior(
+            torch.from_numpy(probs),
+            torch.from_numpy(best),
+            (self.net.actions[int(best[0])],),
+            torch.from_numpy(log_evidence),
+            torch.from_numpy(np.zeros_like(probs)),
+            self.net.actions,
+            self._evidence_below(enc, float(log_evidence[0]), below),
+        )
+
+    def _evidence_below(self, enc: Evidence, log_evidence: torch.Tensor | float, below: float):
+        """``(n,)`` bool: p(observed end sites | the rest of the evidence) below ``below``
+        (``log_evidence``: ``(n,)``, or a float for one row)."""
         ends = {end_site(f.name) for f in self.net.features}
         given = frozenset(s for s in enc if s not in ends)
         if len(given) == len(enc):
@@ -266,6 +292,10 @@ class CompiledNetwork:
             k = len(plan.observed)
             self.priors[given] = table.reshape(*table.shape[:k], -1).logsumexp(-1)
         order = [s for s in self.order if s in given]  # the plan's observed axes
+        if enc.n_rows == 1:  # Python numbers: the same subtraction and comparison
+            log_prior = float(self.priors[given].numpy()[tuple(int(enc[s]) for s in order)])
+            flag = float(log_evidence) - log_prior < math.log(below)
+            return torch.from_numpy(np.array([flag]))
         log_prior = self.priors[given][tuple(enc[s] for s in order)]
         return (log_evidence - log_prior) < math.log(below)
 

@@ -123,6 +123,44 @@ def test_answers_per_configuration_equal_the_answers_per_row(seed, zero_n, data)
     assert torch.equal(a.best, b.best) and a.best_names == b.best_names
 
 
+@settings(max_examples=15, deadline=None)
+@given(
+    seed=st.integers(0, 1000),
+    zero_n=st.sampled_from([0.0, 0.3]),
+    below=st.sampled_from([0.01, 0.3, 0.9]),
+)
+def test_one_row_action_queries_are_the_batched_rows(seed, zero_n, below):
+    """A single row (read by its position in the per-configuration answers when the plan
+    has them) answers bit for bit as its row of the batched query, the implausible flag
+    included, and as the traced model; its tensors are its own."""
+    net = discrete_network([3, 2], 4)
+    params = random_params(net, seed, unseen=zero_n)
+    g = torch.Generator().manual_seed(seed)
+    ev = net.encode_indices(
+        {
+            "initial.f0": torch.randint(0, 3, (12,), generator=g),
+            "initial.f1": torch.randint(0, 2, (12,), generator=g),
+            "end.f1": torch.randint(0, 2, (12,), generator=g),
+        }
+    )
+    compiled = compile_discrete(net, params)
+    batched = compiled.infer_action(ev, implausible_below=below)
+    traced = infer_action(net, params, ev, implausible_below=below)
+    [plan] = compiled.plans.values()
+    assert plan.answers is not None and (plan.unseen is None) == (zero_n == 0.0)
+    for i in range(12):
+        one = compiled.infer_action(ev.rows(slice(i, i + 1)), implausible_below=below)
+        for name in ("probs", "best", "log_evidence", "unseen", "implausible"):
+            mine, theirs = getattr(one, name), getattr(batched, name)[i : i + 1]
+            assert mine.dtype == theirs.dtype and torch.equal(mine, theirs), name
+        assert one.best_names == batched.best_names[i : i + 1]
+        torch.testing.assert_close(one.probs, traced.probs[i : i + 1])
+        assert torch.equal(one.implausible, traced.implausible[i : i + 1])
+        one.probs.zero_()  # the caller's to change: the plan's answers stay
+    again = compiled.infer_action(ev.rows(slice(0, 1)), implausible_below=below)
+    assert torch.equal(again.probs, batched.probs[:1])
+
+
 # ---------------------------------------------------------------- a parameter on several features
 def assert_same_answer(a, b):
     for name in ("cluster_probs", "mean", "cov", "unseen", "outside", "implausible"):
