@@ -111,6 +111,9 @@ class CompiledNetwork:
     plans: dict[frozenset, _Plan] = field(default_factory=dict, repr=False)
     # per pattern without end sites: log p(evidence) per observed configuration
     priors: dict[frozenset, torch.Tensor] = field(default_factory=dict, repr=False)
+    # per pattern with answers: log p(end sites | the rest) per observed configuration,
+    # flattened as the answers (numpy), for the one-row query's implausible flag
+    surprises: dict[frozenset, np.ndarray] = field(default_factory=dict, repr=False)
 
     def plan(self, observed: frozenset) -> _Plan:
         """The summed table for this evidence pattern (built once, then cached)."""
@@ -276,8 +279,36 @@ class CompiledNetwork:
             torch.from_numpy(log_evidence),
             torch.from_numpy(np.zeros_like(probs)),
             self.net.actions,
-            self._evidence_below(enc, float(log_evidence[0]), below),
+            self._one_below(enc, plan, row, float(log_evidence[0]), below),
         )
+
+    def _one_below(
+        self, enc: Evidence, plan: _Plan, row: int, log_evidence: float, below: float
+    ) -> torch.Tensor:
+        """``(1,)`` bool: :meth:`_evidence_below` for one row of a pattern with answers,
+        from its table of ``log_evidence - log_prior`` per configuration (built once)."""
+        pattern = frozenset(enc)
+        if pattern not in self.surprises:
+            ends = {end_site(f.name) for f in self.net.features}
+            given = frozenset(s for s in enc if s not in ends)
+            if len(given) == len(enc):
+                self.surprises[pattern] = None  # no end site observed: never implausible
+            else:
+                self._evidence_below(enc, log_evidence, below)  # builds priors[given]
+                prior = self.priors[given]  # axes: the observed non-end sites, in order
+                shape = [
+                    size if s in given else 1
+                    for s, size in zip(plan.observed, plan.log_table.shape, strict=False)
+                ]
+                log_evidence_all = plan.answers.log_evidence.reshape(
+                    plan.log_table.shape[: len(plan.observed)]
+                )
+                self.surprises[pattern] = (
+                    (log_evidence_all - prior.reshape(shape)).reshape(-1).numpy()
+                )
+        surprise = self.surprises[pattern]
+        flag = surprise is not None and bool(surprise[row] < math.log(below))
+        return torch.from_numpy(np.array([flag]))
 
     def _evidence_below(self, enc: Evidence, log_evidence: torch.Tensor | float, below: float):
         """``(n,)`` bool: p(observed end sites | the rest of the evidence) below ``below``
