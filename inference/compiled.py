@@ -20,6 +20,7 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
+import numpy as np
 import torch
 from pyro import poutine
 
@@ -110,6 +111,9 @@ class CompiledNetwork:
     plans: dict[frozenset, _Plan] = field(default_factory=dict, repr=False)
     # per pattern without end sites: log p(evidence) per observed configuration
     priors: dict[frozenset, torch.Tensor] = field(default_factory=dict, repr=False)
+    # per pattern with answers: log p(end sites | the rest) per observed configuration,
+    # flattened as the answers (numpy), for the one-row query's implausible flag
+    surprises: dict[frozenset, np.ndarray] = field(default_factory=dict, repr=False)
 
     def plan(self, observed: frozenset) -> _Plan:
         """The summed table for this evidence pattern (built once, then cached)."""
@@ -199,6 +203,8 @@ class CompiledNetwork:
                 )
             )
         plan = self.plan(frozenset(enc))
+        if n == 1 and plan.answers is not None and allowed is None and plan.unseen is None:
+            return self._one_answer(enc, plan, below)
         index = tuple(enc[s] for s in plan.observed)
         a = plan.latent.index(ACTION) + 1
         top = None
@@ -253,8 +259,60 @@ class CompiledNetwork:
             probs, best, names, log_evidence, unseen_mass, self.net.actions, flag
         )
 
-    def _evidence_below(self, enc: Evidence, log_evidence: torch.Tensor, below: float):
-        """``(n,)`` bool: p(observed end sites | the rest of the evidence) below ``below``."""
+    def _one_answer(self, enc: Evidence, plan: _Plan, below: float) -> ActionPosterior:
+        """One row of a pattern with answers per configuration, read by its position in
+        the flattened tables (slices, no index tensors): the same numbers as the batched
+        gather, in a few small operations."""
+        row = 0
+        for s, size in zip(plan.observed, plan.log_table.shape, strict=False):
+            row = row * size + int(enc[s])
+        answers = plan.answers
+        # numpy copies wrapped as tensors: cheaper than torch's own small operations, and
+        # the results own their memory (the answers stay the plan's)
+        probs = answers.probs.numpy()[row : row + 1].copy()
+        best = answers.best.numpy()[row : row + 1].copy()
+        log_evidence = answers.log_evidence.numpy()[row : row + 1].copy()
+        return ActionPosterior(
+            torch.from_numpy(probs),
+            torch.from_numpy(best),
+            (self.net.actions[int(best[0])],),
+            torch.from_numpy(log_evidence),
+            torch.from_numpy(np.zeros_like(probs)),
+            self.net.actions,
+            self._one_below(enc, plan, row, float(log_evidence[0]), below),
+        )
+
+    def _one_below(
+        self, enc: Evidence, plan: _Plan, row: int, log_evidence: float, below: float
+    ) -> torch.Tensor:
+        """``(1,)`` bool: :meth:`_evidence_below` for one row of a pattern with answers,
+        from its table of ``log_evidence - log_prior`` per configuration (built once)."""
+        pattern = frozenset(enc)
+        if pattern not in self.surprises:
+            ends = {end_site(f.name) for f in self.net.features}
+            given = frozenset(s for s in enc if s not in ends)
+            if len(given) == len(enc):
+                self.surprises[pattern] = None  # no end site observed: never implausible
+            else:
+                self._evidence_below(enc, log_evidence, below)  # builds priors[given]
+                prior = self.priors[given]  # axes: the observed non-end sites, in order
+                shape = [
+                    size if s in given else 1
+                    for s, size in zip(plan.observed, plan.log_table.shape, strict=False)
+                ]
+                log_evidence_all = plan.answers.log_evidence.reshape(
+                    plan.log_table.shape[: len(plan.observed)]
+                )
+                self.surprises[pattern] = (
+                    (log_evidence_all - prior.reshape(shape)).reshape(-1).numpy()
+                )
+        surprise = self.surprises[pattern]
+        flag = surprise is not None and bool(surprise[row] < math.log(below))
+        return torch.from_numpy(np.array([flag]))
+
+    def _evidence_below(self, enc: Evidence, log_evidence: torch.Tensor | float, below: float):
+        """``(n,)`` bool: p(observed end sites | the rest of the evidence) below ``below``
+        (``log_evidence``: ``(n,)``, or a float for one row)."""
         ends = {end_site(f.name) for f in self.net.features}
         given = frozenset(s for s in enc if s not in ends)
         if len(given) == len(enc):
@@ -265,6 +323,10 @@ class CompiledNetwork:
             k = len(plan.observed)
             self.priors[given] = table.reshape(*table.shape[:k], -1).logsumexp(-1)
         order = [s for s in self.order if s in given]  # the plan's observed axes
+        if enc.n_rows == 1:  # Python numbers: the same subtraction and comparison
+            log_prior = float(self.priors[given].numpy()[tuple(int(enc[s]) for s in order)])
+            flag = float(log_evidence) - log_prior < math.log(below)
+            return torch.from_numpy(np.array([flag]))
         log_prior = self.priors[given][tuple(enc[s] for s in order)]
         return (log_evidence - log_prior) < math.log(below)
 
@@ -338,6 +400,8 @@ class CompiledParameterQuery:
     # features (y_i y_j for i <= j, y_i, 1) and the forms' coefficients per cluster.
     centre: torch.Tensor | None = field(default=None, repr=False)  # (d,)
     quadratic: torch.Tensor | None = field(default=None, repr=False)  # (P'..., F, C)
+    # The one-row tables (:meth:`_one_row`), built on the first single query.
+    _one: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def infer(
         self,
@@ -348,6 +412,9 @@ class CompiledParameterQuery:
     ) -> ParameterPosterior:
         """Same contract and result as :func:`inference.infer_parameter`."""
         below = check_threshold(implausible_below)
+        one = self._one_row(evidence, mixture, below)
+        if one is not None:
+            return one
         p = self.parameter
         y_site = end_site(p.features[0])
         enc = self.net.encode(evidence)
@@ -399,15 +466,19 @@ class CompiledParameterQuery:
                 z = torch.einsum("ncij,ncj->nci", self.whiten[index], diff)
             d2 = z.square().sum(-1)  # (n, C) squared Mahalanobis distances
         log_cluster = self.log_cluster[enc[ACTION][:1] if shared else enc[ACTION]]
-        log_post = torch.add(self.log_norm[gather] + log_cluster, d2, alpha=-0.5)
         impossible = ~torch.isfinite(log_cluster)  # (1 or n, C)
         if bool(impossible.any()):
-            d2 = d2.masked_fill(impossible, torch.inf)
-        closest = d2.min(-1).values.clamp_min(0.0)  # rounding may leave -1e-12
+            closest = d2.masked_fill(impossible, torch.inf).amin(-1)
+        else:
+            closest = d2.amin(-1)
+        closest = closest.clamp_min(0.0)  # rounding may leave -1e-12
+        # log_norm + log_cluster - d2 / 2, in d2's place: one (n, C) tensor fewer to allocate
+        log_post = d2.mul_(-0.5).add_(self.log_norm[gather] + log_cluster)
         dof = torch.tensor(y.shape[-1] / 2, dtype=DTYPE)
         implausible = torch.special.gammaincc(dof, closest / 2) < below
-        probs = log_post.softmax(-1)
-        best = probs.argmax(-1)
+        probs = torch.softmax(log_post, -1, out=log_post)  # in place: log_post is ours
+        # numpy's argmax (the first maximum, as torch's) is several times faster here
+        best = torch.from_numpy(probs.numpy().argmax(-1))
         rows = torch.arange(n)
         full = (*index, best)
         resid = y - loc.expand(n, *loc.shape[1:])[rows, best]
@@ -425,6 +496,132 @@ class CompiledParameterQuery:
         cov = self.post_cov[full]
         return ParameterPosterior(
             probs, best, mean, cov, unseen, outside_range(p, mean), mix, implausible
+        )
+
+    def _one_tables(self) -> dict | None:
+        """Per action, the numpy views :meth:`_one_row` reads (``None``: no one-row path,
+        the feature has discrete parents besides the action and the cluster, or
+        continuous inputs besides the parameter)."""
+        if "tables" in self._one:
+            return self._one["tables"]
+        tables = None
+        if self.quadratic is not None and self.parents[:-1] in ((), (ACTION,)):
+            net, p = self.net, self.parameter
+            actions = torch.arange(len(net.actions))
+            by_action = self.parents[:-1] == (ACTION,)
+            per = []
+            for a in range(len(net.actions)):
+
+                def at(table: torch.Tensor, a: int = a) -> np.ndarray:
+                    # the action's slice (a table of size 1 on the action axis is shared)
+                    return (table[a if table.shape[0] > 1 else 0] if by_action else table).numpy()
+
+                log_cluster = self.log_cluster[a]
+                per.append(
+                    {
+                        "quadratic": at(self.quadratic),  # (F, C)
+                        "base": at(self.log_norm) + log_cluster.numpy(),  # (C,)
+                        # None: every cluster possible (most actions), no mask to apply
+                        "impossible": (~torch.isfinite(log_cluster)).numpy()
+                        if not bool(torch.isfinite(log_cluster).all())
+                        else None,
+                        "offset": at(self.offset),  # (C, d)
+                        "gain": at(self.gain),  # (C, k, d)
+                        "post_cov": at(self.post_cov),  # (C, k, k)
+                        "seen": at(self.seen),  # (C,)
+                    }
+                )
+            d = self.offset.shape[-1]
+            tables = {
+                "y_site": end_site(p.features[0]),
+                "action": {label: i for i, label in enumerate(net.actions)},
+                "in_use": net.parameter_in_use(p, actions).tolist(),
+                "default": net.action_index(p.actions[0]) if len(p.actions) == 1 else None,
+                "per": per,
+                "d": d,
+                "pairs": tuple(np.triu_indices(d)),
+                "centre": self.centre.numpy(),
+                "prior_mean": self.prior_mean.numpy(),
+                "low": np.asarray(p.low, dtype=np.float64),
+                "high": np.asarray(p.high, dtype=np.float64),
+            }
+        self._one["tables"] = tables
+        return tables
+
+    def _one_row(self, evidence: object, mixture: bool, below: float) -> ParameterPosterior | None:
+        """The query of one fully observed hit (and perhaps the action, as a label) with
+        numpy on per-action tables: a handful of small operations instead of some forty
+        tensor ones. The same steps as the batched query on the same tables, so the same
+        answers up to rounding. ``None`` where the evidence is anything else (several
+        rows, a partial observation, encoded evidence, an error to report): the general
+        path then serves it."""
+        if isinstance(evidence, Evidence) or not isinstance(evidence, Mapping):
+            return None
+        t = self._one_tables()
+        if t is None or t["y_site"] not in evidence:
+            return None
+        if len(evidence) == 1:
+            a = t["default"]
+        elif len(evidence) == 2 and ACTION in evidence:
+            label = evidence[ACTION]
+            if isinstance(label, list | tuple) and len(label) == 1:
+                label = label[0]
+            try:
+                a = t["action"].get(label)
+            except TypeError:  # unhashable: the general path says what is wrong
+                return None
+        else:
+            return None
+        if a is None or not t["in_use"][a]:
+            return None
+        value = evidence[t["y_site"]]
+        if isinstance(value, torch.Tensor):
+            y = value.detach().cpu().numpy().astype(np.float64, copy=False)
+        elif isinstance(value, np.ndarray | list | tuple | float | int):
+            try:
+                y = np.asarray(value, dtype=np.float64)
+            except (TypeError, ValueError):
+                return None
+        else:  # Partial and the rest
+            return None
+        d = t["d"]
+        if not (y.shape == (1, d) or y.shape == (d,) or (y.ndim == 0 and d == 1)):
+            return None
+        y = y.reshape(d)
+        if not np.isfinite(y).all():
+            return None
+        at = t["per"][a]
+        u = y - t["centre"]
+        i, j = t["pairs"]
+        d2 = np.concatenate([u[i] * u[j], u, (1.0,)]) @ at["quadratic"]  # (C,)
+        log_post = at["base"] - 0.5 * d2
+        if at["impossible"] is not None:
+            d2 = np.where(at["impossible"], np.inf, d2)
+        tail = chi_square_tail(d, max(float(d2.min()), 0.0))
+        probs = np.exp(log_post - log_post.max())
+        probs /= probs.sum()
+        best = int(probs.argmax())
+        resid = y - at["offset"][best]
+        mean = t["prior_mean"][best] + at["gain"][best] @ resid
+        outside = bool(((mean < t["low"]) | (mean > t["high"])).any())
+        mix = None
+        if mixture:
+            resid_all = y - at["offset"]  # (C, d)
+            means = t["prior_mean"] + np.einsum("ckd,cd->ck", at["gain"], resid_all)
+            mix = GaussianMixture(
+                torch.from_numpy(probs[None].copy()),
+                torch.from_numpy(means[None]),
+                torch.from_numpy(at["post_cov"][None].copy()),
+            )
+        return ParameterPosterior(
+            torch.from_numpy(probs[None]),
+            torch.from_numpy(np.array([best], dtype=np.int64)),
+            torch.from_numpy(mean[None]),
+            torch.from_numpy(at["post_cov"][best][None].copy()),
+            torch.from_numpy(np.array([0.0 if at["seen"][best] else 1.0])),
+            torch.from_numpy(np.array([outside])),
+            mix,
+            torch.from_numpy(np.array([tail < below])),
         )
 
     def _infer_partial(self, enc, y, index, loc, mixture, below) -> ParameterPosterior:
@@ -635,6 +832,30 @@ def compile_parameter_query(
     if tables["w_x"].shape[-1] == 0:  # no other continuous input: every mean is fixed
         tables |= _quadratic_forms(tables["offset"], tables["whiten"])
     return CompiledParameterQuery(net, m.parameter, child.parents, child.inputs, **tables)
+
+
+def chi_square_tail(dof: int, x: float) -> float:
+    """``P(X > x)`` for ``X`` chi-square with ``dof >= 1`` degrees of freedom: the
+    regularised ``gammaincc(dof / 2, x / 2)`` in closed form, from ``Q(1, h) = e^-h`` (even
+    ``dof``) or ``Q(1/2, h) = erfc(sqrt h)`` (odd) up by ``Q(a + 1, h) = Q(a, h) + h^a
+    e^-h / Gamma(a + 1)``."""
+    h = x / 2
+    if h == math.inf:
+        return 0.0
+    a, tail = (0.5, math.erfc(math.sqrt(h))) if dof % 2 else (1.0, math.exp(-h))
+    if h == 0 or a >= dof / 2:
+        return tail
+    # the terms relative to the first, h^a e^-h / Gamma(a + 1), whose log is log_first
+    # (the first term itself may be subnormal where the sum is not)
+    log_first = a * math.log(h) - h - math.lgamma(a + 1)
+    total, term = 0.0, 1.0
+    while a < dof / 2:
+        total += term
+        a += 1
+        term *= h / a
+        if total > 1e280:  # keep the sum finite: move a factor into log_first
+            total, term, log_first = total * 1e-280, term * 1e-280, log_first + 280 * math.log(10)
+    return tail + math.exp(math.log(total) + log_first)
 
 
 def quadratic_features(y: torch.Tensor) -> torch.Tensor:

@@ -117,12 +117,12 @@ def fit(
         raise ValueError(
             "every row misses some value; at least one complete row is needed to start"
         )
-    cpds = params_from_statistics(
-        net, statistics(net, enc.rows(complete)), pseudo_count, min_variance
-    )
+    every = bool(complete.all())
+    rows = enc if every else enc.rows(complete)  # no copy of the rows when none misses
+    cpds = params_from_statistics(net, statistics(net, rows), pseudo_count, min_variance)
     params = NetworkParams(cpds, pseudo_count)
     gradient_sites = [s for s in cpds if not net.cpd(s).closed_form]
-    if not complete.all():
+    if not every:
         gradient_sites = list(cpds)
     if not gradient_sites:
         return FitResult(params)

@@ -91,7 +91,9 @@ def params_from_statistics(
 
 def _flat_index(enc: Evidence, sites: tuple[str, ...], card: tuple[int, ...]) -> torch.Tensor:
     """``(n,)`` row-major index of the rows' configuration of ``sites``."""
-    index = torch.zeros(enc.n_rows, dtype=torch.long)
-    for s, k in zip(sites, card, strict=True):
+    if not sites:
+        return torch.zeros(enc.n_rows, dtype=torch.long)
+    index = enc[sites[0]]
+    for s, k in zip(sites[1:], card[1:], strict=True):
         index = index * k + enc[s]
     return index

@@ -123,6 +123,44 @@ def test_answers_per_configuration_equal_the_answers_per_row(seed, zero_n, data)
     assert torch.equal(a.best, b.best) and a.best_names == b.best_names
 
 
+@settings(max_examples=15, deadline=None)
+@given(
+    seed=st.integers(0, 1000),
+    zero_n=st.sampled_from([0.0, 0.3]),
+    below=st.sampled_from([0.01, 0.3, 0.9]),
+)
+def test_one_row_action_queries_are_the_batched_rows(seed, zero_n, below):
+    """A single row (read by its position in the per-configuration answers when the plan
+    has them) answers bit for bit as its row of the batched query, the implausible flag
+    included, and as the traced model; its tensors are its own."""
+    net = discrete_network([3, 2], 4)
+    params = random_params(net, seed, unseen=zero_n)
+    g = torch.Generator().manual_seed(seed)
+    ev = net.encode_indices(
+        {
+            "initial.f0": torch.randint(0, 3, (12,), generator=g),
+            "initial.f1": torch.randint(0, 2, (12,), generator=g),
+            "end.f1": torch.randint(0, 2, (12,), generator=g),
+        }
+    )
+    compiled = compile_discrete(net, params)
+    batched = compiled.infer_action(ev, implausible_below=below)
+    traced = infer_action(net, params, ev, implausible_below=below)
+    [plan] = compiled.plans.values()
+    assert plan.answers is not None and (plan.unseen is None) == (zero_n == 0.0)
+    for i in range(12):
+        one = compiled.infer_action(ev.rows(slice(i, i + 1)), implausible_below=below)
+        for name in ("probs", "best", "log_evidence", "unseen", "implausible"):
+            mine, theirs = getattr(one, name), getattr(batched, name)[i : i + 1]
+            assert mine.dtype == theirs.dtype and torch.equal(mine, theirs), name
+        assert one.best_names == batched.best_names[i : i + 1]
+        torch.testing.assert_close(one.probs, traced.probs[i : i + 1])
+        assert torch.equal(one.implausible, traced.implausible[i : i + 1])
+        one.probs.zero_()  # the caller's to change: the plan's answers stay
+    again = compiled.infer_action(ev.rows(slice(0, 1)), implausible_below=below)
+    assert torch.equal(again.probs, batched.probs[:1])
+
+
 # ---------------------------------------------------------------- a parameter on several features
 def assert_same_answer(a, b):
     for name in ("cluster_probs", "mean", "cov", "unseen", "outside", "implausible"):
@@ -233,3 +271,131 @@ def test_compiled_query_without_other_inputs_reads_its_distances_as_one_product(
         assert_same_answer(
             query.infer(ev, mixture=True), infer_parameter(net, params, "target", ev, mixture=True)
         )
+
+
+def _one_row_network(dim: int = 2):
+    from models import Parameter
+
+    low, high = (0.0,) * dim, (1.0, 2.0, 1.5)[:dim]
+    target = Parameter("target", low, high, (3, 4, 2)[:dim], ("throw", "lob"), "hit")
+    return EffectNetwork((Continuous("hit", dim, initial=False),), ("throw", "lob"), (target,))
+
+
+@settings(max_examples=15, deadline=None)
+@given(
+    seed=st.integers(0, 1000),
+    dim=st.sampled_from([1, 2, 3]),
+    scale=st.sampled_from([0.5, 3.0, 30.0]),
+    mixture=st.booleans(),
+)
+def test_one_row_queries_answer_as_the_batched_query_and_the_traced_model(
+    seed, dim, scale, mixture
+):
+    """One hit at a time (read with numpy from per-action tables) gives, row by row, the
+    batched query's answers and the traced model's, flags and mixture included, for
+    every way of giving one row."""
+    from inference import infer_parameter
+    from inference.compiled import compile_parameter_query
+
+    net = _one_row_network(dim)
+    params = random_params(net, seed, unseen=0.3)
+    query = compile_parameter_query(net, params, "target")
+    g = torch.Generator().manual_seed(seed)
+    hits = scale * torch.randn(8, dim, generator=g, dtype=torch.float64)
+    actions = ["throw", "lob"] * 4
+    assert query._one_row({"end.hit": hits[0], "action": "lob"}, mixture, 0.01) is not None
+    batched = query.infer({"end.hit": hits, "action": actions}, mixture=mixture)
+    traced = infer_parameter(net, params, "target", {"end.hit": hits, "action": actions})
+    assert traced.implausible.any() or scale < 30  # far hits are flagged
+    for i in range(len(hits)):
+        forms = [
+            {"end.hit": hits[i : i + 1], "action": [actions[i]]},
+            {"end.hit": hits[i], "action": actions[i]},
+            {"end.hit": hits[i].numpy(), "action": (actions[i],)},
+            {"end.hit": hits[i].tolist(), "action": actions[i]},
+        ]
+        for ev in forms:
+            one = query.infer(ev, mixture=mixture)
+            assert one.cluster_probs.shape == (1, batched.cluster_probs.shape[1])
+            assert one.best_cluster.dtype == torch.long and one.implausible.dtype == torch.bool
+            assert one.outside.dtype == torch.bool and one.unseen.dtype == torch.float64
+            row = dataclasses.replace(
+                batched,
+                **{
+                    f.name: getattr(batched, f.name)[i : i + 1]
+                    for f in dataclasses.fields(batched)
+                    if f.name != "mixture"
+                },
+                mixture=None
+                if batched.mixture is None
+                else dataclasses.replace(
+                    batched.mixture,
+                    **{
+                        f.name: getattr(batched.mixture, f.name)[i : i + 1]
+                        for f in dataclasses.fields(batched.mixture)
+                    },
+                ),
+            )
+            assert_same_answer(one, row)
+            assert (one.mixture is None) == (not mixture)
+            assert torch.equal(one.implausible, traced.implausible[i : i + 1])
+            torch.testing.assert_close(one.mean, traced.mean[i : i + 1])
+
+
+def test_one_row_query_with_an_impossible_cluster_and_the_default_action():
+    """A cluster the action never takes is left out of the closest-cluster distance; with
+    one action using the parameter, the action may be left out of the evidence."""
+    from inference.compiled import compile_parameter_query
+    from models import Parameter
+
+    target = Parameter("target", (0.0, 0.0), (1.0, 2.0), (3, 4), ("throw",), "hit")
+    net = EffectNetwork((Continuous("hit", 2, initial=False),), ("throw", "lob"), (target,))
+    params = random_params(net, 5, unseen=0.2)
+    query = compile_parameter_query(net, params, "target")
+    log_cluster = query.log_cluster.clone()
+    log_cluster[0, :6] = -torch.inf  # "throw" never takes the first six clusters
+    query = dataclasses.replace(query, log_cluster=log_cluster)
+    hits = torch.tensor([[0.1, 0.2], [0.9, 1.9], [40.0, -3.0]], dtype=torch.float64)
+    batched = query.infer({"end.hit": hits})
+    assert (batched.cluster_probs[:, :6] == 0).all()
+    for i in range(len(hits)):
+        one = query.infer({"end.hit": hits[i]})
+        torch.testing.assert_close(one.cluster_probs, batched.cluster_probs[i : i + 1])
+        assert torch.equal(one.best_cluster, batched.best_cluster[i : i + 1])
+        assert torch.equal(one.implausible, batched.implausible[i : i + 1])
+    assert batched.implausible.tolist() == [False, False, True]
+
+
+def test_one_row_query_reports_bad_evidence_as_before():
+    from inference.compiled import compile_parameter_query
+    from models import Partial
+
+    net = _one_row_network()
+    params = random_params(net, 1)
+    query = compile_parameter_query(net, params, "target")
+    hit = torch.tensor([[0.3, 0.4]], dtype=torch.float64)
+    with pytest.raises(ValueError, match="action"):
+        query.infer({"end.hit": hit})  # two actions use it: which one?
+    with pytest.raises(ValueError, match="not one of its states"):
+        query.infer({"end.hit": hit, "action": "jump"})
+    with pytest.raises(ValueError, match="NaN or inf"):
+        query.infer({"end.hit": [[0.3, float("nan")]], "action": "throw"})
+    with pytest.raises(ValueError, match="shape"):
+        query.infer({"end.hit": [0.3, 0.4, 0.5], "action": "throw"})
+    with pytest.raises(ValueError, match="does not exist"):
+        query.infer({"end.hit": hit, "action": "throw", "end.miss": [1]})
+    partial = query.infer({"end.hit": Partial([[0.3, 0.0]], [[True, False]]), "action": "lob"})
+    assert partial.cluster_probs.shape == (1, 12)
+
+
+@settings(max_examples=200, deadline=None)
+@given(dof=st.integers(1, 400), x=st.floats(0, 1e5))
+def test_chi_square_tail_is_torch_gammaincc(dof, x):
+    from inference.compiled import chi_square_tail
+
+    expected = float(
+        torch.special.gammaincc(
+            torch.tensor(dof / 2, dtype=torch.float64), torch.tensor(x / 2, dtype=torch.float64)
+        )
+    )
+    assert chi_square_tail(dof, x) == pytest.approx(expected, rel=1e-10, abs=1e-300)
