@@ -15,10 +15,12 @@ and alternates, for every adaptive parameter ``p`` acting on features ``g``,
   weighted by ``r`` (the same statistics and pseudo-count policy as :func:`fit`, with
   fractional row counts).
 
-Each step cannot lower the likelihood: the EM guarantee, exact with ``pseudo_count = 0``;
-the pseudo-count policy and the covariance floor make the M-step a slightly penalised
-fit, and the tests check over random data sets that the likelihood still never
-decreases. The sites no adaptive parameter touches are fitted once in
+With ``pseudo_count = 0`` no step can lower the likelihood: the EM guarantee, which the
+tests check over random data sets. A pseudo-count makes the M-step a penalised fit whose
+pseudo-rows follow the pooled statistics of the current responsibilities, so near
+convergence a step may lower the likelihood by a hair (7.7e-7 nats per row on one
+300-row data set); the tests bound such dips, and the stopping rule counts one as
+converged. The sites no adaptive parameter touches are fitted once in
 closed form: their likelihood does not depend on the clusters.
 
 The queries of an EM-fitted network stay exact: the inverse query enumerates the
@@ -54,7 +56,7 @@ class EMResult:
     ``log_likelihoods``: the mean per-row log-likelihood of the adaptive parameters and
     the features they act on (given their other parents; the rest of the network's
     factors do not change under EM), at the start and after every step: never
-    decreasing. ``converged``: whether its last gain fell below ``tol``. ``fit_s``: wall
+    decreasing with ``pseudo_count = 0`` (see the module for a pseudo-count). ``converged``: whether its last gain fell below ``tol``. ``fit_s``: wall
     time in seconds.
     """
 
