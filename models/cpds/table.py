@@ -31,7 +31,13 @@ class Table:
 
 @dataclass(frozen=True)
 class Counts:
-    """A table's counts, ``(P..., K)`` int64 (exact in any order of addition)."""
+    """A table's counts, ``(P..., K)`` float64.
+
+    Row counts are whole numbers, exact in any order of addition below 2**53 rows;
+    expectation-maximisation stores fractional counts (responsibilities) in the same
+    type. Float from the start: converting a large integer table to probabilities costs
+    more than counting it.
+    """
 
     counts: torch.Tensor
 
@@ -263,15 +269,17 @@ def counts(index: torch.Tensor, child: torch.Tensor, card: tuple[int, ...], k: i
     """Counts of ``child`` states per flattened parent configuration ``index``."""
     size = math.prod(card)
     flat = child if not card else index * k + child  # no parents: the index is all zeros
-    return Counts(torch.bincount(flat, minlength=size * k).reshape(*card, k))
+    ones = torch.ones(flat.shape[0], dtype=DTYPE)  # weights: the counts come out as float64
+    found = torch.bincount(flat, weights=ones, minlength=size * k).to(DTYPE)  # int when empty
+    return Counts(found.reshape(*card, k))
 
 
 def normalised(counts: torch.Tensor, alpha: float) -> Table:
-    """The pseudo-count policy's table of ``counts``."""
-    probs = counts.to(DTYPE, copy=True)  # a new tensor: the arithmetic below runs in place
-    k = probs.shape[-1]
-    n = probs.sum(-1)
-    probs.add_(alpha).div_((n + k * alpha).clamp_min(1e-300)[..., None])
+    """The pseudo-count policy's table of ``counts`` (a new tensor; ``counts`` is kept)."""
+    counts = counts.to(DTYPE)  # no copy for float64 counts
+    k = counts.shape[-1]
+    n = counts.sum(-1)
+    probs = (counts + alpha).div_((n + k * alpha).clamp_min(1e-300)[..., None])
     unseen = n == 0
     if bool(unseen.any()):
         probs[unseen] = 1.0 / k
