@@ -87,7 +87,8 @@ def pgmpy_network(params):
 
 
 def patterns(args: argparse.Namespace) -> list[tuple[str, float, float, float, float]]:
-    """Per pattern: (name, traced us/query, compiled us/query, pgmpy us/query, max diff)."""
+    """Per pattern: (name, traced us/query, compiled us/query, the compiled pattern's
+    one-off build in s, pgmpy us/query, max diff)."""
     from pgmpy.inference import VariableElimination
 
     from models.interop import to_pgmpy
@@ -110,7 +111,9 @@ def patterns(args: argparse.Namespace) -> list[tuple[str, float, float, float, f
         evidence = queries.without(*[s for s in queries if s not in given])
         m = max(10, int(args.pattern_rows * share))
         ev = evidence.rows(slice(0, m))
-        compiled.infer_action(ev.rows(slice(0, 1)))  # builds this pattern's table once
+        t0 = time.perf_counter()
+        compiled.infer_action(ev.rows(slice(0, 1)))  # builds this pattern's tables once
+        build_s = time.perf_counter() - t0
         traced_us = median_seconds(lambda ev=ev: infer_action(net, params, ev), 3) / m * 1e6
         compiled_us = median_seconds(lambda ev=ev: compiled.infer_action(ev), 3) / m * 1e6
         k = min(m, args.pgmpy_pattern_queries)
@@ -122,7 +125,7 @@ def patterns(args: argparse.Namespace) -> list[tuple[str, float, float, float, f
         ours = infer_action(net, params, ev.rows(slice(0, k))).probs
         fast = compiled.infer_action(ev.rows(slice(0, k))).probs
         diff = max(float((ours - theirs).abs().max()), float((fast - theirs).abs().max()))
-        out.append((f"{name}, {m} rows", traced_us, compiled_us, pgmpy_us, diff))
+        out.append((f"{name}, {m} rows", traced_us, compiled_us, build_s, pgmpy_us, diff))
     return out
 
 
@@ -228,11 +231,21 @@ def main(args: argparse.Namespace) -> dict[str, float]:
             "us per query; goal: within 2x of pgmpy"
         )
         print(
-            f"{'pattern':<46}{'traced':>10}{'compiled':>10}{'pgmpy':>10}  verdict (traced, compiled)"
+            "(build: the compiled pattern's tables and answers, once per pattern; break-even:"
+            " the queries after which compiled, build included, has cost less than pgmpy)"
         )
-        for name, traced_us, compiled_us, pgmpy_us, diff in patterns(args):
+        print(
+            f"{'pattern':<46}{'traced':>10}{'compiled':>10}{'build s':>9}{'pgmpy':>10}"
+            f"{'break-even':>11}  verdict (traced, compiled)"
+        )
+        for name, traced_us, compiled_us, build_s, pgmpy_us, diff in patterns(args):
             verdicts = ", ".join(_verdict(x, 2 * pgmpy_us) for x in (traced_us, compiled_us))
-            print(f"{name:<46}{traced_us:>10.1f}{compiled_us:>10.1f}{pgmpy_us:>10.1f}  {verdicts}")
+            gain_us = pgmpy_us - compiled_us
+            even = f"{build_s * 1e6 / gain_us:>11,.0f}" if gain_us > 0 else f"{'never':>11}"
+            print(
+                f"{name:<46}{traced_us:>10.1f}{compiled_us:>10.1f}{build_s:>9.2f}"
+                f"{pgmpy_us:>10.1f}{even}  {verdicts}"
+            )
             figures[f"pattern {name}"] = diff
         diffs = [v for k, v in figures.items() if k.startswith("pattern ")]
         print(f"max |ours - pgmpy| over the patterns = {max(diffs):.2e}")

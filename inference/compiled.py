@@ -62,17 +62,20 @@ class _Plan:
 
 @dataclass(frozen=True)
 class _Answers:
-    """The posterior per observed configuration, for a pattern whose only latent site is
+    """The posterior per observed configuration, for a pattern whose latent sites include
     the action: a query then gathers its answer instead of computing it per row.
 
     Each is computed over the plan's table exactly as :meth:`CompiledNetwork.infer_action`
-    computes it over gathered rows (row by row the same operations, so the same bits).
+    computes it over gathered rows (row by row the same operations): with the action the
+    only latent site, the same bits; with other latent sites (summed out), the same sums
+    in chunks of configurations, equal to rounding.
     """
 
     probs: torch.Tensor  # (G, A), G the observed configurations flattened
-    top: torch.Tensor  # (G,): the largest probability
+    top: torch.Tensor | None  # (G,): the largest probability (the action alone latent)
     best: torch.Tensor  # (G,): first_best of probs
     log_evidence: torch.Tensor  # (G,)
+    unseen_mass: torch.Tensor | None = None  # (G, A), where the plan has unseen configurations
 
     @staticmethod
     def of(log_joint: torch.Tensor) -> _Answers:
@@ -81,6 +84,37 @@ class _Answers:
         top, arg = probs.max(-1)
         log_evidence = flat.gather(-1, arg[:, None]).squeeze(-1) - top.log()
         return _Answers(probs, top, first_best(probs, top), log_evidence)
+
+    @staticmethod
+    def marginal(log_table: torch.Tensor, k: int, a: int, unseen: torch.Tensor | None) -> _Answers:
+        """Answers of a table ``(observed sizes..., latent sizes...)`` with ``k`` observed
+        axes and the action at latent axis ``a``, the other latent sites summed out, in
+        chunks of configurations of at most ``ANSWERS_CHUNK`` elements."""
+        n_actions = log_table.shape[k + a]
+        latent_sizes = log_table.shape[k:]
+        groups = math.prod(log_table.shape[:k])
+        total = log_table.reshape(groups, *latent_sizes)  # views: chunks are copied singly
+        miss = None if unseen is None else unseen.reshape(groups, *latent_sizes)
+
+        def per_configuration(table: torch.Tensor) -> torch.Tensor:  # (g, others, A)
+            return table.movedim(a + 1, -1).reshape(table.shape[0], -1, n_actions)
+
+        step = max(1, ANSWERS_CHUNK // math.prod(latent_sizes))
+        probs = torch.empty(groups, n_actions, dtype=log_table.dtype)
+        log_evidence = torch.empty(groups, dtype=log_table.dtype)
+        mass = None if miss is None else torch.empty(groups, n_actions, dtype=log_table.dtype)
+        for start in range(0, groups, step):
+            rows = slice(start, start + step)
+            chunk = per_configuration(total[rows])
+            log_marginal = chunk.logsumexp(1)
+            log_evidence[rows] = log_marginal.logsumexp(-1)
+            probs[rows] = (log_marginal - log_evidence[rows, None]).exp()
+            if mass is not None:
+                joint = (chunk - log_evidence[rows, None, None]).exp() * per_configuration(
+                    miss[rows]
+                )
+                mass[rows] = (joint.sum(1) / probs[rows].clamp_min(1e-300)).clamp(0, 1)
+        return _Answers(probs, None, first_best(probs), log_evidence, mass)
 
     @staticmethod
     def row(index: tuple[torch.Tensor, ...], sizes: tuple[int, ...]) -> torch.Tensor:
@@ -93,6 +127,9 @@ class _Answers:
 
 # Per-configuration answers are kept while the table of them stays this small (elements).
 ANSWERS_BUDGET = 1 << 22
+# With latent sites besides the action, the answers are summed in chunks of configurations
+# whose part of the table has at most this many elements.
+ANSWERS_CHUNK = 1 << 22
 
 
 @dataclass(frozen=True)
@@ -168,8 +205,14 @@ class CompiledNetwork:
             unseen = None  # every configuration this pattern touches was seen
         latent = tuple(self.order[a] for a in latent_axes)
         answers = None
+        k = len(obs_axes)
+        configurations = math.prod(total.shape[:k])
         if latent == (ACTION,) and total.numel() <= ANSWERS_BUDGET:
             answers = _Answers.of(total)
+        elif configurations * self.net.site(ACTION).size <= ANSWERS_BUDGET:
+            # other latent sites too: their sums per configuration cost about as much as
+            # building the table did, and every later query is a gather
+            answers = _Answers.marginal(total, k, latent.index(ACTION), unseen)
         return _Plan(tuple(self.order[a] for a in obs_axes), latent, total, unseen, answers)
 
     @property
@@ -209,9 +252,9 @@ class CompiledNetwork:
         a = plan.latent.index(ACTION) + 1
         top = None
         if plan.answers is not None:  # gather the answers computed for the whole table
-            row = _Answers.row(index, plan.log_table.shape[:-1])
+            row = _Answers.row(index, plan.log_table.shape[: len(plan.observed)])
             probs = plan.answers.probs.index_select(0, row)
-            top = plan.answers.top[row]
+            top = None if plan.answers.top is None else plan.answers.top[row]
             log_evidence = plan.answers.log_evidence[row]
         else:
             total = plan.log_table[index]  # (n, latent sizes...)
@@ -231,6 +274,8 @@ class CompiledNetwork:
                 probs = (log_marginal - log_evidence[:, None]).exp()
         if plan.unseen is None:
             unseen_mass = torch.zeros_like(probs)
+        elif plan.answers is not None and plan.answers.unseen_mass is not None:
+            unseen_mass = plan.answers.unseen_mass.index_select(0, row)
         else:
             miss = plan.unseen[index]
             if len(plan.latent) > 1:

@@ -1,6 +1,7 @@
 """The compiled tables answer exactly what the traced model answers."""
 
 import dataclasses
+from unittest import mock
 
 import pytest
 import torch
@@ -121,6 +122,60 @@ def test_answers_per_configuration_equal_the_answers_per_row(seed, zero_n, data)
     for name in ("probs", "log_evidence", "unseen"):
         torch.testing.assert_close(getattr(a, name), getattr(b, name), atol=1e-12, rtol=0)
     assert torch.equal(a.best, b.best) and a.best_names == b.best_names
+
+
+@settings(max_examples=15, deadline=None)
+@given(
+    seed=st.integers(0, 1000),
+    zero_n=st.sampled_from([0.0, 0.3]),
+    given_sites=st.sampled_from(
+        [("end.f0", "end.f1"), ("end.f1",), ("initial.f0", "end.f0", "end.f1")]
+    ),
+    chunk=st.sampled_from([None, 40]),
+    data=st.data(),
+)
+def test_answers_with_latent_initial_sites_equal_the_answers_per_row(
+    seed, zero_n, given_sites, chunk, data
+):
+    """With latent sites besides the action (an initial state unknown), the answers per
+    observed configuration (the others summed out, in chunks of any size) are those
+    computed row by row, and the traced model's: posterior, evidence, unseen mass, best
+    action (with and without allowed actions and the unseen rule) and the flag."""
+    import inference.compiled as compiled_module
+
+    chunk = compiled_module.ANSWERS_CHUNK if chunk is None else chunk  # 40: small chunks
+    with mock.patch.object(compiled_module, "ANSWERS_CHUNK", chunk):
+        _latent_answers_case(seed, zero_n, given_sites, data)
+
+
+def _latent_answers_case(seed, zero_n, given_sites, data):
+    net = discrete_network([3, 2], 4)
+    params = random_params(net, seed, unseen=zero_n)
+    g = torch.Generator().manual_seed(seed)
+    sizes = {"initial.f0": 3, "initial.f1": 2, "end.f0": 3, "end.f1": 2}
+    ev = net.encode_indices(
+        {s: torch.randint(0, sizes[s], (11,), generator=g) for s in given_sites}
+    )
+    allowed = data.draw(st.sampled_from([None, torch.tensor([False, True, True, False])]))
+    avoid = data.draw(st.booleans())
+    fast = compile_discrete(net, params)
+    a = fast.infer_action(ev, allowed=allowed, avoid_unseen=avoid)
+    [(pattern, plan)] = [(p, q) for p, q in fast.plans.items() if p == frozenset(given_sites)]
+    assert plan.answers is not None and len(plan.latent) > 1
+    assert (plan.answers.unseen_mass is None) == (plan.unseen is None)
+    slow = compile_discrete(net, params)
+    slow.plans[pattern] = dataclasses.replace(fast.plan(pattern), answers=None)
+    b = slow.infer_action(ev, allowed=allowed, avoid_unseen=avoid)
+    traced = infer_action(net, params, ev, allowed=allowed, avoid_unseen=avoid)
+    for name in ("probs", "log_evidence", "unseen"):
+        torch.testing.assert_close(getattr(a, name), getattr(b, name), atol=1e-12, rtol=0)
+        torch.testing.assert_close(getattr(a, name), getattr(traced, name), atol=1e-9, rtol=0)
+    assert torch.equal(a.best, b.best) and a.best_names == b.best_names
+    assert torch.equal(a.implausible, b.implausible)
+    for i in range(3):  # one row at a time: its row of the batched answer
+        one = fast.infer_action(ev.rows(slice(i, i + 1)), allowed=allowed, avoid_unseen=avoid)
+        torch.testing.assert_close(one.probs, a.probs[i : i + 1], atol=1e-15, rtol=0)
+        assert torch.equal(one.best, a.best[i : i + 1])
 
 
 @settings(max_examples=15, deadline=None)
