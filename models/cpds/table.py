@@ -268,7 +268,7 @@ def _is_range(i: torch.Tensor) -> bool:
 def counts(index: torch.Tensor, child: torch.Tensor, card: tuple[int, ...], k: int) -> Counts:
     """Counts of ``child`` states per flattened parent configuration ``index``."""
     size = math.prod(card)
-    flat = child if not card else index * k + child  # no parents: the index is all zeros
+    flat = child if not card else torch.add(child, index, alpha=k)  # no parents: index 0
     ones = torch.ones(flat.shape[0], dtype=DTYPE)  # weights: the counts come out as float64
     found = torch.bincount(flat, weights=ones, minlength=size * k).to(DTYPE)  # int when empty
     return Counts(found.reshape(*card, k))
