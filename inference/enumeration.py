@@ -44,7 +44,12 @@ class Enumerated:
     def log_evidence(self) -> torch.Tensor:
         """``(n,)`` log-probability of the evidence (kept sites), all latents summed out."""
         w = self.log_weight
-        return w.reshape(-1, w.shape[-1]).logsumexp(0) if w.dim() > 1 else w
+        if w.dim() == 1:
+            return w
+        rows_first = w.movedim(-1, 0)
+        if rows_first.is_contiguous():  # the rows outermost in memory: reduce along them
+            return rows_first.reshape(w.shape[-1], -1).logsumexp(1)
+        return w.reshape(-1, w.shape[-1]).logsumexp(0)
 
     def marginal(self, site: str) -> torch.Tensor:
         """``(n, K)`` exact posterior of an enumerated site given the evidence."""
@@ -57,9 +62,23 @@ class Enumerated:
         return (m - m.logsumexp(0, keepdim=True)).exp().T
 
     def posterior(self) -> torch.Tensor:
-        """Normalised joint weight, same shape as ``log_weight``."""
+        """Normalised joint weight, same shape as ``log_weight``.
+
+        With the rows outermost in memory and the evidence not yet summed, both come
+        from one pass of ``exp``: ``e = exp(w - max)``, ``log p = max + log(sum e)`` (as
+        ``logsumexp`` computes it) and the posterior ``e / sum e``.
+        """
         w = self.log_weight
-        return (w - self.log_evidence).exp()
+        rows_first = w.movedim(-1, 0)
+        if "log_evidence" in self.__dict__ or w.dim() == 1 or not rows_first.is_contiguous():
+            return (w - self.log_evidence).exp()
+        flat = rows_first.reshape(w.shape[-1], -1)
+        top = flat.amax(1, keepdim=True)
+        top = torch.where(torch.isfinite(top), top, 0.0)  # a row of -inf: as logsumexp
+        post = (flat - top).exp_()
+        total = post.sum(1, keepdim=True)
+        self.__dict__["log_evidence"] = (total.log() + top).squeeze(1)
+        return post.div_(total).reshape(rows_first.shape).movedim(0, -1)
 
 
 def _states(trace: poutine.Trace, site: str) -> int:
@@ -110,18 +129,25 @@ def enumerate_model(
         collapse=True,
     )
     trace.compute_log_prob()
-    total = None
+    factors = []
     dims: dict[str, int] = {}
     for name, site in trace.nodes.items():
         if site["type"] != "sample":
             continue
         if site["infer"].get("_enumerate_dim") is not None:
             dims[name] = site["infer"]["_enumerate_dim"]
-        if name in trace_only:
-            continue
-        lp = site["log_prob"]
-        total = lp if total is None else total + lp
-    assert total is not None
+        if name not in trace_only:
+            factors.append(site["log_prob"])
+    assert factors
+    # the largest factors first: their sum is one plain pass in their own memory order
+    # (rows outermost for gathered tables), and the small ones broadcast onto it once
+    factors.sort(key=lambda lp: -lp.numel())
+    total = factors[0]
+    for i, lp in enumerate(factors[1:]):
+        fits = torch.broadcast_shapes(total.shape, lp.shape) == total.shape
+        # a new tensor once (the trace's own log_prob stays as it is), then in place:
+        # every fresh joint-sized tensor costs page faults
+        total = total.add_(lp) if i > 0 and fits else total + lp
     depth = max([-d for d in dims.values()], default=1)
     total = total.expand(*total.shape[:-1], n) if total.shape[-1] != n else total
     while total.dim() < depth:
