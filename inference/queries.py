@@ -401,7 +401,10 @@ def infer_action(
         flag = _unseen_mass(net, params, e, observed_end) if observed_end else torch.zeros(())
         if not bool(flag.any()):
             return probs, torch.zeros_like(probs), e.log_evidence
-        joint = (post * flag).expand_as(post)
+        if others and torch.broadcast_shapes(post.shape, flag.shape) == post.shape:
+            joint = post.mul_(flag)  # post is this call's own and probs a sum of it
+        else:
+            joint = (post * flag).expand_as(post)
         per_action = joint.sum(others).T if others else joint.T
         return probs, per_action / probs.clamp_min(1e-300), e.log_evidence
 

@@ -241,3 +241,32 @@ def test_discrete_predictions_by_state_name():
         pred.prob("door", "ajar")
     post = infer_action(net, params, {"initial.door": ["shut"], "end.door": ["open"]})
     torch.testing.assert_close(post.prob("pull"), post.probs[:, 1])
+
+
+@settings(max_examples=10, deadline=None)
+@given(seed=st.integers(0, 10_000), zero_n=st.sampled_from([0.0, 0.3]), data=st.data())
+def test_answers_do_not_depend_on_the_row_chunks(seed, zero_n, data):
+    """Rows are enumerated in chunks of ``CHUNK_ELEMENTS``: chunks of one row give the
+    same answers (posterior, evidence, unseen mass, best, flags) as one chunk of all."""
+    from unittest import mock
+
+    import inference.enumeration as enumeration
+
+    net = discrete_network([3, 2], 4)
+    params = random_params(net, seed, unseen=zero_n)
+    g = torch.Generator().manual_seed(seed)
+    given_sites = data.draw(
+        st.sampled_from(
+            [("end.f0", "end.f1"), ("initial.f0", "end.f1"), ("initial.f0", "initial.f1")]
+        )
+    )
+    sizes = {"initial.f0": 3, "initial.f1": 2, "end.f0": 3, "end.f1": 2}
+    ev = {s: torch.randint(0, sizes[s], (9,), generator=g) for s in given_sites}
+    whole = infer_action(net, params, ev)
+    with mock.patch.object(enumeration, "CHUNK_ELEMENTS", 1):  # one row per chunk
+        assert len(enumeration.row_chunks(9, 24)) == 9
+        rows = infer_action(net, params, ev)
+    for name in ("probs", "log_evidence", "unseen"):
+        torch.testing.assert_close(getattr(rows, name), getattr(whole, name), atol=1e-14, rtol=0)
+    assert torch.equal(rows.best, whole.best)
+    assert torch.equal(rows.implausible, whole.implausible)
