@@ -144,7 +144,10 @@ def enumerate_model(
     factors.sort(key=lambda lp: -lp.numel())
     total = factors[0]
     for i, lp in enumerate(factors[1:]):
-        fits = torch.broadcast_shapes(total.shape, lp.shape) == total.shape
+        fits = (
+            torch.broadcast_shapes(total.shape, lp.shape) == total.shape
+            and torch.result_type(total, lp) == total.dtype
+        )
         # a new tensor once (the trace's own log_prob stays as it is), then in place:
         # every fresh joint-sized tensor costs page faults
         total = total.add_(lp) if i > 0 and fits else total + lp
