@@ -86,7 +86,7 @@ def pgmpy_network(params):
     return VariableElimination(bn)
 
 
-def patterns(args: argparse.Namespace) -> list[tuple[str, float, float, float, float]]:
+def patterns(args: argparse.Namespace) -> list[tuple[str, float, float, float, float, float]]:
     """Per pattern: (name, traced us/query, compiled us/query, the compiled pattern's
     one-off build in s, pgmpy us/query, max diff)."""
     from pgmpy.inference import VariableElimination
