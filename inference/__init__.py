@@ -3,6 +3,7 @@
 from inference.em import EMResult, fit_em
 from inference.enumeration import Enumerated, enumerate_model
 from inference.fit import ConvergenceWarning, FitResult, fit, fit_gradient, fit_statistics
+from inference.pooling import fit_pooled, grid_kernel
 from inference.queries import (
     ActionPosterior,
     GaussianMixture,
@@ -32,7 +33,9 @@ __all__ = [
     "fit",
     "fit_em",
     "fit_gradient",
+    "fit_pooled",
     "fit_statistics",
+    "grid_kernel",
     "imitation_check",
     "infer_action",
     "infer_parameter",
