@@ -3,7 +3,8 @@
 A learner chooses which 0° throws of the can data set to make, by expected information
 gain about the network's tables (or at random, or by uncertainty), and Table I is
 measured on held-out replays at each budget beside the network fitted on every throw
-(:mod:`experiments.active`). Writes ``active.json``, ``active.md`` and ``active.png`` to
+(:mod:`experiments.active`), each network fitted plainly and pooled over neighbouring
+fields (:func:`inference.fit_pooled`). Writes ``active.json``, ``active.md`` and ``active.png`` to
 ``--out``::
 
     .venv/bin/python examples/active.py                  # full scale
@@ -45,6 +46,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--batch-size", type=int, default=100)
     parser.add_argument("--prior-strength", type=float, default=1.0, help="eig_shared's prior")
     parser.add_argument(
+        "--pool-sigma", type=float, default=0.7, help="pooled fit: kernel width in fields"
+    )
+    parser.add_argument(
+        "--pool-strength", type=float, default=0.5, help="pooled fit: neighbours' pseudo-throws"
+    )
+    parser.add_argument(
         "--sites", nargs="+", default=["end.count"], help="end sites the gains are about"
     )
     parser.add_argument("--seed", type=int, default=0)
@@ -73,6 +80,8 @@ def parse_args(argv=None) -> argparse.Namespace:
             executor=args.executor,
             learners=tuple(args.learners),
             prior_strength=args.prior_strength,
+            pool_sigma=args.pool_sigma,
+            pool_strength=args.pool_strength,
             sites=tuple(args.sites),
             seed=args.seed,
             n_seeds=args.n_seeds,

@@ -7,9 +7,12 @@ import torch
 
 from experiments import active as ex
 from experiments.can_tossing import PROTOCOLS, RULES, table_one_cases
-from experiments.cans import can_dataset, fit_can_network
+from experiments.cans import CanModel, can_dataset, fit_can_network
 from experiments.config import ConfigError
+from inference import fit_pooled, grid_kernel
+from inference.compiled import compile_discrete
 from models.can_network import config_index
+from sim2d import geometry
 
 
 @pytest.fixture(scope="module")
@@ -85,7 +88,7 @@ def test_a_tiny_run_end_to_end(tiny_run, tiny_data_dir, tmp_path):
         assert 0 <= r.bound[p] <= 1
         assert r.bound_by_repeats[p] == [pytest.approx(r.bound[p])]  # 2 replays: m = 1 only
         for name, c in r.curves.items():
-            for rule in RULES:
+            for rule in ex.SCORES:
                 assert len(c[p][rule]) == len(r.budgets)
                 assert all(0 <= v <= 1 for v in c[p][rule])
                 per_seed = np.asarray(r.curves_by_seed[name][p][rule])
@@ -125,6 +128,35 @@ def test_the_choice_is_scored_on_the_replays_of_the_chosen_field(tiny_run, tiny_
     assert config_index(model.net, np.array(configs)).shape == (len(configs),)
 
 
+def test_the_pooled_score_is_table_one_on_the_pooled_fit(tiny_run, tiny_data_dir):
+    """The full data's ``pooled`` figure: Table I (tie-break aim) of ``fit_pooled``'s
+    tables with the config's kernel, and the goal is measured against the best score."""
+    config, r = tiny_run
+    data = can_dataset(tiny_data_dir, "tiny", progress=False)
+    net, _, _, rows = ex.can_pool(data)
+    kernel = grid_kernel((geometry.N_ROWS, geometry.N_COLUMNS), config.pool_sigma)
+    params = fit_pooled(net, rows, kernel, strength=config.pool_strength).params
+    throwable = fit_can_network(data, 0).throwable
+    model = CanModel(0, net, params, compile_discrete(net, params), throwable)
+    replays, configs = ex.replay_counts(config)
+    cases = {p: table_one_cases(data, p) for p in PROTOCOLS}
+    got = ex.table_one_on_replays(model, cases, replays, configs)
+    for p in PROTOCOLS:
+        assert r.full[p]["pooled"] == pytest.approx(got[p]["aim"])
+        best = max(r.full[p].values())
+        for name in r.curves:
+            for rule in ex.SCORES:
+                first = next(
+                    (
+                        b
+                        for b, v in zip(r.budgets, r.curves[name][p][rule], strict=True)
+                        if v >= best - ex.GOAL_POINTS
+                    ),
+                    None,
+                )
+                assert r.goal[name][p][rule] == first
+
+
 @pytest.mark.parametrize(
     ("field", "value"),
     [
@@ -136,6 +168,8 @@ def test_the_choice_is_scored_on_the_replays_of_the_chosen_field(tiny_run, tiny_
         ("learners", ()),
         ("sites", ("end.colour",)),
         ("prior_strength", 0.0),
+        ("pool_sigma", 0.0),
+        ("pool_strength", -1.0),
         ("batch_size", 0),
         ("repeats", 1),
         ("n_seeds", 0),

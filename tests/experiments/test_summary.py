@@ -169,7 +169,8 @@ def test_every_goal_rows_state_both_planners_beside_the_bound(tmp_path):
 
 
 def test_active_rows_give_each_learner_at_ten_percent_beside_the_full_data(tmp_path):
-    curve = {"aim": [0.5, 0.8, 0.9], "index": [0.4, 0.7, 0.8]}
+    curve = {"aim": [0.5, 0.8, 0.9], "index": [0.4, 0.7, 0.8], "pooled": [0.6, 0.81, 0.9]}
+    weak = {"aim": [0.1, 0.2, 0.3], "index": [0] * 3, "pooled": [0.15, 0.25, 0.35]}
     result = {
         "fractions": [0.05, 0.1, 0.2],
         "budgets": [50, 100, 200],
@@ -177,12 +178,15 @@ def test_active_rows_give_each_learner_at_ten_percent_beside_the_full_data(tmp_p
         "repeats": 16,
         "curves": {
             "eig": {"counts": curve, "actions": curve},
-            "random": {"counts": curve, "actions": {"aim": [0.1, 0.2, 0.3], "index": [0] * 3}},
+            "random": {"counts": curve, "actions": weak},
         },
-        "full": {p: {"aim": 0.805, "index": 0.7} for p in ("counts", "actions")},
+        "full": {p: {"aim": 0.805, "index": 0.7, "pooled": 0.81} for p in ("counts", "actions")},
         "goal": {
-            "eig": {p: {"aim": 100, "index": 100} for p in ("counts", "actions")},
-            "random": {p: {"aim": None, "index": None} for p in ("counts", "actions")},
+            "eig": {p: {"aim": None, "index": None, "pooled": 100} for p in ("counts", "actions")},
+            "random": {
+                "counts": {"aim": None, "index": None, "pooled": 200},
+                "actions": {"aim": None, "index": None, "pooled": None},
+            },
         },
         "bound": {"counts": 0.77, "actions": 0.95},
     }
@@ -191,8 +195,11 @@ def test_active_rows_give_each_learner_at_ten_percent_beside_the_full_data(tmp_p
     assert len(rows) == 2
     counts, actions = rows
     assert "reachable desired count" in counts and "10 % of the 1,000 0° throws" in counts
-    assert "eig 80.00 %, random 80.00 %; full data 80.50 % (goal: within 1 point: eig)" in counts
-    assert "random 20.00 %" in actions and actions.endswith("| 95.00 % held out |")
+    assert (
+        "eig 80.00 % (pooled 81.00 %), random 80.00 % (pooled 81.00 %); full data 80.50 % "
+        "(pooled 81.00 %) (goal: within 1 point of the full data's best: eig)" in counts
+    )
+    assert "random 20.00 % (pooled 25.00 %)" in actions and actions.endswith("| 95.00 % held out |")
 
 
 def test_adaptive_throw_rows(tmp_path):
