@@ -63,7 +63,7 @@ from experiments.config import (
 )
 from experiments.physics_bounds import BOUND_SEED, held_out_best
 from inference import fit, fit_pooled, grid_kernel
-from inference.active import explore
+from inference.active import explore, with_pool_prior
 from inference.compiled import compile_discrete
 from models.can_network import can_network, can_rows, config_index
 from sim2d import field_throws, geometry
@@ -274,20 +274,24 @@ def cases_seen(rows, cases) -> float:
     return float(np.mean(hit))
 
 
-def _model(net, rows, throwable, pooling=None) -> CanModel:
+def _model(net, rows, pool, throwable, pooling=None) -> CanModel:
     """The can model fitted on ``rows``: plainly, or pooled with ``pooling = (kernel,
-    strength)``."""
+    strength)``; the start and field priors are the pool's (design-free:
+    :func:`inference.active.with_pool_prior`)."""
     if pooling is None:
         params = fit(net, rows).params
     else:
         params = fit_pooled(net, rows, pooling[0], strength=pooling[1]).params
+    params = with_pool_prior(net, params, pool)
     return CanModel(ANGLE, net, params, compile_discrete(net, params), throwable)
 
 
-def _scores(net, rows, throwable, pooling, cases, replays, configs) -> dict:
+def _scores(net, rows, pool, throwable, pooling, cases, replays, configs) -> dict:
     """``{protocol: {score: exact fraction}}`` for every one of ``SCORES``."""
-    plain = table_one_on_replays(_model(net, rows, throwable), cases, replays, configs)
-    pooled = table_one_on_replays(_model(net, rows, throwable, pooling), cases, replays, configs)
+    plain = table_one_on_replays(_model(net, rows, pool, throwable), cases, replays, configs)
+    pooled = table_one_on_replays(
+        _model(net, rows, pool, throwable, pooling), cases, replays, configs
+    )
     return {p: plain[p] | {"pooled": pooled[p]["aim"]} for p in plain}
 
 
@@ -362,7 +366,7 @@ def run_active(config: ActiveConfig) -> ActiveResult:
         grid_kernel((geometry.N_ROWS, geometry.N_COLUMNS), config.pool_sigma),
         config.pool_strength,
     )
-    full = _scores(net, rows, throwable, pooling, cases, replays, configs)
+    full = _scores(net, rows, pool, throwable, pooling, cases, replays, configs)
     row = {c: i for i, c in enumerate(configs)}
     bound = {}
     for p, (start, desired) in cases.items():
@@ -401,7 +405,9 @@ def run_active(config: ActiveConfig) -> ActiveResult:
             points = []
             for b in tqdm(budgets, desc=f"Table I ({name})", disable=not config.progress):
                 chosen = learned.rows.rows(slice(0, b))
-                points.append(_scores(net, chosen, throwable, pooling, cases, replays, configs))
+                points.append(
+                    _scores(net, chosen, pool, throwable, pooling, cases, replays, configs)
+                )
             runs.append(points)
             covered[name].append([len(np.unique(pair[learned.chosen[:b]])) for b in budgets])
             seen_runs.append(

@@ -68,7 +68,7 @@ from inference.fit import _check_settings
 from models.cpds.table import TableCPD, normalised
 from models.declaration import ACTION, EffectNetwork
 from models.evidence import DTYPE, Evidence
-from models.params import NetworkParams
+from models.params import NetworkParams, check_params
 
 __all__ = [
     "STRATEGIES",
@@ -77,6 +77,7 @@ __all__ = [
     "dirichlet_eig",
     "explore",
     "predictive_entropy",
+    "with_pool_prior",
 ]
 
 STRATEGIES = ("eig", "uncertainty", "random")
@@ -343,6 +344,40 @@ def explore(
     )
     params = NetworkParams({s: t.table(pseudo_count) for s, t in tables.items()}, pseudo_count)
     return ExplorationResult(state.chosen, state.scores, rows, params, state)
+
+
+def with_pool_prior(
+    net: EffectNetwork, params: NetworkParams, pool: Mapping[str, object]
+) -> NetworkParams:
+    """``params`` with the tables of the initial sites and the action refitted on ``pool``
+    (every candidate counted once, with ``params``' pseudo-count); the end sites' tables
+    are kept.
+
+    Tables fitted on the rows :func:`explore` chose (or on any designed experiment) learn
+    the chooser's frequencies as ``p(action)`` and ``p(initial state)``: a design that
+    played one action ten times more often than another makes :func:`inference.
+    infer_action` prefer it ten to one where both cause the effect alike. The pool says
+    which (initial state, action) pairs exist without playing any, so its frequencies are
+    the design-free prior. Works on ``params`` of any fit (:func:`inference.fit`,
+    :func:`inference.fit_pooled`, ``explore``'s own) whose initial and action sites are
+    tables.
+    """
+    for spec in net.sites:
+        cpd = net.cpd(spec.name)
+        if spec.role in ("initial", "action") and not isinstance(cpd, TableCPD):
+            raise ValueError(
+                f"with_pool_prior refits tables; site {spec.name!r} is a {cpd.name} CPD"
+            )
+    check_params(net, params)
+    enc = _encode_pool(net, pool)
+    cpds = dict(params.cpds)
+    every = np.arange(enc.n_rows)
+    for spec in net.sites:
+        if spec.role in ("initial", "action"):
+            t = _Rows(net, spec.name, enc)
+            t.add(every, t.pool_value)
+            cpds[spec.name] = t.table(params.pseudo_count)
+    return NetworkParams(cpds, params.pseudo_count)
 
 
 # ------------------------------------------------------------------------------ internals

@@ -11,13 +11,14 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import integrate, stats
 
-from inference import fit
+from inference import fit, infer_action
 from inference.active import (
     STRATEGIES,
     ExplorationState,
     dirichlet_eig,
     explore,
     predictive_entropy,
+    with_pool_prior,
 )
 from models import Continuous, Discrete, EffectNetwork
 from tests.helpers import discrete_network
@@ -205,3 +206,43 @@ def test_refusals_name_the_problem():
         explore(NET, {"initial.f0": [0], "action": ["a0"]}, oracle, 1)
     with pytest.raises(ValueError, match="oracle"):
         explore(NET, pool, lambda index: NET.encode_indices({"end.f0": index * 0}), 2)
+
+
+# ------------------------------------------------------------------ the design-free prior
+def test_with_pool_prior_refits_the_initial_and_action_tables_on_the_pool():
+    pool, oracle, _ = world(seed=4)
+    run = explore(NET, pool, oracle, 10, batch_size=5, strategy="eig", seed=0)
+    params = with_pool_prior(NET, run.params, pool)
+    ends = {"end.f0": torch.zeros(pool.n_rows, dtype=torch.long)} | {
+        "end.f1": torch.zeros(pool.n_rows, dtype=torch.long)
+    }
+    on_pool = fit(NET, pool | NET.encode_indices(ends)).params  # end values do not matter
+    for site in ("initial.f0", "initial.f1", "action"):
+        torch.testing.assert_close(params[site].probs, on_pool[site].probs)
+    for site in ("end.f0", "end.f1"):
+        assert params[site] is run.params[site]
+
+
+def test_the_choice_frequency_does_not_steer_the_inverse_query():
+    """Both actions always open the door; the design played push ten times, pull once."""
+    door = EffectNetwork((Discrete("open", (False, True)),), ("push", "pull"))
+    rows = {
+        "initial.open": [False] * 11,
+        "action": ["push"] * 10 + ["pull"],
+        "end.open": [True] * 11,
+    }
+    pool = {"initial.open": [False] * 20, "action": ["push", "pull"] * 10}
+    fitted = fit(door, rows).params
+    evidence = {"initial.open": [False], "end.open": [True]}
+    skewed = infer_action(door, fitted, evidence).probs[0]
+    assert float(skewed[0]) > 0.9  # the design's ten to one
+    fair = infer_action(door, with_pool_prior(door, fitted, pool), evidence).probs[0]
+    # equal prior: only the likelihoods (10 + a) / (10 + 2a) and (1 + a) / (1 + 2a) differ
+    like = torch.tensor([10.01 / 10.02, 1.01 / 1.02], dtype=fair.dtype)
+    torch.testing.assert_close(fair, like / like.sum())
+
+
+def test_with_pool_prior_refuses_a_non_table_initial_site():
+    net = EffectNetwork((Continuous("x", 1),), ("a", "b"))
+    with pytest.raises(ValueError, match="refits tables"):
+        with_pool_prior(net, None, {"initial.x": [[0.0]], "action": ["a"]})
