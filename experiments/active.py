@@ -24,6 +24,14 @@ the network fitted on every throw.
   count, its expectation over the aim jitter rather than one throw's luck. The simulator's
   own best field, chosen on half of the replays and scored on the other half, is the
   bound (:func:`experiments.physics_bounds.held_out_best`).
+* **Fits.** Every curve point's network is fitted on the chosen throws twice: plainly
+  (:func:`inference.fit`, scored with both tie-break rules) and with each row's prior
+  pooled from the neighbouring fields' throws (:func:`inference.fit_pooled`, kernel
+  width ``pool_sigma`` fields, ``pool_strength`` pseudo-throws; score ``pooled``). Either
+  way the start and field priors are the pool's (:func:`inference.active.
+  with_pool_prior`), not the learner's play frequencies, which would otherwise steer the
+  choice towards often-played fields. The full data is fitted the same two ways, and the
+  goal is measured against its best score.
 * **Strategies.** ``eig`` (plain Dirichlet information gain with the fit's pseudo-count
   as prior), ``eig_shared`` (the same with a prior shared by a start configuration's
   fields, weight ``prior_strength``), ``uncertainty`` (predictive entropy) and
