@@ -54,13 +54,11 @@ def grid_kernel(grid_shape: tuple[int, int], sigma: float) -> torch.Tensor:
     if not isinstance(sigma, (int, float)) or not math.isfinite(sigma) or sigma < 0:
         raise ValueError(f"sigma must be a finite number >= 0, got {sigma!r}")
     rows, cols = grid_shape
-    r, c = (
-        torch.div(torch.arange(rows * cols), cols, rounding_mode="floor"),
-        torch.arange(rows * cols) % cols,
-    )
-    d2 = ((r[:, None] - r[None]) ** 2 + (c[:, None] - c[None]) ** 2).to(DTYPE)
     if sigma == 0:
         return torch.eye(rows * cols, dtype=DTYPE)
+    cell = torch.arange(rows * cols)
+    r, c = cell // cols, cell % cols
+    d2 = ((r[:, None] - r[None]) ** 2 + (c[:, None] - c[None]) ** 2).to(DTYPE)
     return torch.exp(-d2 / (2 * sigma**2))
 
 
