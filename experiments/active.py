@@ -233,9 +233,11 @@ def replay_counts(config: ActiveConfig, executor=None) -> tuple[np.ndarray, list
     return counts.astype(np.int64), sorted(configs)
 
 
-def table_one_on_replays(model: CanModel, cases: dict, replays, configs) -> dict:
-    """Table I's exact fraction per protocol and rule, each case's chosen field scored by
-    the fraction of its replays that reach the desired count.
+def table_one_on_replays(
+    model: CanModel, cases: dict, replays, configs, rules: tuple[str, ...] = RULES
+) -> dict:
+    """Table I's exact fraction per protocol and rule (of ``rules``), each case's chosen
+    field scored by the fraction of its replays that reach the desired count.
 
     ``cases``: ``{protocol: (start masks, desired counts)}``; ``replays``: as
     :func:`replay_counts` returns.
@@ -246,7 +248,7 @@ def table_one_on_replays(model: CanModel, cases: dict, replays, configs) -> dict
         evidence = start_evidence(model, start) | {"end.count": torch.as_tensor(desired)}
         index = np.array([row[int(s)] for s in start])
         out[protocol] = {}
-        for rule in RULES:
+        for rule in rules:
             field = choose(model, evidence, rule)
             success = replays[index, field] == desired[:, None]
             out[protocol][rule] = float(success.mean())
@@ -298,7 +300,7 @@ def _scores(net, rows, pool, throwable, pooling, cases, replays, configs) -> dic
     """``{protocol: {score: exact fraction}}`` for every one of ``SCORES``."""
     plain = table_one_on_replays(_model(net, rows, pool, throwable), cases, replays, configs)
     pooled = table_one_on_replays(
-        _model(net, rows, pool, throwable, pooling), cases, replays, configs
+        _model(net, rows, pool, throwable, pooling), cases, replays, configs, ("aim",)
     )
     return {p: plain[p] | {"pooled": pooled[p]["aim"]} for p in plain}
 
