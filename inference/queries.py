@@ -16,6 +16,9 @@
 * :func:`infer_parameter` -- the paper's inverse parameter query: the cluster posterior by
   enumeration, the most probable cluster added to the evidence, then the parameter by
   closed-form Gaussian conditioning.
+* :func:`parameter_for_effect` -- the inverse model: the parameter value under which a
+  desired continuous effect is most likely (per cluster by least squares, the clusters'
+  candidates ranked by their exact joint density with the evidence).
 
 Every query reports ``unseen``: the posterior probability that its answer rests on a
 parent configuration no training row reached (answered from the pseudo-count prior alone),
@@ -159,6 +162,29 @@ class ParameterPosterior:
     outside: torch.Tensor | None = None
     mixture: GaussianMixture | None = None
     implausible: torch.Tensor | None = None
+
+
+@dataclass(frozen=True)
+class ParameterForEffect:
+    """What :func:`parameter_for_effect` answers, per evidence row.
+
+    ``value`` ``(n, d)``: the parameter value to use; ``cluster`` ``(n,)``: the cluster
+    whose linear Gaussian it inverts; ``log_density`` ``(n,)``: ``log p(value, evidence)``,
+    the posterior density of ``value`` up to the evidence's own probability; ``miss``
+    ``(n,)``: the observed effect's squared Mahalanobis distance from that cluster's
+    prediction at ``value`` (zero: the value produces the effect exactly; large: the
+    effect lies outside what the cluster reaches). ``candidates`` ``(n, C, d)`` and
+    ``candidate_log_density`` ``(n, C)``: every cluster's value and its score.
+    ``outside`` ``(n,)`` bool: ``value`` lies outside the parameter's ``[low, high]``.
+    """
+
+    value: torch.Tensor
+    cluster: torch.Tensor
+    log_density: torch.Tensor
+    miss: torch.Tensor
+    candidates: torch.Tensor
+    candidate_log_density: torch.Tensor
+    outside: torch.Tensor
 
 
 TIE_TOLERANCE = 1e-9  # relative: scores this close to the maximum count as tied
@@ -532,59 +558,23 @@ def infer_parameter(
     p = m.parameter
     enc = _prepare(net, params, evidence)
     if enc.n_rows == 0:
-        placeholder = placeholder_row(enc)
-        if ACTION in placeholder:  # a placeholder action that uses the parameter
-            placeholder = placeholder.without(ACTION) | {ACTION: [p.actions[0]]}
         return no_rows(
             infer_parameter(
-                net, params, parameter, placeholder, mixture=mixture, implausible_below=below
+                net,
+                params,
+                parameter,
+                _inverse_placeholder(m, enc),
+                mixture=mixture,
+                implausible_below=below,
             )
         )
-    if param_site(p.name) in enc or cluster_site(p.name) in enc:
-        raise ValueError(
-            f"evidence gives {param_site(p.name)!r} or {cluster_site(p.name)!r}, which this query infers"
-        )
-    observed = [s for s in m.affected if s in enc]
-    if not observed or m.child is not None and m.child not in enc and len(m.affected) == 1:
-        y_site = m.child or m.affected[0]
-        raise ValueError(
-            f"infer_parameter needs the observed end state {y_site!r} of the feature {p.name!r} acts on"
-            + (f" (or one of {list(m.affected)})" if len(m.affected) > 1 else "")
-        )
-    if ACTION not in enc:
-        if len(p.actions) != 1:
-            raise ValueError(f"give the action (one of {list(p.actions)}) that used {p.name!r}")
-        action = torch.full((enc.n_rows,), net.action_index(p.actions[0]))
-        enc = Evidence(net, dict(enc) | {ACTION: action}, enc.n_rows)
-    not_using = ~m.in_use(enc[ACTION])
-    if not_using.any():
-        row = int(not_using.nonzero()[0])
-        raise ValueError(
-            f"row {row}: action {net.actions[int(enc[ACTION][row])]!r} does not use {p.name!r}"
-        )
+    enc, observed = _inverse_evidence(net, m, enc, "infer_parameter")
     flag = plausibility(net, params, enc).implausible(below)
     children = [net.cpd(s) for s in m.continuous if s in enc]
     if not children:  # only discrete effects observed
         answer = _parameter_from_cluster(net, params, m, enc, observed, mixture)
         return replace(answer, implausible=flag)
-    acting = net.acting_on(m.child) if m.child is not None else (m,)
-    for q in acting:  # the other parameters on the same feature: given, with their cells
-        if q is m:
-            continue
-        theta = enc.get(q.value.site)
-        if theta is None or bool(torch.isnan(theta).any()):
-            raise ValueError(
-                f"infer_parameter({p.name!r}) needs {q.value.site!r} in every row: it acts on "
-                f"{m.child!r} too"
-            )
-        enc = enc | net.encode_indices({q.cluster.site: q.cells(theta, enc[q.action])})
-    for child in children:
-        missing = [s for s in child.parents if s not in enc and s != m.cluster.site]
-        if missing:
-            raise ValueError(
-                f"infer_parameter needs the discrete parents {missing} of {child.site!r} as "
-                "evidence"
-            )
+    enc, acting = _given_others(net, m, enc, children, "infer_parameter")
     probs = _chunked(net, params, enc, set(), lambda e, _: e.marginal(cluster_site(p.name)))
     best = probs.argmax(-1)
     mean, cov = m.posterior(params, children, enc, best, acting=acting)
@@ -601,6 +591,131 @@ def infer_parameter(
     return ParameterPosterior(
         probs, best, mean, cov, unseen, outside_range(p, mean), full, implausible=flag
     )
+
+
+def parameter_for_effect(
+    net: EffectNetwork,
+    params: NetworkParams,
+    parameter: str,
+    evidence: Mapping[str, object],
+) -> ParameterForEffect:
+    """The parameter value that produces a desired effect: the inverse model.
+
+    :func:`infer_parameter` answers "which value was used, given that this effect was
+    seen": the posterior, which weighs the effect against where values usually lie. With
+    noisy effects that pulls the answer towards each cluster's mean (by the share of the
+    effect's spread that is noise) and a controller that aims with it falls short. This
+    query answers "which value makes this effect most likely": for every cluster ``c``
+    the value ``theta_c`` that maximises the observed continuous effects' likelihood under
+    ``c``'s linear Gaussians (weighted least squares; see
+    :meth:`models.cpds.mixture.ParameterMixture.best_fit`), and among these candidates the
+    one of highest joint density ``p(theta_c, evidence)``, computed exactly by the model
+    with ``theta_c`` given (every cluster summed out; under the grid layout the cluster
+    is ``theta_c``'s cell, so a candidate outside its own cell is scored under the cell it
+    falls in). The score keeps the candidates where the model has seen values. Without
+    noise and with the effect inside a cluster's reach, the answer reproduces the
+    effect exactly under that cluster (``miss`` 0).
+
+    The evidence is as for :func:`infer_parameter` (the parameter and its cluster
+    unknown; the action, or the only one using the parameter; the discrete parents of the
+    observed effects; any other parameter acting on the same feature given); at least
+    one continuous feature the parameter acts on must be observed. Raises ``ValueError``
+    otherwise.
+    """
+    m = net.mixture(parameter)
+    p = m.parameter
+    enc = _prepare(net, params, evidence)
+    if enc.n_rows == 0:
+        return no_rows(parameter_for_effect(net, params, parameter, _inverse_placeholder(m, enc)))
+    enc, _ = _inverse_evidence(net, m, enc, "parameter_for_effect")
+    children = [net.cpd(s) for s in m.continuous if s in enc]
+    if not children:
+        raise ValueError(
+            f"parameter_for_effect needs an observed continuous feature {p.name!r} acts on "
+            f"(one of {list(m.continuous)}): a discrete effect has no value to invert"
+        )
+    given, acting = _given_others(net, m, enc, children, "parameter_for_effect")
+    n, c = enc.n_rows, p.n_clusters
+    every = torch.arange(c).expand(n, -1)
+    candidates, miss = m.best_fit(params, children, given, every, acting=acting)  # (n, C, d)
+    scored = enc.repeat(c)
+    scored = Evidence(net, dict(scored) | {m.value.site: candidates.reshape(n * c, -1)}, n * c)
+    log_density = _chunked(net, params, scored, set(), lambda e, _: e.log_evidence).reshape(n, c)
+    best = first_best(log_density)
+    rows = torch.arange(n)
+    value = candidates[rows, best]
+    return ParameterForEffect(
+        value,
+        best,
+        log_density[rows, best],
+        miss[rows, best],
+        candidates,
+        log_density,
+        outside_range(p, value),
+    )
+
+
+def _inverse_placeholder(m, enc: Evidence) -> Evidence:
+    """A placeholder row for an empty inverse query, with an action using the parameter."""
+    placeholder = placeholder_row(enc)
+    if ACTION in placeholder:
+        placeholder = placeholder.without(ACTION) | {ACTION: [m.parameter.actions[0]]}
+    return placeholder
+
+
+def _inverse_evidence(net, m, enc: Evidence, query: str) -> tuple[Evidence, list[str]]:
+    """Check an inverse query's evidence: the parameter unknown, an effect of it observed,
+    an action using it in every row (filled in when only one action does). Returns the
+    evidence with the action, and the observed sites the parameter acts on."""
+    p = m.parameter
+    if param_site(p.name) in enc or cluster_site(p.name) in enc:
+        raise ValueError(
+            f"evidence gives {param_site(p.name)!r} or {cluster_site(p.name)!r}, which this query infers"
+        )
+    observed = [s for s in m.affected if s in enc]
+    if not observed or m.child is not None and m.child not in enc and len(m.affected) == 1:
+        y_site = m.child or m.affected[0]
+        raise ValueError(
+            f"{query} needs the observed end state {y_site!r} of the feature {p.name!r} acts on"
+            + (f" (or one of {list(m.affected)})" if len(m.affected) > 1 else "")
+        )
+    if ACTION not in enc:
+        if len(p.actions) != 1:
+            raise ValueError(f"give the action (one of {list(p.actions)}) that used {p.name!r}")
+        action = torch.full((enc.n_rows,), net.action_index(p.actions[0]))
+        enc = Evidence(net, dict(enc) | {ACTION: action}, enc.n_rows)
+    not_using = ~m.in_use(enc[ACTION])
+    if not_using.any():
+        row = int(not_using.nonzero()[0])
+        raise ValueError(
+            f"row {row}: action {net.actions[int(enc[ACTION][row])]!r} does not use {p.name!r}"
+        )
+    return enc, observed
+
+
+def _given_others(net, m, enc: Evidence, children, query: str):
+    """The other parameters acting on the same feature, which must be given: the evidence
+    with their cells as clusters, and every parameter acting on the feature (in input
+    order). Checks that the observed children's discrete parents are given."""
+    p = m.parameter
+    acting = net.acting_on(m.child) if m.child is not None else (m,)
+    for q in acting:
+        if q is m:
+            continue
+        theta = enc.get(q.value.site)
+        if theta is None or bool(torch.isnan(theta).any()):
+            raise ValueError(
+                f"{query}({p.name!r}) needs {q.value.site!r} in every row: it acts on "
+                f"{m.child!r} too"
+            )
+        enc = enc | net.encode_indices({q.cluster.site: q.cells(theta, enc[q.action])})
+    for child in children:
+        missing = [s for s in child.parents if s not in enc and s != m.cluster.site]
+        if missing:
+            raise ValueError(
+                f"{query} needs the discrete parents {missing} of {child.site!r} as evidence"
+            )
+    return enc, acting
 
 
 def _parameter_from_cluster(net, params, m, enc, observed, mixture) -> ParameterPosterior:

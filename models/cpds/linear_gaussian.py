@@ -109,6 +109,7 @@ class LinearGaussianCPD(CPD):
         if not index:
             loc, tril = params.bias, params.scale_tril
         else:
+            index = _rows_collapsed(index)
             loc = Vindex(params.bias)[(*index, slice(None))]
             tril = Vindex(params.scale_tril)[(*index, slice(None), slice(None))]
         if x is not None:
@@ -216,3 +217,16 @@ def safe_cholesky(cov: torch.Tensor, site: str, tries: int = 24) -> torch.Tensor
             f"({cov[group].tolist()}); check its rows for inf, NaN or huge values"
         )
     return tril
+
+
+def _rows_collapsed(index: list) -> list:
+    """The parents' indices with the rows dim (the last) cut to one where every index is
+    the same along it (one action for all rows, say): the gathered parameters then
+    broadcast over the rows instead of being copied once per row."""
+    rows = [t for t in index if isinstance(t, torch.Tensor) and t.dim() and t.shape[-1] > 1]
+    if not rows or any(bool((t != t[..., :1]).any()) for t in rows):
+        return index
+    return [
+        t[..., :1] if isinstance(t, torch.Tensor) and t.dim() and t.shape[-1] > 1 else t
+        for t in index
+    ]

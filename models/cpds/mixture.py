@@ -210,6 +210,24 @@ class ParameterMixture:
         every parameter acting on the child, in input order, when there are several; the
         others count where ``values`` gives them (not NaN) and are integrated out, given
         their cluster in ``values``, where not."""
+        w_p, offset, noise, y = self.linear_terms(params, child, values, cluster, acting)
+        if prior is None:
+            prior = self.belief(params, cluster)
+        return condition_linear_gaussian(*prior, w_p, offset, noise, y)
+
+    def linear_terms(
+        self,
+        params: Mapping,
+        child: LinearGaussianCPD,
+        values: Mapping[str, torch.Tensor],
+        cluster: torch.Tensor,
+        acting: tuple[ParameterMixture, ...] = (),
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The child as a linear function of the value, per row and cluster (arguments as
+        for :meth:`condition`): ``y = offset + W_p theta + e``, ``e ~ N(0, noise)``, with
+        the other inputs' and the other parameters' terms in ``offset`` and ``noise``.
+        Returns ``(W_p, offset, noise, y)``, ``y`` the child's observed value broadcast
+        like the others."""
         extra = cluster.dim() - 1  # trailing dims the row-wise values must broadcast over
 
         def rows(t: torch.Tensor) -> torch.Tensor:
@@ -246,10 +264,7 @@ class ParameterMixture:
         inputs = [values[s] for s in child.inputs[: len(child.inputs) - len(others)]]
         if inputs:
             offset = offset + (w_x @ rows(torch.cat(inputs, -1))[..., None]).squeeze(-1)
-        if prior is None:
-            value = params[self.value.site]
-            prior = value.bias[cluster], value.covariance[cluster]
-        return condition_linear_gaussian(*prior, w_p, offset, noise, rows(values[child.site]))
+        return w_p, offset, noise, rows(values[child.site])
 
     def belief(self, params: Mapping, cluster: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """The value's Gaussian given the cluster: mean ``(..., k)`` and covariance."""
@@ -309,6 +324,42 @@ class ParameterMixture:
         for child in children:
             prior = self.condition(params, child, values, cluster, prior, acting)
         return prior
+
+    def best_fit(
+        self,
+        params: Mapping,
+        children: list[LinearGaussianCPD],
+        values: Mapping[str, torch.Tensor],
+        cluster: torch.Tensor,
+        acting: tuple[ParameterMixture, ...] = (),
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """The value under which the observed ``children`` are most likely given the
+        cluster (arguments as for :meth:`posterior`): the weighted least-squares solution
+        of ``y_j = offset_j + W_j theta`` over the children, each weighted by its inverse
+        noise covariance. Where the children leave some directions of ``theta`` free (fewer
+        effect dims than parameter dims, or a zero weight), the solution nearest the
+        cluster's mean in the cluster's own metric (a ridge ``1e-10`` times the data term's
+        size, towards the mean). Returns the value ``(..., k)`` and the children's squared
+        Mahalanobis distance from their prediction at it, summed ``(...)``: zero when the
+        value produces the observed effect exactly."""
+        info, pull, terms = 0.0, 0.0, []
+        for child in children:
+            w_p, offset, noise, y = self.linear_terms(params, child, values, cluster, acting)
+            tril = torch.linalg.cholesky(noise)
+            w = torch.linalg.solve_triangular(tril, w_p, upper=False)  # L^-1 W_p
+            r = torch.linalg.solve_triangular(tril, (y - offset)[..., None], upper=False)
+            info = info + w.mT @ w
+            pull = pull + w.mT @ r
+            terms.append((w, r))
+        mean, cov = self.belief(params, cluster)
+        precision = torch.cholesky_inverse(torch.linalg.cholesky(cov))
+        size = info.diagonal(dim1=-2, dim2=-1).sum(-1)
+        scale = precision.diagonal(dim1=-2, dim2=-1).sum(-1)
+        ridge = (1e-10 * torch.where(size > 0, size, scale) / scale)[..., None, None]
+        system = info + ridge * precision
+        value = torch.linalg.solve(system, pull + ridge * precision @ mean[..., None])
+        miss = sum(((r - w @ value) ** 2).sum((-2, -1)) for w, r in terms)
+        return value[..., 0], miss
 
     def query_tables(self, params: Mapping, child: LinearGaussianCPD) -> dict[str, torch.Tensor]:
         """Tables of the inverse query, per configuration of the child's parents: the
