@@ -11,6 +11,8 @@ test hits and one hit at a time, both through the traced Pyro model
 figure is the median over ``--repeats`` runs of ``time.perf_counter`` after one warm-up.
 Goals (issue 4, tightened by issue 11): fit under 50 ms; batched inverse at most 5 us per
 query; one query at most 100 us. ``--profile`` prints where a query's time goes, stage by stage.
+Also timed, without a goal: the inverse model (:func:`inference.parameter_for_effect`),
+batched over ``--effect-rows`` hits, which evaluates the model at every cluster's candidate.
 """
 
 from __future__ import annotations
@@ -26,7 +28,7 @@ import pyro
 import torch
 from timing import median_seconds  # benchmarks/timing.py, beside this script
 
-from inference import fit, infer_parameter
+from inference import fit, infer_parameter, parameter_for_effect
 from inference.compiled import compile_parameter_query
 from models.throw_network import TARGET, throw_data, throw_network
 from sim2d.throw import sample_targets, throw
@@ -140,6 +142,9 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
         help="repeat with Pyro's argument checks off, to show what they cost",
     )
     parser.add_argument("--profile", action="store_true", help="profile the queries")
+    parser.add_argument(
+        "--effect-rows", type=int, default=200, help="hits per parameter_for_effect timing"
+    )
     args = parser.parse_args(argv)
 
     threads = torch.get_num_threads()
@@ -171,6 +176,17 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
                 f"  {what:36s} {1e6 * compiled[key]:10.1f} us   goal <= {1e6 * GOALS_S[key]:g} us: {ok}"
             )
         seconds |= {f"compiled_{k}": v for k, v in compiled.items()}
+        params = fit(net, data).params
+        rows = {"end.hit": test[: args.effect_rows]}
+        effect_s = median_seconds(
+            lambda: parameter_for_effect(net, params, TARGET, rows), min(args.repeats, 3)
+        ) / len(rows["end.hit"])
+        print(
+            f"inverse model (inference.parameter_for_effect), batched over {len(rows['end.hit'])} "
+            f"hits, per query: {1e3 * effect_s:.2f} ms (no goal; infer_parameter above is the "
+            "paper's query)"
+        )
+        seconds["effect_batched"] = effect_s
         if args.also_without_validation:
             with pyro.validation_enabled(False):
                 report(

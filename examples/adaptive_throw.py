@@ -2,8 +2,9 @@
 
 Beyond the paper's §IV-B (:mod:`experiments.adaptive_throw`): for each grid size the
 grid layout and the EM-refined adaptive layout side by side (cluster count, fit time on
-one torch thread, re-throw RMS), the largest also with release noise beside the
-noise's own scatter, a local-fit floor of what the throws support, and re-throw RMS
+one torch thread, re-throw RMS) queried both as the paper does (the posterior) and with
+the inverse model (``parameter_for_effect``), the largest also with release noise beside
+the noise's own scatter and the exact inverse of the noise-free throw, a local-fit floor of what the throws support, and re-throw RMS
 against the number of throws for actively chosen and random targets. Writes
 ``adaptive_throw.json``, ``adaptive_throw.md`` and ``adaptive_throw.png`` to ``--out``::
 
@@ -40,6 +41,9 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--budgets", type=int, nargs="+", default=[250, 500, 1000, 2000, 4000])
     parser.add_argument("--batch", type=int, default=50)
     parser.add_argument("--pool", type=int, default=2000)
+    parser.add_argument(
+        "--noise-repeats", type=int, default=10, help="re-throws per hit with release noise"
+    )
     parser.add_argument("--out", default="results")
     parser.add_argument("--quick", action="store_true", help="2000 + 200 throws, small grids")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (timings: 1)")
@@ -54,6 +58,7 @@ def parse_args(argv=None) -> argparse.Namespace:
         "budgets": tuple(args.budgets),
         "batch": args.batch,
         "pool": args.pool,
+        "noise_repeats": args.noise_repeats,
     }
     if args.quick:
         sizes |= QUICK

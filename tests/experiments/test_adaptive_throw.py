@@ -21,6 +21,7 @@ TINY = {
     "budgets": (40, 80),
     "batch": 20,
     "pool": 60,
+    "noise_repeats": 2,
     "progress": False,
 }
 
@@ -30,14 +31,24 @@ def test_runs_and_writes_its_results(tmp_path):
     result.save(tmp_path)
     saved = json.loads((tmp_path / "adaptive_throw.json").read_text())
     assert AdaptiveThrowResult.load(tmp_path / "adaptive_throw.json").to_json() == result.to_json()
-    assert [(r["layout"], r["n_clusters"]) for r in saved["layouts"]] == [
-        ("grid", 4),
-        ("adaptive", 4),
-        ("adaptive", 4),
-        ("grid", 9),
-        ("adaptive", 9),
-        ("adaptive", 9),
+    assert [(r["layout"], r["n_clusters"], r["query"]) for r in saved["layouts"]] == [
+        (layout, k, query)
+        for k, layouts in (
+            (4, ("grid", "adaptive", "adaptive")),
+            (9, ("grid", "adaptive", "adaptive")),
+        )
+        for layout in layouts
+        for query in ("posterior", "effect")
     ]
+    assert [(r["layout"], r["query"]) for r in saved["noisy"]] == [
+        ("grid", "posterior"),
+        ("grid", "effect"),
+        ("adaptive", "posterior"),
+        ("adaptive", "effect"),
+    ]
+    for row in [*saved["noisy"], saved["noisy_bound"]]:
+        assert row["ratio_y"] == pytest.approx(row["rms_y_m"] / row["scatter_y_m"])
+        assert row["scatter_y_m"] > 0 and row["scatter_z_m"] > 0
     assert all(r["em_steps"] == 0 for r in saved["layouts"] if r["layout"] == "grid")
     assert all(1 <= r["em_steps"] <= 3 for r in saved["layouts"] if r["layout"] == "adaptive")
     curve = np.array(saved["em_log_likelihoods"])
@@ -46,7 +57,8 @@ def test_runs_and_writes_its_results(tmp_path):
     assert [r["n"] for r in saved["active"]["information"]] == [40, 80]
     assert set(saved["goals"]) and all(isinstance(v, bool) for v in saved["goals"].values())
     assert (tmp_path / "adaptive_throw.png").stat().st_size > 10_000
-    assert "| 9 | adaptive |" in (tmp_path / "adaptive_throw.md").read_text()
+    text = (tmp_path / "adaptive_throw.md").read_text()
+    assert "| 9 | adaptive | effect |" in text and "physics' bound" in text
 
 
 def test_the_local_inverse_is_exact_on_a_quadratic_map():
@@ -73,6 +85,7 @@ def test_the_local_inverse_is_exact_on_a_quadratic_map():
         ("budgets", (100, 100)),
         ("budgets", (5,)),
         ("pool", 10),
+        ("noise_repeats", 0),
     ],
 )
 def test_config_names_the_field_at_fault(field, value):
