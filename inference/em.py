@@ -15,6 +15,15 @@ and alternates, for every adaptive parameter ``p`` acting on features ``g``,
   weighted by ``r`` (the same statistics and pseudo-count policy as :func:`fit`, with
   fractional row counts).
 
+The E-step is dense, every row against every cluster, and written for that size: each
+linear Gaussian's log-density for all clusters is one matrix product of the rows'
+quadratic features with per-cluster coefficients (rounding about ``|z|^2 / s^2`` times
+float64's epsilon for rows ``z`` about their mean and a cluster's scale ``s``: 1e-8
+relative in the parameters after 20 steps on the throw data, against the residual form
+it replaced), the ``(C, n)`` responsibilities are computed in the last step's memory,
+and log-responsibilities are floored at ``LOG_FLOOR`` before ``exp``. At 256 clusters
+and 29,000 rows five steps take about 1.1 s on one thread (3.8 s before).
+
 With ``pseudo_count = 0`` no step can lower the likelihood: the EM guarantee, which the
 tests check over random data sets. A pseudo-count makes the M-step a penalised fit whose
 pseudo-rows follow the pooled statistics of the current responsibilities, so near
@@ -141,7 +150,7 @@ def fit_em(
     bar = tqdm(total=steps, desc="fit (EM)", disable=not progress)
     for _ in range(steps):
         params = _m_step(net, params, enc, mixtures, resp, pseudo_count, min_variance)
-        resp, ll = _e_step(net, params, enc, mixtures)
+        resp, ll = _e_step(net, params, enc, mixtures, buffers=resp)
         curve.append(ll)
         bar.update()
         bar.set_postfix(loglik=f"{ll:.6g}")
@@ -234,28 +243,45 @@ def _inputs(enc: Evidence, cpd, m: ParameterMixture) -> torch.Tensor | None:
     return torch.cat(values, -1) if values else None
 
 
-def _e_step(net, params, enc, mixtures) -> tuple[list[torch.Tensor], float]:
-    """Responsibilities ``(C, n)`` per mixture, and the mean per-row log-likelihood."""
+#: Log-responsibilities (relative to the row's best cluster) are raised to this floor
+#: before ``exp``: a cluster below it gets 1e-304 of the row instead of less, which no
+#: sum in float64 can tell from nothing beside the best cluster's 1, and ``exp`` runs
+#: about five times faster on the floored values than on the far tail (denormals).
+LOG_FLOOR = -700.0
+
+
+def _e_step(net, params, enc, mixtures, buffers=None) -> tuple[list[torch.Tensor], float]:
+    """Responsibilities ``(C, n)`` per mixture, and the mean per-row log-likelihood.
+
+    ``buffers``: one ``(C, n)`` tensor per mixture to compute the responsibilities in
+    (``fit_em`` reuses the last step's: a fresh tensor of that size costs as much as the
+    arithmetic, in page faults)."""
     n = enc.n_rows
     total = torch.zeros(n, dtype=DTYPE)
     resp = []
-    for m in mixtures:
+    for index, m in enumerate(mixtures):
         action = enc[ACTION]
         uses = m.in_use(action)
         log_table = params[m.cluster.site].probs.clamp_min(1e-300).log()  # (A, C)
         theta = enc[m.value.site].nan_to_num()
         one = torch.zeros(n, dtype=torch.long)
-        log = _log_density(m.value, params[m.value.site], one, None, theta)  # (C, n)
+        log = buffers[index] if buffers is not None else None
+        log = _log_density(m.value, params[m.value.site], one, None, theta, out=log)  # (C, n)
         if not bool(uses.all()):
-            log = torch.where(uses, log, 0.0)
-        log.add_(log_table.T[:, action])
+            log.masked_fill_(~uses.expand_as(log), 0.0)
+        if bool((action == action[0]).all()):  # one action: a column, broadcast
+            log.add_(log_table[action[0]][:, None])
+        else:
+            log.add_(log_table.T[:, action])
         for site in m.affected:
             cpd = net.cpd(site)
             group = _group(enc, cpd)
-            log.add_(_log_density(cpd, params[site], group, _inputs(enc, cpd, m), enc[site]))
+            _log_density(
+                cpd, params[site], group, _inputs(enc, cpd, m), enc[site], out=log, add=True
+            )
         # normalise in place: log-sum-exp over the clusters, then the posterior
         top = log.max(0).values
-        log.sub_(top).exp_()
+        log.sub_(top).clamp_min_(LOG_FLOOR).exp_()
         mass = log.sum(0)
         log.div_(mass)
         total = total + top + mass.log()
@@ -272,12 +298,24 @@ def _group(enc: Evidence, cpd) -> torch.Tensor:
     return group
 
 
-def _log_density(cpd, params, group, x, y) -> torch.Tensor:
+def _log_density(cpd, params, group, x, y, out=None, add=False) -> torch.Tensor:
     """``(C, n)``: the CPD's log-density of each row's ``y`` given its parents, with the
-    last parent (the cluster) set to each of its ``C`` states in turn; one batched
-    triangular solve per configuration of the other parents present."""
+    last parent (the cluster) set to each of its ``C`` states in turn.
+
+    A linear Gaussian's log-density is a quadratic form in ``z = [y, x]``: with the
+    whitened residual ``L^-1 (y - W x - b) = M z - s``, ``|M z - s|^2 = z^T M^T M z -
+    2 s^T M z + |s|^2``. Each configuration of the other parents present takes one matrix
+    product of the rows' quadratic features (``z_i z_j``, ``z_i``, 1; ``z`` centred on
+    the rows' mean, which keeps the expansion's rounding near that of the residual) with
+    every cluster's coefficients.
+
+    ``out``: a ``(C, n)`` tensor to write the result into, or with ``add`` to add it to;
+    returned."""
     c = cpd.card[-1]
-    out = torch.empty(c, len(group), dtype=DTYPE)
+    if add and not _one_product(cpd, group):
+        return out.add_(_log_density(cpd, params, group, x, y))
+    if out is None:
+        out = torch.empty(c, len(group), dtype=DTYPE)
     if isinstance(cpd, TableCPD):
         logs = params.probs.reshape(-1, c, cpd.size).clamp_min(1e-300).log()
         for g, mine in _configurations(group):
@@ -287,24 +325,38 @@ def _log_density(cpd, params, group, x, y) -> torch.Tensor:
     bias = params.bias.reshape(-1, c, d)
     weight = params.weight.reshape(bias.shape[0], c, d, -1)
     tril = params.scale_tril.reshape(-1, c, d, d)
-    # whitened residual L^-1 (y - W x - b) = [L^-1, -L^-1 W] [y; x] - L^-1 b: one product
+    # whitened residual L^-1 (y - W x - b) = [L^-1, -L^-1 W] [y; x] - L^-1 b
     inverse = torch.linalg.solve_triangular(tril, torch.eye(d, dtype=DTYPE), upper=False)
     maps = torch.cat([inverse, -inverse @ weight], -1)  # (G, C, d, d + p)
     shift = (inverse @ bias[..., None])[..., 0]  # (G, C, d)
     constant = tril.diagonal(dim1=-2, dim2=-1).log().sum(-1) + 0.5 * d * math.log(2 * math.pi)
     data = torch.cat([y, x], -1) if x is not None else y
+    i, j = torch.triu_indices(data.shape[-1], data.shape[-1])
     for g, mine in _configurations(group):
-        rows = data[mine].T  # (d + p, n_g)
-        quad = None
-        for k in range(d):  # one whitened coordinate at a time: (C, n_g) each
-            white = maps[g][:, k] @ rows
-            white.sub_(shift[g][:, k, None]).square_()
-            quad = white if quad is None else quad.add_(white)
-        quad.mul_(-0.5).sub_(constant[g][:, None])
-        if isinstance(mine, slice):
-            return quad
-        out[:, mine] = quad
+        rows = data[mine]
+        centre = rows.mean(0)
+        local = shift[g] - maps[g] @ centre  # the residual's offset for centred rows
+        a = maps[g].mT @ maps[g]  # (C, q, q)
+        b = (maps[g].mT @ local[..., None])[..., 0]  # (C, q)
+        pairs = a[:, i, j] * torch.where(i == j, 1.0, 2.0).to(DTYPE)
+        # -1/2 |M z - s|^2 - constant, as coefficients of the features [z_i z_j, z_i, 1]
+        coeffs = torch.cat(
+            [-0.5 * pairs, b, (-0.5 * (local * local).sum(-1) - constant[g])[:, None]], -1
+        )
+        z = rows - centre
+        features = torch.cat([z[:, i] * z[:, j], z, torch.ones_like(z[:, :1])], -1)
+        if isinstance(mine, slice):  # every row: straight into ``out``
+            if add:
+                return out.addmm_(coeffs, features.T)
+            return torch.mm(coeffs, features.T, out=out)
+        out[:, mine] = coeffs @ features.T
     return out
+
+
+def _one_product(cpd, group: torch.Tensor) -> bool:
+    """Whether :func:`_log_density` takes one product over every row (a linear Gaussian
+    whose other parents take one configuration): then it can add into ``out`` in place."""
+    return not isinstance(cpd, TableCPD) and len(group) > 0 and bool((group == group[0]).all())
 
 
 def _configurations(group: torch.Tensor):
@@ -339,7 +391,8 @@ def _m_step(net, params, enc, mixtures, resp, alpha, min_variance) -> NetworkPar
         if not every:  # rows not using the parameter: pinned, unfitted
             r = torch.where(uses, r, 0.0)
         n_actions = m.cluster.card[0]
-        cluster_counts = torch.zeros(n_actions, r.shape[0], dtype=DTYPE).index_add_(0, action, r.T)
+        by_action = torch.nn.functional.one_hot(action, n_actions).to(DTYPE)  # (n, A)
+        cluster_counts = (r @ by_action).T  # (A, C): one product, not a scatter of rows
         cpds[m.cluster.site] = m.cluster.m_step(Counts(cluster_counts), alpha, min_variance)
         theta = enc[m.value.site].nan_to_num()
         one = torch.zeros(len(theta), dtype=torch.long)
