@@ -309,7 +309,9 @@ class AdaptiveThrowResult(Result):
     (``median_m``, ``p99_m``). ``noisy``: the largest grid's layouts and queries with
     release noise: RMS, the noise's own scatter and their ratio per axis
     (``rms_*``, ``scatter_*``, ``ratio_*``); ``noisy_bound``: the same for the exact
-    inverse of the noise-free throw. ``em_log_likelihoods``: the
+    inverse of the noise-free throw, with the median and 90th percentile of its
+    noise-free miss (``miss_median_m``, ``miss_p90_m``: how far the desired hits lie
+    beyond what a noise-free throw reaches). ``em_log_likelihoods``: the
     largest adaptive fit's curve (mean per-row). ``floor``: the local Newton inverse.
     ``active``: per strategy (``"random"``, ``"information"``) the curve of
     ``{n, bins, rms_y_m, rms_z_m}``. ``goals``: each goal's verdict.
@@ -372,7 +374,12 @@ class AdaptiveThrowResult(Result):
                 f"{cm * row['scatter_y_m']:.3f} | {cm * row['scatter_z_m']:.3f} | "
                 f"{row['ratio_y']:.3f} | {row['ratio_z']:.3f} |"
             )
+        b = self.noisy_bound
         lines += [
+            "",
+            f"The bound's aims thrown without noise miss the desired hits by "
+            f"{cm * b['miss_median_m']:.4f} cm (median) and {cm * b['miss_p90_m']:.3f} cm "
+            "(90th percentile): those hits lie beyond what a noise-free throw reaches.",
             "",
             "Active throw targets (grid layout, about 30 throws per cluster), re-throw RMS "
             "(cm) against the number of throws:",
@@ -443,9 +450,14 @@ def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
             )
     # the physics' bound: the noise-free throw inverted (to ~0.1 cm) at each desired hit
     aims = local_inverse(*train[0], test[1][1], start, config.neighbours)
+    reach = np.linalg.norm(throw(aims).hit - test[1][1], axis=1)  # beyond the arm's reach
     bound = {"repeats": config.noise_repeats} | _noisy_spread(
         aims, test[1][1], config.noise_repeats, noise_rng, noise
     )
+    bound |= {
+        "miss_median_m": float(np.median(reach)),
+        "miss_p90_m": float(np.quantile(reach, 0.9)),
+    }
 
     net, params = grid_model  # Newton from the grid's answers
     evidence = hit_evidence(test[0][1], low=window[0][0], high=window[0][1])

@@ -165,32 +165,62 @@ def throwing_rows(r: Results) -> list[str]:
 
 
 def adaptive_throw_rows(r: Results) -> list[str]:
-    """Beyond the paper: grid vs adaptive (EM) clusters, and active throw targets."""
+    """Beyond the paper: grid vs adaptive (EM) clusters, each by the inverse model and by
+    the paper's posterior query, and active throw targets. (Results saved before the
+    inverse model have the posterior query only, and one noise scatter for all rows.)"""
     if (t := r.get("adaptive_throw")) is None:
         return []
     k = max(row["n_clusters"] for row in t["layouts"])
-    grid, em = (  # the last row: the adaptive fit's last EM checkpoint
-        [row for row in t["layouts"] if row["n_clusters"] == k and row["layout"] == layout][-1]
-        for layout in ("grid", "adaptive")
-    )
-    noisy = {row["layout"]: row for row in t["noisy"]}
+
+    def last(rows, layout, query):  # the adaptive fit's last EM checkpoint
+        mine = [
+            row
+            for row in rows
+            if row["layout"] == layout
+            and row.get("query", "posterior") == query
+            and row.get("n_clusters", k) == k
+        ]
+        return mine[-1] if mine else None
 
     def cm(row):
         return f"{100 * row['rms_y_m']:.3f} / {100 * row['rms_z_m']:.3f} cm"
 
-    sy, sz = t["noise_scatter_y_m"], t["noise_scatter_z_m"]
-    ratio = {
-        layout: f"{row['rms_y_m'] / sy:.2f} / {row['rms_z_m'] / sz:.2f}"
-        for layout, row in noisy.items()
-    }
+    def ratio(row):
+        if "ratio_y" in row:
+            return f"{row['ratio_y']:.2f} / {row['ratio_z']:.2f}"
+        return (
+            f"{row['rms_y_m'] / t['noise_scatter_y_m']:.2f} / "
+            f"{row['rms_z_m'] / t['noise_scatter_z_m']:.2f}"
+        )
+
+    layouts, noisy = [], []
+    for layout in ("adaptive", "grid"):
+        post, effect = (last(t["layouts"], layout, q) for q in ("posterior", "effect"))
+        fit = (
+            f"fit {post['fit_s']:.1f} s, {post['em_steps']} EM steps"
+            if layout == "adaptive"
+            else f"fit {post['fit_s']:.2f} s"
+        )
+        if effect is None:
+            layouts.append(f"{layout} {cm(post)} ({fit})")
+        else:
+            layouts.append(f"{layout} {cm(effect)} ({fit}; posterior query {cm(post)})")
+        post, effect = (last(t["noisy"], layout, q) for q in ("posterior", "effect"))
+        if effect is None:
+            noisy.append(f"{layout} {ratio(post)}")
+        else:
+            noisy.append(f"{layout} {ratio(effect)} (posterior query {ratio(post)})")
+    bound = t.get("noisy_bound")
+    floor = f"local Newton inverse of the training throws {cm(t['floor'])}"
+    if bound is not None:
+        floor += f"; with noise, the noise-free throw inverted: {ratio(bound)}"
     random, active = t["active"]["random"][-1], t["active"]["information"][-1]
+    query = "inverse model" if last(t["layouts"], "grid", "effect") else "posterior query"
     return [
         f"| throw, beyond the paper: adaptive (EM) vs grid clusters, re-thrown RMS y / z "
-        f"({k} clusters, noise-free; goal 0.01 cm, fit < 2 s) | - | adaptive {cm(em)} "
-        f"(fit {em['fit_s']:.1f} s, {em['em_steps']} EM steps), grid {cm(grid)} "
-        f"(fit {grid['fit_s']:.2f} s); with release noise, times the noise's own scatter: "
-        f"adaptive {ratio['adaptive']}, grid {ratio['grid']} (goal 1.05) | local Newton "
-        f"inverse of the training throws {cm(t['floor'])} |",
+        f"({k} clusters, noise-free, {query}; goal 0.01 cm, fit < 2 s) | - | "
+        f"{', '.join(layouts)}; with release noise, times the noise's own scatter: "
+        f"{', '.join(noisy)} (goal 1.05) | {floor} |",
         f"| throw, beyond the paper: active throw targets (expected information gain) vs "
         f"random, re-thrown RMS y / z after {active['n']} throws | - | active {cm(active)}, "
         f"random {cm(random)} | |",

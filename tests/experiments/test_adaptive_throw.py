@@ -46,6 +46,7 @@ def test_runs_and_writes_its_results(tmp_path):
         ("adaptive", "posterior"),
         ("adaptive", "effect"),
     ]
+    assert 0 <= saved["noisy_bound"]["miss_median_m"] <= saved["noisy_bound"]["miss_p90_m"]
     for row in [*saved["noisy"], saved["noisy_bound"]]:
         assert row["ratio_y"] == pytest.approx(row["rms_y_m"] / row["scatter_y_m"])
         assert row["scatter_y_m"] > 0 and row["scatter_z_m"] > 0

@@ -234,10 +234,59 @@ def test_adaptive_throw_rows(tmp_path):
     )
     text = summary.summary_markdown(tmp_path)
     assert (
-        "(256 clusters, noise-free; goal 0.01 cm, fit < 2 s) | - | adaptive 0.080 / 0.060 cm"
+        "(256 clusters, noise-free, posterior query; goal 0.01 cm, fit < 2 s) | - | "
+        "adaptive 0.080 / 0.060 cm (fit 1.5 s, 7 EM steps), grid 0.210 / 0.200 cm (fit 1.50 s)"
         in text
     )
-    assert "grid 0.210 / 0.200 cm (fit 1.50 s)" in text
     assert "adaptive 1.05 / 1.10, grid 1.15 / 1.15 (goal 1.05)" in text
-    assert "local Newton inverse of the training throws 0.030 / 0.040 cm" in text
+    assert "local Newton inverse of the training throws 0.030 / 0.040 cm |" in text
     assert "after 4000 throws | - | active 0.400 / 0.700 cm, random 0.500 / 0.600 cm" in text
+
+
+def test_adaptive_throw_rows_with_both_queries(tmp_path):
+    """Each layout by the inverse model, the posterior query beside it; the noisy ratios
+    per row and the physics' bound."""
+    layouts = [
+        {"layout": layout, "query": query, "n_clusters": 256, "fit_s": 2.0, "em_steps": 5}
+        | {"rms_y_m": y, "rms_z_m": z}
+        for layout, query, y, z in (
+            ("grid", "posterior", 0.0021, 0.0020),
+            ("grid", "effect", 0.0012, 0.0017),
+            ("adaptive", "posterior", 0.0012, 0.0006),
+            ("adaptive", "effect", 0.00001, 0.0008),
+        )
+    ]
+    noisy = [
+        {"layout": layout, "query": query, "ratio_y": a, "ratio_z": b}
+        for layout, query, a, b in (
+            ("grid", "posterior", 1.15, 1.18),
+            ("grid", "effect", 1.14, 1.17),
+            ("adaptive", "posterior", 1.13, 1.16),
+            ("adaptive", "effect", 1.08, 1.12),
+        )
+    ]
+    (tmp_path / "adaptive_throw.json").write_text(
+        json.dumps(
+            {
+                "layouts": layouts,
+                "noisy": noisy,
+                "noisy_bound": {"ratio_y": 1.07, "ratio_z": 1.10},
+                "floor": {"rms_y_m": 0.0003, "rms_z_m": 0.0004},
+                "active": {
+                    "random": [{"n": 4000, "rms_y_m": 0.005, "rms_z_m": 0.006}],
+                    "information": [{"n": 4000, "rms_y_m": 0.004, "rms_z_m": 0.007}],
+                },
+            }
+        )
+    )
+    text = summary.summary_markdown(tmp_path)
+    assert (
+        "(256 clusters, noise-free, inverse model; goal 0.01 cm, fit < 2 s) | - | adaptive "
+        "0.001 / 0.080 cm (fit 2.0 s, 5 EM steps; posterior query 0.120 / 0.060 cm), grid "
+        "0.120 / 0.170 cm (fit 2.00 s; posterior query 0.210 / 0.200 cm)" in text
+    )
+    assert (
+        "times the noise's own scatter: adaptive 1.08 / 1.12 (posterior query 1.13 / 1.16), "
+        "grid 1.14 / 1.17 (posterior query 1.15 / 1.18) (goal 1.05)" in text
+    )
+    assert "; with noise, the noise-free throw inverted: 1.07 / 1.10 |" in text
