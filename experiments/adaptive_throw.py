@@ -524,7 +524,7 @@ def plot_adaptive_throw(result: AdaptiveThrowResult, path) -> Path:
             )
     worst = max(result.floor["rms_y_m"], result.floor["rms_z_m"])
     ax.axhline(100 * worst, color="grey", ls=":", lw=1, label="local Newton floor")
-    ax.axhline(100 * GOAL_RMS_M, color="red", lw=1, label="goal")
+    ax.axhline(100 * GOAL_RMS_M, color="black", ls="-.", lw=1, label="goal")
     ax.set(
         xscale="log",
         yscale="log",
@@ -533,7 +533,9 @@ def plot_adaptive_throw(result: AdaptiveThrowResult, path) -> Path:
         title="Error against cluster count (noise-free)",
     )
     _plain_ticks(ax, sorted({r["n_clusters"] for r in result.layouts}))
-    ax.legend(fontsize=7)
+    low = min(100 * GOAL_RMS_M, *(100 * max(r["rms_y_m"], r["rms_z_m"]) for r in result.layouts))
+    ax.set_ylim(bottom=low / 40)  # room for the legend below the curves
+    ax.legend(fontsize=7, loc="lower left")
     ax_ll.plot(result.em_log_likelihoods, "o-", ms=3)
     ax_ll.set(xlabel="EM step", ylabel="mean log-likelihood per row", title="EM, largest grid")
     for strategy, color in (("random", "tab:blue"), ("information", "tab:orange")):

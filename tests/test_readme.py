@@ -47,6 +47,7 @@ def test_readme_snippets_run(tmp_path, monkeypatch):
     assert float(namespace["gone"][0]) > 0.99
     assert float(namespace["surprise"][0]) > 0.99
     assert abs(float(namespace["force_needed"][0, 0]) - 10.0) < 0.5
+    assert abs(float(namespace["force_to_use"][0, 0]) - 10.0) < 0.5
     assert namespace["draws"]["param.force"].shape == (100, 5, 1)
     assert math.isfinite(namespace["loss"])
     assert int(namespace["cluster"]) == 4  # 10 N: cell 4 of 8 over 0..20 N
