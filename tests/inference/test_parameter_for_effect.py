@@ -7,7 +7,7 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from inference import fit, fit_em, infer_parameter, parameter_for_effect
+from inference import fit, fit_em, infer_parameter, parameter_for_effect, predict
 from models import Continuous, Discrete, EffectNetwork, Parameter
 from models.declaration import DTYPE
 
@@ -223,3 +223,94 @@ def test_refusals_and_empty_evidence():
     assert empty.value.shape == (0, 1) and empty.candidates.shape == (0, 3, 1)
     answer = parameter_for_effect(net, params, "force", base | {"end.pos": [[2.0]]})
     assert float(answer.value[0, 0]) == pytest.approx(4.0, abs=1e-6)
+
+
+def test_another_parameter_on_the_same_feature_is_taken_as_given():
+    """force and angle both move pos: with the angle given, the force's answer solves its
+    cell's line pos = b + w_x x + w_f force + w_a angle, and is scored under its cell."""
+    force = Parameter("force", 0.0, 4.0, 2, ("push",), "pos")
+    angle = Parameter("angle", -1.0, 1.0, 2, ("push",), "pos")
+    net = EffectNetwork((Continuous("pos", 1),), ("stay", "push"), (force, angle))
+    g = torch.Generator().manual_seed(11)
+    n = 500
+    f = torch.rand(n, 1, generator=g, dtype=DTYPE) * 4
+    a = torch.rand(n, 1, generator=g, dtype=DTYPE) * 2 - 1
+    x = torch.rand(n, 1, generator=g, dtype=DTYPE)
+    pos = x + 0.3 * f + 0.1 * f**2 * a + 0.01 * torch.randn(n, 1, generator=g, dtype=DTYPE)
+    rows = {
+        "initial.pos": x,
+        "action": ["push"] * n,
+        "param.force": f,
+        "param.angle": a,
+        "end.pos": pos,
+    }
+    params = fit(net, rows).params
+    evidence = {
+        "initial.pos": [[0.2], [0.5]],
+        "action": ["push", "push"],
+        "param.angle": [[0.5], [-0.7]],
+        "end.pos": [[1.1], [0.9]],
+    }
+    answer = parameter_for_effect(net, params, "force", evidence)
+    with pytest.raises(ValueError, match="param.angle"):
+        parameter_for_effect(
+            net, params, "force", {k: v for k, v in evidence.items() if k != "param.angle"}
+        )
+    lg = params["end.pos"]
+    for i in range(2):
+        x0, ang, y = (
+            evidence["initial.pos"][i][0],
+            evidence["param.angle"][i][0],
+            evidence["end.pos"][i][0],
+        )
+        ca = int(ang >= 0)  # the angle's cell of two over [-1, 1]
+        for c in range(2):
+            w = lg.weight[1, c, ca, 0]  # push, force cell, angle cell: [x, force, angle]
+            b = float(lg.bias[1, c, ca, 0])
+            theta = (y - b - float(w[0]) * x0 - float(w[2]) * ang) / float(w[1])
+            assert float(answer.candidates[i, c, 0]) == pytest.approx(theta, rel=1e-9, abs=1e-12)
+
+
+def test_rows_sharing_their_parents_answer_as_rows_apart():
+    """Parameters gathered once for rows that share every parent (broadcast over the
+    rows) give the answers the rows give one at a time, or mixed with another action."""
+    force = Parameter("force", 0.0, 4.0, 3, ("push",), "pos")
+    net = EffectNetwork((Continuous("pos", 1),), ("stay", "push"), (force,))
+    g = torch.Generator().manual_seed(2)
+    n = 300
+    act = torch.randint(0, 2, (n,), generator=g)
+    f = torch.rand(n, 1, generator=g, dtype=DTYPE) * 4
+    f[act == 0] = float("nan")
+    x = torch.rand(n, 1, generator=g, dtype=DTYPE)
+    pos = x + torch.sin(f.nan_to_num()) + 0.05 * torch.randn(n, 1, generator=g, dtype=DTYPE)
+    params = fit(
+        net, net.encode_indices({"initial.pos": x, "action": act, "param.force": f, "end.pos": pos})
+    ).params
+    hits = torch.tensor([[0.4], [1.3], [0.9]], dtype=DTYPE)
+    start = torch.tensor([[0.1], [0.2], [0.3]], dtype=DTYPE)
+    together = parameter_for_effect(
+        net, params, "force", {"initial.pos": start, "action": ["push"] * 3, "end.pos": hits}
+    )
+    for i in range(3):
+        alone = parameter_for_effect(
+            net,
+            params,
+            "force",
+            {"initial.pos": start[i : i + 1], "action": ["push"], "end.pos": hits[i : i + 1]},
+        )
+        torch.testing.assert_close(
+            alone.candidate_log_density[0], together.candidate_log_density[i]
+        )
+    both = predict(
+        net,
+        params,
+        {"initial.pos": torch.cat([start, start]), "action": ["push"] * 3 + ["stay"] * 3},
+    )
+    pushed = predict(net, params, {"initial.pos": start, "action": ["push"] * 3})
+    torch.testing.assert_close(both.continuous["pos"].mean[:3], pushed.continuous["pos"].mean)
+    torch.testing.assert_close(both.continuous["pos"].cov[:3], pushed.continuous["pos"].cov)
+    for i in range(3):
+        alone = predict(net, params, {"initial.pos": start[i : i + 1], "action": ["push"]})
+        torch.testing.assert_close(
+            alone.continuous["pos"].mean[0], pushed.continuous["pos"].mean[i]
+        )
