@@ -612,7 +612,10 @@ def parameter_for_effect(
     one of highest joint density ``p(theta_c, evidence)``, computed exactly by the model
     with ``theta_c`` given (every cluster summed out; under the grid layout the cluster
     is ``theta_c``'s cell, so a candidate outside its own cell is scored under the cell it
-    falls in). The score keeps the candidates where the model has seen values. Without
+    falls in). Ranking by the joint density rather than the effect's likelihood alone
+    keeps a cluster whose line, extrapolated far from the values it was fitted on, happens
+    to pass through the effect from winning. Partial evidence counts its observed
+    dimensions (as in :func:`infer_parameter`). Without
     noise and with the effect inside a cluster's reach, the answer reproduces the
     effect exactly under that cluster (``miss`` 0).
 

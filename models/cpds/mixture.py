@@ -47,7 +47,7 @@ from models.cpds.base import concat_inputs
 from models.cpds.linear_gaussian import LinearGaussian, LinearGaussianCPD
 from models.cpds.table import TableCPD
 from models.evidence import DTYPE
-from models.gaussian import condition_linear_gaussian
+from models.gaussian import condition_linear_gaussian, mask_unobserved
 
 if TYPE_CHECKING:
     from models.declaration import Parameter
@@ -339,12 +339,16 @@ class ParameterMixture:
         noise covariance. Where the children leave some directions of ``theta`` free (fewer
         effect dims than parameter dims, or a zero weight), the solution nearest the
         cluster's mean in the cluster's own metric (a ridge ``1e-10`` times the data term's
-        size, towards the mean). Returns the value ``(..., k)`` and the children's squared
+        size, towards the mean). A child observed in some dimensions only (NaN in the
+        others) counts with its observed dimensions' marginal. Returns the value ``(..., k)`` and the children's squared
         Mahalanobis distance from their prediction at it, summed ``(...)``: zero when the
         value produces the observed effect exactly."""
         info, pull, terms = 0.0, 0.0, []
         for child in children:
             w_p, offset, noise, y = self.linear_terms(params, child, values, cluster, acting)
+            if bool(torch.isnan(y).any()):  # partial evidence: its observed dims only
+                y, offset, noise, seen = mask_unobserved(y, offset, noise)
+                w_p = torch.where(seen[..., None], w_p, 0.0)
             tril = torch.linalg.cholesky(noise)
             w = torch.linalg.solve_triangular(tril, w_p, upper=False)  # L^-1 W_p
             r = torch.linalg.solve_triangular(tril, (y - offset)[..., None], upper=False)

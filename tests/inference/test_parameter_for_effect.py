@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from inference import fit, fit_em, infer_parameter, parameter_for_effect, predict
-from models import Continuous, Discrete, EffectNetwork, Parameter
+from models import Continuous, Discrete, EffectNetwork, Parameter, Partial
 from models.declaration import DTYPE
 
 
@@ -314,3 +314,30 @@ def test_rows_sharing_their_parents_answer_as_rows_apart():
         torch.testing.assert_close(
             alone.continuous["pos"].mean[0], pushed.continuous["pos"].mean[i]
         )
+
+
+def test_partial_evidence_counts_its_observed_dimensions():
+    """A 2-D effect observed in one dimension: the answer solves that dimension's line
+    alone (one equation, one unknown), and equals the answer from a 1-D network fitted on
+    that dimension."""
+    net = EffectNetwork(
+        (Continuous("xy", 2, initial=False),),
+        ("go",),
+        (Parameter("p", (0.0,), (1.0,), (1,), ("go",), "xy"),),
+    )
+    g = torch.Generator().manual_seed(4)
+    n = 300
+    theta = torch.rand(n, 1, generator=g, dtype=DTYPE)
+    xy = torch.cat([2 * theta + 0.5, -theta], -1) + 0.05 * torch.randn(
+        n, 2, generator=g, dtype=DTYPE
+    )
+    params = fit(net, {"action": ["go"] * n, "param.p": theta, "end.xy": xy}).params
+    value = torch.tensor([[1.3, float("nan")]], dtype=DTYPE)
+    answer = parameter_for_effect(
+        net, params, "p", {"end.xy": Partial(value, observed=[True, False])}
+    )
+    lg = params["end.xy"]
+    expected = (1.3 - float(lg.bias[0, 0, 0])) / float(lg.weight[0, 0, 0, 0])
+    assert float(answer.value[0, 0]) == pytest.approx(expected, rel=1e-9)
+    assert torch.isfinite(answer.log_density).all()
+    assert float(answer.miss[0]) == pytest.approx(0.0, abs=1e-12)
