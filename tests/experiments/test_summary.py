@@ -202,6 +202,16 @@ def test_active_rows_give_each_learner_at_ten_percent_beside_the_full_data(tmp_p
     assert "random 20.00 % (pooled 25.00 %)" in actions and actions.endswith("| 95.00 % held out |")
 
 
+#: The adaptive-throw results' floor and active curves, the same in both layouts' tests.
+THROW_FLOOR_AND_ACTIVE = {
+    "floor": {"rms_y_m": 0.0003, "rms_z_m": 0.0004},
+    "active": {
+        "random": [{"n": 4000, "rms_y_m": 0.005, "rms_z_m": 0.006}],
+        "information": [{"n": 4000, "rms_y_m": 0.004, "rms_z_m": 0.007}],
+    },
+}
+
+
 def test_adaptive_throw_rows(tmp_path):
     row = {"fit_s": 1.5, "em_steps": 7}
     layouts = [
@@ -224,12 +234,8 @@ def test_adaptive_throw_rows(tmp_path):
                 ],
                 "noise_scatter_y_m": 0.02,
                 "noise_scatter_z_m": 0.01,
-                "floor": {"rms_y_m": 0.0003, "rms_z_m": 0.0004},
-                "active": {
-                    "random": [{"n": 4000, "rms_y_m": 0.005, "rms_z_m": 0.006}],
-                    "information": [{"n": 4000, "rms_y_m": 0.004, "rms_z_m": 0.007}],
-                },
             }
+            | THROW_FLOOR_AND_ACTIVE
         )
     )
     text = summary.summary_markdown(tmp_path)
@@ -271,12 +277,8 @@ def test_adaptive_throw_rows_with_both_queries(tmp_path):
                 "layouts": layouts,
                 "noisy": noisy,
                 "noisy_bound": {"ratio_y": 1.07, "ratio_z": 1.10},
-                "floor": {"rms_y_m": 0.0003, "rms_z_m": 0.0004},
-                "active": {
-                    "random": [{"n": 4000, "rms_y_m": 0.005, "rms_z_m": 0.006}],
-                    "information": [{"n": 4000, "rms_y_m": 0.004, "rms_z_m": 0.007}],
-                },
             }
+            | THROW_FLOOR_AND_ACTIVE
         )
     )
     text = summary.summary_markdown(tmp_path)
