@@ -459,9 +459,7 @@ def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
         "miss_p90_m": float(np.quantile(reach, 0.9)),
     }
 
-    net, params = grid_model  # Newton from the grid's answers
-    evidence = hit_evidence(test[0][1], low=window[0][0], high=window[0][1])
-    start = infer_parameter(net, params, TARGET, evidence).mean.numpy()
+    start = _aims(grid_model, test[0][1], window[0])  # Newton from the grid's answers
     aims = local_inverse(*train[0], test[0][1], start, config.neighbours)
     floor = {"neighbours": config.neighbours} | _spread(throw(aims).hit - test[0][1])
 

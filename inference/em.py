@@ -50,6 +50,7 @@ from dataclasses import dataclass
 import torch
 from tqdm.auto import tqdm
 
+from inference.compiled import quadratic_features
 from inference.fit import _check_settings, _complete
 from inference.statistics import params_from_statistics, statistics
 from models.cpds import Counts, LinearGaussianCPD, Moments, ParameterMixture, TableCPD
@@ -312,14 +313,19 @@ def _log_density(cpd, params, group, x, y, out=None, add=False) -> torch.Tensor:
     ``out``: a ``(C, n)`` tensor to write the result into, or with ``add`` to add it to;
     returned."""
     c = cpd.card[-1]
-    if add and not _one_product(cpd, group):
-        return out.add_(_log_density(cpd, params, group, x, y))
     if out is None:
         out = torch.empty(c, len(group), dtype=DTYPE)
+
+    def put(rows, values):
+        if add:
+            out[:, rows] += values
+        else:
+            out[:, rows] = values
+
     if isinstance(cpd, TableCPD):
         logs = params.probs.reshape(-1, c, cpd.size).clamp_min(1e-300).log()
         for g, mine in _configurations(group):
-            out[:, mine] = logs[g][:, y[mine]]
+            put(mine, logs[g][:, y[mine]])
         return out
     d = y.shape[-1]
     bias = params.bias.reshape(-1, c, d)
@@ -339,24 +345,17 @@ def _log_density(cpd, params, group, x, y, out=None, add=False) -> torch.Tensor:
         a = maps[g].mT @ maps[g]  # (C, q, q)
         b = (maps[g].mT @ local[..., None])[..., 0]  # (C, q)
         pairs = a[:, i, j] * torch.where(i == j, 1.0, 2.0).to(DTYPE)
-        # -1/2 |M z - s|^2 - constant, as coefficients of the features [z_i z_j, z_i, 1]
+        # -1/2 |M z - s|^2 - constant, as coefficients of quadratic_features(z)
         coeffs = torch.cat(
             [-0.5 * pairs, b, (-0.5 * (local * local).sum(-1) - constant[g])[:, None]], -1
         )
-        z = rows - centre
-        features = torch.cat([z[:, i] * z[:, j], z, torch.ones_like(z[:, :1])], -1)
-        if isinstance(mine, slice):  # every row: straight into ``out``
+        features = quadratic_features(rows - centre)
+        if isinstance(mine, slice):  # every row: straight into ``out``, no temporary
             if add:
                 return out.addmm_(coeffs, features.T)
             return torch.mm(coeffs, features.T, out=out)
-        out[:, mine] = coeffs @ features.T
+        put(mine, coeffs @ features.T)
     return out
-
-
-def _one_product(cpd, group: torch.Tensor) -> bool:
-    """Whether :func:`_log_density` takes one product over every row (a linear Gaussian
-    whose other parents take one configuration): then it can add into ``out`` in place."""
-    return not isinstance(cpd, TableCPD) and len(group) > 0 and bool((group == group[0]).all())
 
 
 def _configurations(group: torch.Tensor):
