@@ -19,7 +19,12 @@ uniform targets on the 2 m x 2 m area, their hits, re-throw RMS per axis ``y``, 
   throws can beat by more than that. As an honest floor
   of the noise-free rows, what the training throws support at all: per test hit,
   Newton's method on a local quadratic forward model fitted to the ``neighbours``
-  training throws nearest the current aim (:func:`local_inverse`).
+  training throws nearest the current aim (:func:`local_inverse`). Two measurements say
+  where the inverse model's error comes from: per row, the best of its candidates (the
+  cluster answer that the throw itself says misses least: the error a perfect choice
+  would leave), and per grid size, what the best linear pieces leave of the map's
+  curvature (one least-squares plane per equidistant cell through the unclamped training
+  throws, :func:`plane_residuals`).
 * **Active throw targets.** Learning the grid network from few throws, each batch of
   targets chosen among a pool of random candidates by the expected information gain
   about the clusters' regressions (:func:`inference.active_gaussian.select_by_information`)
@@ -40,6 +45,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import torch
 from tqdm.auto import tqdm
 
 from experiments.config import ConfigError, Result, check_float, check_int
@@ -57,6 +63,7 @@ __all__ = [
     "AdaptiveThrowResult",
     "adaptive_throw_network",
     "local_inverse",
+    "plane_residuals",
     "plot_adaptive_throw",
     "run_adaptive_throw",
 ]
@@ -180,20 +187,67 @@ def _fit(layout, k, train, config):
     return out
 
 
-def _aims(model, desired, window, query="posterior"):
-    """The inferred aims ``(n, 2)`` for the desired hits, clipped into the area."""
+def _query(model, desired, window, query="posterior"):
+    """The inferred aims ``(n, 2)`` for the desired hits, clipped into the area, and for
+    the inverse model every cluster's candidate ``(n, C, 2)``, clipped (None for the
+    posterior query)."""
     net, params = model
     evidence = hit_evidence(desired, low=window[0], high=window[1])
     if query == "posterior":
-        aim = infer_parameter(net, params, TARGET, evidence).mean
+        aim, candidates = infer_parameter(net, params, TARGET, evidence).mean, None
     else:
-        aim = parameter_for_effect(net, params, TARGET, evidence).value
-    return np.clip(aim.numpy(), TARGET_AREA.low, TARGET_AREA.high)
+        answer = parameter_for_effect(net, params, TARGET, evidence)
+        aim = answer.value
+        candidates = np.clip(answer.candidates.numpy(), TARGET_AREA.low, TARGET_AREA.high)
+    return np.clip(aim.numpy(), TARGET_AREA.low, TARGET_AREA.high), candidates
+
+
+def _aims(model, desired, window, query="posterior"):
+    """The inferred aims ``(n, 2)`` for the desired hits, clipped into the area."""
+    return _query(model, desired, window, query)[0]
+
+
+def _best_candidate(candidates, desired):
+    """Errors ``(n, 2)`` of re-throwing at the candidate that the throw itself says misses
+    least: how well a perfect choice among the model's per-cluster answers would do."""
+    n, c, _ = candidates.shape
+    hits = throw(candidates.reshape(n * c, 2)).hit.reshape(n, c, 2)
+    best = np.linalg.norm(hits - desired[:, None], axis=-1).argmin(1)
+    return hits[np.arange(n), best] - desired
 
 
 def _rethrow(model, desired, window, rng=None, noise=None, query="posterior"):
     """Errors ``(n, 2)`` of re-throwing at the inferred aims."""
     return throw(_aims(model, desired, window, query), rng=rng, noise=noise).hit - desired
+
+
+def plane_residuals(targets, hits, bins, use=None):
+    """Residuals ``(n, 2)`` of one least-squares plane ``hit ~ A target + b`` per
+    equidistant cell of the target area (``bins x bins``, the throw network's grid),
+    fitted to the rows ``use`` (default: all) of each cell; NaN for the other rows and
+    for cells with fewer than four rows to fit.
+
+    An inverse that answers with one linear piece's solution re-throws with exactly that
+    piece's residual at the aim (the piece maps the aim onto the desired hit; the throw
+    maps it onto the piece's prediction plus the residual). So on unclamped throws, where
+    the map is smooth, these residuals are what the best planes over the cells leave of
+    the map's curvature: the scale below which a piecewise-linear model with that many
+    equal cells does not re-throw.
+    """
+    targets, hits = np.asarray(targets, dtype=float), np.asarray(hits, dtype=float)
+    use = np.ones(len(targets), dtype=bool) if use is None else np.asarray(use, dtype=bool)
+    m = throw_network((bins, bins)).mixture(TARGET)
+    action = torch.zeros(len(targets), dtype=torch.long)
+    cell = m.cells(torch.as_tensor(targets), action).numpy()
+    residual = np.full_like(hits, np.nan)
+    for c in np.unique(cell[use]):
+        rows = np.flatnonzero((cell == c) & use)
+        if len(rows) < 4:
+            continue
+        design = np.column_stack([targets[rows], np.ones(len(rows))])
+        coef = np.linalg.lstsq(design, hits[rows], rcond=None)[0]
+        residual[rows] = hits[rows] - design @ coef
+    return residual
 
 
 def _noisy_spread(aims, desired, repeats, rng, noise) -> dict[str, float]:
@@ -313,6 +367,11 @@ class AdaptiveThrowResult(Result):
     noise-free miss (``miss_median_m``, ``miss_p90_m``: how far the desired hits lie
     beyond what a noise-free throw reaches). ``em_log_likelihoods``: the
     largest adaptive fit's curve (mean per-row). ``floor``: the local Newton inverse.
+    The inverse model's rows also hold ``best_rms_*``: the re-throw RMS had each row
+    taken the cluster candidate that the throw itself says misses least (a perfect
+    choice among the model's answers). ``pieces``: per grid size, the RMS residual of one
+    least-squares plane per equidistant cell through the unclamped training throws
+    (:func:`plane_residuals`): the curvature that linear pieces of that size leave.
     ``active``: per strategy (``"random"``, ``"information"``) the curve of
     ``{n, bins, rms_y_m, rms_z_m}``. ``goals``: each goal's verdict.
     """
@@ -325,6 +384,7 @@ class AdaptiveThrowResult(Result):
     noisy_bound: dict
     em_log_likelihoods: list[float]
     floor: dict
+    pieces: list[dict]
     active: dict[str, list[dict]]
     goals: dict[str, bool]
 
@@ -338,21 +398,39 @@ class AdaptiveThrowResult(Result):
             "Re-throw RMS (cm), noise-free; fit time on one torch thread:",
             "",
             "| clusters | layout | query | fit (s) | EM steps | y (cm) | z (cm) | median (cm) "
-            "| 99 % (cm) |",
-            "|---:|---|---|---:|---:|---:|---:|---:|---:|",
+            "| 99 % (cm) | best candidate y / z (cm) |",
+            "|---:|---|---|---:|---:|---:|---:|---:|---:|---:|",
         ]
         for row in self.layouts:
+            best = "-"
+            if "best_rms_y_m" in row:
+                best = f"{cm * row['best_rms_y_m']:.4f} / {cm * row['best_rms_z_m']:.4f}"
             lines.append(
                 f"| {row['n_clusters']} | {row['layout']} | {row['query']} | "
                 f"{row['fit_s']:.2f} | {row['em_steps']} | {cm * row['rms_y_m']:.4f} | "
                 f"{cm * row['rms_z_m']:.4f} | {cm * row['median_m']:.4f} | "
-                f"{cm * row['p99_m']:.3f} |"
+                f"{cm * row['p99_m']:.3f} | {best} |"
             )
         f = self.floor
         lines += [
             f"| - | Newton on local quadratic fits to the {f['neighbours']} nearest training "
             f"throws (what the data support) | - | - | - | {cm * f['rms_y_m']:.4f} | "
-            f"{cm * f['rms_z_m']:.4f} | {cm * f['median_m']:.4f} | {cm * f['p99_m']:.3f} |",
+            f"{cm * f['rms_z_m']:.4f} | {cm * f['median_m']:.4f} | {cm * f['p99_m']:.3f} | - |",
+            "",
+            "Best candidate: the re-throw RMS had every hit taken the cluster candidate of the "
+            "inverse model that the throw itself says misses least.",
+            "",
+            "What linear pieces leave of the map's curvature: RMS residual (cm) of one "
+            "least-squares plane per equidistant cell through the unclamped training throws "
+            "(an inverse answering with one piece re-throws with that piece's residual at "
+            "its aim):",
+            "",
+            "| clusters | y (cm) | z (cm) |",
+            "|---:|---:|---:|",
+            *(
+                f"| {r['n_clusters']} | {cm * r['rms_y_m']:.4f} | {cm * r['rms_z_m']:.4f} |"
+                for r in self.pieces
+            ),
             "",
             f"With release noise (trained with it; each desired hit re-thrown "
             f"{self.noisy_bound['repeats']} times with it); scatter: the same throws about "
@@ -422,18 +500,19 @@ def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
     for k, layout in tqdm(runs, desc="layouts", disable=not config.progress):
         for model, seconds, ll in _fit(layout, k, train[0], config):
             for query in QUERIES:
-                error = _rethrow(model, test[0][1], window[0], query=query)
-                layouts.append(
-                    {
-                        "layout": layout,
-                        "query": query,
-                        "bins": k,
-                        "n_clusters": k * k,
-                        "fit_s": seconds,
-                        "em_steps": max(0, len(ll) - 1),
-                    }
-                    | _spread(error)
-                )
+                aims, candidates = _query(model, test[0][1], window[0], query)
+                row = {
+                    "layout": layout,
+                    "query": query,
+                    "bins": k,
+                    "n_clusters": k * k,
+                    "fit_s": seconds,
+                    "em_steps": max(0, len(ll) - 1),
+                } | _spread(throw(aims).hit - test[0][1])
+                if candidates is not None:
+                    best = rms(_best_candidate(candidates, test[0][1]))
+                    row |= {"best_rms_y_m": float(best[0]), "best_rms_z_m": float(best[1])}
+                layouts.append(row)
             curve = ll if layout == "adaptive" and k == config.bins[-1] else curve
             grid_model = model if layout == "grid" and k == config.bins[-1] else grid_model
     k = config.bins[-1]
@@ -462,6 +541,12 @@ def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
     start = _aims(grid_model, test[0][1], window[0])  # Newton from the grid's answers
     aims = local_inverse(*train[0], test[0][1], start, config.neighbours)
     floor = {"neighbours": config.neighbours} | _spread(throw(aims).hit - test[0][1])
+    free = ~throw(train[0][0]).clamped  # where the map is smooth
+    pieces = []
+    for k in config.bins:
+        residual = plane_residuals(*train[0], k, use=free)
+        y, z = rms(residual[~np.isnan(residual[:, 0])])
+        pieces.append({"bins": k, "n_clusters": k * k, "rms_y_m": float(y), "rms_z_m": float(z)})
 
     active = {
         strategy: _active_curve(
@@ -491,6 +576,7 @@ def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
         noisy_bound=bound,
         em_log_likelihoods=curve,
         floor=floor,
+        pieces=pieces,
         active=active,
         goals={name: bool(ok) for name, ok in goals.items()},
     )
@@ -522,6 +608,14 @@ def plot_adaptive_throw(result: AdaptiveThrowResult, path) -> Path:
             )
     worst = max(result.floor["rms_y_m"], result.floor["rms_z_m"])
     ax.axhline(100 * worst, color="grey", ls=":", lw=1, label="local Newton floor")
+    ax.plot(
+        [r["n_clusters"] for r in result.pieces],
+        [100 * max(r["rms_y_m"], r["rms_z_m"]) for r in result.pieces],
+        color="grey",
+        ls="-.",
+        marker=".",
+        label="best planes per cell, unclamped (curvature)",
+    )
     ax.axhline(100 * GOAL_RMS_M, color="black", ls="-.", lw=1, label="goal")
     ax.set(
         xscale="log",
@@ -531,7 +625,8 @@ def plot_adaptive_throw(result: AdaptiveThrowResult, path) -> Path:
         title="Error against cluster count (noise-free)",
     )
     _plain_ticks(ax, sorted({r["n_clusters"] for r in result.layouts}))
-    low = min(100 * GOAL_RMS_M, *(100 * max(r["rms_y_m"], r["rms_z_m"]) for r in result.layouts))
+    shown = [*result.layouts, *result.pieces]
+    low = min(100 * GOAL_RMS_M, *(100 * max(r["rms_y_m"], r["rms_z_m"]) for r in shown))
     ax.set_ylim(bottom=low / 40)  # room for the legend below the curves
     ax.legend(fontsize=7, loc="lower left")
     ax_ll.plot(result.em_log_likelihoods, "o-", ms=3)

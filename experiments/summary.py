@@ -204,7 +204,11 @@ def adaptive_throw_rows(r: Results) -> list[str]:
         if effect is None:
             layouts.append(f"{layout} {cm(post)} ({fit})")
         else:
-            layouts.append(f"{layout} {cm(effect)} ({fit}; posterior query {cm(post)})")
+            best = ""
+            if "best_rms_y_m" in effect:
+                pick = {"rms_y_m": effect["best_rms_y_m"], "rms_z_m": effect["best_rms_z_m"]}
+                best = f"; best of its candidates {cm(pick)}"
+            layouts.append(f"{layout} {cm(effect)} ({fit}; posterior query {cm(post)}{best})")
         post, effect = (last(t["noisy"], layout, q) for q in ("posterior", "effect"))
         if effect is None:
             noisy.append(f"{layout} {ratio(post)}")
@@ -212,6 +216,9 @@ def adaptive_throw_rows(r: Results) -> list[str]:
             noisy.append(f"{layout} {ratio(effect)} (posterior query {ratio(post)})")
     bound = t.get("noisy_bound")
     floor = f"local Newton inverse of the training throws {cm(t['floor'])}"
+    pieces = [row for row in t.get("pieces", ()) if row["n_clusters"] == k]
+    if pieces:
+        floor += f"; one best plane per cell (unclamped) leaves {cm(pieces[0])}"
     if bound is not None:
         floor += f"; with noise, the noise-free throw inverted: {ratio(bound)}"
     random, active = t["active"]["random"][-1], t["active"]["information"][-1]

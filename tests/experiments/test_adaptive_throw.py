@@ -9,6 +9,7 @@ from experiments.adaptive_throw import (
     AdaptiveThrowConfig,
     AdaptiveThrowResult,
     local_inverse,
+    plane_residuals,
     run_adaptive_throw,
 )
 from experiments.config import ConfigError
@@ -50,6 +51,13 @@ def test_runs_and_writes_its_results(tmp_path):
     for row in [*saved["noisy"], saved["noisy_bound"]]:
         assert row["ratio_y"] == pytest.approx(row["rms_y_m"] / row["scatter_y_m"])
         assert row["scatter_y_m"] > 0 and row["scatter_z_m"] > 0
+    for row in saved["layouts"]:  # the best candidate is at least as good as the chosen one
+        assert ("best_rms_y_m" in row) == (row["query"] == "effect")
+        if row["query"] == "effect":
+            best = row["best_rms_y_m"] ** 2 + row["best_rms_z_m"] ** 2
+            assert best <= row["rms_y_m"] ** 2 + row["rms_z_m"] ** 2 + 1e-15
+    assert [r["n_clusters"] for r in saved["pieces"]] == [4, 9]
+    assert all(r["rms_y_m"] >= 0 and r["rms_z_m"] > 0 for r in saved["pieces"])
     assert all(r["em_steps"] == 0 for r in saved["layouts"] if r["layout"] == "grid")
     assert all(1 <= r["em_steps"] <= 3 for r in saved["layouts"] if r["layout"] == "adaptive")
     curve = np.array(saved["em_log_likelihoods"])
@@ -60,6 +68,29 @@ def test_runs_and_writes_its_results(tmp_path):
     assert (tmp_path / "adaptive_throw.png").stat().st_size > 10_000
     text = (tmp_path / "adaptive_throw.md").read_text()
     assert "| 9 | adaptive | effect |" in text and "physics' bound" in text
+    assert "least-squares plane per equidistant cell" in text
+
+
+def test_plane_residuals_vanish_on_planes_and_match_a_parabola():
+    """Exact per cell on a map that is a different plane in every cell; on a parabola,
+    the residual RMS of a line over a cell of width h, a * h**2 / (6 * sqrt(5))."""
+    rng = np.random.default_rng(1)
+    targets = rng.uniform([-1.0, 0.4], [1.0, 2.4], (200_000, 2))
+    cell = np.minimum((targets - [-1.0, 0.4]) // 0.5, 3).astype(int) @ [4, 1]  # 4 x 4 cells
+    slopes = rng.normal(size=(16, 2, 2))
+    hits = np.einsum("nij,nj->ni", slopes[cell], targets) + rng.normal(size=(16, 2))[cell]
+    assert np.abs(plane_residuals(targets, hits, 4)).max() < 1e-9
+    curved = np.column_stack([targets[:, 0], 0.1 * targets[:, 1] ** 2])
+    residual = plane_residuals(targets, curved, 4)
+    assert np.abs(residual[:, 0]).max() < 1e-9
+    want = 0.1 * 0.5**2 / (6 * np.sqrt(5))
+    assert np.sqrt(np.mean(residual[:, 1] ** 2)) == pytest.approx(want, rel=0.01)
+    # a plane across the cells leaves the rows of one cell out: no residual there
+    use = cell != 5
+    residual = plane_residuals(targets, curved, 4, use=use)
+    assert np.isnan(residual[~use]).all() and not np.isnan(residual[use]).any()
+    few = plane_residuals(targets[:3], curved[:3], 1)
+    assert np.isnan(few).all()  # three rows cannot fix a plane and its residual
 
 
 def test_the_local_inverse_is_exact_on_a_quadratic_map():

@@ -262,6 +262,7 @@ def test_adaptive_throw_rows_with_both_queries(tmp_path):
             ("adaptive", "effect", 0.00001, 0.0008),
         )
     ]
+    layouts[-1] |= {"best_rms_y_m": 0.00002, "best_rms_z_m": 0.0002}
     noisy = [
         {"layout": layout, "query": query, "ratio_y": a, "ratio_z": b}
         for layout, query, a, b in (
@@ -277,6 +278,10 @@ def test_adaptive_throw_rows_with_both_queries(tmp_path):
                 "layouts": layouts,
                 "noisy": noisy,
                 "noisy_bound": {"ratio_y": 1.07, "ratio_z": 1.10},
+                "pieces": [
+                    {"n_clusters": n, "rms_y_m": 0.0, "rms_z_m": z}
+                    for n, z in ((64, 0.00045), (256, 0.00012))
+                ],
             }
             | THROW_FLOOR_AND_ACTIVE
         )
@@ -284,11 +289,15 @@ def test_adaptive_throw_rows_with_both_queries(tmp_path):
     text = summary.summary_markdown(tmp_path)
     assert (
         "(256 clusters, noise-free, inverse model; goal 0.01 cm, fit < 2 s) | - | adaptive "
-        "0.001 / 0.080 cm (fit 2.0 s, 5 EM steps; posterior query 0.120 / 0.060 cm), grid "
+        "0.001 / 0.080 cm (fit 2.0 s, 5 EM steps; posterior query 0.120 / 0.060 cm; best "
+        "of its candidates 0.002 / 0.020 cm), grid "
         "0.120 / 0.170 cm (fit 2.00 s; posterior query 0.210 / 0.200 cm)" in text
     )
     assert (
         "times the noise's own scatter: adaptive 1.08 / 1.12 (posterior query 1.13 / 1.16), "
         "grid 1.14 / 1.17 (posterior query 1.15 / 1.18) (goal 1.05)" in text
     )
-    assert "; with noise, the noise-free throw inverted: 1.07 / 1.10 |" in text
+    assert (
+        "; one best plane per cell (unclamped) leaves 0.000 / 0.012 cm; with noise, the "
+        "noise-free throw inverted: 1.07 / 1.10 |" in text
+    )
