@@ -235,7 +235,14 @@ def plane_residuals(targets, hits, bins, use=None):
     equal cells does not re-throw.
     """
     targets, hits = np.asarray(targets, dtype=float), np.asarray(hits, dtype=float)
-    use = np.ones(len(targets), dtype=bool) if use is None else np.asarray(use, dtype=bool)
+    if targets.ndim != 2 or targets.shape[1] != 2 or hits.shape != targets.shape:
+        raise ValueError(
+            f"targets {targets.shape} and hits {hits.shape}: expected two (n, 2) arrays of "
+            "[y, z] in metres, one row per throw"
+        )
+    use = np.ones(len(targets), dtype=bool) if use is None else np.asarray(use)
+    if use.shape != (len(targets),) or use.dtype != bool:
+        raise ValueError(f"use: expected a boolean mask of shape ({len(targets)},)")
     m = throw_network((bins, bins)).mixture(TARGET)
     action = torch.zeros(len(targets), dtype=torch.long)
     cell = m.cells(torch.as_tensor(targets), action).numpy()

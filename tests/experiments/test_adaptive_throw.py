@@ -93,6 +93,21 @@ def test_plane_residuals_vanish_on_planes_and_match_a_parabola():
     assert np.isnan(few).all()  # three rows cannot fix a plane and its residual
 
 
+@pytest.mark.parametrize(
+    ("targets", "hits", "bins", "use", "match"),
+    [
+        (np.zeros((5, 2)), np.zeros((4, 2)), 2, None, "two \\(n, 2\\) arrays"),
+        (np.zeros((5, 3)), np.zeros((5, 3)), 2, None, "two \\(n, 2\\) arrays"),
+        (np.ones((5, 2)), np.ones((5, 2)), 2, np.ones(4, dtype=bool), "boolean mask"),
+        (np.ones((5, 2)), np.ones((5, 2)), 2, np.ones(5), "boolean mask"),
+        (np.ones((5, 2)), np.ones((5, 2)), 0, None, "bins"),
+    ],
+)
+def test_plane_residuals_refuses_bad_input(targets, hits, bins, use, match):
+    with pytest.raises(ValueError, match=match):
+        plane_residuals(targets, hits, bins, use=use)
+
+
 def test_the_local_inverse_is_exact_on_a_quadratic_map():
     """A quadratic forward map is fitted exactly, and Newton converges on its inverse."""
     rng = np.random.default_rng(0)
