@@ -12,24 +12,28 @@ figure is the median over ``--repeats`` runs of ``time.perf_counter`` after one 
 Goals (issue 4, tightened by issue 11): fit under 50 ms; batched inverse at most 5 us per
 query; one query at most 100 us. ``--profile`` prints where a query's time goes, stage by stage.
 Also timed, without a goal: the inverse model (:func:`inference.parameter_for_effect`),
-batched over ``--effect-rows`` hits, which evaluates the model at every cluster's candidate.
+batched over ``--effect-rows`` hits, on the grid clusters and on the same clusters made
+adaptive (5 EM steps), the latter beside the model scoring every cluster's candidate.
 """
 
 from __future__ import annotations
 
 import argparse
 import cProfile
+import dataclasses
 import os
 import platform
 import pstats
+from unittest import mock
 
 import numpy as np
 import pyro
 import torch
 from timing import median_seconds  # benchmarks/timing.py, beside this script
 
-from inference import fit, infer_parameter, parameter_for_effect
+from inference import fit, fit_em, infer_parameter, parameter_for_effect
 from inference.compiled import compile_parameter_query
+from models.declaration import EffectNetwork
 from models.throw_network import TARGET, throw_data, throw_network
 from sim2d.throw import sample_targets, throw
 
@@ -76,6 +80,25 @@ def measure_compiled(net, data, hits, repeats: int, singles: int) -> dict[str, f
 
     single_s = median_seconds(single_queries, repeats) / len(one)
     return {"compile": compile_s, "batched": batched_s / len(hits), "single": single_s}
+
+
+def measure_effect_adaptive(net, targets, hits, rows, repeats: int) -> dict[str, float]:
+    """Seconds per hit of the inverse model on the same clusters made adaptive (5 EM
+    steps), scored in closed form, beside the model scoring every candidate (the peer:
+    what the query did before the closed form, and still does where it does not apply)."""
+    target = dataclasses.replace(net.parameters[0], layout="adaptive")
+    adaptive = EffectNetwork(net.features, net.actions, (target,))
+    params = fit_em(adaptive, throw_data(adaptive, targets, hits), steps=5).params
+    n = len(rows["end.hit"])
+    seconds = median_seconds(lambda: parameter_for_effect(adaptive, params, TARGET, rows), repeats)
+    with mock.patch("inference.queries._candidate_scores", return_value=None):
+        peer = median_seconds(lambda: parameter_for_effect(adaptive, params, TARGET, rows), 1)
+    print(
+        f"inverse model on the same clusters made adaptive (5 EM steps), per query: "
+        f"{1e3 * seconds / n:.2f} ms; the model scoring every candidate (peer): "
+        f"{1e3 * peer / n:.2f} ms ({peer / seconds:.1f}x)"
+    )
+    return {"effect_adaptive": seconds / n, "effect_adaptive_peer": peer / n}
 
 
 #: Stages of one inverse query, as (file suffix, function) in the profile.
@@ -187,6 +210,8 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
             "paper's query)"
         )
         seconds["effect_batched"] = effect_s
+        train = (targets[: args.n_train], hits[: args.n_train])
+        seconds |= measure_effect_adaptive(net, *train, rows, min(args.repeats, 3))
         if args.also_without_validation:
             with pyro.validation_enabled(False):
                 report(
