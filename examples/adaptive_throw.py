@@ -10,7 +10,7 @@ plane per cell leaves of the map's curvature, and re-throw RMS against the numbe
 throws for actively chosen and random targets. Writes
 ``adaptive_throw.json``, ``adaptive_throw.md`` and ``adaptive_throw.png`` to ``--out``::
 
-    .venv/bin/python examples/adaptive_throw.py [--n-train 29000] [--bins 4 8 12 16]
+    .venv/bin/python examples/adaptive_throw.py [--n-train 29000] [--bins 4 8 12 16 20]
     .venv/bin/python examples/adaptive_throw.py --quick          # small sizes, seconds
 """
 
@@ -36,7 +36,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--n-train", type=int, default=29_000)
     parser.add_argument("--n-test", type=int, default=1_000)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--bins", type=int, nargs="+", default=[4, 8, 12, 16])
+    parser.add_argument("--bins", type=int, nargs="+", default=[4, 8, 12, 16, 20])
+    parser.add_argument(
+        "--noisy-bins", type=int, default=16, help="clusters per axis with release noise"
+    )
     parser.add_argument(
         "--em-steps", type=int, nargs="+", default=[5, 20], help="EM checkpoints to measure"
     )
@@ -45,6 +48,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--pool", type=int, default=2000)
     parser.add_argument(
         "--noise-repeats", type=int, default=10, help="re-throws per hit with release noise"
+    )
+    parser.add_argument(
+        "--pseudo-count",
+        type=float,
+        default=0.0,
+        help="every fit's pseudo-count (the library's default is 0.01)",
     )
     parser.add_argument("--out", default="results")
     parser.add_argument("--quick", action="store_true", help="2000 + 200 throws, small grids")
@@ -56,6 +65,7 @@ def parse_args(argv=None) -> argparse.Namespace:
         "n_train": args.n_train,
         "n_test": args.n_test,
         "bins": tuple(args.bins),
+        "noisy_bins": args.noisy_bins,
         "em_steps": tuple(args.em_steps),
         "budgets": tuple(args.budgets),
         "batch": args.batch,
@@ -65,7 +75,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     if args.quick:
         sizes |= QUICK
     args.config = config_or_exit(
-        parser, lambda: AdaptiveThrowConfig(**sizes, seed=args.seed, progress=not args.quiet)
+        parser,
+        lambda: AdaptiveThrowConfig(
+            **sizes, seed=args.seed, pseudo_count=args.pseudo_count, progress=not args.quiet
+        ),
     )
     return args
 

@@ -4,6 +4,7 @@ import json
 
 import numpy as np
 import pytest
+import torch
 
 from experiments.adaptive_throw import (
     AdaptiveThrowConfig,
@@ -18,6 +19,7 @@ TINY = {
     "n_train": 400,
     "n_test": 40,
     "bins": (2, 3),
+    "noisy_bins": 2,
     "em_steps": (1, 3),
     "budgets": (40, 80),
     "batch": 20,
@@ -31,6 +33,7 @@ def test_runs_and_writes_its_results(tmp_path):
     result = run_adaptive_throw(AdaptiveThrowConfig(**TINY, seed=2))
     result.save(tmp_path)
     saved = json.loads((tmp_path / "adaptive_throw.json").read_text())
+    assert saved["pseudo_count"] == 0.0
     assert AdaptiveThrowResult.load(tmp_path / "adaptive_throw.json").to_json() == result.to_json()
     assert [(r["layout"], r["n_clusters"], r["query"]) for r in saved["layouts"]] == [
         (layout, k, query)
@@ -47,6 +50,7 @@ def test_runs_and_writes_its_results(tmp_path):
         ("adaptive", "posterior"),
         ("adaptive", "effect"),
     ]
+    assert all(r["n_clusters"] == 4 for r in saved["noisy"])  # noisy_bins, not bins[-1]
     assert 0 <= saved["noisy_bound"]["miss_median_m"] <= saved["noisy_bound"]["miss_p90_m"]
     for row in [*saved["noisy"], saved["noisy_bound"]]:
         assert row["ratio_y"] == pytest.approx(row["rms_y_m"] / row["scatter_y_m"])
@@ -133,8 +137,35 @@ def test_the_local_inverse_is_exact_on_a_quadratic_map():
         ("budgets", (5,)),
         ("pool", 10),
         ("noise_repeats", 0),
+        ("pseudo_count", -0.1),
+        ("noisy_bins", 0),
+        ("pseudo_count", float("nan")),
     ],
 )
 def test_config_names_the_field_at_fault(field, value):
     with pytest.raises(ConfigError, match=f"^{field}: "):
         AdaptiveThrowConfig(**{field: value})
+
+
+@pytest.mark.parametrize("layout", ["grid", "adaptive"])
+def test_every_fit_takes_the_configured_pseudo_count(layout):
+    """The fits are the library's with the config's pseudo-count, not its default."""
+    from experiments.adaptive_throw import _fit, adaptive_throw_network
+    from inference import fit, fit_em
+    from models.throw_network import throw_data, throw_network
+    from sim2d.throw import sample_targets, throw
+
+    targets = sample_targets(300, np.random.default_rng(0))
+    train = (targets, throw(targets).hit)
+    config = AdaptiveThrowConfig(**TINY | {"em_steps": (2,), "pseudo_count": 0.5})
+    (net, params), _, _ = _fit(layout, 3, train, config)[-1]
+    if layout == "grid":
+        net = throw_network((3, 3))
+        want = fit(net, throw_data(net, *train), pseudo_count=0.5).params
+    else:
+        net = adaptive_throw_network((3, 3))
+        want = fit_em(net, throw_data(net, *train), steps=2, pseudo_count=0.5).params
+    assert torch.allclose(params["cluster.target"].probs, want["cluster.target"].probs)
+    for site in ("param.target", "end.hit"):
+        assert torch.allclose(params[site].bias, want[site].bias)
+        assert torch.allclose(params[site].covariance, want[site].covariance)
