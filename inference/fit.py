@@ -86,6 +86,12 @@ def fit(
         chunk's sufficient statistics are computed and summed
         (:mod:`inference.statistics`), so the rows never need to be in memory together.
         Chunks serve networks whose CPDs all have a closed form, without ``masks``.
+    pseudo_count, min_variance
+        The pseudo-count policy (README, "Unseen configurations") and the covariance
+        floor. A linear Gaussian's pseudo-rows are its site's pooled statistics, spread
+        and all: against a configuration whose inputs span a small part of the pooled
+        range they weigh like ``(pooled spread / own spread)**2 * pseudo_count`` rows
+        in its slope. Pass 0 when every configuration has rows enough.
     masks
         ``(n,)`` bool per discrete site, False where the row's value is missing.
     steps, lr, l2, tol, progress
