@@ -30,6 +30,15 @@ def one_d_params(net, n=400, seed=0, noise=0.05, curve=lambda t: torch.sin(6 * t
     return fit(net, rows).params
 
 
+def tap_net():
+    """A force acting on a continuous position and on a discrete visibility."""
+    return EffectNetwork(
+        (Discrete("visible", (0, 1)), Continuous("pos", 1, initial=False)),
+        ("remove", "tap"),
+        (Parameter("force", (0.0,), (10.0,), (3,), ("tap",), ("pos", "visible")),),
+    )
+
+
 def normal(x, mean, var):
     return -0.5 * (math.log(2 * math.pi * var) + (x - mean) ** 2 / var)
 
@@ -186,11 +195,7 @@ def test_several_effects_are_weighed_by_their_noise():
 
 
 def test_refusals_and_empty_evidence():
-    net = EffectNetwork(
-        (Discrete("visible", (0, 1)), Continuous("pos", 1, initial=False)),
-        ("remove", "tap"),
-        (Parameter("force", (0.0,), (10.0,), (3,), ("tap",), ("pos", "visible")),),
-    )
+    net = tap_net()
     g = torch.Generator().manual_seed(0)
     n = 200
     a = torch.randint(0, 2, (n,), generator=g)
@@ -426,11 +431,7 @@ def _two_parameters_case():
 def _discrete_effect_case():
     """The force also acts on a discrete feature: its table depends on the cluster, so
     the closed-form scores do not apply and the model scores every candidate."""
-    net = EffectNetwork(
-        (Discrete("visible", (0, 1)), Continuous("pos", 1, initial=False)),
-        ("remove", "tap"),
-        (Parameter("force", (0.0,), (10.0,), (3,), ("tap",), ("pos", "visible")),),
-    )
+    net = tap_net()
     g = torch.Generator().manual_seed(0)
     n = 200
     force = torch.rand(n, 1, generator=g, dtype=DTYPE) * 10
