@@ -15,9 +15,10 @@ uniform targets on the 2 m x 2 m area, their hits, re-throw RMS per axis ``y``, 
   re-thrown with release noise, each desired hit re-thrown ``noise_repeats`` times, beside
   the noise's own scatter (the same throws about their noise-free hits) and beside the
   physics' bound: the noise-free throw inverted (:func:`local_inverse` on the noise-free
-  training throws, about 0.1 cm from exact at full scale), which no model of the noisy
-  throws can beat by more than that. As an honest floor
-  of the noise-free rows, what the training throws support at all: per test hit,
+  training throws, within about 0.1 cm of exact at full scale), which no model of the noisy
+  throws can beat by more than that. As a reference for
+  the noise-free rows (the result's ``floor``), what a local fit makes of the training
+  throws: per test hit,
   Newton's method on a local quadratic forward model fitted to the ``neighbours``
   training throws nearest the current aim (:func:`local_inverse`). Two measurements say
   where the inverse model's error comes from: per row, the best of its candidates (the
@@ -116,7 +117,7 @@ class AdaptiveThrowConfig:
         tilts its regression towards the pooled one (measured in README). With thousands
         of noise-free throws no cluster needs them.
     neighbours : int
-        Training throws per local quadratic fit of the floor (>= 6).
+        Training throws per local quadratic fit of the reference (>= 6).
     budgets : tuple of int
         Throw counts at which the active and random curves are measured (increasing;
         the first is thrown at random targets by both).
@@ -396,7 +397,7 @@ class AdaptiveThrowResult(Result):
     inverse of the noise-free throw, with the median and 90th percentile of its
     noise-free miss (``miss_median_m``, ``miss_p90_m``: how far the desired hits lie
     beyond what a noise-free throw reaches). ``em_log_likelihoods``: the
-    largest adaptive fit's curve (mean per-row). ``floor``: the local Newton inverse.
+    largest adaptive fit's curve (mean per-row). ``floor``: the local Newton inverse (a reference).
     The inverse model's rows also hold ``best_rms_*``: the re-throw RMS had each row
     taken the cluster candidate that the throw itself says misses least (a perfect
     choice among the model's answers). ``pieces``: per grid size, the RMS residual of one
@@ -420,7 +421,8 @@ class AdaptiveThrowResult(Result):
     goals: dict[str, bool]
 
     def to_markdown(self) -> str:
-        """Both layouts side by side, the floor, the active curves and the goals, in cm."""
+        """Both layouts side by side, the references, the active curves and the goals, in
+        cm."""
         cm = 100.0
         lines = [
             f"# Adaptive clusters and active throw targets ({self.n_train} training throws, "
@@ -446,7 +448,7 @@ class AdaptiveThrowResult(Result):
         f = self.floor
         lines += [
             f"| - | Newton on local quadratic fits to the {f['neighbours']} nearest training "
-            f"throws (what the data support) | - | - | - | {cm * f['rms_y_m']:.4f} | "
+            f"throws (a reference) | - | - | - | {cm * f['rms_y_m']:.4f} | "
             f"{cm * f['rms_z_m']:.4f} | {cm * f['median_m']:.4f} | {cm * f['p99_m']:.3f} | - |",
             "",
             "Best candidate: the re-throw RMS had every hit taken the cluster candidate of the "
@@ -517,7 +519,8 @@ class AdaptiveThrowResult(Result):
 
 
 def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
-    """Both layouts per grid size, the noisy comparison, the floor and the active curves."""
+    """Both layouts per grid size, the noisy comparison, the references and the active
+    curves."""
     n = config.n_train + config.n_test
     seeds = np.random.SeedSequence(config.seed).spawn(5)
     exact = get_data(n, np.random.default_rng(seeds[0]), None)
@@ -616,7 +619,7 @@ def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
 
 
 def plot_adaptive_throw(result: AdaptiveThrowResult, path) -> Path:
-    """Error against cluster count (both layouts, the floor) and the active curves."""
+    """Error against cluster count (both layouts, the references) and the active curves."""
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(13, 4.5), layout="constrained")
@@ -640,7 +643,7 @@ def plot_adaptive_throw(result: AdaptiveThrowResult, path) -> Path:
                 label=f"{label}, {query}",
             )
     worst = max(result.floor["rms_y_m"], result.floor["rms_z_m"])
-    ax.axhline(100 * worst, color="grey", ls=":", lw=1, label="local Newton floor")
+    ax.axhline(100 * worst, color="grey", ls=":", lw=1, label="local Newton (reference)")
     ax.plot(
         [r["n_clusters"] for r in result.pieces],
         [100 * max(r["rms_y_m"], r["rms_z_m"]) for r in result.pieces],

@@ -241,12 +241,12 @@ def test_adaptive_throw_rows(tmp_path):
     text = summary.summary_markdown(tmp_path)
     assert (
         "(256 clusters, noise-free, posterior query; goal 0.01 cm, fit < 2 s) | - | "
-        "adaptive 0.080 / 0.060 cm (fit 1.5 s, 7 EM steps), grid 0.210 / 0.200 cm (fit 1.50 s)"
-        in text
+        "adaptive 0.0800 / 0.0600 cm (fit 1.5 s, 7 EM steps), grid 0.2100 / 0.2000 cm "
+        "(fit 1.50 s)" in text
     )
     assert "adaptive 1.05 / 1.10, grid 1.15 / 1.15 (goal 1.05)" in text
-    assert "local Newton inverse of the training throws 0.030 / 0.040 cm |" in text
-    assert "after 4000 throws | - | active 0.400 / 0.700 cm, random 0.500 / 0.600 cm" in text
+    assert "local Newton inverse of the training throws 0.0300 / 0.0400 cm |" in text
+    assert "after 4000 throws | - | active 0.4000 / 0.7000 cm, random 0.5000 / 0.6000 cm" in text
 
 
 def test_adaptive_throw_rows_with_both_queries(tmp_path):
@@ -289,15 +289,49 @@ def test_adaptive_throw_rows_with_both_queries(tmp_path):
     text = summary.summary_markdown(tmp_path)
     assert (
         "(256 clusters, noise-free, inverse model; goal 0.01 cm, fit < 2 s) | - | adaptive "
-        "0.001 / 0.080 cm (fit 2.0 s, 5 EM steps; posterior query 0.120 / 0.060 cm; best "
-        "of its candidates 0.002 / 0.020 cm), grid "
-        "0.120 / 0.170 cm (fit 2.00 s; posterior query 0.210 / 0.200 cm)" in text
+        "0.0010 / 0.0800 cm (fit 2.0 s, 5 EM steps; posterior query 0.1200 / 0.0600 cm; best "
+        "of its candidates 0.0020 / 0.0200 cm), grid "
+        "0.1200 / 0.1700 cm (fit 2.00 s; posterior query 0.2100 / 0.2000 cm)" in text
     )
     assert (
         "times the noise's own scatter: adaptive 1.08 / 1.12 (posterior query 1.13 / 1.16), "
         "grid 1.14 / 1.17 (posterior query 1.15 / 1.18) (goal 1.05)" in text
     )
     assert (
-        "; one best plane per cell (unclamped) leaves 0.000 / 0.012 cm; with noise, the "
+        "; one best plane per cell (unclamped) leaves 0.0000 / 0.0120 cm; with noise, the "
         "noise-free throw inverted: 1.07 / 1.10 |" in text
     )
+
+
+def test_adaptive_throw_rows_show_the_goals_checkpoint_and_the_noisy_size(tmp_path):
+    """The adaptive fit at its best checkpoint fitted in under 2 s (not its last, slower
+    one), and the noisy comparison at its own cluster count."""
+    layouts = [
+        {"layout": layout, "query": query, "n_clusters": 400, "fit_s": fit_s, "em_steps": steps}
+        | {"rms_y_m": y, "rms_z_m": z}
+        for layout, query, fit_s, steps, y, z in (
+            ("grid", "posterior", 0.02, 0, 0.001, 0.0012),
+            ("grid", "effect", 0.02, 0, 0.0006, 0.0011),
+            ("adaptive", "posterior", 1.4, 5, 0.00004, 0.00007),
+            ("adaptive", "effect", 1.4, 5, 0.0, 0.00008),
+            ("adaptive", "posterior", 5.0, 20, 0.0, 0.00006),
+            ("adaptive", "effect", 5.0, 20, 0.0, 0.00005),
+        )
+    ]
+    noisy = [
+        {"layout": layout, "query": query, "n_clusters": 256, "ratio_y": 1.1, "ratio_z": 1.2}
+        for layout in ("grid", "adaptive")
+        for query in ("posterior", "effect")
+    ]
+    (tmp_path / "adaptive_throw.json").write_text(
+        json.dumps(
+            {"layouts": layouts, "noisy": noisy, "noisy_bound": {"ratio_y": 1.07, "ratio_z": 1.1}}
+            | THROW_FLOOR_AND_ACTIVE
+        )
+    )
+    text = summary.summary_markdown(tmp_path)
+    assert (
+        "adaptive 0.0000 / 0.0080 cm (fit 1.4 s, 5 EM steps; posterior query 0.0040 / 0.0070 cm)"
+        in text
+    )
+    assert "with release noise (256 clusters), times the noise's own scatter: adaptive 1.10" in text
