@@ -54,7 +54,7 @@ from models.declaration import (
     param_site,
 )
 from models.evidence import Evidence, is_partial
-from models.gaussian import condition_on_observed, mask_unobserved
+from models.gaussian import condition_on_observed
 from models.params import NetworkParams, check_params
 
 LOG_2PI = math.log(2 * math.pi)
@@ -649,9 +649,10 @@ def parameter_for_effect(
     given, acting = _given_others(net, m, enc, children, "parameter_for_effect")
     n, c = enc.n_rows, p.n_clusters
     every = torch.arange(c).expand(n, -1)
-    candidates, miss = m.best_fit(params, children, given, every, acting=acting)  # (n, C, d)
+    whitened = m.whitened(params, children, given, every, acting=acting)
+    candidates, miss = m.best_fit(params, whitened, every)  # (n, C, d), (n, C)
     rows = torch.arange(n)
-    fast = _candidate_scores(net, params, m, given, children, acting, candidates)
+    fast = _candidate_scores(net, params, m, given, children, acting, candidates, whitened)
     if fast is None:  # a factor beyond the mixture depends on the value: the model scores all
         scored = enc.repeat(c)
         scored = Evidence(net, dict(scored) | {m.value.site: candidates.reshape(n * c, -1)}, n * c)
@@ -681,10 +682,12 @@ def parameter_for_effect(
 _SCORE_CHUNK = 1 << 18
 
 
-def _candidate_scores(net, params, m, given: Evidence, children, acting, candidates):
+def _candidate_scores(net, params, m, given: Evidence, children, acting, candidates, whitened):
     """``log sum_c' p(c' | action) p(theta | c') prod_j p(y_j | ..., c', theta)`` for every
-    row and candidate ``theta`` ``(n, C, k)``: the factors of ``log p(theta, evidence)``
-    that depend on the value (the grid's cell factor included), in closed form. The other
+    row and candidate ``theta`` ``(n, C, k)``, from the children's ``whitened`` terms
+    (:meth:`models.cpds.mixture.ParameterMixture.whitened`): the factors of
+    ``log p(theta, evidence)`` that depend on the value (the grid's cell factor included),
+    in closed form. The other
     factors are a constant per row. None where that does not hold: a site other than the
     observed continuous ``children`` depends on the cluster or the value, the cluster has
     parents besides the action, or a child's other continuous inputs are not all given.
@@ -704,22 +707,7 @@ def _candidate_scores(net, params, m, given: Evidence, children, acting, candida
             if site not in others and (site not in given or bool(torch.isnan(given[site]).any())):
                 return None
     n, c, k = candidates.shape
-    every = torch.arange(c).expand(n, -1)
-    # per row and scoring cluster c': the whitened slopes on the value and the whitened
-    # observation, so that each child's squared distance is |b - A theta|^2
-    slopes, targets, log_norm = [], [], 0.0
-    for child in children:
-        w_p, offset, noise, y = m.linear_terms(params, child, given, every, acting)
-        if bool(torch.isnan(y).any()):
-            y, offset, noise, seen = mask_unobserved(y, offset, noise)
-            w_p = torch.where(seen[..., None], w_p, 0.0)
-        tril = torch.linalg.cholesky(noise)
-        slopes.append(torch.linalg.solve_triangular(tril, w_p, upper=False))
-        targets.append(torch.linalg.solve_triangular(tril, (y - offset)[..., None], upper=False))
-        d = tril.shape[-1]
-        log_norm = log_norm - tril.diagonal(dim1=-2, dim2=-1).log().sum(-1) - d / 2 * LOG_2PI
-    slope = torch.cat(slopes, -2)  # (n or 1, C', D, k)
-    target = torch.cat(targets, -2)[..., 0]  # (n or 1, C', D)
+    slope, target, log_norm = whitened  # the children's, per row and cluster c' (n or 1, C')
     mean, cov = m.belief(params, torch.arange(c))  # (C', k), (C', k, k)
     tril = torch.linalg.cholesky(cov)
     eye = torch.eye(k, dtype=cov.dtype).expand_as(cov)

@@ -325,36 +325,57 @@ class ParameterMixture:
             prior = self.condition(params, child, values, cluster, prior, acting)
         return prior
 
-    def best_fit(
+    def whitened(
         self,
         params: Mapping,
         children: list[LinearGaussianCPD],
         values: Mapping[str, torch.Tensor],
         cluster: torch.Tensor,
         acting: tuple[ParameterMixture, ...] = (),
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """The value under which the observed ``children`` are most likely given the
-        cluster (arguments as for :meth:`posterior`): the weighted least-squares solution
-        of ``y_j = offset_j + W_j theta`` over the children, each weighted by its inverse
-        noise covariance. Where the children leave some directions of ``theta`` free (fewer
-        effect dims than parameter dims, or a zero weight), the solution nearest the
-        cluster's mean in the cluster's own metric (a ridge ``1e-10`` times the data term's
-        size, towards the mean). A child observed in some dimensions only (NaN in the
-        others) counts with its observed dimensions' marginal. Returns the value ``(..., k)`` and the children's squared
-        Mahalanobis distance from their prediction at it, summed ``(...)``: zero when the
-        value produces the observed effect exactly."""
-        info, pull, terms = 0.0, 0.0, []
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """The observed ``children`` stacked and whitened by their noise, per row and
+        cluster (arguments as for :meth:`posterior`): ``(A, b, log_norm)`` such that
+        ``|b - A theta|^2`` is their squared Mahalanobis distance from their prediction at
+        ``theta`` (``A = L^-1 W_p`` ``(..., D, k)``, ``b = L^-1 (y - offset)`` ``(..., D)``,
+        ``L`` each child's noise Cholesky factor) and ``log_norm`` ``(...)`` their
+        Gaussians' log-normaliser, ``-log det L - D/2 log 2 pi``. A child observed in some
+        dimensions only (NaN in the others) counts with its observed dimensions' marginal
+        (each unobserved dimension adds the constant ``-1/2 log 2 pi`` to ``log_norm``)."""
+        slopes, targets, log_norm = [], [], 0.0
         for child in children:
             w_p, offset, noise, y = self.linear_terms(params, child, values, cluster, acting)
             if bool(torch.isnan(y).any()):  # partial evidence: its observed dims only
                 y, offset, noise, seen = mask_unobserved(y, offset, noise)
                 w_p = torch.where(seen[..., None], w_p, 0.0)
             tril = torch.linalg.cholesky(noise)
-            w = torch.linalg.solve_triangular(tril, w_p, upper=False)  # L^-1 W_p
+            slopes.append(torch.linalg.solve_triangular(tril, w_p, upper=False))
             r = torch.linalg.solve_triangular(tril, (y - offset)[..., None], upper=False)
-            info = info + w.mT @ w
-            pull = pull + w.mT @ r
-            terms.append((w, r))
+            targets.append(r[..., 0])
+            d = tril.shape[-1]
+            log_det = tril.diagonal(dim1=-2, dim2=-1).log().sum(-1)
+            log_norm = log_norm - log_det - 0.5 * d * math.log(2 * math.pi)
+        lead = torch.broadcast_shapes(
+            *(t.shape[:-1] for t in targets), *(a.shape[:-2] for a in slopes)
+        )
+        slope = torch.cat([a.expand(*lead, -1, -1) for a in slopes], -2)
+        target = torch.cat([t.expand(*lead, -1) for t in targets], -1)
+        return slope, target, log_norm
+
+    def best_fit(
+        self, params: Mapping, whitened: tuple[torch.Tensor, ...], cluster: torch.Tensor
+    ) -> tuple[torch.Tensor, torch.Tensor]:
+        """The value under which the observed children are most likely given the cluster,
+        from their :meth:`whitened` terms ``(A, b, _)``: the least-squares solution of
+        ``A theta = b``, i.e. of ``y_j = offset_j + W_j theta`` over the children, each
+        weighted by its inverse noise covariance. Where the children leave some directions
+        of ``theta`` free (fewer effect dims than parameter dims, or a zero weight), the
+        solution nearest the cluster's mean in the cluster's own metric (a ridge ``1e-10``
+        times the data term's size, towards the mean). Returns the value ``(..., k)`` and
+        the children's squared Mahalanobis distance from their prediction at it, summed
+        ``(...)``: zero when the value produces the observed effect exactly."""
+        slope, target = whitened[0], whitened[1]
+        info = slope.mT @ slope
+        pull = slope.mT @ target[..., None]
         mean, cov = self.belief(params, cluster)
         precision = torch.cholesky_inverse(torch.linalg.cholesky(cov))
         size = info.diagonal(dim1=-2, dim2=-1).sum(-1)
@@ -362,7 +383,7 @@ class ParameterMixture:
         ridge = (1e-10 * torch.where(size > 0, size, scale) / scale)[..., None, None]
         system = info + ridge * precision
         value = torch.linalg.solve(system, pull + ridge * precision @ mean[..., None])
-        miss = sum(((r - w @ value) ** 2).sum((-2, -1)) for w, r in terms)
+        miss = (target - (slope @ value)[..., 0]).square().sum(-1)
         return value[..., 0], miss
 
     def query_tables(self, params: Mapping, child: LinearGaussianCPD) -> dict[str, torch.Tensor]:

@@ -499,6 +499,10 @@ def test_a_discrete_effect_of_the_cluster_is_scored_by_the_model():
     m = net.mixture(p)
     enc = queries._prepare(net, params, evidence)
     children = [net.cpd("end.pos")]
-    scores = queries._candidate_scores(net, params, m, enc, children, (m,), answer.candidates)
+    every = torch.arange(m.parameter.n_clusters).expand(enc.n_rows, -1)
+    whitened = m.whitened(params, children, enc, every)
+    scores = queries._candidate_scores(
+        net, params, m, enc, children, (m,), answer.candidates, whitened
+    )
     assert scores is None  # end.visible's table depends on the cluster
     assert torch.isfinite(answer.log_density).all()
