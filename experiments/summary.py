@@ -175,8 +175,8 @@ def adaptive_throw_rows(r: Results) -> list[str]:
     k = max(row["n_clusters"] for row in t["layouts"])
     k_noisy = max((row.get("n_clusters", k) for row in t["noisy"]), default=k)
 
-    def last(rows, layout, query, size=k, steps=None):  # the last EM checkpoint by default
-        mine = [
+    def mine(rows, layout, query, size=k, steps=None):  # every EM checkpoint by default
+        return [
             row
             for row in rows
             if row["layout"] == layout
@@ -184,17 +184,13 @@ def adaptive_throw_rows(r: Results) -> list[str]:
             and row.get("n_clusters", size) == size
             and (steps is None or row["em_steps"] == steps)
         ]
-        return mine[-1] if mine else None
+
+    def last(rows, layout, query, size=k, steps=None):  # the last EM checkpoint by default
+        rows = mine(rows, layout, query, size, steps)
+        return rows[-1] if rows else None
 
     def goal_row(layout):  # the best checkpoint fitted within the goal's time, else the last
-        query = "effect" if last(t["layouts"], layout, "effect") else "posterior"
-        rows = [
-            row
-            for row in t["layouts"]
-            if row["layout"] == layout
-            and row.get("query", "posterior") == query
-            and row.get("n_clusters", k) == k
-        ]
+        rows = mine(t["layouts"], layout, "effect") or mine(t["layouts"], layout, "posterior")
         quick = [row for row in rows if row["fit_s"] < 2.0]
         if not quick:
             return rows[-1]
