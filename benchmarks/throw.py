@@ -20,7 +20,6 @@ from __future__ import annotations
 
 import argparse
 import cProfile
-import dataclasses
 import os
 import platform
 import pstats
@@ -31,9 +30,9 @@ import pyro
 import torch
 from timing import median_seconds  # benchmarks/timing.py, beside this script
 
+from experiments.adaptive_throw import adaptive_throw_network
 from inference import fit, fit_em, infer_parameter, parameter_for_effect
 from inference.compiled import compile_parameter_query
-from models.declaration import EffectNetwork
 from models.throw_network import TARGET, throw_data, throw_network
 from sim2d.throw import sample_targets, throw
 
@@ -86,8 +85,7 @@ def measure_effect_adaptive(net, targets, hits, rows, repeats: int) -> dict[str,
     """Seconds per hit of the inverse model on the same clusters made adaptive (5 EM
     steps), scored in closed form, beside the model scoring every candidate (the peer:
     what the query did before the closed form, and still does where it does not apply)."""
-    target = dataclasses.replace(net.parameters[0], layout="adaptive")
-    adaptive = EffectNetwork(net.features, net.actions, (target,))
+    adaptive = adaptive_throw_network(net.parameters[0].bins)
     params = fit_em(adaptive, throw_data(adaptive, targets, hits), steps=5).params
     n = len(rows["end.hit"])
     seconds = median_seconds(lambda: parameter_for_effect(adaptive, params, TARGET, rows), repeats)
