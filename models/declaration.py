@@ -320,6 +320,11 @@ class EffectNetwork:
     _mixtures: dict[str, ParameterMixture] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
+        if isinstance(self.actions, str | bytes) or not hasattr(self.actions, "__iter__"):
+            raise ValueError(
+                f"actions must be a sequence of action names, got {self.actions!r} (one "
+                f"action is written ({self.actions!r},))"
+            )
         object.__setattr__(self, "features", tuple(self.features))
         object.__setattr__(self, "actions", tuple(self.actions))
         object.__setattr__(self, "parameters", tuple(self.parameters))

@@ -133,3 +133,11 @@ def test_fitted_network_round_trips(tmp_path):
     params = fit(NET, data).params
     net2, params2 = load(save(tmp_path / "fitted.pt", NET, params))
     assert net2 == NET and set(params2.cpds) == set(params.cpds)
+
+
+@pytest.mark.parametrize("actions", ["tap", b"tap", 3])
+def test_actions_given_as_one_string_are_refused(actions):
+    # iterating "tap" would declare the three actions 't', 'a', 'p'
+    with pytest.raises(ValueError, match="actions must be a sequence of action names"):
+        EffectNetwork((Continuous("x"),), actions)
+    assert EffectNetwork((Continuous("x"),), ("tap",)).actions == ("tap",)
