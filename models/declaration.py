@@ -127,6 +127,13 @@ class Continuous:
 
 Feature = Discrete | Continuous
 
+#: The most numbers one site's conditional distribution may hold, all its tensors
+#: together (a table: parent configurations x states; a linear Gaussian: configurations x
+#: (d + d * inputs + d * d + 1)). A declaration beyond it is refused, naming the site,
+#: before anything of that size is allocated: 10**8 float64 numbers are 800 MB, and
+#: fitting or querying needs several such arrays.
+MAX_CPD_ENTRIES = 10**8
+
 #: How a parameter's clusters relate to its value (:class:`Parameter`'s ``layout``).
 LAYOUTS = ("grid", "adaptive")
 
@@ -292,7 +299,9 @@ class EffectNetwork:
     ValueError
         Naming the offending feature, site or kind: unknown names, a cycle, an end
         site (or the action) as a parent of an initial one, a continuous end site as a
-        parent, a kind that cannot model its site.
+        parent, a kind that cannot model its site, a site whose conditional distribution
+        would hold more than :data:`MAX_CPD_ENTRIES` numbers (too many bins, or too many
+        discrete parents' configurations).
 
     Examples
     --------
@@ -772,6 +781,18 @@ def _kinds(given, sites: Mapping[str, SiteSpec]) -> tuple[tuple[str, type[CPD]],
     return tuple((s, out[s]) for s in sites if s in out)
 
 
+def _check_size(cpd: CPD, why: str) -> None:
+    """Refuse a site whose fitted numbers would exceed :data:`MAX_CPD_ENTRIES`, before
+    anything of that size is allocated."""
+    entries = sum(math.prod(shape) for shape in cpd.shapes().values())
+    if entries > MAX_CPD_ENTRIES:
+        raise ValueError(
+            f"site {cpd.site!r} would hold {entries:.3g} numbers ({why}); a site holds at "
+            f"most MAX_CPD_ENTRIES = {MAX_CPD_ENTRIES:.0e}. Use fewer bins or states, or "
+            "declare fewer parents (EffectNetwork(parents=...))"
+        )
+
+
 def _build_cpds(
     net: EffectNetwork, sites: Mapping[str, SiteSpec], parents: Mapping[str, tuple[str, ...]]
 ) -> None:
@@ -790,6 +811,9 @@ def _build_cpds(
         )
         for p in net.parameters
     }
+    for m in mixtures.values():
+        _check_size(m.cluster, f"parameter {m.parameter.name!r} has {m.parameter.n_clusters} cells")
+        _check_size(m.value, f"parameter {m.parameter.name!r} has {m.parameter.n_clusters} cells")
     declared = dict(net.kinds)
     cpds: dict[str, CPD] = {}
     for site, spec in sites.items():
@@ -815,6 +839,10 @@ def _build_cpds(
                 f"site {site!r} ({what}, {width} continuous input dims) cannot have kind "
                 f"{kind.name!r}: {refused}"
             )
+        _check_size(
+            kind(site, tuple(discrete), card, spec.size, tuple(inputs), width),
+            f"its discrete parents {discrete} have {math.prod(card)} configurations",
+        )
         extra = {}
         if acting and not spec.discrete:
             if not issubclass(kind, LinearGaussianCPD):

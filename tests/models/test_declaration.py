@@ -141,3 +141,19 @@ def test_actions_given_as_one_string_are_refused(actions):
     with pytest.raises(ValueError, match="actions must be a sequence of action names"):
         EffectNetwork((Continuous("x"),), actions)
     assert EffectNetwork((Continuous("x"),), ("tap",)).actions == ("tap",)
+
+
+def test_networks_beyond_the_size_limit_are_refused_at_declaration():
+    from models.declaration import MAX_CPD_ENTRIES
+
+    # 10**9 cells: the cluster table alone is 2 x 10**9 numbers (it used to be allocated)
+    with pytest.raises(ValueError, match=r"site 'cluster.f' would hold 2e\+09 numbers"):
+        EffectNetwork((Continuous("x"),), ("a", "b"), (Parameter("f", 0.0, 1.0, 10**9, "a", "x"),))
+    # 27 binary features, each end site's table spans 2**27 parent configurations x 2 states
+    many = tuple(Discrete(f"f{i}", (False, True)) for i in range(27))
+    assert 2**28 > MAX_CPD_ENTRIES
+    with pytest.raises(ValueError, match=r"site 'end.f0' .*134217728 configurations"):
+        EffectNetwork(many, ("a",))
+    # the same features with one parent each are small
+    parents = {f"end.f{i}": (f"initial.f{i}", "action") for i in range(27)}
+    assert EffectNetwork(many, ("a",), parents=parents).cpd("end.f0").card == (2, 1)
