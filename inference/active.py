@@ -149,15 +149,30 @@ class ExplorationState:
 
     @classmethod
     def load(cls, path) -> ExplorationState:
-        raw = torch.load(Path(path), weights_only=False)
-        return cls(
-            chosen=raw["chosen"].numpy(),
-            scores=raw["scores"].numpy(),
-            outcomes={k: v.numpy() for k, v in raw["outcomes"].items()},
-            counts={k: v.numpy() for k, v in raw["counts"].items()},
-            rng=raw["rng"],
-            settings=raw["settings"],
-        )
+        """The state :meth:`save` wrote to ``path``.
+
+        Nothing in the file is executed: it is read as tensors, numbers, strings and
+        containers of them (``torch.load(weights_only=True)``), and a file holding
+        anything else, or not laid out as :meth:`save` lays it out, is a ``ValueError``.
+        """
+        path = Path(path)
+        try:
+            raw = torch.load(path, weights_only=True)
+            return cls(
+                chosen=raw["chosen"].numpy(),
+                scores=raw["scores"].numpy(),
+                outcomes={str(k): v.numpy() for k, v in raw["outcomes"].items()},
+                counts={str(k): v.numpy() for k, v in raw["counts"].items()},
+                rng=dict(raw["rng"]),
+                settings=dict(raw["settings"]),
+            )
+        except FileNotFoundError:
+            raise
+        except Exception as exc:  # torch and pickle raise several types for a foreign file
+            raise ValueError(
+                f"checkpoint {str(path)!r} is not a state saved by explore ({type(exc).__name__}: "
+                f"{exc}); remove it or pass another checkpoint"
+            ) from exc
 
 
 @dataclass(frozen=True)

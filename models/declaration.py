@@ -327,6 +327,7 @@ class EffectNetwork:
     _sites: dict[str, SiteSpec] = field(init=False, repr=False, compare=False)
     _cpds: dict[str, CPD] = field(init=False, repr=False, compare=False)
     _mixtures: dict[str, ParameterMixture] = field(init=False, repr=False, compare=False)
+    _identity: dict[str, tuple] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         if isinstance(self.actions, str | bytes) or not hasattr(self.actions, "__iter__"):
@@ -398,6 +399,7 @@ class EffectNetwork:
         object.__setattr__(self, "_sites", sites)
         object.__setattr__(self, "kinds", _kinds(self.kinds, sites))
         _build_cpds(self, sites, parents)
+        object.__setattr__(self, "_identity", {s: _site_identity(self, s) for s in sites})
 
     # ----------------------------------------------------------------- structure
     @property
@@ -479,6 +481,19 @@ class EffectNetwork:
             raise ValueError(
                 f"unknown action {action!r}; actions are {list(self.actions)}"
             ) from None
+
+    def identity(self) -> dict[str, tuple[tuple[str, object], ...]]:
+        """What fitted parameters depend on, per site: ``{site: ((what, value), ...)}``.
+
+        A discrete site's states in order (with their types: ``1`` and ``True`` are
+        different labels), a continuous site's dimension, the actions in order, a
+        parameter's range, bins, layout and the actions using it, and every site's kind
+        and parents in table-axis and input order. Two declarations with the same
+        identity give their parameters the same meaning; a feature's ``kind`` metadata
+        is not part of it. :class:`~models.params.NetworkParams` carry the identity of
+        the network they were fitted for (:func:`models.params.check_params`).
+        """
+        return dict(self._identity)
 
     # ----------------------------------------------------------------- evidence
     def encode(self, evidence: Mapping[str, object]) -> Evidence:
@@ -592,6 +607,35 @@ class EffectNetwork:
             parents={site: tuple(ps) for site, ps in d.get("parents", {}).items()},
             kinds=named,
         )
+
+
+def _site_identity(net: EffectNetwork, site: str) -> tuple[tuple[str, object], ...]:
+    """One site's part of :meth:`EffectNetwork.identity`."""
+    spec, cpd = net._sites[site], net._cpds[site]
+    own: tuple[tuple[str, object], ...]
+    if spec.role == "action":
+        own = (("actions", net.actions),)
+    elif spec.role in ("cluster", "param"):
+        p = next(p for p in net.parameters if site in (cluster_site(p.name), param_site(p.name)))
+        own = (
+            ("range", (p.low, p.high)),
+            ("bins", p.bins),
+            ("layout", p.layout),
+            ("actions using it", p.actions),
+        )
+    elif spec.discrete:
+        states = net.feature(spec.feature).states
+        own = (("states", states), ("state types", tuple(type(x).__name__ for x in states)))
+    else:
+        own = (("dim", spec.size),)
+    return (
+        ("role", spec.role),
+        *own,
+        ("size", spec.size),
+        ("kind", cpd.name),
+        ("discrete parents", cpd.parents),
+        ("continuous parents", cpd.inputs),
+    )
 
 
 def _spec(name: str, f: Feature, role: Literal["initial", "end"]) -> SiteSpec:

@@ -246,3 +246,27 @@ def test_with_pool_prior_refuses_a_non_table_initial_site():
     net = EffectNetwork((Continuous("x", 1),), ("a", "b"))
     with pytest.raises(ValueError, match="refits tables"):
         with_pool_prior(net, None, {"initial.x": [[0.0]], "action": ["a"]})
+
+
+class _RunsCode:
+    """Pickles as a call of ``exec``: what a crafted checkpoint can hold."""
+
+    def __init__(self, marker):
+        self.marker = str(marker)
+
+    def __reduce__(self):
+        return (exec, (f"open({self.marker!r}, 'w').write('ran')",))
+
+
+def test_a_checkpoint_is_read_without_running_anything_in_it(tmp_path):
+    pool, oracle, _ = world(3)
+    marker, path = tmp_path / "ran", tmp_path / "state.pt"
+    torch.save({"chosen": _RunsCode(marker)}, path)
+    with pytest.raises(ValueError, match=r"checkpoint .*state.pt.* is not a state saved by explore"):
+        explore(NET, pool, oracle, 6, checkpoint=path)
+    assert not marker.exists()
+    # a state explore saved still resumes (its generator state and settings included)
+    path.unlink()
+    first = explore(NET, pool, oracle, 3, checkpoint=path, seed=3)
+    again = ExplorationState.load(path)
+    assert again.rng == first.state.rng and again.settings == first.state.settings
