@@ -357,7 +357,9 @@ def explore(
     rows = enc.rows(index) | net.encode_indices(
         {s: torch.as_tensor(v) for s, v in state.outcomes.items()}
     )
-    params = NetworkParams({s: t.table(pseudo_count) for s, t in tables.items()}, pseudo_count)
+    params = NetworkParams(
+        {s: t.table(pseudo_count) for s, t in tables.items()}, pseudo_count, net
+    )
     return ExplorationResult(state.chosen, state.scores, rows, params, state)
 
 
@@ -392,7 +394,7 @@ def with_pool_prior(
             t = _Rows(net, spec.name, enc)
             t.add(every, t.pool_value)
             cpds[spec.name] = t.table(params.pseudo_count)
-    return NetworkParams(cpds, params.pseudo_count)
+    return NetworkParams(cpds, params.pseudo_count, net)
 
 
 # ------------------------------------------------------------------------------ internals

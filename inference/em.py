@@ -141,6 +141,7 @@ def fit_em(
         init = NetworkParams(
             params_from_statistics(net, statistics(net, enc), pseudo_count, min_variance),
             pseudo_count,
+            net,
         )
     else:
         check_params(net, init)
@@ -411,7 +412,7 @@ def _m_step(net, params, enc, mixtures, resp, alpha, min_variance) -> NetworkPar
             else:
                 stats = _moments(group, weights, _inputs(enc, cpd, m), enc[site], groups)
             cpds[site] = cpd.m_step(stats, alpha, min_variance)
-    return NetworkParams(cpds, params.pseudo_count)
+    return NetworkParams(cpds, params.pseudo_count, net)
 
 
 def _moments(group, r, x, y, groups) -> Moments:

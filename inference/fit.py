@@ -44,7 +44,7 @@ from inference.statistics import Statistics, params_from_statistics, statistics
 from models.declaration import ACTION, EffectNetwork, cluster_site, param_site
 from models.evidence import Evidence, is_partial
 from models.model import effect_model
-from models.params import NetworkParams, initial_params
+from models.params import NetworkParams, check_params, initial_params
 
 
 @dataclass(frozen=True)
@@ -113,7 +113,7 @@ def fit(
                 "gradient fit needs the rows in memory; give data as one mapping"
             )
         cpds = params_from_statistics(net, stats, pseudo_count, min_variance)
-        return FitResult(NetworkParams(cpds, pseudo_count))
+        return FitResult(NetworkParams(cpds, pseudo_count, net))
     enc = _complete(net, data)
     masks = _masks(net, masks, enc.n_rows)
     complete = torch.ones(enc.n_rows, dtype=torch.bool)
@@ -126,7 +126,7 @@ def fit(
     every = bool(complete.all())
     rows = enc if every else enc.rows(complete)  # no copy of the rows when none misses
     cpds = params_from_statistics(net, statistics(net, rows), pseudo_count, min_variance)
-    params = NetworkParams(cpds, pseudo_count)
+    params = NetworkParams(cpds, pseudo_count, net)
     gradient_sites = [s for s in cpds if not net.cpd(s).closed_form]
     if not every:
         gradient_sites = list(cpds)
@@ -207,6 +207,8 @@ def fit_gradient(
     _refuse_adaptive(net, "fit_gradient")
     enc = _complete(net, data)
     masks = _masks(net, masks, enc.n_rows)
+    if init is not None:
+        check_params(net, init)
     init = init or initial_params(net, pseudo_count)
     sites = list(init.cpds) if sites is None else list(sites)
     unknown = [s for s in sites if s not in init.cpds]
@@ -223,7 +225,7 @@ def fit_gradient(
         cpds = dict(init.cpds)
         for site, f in free.items():
             cpds[site] = net.cpd(site).bound(f, init.cpds[site])
-        return NetworkParams(cpds, init.pseudo_count)
+        return NetworkParams(cpds, init.pseudo_count, net)
 
     n = enc.n_rows
     # With every value given, the end sites that are not fitted add a constant to the

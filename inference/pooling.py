@@ -123,7 +123,7 @@ def fit_pooled(
         axis = cpd.parents.index(ACTION)
         counts = stats.sites[spec.name].counts.to(DTYPE).movedim(axis, -2)  # (..., A, K)
         cpds[spec.name] = _pooled(counts, off, strength, pseudo_count, axis)
-    return FitResult(NetworkParams(cpds, pseudo_count))
+    return FitResult(NetworkParams(cpds, pseudo_count, net))
 
 
 def _pooled(counts, off, strength, alpha, axis) -> Table:

@@ -449,7 +449,7 @@ def _from_pgmpy(model, *, n, actions_node, kind, order, pseudo_count, relabel):
         probs = torch.as_tensor(values, dtype=DTYPE)
         assert tuple(probs.shape) == shapes[site]["probs"], (site, probs.shape)
         tables[site] = Table(probs, counts[site])
-    params = NetworkParams({s: tables[s] for s in shapes}, float(pseudo_count))
+    params = NetworkParams({s: tables[s] for s in shapes}, float(pseudo_count), net)
     check_params(net, params)
     return net, params
 

@@ -68,7 +68,7 @@ from models.cpds.mixture import affected_loc_tril
 from models.declaration import DTYPE, EffectNetwork
 from models.evidence import Evidence, is_partial
 from models.gaussian import partial_log_density
-from models.params import NetworkParams
+from models.params import NetworkParams, check_bound
 
 ENUM = {"enumerate": "parallel"}
 
@@ -112,6 +112,7 @@ def effect_model(
     dict
         The value of every site (enumerated values carry their enumeration dims).
     """
+    check_bound(net, params)
     data = net.encode(data) if data is not None else Evidence(net, {}, 0)
     n = _rows(data, n_rows)
     masks = dict(masks or {})

@@ -12,9 +12,13 @@ alone (uniform table, pooled Gaussian) and which queries report as unseen.
 
 from __future__ import annotations
 
+import hashlib
 import json
+import os
+import secrets
+import zipfile
 from collections.abc import Iterable
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 
 import torch
@@ -24,7 +28,13 @@ from models.cpds import LinearGaussian, Softmax, Table, map_tensors
 from models.declaration import EffectNetwork
 
 FORMAT = "effect-networks"
-FORMAT_VERSION = 1
+#: Version 2 added the content checksum (``sha256``); files of other versions are refused.
+FORMAT_VERSION = 2
+#: The entries of a saved file's payload; a file holding anything else is refused.
+PAYLOAD_KEYS = frozenset({"format", "version", "declaration", "pseudo_count", "cpds", "sha256"})
+#: The largest pickled part of a file (its structure, declaration and numbers' headers:
+#: the numbers themselves are separate members) that :func:`load` reads.
+MAX_STRUCTURE_BYTES = 16 * 2**20
 
 
 CPD = Table | LinearGaussian | Softmax  # the toolkit's containers (a user kind adds its own)
@@ -32,10 +42,19 @@ CPD = Table | LinearGaussian | Softmax  # the toolkit's containers (a user kind 
 
 @dataclass(frozen=True)
 class NetworkParams:
-    """One conditional distribution per site, keyed by site name, and how they were fitted."""
+    """One conditional distribution per site, keyed by site name, and how they were fitted.
+
+    ``network``: the declaration the parameters were fitted for. Every toolkit function
+    that makes parameters (:func:`inference.fit`, :func:`random_params`, :func:`load`,
+    ...) sets it, and :func:`check_params` refuses them for a declaration whose
+    :meth:`~models.declaration.EffectNetwork.identity` differs (states in another order,
+    other actions, another parameter layout, ...): the same numbers would mean other
+    things there. Parameters assembled by hand without it are checked by shape only.
+    """
 
     cpds: dict[str, CPD]
     pseudo_count: float
+    network: EffectNetwork | None = field(default=None, repr=False, compare=False)
 
     def __getitem__(self, site: str) -> CPD:
         return self.cpds[site]
@@ -43,12 +62,16 @@ class NetworkParams:
     def map(self, fn) -> NetworkParams:
         """Apply ``fn`` to every tensor (e.g. ``lambda t: t.double()``)."""
         return NetworkParams(
-            {k: map_tensors(c, fn) for k, c in self.cpds.items()}, self.pseudo_count
+            {k: map_tensors(c, fn) for k, c in self.cpds.items()}, self.pseudo_count, self.network
         )
 
 
 def check_params(net: EffectNetwork, params: NetworkParams) -> None:
-    """Raise ``ValueError`` unless ``params`` has the right CPD for every site of ``net``."""
+    """Raise ``ValueError`` unless ``params`` has the right CPD for every site of ``net``
+    and was fitted for a declaration with ``net``'s identity (:func:`check_bound`)."""
+    if not isinstance(params, NetworkParams):
+        raise ValueError(f"params must be NetworkParams, got {type(params).__name__}")
+    check_bound(net, params)
     missing = {s.name for s in net.sites} - set(params.cpds)
     extra = set(params.cpds) - {s.name for s in net.sites}
     if missing or extra:
@@ -59,22 +82,80 @@ def check_params(net: EffectNetwork, params: NetworkParams) -> None:
         net.cpd(spec.name).check(params.cpds[spec.name])
 
 
+def check_bound(net: EffectNetwork, params: NetworkParams) -> None:
+    """Raise ``ValueError``, naming the first site that differs and how, if ``params``
+    were fitted for a declaration whose identity differs from ``net``'s
+    (:meth:`~models.declaration.EffectNetwork.identity`). Cheap where they are the same
+    declaration: the model runs it on every call."""
+    fitted = getattr(params, "network", None)
+    if fitted is None or fitted is net:
+        return
+    ours, theirs = net.identity(), fitted.identity()
+    if ours == theirs:
+        return
+    for site in ours:
+        if site not in theirs:
+            raise ValueError(
+                f"site {site!r}: the parameters were fitted for a network without it (its "
+                f"sites: {list(theirs)}); fit them for this network"
+            )
+        for (what, value), (_, fitted_value) in zip(ours[site], theirs[site], strict=False):
+            if value != fitted_value:
+                raise ValueError(
+                    f"site {site!r}: the parameters were fitted for {what} {fitted_value!r}, "
+                    f"this network has {what} {value!r}; the same numbers mean other things "
+                    "here. Fit them for this network (or use the network they were fitted for)"
+                )
+        if ours[site] != theirs[site]:
+            raise ValueError(
+                f"site {site!r}: the parameters were fitted for {theirs[site]}, this network "
+                f"has {ours[site]}; fit them for this network"
+            )
+    unknown = [site for site in theirs if site not in ours]
+    raise ValueError(
+        f"site {unknown[0]!r}: the parameters were fitted for a network with it, this one has "
+        f"no such site (its sites: {list(ours)}); fit them for this network"
+    )
+
+
 def save(path: str | Path, net: EffectNetwork, params: NetworkParams) -> Path:
-    """Save a fitted network (declaration and parameters) to one versioned file."""
+    """Save a fitted network (declaration and parameters) to one versioned file.
+
+    The file is written beside ``path`` under a temporary name and renamed over it once
+    complete, so a failed save (a full disk, a kill) leaves the file that was there. It
+    holds a checksum of its content (sha256) that :func:`load` verifies. Tensors are
+    saved on the CPU.
+    """
     check_params(net, params)
     path = Path(path)
+    cpds = {
+        site: {
+            "type": type(c).__name__,
+            **{f.name: _cpu(getattr(c, f.name)) for f in fields(c)},
+        }
+        for site, c in params.cpds.items()
+    }
     payload = {
         "format": FORMAT,
         "version": FORMAT_VERSION,
         "declaration": json.dumps(net.to_dict()),
         "pseudo_count": float(params.pseudo_count),
-        "cpds": {
-            site: {"type": type(c).__name__, **{f.name: getattr(c, f.name) for f in fields(c)}}
-            for site, c in params.cpds.items()
-        },
+        "cpds": cpds,
     }
+    payload["sha256"] = _checksum(payload)
     path.parent.mkdir(parents=True, exist_ok=True)
-    torch.save(payload, path)
+    tmp = path.with_name(f".{path.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp")
+    try:
+        # O_EXCL: a fresh file of our own; mode 0o666 minus the umask, as open() gives
+        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
+        with os.fdopen(fd, "wb") as f:
+            torch.save(payload, f)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
     return path
 
 
@@ -84,15 +165,24 @@ def load(
     """Load a network saved by :func:`save`; ``kinds``: the classes of the user-defined
     kinds it names (the toolkit's own are known).
 
+    Nothing in the file is executed (``torch.load(weights_only=True)``), and nothing is
+    inflated before it is known: the file's members must be stored uncompressed, as
+    :func:`save` writes them, its pickled structure at most :data:`MAX_STRUCTURE_BYTES`;
+    its numbers are mapped, not read, until the payload holds exactly
+    :data:`PAYLOAD_KEYS`, a CPD of the declared shape for every site and nothing else.
+    Then the content's checksum is verified and the numbers are copied into memory.
+
     Raises
     ------
     ValueError
-        If the file is not an effect-network file, is corrupt, has another format version,
-        or its parameters do not fit its declaration.
+        If the file is not an effect-network file, is corrupt (its checksum differs),
+        has another format version, holds unknown entries, or its parameters do not fit
+        its declaration.
     """
     path = Path(path)
+    _check_archive(path)
     try:
-        payload = torch.load(path, weights_only=True)
+        payload = torch.load(path, weights_only=True, mmap=True)
     except FileNotFoundError:
         raise
     except Exception as exc:  # torch raises several types for a damaged file
@@ -106,6 +196,12 @@ def load(
             f"{path} has format version {payload.get('version')!r}; this toolkit reads version "
             f"{FORMAT_VERSION}. Re-fit the network or load it with the matching toolkit version."
         )
+    unknown = sorted(map(str, set(payload) - PAYLOAD_KEYS))
+    if unknown:
+        raise ValueError(
+            f"{path} holds unknown entries {unknown}; an effect-network file holds only "
+            f"{sorted(PAYLOAD_KEYS)}"
+        )
     try:
         net = EffectNetwork.from_dict(json.loads(payload["declaration"]), kinds)
         cpds = {}
@@ -114,14 +210,86 @@ def load(
             cls = net.cpd(site).params_type
             if entry.pop("type") != cls.__name__:
                 raise ValueError(f"site {site!r} holds no {cls.__name__}")
+            names = {f.name for f in fields(cls)}
+            if set(entry) != names:
+                raise ValueError(
+                    f"site {site!r}: its {cls.__name__} holds {sorted(entry)}, expected "
+                    f"{sorted(names)}"
+                )
+            if not all(isinstance(v, torch.Tensor) for v in entry.values()):
+                raise ValueError(f"site {site!r}: its {cls.__name__} holds other than tensors")
             cpds[site] = cls(**entry)
-        params = NetworkParams(cpds, float(payload["pseudo_count"]))
+        params = NetworkParams(cpds, float(payload["pseudo_count"]), net)
+        check_params(net, params)  # shapes only: nothing has been read yet
     except (KeyError, TypeError, ValueError, json.JSONDecodeError) as exc:
         raise ValueError(
             f"{path} is a damaged effect-network file ({type(exc).__name__}: {exc})"
         ) from exc
-    check_params(net, params)
-    return net, params
+    if payload.get("sha256") != _checksum(payload):
+        raise ValueError(
+            f"{path} is damaged: its content does not match the sha256 checksum saved with it "
+            "(a changed byte); re-save the network from its source"
+        )
+    return net, params.map(lambda t: t.clone())  # off the mapped file
+
+
+def _cpu(value):
+    return value.detach().cpu() if isinstance(value, torch.Tensor) else value
+
+
+def _checksum(payload: dict) -> str:
+    """sha256 of a payload's content: its header, declaration and pseudo-count, and
+    every site's tensors (dtype, shape and bytes), sites and fields in sorted order."""
+    cpds = payload["cpds"]
+    h = hashlib.sha256()
+    header = {
+        "format": payload["format"],
+        "version": payload["version"],
+        "declaration": payload["declaration"],
+        "pseudo_count": repr(float(payload["pseudo_count"])),
+        "cpds": {
+            site: {
+                k: [str(v.dtype), list(v.shape)] if isinstance(v, torch.Tensor) else repr(v)
+                for k, v in entry.items()
+            }
+            for site, entry in cpds.items()
+        },
+    }
+    h.update(json.dumps(header, sort_keys=True).encode())
+    for site in sorted(cpds):
+        for name in sorted(cpds[site]):
+            value = cpds[site][name]
+            if isinstance(value, torch.Tensor):
+                flat = value.detach().cpu().contiguous().reshape(-1)
+                h.update(flat.view(torch.uint8).numpy().data if flat.numel() else b"")
+    return h.hexdigest()
+
+
+def _check_archive(path: Path) -> None:
+    """Refuse, before anything is inflated, a file whose members are compressed (a
+    small file can inflate to gigabytes; :func:`save` compresses nothing) or whose
+    pickled structure is larger than :data:`MAX_STRUCTURE_BYTES`."""
+    try:
+        with zipfile.ZipFile(path) as archive:
+            members = archive.infolist()
+    except FileNotFoundError:
+        raise
+    except (zipfile.BadZipFile, OSError, ValueError, EOFError) as exc:
+        raise ValueError(
+            f"{path} is not a readable effect-network file ({type(exc).__name__}: {exc})"
+        ) from exc
+    for m in members:
+        if m.compress_type != zipfile.ZIP_STORED:
+            raise ValueError(
+                f"{path} is not an effect-network file as save writes it: its member "
+                f"{m.filename!r} is compressed ({m.file_size} bytes inflated); refused "
+                "unread"
+            )
+        if m.filename.endswith("/data.pkl") and m.file_size > MAX_STRUCTURE_BYTES:
+            raise ValueError(
+                f"{path}: its structure {m.filename!r} has {m.file_size} bytes, more than "
+                f"MAX_STRUCTURE_BYTES = {MAX_STRUCTURE_BYTES}; refused unread"
+            )
 
 
 def random_params(net: EffectNetwork, seed: int, *, unseen: float = 0.0) -> NetworkParams:
@@ -141,10 +309,12 @@ def random_params(net: EffectNetwork, seed: int, *, unseen: float = 0.0) -> Netw
     cpds = {s.name: net.cpd(s.name).initialize(g, unseen) for s in net.sites}
     for m in net.mixtures:
         cpds[m.value.site] = m.randomize(cpds[m.value.site], g)
-    return NetworkParams(cpds, 0.01)
+    return NetworkParams(cpds, 0.01, net)
 
 
 def initial_params(net: EffectNetwork, pseudo_count: float) -> NetworkParams:
     """Every kind's neutral start (uniform tables, zero-slope unit Gaussians, zero
     softmax): the gradient route's default."""
-    return NetworkParams({s.name: net.cpd(s.name).initialize() for s in net.sites}, pseudo_count)
+    return NetworkParams(
+        {s.name: net.cpd(s.name).initialize() for s in net.sites}, pseudo_count, net
+    )

@@ -5,6 +5,7 @@ import torch
 
 from inference import fit, infer_action
 from models import Continuous, Discrete, EffectNetwork, Parameter, load, save
+from models.params import FORMAT_VERSION
 from tests.helpers import random_params
 
 NET = EffectNetwork(
@@ -105,7 +106,7 @@ def test_load_refuses_corrupt_and_incompatible_files(tmp_path):
     torch.save(payload, tmp_path / "v99.pt")
     with pytest.raises(ValueError, match="format version 99"):
         load(tmp_path / "v99.pt")
-    payload["version"] = 1
+    payload["version"] = FORMAT_VERSION
     payload["cpds"]["end.pos"]["bias"] = torch.zeros(3)
     torch.save(payload, tmp_path / "shape.pt")
     with pytest.raises(ValueError, match="end.pos"):
