@@ -225,7 +225,8 @@ def load(
         raise ValueError(
             f"{path} is a damaged effect-network file ({type(exc).__name__}: {exc})"
         ) from exc
-    if payload.get("sha256") != _checksum(payload):
+    saved = payload.get("sha256")
+    if not isinstance(saved, str) or saved != _checksum(payload):
         raise ValueError(
             f"{path} is damaged: its content does not match the sha256 checksum saved with it "
             "(a changed byte); re-save the network from its source"

@@ -125,7 +125,9 @@ def member_spans(data: bytes) -> list[range]:
     spans = []
     with zipfile.ZipFile(io.BytesIO(data)) as z:
         for m in z.infolist():
-            name_len, extra_len = int.from_bytes(data[m.header_offset + 26 : m.header_offset + 28], "little"), int.from_bytes(data[m.header_offset + 28 : m.header_offset + 30], "little")
+            header = data[m.header_offset : m.header_offset + 30]  # the local file header
+            name_len = int.from_bytes(header[26:28], "little")
+            extra_len = int.from_bytes(header[28:30], "little")
             start = m.header_offset + 30 + name_len + extra_len
             spans.append(range(start, start + m.compress_size))
     return spans
