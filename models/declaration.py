@@ -621,7 +621,7 @@ def _site_identity(net: EffectNetwork, site: str) -> tuple[tuple[str, object], .
             ("range", (p.low, p.high)),
             ("bins", p.bins),
             ("layout", p.layout),
-            ("actions using it", p.actions),
+            ("actions using it", tuple(a for a in net.actions if a in p.actions)),
         )
     elif spec.discrete:
         states = net.feature(spec.feature).states

@@ -10,6 +10,8 @@ import zipfile
 import numpy as np
 import pytest
 import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from pyro import poutine
 
 from inference import fit, fit_gradient, infer_action, predict
@@ -74,6 +76,28 @@ def test_parameters_fitted_for_other_state_order_are_refused_everywhere(tmp_path
 def test_a_declaration_with_another_identity_is_named(other, site, what):
     params = random_params(visible_network((False, True)), 0)
     with pytest.raises(ValueError, match=rf"site '{site}': the parameters were fitted for {what}"):
+        check_params(other, params)
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.permutations(("a", "b", "c")), st.permutations(("x", "y", "z")), st.booleans())
+def test_parameters_are_refused_by_any_reordering_of_states_or_actions(states, actions, tied):
+    def net(states, actions, using):
+        return EffectNetwork(
+            (Discrete("f", tuple(states)), Continuous("pos")),
+            tuple(actions),
+            (Parameter("p", 0.0, 1.0, 2, using if tied else ("x",), "pos"),),
+        )
+
+    params = random_params(net(("a", "b", "c"), ("x", "y", "z"), ("x", "y")), 0)
+    other = net(states, actions, ("y", "x"))
+    if tuple(states) != ("a", "b", "c"):
+        with pytest.raises(ValueError, match=r"site 'initial.f': .*states \('a', 'b', 'c'\)"):
+            check_params(other, params)
+    elif tuple(actions) != ("x", "y", "z"):
+        with pytest.raises(ValueError, match=r"site 'action': .*actions \('x', 'y', 'z'\)"):
+            check_params(other, params)
+    else:  # the same declaration: the order the parameter names its actions in is no matter
         check_params(other, params)
 
 
