@@ -43,7 +43,7 @@ from pyro.ops.indexing import Vindex
 
 from inference.enumeration import Enumerated, enumerate_model, enumeration_size, row_chunks
 from inference.plausibility import IMPLAUSIBLE_BELOW, check_threshold, plausibility
-from inference.simulate import draw
+from inference.surprise import QUADRATURE_POINTS, continuous_surprise
 from models.declaration import (
     ACTION,
     DTYPE,
@@ -456,7 +456,7 @@ def imitation_check(
     params: NetworkParams,
     evidence: Mapping[str, object],
     *,
-    n_samples: int = 2000,
+    n_samples: int = QUADRATURE_POINTS,
     seed: int = 0,
     implausible_below: float = IMPLAUSIBLE_BELOW,
 ) -> ImitationCheck:
@@ -491,7 +491,9 @@ def imitation_check(
     if all(net.site(s).discrete for s in observed):
         surprise = _discrete_surprise(net, params, prior, observed, log_lik)
     else:
-        surprise = _sampled_surprise(net, params, enc, observed, log_lik, n_samples, seed)
+        surprise = continuous_surprise(
+            net, params, enc, observed, log_joint, n_points=n_samples, seed=seed
+        )
 
     def unseen(e, _):
         post = e.posterior()
@@ -516,26 +518,6 @@ def _discrete_surprise(net, params, prior, observed, log_lik) -> torch.Tensor:
     joint = _chunked(net, params, prior, set(observed), fn)
     more_likely = joint > log_lik[:, None] + 1e-9
     return (joint.exp() * more_likely).sum(-1).clamp(0, 1)
-
-
-def _sampled_surprise(net, params, enc, observed, log_lik, n_samples, seed) -> torch.Tensor:
-    """Monte Carlo estimate of the same tail probability, seeded: outcomes of every
-    observed end feature drawn jointly from the model given the prior evidence (the
-    evidence without ``observed``), observed in the same dimensions as the evidence."""
-    n = log_lik.shape[0]
-    rows = enc.without(*observed).repeat(n_samples)
-    drawn = draw(net, params, rows, seed=seed)
-    outcome = {}
-    for s in observed:
-        given = enc[s]
-        outcome[s] = drawn[s]
-        if given.is_floating_point() and is_partial(given):
-            unobserved = torch.isnan(given).repeat_interleave(n_samples, 0)
-            outcome[s] = torch.where(unobserved, torch.nan, drawn[s])
-    outcomes = Evidence(net, outcome, rows.n_rows)
-    sample_ll = _chunked(net, params, rows | outcomes, set(), lambda e, _: e.log_evidence)
-    sample_ll = sample_ll - _chunked(net, params, rows, set(), lambda e, _: e.log_evidence)
-    return (sample_ll.reshape(n, n_samples) > log_lik[:, None]).to(DTYPE).mean(-1)
 
 
 def infer_parameter(

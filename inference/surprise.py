@@ -1,0 +1,299 @@
+"""The imitation surprise of an observed end state with a continuous part.
+
+Definition (the one :func:`inference.imitation_check` reports). Let ``E`` be a row's
+evidence other than its observed end sites (the initial state, the executed action, any
+parameter given) and ``o*`` the observed end state: the observed discrete end features'
+states and the observed continuous end features' values in their observed dimensions.
+The model's predictive ``p(o | E)`` is a probability over discrete outcomes, a density
+over continuous ones, their product over both. The surprise is
+
+    surprise(o*) = P_{O ~ p(. | E)}( p(O | E) > p(o* | E) ),
+
+the predictive probability of the outcomes strictly more likely than the one observed:
+0 at the most likely outcome, near 1 far out in the tails.
+
+Computing it. Given every enumerated site (the latent discrete sites: clusters, unknown
+initial states, latent discrete end parents; and the discrete outcome), the continuous
+outcome is one Gaussian, unknown parameters integrated out in closed form. So
+``p(o | E)`` is a sum over these configurations ("components") ``c`` of
+``P(c | E) N(y; mu_c, S_c)``, ``d`` the observed continuous dimensions of the row.
+
+* **One component per discrete outcome** (a given action and parameter, say): the
+  outcomes of component ``c`` that are more likely than ``o*`` form the ellipsoid
+  ``D_c^2(Y) < r_c^2``, ``r_c^2 = D_c^2(y*) + 2 (log p(c, y*, E) - log p(o*, E))``
+  (``D_c^2`` the squared Mahalanobis distance under ``c``), and under ``c`` the distance
+  is chi-square with ``d`` degrees of freedom. The surprise is exact:
+  ``sum_c P(c | E) P(chi2_d < r_c^2)``; with a single component it is
+  ``P(chi2_d < D^2(y*))``.
+* **Several components for one discrete outcome** (an unknown parameter's clusters, an
+  unknown initial state): the set of more likely outcomes has no closed form. Each
+  component's share is integrated in its own whitened coordinates ``Y = mu_c + L_c r u``:
+  over fixed directions ``u`` (``+-1`` in one dimension, equally spaced angles in two, a
+  fixed scrambled Sobol set with antithetic pairs beyond) and, along each ray, over the
+  chi-distributed radius ``r``: the radii where the outcome is more likely are bracketed
+  on a grid, their ends interpolated linearly in ``r^2`` (exact where one component
+  dominates, whose log-density is linear in ``r^2``), and their chi-square probability
+  summed in closed form. Deterministic: the same row gets the same surprise wherever it
+  sits in the batch.
+
+The joint Gaussian of several continuous end features that share an unknown parameter
+(the model samples them in turn, each given the value's Gaussian conditioned on those
+before it) is read off the model itself: each feature's mean is affine in the features
+before it, and the slopes are the model's means at the observation moved by a step in
+each observed dimension. Nothing here is sampled.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+
+from inference.enumeration import Enumerated, enumerate_model, enumeration_size, row_chunks
+from inference.plausibility import _mahalanobis
+from models.declaration import DTYPE, EffectNetwork
+from models.evidence import Evidence, observed_dims
+from models.gaussian import mask_unobserved
+from models.params import NetworkParams
+
+LOG_2PI = math.log(2 * math.pi)
+
+#: Default quadrature points per component where a discrete outcome has several
+#: components (directions x radii).
+QUADRATURE_POINTS = 256
+
+#: Elements of one row chunk's quadrature tensor.
+_QUADRATURE_CHUNK = 1 << 21
+
+#: Log-scale margin under which two outcomes count as equally likely (as for discrete ones).
+_TIE = 1e-9
+
+
+def continuous_surprise(
+    net: EffectNetwork,
+    params: NetworkParams,
+    evidence: Evidence,
+    observed: list[str],
+    log_joint: torch.Tensor,
+    *,
+    n_points: int = QUADRATURE_POINTS,
+    seed: int = 0,
+) -> torch.Tensor:
+    """``(n,)`` surprise of the observed end sites ``observed`` (at least one continuous)
+    of every row of encoded ``evidence`` (at least one row).
+
+    ``log_joint`` ``(n,)``: ``log p(evidence)``, every site in it observed. ``n_points``:
+    quadrature points per component (directions times radii) for rows where a discrete
+    outcome has several components; ``seed`` fixes the scrambled Sobol directions used
+    beyond two continuous dimensions.
+    """
+    discrete = [s for s in observed if net.site(s).discrete]
+    continuous = [s for s in observed if not net.site(s).discrete]
+    assert continuous
+    varied = evidence.without(*discrete)  # the discrete outcomes enumerated
+    dof = sum(observed_dims(evidence[s]).sum(-1) for s in continuous).to(DTYPE)  # (n,)
+
+    def weights(e: Enumerated, _):
+        log_w = e.log_weight  # log p(c, y*, E), (E..., n)
+        d2 = torch.zeros((), dtype=DTYPE)
+        log_density = torch.zeros((), dtype=DTYPE)
+        for s in continuous:
+            node = e.trace.nodes[s]
+            d2 = d2 + _mahalanobis(node["fn"], node["value"])
+            log_density = log_density + node["log_prob"]
+        log_prior = torch.where(torch.isfinite(log_w), log_w - log_density, -torch.inf)
+        return tuple(
+            _by_outcome(e, discrete, t.expand(log_w.shape)) for t in (log_w, log_prior, d2)
+        )
+
+    log_w, log_prior, d2 = _over_rows(net, params, varied, discrete, weights)  # (n, O, K)
+    log_joint = log_joint[:, None, None]
+    prob = (log_prior - log_prior.logsumexp((1, 2), keepdim=True)).exp()  # P(c | E)
+    # one component per outcome: the chi-square probability of the ellipsoid
+    r2 = (d2 + 2 * (log_w - log_joint)).clamp_min(0).nan_to_num(0.0)
+    inside = torch.special.gammainc(dof.clamp_min(1)[:, None, None] / 2, r2 / 2)
+    # no continuous dimension observed in a row: only the discrete outcome's probability
+    outcome = (log_w.logsumexp(-1, keepdim=True) > log_joint + _TIE).to(DTYPE)
+    inside = torch.where(dof[:, None, None] > 0, inside, outcome)
+    mixed = ((torch.isfinite(log_prior).sum(-1) > 1).any(-1)) & (dof > 0)
+    if bool(mixed.any()):
+        rows = mixed.nonzero().squeeze(-1)
+        mean, tril = _joint_gaussians(net, params, varied.rows(rows), continuous, discrete)
+        inside = inside.clone()
+        inside[rows] = _quadrature(
+            log_prior[rows], mean, tril, evidence, continuous, rows, dof[rows],
+            log_joint[rows, 0, 0], n_points, seed,
+        )  # fmt: skip
+    share = torch.where(prob > 0, prob * inside, 0.0)
+    return share.sum((1, 2)).clamp(0, 1)
+
+
+def _by_outcome(e: Enumerated, outcomes: list[str], t: torch.Tensor) -> torch.Tensor:
+    """``t`` ``(E..., n, *event)`` laid out ``(n, O, K, *event)``: the rows, the discrete
+    outcomes' configurations, the other enumerated sites' configurations."""
+    depth = e.log_weight.dim()
+    event = t.dim() - depth
+    rows = depth - 1
+    first = [depth + e.dims[s] for s in outcomes]
+    rest = [d for d in range(rows) if d not in first]
+    n = t.shape[rows]
+    o = math.prod(t.shape[d] for d in first)
+    order = [rows, *first, *rest, *range(depth, depth + event)]
+    return t.permute(order).reshape(n, o, -1, *t.shape[depth:])
+
+
+def _over_rows(net, params, evidence: Evidence, keep: list[str], fn):
+    """``fn(enumerated, chunk)`` over row chunks, its tuples concatenated along rows."""
+    size = enumeration_size(net, evidence, keep)
+    parts = [
+        fn(enumerate_model(net, params, evidence.rows(s), keep=keep), evidence.rows(s))
+        for s in row_chunks(evidence.n_rows, size)
+    ]
+    return tuple(torch.cat(p, 0) for p in zip(*parts, strict=True))
+
+
+def _joint_gaussians(net, params, evidence: Evidence, continuous, discrete):
+    """Per row and component the joint Gaussian of the observed continuous end features,
+    ``(n, O, K, D)`` mean and ``(n, O, K, D, D)`` Cholesky factor, ``D`` their summed
+    dimensions, laid out as :func:`mask_unobserved` writes a partial observation (an
+    unobserved dimension: mean 0, unit variance, independent of the others).
+
+    The model samples the features in its trace's order, each given those before it
+    (a shared unknown parameter conditioned on them); its mean is affine in their
+    values, so each slope column is the change of the mean when one observed value moves.
+    """
+
+    def steps(e: Enumerated, chunk: Evidence):
+        order = [s for s in e.trace.nodes if s in continuous]
+        shape = e.log_weight.shape
+        locs, covs, values, seens = {}, {}, {}, {}
+        for s in order:
+            fn = e.trace.nodes[s]["fn"]
+            d = fn.loc.shape[-1]
+            locs[s] = fn.loc.expand(*shape, d)
+            covs[s] = fn.covariance_matrix.expand(*shape, d, d)
+        slopes = {}  # (s, t) -> (E..., n, d_s, d_t): d mean_s / d y_t
+        for t in order[:-1]:
+            y = chunk[t]
+            step = 1.0 + y.abs().nan_to_num(0.0)
+            columns = []
+            for i in range(y.shape[-1]):
+                moved = y.clone()
+                moved[:, i] = y[:, i] + step[:, i]  # NaN stays NaN: no slope
+                trace = enumerate_model(net, params, chunk | {t: moved}, keep=discrete).trace
+                columns.append(
+                    {
+                        s: (trace.nodes[s]["fn"].loc.expand_as(locs[s]) - locs[s])
+                        / step[:, i, None]
+                        for s in order[order.index(t) + 1 :]
+                    }
+                )
+            for s in order[order.index(t) + 1 :]:
+                slopes[s, t] = torch.stack([c[s] for c in columns], -1)
+        means, trils = [], []
+        for s in order:
+            y, loc, cov, seen = mask_unobserved(chunk[s], locs[s], covs[s])
+            values[s], seens[s] = y, seen
+            mean = loc
+            lower = []  # the rows of the joint factor to the left of s's own block
+            for t, prev_mean in zip(order[: len(means)], means, strict=True):
+                slope = torch.where(seen[..., :, None] & seens[t][..., None, :], slopes[s, t], 0)
+                mean = mean + (slope @ (prev_mean - values[t])[..., None])[..., 0]
+                lower.append(slope)
+            left = torch.cat(lower, -1) @ _assemble(trils) if lower else None
+            own = torch.linalg.cholesky(cov)
+            means.append(mean)
+            trils.append((left, own))
+        mean = torch.cat(means, -1)
+        tril = _assemble(trils)
+        return _by_outcome(e, discrete, mean), _by_outcome(e, discrete, tril)
+
+    return _over_rows(net, params, evidence, discrete, steps)
+
+
+def _assemble(blocks) -> torch.Tensor:
+    """A block lower-triangular matrix from per-feature ``(left, own)`` blocks: ``left``
+    the rows' part under the earlier features (``None`` for the first)."""
+    sizes = [own.shape[-1] for _, own in blocks]
+    total = sum(sizes)
+    shape = torch.broadcast_shapes(*(own.shape[:-2] for _, own in blocks))
+    out = torch.zeros(*shape, total, total, dtype=DTYPE)
+    start = 0
+    for (left, own), d in zip(blocks, sizes, strict=True):
+        if left is not None:
+            out[..., start : start + d, :start] = left
+        out[..., start : start + d, start : start + d] = own
+        start += d
+    return out
+
+
+def _directions(dim: int, n_points: int, seed: int) -> tuple[torch.Tensor, int]:
+    """Fixed unit directions ``(J, dim)`` and the radii per direction for ``n_points``."""
+    if dim == 1:
+        u = torch.tensor([[1.0], [-1.0]], dtype=DTYPE)
+    elif dim == 2:
+        j = max(4, 2 * round(math.sqrt(n_points) / 2))
+        angle = (torch.arange(j, dtype=DTYPE) + 0.5) * (2 * math.pi / j)
+        u = torch.stack([angle.cos(), angle.sin()], -1)
+    else:
+        half = max(2, round(math.sqrt(n_points) / 2))
+        sobol = torch.quasirandom.SobolEngine(dim, scramble=True, seed=seed)
+        z = torch.special.ndtri(sobol.draw(half, dtype=DTYPE).clamp(1e-12, 1 - 1e-12))
+        u = torch.cat([z, -z], 0)
+    u = u / u.norm(dim=-1, keepdim=True)
+    return u, max(8, n_points // len(u))
+
+
+def _quadrature(
+    log_prior, mean, tril, evidence, continuous, rows, dof, log_joint, n_points, seed
+) -> torch.Tensor:
+    """``(m, O, K)``: under each component, the probability of an outcome (its discrete
+    part the component's) more likely than the observed one. ``log_prior`` ``(m, O, K)``:
+    ``log p(c, E)``; ``mean``, ``tril``: the components' joint Gaussians
+    (:func:`_joint_gaussians`); ``dof`` ``(m,)``: observed dimensions; ``log_joint``
+    ``(m,)``: ``log p(o*, E)``."""
+    m, o, k, dim = mean.shape
+    seen = torch.cat([observed_dims(evidence[s][rows]) for s in continuous], -1)  # (m, D)
+    u, n_radii = _directions(dim, n_points, seed)
+    u = u * seen[:, None, :]  # each row's directions in its observed dimensions
+    u = u / u.norm(dim=-1, keepdim=True).clamp_min(1e-300)  # (m, J, D)
+    # every component c's points in every component c''s whitened coordinates:
+    # z = L_c'^-1 (mu_c - mu_c') + r L_c'^-1 L_c u
+    eye = torch.eye(dim, dtype=DTYPE)
+    inverse = torch.linalg.solve_triangular(tril, eye.expand_as(tril), upper=False)
+    inverse = inverse[:, :, None]  # (m, O, 1, K', D, D)
+    offset = (inverse @ (mean[:, :, :, None] - mean[:, :, None])[..., None])[..., 0]
+    slope = inverse @ tril[:, :, :, None]  # (m, O, K, K', D, D)
+    along = torch.einsum("mokpde,mje->mokpjd", slope, u)  # (m, O, K, K', J, D)
+    log_det = tril.diagonal(dim1=-2, dim2=-1).log().sum(-1)  # (m, O, K')
+    base = (log_prior - log_det)[:, :, None, :, None, None]  # (m, O, 1, K', 1, 1)
+    top = dof.sqrt() + 8.0  # radii beyond: chi-square tail below 1e-15
+    radius = torch.linspace(0, 1, n_radii, dtype=DTYPE) * top[:, None]  # (m, G)
+    level = (log_joint + dof / 2 * LOG_2PI)[:, None, None, None, None]
+    cdf_dof = (dof / 2).clamp_min(0.5)[:, None, None, None, None]
+    j = u.shape[1]
+    per_row = o * k * k * j * n_radii * dim
+    out = []
+    for part in row_chunks(m, per_row, _QUADRATURE_CHUNK):
+        z = (
+            offset[part][..., None, None, :]
+            + radius[part][:, None, None, None, None, :, None]
+            * along[part][..., None, :]
+        )  # (r, O, K, K', J, G, D)
+        log_density = (base[part] - 0.5 * z.square().sum(-1)).logsumexp(3)  # (r, O, K, J, G)
+        excess = log_density - level[part]
+        s = radius[part].square()[:, None, None, None, :]  # (r, 1, 1, 1, G)
+        s = s.expand_as(excess)
+        above = excess > 0
+        a, b = excess[..., :-1], excess[..., 1:]
+        s0, s1 = s[..., :-1], s[..., 1:]
+        cross = s0 + (s1 - s0) * (a / torch.where(a != b, a - b, 1.0))
+        lower = torch.where(above[..., :-1], s0, cross)
+        upper = torch.where(above[..., 1:], s1, cross)
+        cdf = cdf_dof[part]
+        mass = torch.special.gammainc(cdf, upper / 2) - torch.special.gammainc(cdf, lower / 2)
+        mass = torch.where(above[..., :-1] | above[..., 1:], mass, 0.0).sum(-1)
+        beyond = torch.special.gammaincc(cdf[..., 0], s[..., -1] / 2)
+        mass = mass + torch.where(above[..., -1], beyond, 0.0)
+        out.append(mass.mean(-1))  # over the directions
+    return torch.cat(out, 0)
