@@ -265,35 +265,43 @@ def _quadrature(
     offset = (inverse @ (mean[:, :, :, None] - mean[:, :, None])[..., None])[..., 0]
     slope = inverse @ tril[:, :, :, None]  # (m, O, K, K', D, D)
     along = torch.einsum("mokpde,mje->mokpjd", slope, u)  # (m, O, K, K', J, D)
+    # |z|^2 = |b|^2 + r (2 b.v + r |v|^2) along each ray, b the offset, v the direction
+    # (the terms lose digits only where |b| is so large that c' adds nothing there)
+    square = offset.square().sum(-1)[..., None, None]  # (m, O, K, K', 1, 1)
+    linear = (offset[..., None, :] * along).sum(-1)[..., None]  # (m, O, K, K', J, 1)
+    quadratic = 0.5 * along.square().sum(-1)[..., None]
     log_det = tril.diagonal(dim1=-2, dim2=-1).log().sum(-1)  # (m, O, K')
-    base = (log_prior - log_det)[:, :, None, :, None, None]  # (m, O, 1, K', 1, 1)
+    base = (log_prior - log_det)[:, :, None, :, None, None] - 0.5 * square  # (m, O, K, K', 1, 1)
     top = dof.sqrt() + 8.0  # radii beyond: chi-square tail below 1e-15
     radius = torch.linspace(0, 1, n_radii, dtype=DTYPE) * top[:, None]  # (m, G)
     level = (log_joint + dof / 2 * LOG_2PI)[:, None, None, None, None]
-    cdf_dof = (dof / 2).clamp_min(0.5)[:, None, None, None, None]
+    cdf_dof = (dof / 2).clamp_min(0.5)[:, None, None, None, None]  # (m, 1, 1, 1, 1)
     j = u.shape[1]
-    per_row = o * k * k * j * n_radii * dim
+    per_row = o * k * k * j * n_radii
     out = []
     for part in row_chunks(m, per_row, _QUADRATURE_CHUNK):
-        z = (
-            offset[part][..., None, None, :]
-            + radius[part][:, None, None, None, None, :, None]
-            * along[part][..., None, :]
-        )  # (r, O, K, K', J, G, D)
-        log_density = (base[part] - 0.5 * z.square().sum(-1)).logsumexp(3)  # (r, O, K, J, G)
+        r = radius[part][:, None, None, None, None, :]  # (r, 1, 1, 1, 1, G)
+        log_density = torch.addcmul(linear[part], r, quadratic[part]).mul_(r)
+        log_density = torch.sub(base[part], log_density).logsumexp(3)  # (r, O, K, J, G)
         excess = log_density - level[part]
-        s = radius[part].square()[:, None, None, None, :]  # (r, 1, 1, 1, G)
-        s = s.expand_as(excess)
+        # the chi-square mass of the radii where excess > 0: per grid interval the CDF
+        # at its ends where they lie above, and at the interpolated crossing where not
+        s = radius[part].square()  # (r, G)
+        cdf = cdf_dof[part][..., 0]  # (r, 1, 1, 1)
+        at_nodes = torch.special.gammainc(cdf[..., None], s[:, None, None, None, :] / 2)
         above = excess > 0
-        a, b = excess[..., :-1], excess[..., 1:]
-        s0, s1 = s[..., :-1], s[..., 1:]
-        cross = s0 + (s1 - s0) * (a / torch.where(a != b, a - b, 1.0))
-        lower = torch.where(above[..., :-1], s0, cross)
-        upper = torch.where(above[..., 1:], s1, cross)
-        cdf = cdf_dof[part]
-        mass = torch.special.gammainc(cdf, upper / 2) - torch.special.gammainc(cdf, lower / 2)
-        mass = torch.where(above[..., :-1] | above[..., 1:], mass, 0.0).sum(-1)
-        beyond = torch.special.gammaincc(cdf[..., 0], s[..., -1] / 2)
-        mass = mass + torch.where(above[..., -1], beyond, 0.0)
+        mass = (above[..., 1:] * at_nodes[..., 1:] - above[..., :-1] * at_nodes[..., :-1]).sum(-1)
+        mass = mass + above[..., -1] * torch.special.gammaincc(cdf, s[:, -1, None, None, None] / 2)
+        crossing = above[..., 1:] != above[..., :-1]
+        if bool(crossing.any()):
+            a, b = excess[..., :-1][crossing], excess[..., 1:][crossing]
+            s0 = s[:, None, None, None, :-1].expand_as(crossing)[crossing]
+            s1 = s[:, None, None, None, 1:].expand_as(crossing)[crossing]
+            at = s0 + (s1 - s0) * (a / (a - b))  # linear in r^2 between the nodes
+            shape = cdf[..., None].expand_as(crossing)[crossing]
+            signed = torch.where(a > 0, 1.0, -1.0) * torch.special.gammainc(shape, at / 2)
+            mass = mass + torch.zeros_like(excess[..., 1:]).index_put_(
+                tuple(crossing.nonzero().T), signed
+            ).sum(-1)
         out.append(mass.mean(-1))  # over the directions
     return torch.cat(out, 0)
