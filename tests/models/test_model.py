@@ -103,6 +103,42 @@ def test_trace_enum_elbo_is_the_exact_log_evidence():
     assert abs(loss + float(infer_action(NET, PARAMS, ev).log_evidence[0])) < 1e-9
 
 
+def test_trace_enum_elbo_is_exact_with_a_continuous_end_site_left_out():
+    # end.pos unobserved: the collapsed model integrates it out (it has no children), so
+    # the loss is -log p(evidence) on every call, not a draw of end.pos scored
+    pushed = poutine.condition(effect_model, data={"param.force": torch.tensor([[10.0]])})
+    tap = NET.encode(START | {"action": ["tap"], "end.visible": [False]})
+    elbo = TraceEnum_ELBO(max_plate_nesting=1)
+    losses = []
+    for seed in range(5):
+        with torch.random.fork_rng():
+            torch.manual_seed(seed)
+            losses.append(elbo.loss(lambda: pushed(NET, PARAMS, tap, collapse=True), lambda: None))
+    # the documented idiom: only the observed end sites kept
+    kept = elbo.loss(
+        lambda: pushed(NET, PARAMS, tap, collapse=True, end_sites={"end.visible"}), lambda: None
+    )
+    # brute force: the initial state's, the action's, the cell's and the force's terms
+    # and p(end.visible | visible, tap); end.pos integrates to one
+    table = PARAMS["end.visible"]
+    soft = table.weight[1, 2, :, 0] * 0.1 + table.bias[1, 2]
+    prior = PARAMS["param.force"]
+    start = PARAMS["initial.pos"]
+    cell = 2  # 10 N in cell 2 of 0..20 N, 4 bins
+    force = torch.distributions.Normal(prior.bias[cell, 0], prior.scale_tril[cell, 0, 0])
+    want = (
+        PARAMS["initial.visible"].probs[1].log()
+        + PARAMS["action"].probs[2].log()
+        + PARAMS["cluster.force"].probs[2, cell].log()
+        + force.log_prob(torch.tensor(10.0, dtype=DTYPE))
+        + soft.log_softmax(-1)[0]
+        + torch.distributions.Normal(start.bias[0], start.scale_tril[0, 0]).log_prob(
+            torch.tensor(0.1, dtype=DTYPE)
+        )
+    )
+    assert max(abs(loss + float(want)) for loss in [*losses, kept]) < 1e-9
+
+
 def test_float32_inputs_work():
     ev = NET.encode(START | {"action": ["tap"]})
     cond = poutine.condition(
