@@ -119,11 +119,21 @@ def continuous_surprise(
     if bool(mixed.any()):
         rows = mixed.nonzero().squeeze(-1)
         mean, tril = _joint_gaussians(net, params, varied.rows(rows), continuous, discrete)
+        seen = torch.cat([observed_dims(evidence[s][rows]) for s in continuous], -1)
         inside = inside.clone()
-        inside[rows] = _quadrature(
-            log_prior[rows], mean, tril, evidence, continuous, rows, dof[rows],
-            log_joint[rows, 0, 0], n_points, seed,
-        )  # fmt: skip
+        # rows by observed dimensions: their marginal is the joint's observed block (an
+        # unobserved dimension is independent of the others in the masked layout)
+        for pattern in torch.unique(seen, dim=0):
+            group = (seen == pattern).all(-1)
+            dims = pattern.nonzero().squeeze(-1)
+            inside[rows[group]] = _quadrature(
+                log_prior[rows[group]],
+                mean[group][..., dims],
+                tril[group][..., dims, :][..., dims],
+                log_joint[rows[group], 0, 0],
+                n_points,
+                seed,
+            )
     share = torch.where(prob > 0, prob * inside, 0.0)
     return share.sum((1, 2)).clamp(0, 1)
 
@@ -244,19 +254,13 @@ def _directions(dim: int, n_points: int, seed: int) -> tuple[torch.Tensor, int]:
     return u, max(8, n_points // len(u))
 
 
-def _quadrature(
-    log_prior, mean, tril, evidence, continuous, rows, dof, log_joint, n_points, seed
-) -> torch.Tensor:
+def _quadrature(log_prior, mean, tril, log_joint, n_points, seed) -> torch.Tensor:
     """``(m, O, K)``: under each component, the probability of an outcome (its discrete
     part the component's) more likely than the observed one. ``log_prior`` ``(m, O, K)``:
-    ``log p(c, E)``; ``mean``, ``tril``: the components' joint Gaussians
-    (:func:`_joint_gaussians`); ``dof`` ``(m,)``: observed dimensions; ``log_joint``
-    ``(m,)``: ``log p(o*, E)``."""
+    ``log p(c, E)``; ``mean`` ``(m, O, K, d)``, ``tril``: the components' Gaussians over
+    the ``d`` observed dimensions; ``log_joint`` ``(m,)``: ``log p(o*, E)``."""
     m, o, k, dim = mean.shape
-    seen = torch.cat([observed_dims(evidence[s][rows]) for s in continuous], -1)  # (m, D)
-    u, n_radii = _directions(dim, n_points, seed)
-    u = u * seen[:, None, :]  # each row's directions in its observed dimensions
-    u = u / u.norm(dim=-1, keepdim=True).clamp_min(1e-300)  # (m, J, D)
+    u, n_radii = _directions(dim, n_points, seed)  # (J, d)
     # every component c's points in every component c''s whitened coordinates:
     # z = L_c'^-1 (mu_c - mu_c') + r L_c'^-1 L_c u
     eye = torch.eye(dim, dtype=DTYPE)
@@ -264,7 +268,7 @@ def _quadrature(
     inverse = inverse[:, :, None]  # (m, O, 1, K', D, D)
     offset = (inverse @ (mean[:, :, :, None] - mean[:, :, None])[..., None])[..., 0]
     slope = inverse @ tril[:, :, :, None]  # (m, O, K, K', D, D)
-    along = torch.einsum("mokpde,mje->mokpjd", slope, u)  # (m, O, K, K', J, D)
+    along = torch.einsum("mokpde,je->mokpjd", slope, u)  # (m, O, K, K', J, d)
     # |z|^2 = |b|^2 + r (2 b.v + r |v|^2) along each ray, b the offset, v the direction
     # (the terms lose digits only where |b| is so large that c' adds nothing there)
     square = offset.square().sum(-1)[..., None, None]  # (m, O, K, K', 1, 1)
@@ -272,11 +276,11 @@ def _quadrature(
     quadratic = 0.5 * along.square().sum(-1)[..., None]
     log_det = tril.diagonal(dim1=-2, dim2=-1).log().sum(-1)  # (m, O, K')
     base = (log_prior - log_det)[:, :, None, :, None, None] - 0.5 * square  # (m, O, K, K', 1, 1)
-    top = dof.sqrt() + 8.0  # radii beyond: chi-square tail below 1e-15
-    radius = torch.linspace(0, 1, n_radii, dtype=DTYPE) * top[:, None]  # (m, G)
-    level = (log_joint + dof / 2 * LOG_2PI)[:, None, None, None, None]
-    cdf_dof = (dof / 2).clamp_min(0.5)[:, None, None, None, None]  # (m, 1, 1, 1, 1)
-    j = u.shape[1]
+    top = math.sqrt(dim) + 8.0  # radii beyond: chi-square tail below 1e-15
+    radius = torch.linspace(0, top, n_radii, dtype=DTYPE).expand(m, -1)  # (m, G)
+    level = (log_joint + dim / 2 * LOG_2PI)[:, None, None, None, None]
+    cdf_dof = torch.full((m, 1, 1, 1, 1), dim / 2, dtype=DTYPE)
+    j = u.shape[0]
     per_row = o * k * k * j * n_radii
     out = []
     for part in row_chunks(m, per_row, _QUADRATURE_CHUNK):

@@ -14,7 +14,7 @@ import pytest
 import torch
 from scipy import stats
 
-from inference import imitation_check
+from inference import imitation_check, predict
 from inference.surprise import _joint_gaussians
 from models import Continuous, Discrete, EffectNetwork, Parameter, Partial, random_params
 from models.declaration import DTYPE
@@ -262,3 +262,32 @@ def test_ten_thousand_one_gaussian_rows_take_well_under_a_second():
     check = imitation_check(net, params, evidence)
     assert time.perf_counter() - start < 2.0  # about 0.1 s on one core; slack for load
     assert check.surprise.dtype == DTYPE and check.surprise.shape == (n,)
+
+
+def test_partial_evidence_under_a_mixture_integrates_the_observed_dimensions():
+    # a 2-D feature observed in x only, the force unknown: the predictive of x is the
+    # mixture's marginal (predict's components, their x rows), integrated numerically
+    net = EffectNetwork(
+        (Continuous("xy", 2),),
+        ("push",),
+        (Parameter("force", low=0.0, high=4.0, bins=4, actions=("push",), affects="xy"),),
+    )
+    params = random_params(net, 5)
+    start = {"initial.xy": [[0.1, -0.2]], "action": ["push"]}
+    mix = predict(net, params, start).continuous["xy"]
+    weights = mix.weights[0].numpy()
+    mean, sd = mix.means[0, :, 0].numpy(), mix.covs[0, :, 0, 0].sqrt().numpy()
+    xs = np.linspace(mean.min() - 2, mean.max() + 2, 9)
+    evidence = {
+        "initial.xy": [[0.1, -0.2]] * len(xs),
+        "action": ["push"] * len(xs),
+        "end.xy": Partial(np.stack([xs, np.zeros_like(xs)], -1), observed=[True, False]),
+    }
+    got = imitation_check(net, params, evidence).surprise.numpy()
+    grid = np.linspace(mean.min() - 12 * sd.max(), mean.max() + 12 * sd.max(), 1_000_001)
+
+    def log_density(y):
+        return np.log((weights * stats.norm.pdf(y[:, None], mean, sd)).sum(1))
+
+    want = grid_surprise(log_density, grid, grid[1] - grid[0], xs)
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-4)
