@@ -254,6 +254,32 @@ def _directions(dim: int, n_points: int, seed: int) -> tuple[torch.Tensor, int]:
     return u, max(8, n_points // len(u))
 
 
+def _neighbours(offset, slope, weight, top):
+    """For each component ``c``, the components ``c'`` whose density can matter on the
+    ball of radius ``top`` around ``c`` (in ``c``'s whitened coordinates): ``c'``'s term
+    there is at most ``weight_c' - D^2 / 2``, ``D`` the least distance of the ball from
+    ``c'``'s mean in ``c'``'s whitened coordinates (``|b| - top |A|``, ``b`` the offset
+    and ``A`` the slope), and ``c``'s own term at least ``weight_c - top^2 / 2``; a term
+    below that by more than 60 nats changes no float64 sum. Returns ``offset``, ``slope``
+    and ``weight`` (broadcast to ``(m, O, K, K'')``) over the fewest ``K''`` components
+    that hold every one that can matter (all of them where the components overlap)."""
+    m, o, k = weight.shape
+    reach = offset.norm(dim=-1) - top * slope.square().sum((-2, -1)).sqrt()
+    bound = weight[:, :, None, :] - 0.5 * reach.clamp_min(0).square()  # (m, O, K, K')
+    own = weight - 0.5 * top**2  # (m, O, K)
+    needed = bound > (own - 60.0)[..., None]
+    count = int(needed.sum(-1).max())
+    weight = weight[:, :, None, :].expand(m, o, k, k)
+    if count == k:
+        return offset, slope, weight
+    index = torch.where(needed, bound, -torch.inf).topk(count, dim=-1).indices  # (m, O, K, K'')
+    return (
+        offset.gather(3, index[..., None].expand(-1, -1, -1, -1, offset.shape[-1])),
+        slope.gather(3, index[..., None, None].expand(-1, -1, -1, -1, *slope.shape[-2:])),
+        weight.gather(3, index),
+    )
+
+
 def _quadrature(log_prior, mean, tril, log_joint, n_points, seed) -> torch.Tensor:
     """``(m, O, K)``: under each component, the probability of an outcome (its discrete
     part the component's) more likely than the observed one. ``log_prior`` ``(m, O, K)``:
@@ -267,21 +293,23 @@ def _quadrature(log_prior, mean, tril, log_joint, n_points, seed) -> torch.Tenso
     inverse = torch.linalg.solve_triangular(tril, eye.expand_as(tril), upper=False)
     inverse = inverse[:, :, None]  # (m, O, 1, K', D, D)
     offset = (inverse @ (mean[:, :, :, None] - mean[:, :, None])[..., None])[..., 0]
-    slope = inverse @ tril[:, :, :, None]  # (m, O, K, K', D, D)
-    along = torch.einsum("mokpde,je->mokpjd", slope, u)  # (m, O, K, K', J, d)
+    slope = inverse @ tril[:, :, :, None]  # (m, O, K, K', d, d)
+    log_det = tril.diagonal(dim1=-2, dim2=-1).log().sum(-1)  # (m, O, K')
+    weight = log_prior - log_det  # (m, O, K'): each component's log-density up to |z|^2
+    top = math.sqrt(dim) + 8.0  # radii beyond: chi-square tail below 1e-15
+    offset, slope, weight = _neighbours(offset, slope, weight, top)  # (m, O, K, K'', ...)
+    along = torch.einsum("mokpde,je->mokpjd", slope, u)  # (m, O, K, K'', J, d)
     # |z|^2 = |b|^2 + r (2 b.v + r |v|^2) along each ray, b the offset, v the direction
     # (the terms lose digits only where |b| is so large that c' adds nothing there)
-    square = offset.square().sum(-1)[..., None, None]  # (m, O, K, K', 1, 1)
-    linear = (offset[..., None, :] * along).sum(-1)[..., None]  # (m, O, K, K', J, 1)
+    square = offset.square().sum(-1)[..., None, None]  # (m, O, K, K'', 1, 1)
+    linear = (offset[..., None, :] * along).sum(-1)[..., None]  # (m, O, K, K'', J, 1)
     quadratic = 0.5 * along.square().sum(-1)[..., None]
-    log_det = tril.diagonal(dim1=-2, dim2=-1).log().sum(-1)  # (m, O, K')
-    base = (log_prior - log_det)[:, :, None, :, None, None] - 0.5 * square  # (m, O, K, K', 1, 1)
-    top = math.sqrt(dim) + 8.0  # radii beyond: chi-square tail below 1e-15
+    base = weight[..., None, None] - 0.5 * square  # (m, O, K, K'', 1, 1)
     radius = torch.linspace(0, top, n_radii, dtype=DTYPE).expand(m, -1)  # (m, G)
     level = (log_joint + dim / 2 * LOG_2PI)[:, None, None, None, None]
     cdf_dof = torch.full((m, 1, 1, 1, 1), dim / 2, dtype=DTYPE)
     j = u.shape[0]
-    per_row = o * k * k * j * n_radii
+    per_row = o * k * offset.shape[3] * j * n_radii
     out = []
     for part in row_chunks(m, per_row, _QUADRATURE_CHUNK):
         r = radius[part][:, None, None, None, None, :]  # (r, 1, 1, 1, 1, G)
