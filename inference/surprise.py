@@ -33,8 +33,10 @@ outcome is one Gaussian, unknown parameters integrated out in closed form. So
   chi-distributed radius ``r``: the radii where the outcome is more likely are bracketed
   on a grid, their ends interpolated linearly in ``r^2`` (exact where one component
   dominates, whose log-density is linear in ``r^2``), and their chi-square probability
-  summed in closed form. Deterministic: the same row gets the same surprise wherever it
-  sits in the batch.
+  summed in closed form. On each component's ball only the components whose density
+  can matter there are weighed (a bound per pair). Deterministic: the same row gets the
+  same surprise wherever it sits in the batch. Rows observing some dimensions of a
+  feature are integrated over those dimensions' marginal.
 
 The joint Gaussian of several continuous end features that share an unknown parameter
 (the model samples them in turn, each given the value's Gaussian conditioned on those
