@@ -36,11 +36,13 @@ SHARED = EffectNetwork(  # one unknown value acting on two continuous features
 )
 
 
-def grid_surprise(log_density, grid_points, cell, observations):
-    """``P(p(Y) > p(y*))`` for each ``y*`` by a Riemann sum over a fine grid."""
+def grid_surprise(log_density, grid_points, cell, observations, levels=None):
+    """``P(p(Y) > p(y*))`` for each ``y*`` by a Riemann sum over a fine grid (``levels``:
+    the ``log p(y*)`` to compare with, if not the observations' own)."""
     log_p = np.sort(log_density(grid_points))
     mass = np.cumsum(np.exp(log_p)[::-1])[::-1] * cell  # mass[i]: of the points from i up
-    first = np.searchsorted(log_p, log_density(observations), side="right")
+    levels = log_density(observations) if levels is None else levels
+    first = np.searchsorted(log_p, levels, side="right")
     return np.append(mass, 0.0)[first]
 
 
@@ -316,3 +318,32 @@ def test_many_separated_clusters_equal_numerical_integration():
 
     want = grid_surprise(log_density, grid, grid[1] - grid[0], ys)
     np.testing.assert_allclose(got, want, rtol=0, atol=5e-4)  # 4e-5 with n_samples=1024
+
+
+def test_discrete_outcome_beside_a_mixture():
+    # end.visible and end.position observed, the force unknown: p(v, y) = p(v) m(y) (the
+    # position does not depend on the end state of visible), so the surprise is
+    # sum_v p(v) P_m(p(v) m(Y) > p(v*) m(y*)), each term integrated over a grid
+    params = random_params(TAP, 2)
+    start = {"initial.visible": [True], "initial.position": [[0.2]], "action": ["tap"]}
+    p_vis = predict(TAP, params, start).discrete["visible"][0].numpy()
+    weights, mean, sd = tap_mixture(params, 1, 0.2)
+    grid = np.linspace(mean.min() - 12 * sd.max(), mean.max() + 12 * sd.max(), 1_000_001)
+    cell = grid[1] - grid[0]
+
+    def log_m(y):
+        return np.log((weights * stats.norm.pdf(y[:, None], mean, sd)).sum(1))
+
+    ys = np.array([-1.0, 0.5, 2.0, 4.0])
+    for vis in (False, True):
+        evidence = {
+            "initial.visible": [True] * len(ys),
+            "initial.position": [[0.2]] * len(ys),
+            "action": ["tap"] * len(ys),
+            "end.visible": [vis] * len(ys),
+            "end.position": ys[:, None],
+        }
+        got = imitation_check(TAP, params, evidence).surprise.numpy()
+        star = np.log(p_vis[int(vis)]) + log_m(ys)
+        want = sum(p * grid_surprise(log_m, grid, cell, ys, star - np.log(p)) for p in p_vis)
+        np.testing.assert_allclose(got, want, rtol=0, atol=2e-4)
