@@ -108,7 +108,9 @@ def effect_model(
         out; queries use this to skip work.
     collapse
         Integrate unknown parameter values (NaN rows, or the site not given) out in
-        closed form instead of sampling them: the form of the exact queries.
+        closed form instead of sampling them, and unobserved continuous end sites out
+        (drawn, their factor masked: they have no children): the form of the exact
+        queries, exact under ``TraceEnum_ELBO`` and ``infer_discrete``.
 
     Returns
     -------
