@@ -15,6 +15,11 @@ Query patterns (issue 11), on the can network's structure (config 42 and count 1
 initial and end features, action 195): the initial state observed, partly observed (the
 count unknown), latent (the end state only), each timed beside pgmpy's
 VariableElimination on the same rows. Goal: within 2x of pgmpy per query, or faster.
+
+Imitation check with a continuous end feature (``--imitation-rows``, default 10,000;
+``--imitation-only`` skips the rest): a 1-D one-Gaussian network (the surprise in closed
+form; goal: 10,000 rows under 0.5 s), and README's tap network with the force unknown (a
+mixture of 8 clusters per row: the quadrature), each row's surprise deterministic.
 """
 
 from __future__ import annotations
@@ -27,9 +32,9 @@ import numpy as np
 import torch
 from timing import median_seconds  # benchmarks/timing.py, beside this script
 
-from inference import fit, infer_action
+from inference import fit, imitation_check, infer_action
 from inference.compiled import compile_discrete
-from models import Discrete, EffectNetwork, Evidence
+from models import Continuous, Discrete, EffectNetwork, Evidence, Parameter, random_params
 from models.can_network import can_network
 from models.declaration import DTYPE
 
@@ -129,8 +134,40 @@ def patterns(args: argparse.Namespace) -> list[tuple[str, float, float, float, f
     return out
 
 
+def imitation(rows: int) -> dict[str, float]:
+    """Seconds of ``imitation_check`` on ``rows`` rows: one Gaussian, and a mixture."""
+    rng = np.random.default_rng(0)
+    line = EffectNetwork((Continuous("pos", 1),), ("a", "b"))
+    one = {
+        "initial.pos": rng.normal(size=(rows, 1)),
+        "action": ["a"] * rows,
+        "end.pos": rng.normal(size=(rows, 1)),
+    }
+    line_params = random_params(line, 0)
+    tap = EffectNetwork(
+        (Discrete("visible", (False, True)), Continuous("position", 1)),
+        ("look", "remove", "tap"),
+        (Parameter("force", low=0.0, high=20.0, bins=8, actions=("tap",), affects="position"),),
+    )
+    mixed = {
+        "initial.visible": [True] * rows,
+        "initial.position": np.zeros((rows, 1)),
+        "action": ["tap"] * rows,
+        "end.position": rng.normal(size=(rows, 1)),
+    }
+    tap_params = random_params(tap, 1)
+    return {
+        "imitation_one_gaussian_s": median_seconds(
+            lambda: imitation_check(line, line_params, one), 5
+        ),
+        "imitation_mixture_s": median_seconds(lambda: imitation_check(tap, tap_params, mixed), 1),
+    }
+
+
 def main(args: argparse.Namespace) -> dict[str, float]:
     torch.set_num_threads(args.threads)
+    if args.imitation_only:
+        return _print_imitation(args.imitation_rows)
     net = network()
     rows = random_rows(net, 74_000, 0)
     fit_s = median_seconds(lambda: fit(net, rows), 7)
@@ -249,6 +286,19 @@ def main(args: argparse.Namespace) -> dict[str, float]:
             figures[f"pattern {name}"] = diff
         diffs = [v for k, v in figures.items() if k.startswith("pattern ")]
         print(f"max |ours - pgmpy| over the patterns = {max(diffs):.2e}")
+    if args.imitation_rows:
+        figures |= _print_imitation(args.imitation_rows)
+    return figures
+
+
+def _print_imitation(rows: int) -> dict[str, float]:
+    figures = imitation(rows)
+    goal = 0.5 * rows / 10_000
+    print(f"\nimitation_check, {rows} rows, a continuous end feature (s)")
+    print(f"{'what':<44}{'measured':>14}{'goal':>16}")
+    one, mixture = figures["imitation_one_gaussian_s"], figures["imitation_mixture_s"]
+    print(f"{'one Gaussian (closed form)':<44}{one:>14.3f}{_verdict(one, goal):>16}")
+    print(f"{'8-cluster mixture (quadrature)':<44}{mixture:>14.3f}{_verdict(mixture, None):>16}")
     return figures
 
 
@@ -271,6 +321,10 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument(
         "--threads", type=int, default=1, help="torch threads (1: per-core figures)"
     )
+    parser.add_argument(
+        "--imitation-rows", type=int, default=10_000, help="imitation_check rows (0: skip)"
+    )
+    parser.add_argument("--imitation-only", action="store_true", help="time imitation_check alone")
     return parser.parse_args(argv)
 
 

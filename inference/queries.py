@@ -10,9 +10,10 @@
   MAP, as pgmpy's ``map_query``; not the joint MAP ``infer_discrete`` returns).
 * :func:`imitation_check` -- imitate: the log-likelihood of an observed end state under
   the executed action, and a surprise score: the predictive probability of an outcome
-  more likely than the one observed (exact for discrete end states; a seeded Monte Carlo
-  estimate over the joint of all observed end features when one is continuous). Near 1:
-  the action did not do what it usually does.
+  strictly more likely than the one observed, over the joint of all observed end
+  features (exact for discrete end states and where one Gaussian predicts the continuous
+  ones; a deterministic quadrature where a mixture does: :mod:`inference.surprise`).
+  Near 1: the action did not do what it usually does.
 * :func:`infer_parameter` -- the paper's inverse parameter query: the cluster posterior by
   enumeration, the most probable cluster added to the evidence, then the parameter by
   closed-form Gaussian conditioning.
@@ -43,7 +44,7 @@ from pyro.ops.indexing import Vindex
 
 from inference.enumeration import Enumerated, enumerate_model, enumeration_size, row_chunks
 from inference.plausibility import IMPLAUSIBLE_BELOW, check_threshold, plausibility
-from inference.simulate import draw
+from inference.surprise import QUADRATURE_POINTS, continuous_surprise
 from models.declaration import (
     ACTION,
     DTYPE,
@@ -136,8 +137,24 @@ class ActionPosterior:
 
 @dataclass(frozen=True)
 class ImitationCheck:
-    """``log_likelihood`` and ``surprise`` (in [0, 1]) of each observed end state, ``(n,)``;
-    ``implausible`` ``(n,)`` bool (see :mod:`inference.plausibility`)."""
+    """What :func:`imitation_check` answers, per evidence row, ``(n,)`` each.
+
+    With ``E`` the row's evidence other than its observed end sites (the initial state,
+    the executed action, a parameter if given) and ``o*`` the observed end state (the
+    observed discrete end features' states, the continuous ones' values in their
+    observed dimensions):
+
+    * ``log_likelihood``: ``log p(o* | E)``, every latent site summed or integrated out
+      (a log-probability for discrete end features, a log-density for continuous ones).
+    * ``surprise`` in [0, 1]: ``P_{O ~ p(. | E)}(p(O | E) > p(o* | E))``, the predictive
+      probability of the outcomes strictly more likely than the observed one. 0: the
+      most likely outcome; near 1: the action did not do what it usually does. For one
+      Gaussian component it is the chi-square CDF of the squared Mahalanobis distance,
+      ``P(chi2_d < D^2)``.
+    * ``unseen``: the posterior probability that the observed end sites' configuration
+      was never reached in training.
+    * ``implausible`` bool (see :mod:`inference.plausibility`).
+    """
 
     log_likelihood: torch.Tensor
     surprise: torch.Tensor
@@ -456,14 +473,21 @@ def imitation_check(
     params: NetworkParams,
     evidence: Mapping[str, object],
     *,
-    n_samples: int = 2000,
+    n_samples: int = QUADRATURE_POINTS,
     seed: int = 0,
     implausible_below: float = IMPLAUSIBLE_BELOW,
 ) -> ImitationCheck:
     """How surprising is each observed end state under the executed action?
 
-    ``implausible`` flags rows whose observed end state has a probability below
-    ``implausible_below`` given the executed action (:mod:`inference.plausibility`).
+    The fields are defined in :class:`ImitationCheck`. Discrete end states are summed
+    exactly; with a continuous end feature observed, the surprise is exact where each
+    discrete outcome has one Gaussian component (the action and the parameter given, say)
+    and a deterministic quadrature where it has several (an unknown parameter's clusters):
+    ``n_samples`` points per component (directions times radii), ``seed`` fixing the
+    quasi-random directions beyond two continuous dimensions (:mod:`inference.surprise`).
+    The same row gets the same answer in any batch. ``implausible`` flags rows whose
+    observed end state has a probability below ``implausible_below`` given the executed
+    action (:mod:`inference.plausibility`).
     """
     below = check_threshold(implausible_below)
     enc = _prepare(net, params, evidence)
@@ -491,7 +515,9 @@ def imitation_check(
     if all(net.site(s).discrete for s in observed):
         surprise = _discrete_surprise(net, params, prior, observed, log_lik)
     else:
-        surprise = _sampled_surprise(net, params, enc, observed, log_lik, n_samples, seed)
+        surprise = continuous_surprise(
+            net, params, enc, observed, log_joint, n_points=n_samples, seed=seed
+        )
 
     def unseen(e, _):
         post = e.posterior()
@@ -516,26 +542,6 @@ def _discrete_surprise(net, params, prior, observed, log_lik) -> torch.Tensor:
     joint = _chunked(net, params, prior, set(observed), fn)
     more_likely = joint > log_lik[:, None] + 1e-9
     return (joint.exp() * more_likely).sum(-1).clamp(0, 1)
-
-
-def _sampled_surprise(net, params, enc, observed, log_lik, n_samples, seed) -> torch.Tensor:
-    """Monte Carlo estimate of the same tail probability, seeded: outcomes of every
-    observed end feature drawn jointly from the model given the prior evidence (the
-    evidence without ``observed``), observed in the same dimensions as the evidence."""
-    n = log_lik.shape[0]
-    rows = enc.without(*observed).repeat(n_samples)
-    drawn = draw(net, params, rows, seed=seed)
-    outcome = {}
-    for s in observed:
-        given = enc[s]
-        outcome[s] = drawn[s]
-        if given.is_floating_point() and is_partial(given):
-            unobserved = torch.isnan(given).repeat_interleave(n_samples, 0)
-            outcome[s] = torch.where(unobserved, torch.nan, drawn[s])
-    outcomes = Evidence(net, outcome, rows.n_rows)
-    sample_ll = _chunked(net, params, rows | outcomes, set(), lambda e, _: e.log_evidence)
-    sample_ll = sample_ll - _chunked(net, params, rows, set(), lambda e, _: e.log_evidence)
-    return (sample_ll.reshape(n, n_samples) > log_lik[:, None]).to(DTYPE).mean(-1)
 
 
 def infer_parameter(

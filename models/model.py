@@ -33,7 +33,10 @@ Two rules shape the parameter sites:
   zero, the cluster stays latent (enumerated) given the value, and the model is a plain
   mixture of Gaussians whose weights are the cluster table.
 
-``collapse=True`` is the form the exact queries run. A parameter given as NaN in a
+``collapse=True`` is the form the exact queries run (and the one to give Pyro's exact
+sums, ``TraceEnum_ELBO`` and ``infer_discrete``). An unobserved continuous end site is
+then integrated out: it has no children, so its integral is one; it is still drawn, with
+its factor masked. A parameter given as NaN in a
 row, or not given at all, is then *unknown* in that row and is integrated out in closed
 form: the affected feature follows the marginal
 ``MVN(W_x x + W_p mean[c] + b, cov + W_p cov_p[c] W_p^T)`` given the cluster ``c`` (a
@@ -105,7 +108,9 @@ def effect_model(
         out; queries use this to skip work.
     collapse
         Integrate unknown parameter values (NaN rows, or the site not given) out in
-        closed form instead of sampling them: the form of the exact queries.
+        closed form instead of sampling them, and unobserved continuous end sites out
+        (drawn, their factor masked: they have no children): the form of the exact
+        queries, exact under ``TraceEnum_ELBO`` and ``infer_discrete``.
 
     Returns
     -------
@@ -160,7 +165,7 @@ def effect_model(
             if spec.discrete:
                 values[site] = _discrete(site, fn, data, masks)
             else:
-                values[site] = _observe(site, fn, data.get(site))
+                values[site] = _observe(site, fn, data.get(site), collapse and spec.role == "end")
         for m in shared:
             sites = [s for s in m.continuous if wanted is None or s in wanted]
             belief = None
@@ -174,7 +179,7 @@ def effect_model(
                 args = (params, cpd, index, inputs, action)
                 loc, tril = m.shared_loc_tril(*args, known[m.parameter.name], belief)
                 fn = dist.MultivariateNormal(loc, scale_tril=tril)
-                values[site] = _observe(site, fn, data.get(site))
+                values[site] = _observe(site, fn, data.get(site), collapse)
                 if site in data:
                     belief = m.update(*args, values[site], belief)
     return values
@@ -260,11 +265,18 @@ class _PartlyObserved(dist.MultivariateNormal):
         return partial_log_density(value, self.loc, self.scale_tril)
 
 
-def _observe(site: str, fn: dist.MultivariateNormal, obs: torch.Tensor | None) -> torch.Tensor:
+def _observe(
+    site: str, fn: dist.MultivariateNormal, obs: torch.Tensor | None, leaf: bool = False
+) -> torch.Tensor:
     """Sample a continuous site: latent, observed, or observed in some dimensions (NaN in
-    the others: their marginal is the site's factor)."""
+    the others: their marginal is the site's factor). A latent ``leaf`` (an end site in
+    the collapsed form) is integrated out: nothing depends on it, so its integral is one;
+    it is drawn, with its factor masked, so that exact sums stay exact."""
     if obs is not None and is_partial(obs):
         fn = _PartlyObserved(fn.loc, scale_tril=fn.scale_tril)
+    if obs is None and leaf:
+        with poutine.mask(mask=False):
+            return _continuous(site, pyro.sample(site, fn))
     return _continuous(site, pyro.sample(site, fn, obs=obs))
 
 

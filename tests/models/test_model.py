@@ -75,6 +75,27 @@ def test_predictive_samples_every_site():
     assert draws["param.force"].shape == (7, 3, 1)
 
 
+def test_vectorised_predictive_draws_from_the_tables():
+    # parallel=True runs the model once over a plate of draws: the model broadcasts over
+    # it, so its draws follow the same tables (the action's, the cluster's given tap)
+    sites = [site.name for site in NET.sites]
+    with torch.random.fork_rng():
+        torch.manual_seed(3)
+        draws = Predictive(effect_model, num_samples=4000, parallel=True, return_sites=sites)(
+            NET, PARAMS, n_rows=2
+        )
+    assert set(draws) == set(sites)  # no factor sites (cluster.force.cell)
+    action, cluster = draws["action"].flatten(), draws["cluster.force"].flatten()
+    n = len(action)
+    freq = torch.bincount(action, minlength=3).to(DTYPE) / n
+    probs = PARAMS["action"].probs
+    assert ((freq - probs).abs() <= 4 * (probs * (1 - probs) / n).sqrt() + 1e-12).all()
+    tapped = cluster[action == 2]
+    freq = torch.bincount(tapped, minlength=4).to(DTYPE) / len(tapped)
+    probs = PARAMS["cluster.force"].probs[2]
+    assert ((freq - probs).abs() <= 4 * (probs * (1 - probs) / len(tapped)).sqrt() + 1e-12).all()
+
+
 def test_infer_discrete_samples_the_exact_action_posterior():
     ev = NET.encode(
         {
@@ -101,6 +122,43 @@ def test_trace_enum_elbo_is_the_exact_log_evidence():
         lambda: effect_model(NET, PARAMS, ev, collapse=True), lambda: None
     )
     assert abs(loss + float(infer_action(NET, PARAMS, ev).log_evidence[0])) < 1e-9
+
+
+@pytest.mark.filterwarnings("ignore:Found vars in model but not guide")  # end.pos, drawn
+def test_trace_enum_elbo_is_exact_with_a_continuous_end_site_left_out():
+    # end.pos unobserved: the collapsed model integrates it out (it has no children), so
+    # the loss is -log p(evidence) on every call, not a draw of end.pos scored
+    pushed = poutine.condition(effect_model, data={"param.force": torch.tensor([[10.0]])})
+    tap = NET.encode(START | {"action": ["tap"], "end.visible": [False]})
+    elbo = TraceEnum_ELBO(max_plate_nesting=1)
+    losses = []
+    for seed in range(5):
+        with torch.random.fork_rng():
+            torch.manual_seed(seed)
+            losses.append(elbo.loss(lambda: pushed(NET, PARAMS, tap, collapse=True), lambda: None))
+    # the documented idiom: only the observed end sites kept
+    kept = elbo.loss(
+        lambda: pushed(NET, PARAMS, tap, collapse=True, end_sites={"end.visible"}), lambda: None
+    )
+    # brute force: the initial state's, the action's, the cell's and the force's terms
+    # and p(end.visible | visible, tap); end.pos integrates to one
+    table = PARAMS["end.visible"]
+    soft = table.weight[1, 2, :, 0] * 0.1 + table.bias[1, 2]
+    prior = PARAMS["param.force"]
+    start = PARAMS["initial.pos"]
+    cell = 2  # 10 N in cell 2 of 0..20 N, 4 bins
+    force = torch.distributions.Normal(prior.bias[cell, 0], prior.scale_tril[cell, 0, 0])
+    want = (
+        PARAMS["initial.visible"].probs[1].log()
+        + PARAMS["action"].probs[2].log()
+        + PARAMS["cluster.force"].probs[2, cell].log()
+        + force.log_prob(torch.tensor(10.0, dtype=DTYPE))
+        + soft.log_softmax(-1)[0]
+        + torch.distributions.Normal(start.bias[0], start.scale_tril[0, 0]).log_prob(
+            torch.tensor(0.1, dtype=DTYPE)
+        )
+    )
+    assert max(abs(loss + float(want)) for loss in [*losses, kept]) < 1e-9
 
 
 def test_float32_inputs_work():
