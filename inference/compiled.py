@@ -43,7 +43,7 @@ from models.declaration import (
     Parameter,
     end_site,
 )
-from models.evidence import Evidence, is_partial
+from models.evidence import MAX_MAGNITUDE, Evidence, is_partial
 from models.gaussian import mask_unobserved, partial_log_density
 from models.model import effect_model
 from models.params import NetworkParams, check_params
@@ -621,19 +621,22 @@ class CompiledParameterQuery:
             return None
         value = evidence[t["y_site"]]
         if isinstance(value, torch.Tensor):
-            y = value.detach().cpu().numpy().astype(np.float64, copy=False)
+            y = value.detach().cpu().numpy()
         elif isinstance(value, np.ndarray | list | tuple | float | int):
             try:
-                y = np.asarray(value, dtype=np.float64)
+                y = np.asarray(value)
             except (TypeError, ValueError):
                 return None
         else:  # Partial and the rest
             return None
+        if y.dtype.kind not in "fiub":  # complex, objects, strings: refused by encode
+            return None
+        y = y.astype(np.float64, copy=False)
         d = t["d"]
         if not (y.shape == (1, d) or y.shape == (d,) or (y.ndim == 0 and d == 1)):
             return None
         y = y.reshape(d)
-        if not np.isfinite(y).all():
+        if not (np.abs(y) <= MAX_MAGNITUDE).all():  # NaN, inf, beyond the magnitude rule
             return None
         at = t["per"][a]
         u = y - t["centre"]
