@@ -440,11 +440,6 @@ class CompiledParameterQuery:
     prior_mean: torch.Tensor  # (C, k)
     post_cov: torch.Tensor  # (P..., k, k)
     seen: torch.Tensor  # (P...) bool
-    # Where the feature has no continuous input but the parameter: the squared distances
-    # of every cluster as one product, d2 = features(y - centre) @ quadratic, with
-    # features (y_i y_j for i <= j, y_i, 1) and the forms' coefficients per cluster.
-    centre: torch.Tensor | None = field(default=None, repr=False)  # (d,)
-    quadratic: torch.Tensor | None = field(default=None, repr=False)  # (P'..., F, C)
     # The one-row tables (:meth:`_one_row`), built on the first single query.
     _one: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
@@ -496,20 +491,15 @@ class CompiledParameterQuery:
         if is_partial(y):
             return self._infer_partial(enc, y, index, loc, mixture, below)
         # log N(y; loc, L L^T) = log_norm - |L^-1 (y - loc)|^2 / 2, with L^-1 and log_norm
-        # precomputed from the model's own marginal Cholesky factor L
-        if self.quadratic is not None and x is None:
-            features = quadratic_features(y - self.centre)  # (n, F)
-            if shared:
-                d2 = features @ self.quadratic[gather][0]
-            else:
-                d2 = (features[:, None, :] @ self.quadratic[index]).squeeze(-2)
+        # precomputed from the model's own marginal Cholesky factor L. The residual is
+        # taken first and then whitened: a sum of squares without cancellation, where an
+        # expanded form y'Ay - 2b'y + c with A ~ 1 / noise loses as many digits as A has.
+        diff = y[:, None, :] - loc  # (n, C, d)
+        if shared:
+            z = torch.einsum("cij,ncj->nci", self.whiten[gather][0], diff)
         else:
-            diff = y[:, None, :] - loc  # (n, C, d)
-            if shared:
-                z = torch.einsum("cij,ncj->nci", self.whiten[gather][0], diff)
-            else:
-                z = torch.einsum("ncij,ncj->nci", self.whiten[index], diff)
-            d2 = z.square().sum(-1)  # (n, C) squared Mahalanobis distances
+            z = torch.einsum("ncij,ncj->nci", self.whiten[index], diff)
+        d2 = z.square().sum(-1)  # (n, C) squared Mahalanobis distances
         log_cluster = self.log_cluster[enc[ACTION][:1] if shared else enc[ACTION]]
         impossible = ~torch.isfinite(log_cluster)  # (1 or n, C)
         if bool(impossible.any()):
@@ -550,7 +540,7 @@ class CompiledParameterQuery:
         if "tables" in self._one:
             return self._one["tables"]
         tables = None
-        if self.quadratic is not None and self.parents[:-1] in ((), (ACTION,)):
+        if self.w_x.shape[-1] == 0 and self.parents[:-1] in ((), (ACTION,)):
             net, p = self.net, self.parameter
             actions = torch.arange(len(net.actions))
             by_action = self.parents[:-1] == (ACTION,)
@@ -564,7 +554,7 @@ class CompiledParameterQuery:
                 log_cluster = self.log_cluster[a]
                 per.append(
                     {
-                        "quadratic": at(self.quadratic),  # (F, C)
+                        "whiten": at(self.whiten),  # (C, d, d)
                         "base": at(self.log_norm) + log_cluster.numpy(),  # (C,)
                         # None: every cluster possible (most actions), no mask to apply
                         "impossible": (~torch.isfinite(log_cluster)).numpy()
@@ -584,8 +574,6 @@ class CompiledParameterQuery:
                 "default": net.action_index(p.actions[0]) if len(p.actions) == 1 else None,
                 "per": per,
                 "d": d,
-                "pairs": tuple(np.triu_indices(d)),
-                "centre": self.centre.numpy(),
                 "prior_mean": self.prior_mean.numpy(),
                 "low": np.asarray(p.low, dtype=np.float64),
                 "high": np.asarray(p.high, dtype=np.float64),
@@ -639,9 +627,8 @@ class CompiledParameterQuery:
         if not (np.abs(y) <= MAX_MAGNITUDE).all():  # NaN, inf, beyond the magnitude rule
             return None
         at = t["per"][a]
-        u = y - t["centre"]
-        i, j = t["pairs"]
-        d2 = np.concatenate([u[i] * u[j], u, (1.0,)]) @ at["quadratic"]  # (C,)
+        z = (at["whiten"] @ (y - at["offset"])[:, :, None])[..., 0]  # (C, d), as batched
+        d2 = (z * z).sum(-1)
         log_post = at["base"] - 0.5 * d2
         if at["impossible"] is not None:
             d2 = np.where(at["impossible"], np.inf, d2)
@@ -877,8 +864,6 @@ def compile_parameter_query(
         return CompiledJointParameterQuery(net, params, m.parameter, log_cluster)
     child = net.cpd(m.child)
     tables = m.query_tables(params, child)
-    if tables["w_x"].shape[-1] == 0:  # no other continuous input: every mean is fixed
-        tables |= _quadratic_forms(tables["offset"], tables["whiten"])
     return CompiledParameterQuery(net, m.parameter, child.parents, child.inputs, **tables)
 
 
@@ -910,18 +895,3 @@ def quadratic_features(y: torch.Tensor) -> torch.Tensor:
     """``(n, F)``: ``y_i y_j`` for ``i <= j`` (row-major), ``y_i``, and 1, of ``y`` ``(n, d)``."""
     i, j = torch.triu_indices(y.shape[-1], y.shape[-1])
     return torch.cat([y[:, i] * y[:, j], y, torch.ones_like(y[:, :1])], -1)
-
-
-def _quadratic_forms(offset: torch.Tensor, whiten: torch.Tensor) -> dict[str, torch.Tensor]:
-    """The coefficients of ``|whiten (y - offset)|^2`` in :func:`quadratic_features` of
-    ``y - centre``, per configuration ``(P'..., C)`` laid out as ``(P'..., F, C)``."""
-    d = offset.shape[-1]
-    centre = offset.reshape(-1, d).mean(0)
-    a = whiten.mT @ whiten  # (P..., C, d, d) precision
-    loc = offset - centre
-    b = (a @ loc[..., None]).squeeze(-1)  # (P..., C, d)
-    c = (loc * b).sum(-1)  # (P..., C)
-    i, j = torch.triu_indices(d, d)
-    pairs = a[..., i, j] * torch.where(i == j, 1.0, 2.0).to(a.dtype)
-    coeffs = torch.cat([pairs, -2 * b, c[..., None]], -1)  # (P..., C, F)
-    return {"centre": centre, "quadratic": coeffs.mT.contiguous()}

@@ -21,7 +21,7 @@ from functools import cached_property
 import torch
 from pyro import poutine
 
-from models.declaration import EffectNetwork
+from models.declaration import DTYPE, EffectNetwork
 from models.evidence import Evidence
 from models.model import effect_model
 from models.params import NetworkParams
@@ -34,15 +34,23 @@ class Enumerated:
     ``log_weight`` has shape ``(E_k, ..., E_1, n)``: one dim per enumerated site (its
     number of states, or 1 where no kept factor depends on it) then the rows.
     ``dims[site]`` is the (negative) dim of an enumerated site.
+
+    The joint is held in log space per row: ``log_weight + log_offset`` is the log-joint,
+    where ``log_offset`` ``(n,)`` gathers the parts that are the same for every
+    configuration of a row (a continuous initial state's density, each factor's and the
+    sum's largest value), so that ``log_weight`` keeps the differences between
+    configurations to float64's precision at any magnitude of the evidence, and every
+    distribution normalised from it sums to one.
     """
 
     log_weight: torch.Tensor
     dims: dict[str, int]
     trace: poutine.Trace
+    log_offset: torch.Tensor | float = 0.0
 
     @cached_property  # a sum over the whole joint, which queries ask for more than once
-    def log_evidence(self) -> torch.Tensor:
-        """``(n,)`` log-probability of the evidence (kept sites), all latents summed out."""
+    def log_norm(self) -> torch.Tensor:
+        """``(n,)`` ``log sum exp(log_weight)`` over the configurations of each row."""
         w = self.log_weight
         if w.dim() == 1:
             return w
@@ -50,6 +58,11 @@ class Enumerated:
         if rows_first.is_contiguous():  # the rows outermost in memory: reduce along them
             return rows_first.reshape(w.shape[-1], -1).logsumexp(1)
         return w.reshape(-1, w.shape[-1]).logsumexp(0)
+
+    @cached_property
+    def log_evidence(self) -> torch.Tensor:
+        """``(n,)`` log-probability of the evidence (kept sites), all latents summed out."""
+        return self.log_norm + self.log_offset
 
     def marginal(self, site: str) -> torch.Tensor:
         """``(n, K)`` exact posterior of an enumerated site given the evidence."""
@@ -59,26 +72,56 @@ class Enumerated:
             w = w + torch.zeros(_states(self.trace, site), *([1] * (-dim - 1)), dtype=w.dtype)
         others = [d for d in range(w.dim() - 1) if d != w.dim() + dim]
         m = w.logsumexp(others) if others else w
-        return (m - m.logsumexp(0, keepdim=True)).exp().T
+        norm = m.logsumexp(0, keepdim=True)
+        self._check_possible(norm[0])
+        return (m - norm).exp().T
 
     def posterior(self) -> torch.Tensor:
         """Normalised joint weight, same shape as ``log_weight``.
 
-        With the rows outermost in memory and the evidence not yet summed, both come
-        from one pass of ``exp``: ``e = exp(w - max)``, ``log p = max + log(sum e)`` (as
+        With the rows outermost in memory and the sum not yet taken, both come from one
+        pass of ``exp``: ``e = exp(w - max)``, ``log_norm = max + log(sum e)`` (as
         ``logsumexp`` computes it) and the posterior ``e / sum e``.
         """
         w = self.log_weight
         rows_first = w.movedim(-1, 0)
-        if "log_evidence" in self.__dict__ or w.dim() == 1 or not rows_first.is_contiguous():
-            return (w - self.log_evidence).exp()
+        if "log_norm" in self.__dict__ or w.dim() == 1 or not rows_first.is_contiguous():
+            self._check_possible(self.log_norm)
+            return (w - self.log_norm).exp()
         flat = rows_first.reshape(w.shape[-1], -1)
         top = flat.amax(1, keepdim=True)
         top = torch.where(torch.isfinite(top), top, 0.0)  # a row of -inf: as logsumexp
         post = (flat - top).exp_()
         total = post.sum(1, keepdim=True)
-        self.__dict__["log_evidence"] = (total.log() + top).squeeze(1)
+        self.__dict__["log_norm"] = (total.log() + top).squeeze(1)
+        self._check_possible(self.log_norm)
         return post.div_(total).reshape(rows_first.shape).movedim(0, -1)
+
+    def _check_possible(self, log_norm: torch.Tensor) -> None:
+        """Refuse a row whose evidence has probability 0 under every configuration: no
+        posterior exists (in float64, a density also underflows to 0 where the value lies
+        beyond about 1e154 of the component's standard deviations)."""
+        if bool((log_norm > -torch.inf).all()):
+            return
+        row = int((log_norm == -torch.inf).nonzero()[0])
+        zero = [
+            name
+            for name, site in self.trace.nodes.items()
+            if site["type"] == "sample"
+            and "log_prob" in site
+            and bool(
+                (
+                    site["log_prob"].expand(*site["log_prob"].shape[:-1], len(log_norm))[..., row]
+                    == -torch.inf
+                ).all()
+            )
+        ]
+        raise ValueError(
+            f"evidence row {row} has probability 0 under every configuration of the model"
+            + (f" (the factor of {zero} is 0 in float64 everywhere)" if zero else "")
+            + ": no posterior exists. A state the model never reaches, or a value too far "
+            "from every component for float64 (rescale the feature)"
+        )
 
 
 def _states(trace: poutine.Trace, site: str) -> int:
@@ -131,13 +174,23 @@ def enumerate_model(
     trace.compute_log_prob()
     factors = []
     dims: dict[str, int] = {}
+    offset = torch.zeros(1, dtype=DTYPE)  # (1,) or (n,): see Enumerated
     for name, site in trace.nodes.items():
         if site["type"] != "sample":
             continue
         if site["infer"].get("_enumerate_dim") is not None:
             dims[name] = site["infer"]["_enumerate_dim"]
-        if name not in trace_only:
-            factors.append(site["log_prob"])
+        if name in trace_only:
+            continue
+        lp = site["log_prob"]
+        if _unbounded(net, name):
+            # a density (or a softmax of continuous inputs) may sit anywhere in float64;
+            # its row's largest value goes to the offset before the factors are summed,
+            # so that a large constant does not swallow the differences of the others
+            top = _row_max(lp)
+            lp = lp - top
+            offset = offset + top.reshape(-1)
+        factors.append(lp)
     assert factors
     # the largest factors first: their sum is one plain pass in their own memory order
     # (rows outermost for gathered tables), and the small ones broadcast onto it once
@@ -155,7 +208,33 @@ def enumerate_model(
     total = total.expand(*total.shape[:-1], n) if total.shape[-1] != n else total
     while total.dim() < depth:
         total = total.unsqueeze(0)
-    return Enumerated(total, dims, trace)
+    top = _row_max(total)
+    if bool((top.abs() > _CENTRED).any()):  # the factors' optima disagree by far
+        total = total - top
+        offset = offset + top.reshape(-1)
+    return Enumerated(total, dims, trace, offset.expand(n) if offset.shape[0] != n else offset)
+
+
+#: Largest row maximum of a joint left uncentred: its rounding, 1e3 * 2^-52, is below 1e-12.
+_CENTRED = 1e3
+
+
+def _unbounded(net: EffectNetwork, name: str) -> bool:
+    """Whether a site's log-probability can take any magnitude: a continuous site's
+    density, or a discrete site with continuous inputs (a softmax). A table's (and a
+    factor's) is ``0``, ``-inf`` or a log-probability above float64's smallest."""
+    try:
+        spec = net.site(name)
+    except KeyError:  # a factor (the cluster's cell, an observed mask): 0 or -inf
+        return False
+    return not spec.discrete or bool(net.cpd(name).inputs)
+
+
+def _row_max(lp: torch.Tensor) -> torch.Tensor:
+    """Per row (last dim), the largest finite-or-not value over the other dims, kept as
+    dims of size 1; a row with no finite maximum (all ``-inf``) gets 0."""
+    top = lp.amax(tuple(range(lp.dim() - 1)), keepdim=True) if lp.dim() > 1 else lp
+    return torch.where(torch.isfinite(top), top, 0.0)
 
 
 # Elements of one chunk's joint tensor (8 MiB of float64). Larger chunks cost more than

@@ -507,7 +507,7 @@ def _discrete_surprise(net, params, prior, observed, log_lik) -> torch.Tensor:
     """P(outcome strictly more likely than the observed one), by enumerating outcomes."""
 
     def fn(e: Enumerated, _):
-        w = e.log_weight - e.log_evidence  # joint over outcomes and latents, (E..., n)
+        w = e.log_weight - e.log_norm  # joint over outcomes and latents, (E..., n)
         outcome_dims = [w.dim() + e.dims[s] for s in observed]
         latent_dims = [d for d in range(w.dim() - 1) if d not in outcome_dims]
         joint = w.logsumexp(latent_dims, keepdim=True) if latent_dims else w

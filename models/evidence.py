@@ -339,8 +339,8 @@ def check_magnitude(site: str, value: torch.Tensor) -> None:
         row = int(big.nonzero()[0])
         raise ValueError(
             f"site {site!r}: row {row} holds {value[row].tolist()}, beyond +-{MAX_MAGNITUDE:g} "
-            "(the largest magnitude whose squares stay finite in training and queries); "
-            "rescale the feature (other units)"
+            "(the largest magnitude whose squares stay finite in training and queries). "
+            "Rescale the feature (other units)"
         )
 
 
