@@ -24,7 +24,12 @@ import numpy as np
 import torch
 from pyro import poutine
 
-from inference.plausibility import IMPLAUSIBLE_BELOW, check_threshold
+from inference.plausibility import (
+    IMPLAUSIBLE_BELOW,
+    check_threshold,
+    initial_tails,
+    outside_training,
+)
 from inference.queries import (
     ActionPosterior,
     GaussianMixture,
@@ -440,6 +445,8 @@ class CompiledParameterQuery:
     prior_mean: torch.Tensor  # (C, k)
     post_cov: torch.Tensor  # (P..., k, k)
     seen: torch.Tensor  # (P...) bool
+    # for the initial states' plausibility (inference.plausibility.initial_tails)
+    params: NetworkParams | None = field(default=None, repr=False, compare=False)
     # The one-row tables (:meth:`_one_row`), built on the first single query.
     _one: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
@@ -511,6 +518,9 @@ class CompiledParameterQuery:
         log_post = d2.mul_(-0.5).add_(self.log_norm[gather] + log_cluster)
         dof = torch.tensor(y.shape[-1] / 2, dtype=DTYPE)
         implausible = torch.special.gammaincc(dof, closest / 2) < below
+        if self.params is not None:
+            initial = initial_tails(self.net, self.params, enc)
+            implausible = implausible | outside_training(initial, below)
         probs = torch.softmax(log_post, -1, out=log_post)  # in place: log_post is ours
         # numpy's argmax (the first maximum, as torch's) is several times faster here
         best = torch.from_numpy(probs.numpy().argmax(-1))
@@ -690,6 +700,10 @@ class CompiledParameterQuery:
         closest = d2.masked_fill(~torch.isfinite(log_cluster), torch.inf).min(-1).values
         tail = torch.special.gammaincc(dof.clamp_min(1) / 2, closest / 2)
         implausible = torch.where(dof > 0, tail, 1.0) < below
+        if self.params is not None:
+            implausible = implausible | outside_training(
+                initial_tails(self.net, self.params, enc), below
+            )
         best = probs.argmax(-1)
         rows = torch.arange(n)
         mean, cov = means[rows, best], covs[rows, best]
@@ -826,6 +840,7 @@ class CompiledJointParameterQuery:
         tail = torch.where(dof > 0, tail, 1.0)
         p_discrete = (log_cluster + log_discrete).logsumexp(-1).exp()
         implausible = (tail < below) | (p_discrete < below)
+        implausible = implausible | outside_training(initial_tails(net, params, enc), below)
         mix = GaussianMixture(probs, means, covs) if mixture else None
         return ParameterPosterior(
             probs, best, mean, cov, unseen, outside_range(p, mean), mix, implausible
@@ -864,7 +879,9 @@ def compile_parameter_query(
         return CompiledJointParameterQuery(net, params, m.parameter, log_cluster)
     child = net.cpd(m.child)
     tables = m.query_tables(params, child)
-    return CompiledParameterQuery(net, m.parameter, child.parents, child.inputs, **tables)
+    return CompiledParameterQuery(
+        net, m.parameter, child.parents, child.inputs, **tables, params=params
+    )
 
 
 def chi_square_tail(dof: int, x: float) -> float:

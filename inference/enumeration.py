@@ -15,13 +15,13 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 
 import torch
 from pyro import poutine
 
-from models.declaration import DTYPE, EffectNetwork
+from models.declaration import EffectNetwork
 from models.evidence import Evidence
 from models.model import effect_model
 from models.params import NetworkParams
@@ -36,17 +36,23 @@ class Enumerated:
     ``dims[site]`` is the (negative) dim of an enumerated site.
 
     The joint is held in log space per row: ``log_weight + log_offset`` is the log-joint,
-    where ``log_offset`` ``(n,)`` gathers the parts that are the same for every
-    configuration of a row (a continuous initial state's density, each factor's and the
-    sum's largest value), so that ``log_weight`` keeps the differences between
-    configurations to float64's precision at any magnitude of the evidence, and every
-    distribution normalised from it sums to one.
+    where ``offsets`` ``{name: (n,)}`` hold the parts that are the same for every
+    configuration of a row (a continuous initial state's density, each unbounded
+    factor's largest value, and under ``""`` the sum's), so that ``log_weight`` keeps the
+    differences between configurations to float64's precision at any magnitude of the
+    evidence, and every distribution normalised from it sums to one. Kept per site, they
+    cancel exactly between two evidence sets that share a site (:func:`log_ratio`).
     """
 
     log_weight: torch.Tensor
     dims: dict[str, int]
     trace: poutine.Trace
-    log_offset: torch.Tensor | float = 0.0
+    offsets: dict[str, torch.Tensor] = field(default_factory=dict)
+
+    @property
+    def log_offset(self) -> torch.Tensor | float:
+        """``(n,)`` the offsets' sum (``0.0`` without any)."""
+        return sum(self.offsets.values(), 0.0)
 
     @cached_property  # a sum over the whole joint, which queries ask for more than once
     def log_norm(self) -> torch.Tensor:
@@ -174,7 +180,7 @@ def enumerate_model(
     trace.compute_log_prob()
     factors = []
     dims: dict[str, int] = {}
-    offset = torch.zeros(1, dtype=DTYPE)  # (1,) or (n,): see Enumerated
+    offsets: dict[str, torch.Tensor] = {}  # (n,) each: see Enumerated
     for name, site in trace.nodes.items():
         if site["type"] != "sample":
             continue
@@ -189,7 +195,7 @@ def enumerate_model(
             # so that a large constant does not swallow the differences of the others
             top = _row_max(lp)
             lp = lp - top
-            offset = offset + top.reshape(-1)
+            offsets[name] = top.reshape(-1).expand(n)
         factors.append(lp)
     assert factors
     # the largest factors first: their sum is one plain pass in their own memory order
@@ -211,8 +217,47 @@ def enumerate_model(
     top = _row_max(total)
     if bool((top.abs() > _CENTRED).any()):  # the factors' optima disagree by far
         total = total - top
-        offset = offset + top.reshape(-1)
-    return Enumerated(total, dims, trace, offset.expand(n) if offset.shape[0] != n else offset)
+        offsets[""] = top.reshape(-1)
+    return Enumerated(total, dims, trace, offsets)
+
+
+def log_ratio(a: Enumerated, b: Enumerated) -> torch.Tensor:
+    """``(n,)`` ``log p(a's evidence) - log p(b's evidence)`` for the same rows, where the
+    factors both share (a continuous initial state's density, say) cancel exactly, at
+    any magnitude; the difference of the two ``log_evidence`` loses what such a factor's
+    size hides."""
+    ratio = a.log_norm - b.log_norm
+    for name in a.offsets.keys() | b.offsets.keys():
+        ratio = ratio + (a.offsets.get(name, 0.0) - b.offsets.get(name, 0.0))
+    return ratio
+
+
+def conditional_log_evidence(
+    net: EffectNetwork,
+    params: NetworkParams,
+    evidence: Evidence,
+    given: Evidence,
+    log_joint: torch.Tensor,
+    log_given: torch.Tensor,
+) -> torch.Tensor:
+    """``(n,)`` ``log p(evidence | given) = log_joint - log_given`` (``given``: some of the
+    evidence's sites, ``log_joint`` and ``log_given`` their ``log_evidence``), recomputed
+    by :func:`log_ratio` in the rows where either is large enough that the subtraction
+    would lose digits (a density far in its tail)."""
+    ratio = log_joint - log_given
+    far = (log_joint.abs() > _CENTRED) | (log_given.abs() > _CENTRED)
+    if not bool(far.any()):
+        return ratio
+    rows = far.nonzero().squeeze(-1)
+    joint, part = evidence.rows(rows), given.rows(rows)
+    size = max(enumeration_size(net, joint), enumeration_size(net, part))
+    exact = [
+        log_ratio(
+            enumerate_model(net, params, joint.rows(s)), enumerate_model(net, params, part.rows(s))
+        )
+        for s in row_chunks(len(rows), size)
+    ]
+    return ratio.index_put((rows,), torch.cat(exact))
 
 
 #: Largest row maximum of a joint left uncentred: its rounding, 1e3 * 2^-52, is below 1e-12.

@@ -394,5 +394,3 @@ def _complete(net: EffectNetwork, data: Mapping[str, object]) -> Evidence:
                 )
             check_magnitude(site, value)  # the rule evidence follows (models.evidence)
     return enc | net.encode_indices(clusters) if clusters else enc
-
-

@@ -41,7 +41,13 @@ import numpy as np
 import torch
 from pyro.ops.indexing import Vindex
 
-from inference.enumeration import Enumerated, enumerate_model, enumeration_size, row_chunks
+from inference.enumeration import (
+    Enumerated,
+    conditional_log_evidence,
+    enumerate_model,
+    enumeration_size,
+    row_chunks,
+)
 from inference.plausibility import IMPLAUSIBLE_BELOW, check_threshold, plausibility
 from inference.simulate import draw
 from models.declaration import (
@@ -487,7 +493,7 @@ def imitation_check(
     prior = enc.without(*observed)
     log_joint = _chunked(net, params, enc, set(), lambda e, _: e.log_evidence)
     log_prior = _chunked(net, params, prior, set(), lambda e, _: e.log_evidence)
-    log_lik = log_joint - log_prior
+    log_lik = conditional_log_evidence(net, params, enc, prior, log_joint, log_prior)
     if all(net.site(s).discrete for s in observed):
         surprise = _discrete_surprise(net, params, prior, observed, log_lik)
     else:
