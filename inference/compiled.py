@@ -501,12 +501,8 @@ class CompiledParameterQuery:
         # precomputed from the model's own marginal Cholesky factor L. The residual is
         # taken first and then whitened: a sum of squares without cancellation, where an
         # expanded form y'Ay - 2b'y + c with A ~ 1 / noise loses as many digits as A has.
-        diff = y[:, None, :] - loc  # (n, C, d)
-        if shared:
-            z = torch.einsum("cij,ncj->nci", self.whiten[gather][0], diff)
-        else:
-            z = torch.einsum("ncij,ncj->nci", self.whiten[index], diff)
-        d2 = z.square().sum(-1)  # (n, C) squared Mahalanobis distances
+        whiten = self.whiten[gather][0] if shared else self.whiten[index]  # (C or n, C, d, d)
+        d2 = _whitened_distance(y, loc, whiten)  # (n, C) squared Mahalanobis distances
         log_cluster = self.log_cluster[enc[ACTION][:1] if shared else enc[ACTION]]
         impossible = ~torch.isfinite(log_cluster)  # (1 or n, C)
         if bool(impossible.any()):
@@ -637,8 +633,14 @@ class CompiledParameterQuery:
         if not (np.abs(y) <= MAX_MAGNITUDE).all():  # NaN, inf, beyond the magnitude rule
             return None
         at = t["per"][a]
-        z = (at["whiten"] @ (y - at["offset"])[:, :, None])[..., 0]  # (C, d), as batched
-        d2 = (z * z).sum(-1)
+        diff = y - at["offset"]  # (C, d): the residuals first, then whitened, as batched
+        whiten = at["whiten"]
+        d2 = np.zeros(len(diff))
+        for i in range(d):  # whiten is lower triangular
+            z = whiten[:, i, 0] * diff[:, 0]
+            for j in range(1, i + 1):
+                z += whiten[:, i, j] * diff[:, j]
+            d2 += z * z
         log_post = at["base"] - 0.5 * d2
         if at["impossible"] is not None:
             d2 = np.where(at["impossible"], np.inf, d2)
@@ -882,6 +884,22 @@ def compile_parameter_query(
     return CompiledParameterQuery(
         net, m.parameter, child.parents, child.inputs, **tables, params=params
     )
+
+
+def _whitened_distance(y: torch.Tensor, loc: torch.Tensor, whiten: torch.Tensor) -> torch.Tensor:
+    """``(n, C)`` ``|whiten (y - loc)|^2`` for ``y`` ``(n, d)``, ``loc`` ``(n or 1, C, d)`` and
+    lower triangular ``whiten`` ``(n or C, ..., d, d)``: the residual first, then whitened,
+    one dimension at a time on ``(n, C)`` tensors (a sum of squares without cancellation,
+    and no ``(n, C, d)`` temporaries)."""
+    d = y.shape[-1]
+    diff = [y[:, j, None] - loc[..., j] for j in range(d)]  # (n, C) each
+    d2 = None
+    for i in range(d):
+        z = diff[0] * whiten[..., i, 0]
+        for j in range(1, i + 1):
+            z.addcmul_(diff[j], whiten[..., i, j])
+        d2 = z.square_() if d2 is None else d2.add_(z.square_())
+    return d2
 
 
 def chi_square_tail(dof: int, x: float) -> float:
