@@ -517,6 +517,7 @@ class CompiledParameterQuery:
         if self.params is not None:
             initial = initial_tails(self.net, self.params, enc)
             implausible = implausible | outside_training(initial, below)
+        _refuse_impossible(log_post)
         probs = torch.softmax(log_post, -1, out=log_post)  # in place: log_post is ours
         # numpy's argmax (the first maximum, as torch's) is several times faster here
         best = torch.from_numpy(probs.numpy().argmax(-1))
@@ -636,15 +637,18 @@ class CompiledParameterQuery:
         diff = y - at["offset"]  # (C, d): the residuals first, then whitened, as batched
         whiten = at["whiten"]
         d2 = np.zeros(len(diff))
-        for i in range(d):  # whiten is lower triangular
-            z = whiten[:, i, 0] * diff[:, 0]
-            for j in range(1, i + 1):
-                z += whiten[:, i, j] * diff[:, j]
-            d2 += z * z
+        with np.errstate(over="ignore"):  # a distance beyond float64 is inf, as in torch
+            for i in range(d):  # whiten is lower triangular
+                z = whiten[:, i, 0] * diff[:, 0]
+                for j in range(1, i + 1):
+                    z += whiten[:, i, j] * diff[:, j]
+                d2 += z * z
         log_post = at["base"] - 0.5 * d2
         if at["impossible"] is not None:
             d2 = np.where(at["impossible"], np.inf, d2)
         tail = chi_square_tail(d, max(float(d2.min()), 0.0))
+        if not log_post.max() > -np.inf:
+            return None  # no cluster possible: the general path says so
         probs = np.exp(log_post - log_post.max())
         probs /= probs.sum()
         best = int(probs.argmax())
@@ -698,6 +702,7 @@ class CompiledParameterQuery:
         covs = prior_cov - gain @ cross.mT
         covs = 0.5 * (covs + covs.mT)
         log_cluster = self.log_cluster[enc[ACTION]]
+        _refuse_impossible(log_lik + log_cluster)
         probs = (log_lik + log_cluster).softmax(-1)
         closest = d2.masked_fill(~torch.isfinite(log_cluster), torch.inf).min(-1).values
         tail = torch.special.gammaincc(dof.clamp_min(1) / 2, closest / 2)
@@ -812,6 +817,7 @@ class CompiledJointParameterQuery:
             d2 = d2 + z.square().sum((-2, -1))
             dof = dof + seen[:, 0].sum(-1)
             belief = m.update(*args, y, belief)
+        _refuse_impossible(log_lik + log_cluster)
         probs = (log_lik + log_cluster).softmax(-1)
         best = probs.argmax(-1)
         rows = torch.arange(n)
@@ -884,6 +890,19 @@ def compile_parameter_query(
     return CompiledParameterQuery(
         net, m.parameter, child.parents, child.inputs, **tables, params=params
     )
+
+
+def _refuse_impossible(log_post: torch.Tensor) -> None:
+    """Refuse rows ``(n, C)`` whose every cluster has probability 0 (in float64): no
+    posterior exists (as :class:`inference.enumeration.Enumerated` refuses them)."""
+    top = log_post.amax(-1)
+    if not bool((top > -torch.inf).all()):
+        row = int((top == -torch.inf).nonzero()[0])
+        raise ValueError(
+            f"evidence row {row} has probability 0 under every configuration of the model "
+            "(every cluster): no posterior exists. A value too far from every component "
+            "for float64 (rescale the feature)"
+        )
 
 
 def _whitened_distance(y: torch.Tensor, loc: torch.Tensor, whiten: torch.Tensor) -> torch.Tensor:

@@ -536,3 +536,32 @@ def test_compiled_parameter_query_keeps_every_digit_with_a_small_fitted_noise(la
         want = torch.tensor(_cluster_posterior_oracle(params, asked[i]), dtype=torch.float64)
         torch.testing.assert_close(one.cluster_probs[0], want, atol=1e-12, rtol=0)
         torch.testing.assert_close(compiled.cluster_probs[i], want, atol=1e-12, rtol=0)
+
+
+def test_compiled_parameter_query_refuses_a_hit_with_no_probability_in_float64():
+    """A hit ~1e156 standard deviations from every cluster (within the magnitude limit):
+    its density underflows under every cluster; the compiled query, batched and one row,
+    refuses the row by name as the traced one does, instead of answering NaN."""
+    from inference import infer_parameter
+    from inference.compiled import compile_parameter_query
+    from models.params import NetworkParams
+
+    net = _one_row_network()
+    params = random_params(net, 0)
+    narrow = {
+        site: dataclasses.replace(params[site], scale_tril=1e-6 * params[site].scale_tril)
+        for site in ("end.hit", "param.target")
+    }
+    params = NetworkParams(params.cpds | narrow, params.pseudo_count)
+    query = compile_parameter_query(net, params, "target")
+    hits = torch.tensor([[0.5, 1.0], [1e150, 0.0]], dtype=torch.float64)
+    ev = {"end.hit": hits, "action": ["throw", "throw"]}
+    for call in (
+        lambda: query.infer(ev),
+        lambda: query.infer({"end.hit": hits[1], "action": "throw"}),
+        lambda: infer_parameter(net, params, "target", ev),
+    ):
+        with pytest.raises(ValueError, match=r"row \d has probability 0 under every"):
+            call()
+    ordinary = query.infer({"end.hit": hits[:1], "action": ["throw"]})
+    assert abs(float(ordinary.cluster_probs.sum()) - 1) < 1e-12
