@@ -565,3 +565,27 @@ def test_compiled_parameter_query_refuses_a_hit_with_no_probability_in_float64()
             call()
     ordinary = query.infer({"end.hit": hits[:1], "action": ["throw"]})
     assert abs(float(ordinary.cluster_probs.sum()) - 1) < 1e-12
+
+
+@pytest.mark.parametrize(
+    ("hit", "match"),
+    [
+        (np.array([0.3, 5j]), r"site 'end\.hit': complex numbers"),
+        (torch.tensor([0.3 + 0j, 0.4]), r"site 'end\.hit': complex numbers"),
+        ([0.3, 1e200], r"site 'end\.hit': row 0 .* beyond \+-1e\+150"),
+        (np.array([[-1e151, 0.0]]), r"site 'end\.hit': row 0 .* beyond \+-1e\+150"),
+    ],
+)
+def test_one_row_query_refuses_complex_and_huge_hits_as_encode_does(hit, match):
+    """The one-row path reads numbers itself; what evidence refuses, it refuses too (the
+    general path names the site), never reading 5j as 0 or answering beyond the limit."""
+    import warnings
+
+    from inference.compiled import compile_parameter_query
+
+    net = _one_row_network()
+    query = compile_parameter_query(net, random_params(net, 1), "target")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ValueError, match=match):
+            query.infer({"end.hit": hit, "action": "throw"})
