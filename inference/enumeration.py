@@ -82,8 +82,12 @@ class Enumerated:
         self._check_possible(norm[0])
         return (m - norm).exp().T
 
-    def posterior(self) -> torch.Tensor:
+    def posterior(self, *, strict: bool = True) -> torch.Tensor:
         """Normalised joint weight, same shape as ``log_weight``.
+
+        A row whose evidence has probability 0 has no posterior: ``ValueError``, or with
+        ``strict=False`` a weight of 0 everywhere in that row (for sums over the
+        posterior that are 0 where nothing is possible).
 
         With the rows outermost in memory and the sum not yet taken, both come from one
         pass of ``exp``: ``e = exp(w - max)``, ``log_norm = max + log(sum e)`` (as
@@ -92,15 +96,19 @@ class Enumerated:
         w = self.log_weight
         rows_first = w.movedim(-1, 0)
         if "log_norm" in self.__dict__ or w.dim() == 1 or not rows_first.is_contiguous():
-            self._check_possible(self.log_norm)
-            return (w - self.log_norm).exp()
+            if strict:
+                self._check_possible(self.log_norm)
+            norm = self.log_norm
+            return (w - torch.where(norm > -torch.inf, norm, 0.0)).exp()
         flat = rows_first.reshape(w.shape[-1], -1)
         top = flat.amax(1, keepdim=True)
         top = torch.where(torch.isfinite(top), top, 0.0)  # a row of -inf: as logsumexp
         post = (flat - top).exp_()
         total = post.sum(1, keepdim=True)
         self.__dict__["log_norm"] = (total.log() + top).squeeze(1)
-        self._check_possible(self.log_norm)
+        if strict:
+            self._check_possible(self.log_norm)
+        total = torch.where(total > 0, total, 1.0)  # an impossible row stays 0
         return post.div_(total).reshape(rows_first.shape).movedim(0, -1)
 
     def _check_possible(self, log_norm: torch.Tensor) -> None:
@@ -110,17 +118,17 @@ class Enumerated:
         if bool((log_norm > -torch.inf).all()):
             return
         row = int((log_norm == -torch.inf).nonzero()[0])
+
+        def zero_everywhere(lp: torch.Tensor) -> bool:
+            if lp.dim() == 0:
+                return bool(lp == -torch.inf)
+            at = lp[..., row] if lp.shape[-1] > 1 else lp[..., 0]
+            return bool((at == -torch.inf).all())
+
         zero = [
             name
             for name, site in self.trace.nodes.items()
-            if site["type"] == "sample"
-            and "log_prob" in site
-            and bool(
-                (
-                    site["log_prob"].expand(*site["log_prob"].shape[:-1], len(log_norm))[..., row]
-                    == -torch.inf
-                ).all()
-            )
+            if site["type"] == "sample" and "log_prob" in site and zero_everywhere(site["log_prob"])
         ]
         raise ValueError(
             f"evidence row {row} has probability 0 under every configuration of the model"
@@ -276,8 +284,8 @@ def _unbounded(net: EffectNetwork, name: str) -> bool:
 
 
 def _row_max(lp: torch.Tensor) -> torch.Tensor:
-    """Per row (last dim), the largest finite-or-not value over the other dims, kept as
-    dims of size 1; a row with no finite maximum (all ``-inf``) gets 0."""
+    """Per row (last dim), the largest value over the other dims, kept as dims of size 1;
+    a row whose largest value is not finite (all ``-inf``) gets 0."""
     top = lp.amax(tuple(range(lp.dim() - 1)), keepdim=True) if lp.dim() > 1 else lp
     return torch.where(torch.isfinite(top), top, 0.0)
 

@@ -500,7 +500,7 @@ def imitation_check(
         surprise = _sampled_surprise(net, params, enc, observed, log_lik, n_samples, seed)
 
     def unseen(e, _):
-        post = e.posterior()
+        post = e.posterior(strict=False)  # an impossible outcome rests on no configuration
         return (post * _unseen_mass(net, params, e, observed)).reshape(-1, post.shape[-1]).sum(0)
 
     flag = plausibility(net, params, enc, log_evidence=log_joint, log_prior=log_prior)

@@ -335,3 +335,9 @@ def test_evidence_with_no_probability_in_float64_is_refused_not_nan():
     far = {"initial.x": [[0.0], [0.0]], "end.x": [[0.0], [1e150]]}
     with pytest.raises(ValueError, match=r"row 1 has probability 0 .*'end\.x'"):
         infer_action(net, params, far)
+    with pytest.raises(ValueError, match=r"row 1 has probability 0 .*'end\.x'"):
+        predict(net, params, far)  # no posterior over the action to predict with
+    # imitation asks how surprising the outcome is: certainly, and nothing is NaN
+    check = imitation_check(net, params, far | {"action": ["a", "a"]}, n_samples=50)
+    assert float(check.log_likelihood[1]) == -math.inf and float(check.surprise[1]) == 1.0
+    assert not check.unseen.isnan().any() and bool(check.implausible[1])
