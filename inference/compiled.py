@@ -24,7 +24,12 @@ import numpy as np
 import torch
 from pyro import poutine
 
-from inference.plausibility import IMPLAUSIBLE_BELOW, check_threshold
+from inference.plausibility import (
+    IMPLAUSIBLE_BELOW,
+    check_threshold,
+    initial_tails,
+    outside_training,
+)
 from inference.queries import (
     ActionPosterior,
     GaussianMixture,
@@ -43,7 +48,7 @@ from models.declaration import (
     Parameter,
     end_site,
 )
-from models.evidence import Evidence, is_partial
+from models.evidence import MAX_MAGNITUDE, Evidence, is_partial
 from models.gaussian import mask_unobserved, partial_log_density
 from models.model import effect_model
 from models.params import NetworkParams, check_params
@@ -440,11 +445,8 @@ class CompiledParameterQuery:
     prior_mean: torch.Tensor  # (C, k)
     post_cov: torch.Tensor  # (P..., k, k)
     seen: torch.Tensor  # (P...) bool
-    # Where the feature has no continuous input but the parameter: the squared distances
-    # of every cluster as one product, d2 = features(y - centre) @ quadratic, with
-    # features (y_i y_j for i <= j, y_i, 1) and the forms' coefficients per cluster.
-    centre: torch.Tensor | None = field(default=None, repr=False)  # (d,)
-    quadratic: torch.Tensor | None = field(default=None, repr=False)  # (P'..., F, C)
+    # for the initial states' plausibility (inference.plausibility.initial_tails)
+    params: NetworkParams | None = field(default=None, repr=False, compare=False)
     # The one-row tables (:meth:`_one_row`), built on the first single query.
     _one: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
@@ -496,20 +498,11 @@ class CompiledParameterQuery:
         if is_partial(y):
             return self._infer_partial(enc, y, index, loc, mixture, below)
         # log N(y; loc, L L^T) = log_norm - |L^-1 (y - loc)|^2 / 2, with L^-1 and log_norm
-        # precomputed from the model's own marginal Cholesky factor L
-        if self.quadratic is not None and x is None:
-            features = quadratic_features(y - self.centre)  # (n, F)
-            if shared:
-                d2 = features @ self.quadratic[gather][0]
-            else:
-                d2 = (features[:, None, :] @ self.quadratic[index]).squeeze(-2)
-        else:
-            diff = y[:, None, :] - loc  # (n, C, d)
-            if shared:
-                z = torch.einsum("cij,ncj->nci", self.whiten[gather][0], diff)
-            else:
-                z = torch.einsum("ncij,ncj->nci", self.whiten[index], diff)
-            d2 = z.square().sum(-1)  # (n, C) squared Mahalanobis distances
+        # precomputed from the model's own marginal Cholesky factor L. The residual is
+        # taken first and then whitened: a sum of squares without cancellation, where an
+        # expanded form y'Ay - 2b'y + c with A ~ 1 / noise loses as many digits as A has.
+        whiten = self.whiten[gather][0] if shared else self.whiten[index]  # (C or n, C, d, d)
+        d2 = _whitened_distance(y, loc, whiten)  # (n, C) squared Mahalanobis distances
         log_cluster = self.log_cluster[enc[ACTION][:1] if shared else enc[ACTION]]
         impossible = ~torch.isfinite(log_cluster)  # (1 or n, C)
         if bool(impossible.any()):
@@ -521,6 +514,10 @@ class CompiledParameterQuery:
         log_post = d2.mul_(-0.5).add_(self.log_norm[gather] + log_cluster)
         dof = torch.tensor(y.shape[-1] / 2, dtype=DTYPE)
         implausible = torch.special.gammaincc(dof, closest / 2) < below
+        if self.params is not None:
+            initial = initial_tails(self.net, self.params, enc)
+            implausible = implausible | outside_training(initial, below)
+        _refuse_impossible(log_post)
         probs = torch.softmax(log_post, -1, out=log_post)  # in place: log_post is ours
         # numpy's argmax (the first maximum, as torch's) is several times faster here
         best = torch.from_numpy(probs.numpy().argmax(-1))
@@ -550,7 +547,7 @@ class CompiledParameterQuery:
         if "tables" in self._one:
             return self._one["tables"]
         tables = None
-        if self.quadratic is not None and self.parents[:-1] in ((), (ACTION,)):
+        if self.w_x.shape[-1] == 0 and self.parents[:-1] in ((), (ACTION,)):
             net, p = self.net, self.parameter
             actions = torch.arange(len(net.actions))
             by_action = self.parents[:-1] == (ACTION,)
@@ -564,7 +561,7 @@ class CompiledParameterQuery:
                 log_cluster = self.log_cluster[a]
                 per.append(
                     {
-                        "quadratic": at(self.quadratic),  # (F, C)
+                        "whiten": at(self.whiten),  # (C, d, d)
                         "base": at(self.log_norm) + log_cluster.numpy(),  # (C,)
                         # None: every cluster possible (most actions), no mask to apply
                         "impossible": (~torch.isfinite(log_cluster)).numpy()
@@ -584,8 +581,6 @@ class CompiledParameterQuery:
                 "default": net.action_index(p.actions[0]) if len(p.actions) == 1 else None,
                 "per": per,
                 "d": d,
-                "pairs": tuple(np.triu_indices(d)),
-                "centre": self.centre.numpy(),
                 "prior_mean": self.prior_mean.numpy(),
                 "low": np.asarray(p.low, dtype=np.float64),
                 "high": np.asarray(p.high, dtype=np.float64),
@@ -621,28 +616,39 @@ class CompiledParameterQuery:
             return None
         value = evidence[t["y_site"]]
         if isinstance(value, torch.Tensor):
-            y = value.detach().cpu().numpy().astype(np.float64, copy=False)
+            y = value.detach().cpu().numpy()
         elif isinstance(value, np.ndarray | list | tuple | float | int):
             try:
-                y = np.asarray(value, dtype=np.float64)
+                y = np.asarray(value)
             except (TypeError, ValueError):
                 return None
         else:  # Partial and the rest
             return None
+        if y.dtype.kind not in "fiub":  # complex, objects, strings: refused by encode
+            return None
+        y = y.astype(np.float64, copy=False)
         d = t["d"]
         if not (y.shape == (1, d) or y.shape == (d,) or (y.ndim == 0 and d == 1)):
             return None
         y = y.reshape(d)
-        if not np.isfinite(y).all():
+        if not (np.abs(y) <= MAX_MAGNITUDE).all():  # NaN, inf, beyond the magnitude rule
             return None
         at = t["per"][a]
-        u = y - t["centre"]
-        i, j = t["pairs"]
-        d2 = np.concatenate([u[i] * u[j], u, (1.0,)]) @ at["quadratic"]  # (C,)
+        diff = y - at["offset"]  # (C, d): the residuals first, then whitened, as batched
+        whiten = at["whiten"]
+        d2 = np.zeros(len(diff))
+        with np.errstate(over="ignore"):  # a distance beyond float64 is inf, as in torch
+            for i in range(d):  # whiten is lower triangular
+                z = whiten[:, i, 0] * diff[:, 0]
+                for j in range(1, i + 1):
+                    z += whiten[:, i, j] * diff[:, j]
+                d2 += z * z
         log_post = at["base"] - 0.5 * d2
         if at["impossible"] is not None:
             d2 = np.where(at["impossible"], np.inf, d2)
         tail = chi_square_tail(d, max(float(d2.min()), 0.0))
+        if not log_post.max() > -np.inf:
+            return None  # no cluster possible: the general path says so
         probs = np.exp(log_post - log_post.max())
         probs /= probs.sum()
         best = int(probs.argmax())
@@ -696,10 +702,15 @@ class CompiledParameterQuery:
         covs = prior_cov - gain @ cross.mT
         covs = 0.5 * (covs + covs.mT)
         log_cluster = self.log_cluster[enc[ACTION]]
+        _refuse_impossible(log_lik + log_cluster)
         probs = (log_lik + log_cluster).softmax(-1)
         closest = d2.masked_fill(~torch.isfinite(log_cluster), torch.inf).min(-1).values
         tail = torch.special.gammaincc(dof.clamp_min(1) / 2, closest / 2)
         implausible = torch.where(dof > 0, tail, 1.0) < below
+        if self.params is not None:
+            implausible = implausible | outside_training(
+                initial_tails(self.net, self.params, enc), below
+            )
         best = probs.argmax(-1)
         rows = torch.arange(n)
         mean, cov = means[rows, best], covs[rows, best]
@@ -806,6 +817,7 @@ class CompiledJointParameterQuery:
             d2 = d2 + z.square().sum((-2, -1))
             dof = dof + seen[:, 0].sum(-1)
             belief = m.update(*args, y, belief)
+        _refuse_impossible(log_lik + log_cluster)
         probs = (log_lik + log_cluster).softmax(-1)
         best = probs.argmax(-1)
         rows = torch.arange(n)
@@ -836,6 +848,7 @@ class CompiledJointParameterQuery:
         tail = torch.where(dof > 0, tail, 1.0)
         p_discrete = (log_cluster + log_discrete).logsumexp(-1).exp()
         implausible = (tail < below) | (p_discrete < below)
+        implausible = implausible | outside_training(initial_tails(net, params, enc), below)
         mix = GaussianMixture(probs, means, covs) if mixture else None
         return ParameterPosterior(
             probs, best, mean, cov, unseen, outside_range(p, mean), mix, implausible
@@ -874,9 +887,38 @@ def compile_parameter_query(
         return CompiledJointParameterQuery(net, params, m.parameter, log_cluster)
     child = net.cpd(m.child)
     tables = m.query_tables(params, child)
-    if tables["w_x"].shape[-1] == 0:  # no other continuous input: every mean is fixed
-        tables |= _quadratic_forms(tables["offset"], tables["whiten"])
-    return CompiledParameterQuery(net, m.parameter, child.parents, child.inputs, **tables)
+    return CompiledParameterQuery(
+        net, m.parameter, child.parents, child.inputs, **tables, params=params
+    )
+
+
+def _refuse_impossible(log_post: torch.Tensor) -> None:
+    """Refuse rows ``(n, C)`` whose every cluster has probability 0 (in float64): no
+    posterior exists (as :class:`inference.enumeration.Enumerated` refuses them)."""
+    top = log_post.amax(-1)
+    if not bool((top > -torch.inf).all()):
+        row = int((top == -torch.inf).nonzero()[0])
+        raise ValueError(
+            f"evidence row {row} has probability 0 under every configuration of the model "
+            "(every cluster): no posterior exists. A value too far from every component "
+            "for float64 (rescale the feature)"
+        )
+
+
+def _whitened_distance(y: torch.Tensor, loc: torch.Tensor, whiten: torch.Tensor) -> torch.Tensor:
+    """``(n, C)`` ``|whiten (y - loc)|^2`` for ``y`` ``(n, d)``, ``loc`` ``(n or 1, C, d)`` and
+    lower triangular ``whiten`` ``(n or C, ..., d, d)``: the residual first, then whitened,
+    one dimension at a time on ``(n, C)`` tensors (a sum of squares without cancellation,
+    and no ``(n, C, d)`` temporaries)."""
+    d = y.shape[-1]
+    diff = [y[:, j, None] - loc[..., j] for j in range(d)]  # (n, C) each
+    d2 = None
+    for i in range(d):
+        z = diff[0] * whiten[..., i, 0]
+        for j in range(1, i + 1):
+            z.addcmul_(diff[j], whiten[..., i, j])
+        d2 = z.square_() if d2 is None else d2.add_(z.square_())
+    return d2
 
 
 def chi_square_tail(dof: int, x: float) -> float:
@@ -907,18 +949,3 @@ def quadratic_features(y: torch.Tensor) -> torch.Tensor:
     """``(n, F)``: ``y_i y_j`` for ``i <= j`` (row-major), ``y_i``, and 1, of ``y`` ``(n, d)``."""
     i, j = torch.triu_indices(y.shape[-1], y.shape[-1])
     return torch.cat([y[:, i] * y[:, j], y, torch.ones_like(y[:, :1])], -1)
-
-
-def _quadratic_forms(offset: torch.Tensor, whiten: torch.Tensor) -> dict[str, torch.Tensor]:
-    """The coefficients of ``|whiten (y - offset)|^2`` in :func:`quadratic_features` of
-    ``y - centre``, per configuration ``(P'..., C)`` laid out as ``(P'..., F, C)``."""
-    d = offset.shape[-1]
-    centre = offset.reshape(-1, d).mean(0)
-    a = whiten.mT @ whiten  # (P..., C, d, d) precision
-    loc = offset - centre
-    b = (a @ loc[..., None]).squeeze(-1)  # (P..., C, d)
-    c = (loc * b).sum(-1)  # (P..., C)
-    i, j = torch.triu_indices(d, d)
-    pairs = a[..., i, j] * torch.where(i == j, 1.0, 2.0).to(a.dtype)
-    coeffs = torch.cat([pairs, -2 * b, c[..., None]], -1)  # (P..., C, F)
-    return {"centre": centre, "quadratic": coeffs.mT.contiguous()}

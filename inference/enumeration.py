@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Iterable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import cached_property
 
 import torch
@@ -34,15 +34,29 @@ class Enumerated:
     ``log_weight`` has shape ``(E_k, ..., E_1, n)``: one dim per enumerated site (its
     number of states, or 1 where no kept factor depends on it) then the rows.
     ``dims[site]`` is the (negative) dim of an enumerated site.
+
+    The joint is held in log space per row: ``log_weight + log_offset`` is the log-joint,
+    where ``offsets`` ``{name: (n,)}`` hold the parts that are the same for every
+    configuration of a row (a continuous initial state's density, each unbounded
+    factor's largest value, and under ``""`` the sum's), so that ``log_weight`` keeps the
+    differences between configurations to float64's precision at any magnitude of the
+    evidence, and every distribution normalised from it sums to one. Kept per site, they
+    cancel exactly between two evidence sets that share a site (:func:`log_ratio`).
     """
 
     log_weight: torch.Tensor
     dims: dict[str, int]
     trace: poutine.Trace
+    offsets: dict[str, torch.Tensor] = field(default_factory=dict)
+
+    @property
+    def log_offset(self) -> torch.Tensor | float:
+        """``(n,)`` the offsets' sum (``0.0`` without any)."""
+        return sum(self.offsets.values(), 0.0)
 
     @cached_property  # a sum over the whole joint, which queries ask for more than once
-    def log_evidence(self) -> torch.Tensor:
-        """``(n,)`` log-probability of the evidence (kept sites), all latents summed out."""
+    def log_norm(self) -> torch.Tensor:
+        """``(n,)`` ``log sum exp(log_weight)`` over the configurations of each row."""
         w = self.log_weight
         if w.dim() == 1:
             return w
@@ -50,6 +64,11 @@ class Enumerated:
         if rows_first.is_contiguous():  # the rows outermost in memory: reduce along them
             return rows_first.reshape(w.shape[-1], -1).logsumexp(1)
         return w.reshape(-1, w.shape[-1]).logsumexp(0)
+
+    @cached_property
+    def log_evidence(self) -> torch.Tensor:
+        """``(n,)`` log-probability of the evidence (kept sites), all latents summed out."""
+        return self.log_norm + self.log_offset
 
     def marginal(self, site: str) -> torch.Tensor:
         """``(n, K)`` exact posterior of an enumerated site given the evidence."""
@@ -59,26 +78,64 @@ class Enumerated:
             w = w + torch.zeros(_states(self.trace, site), *([1] * (-dim - 1)), dtype=w.dtype)
         others = [d for d in range(w.dim() - 1) if d != w.dim() + dim]
         m = w.logsumexp(others) if others else w
-        return (m - m.logsumexp(0, keepdim=True)).exp().T
+        norm = m.logsumexp(0, keepdim=True)
+        self._check_possible(norm[0])
+        return (m - norm).exp().T
 
-    def posterior(self) -> torch.Tensor:
+    def posterior(self, *, strict: bool = True) -> torch.Tensor:
         """Normalised joint weight, same shape as ``log_weight``.
 
-        With the rows outermost in memory and the evidence not yet summed, both come
-        from one pass of ``exp``: ``e = exp(w - max)``, ``log p = max + log(sum e)`` (as
+        A row whose evidence has probability 0 has no posterior: ``ValueError``, or with
+        ``strict=False`` a weight of 0 everywhere in that row (for sums over the
+        posterior that are 0 where nothing is possible).
+
+        With the rows outermost in memory and the sum not yet taken, both come from one
+        pass of ``exp``: ``e = exp(w - max)``, ``log_norm = max + log(sum e)`` (as
         ``logsumexp`` computes it) and the posterior ``e / sum e``.
         """
         w = self.log_weight
         rows_first = w.movedim(-1, 0)
-        if "log_evidence" in self.__dict__ or w.dim() == 1 or not rows_first.is_contiguous():
-            return (w - self.log_evidence).exp()
+        if "log_norm" in self.__dict__ or w.dim() == 1 or not rows_first.is_contiguous():
+            if strict:
+                self._check_possible(self.log_norm)
+            norm = self.log_norm
+            return (w - torch.where(norm > -torch.inf, norm, 0.0)).exp()
         flat = rows_first.reshape(w.shape[-1], -1)
         top = flat.amax(1, keepdim=True)
         top = torch.where(torch.isfinite(top), top, 0.0)  # a row of -inf: as logsumexp
         post = (flat - top).exp_()
         total = post.sum(1, keepdim=True)
-        self.__dict__["log_evidence"] = (total.log() + top).squeeze(1)
+        self.__dict__["log_norm"] = (total.log() + top).squeeze(1)
+        if strict:
+            self._check_possible(self.log_norm)
+        total = torch.where(total > 0, total, 1.0)  # an impossible row stays 0
         return post.div_(total).reshape(rows_first.shape).movedim(0, -1)
+
+    def _check_possible(self, log_norm: torch.Tensor) -> None:
+        """Refuse a row whose evidence has probability 0 under every configuration: no
+        posterior exists (in float64, a density also underflows to 0 where the value lies
+        beyond about 1e154 of the component's standard deviations)."""
+        if bool((log_norm > -torch.inf).all()):
+            return
+        row = int((log_norm == -torch.inf).nonzero()[0])
+
+        def zero_everywhere(lp: torch.Tensor) -> bool:
+            if lp.dim() == 0:
+                return bool(lp == -torch.inf)
+            at = lp[..., row] if lp.shape[-1] > 1 else lp[..., 0]
+            return bool((at == -torch.inf).all())
+
+        zero = [
+            name
+            for name, site in self.trace.nodes.items()
+            if site["type"] == "sample" and "log_prob" in site and zero_everywhere(site["log_prob"])
+        ]
+        raise ValueError(
+            f"evidence row {row} has probability 0 under every configuration of the model"
+            + (f" (the factor of {zero} is 0 in float64 everywhere)" if zero else "")
+            + ": no posterior exists. A state the model never reaches, or a value too far "
+            "from every component for float64 (rescale the feature)"
+        )
 
 
 def _states(trace: poutine.Trace, site: str) -> int:
@@ -131,13 +188,23 @@ def enumerate_model(
     trace.compute_log_prob()
     factors = []
     dims: dict[str, int] = {}
+    offsets: dict[str, torch.Tensor] = {}  # (n,) each: see Enumerated
     for name, site in trace.nodes.items():
         if site["type"] != "sample":
             continue
         if site["infer"].get("_enumerate_dim") is not None:
             dims[name] = site["infer"]["_enumerate_dim"]
-        if name not in trace_only:
-            factors.append(site["log_prob"])
+        if name in trace_only:
+            continue
+        lp = site["log_prob"]
+        if _unbounded(net, name):
+            # a density (or a softmax of continuous inputs) may sit anywhere in float64;
+            # its row's largest value goes to the offset before the factors are summed,
+            # so that a large constant does not swallow the differences of the others
+            top = _row_max(lp)
+            lp = lp - top
+            offsets[name] = top.reshape(-1).expand(n)
+        factors.append(lp)
     assert factors
     # the largest factors first: their sum is one plain pass in their own memory order
     # (rows outermost for gathered tables), and the small ones broadcast onto it once
@@ -155,7 +222,72 @@ def enumerate_model(
     total = total.expand(*total.shape[:-1], n) if total.shape[-1] != n else total
     while total.dim() < depth:
         total = total.unsqueeze(0)
-    return Enumerated(total, dims, trace)
+    top = _row_max(total)
+    if bool((top.abs() > _CENTRED).any()):  # the factors' optima disagree by far
+        total = total - top
+        offsets[""] = top.reshape(-1)
+    return Enumerated(total, dims, trace, offsets)
+
+
+def log_ratio(a: Enumerated, b: Enumerated) -> torch.Tensor:
+    """``(n,)`` ``log p(a's evidence) - log p(b's evidence)`` for the same rows, where the
+    factors both share (a continuous initial state's density, say) cancel exactly, at
+    any magnitude; the difference of the two ``log_evidence`` loses what such a factor's
+    size hides."""
+    ratio = a.log_norm - b.log_norm
+    for name in a.offsets.keys() | b.offsets.keys():
+        ratio = ratio + (a.offsets.get(name, 0.0) - b.offsets.get(name, 0.0))
+    return ratio
+
+
+def conditional_log_evidence(
+    net: EffectNetwork,
+    params: NetworkParams,
+    evidence: Evidence,
+    given: Evidence,
+    log_joint: torch.Tensor,
+    log_given: torch.Tensor,
+) -> torch.Tensor:
+    """``(n,)`` ``log p(evidence | given) = log_joint - log_given`` (``given``: some of the
+    evidence's sites, ``log_joint`` and ``log_given`` their ``log_evidence``), recomputed
+    by :func:`log_ratio` in the rows where either is large enough that the subtraction
+    would lose digits (a density far in its tail)."""
+    ratio = log_joint - log_given
+    far = (log_joint.abs() > _CENTRED) | (log_given.abs() > _CENTRED)
+    if not bool(far.any()):
+        return ratio
+    rows = far.nonzero().squeeze(-1)
+    joint, part = evidence.rows(rows), given.rows(rows)
+    size = max(enumeration_size(net, joint), enumeration_size(net, part))
+    exact = [
+        log_ratio(
+            enumerate_model(net, params, joint.rows(s)), enumerate_model(net, params, part.rows(s))
+        )
+        for s in row_chunks(len(rows), size)
+    ]
+    return ratio.index_put((rows,), torch.cat(exact))
+
+
+#: Largest row maximum of a joint left uncentred: its rounding, 1e3 * 2^-52, is below 1e-12.
+_CENTRED = 1e3
+
+
+def _unbounded(net: EffectNetwork, name: str) -> bool:
+    """Whether a site's log-probability can take any magnitude: a continuous site's
+    density, or a discrete site with continuous inputs (a softmax). A table's (and a
+    factor's) is ``0``, ``-inf`` or a log-probability above float64's smallest."""
+    try:
+        spec = net.site(name)
+    except KeyError:  # a factor (the cluster's cell, an observed mask): 0 or -inf
+        return False
+    return not spec.discrete or bool(net.cpd(name).inputs)
+
+
+def _row_max(lp: torch.Tensor) -> torch.Tensor:
+    """Per row (last dim), the largest value over the other dims, kept as dims of size 1;
+    a row whose largest value is not finite (all ``-inf``) gets 0."""
+    top = lp.amax(tuple(range(lp.dim() - 1)), keepdim=True) if lp.dim() > 1 else lp
+    return torch.where(torch.isfinite(top), top, 0.0)
 
 
 # Elements of one chunk's joint tensor (8 MiB of float64). Larger chunks cost more than

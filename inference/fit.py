@@ -19,7 +19,7 @@ not use ``p`` must leave ``param.p`` NaN (a value there is refused, not silently
 and the affected feature's weights on ``p`` are zero for such actions.
 
 Every loop is bounded and every input checked: a value whose square would overflow
-(beyond ``MAX_MAGNITUDE``), a non-finite or negative setting, zero rows, or a covariance
+(beyond ``models.evidence.MAX_MAGNITUDE``), a non-finite or negative setting, zero rows, or a covariance
 that no jitter makes positive definite raise a ``ValueError`` naming the site.
 
 The closed form runs on sufficient statistics (:mod:`inference.statistics`, where the
@@ -42,7 +42,7 @@ from tqdm.auto import tqdm
 
 from inference.statistics import Statistics, params_from_statistics, statistics
 from models.declaration import ACTION, EffectNetwork, cluster_site, param_site
-from models.evidence import Evidence, is_partial
+from models.evidence import Evidence, check_magnitude, is_partial
 from models.model import effect_model
 from models.params import NetworkParams, check_params, initial_params
 
@@ -394,19 +394,5 @@ def _complete(net: EffectNetwork, data: Mapping[str, object]) -> Evidence:
                     f"site {site!r}: row {row} is observed in some dimensions only (Partial); "
                     "fit needs every dimension of every continuous feature"
                 )
-            _check_magnitude(site, value)
+            check_magnitude(site, value)  # the rule evidence follows (models.evidence)
     return enc | net.encode_indices(clusters) if clusters else enc
-
-
-#: Largest magnitude whose second moments, summed over 10^7 rows, stay finite in float64.
-MAX_MAGNITUDE = 1e150
-
-
-def _check_magnitude(site: str, value: torch.Tensor) -> None:
-    big = value.nan_to_num().abs().amax(-1) > MAX_MAGNITUDE
-    if big.any():
-        row = int(big.nonzero()[0])
-        raise ValueError(
-            f"site {site!r}: row {row} holds {value[row].tolist()}, beyond +-{MAX_MAGNITUDE:g}; "
-            "its squares overflow the fit's statistics. Rescale the feature (other units)"
-        )

@@ -42,7 +42,13 @@ import numpy as np
 import torch
 from pyro.ops.indexing import Vindex
 
-from inference.enumeration import Enumerated, enumerate_model, enumeration_size, row_chunks
+from inference.enumeration import (
+    Enumerated,
+    conditional_log_evidence,
+    enumerate_model,
+    enumeration_size,
+    row_chunks,
+)
 from inference.plausibility import IMPLAUSIBLE_BELOW, check_threshold, plausibility
 from inference.surprise import QUADRATURE_POINTS, continuous_surprise
 from models.declaration import (
@@ -511,7 +517,7 @@ def imitation_check(
     prior = enc.without(*observed)
     log_joint = _chunked(net, params, enc, set(), lambda e, _: e.log_evidence)
     log_prior = _chunked(net, params, prior, set(), lambda e, _: e.log_evidence)
-    log_lik = log_joint - log_prior
+    log_lik = conditional_log_evidence(net, params, enc, prior, log_joint, log_prior)
     if all(net.site(s).discrete for s in observed):
         surprise = _discrete_surprise(net, params, prior, observed, log_lik)
     else:
@@ -520,7 +526,7 @@ def imitation_check(
         )
 
     def unseen(e, _):
-        post = e.posterior()
+        post = e.posterior(strict=False)  # an impossible outcome rests on no configuration
         return (post * _unseen_mass(net, params, e, observed)).reshape(-1, post.shape[-1]).sum(0)
 
     flag = plausibility(net, params, enc, log_evidence=log_joint, log_prior=log_prior)
@@ -533,7 +539,7 @@ def _discrete_surprise(net, params, prior, observed, log_lik) -> torch.Tensor:
     """P(outcome strictly more likely than the observed one), by enumerating outcomes."""
 
     def fn(e: Enumerated, _):
-        w = e.log_weight - e.log_evidence  # joint over outcomes and latents, (E..., n)
+        w = e.log_weight - e.log_norm  # joint over outcomes and latents, (E..., n)
         outcome_dims = [w.dim() + e.dims[s] for s in observed]
         latent_dims = [d for d in range(w.dim() - 1) if d not in outcome_dims]
         joint = w.logsumexp(latent_dims, keepdim=True) if latent_dims else w

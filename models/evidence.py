@@ -15,9 +15,16 @@ and ``effect_model`` accept as already encoded, and which Pyro's handlers take a
 
 Continuous sites take floats of shape ``(n, dim)`` (``(dim,)`` is one row; for ``dim`` 1
 a flat ``(n,)`` is ``n`` rows), any float or int dtype; they are stored as float64.
-NaN is refused except in an action parameter ``param.<p>``, where a row of NaN means
-"unknown": rows whose action does not use the parameter may leave it NaN, and queries
-integrate an unknown value out, row by row.
+Complex numbers are refused (their imaginary part has no meaning here). NaN is refused
+except in an action parameter ``param.<p>``, where a row of NaN means "unknown": rows
+whose action does not use the parameter may leave it NaN, and queries integrate an
+unknown value out, row by row.
+
+**One magnitude rule.** A continuous value beyond ``+-MAX_MAGNITUDE`` (1e150) is refused
+wherever evidence enters (training rows, queries, the model's ``data``), naming the site:
+its square, and a sum of such squares over many rows, must stay finite in float64 for
+the fit's statistics and for every Gaussian density a query takes. Within the limit every
+query answers with distributions that sum to 1.
 
 **Partial continuous evidence.** ``Partial(value, observed=mask)`` gives some dimensions
 of a continuous *end* feature: ``mask`` is bool, ``(dim,)`` shared by every row or
@@ -38,6 +45,10 @@ if TYPE_CHECKING:
     from models.declaration import EffectNetwork, SiteSpec
 
 DTYPE = torch.float64  # every continuous value and every probability is float64
+
+#: Largest magnitude of a continuous value, for training and queries alike: its square,
+#: summed over 10^7 rows, stays finite in float64.
+MAX_MAGNITUDE = 1e150
 
 
 class Partial:
@@ -215,6 +226,11 @@ def _as_array(spec: SiteSpec, value: object) -> np.ndarray:
 def _encode_labels(net: EffectNetwork, spec: SiteSpec, value: object) -> torch.Tensor:
     array = _as_array(spec, value)
     states = labels(net, spec)
+    if array.dtype.kind == "c" and not any(isinstance(s, complex) for s in states):
+        raise ValueError(  # 1+0j would equal the state 1
+            f"site {spec.name!r}: complex numbers are not labels (got {value!r}); "
+            f"its states are {list(states)[:12]}"
+        )
     lookup = {label: i for i, label in enumerate(states)}
     if array.dtype != object and array.size:
         # One dictionary look-up per distinct value, not per row.
@@ -269,10 +285,18 @@ def _encode_indices(spec: SiteSpec, value: object) -> torch.Tensor:
 def _rows(spec: SiteSpec, value: object) -> torch.Tensor:
     """``value`` as float64 rows ``(n, size)``; a single row or a 1-d feature may drop an axis."""
     try:
-        x = torch.as_tensor(
-            value.detach() if isinstance(value, torch.Tensor) else np.asarray(value),
-            dtype=DTYPE,
+        raw = value.detach() if isinstance(value, torch.Tensor) else np.asarray(value)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(
+            f"site {spec.name!r}: expected numbers of shape (n, {spec.size}), got {value!r}"
+        ) from exc
+    if raw.is_complex() if isinstance(raw, torch.Tensor) else raw.dtype.kind == "c":
+        raise ValueError(
+            f"site {spec.name!r}: complex numbers are not evidence (got {value!r}); "
+            f"expected real numbers of shape (n, {spec.size})"
         )
+    try:
+        x = torch.as_tensor(raw, dtype=DTYPE)
     except (TypeError, ValueError, RuntimeError) as exc:
         raise ValueError(
             f"site {spec.name!r}: expected numbers of shape (n, {spec.size}), got {value!r}"
@@ -304,7 +328,20 @@ def _encode_continuous(spec: SiteSpec, value: object) -> torch.Tensor:
             else "NaN or inf"
         )
         raise ValueError(f"site {spec.name!r}: {what} in row {row}: {x[row].tolist()}")
+    check_magnitude(spec.name, x)
     return x
+
+
+def check_magnitude(site: str, value: torch.Tensor) -> None:
+    """Refuse a continuous value beyond ``+-MAX_MAGNITUDE`` (NaN, an unknown value, passes)."""
+    big = value.nan_to_num(nan=0.0).abs().amax(-1) > MAX_MAGNITUDE
+    if bool(big.any()):
+        row = int(big.nonzero()[0])
+        raise ValueError(
+            f"site {site!r}: row {row} holds {value[row].tolist()}, beyond +-{MAX_MAGNITUDE:g} "
+            "(the largest magnitude whose squares stay finite in training and queries). "
+            "Rescale the feature (other units)"
+        )
 
 
 def _encode_partial(spec: SiteSpec, partial: Partial) -> torch.Tensor:
@@ -335,7 +372,9 @@ def _encode_partial(spec: SiteSpec, partial: Partial) -> torch.Tensor:
             f"site {spec.name!r}: NaN or inf in an observed dimension of row {row}: "
             f"{x[row].tolist()}"
         )
-    return torch.where(mask, x, torch.nan)
+    x = torch.where(mask, x, torch.nan)
+    check_magnitude(spec.name, x)
+    return x
 
 
 def decode(net: EffectNetwork, site: str, index: torch.Tensor) -> list:

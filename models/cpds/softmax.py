@@ -59,9 +59,16 @@ class SoftmaxCPD(CPD):
         )
 
     def distribution(self, params: Softmax, index, x, cache) -> dist.Categorical:
-        weight = Vindex(params.weight)[(*index, slice(None), slice(None))]
-        logits = (weight @ x.unsqueeze(-1)).squeeze(-1)
-        return dist.Categorical(logits=logits + Vindex(params.bias)[(*index, slice(None))])
+        # The logits in log space per configuration: slopes and offsets taken relative to
+        # their mean over the states (the same softmax), so that a slope all states share
+        # cancels before it meets a large input, then shifted by their maximum, so that
+        # the normalisation works on numbers near zero at any magnitude of the inputs.
+        weight = params.weight - params.weight.mean(-2, keepdim=True)
+        bias = params.bias - params.bias.mean(-1, keepdim=True)
+        weight = Vindex(weight)[(*index, slice(None), slice(None))]
+        logits = (weight @ x.unsqueeze(-1)).squeeze(-1) + Vindex(bias)[(*index, slice(None))]
+        top = logits.detach().amax(-1, keepdim=True)
+        return dist.Categorical(logits=logits - torch.where(torch.isfinite(top), top, 0.0))
 
     def statistics(self, index: torch.Tensor, x, y: torch.Tensor) -> Counts:
         return counts(index, y, self.card, self.size)

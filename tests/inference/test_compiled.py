@@ -3,6 +3,8 @@
 import dataclasses
 from unittest import mock
 
+import mpmath
+import numpy as np
 import pytest
 import torch
 from hypothesis import example, given, settings
@@ -307,9 +309,9 @@ def test_compiled_query_refuses_a_feature_shared_by_two_parameters():
         compile_parameter_query(net, params, "force")
 
 
-def test_compiled_query_without_other_inputs_reads_its_distances_as_one_product():
-    """A feature whose only continuous input is the parameter (the throw's hit): the
-    squared distances to every cluster come from quadratic forms; same answers."""
+def test_compiled_query_without_other_inputs_answers_as_the_traced_model():
+    """A feature whose only continuous input is the parameter (the throw's hit): every
+    cluster's mean is fixed; the same answers as the traced model."""
     from inference import infer_parameter
     from inference.compiled import compile_parameter_query
     from models import Continuous, Parameter
@@ -318,7 +320,7 @@ def test_compiled_query_without_other_inputs_reads_its_distances_as_one_product(
     net = EffectNetwork((Continuous("hit", 2, initial=False),), ("throw", "lob"), (target,))
     params = random_params(net, 3, unseen=0.2)
     query = compile_parameter_query(net, params, "target")
-    assert query.quadratic is not None and query.quadratic.shape == (2, 6, 12)
+    assert query.offset.shape == (2, 12, 2) and query.w_x.shape[-1] == 0
     g = torch.Generator().manual_seed(0)
     hits = 3 * torch.randn(20, 2, generator=g, dtype=torch.float64)
     for actions in (["throw"] * 20, ["throw", "lob"] * 10):
@@ -456,3 +458,134 @@ def test_chi_square_tail_is_the_regularised_upper_gamma(dof, x):
     with mpmath.workdps(40):
         expected = float(mpmath.gammainc(dof / 2, x / 2, mpmath.inf, regularized=True))
     assert chi_square_tail(dof, x) == pytest.approx(expected, rel=1e-11, abs=1e-300)
+
+
+def _throw_like(n: int, seed: int, noise: float):
+    """Targets over the paper's area and hits through a clamped (saturating) map, as the
+    arm's joint limits make it: where the map saturates, a cluster's hit spread is the
+    noise alone, and its precision ~1 / noise^2."""
+    g = np.random.default_rng(seed)
+    t = np.column_stack([g.uniform(-1.0, 1.0, n), g.uniform(0.4, 2.4, n)])
+    h = np.column_stack(
+        [np.clip(1.1 * t[:, 0], -0.6, 0.5), np.clip(t[:, 1] + 0.3 * t[:, 0], 0.8, 2.0)]
+    )
+    return t, h + g.normal(0.0, noise, h.shape)
+
+
+def _cluster_posterior_oracle(params, hit) -> list:
+    """``p(cluster | hit)`` of the throw network in 50-digit arithmetic, from the fitted
+    numbers alone: per cluster ``c`` the hit is ``N(b_c + W_c mu_c, S_c + W_c Sigma_c
+    W_c^T)`` (the target integrated out), weighted by the cluster table."""
+    cpd, prior = params["end.hit"], params["param.target"]
+    pi = params["cluster.target"].probs[0]
+    with mpmath.workdps(50):
+        y = mpmath.matrix(hit.tolist())
+        logs = []
+        for c in range(len(pi)):
+            w = mpmath.matrix(cpd.weight[0, c].tolist())
+            noise = mpmath.matrix(cpd.scale_tril[0, c].tolist())
+            spread = mpmath.matrix(prior.scale_tril[c].tolist())
+            mean = mpmath.matrix(cpd.bias[0, c].tolist()) + w * mpmath.matrix(
+                prior.bias[c].tolist()
+            )
+            ws = w * spread
+            cov = noise * noise.T + ws * ws.T
+            r = y - mean
+            d2 = (r.T * mpmath.inverse(cov) * r)[0]
+            logs.append(
+                mpmath.log(mpmath.mpf(float(pi[c]))) - d2 / 2 - mpmath.log(mpmath.det(cov)) / 2
+            )
+        top = max(logs)
+        e = [mpmath.exp(v - top) for v in logs]
+        return [float(v / sum(e)) for v in e]
+
+
+@pytest.mark.parametrize("layout", ["grid", "adaptive"])
+@pytest.mark.parametrize("noise", [1e-4, 1e-5])
+def test_compiled_parameter_query_keeps_every_digit_with_a_small_fitted_noise(layout, noise):
+    """Throw-like data with noise 1e-4 or 1e-5 (large cluster precisions): the compiled
+    query's cluster posterior agrees with the traced model's to 1e-12, batched and one
+    row at a time, picks the same best cluster, and matches a 50-digit oracle."""
+    from inference import fit, fit_em, infer_parameter
+    from inference.compiled import compile_parameter_query
+    from models.throw_network import throw_data, throw_network
+
+    net = throw_network((8, 8))
+    if layout == "adaptive":
+        target = dataclasses.replace(net.parameters[0], layout="adaptive")
+        net = EffectNetwork(net.features, net.actions, (target,))
+    targets, hits = _throw_like(4000, 0, noise)
+    rows = throw_data(net, targets, hits)
+    if layout == "grid":
+        params = fit(net, rows).params
+    else:
+        params = fit_em(net, rows, steps=30).params
+    query = compile_parameter_query(net, params, "target")
+    assert float(query.whiten.abs().amax()) > 100  # precisions 1e4-1e5
+    _, asked = _throw_like(400, 1, noise)
+    asked = torch.from_numpy(asked)
+    compiled = query.infer({"end.hit": asked})
+    traced = infer_parameter(net, params, "target", {"end.hit": asked})
+    torch.testing.assert_close(compiled.cluster_probs, traced.cluster_probs, atol=1e-12, rtol=0)
+    assert torch.equal(compiled.best_cluster, traced.best_cluster)
+    for i in range(0, 400, 20):
+        one = query.infer({"end.hit": asked[i]})
+        torch.testing.assert_close(
+            one.cluster_probs[0], traced.cluster_probs[i], atol=1e-12, rtol=0
+        )
+        want = torch.tensor(_cluster_posterior_oracle(params, asked[i]), dtype=torch.float64)
+        torch.testing.assert_close(one.cluster_probs[0], want, atol=1e-12, rtol=0)
+        torch.testing.assert_close(compiled.cluster_probs[i], want, atol=1e-12, rtol=0)
+
+
+def test_compiled_parameter_query_refuses_a_hit_with_no_probability_in_float64():
+    """A hit ~1e156 standard deviations from every cluster (within the magnitude limit):
+    its density underflows under every cluster; the compiled query, batched and one row,
+    refuses the row by name as the traced one does, instead of answering NaN."""
+    from inference import infer_parameter
+    from inference.compiled import compile_parameter_query
+    from models.params import NetworkParams
+
+    net = _one_row_network()
+    params = random_params(net, 0)
+    narrow = {
+        site: dataclasses.replace(params[site], scale_tril=1e-6 * params[site].scale_tril)
+        for site in ("end.hit", "param.target")
+    }
+    params = NetworkParams(params.cpds | narrow, params.pseudo_count)
+    query = compile_parameter_query(net, params, "target")
+    hits = torch.tensor([[0.5, 1.0], [1e150, 0.0]], dtype=torch.float64)
+    ev = {"end.hit": hits, "action": ["throw", "throw"]}
+    for call in (
+        lambda: query.infer(ev),
+        lambda: query.infer({"end.hit": hits[1], "action": "throw"}),
+        lambda: infer_parameter(net, params, "target", ev),
+    ):
+        with pytest.raises(ValueError, match=r"row \d has probability 0 under every"):
+            call()
+    ordinary = query.infer({"end.hit": hits[:1], "action": ["throw"]})
+    assert abs(float(ordinary.cluster_probs.sum()) - 1) < 1e-12
+
+
+@pytest.mark.parametrize(
+    ("hit", "match"),
+    [
+        (np.array([0.3, 5j]), r"site 'end\.hit': complex numbers"),
+        (torch.tensor([0.3 + 0j, 0.4]), r"site 'end\.hit': complex numbers"),
+        ([0.3, 1e200], r"site 'end\.hit': row 0 .* beyond \+-1e\+150"),
+        (np.array([[-1e151, 0.0]]), r"site 'end\.hit': row 0 .* beyond \+-1e\+150"),
+    ],
+)
+def test_one_row_query_refuses_complex_and_huge_hits_as_encode_does(hit, match):
+    """The one-row path reads numbers itself; what evidence refuses, it refuses too (the
+    general path names the site), never reading 5j as 0 or answering beyond the limit."""
+    import warnings
+
+    from inference.compiled import compile_parameter_query
+
+    net = _one_row_network()
+    query = compile_parameter_query(net, random_params(net, 1), "target")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        with pytest.raises(ValueError, match=match):
+            query.infer({"end.hit": hit, "action": "throw"})

@@ -213,3 +213,100 @@ def test_continuous_calls_are_right_or_refused(seed, bad, where, data):
         predict(net, params, query) if not huge_only else predict(
             net, params, {"initial.door": ["open"], "initial.pos": [[0.0]]}
         )
+
+
+@st.composite
+def mixed_networks(draw):
+    """Discrete and continuous features, and perhaps a parameter that some actions use."""
+    features = [
+        Discrete(f"d{i}", ("x", "y", "z")[: draw(st.integers(2, 3))])
+        for i in range(draw(st.integers(0, 1)))
+    ]
+    features += [
+        Continuous(f"c{i}", draw(st.integers(1, 2))) for i in range(draw(st.integers(1, 2)))
+    ]
+    actions = tuple(f"a{j}" for j in range(draw(st.integers(2, 3))))
+    parameters = ()
+    if draw(st.booleans()):
+        parameters = (Parameter("p", 0.0, 1.0, draw(st.integers(1, 3)), actions[:1], "c0"),)
+    return EffectNetwork(tuple(features), actions, parameters)
+
+
+def _assert_distribution(probs: torch.Tensor, what: str):
+    assert not probs.isnan().any(), what
+    assert (probs >= 0).all(), what
+    assert float((probs.sum(-1) - 1).abs().max()) < 1e-12, what
+
+
+@pytest.mark.timeout(600)
+@settings(max_examples=40, deadline=None)
+@given(
+    net=mixed_networks(),
+    seed=st.integers(0, 1000),
+    exponent=st.floats(0.0, 150.0),
+    sign=st.sampled_from([1.0, -1.0]),
+    where=st.sampled_from(["initial", "end", "param"]),
+)
+def test_every_distribution_sums_to_one_at_every_accepted_magnitude(
+    net, seed, exponent, sign, where
+):
+    """From ordinary values to the magnitude limit, on an initial state, an observed end
+    state or a parameter: every query's distributions sum to 1 within 1e-12 and hold no
+    NaN, or the query refuses the row by name (a density below float64's range)."""
+    import warnings
+
+    from inference import infer_parameter
+    from inference.plausibility import OutsideTrainingData
+
+    params = random_params(net, seed)
+    big = sign * 10.0**exponent
+    g = np.random.default_rng(seed)
+    ev = {}
+    for f in net.features:
+        if isinstance(f, Discrete):
+            ev[f"initial.{f.name}"] = [f.states[int(g.integers(len(f.states)))]]
+        else:
+            value = g.normal(size=(1, f.dim))
+            if where == "initial" and f.name == "c0":
+                value[0, -1] = big
+            ev[f"initial.{f.name}"] = value
+    end = {"end.c0": g.normal(size=(1, net.feature("c0").dim))}
+    if where == "end":
+        end["end.c0"][0, 0] = big
+    uses = net.actions[0]
+    force = [[big if where == "param" else 0.5]]
+    calls = {
+        "predict": lambda: predict(net, params, ev | {"action": [uses]}),
+        "infer_action": lambda: infer_action(net, params, ev | end),
+        "predict_end": lambda: predict(net, params, ev | end),
+    }
+    if net.parameters:
+        calls["predict_param"] = lambda: predict(
+            net, params, ev | {"action": [uses], "param.p": force}
+        )
+        calls["infer_parameter"] = lambda: infer_parameter(
+            net, params, "p", ev | end | {"action": [uses]}, mixture=True
+        )
+    for name, call in calls.items():
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore", OutsideTrainingData)
+                answer = call()
+        except ValueError as error:
+            assert "has probability 0 under every configuration" in str(error), name
+            continue
+        if name.startswith("predict"):
+            for feature, probs in answer.discrete.items():
+                _assert_distribution(probs, f"{name}: {feature}")
+            for feature, mixture in answer.continuous.items():
+                _assert_distribution(mixture.weights, f"{name}: {feature}")
+                assert torch.isfinite(mixture.means).all() and torch.isfinite(mixture.covs).all()
+        elif name == "infer_action":
+            _assert_distribution(answer.probs, name)
+            assert float(answer.probs[0, int(answer.best[0])]) > 0 or bool(
+                (answer.unseen[0] >= 0.5).any()
+            )
+        else:
+            _assert_distribution(answer.cluster_probs, name)
+            _assert_distribution(answer.mixture.weights, name)
+            assert torch.isfinite(answer.mean).all()

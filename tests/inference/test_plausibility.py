@@ -2,6 +2,7 @@
 
 import math
 
+import mpmath
 import numpy as np
 import pytest
 import torch
@@ -14,6 +15,7 @@ from inference.plausibility import IMPLAUSIBLE_BELOW, plausibility
 from models import Continuous, Discrete, EffectNetwork, Parameter
 from models.declaration import DTYPE
 from tests.helpers import brute_joint, discrete_network, random_params
+from tests.inference.test_queries_mixed import README_NET, softmax_oracle
 
 
 def brute_evidence_prob(net, params, init, end, action=None):
@@ -222,3 +224,103 @@ def test_compiled_parameter_query_flags_what_the_traced_one_flags():
     b = infer_parameter(NET, params, "force", ev)
     assert torch.equal(a.implausible, b.implausible)
     assert 0 < int(a.implausible.sum()) < n
+
+
+def _distance_world(n=2000, seed=0):
+    """Initial distances trained on 0.1-1.2 m; push (with a force) moves the object."""
+    net = EffectNetwork(
+        (Continuous("distance", 1), Continuous("pos", 1)),
+        ("push", "wait"),
+        (Parameter("force", 0.0, 10.0, 4, ("push",), "pos"),),
+    )
+    rng = np.random.default_rng(seed)
+    action = rng.choice(net.actions, n)
+    distance = rng.uniform(0.1, 1.2, (n, 1))
+    pos = rng.uniform(-1.0, 1.0, (n, 1))
+    force = np.where(action[:, None] == "push", rng.uniform(0.0, 10.0, (n, 1)), np.nan)
+    data = {
+        "initial.distance": distance,
+        "initial.pos": pos,
+        "action": action,
+        "param.force": force,
+        "end.distance": distance + rng.normal(0.0, 0.01, (n, 1)),
+        "end.pos": pos + 0.05 * np.nan_to_num(force) + rng.normal(0.0, 0.01, (n, 1)),
+    }
+    return net, fit(net, data).params, distance[:, 0]
+
+
+def test_an_initial_state_far_outside_the_training_data_is_flagged_by_name():
+    """A distance of 1e6 m where training covered 0.1-1.2 m: every query flags the row
+    and names the field; inside the range nothing is flagged. The tail is the chi-square
+    tail of the value under the training rows' own mean and spread."""
+    from inference.plausibility import OutsideTrainingData
+
+    net, params, trained = _distance_world()
+    rows = {"initial.distance": [[0.6], [1e6], [1.3]], "initial.pos": [[0.0]] * 3}
+    z = (np.array([0.6, 1e6, 1.3]) - trained.mean()) / trained.std()
+    want = [math.erfc(abs(v) / math.sqrt(2)) for v in z]
+    got = plausibility(net, params, net.encode(rows)).initial["initial.distance"]
+    torch.testing.assert_close(got, torch.tensor(want, dtype=DTYPE), rtol=1e-3, atol=1e-300)
+    push = rows | {"action": ["push"] * 3}
+    ends = {"end.distance": [[0.6], [1e6], [1.3]], "end.pos": [[0.25]] * 3}
+    queries = {
+        "predict": lambda: predict(net, params, push | {"param.force": [[5.0]] * 3}),
+        "infer_action": lambda: infer_action(net, params, rows | ends),
+        "imitation_check": lambda: imitation_check(net, params, push | ends),
+        "infer_parameter": lambda: infer_parameter(net, params, "force", push | ends),
+        "compiled": lambda: compile_parameter_query(net, params, "force").infer(push | ends),
+    }
+    for name, query in queries.items():
+        with pytest.warns(
+            OutsideTrainingData, match=r"initial\.distance: 1 row\(s\), the first row 1"
+        ):
+            answer = query()
+        assert answer.implausible.tolist() == [False, True, False], name
+
+
+def test_the_discrete_flag_and_the_imitation_likelihood_hold_at_a_large_initial_state():
+    """log p(end | rest) is a ratio whose shared factors cancel: with the initial position
+    at 1e8 (its own density near -1e16) the imitation log-likelihood is the observed end
+    position's Gaussian density, computed by hand in 50 digits."""
+    import warnings
+
+    from inference.plausibility import OutsideTrainingData
+
+    net, params, _ = _distance_world()
+    x = 1e8
+    lg = params["end.pos"]  # parents: action, cluster.force; inputs: distance, pos, force
+    assert net.cpd("end.pos").parents == ("action", "cluster.force")
+    w, b, tril = lg.weight[1, 0], lg.bias[1, 0], lg.scale_tril[1, 0]  # wait: cluster 0
+    mean = float(w[0, 0]) * 0.5 + float(w[0, 1]) * x + float(b[0])
+    y = mean + 0.7 * float(tril[0, 0])
+    ev = {"initial.distance": [[0.5]], "initial.pos": [[x]], "action": ["wait"]}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", OutsideTrainingData)  # 1e8: far outside, flagged
+        check = imitation_check(net, params, ev | {"end.pos": [[y]]})
+    assert bool(check.implausible[0])
+    with mpmath.workdps(50):
+        r = (
+            mpmath.mpf(y)
+            - mpmath.mpf(float(w[0, 0])) * mpmath.mpf(0.5)
+            - mpmath.mpf(float(w[0, 1])) * mpmath.mpf(x)
+            - mpmath.mpf(float(b[0]))
+        )
+        s = mpmath.mpf(float(tril[0, 0]))
+        want = float(-((r / s) ** 2) / 2 - mpmath.log(s) - mpmath.log(2 * mpmath.pi) / 2)
+    assert abs(float(check.log_likelihood[0]) - want) < 1e-6
+
+
+@settings(max_examples=20, deadline=None)
+@given(seed=st.integers(0, 50), exponent=st.floats(0.0, 150.0), end=st.booleans())
+def test_the_discrete_plausibility_is_right_at_any_accepted_initial_magnitude(seed, exponent, end):
+    """p(end.visible | initial) of README's network, every action summed out, against a
+    60-digit oracle, with the initial position anywhere up to the magnitude limit."""
+    params = random_params(README_NET, seed)
+    x = 10.0**exponent
+    ev = README_NET.encode(
+        {"initial.visible": [True], "initial.position": [[x]], "end.visible": [end]}
+    )
+    prior = params["action"].probs.tolist()
+    want = sum(prior[a] * softmax_oracle(params, (1, a), x)[int(end)] for a in range(3))
+    got = plausibility(README_NET, params, ev).discrete
+    assert abs(float(got[0]) - float(want)) < 1e-12

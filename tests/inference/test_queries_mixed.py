@@ -2,7 +2,11 @@
 
 import math
 
+import mpmath
+import pytest
 import torch
+from hypothesis import example, given, settings
+from hypothesis import strategies as st
 
 from inference import imitation_check, infer_action, infer_parameter, predict
 from models import Continuous, Discrete, EffectNetwork, Parameter
@@ -220,3 +224,120 @@ def test_inferred_parameter_outside_its_range_is_flagged():
     far = (1e4 * w / w.norm())[None].expand(2, 2)
     flagged = infer_parameter(NET, params, "force", ev | {"end.pos": far})
     assert flagged.outside.all()
+
+
+# README's network: a softmax end.visible (initial.position is its continuous input), a
+# Gaussian end.position, and a force parameter on "tap"
+README_NET = EffectNetwork(
+    features=(Discrete("visible", (False, True)), Continuous("position", 1)),
+    actions=("look", "remove", "tap"),
+    parameters=(
+        Parameter("force", low=0.0, high=20.0, bins=8, actions=("tap",), affects="position"),
+    ),
+)
+
+
+def softmax_oracle(params, index: tuple[int, ...], x: float) -> list:
+    """``p(end.visible | discrete parents, initial.position = x)`` in 60-digit arithmetic
+    (mpmath numbers, whose exponent does not underflow)."""
+    cpd = params["end.visible"]
+    w, b = cpd.weight[index].tolist(), cpd.bias[index].tolist()  # (K, 1), (K,)
+    with mpmath.workdps(60):
+        logits = [
+            mpmath.mpf(wk[0]) * mpmath.mpf(x) + mpmath.mpf(bk) for wk, bk in zip(w, b, strict=True)
+        ]
+        e = [mpmath.exp(v) for v in logits]
+        return [v / sum(e) for v in e]
+
+
+@settings(max_examples=30, deadline=None)
+@given(
+    seed=st.integers(0, 50),
+    exponent=st.floats(0.0, 150.0),
+    sign=st.sampled_from([1.0, -1.0]),
+    where=st.sampled_from(["initial.position", "param.force"]),
+)
+@example(seed=0, exponent=10.0, sign=1.0, where="initial.position")
+@example(seed=0, exponent=150.0, sign=-1.0, where="param.force")
+def test_answers_are_normalised_and_right_at_every_accepted_magnitude(seed, exponent, sign, where):
+    """From ordinary values to the magnitude limit, on an initial state or a parameter:
+    every distribution sums to 1 within 1e-12, never NaN, and equals a 60-digit oracle."""
+    params = random_params(README_NET, seed)
+    big = sign * 10.0**exponent
+    position = big if where == "initial.position" else 0.3
+    force = big if where == "param.force" else 10.0
+    ev = {"initial.visible": [True], "initial.position": [[position]]}
+    visible = README_NET.site("end.visible")
+    parents = README_NET.cpd(visible.name).parents
+    assert parents == ("initial.visible", "action")
+
+    tapped = predict(README_NET, params, ev | {"action": ["tap"], "param.force": [[force]]})
+    p = tapped.discrete["visible"][0]
+    assert abs(float(p.sum()) - 1.0) < 1e-12
+    want = [float(v) for v in softmax_oracle(params, (1, 2), position)]
+    torch.testing.assert_close(p, torch.tensor(want, dtype=DTYPE), atol=1e-12, rtol=0)
+
+    # p(action | initial, end.visible = False): the table of actions times the softmax
+    post = infer_action(README_NET, params, ev | {"end.visible": [False]})
+    prior = params["action"].probs.tolist()
+    joint = [prior[a] * softmax_oracle(params, (1, a), position)[0] for a in range(3)]
+    want = torch.tensor([float(v / sum(joint)) for v in joint], dtype=DTYPE)
+    assert abs(float(post.probs.sum()) - 1.0) < 1e-12
+    torch.testing.assert_close(post.probs[0], want, atol=1e-9, rtol=0)
+    assert float(want[int(post.best[0])]) >= float(want.max()) - 1e-9
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 50), exponent=st.floats(0.0, 150.0), sign=st.sampled_from([1.0, -1.0]))
+def test_an_end_state_far_from_every_component_leaves_distributions_normalised(
+    seed, exponent, sign
+):
+    """An observed end position far from every Gaussian component: the action posterior
+    and the prediction of the other feature still sum to 1 within 1e-12, and no NaN."""
+    params = random_params(README_NET, seed)
+    ev = {"initial.visible": [True], "initial.position": [[0.1]]}
+    far = {"end.position": [[sign * 10.0**exponent]]}
+    post = infer_action(README_NET, params, ev | far)
+    assert not post.probs.isnan().any()
+    assert abs(float(post.probs.sum()) - 1.0) < 1e-12
+    assert float(post.probs[0, int(post.best[0])]) == float(post.probs.max()) or bool(
+        post.unseen[0].max() >= 0.5
+    )
+    pred = predict(README_NET, params, ev | far)
+    assert abs(float(pred.discrete["visible"].sum()) - 1.0) < 1e-12
+    weights = pred.continuous if pred.continuous else {}
+    for mixture in weights.values():
+        assert abs(float(mixture.weights.sum()) - 1.0) < 1e-12
+
+
+def test_beyond_the_magnitude_limit_queries_refuse_by_name():
+    params = random_params(README_NET, 0)
+    ev = {"initial.visible": [True], "initial.position": [[1e160]]}
+    with pytest.raises(ValueError, match=r"site 'initial\.position': row 0 .* beyond \+-1e\+150"):
+        infer_action(README_NET, params, ev | {"end.visible": [False]})
+
+
+def test_evidence_with_no_probability_in_float64_is_refused_not_nan():
+    """Within the magnitude limit, a value ~1e156 noise standard deviations from every
+    component has a density that underflows to 0 in float64 under every configuration:
+    the queries say so, naming the row and the site, instead of answering NaN."""
+    import dataclasses
+
+    from models.params import NetworkParams
+
+    net = EffectNetwork((Continuous("x"),), ("a", "b"))
+    params = random_params(net, 0)
+    cpd = params["end.x"]
+    tiny = dataclasses.replace(cpd, scale_tril=torch.full_like(cpd.scale_tril, 1e-6))
+    params = NetworkParams(params.cpds | {"end.x": tiny}, params.pseudo_count)
+    ordinary = infer_action(net, params, {"initial.x": [[0.0]], "end.x": [[1e3]]})
+    assert abs(float(ordinary.probs.sum()) - 1.0) < 1e-12
+    far = {"initial.x": [[0.0], [0.0]], "end.x": [[0.0], [1e150]]}
+    with pytest.raises(ValueError, match=r"row 1 has probability 0 .*'end\.x'"):
+        infer_action(net, params, far)
+    with pytest.raises(ValueError, match=r"row 1 has probability 0 .*'end\.x'"):
+        predict(net, params, far)  # no posterior over the action to predict with
+    # imitation asks how surprising the outcome is: certainly, and nothing is NaN
+    check = imitation_check(net, params, far | {"action": ["a", "a"]}, n_samples=50)
+    assert float(check.log_likelihood[1]) == -math.inf and float(check.surprise[1]) == 1.0
+    assert not check.unseen.isnan().any() and bool(check.implausible[1])

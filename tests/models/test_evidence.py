@@ -1,5 +1,7 @@
 """One evidence convention for every container; states that save; declarations that say why."""
 
+import warnings
+
 import numpy as np
 import pytest
 import torch
@@ -13,10 +15,12 @@ from models import (
     EffectNetwork,
     Evidence,
     Parameter,
+    Partial,
     load,
     random_params,
     save,
 )
+from models.evidence import MAX_MAGNITUDE
 
 NET = EffectNetwork((Discrete("level", (1, 2, 3)), Discrete("mood", ("calm", "wild"))), ("a", "b"))
 
@@ -151,3 +155,51 @@ def test_save_load_round_trips_any_network(tmp_path_factory, net, seed):
     for site, cpd in params.cpds.items():
         for name, value in vars(cpd).items():
             assert torch.equal(value, getattr(params2[site], name))
+
+
+MIXED = EffectNetwork(
+    (Discrete("level", (1, 2, 3)), Continuous("pos", 2)),
+    ("a", "b"),
+    (Parameter("force", 0.0, 1.0, 2, ("b",), "pos"),),
+)
+
+
+@pytest.mark.parametrize(
+    ("site", "value"),
+    [
+        ("initial.pos", 5j),
+        ("initial.pos", [[5j, 1.0]]),
+        ("initial.pos", np.array([[1.0, 2 + 5j]])),
+        ("end.pos", torch.tensor([[0.0, 5j]])),
+        ("end.pos", Partial(np.array([[1.0 + 0j, 0.0]]), observed=[True, False])),
+        ("param.force", [[5j]]),
+        ("initial.level", [1 + 0j]),  # equal to the state 1, but not a label
+        ("initial.level", np.array([2 + 0j])),
+        ("initial.level", torch.tensor([3 + 0j])),
+    ],
+)
+def test_complex_evidence_is_refused_by_name(site, value):
+    """A complex number is refused, naming the site; none is read as its real part."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no "discards the imaginary part" on the way
+        with pytest.raises(ValueError, match=rf"site '{site}': complex numbers"):
+            MIXED.encode({site: value})
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    site=st.sampled_from(["initial.pos", "end.pos", "param.force"]),
+    magnitude=st.floats(1.0, 300.0).map(lambda e: 10.0**e),
+    sign=st.sampled_from([1.0, -1.0]),
+)
+def test_one_magnitude_rule_for_every_continuous_site(site, magnitude, sign):
+    """Values up to +-MAX_MAGNITUDE are evidence; beyond it, a ValueError names the site:
+    the limit training has, at the boundary queries read too."""
+    dim = 1 if site == "param.force" else 2
+    value = np.zeros((3, dim))
+    value[1, -1] = sign * magnitude
+    if magnitude <= MAX_MAGNITUDE:
+        assert MIXED.encode({site: value})[site][1, -1] == sign * magnitude
+    else:
+        with pytest.raises(ValueError, match=rf"site '{site}': row 1 .* beyond \+-1e\+150"):
+            MIXED.encode({site: value})
