@@ -96,7 +96,7 @@ def continuous_surprise(
     dof = sum(observed_dims(evidence[s]).sum(-1) for s in continuous).to(DTYPE)  # (n,)
 
     def weights(e: Enumerated, _):
-        log_w = e.log_weight  # log p(c, y*, E), (E..., n)
+        log_w = e.log_weight + e.log_offset  # log p(c, y*, E), (E..., n)
         d2 = torch.zeros((), dtype=DTYPE)
         log_density = torch.zeros((), dtype=DTYPE)
         for s in continuous:
@@ -137,7 +137,9 @@ def continuous_surprise(
                 seed,
             )
     share = torch.where(prob > 0, prob * inside, 0.0)
-    return share.sum((1, 2)).clamp(0, 1)
+    # an outcome of probability 0 (a density underflowed in float64): every other is likelier
+    impossible = log_joint[:, 0, 0] == -torch.inf
+    return torch.where(impossible, 1.0, share.sum((1, 2)).clamp(0, 1))
 
 
 def _by_outcome(e: Enumerated, outcomes: list[str], t: torch.Tensor) -> torch.Tensor:
