@@ -12,7 +12,9 @@ off, so a slow creep is not mistaken for rest. A subset is rejected as soon as o
 has moved more than the tolerance, which makes the 1024 runs take seconds.
 
 The result depends only on the physical constants, so it is cached on disk as JSON,
-keyed by a hash of :func:`sim2d.materials.physical_constants` and the two constants here.
+keyed by a hash of :func:`sim2d.materials.physical_constants` and the two constants here;
+a cache that is damaged in any way (not JSON, or JSON of another shape) is recomputed
+and rewritten.
 The cache directory is ``$EFFECT_NETWORKS_CACHE`` if set, else
 ``~/.cache/effect-networks``.
 """
@@ -153,13 +155,9 @@ def stable_configurations(
         if path is not None
         else cache_dir() / f"stable_configurations-{_cache_key()}.json"
     )
-    if file.exists():
-        try:
-            data = json.loads(file.read_text())
-        except ValueError:  # a damaged cache is recomputed and rewritten
-            data = {}
-        if data.get("key") == _cache_key():
-            return tuple(data["stable"])
+    cached = _read_cache(file)
+    if cached is not None:
+        return cached
     stable = _compute(executor)
     file.parent.mkdir(parents=True, exist_ok=True)
     payload = {
@@ -173,6 +171,27 @@ def stable_configurations(
     # Written to a temporary file and renamed, so concurrent readers never see half a file.
     write_text(file, json.dumps(payload, indent=1))
     return stable
+
+
+def _read_cache(file: Path) -> tuple[int, ...] | None:
+    """The configurations cached in ``file``; None if it is missing, of other constants,
+    or damaged in any way (unreadable, not JSON, JSON of another shape): recompute."""
+    try:
+        data = json.loads(file.read_text())
+    except (OSError, ValueError, RecursionError):
+        return None
+    if not isinstance(data, dict) or data.get("key") != _cache_key():
+        return None
+    stable = data.get("stable")
+    n = 1 << geometry.N_CANS
+    if (
+        not isinstance(stable, list)
+        or not all(type(m) is int and 0 <= m < n for m in stable)
+        or stable != sorted(set(stable))
+        or data.get("n_stable") != len(stable)
+    ):
+        return None
+    return tuple(stable)
 
 
 @lru_cache(maxsize=1)
