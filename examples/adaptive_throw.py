@@ -26,7 +26,7 @@ from experiments.adaptive_throw import (
     AdaptiveThrowResult,
     run_adaptive_throw,
 )
-from experiments.config import check_int, config_or_exit
+from experiments.config import check_int, config_or_exit, run_script
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -96,4 +96,4 @@ def main(args: argparse.Namespace) -> AdaptiveThrowResult:
 
 
 if __name__ == "__main__":
-    main(parse_args())
+    run_script(main, parse_args())

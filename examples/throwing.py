@@ -15,7 +15,7 @@ import argparse
 
 import torch
 
-from experiments.config import check_int, config_or_exit
+from experiments.config import check_int, config_or_exit, run_script
 from experiments.throwing import (
     BIN_CANDIDATES,
     QUICK,
@@ -64,4 +64,4 @@ def main(args: argparse.Namespace) -> ThrowingResult:
 
 
 if __name__ == "__main__":
-    main(parse_args())
+    run_script(main, parse_args())

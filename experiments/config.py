@@ -4,7 +4,9 @@ An experiment is a function of one frozen settings dataclass (``...Config``) tha
 returns a result dataclass. A settings dataclass checks every field in
 ``__post_init__`` with the functions here, which raise :class:`ConfigError` (a
 ``ValueError``) naming the field, the value and what was expected; a script turns it
-into a command-line error with :func:`config_or_exit`. A result dataclass derives from
+into a command-line error with :func:`config_or_exit`, and runs its ``main`` with
+:func:`run_script` (what a user can remedy ends it with a short message, not a
+traceback). A result dataclass derives from
 :class:`Result`: ``to_json`` / ``from_json`` / ``load`` round-trip its fields (plain
 JSON values: numbers, strings, lists, dicts with string keys), ``to_markdown`` is its
 report, and ``save(out)`` writes its files.
@@ -17,12 +19,14 @@ import json
 import math
 import numbers
 import operator
+import sys
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, TypeVar
 
-from sim2d.executors import parse_spec
+from sim2d.chunks import write_failure
+from sim2d.executors import ExecutorUnavailable, parse_spec
 
 __all__ = [
     "ConfigError",
@@ -32,6 +36,7 @@ __all__ = [
     "check_float",
     "check_int",
     "config_or_exit",
+    "run_script",
 ]
 
 T = TypeVar("T")
@@ -103,6 +108,36 @@ def config_or_exit(parser: argparse.ArgumentParser, make: Callable[[], T]) -> T:
         flag = "--" + error.field.replace("_", "-")
         parser.error(f"{flag}{str(error)[len(error.field) :]}")
     raise AssertionError("parser.error returns only by raising")  # pragma: no cover
+
+
+def run_script(main: Callable[[argparse.Namespace], object], args: argparse.Namespace):
+    """Run a script's ``main(args)`` and exit: status 0, or the int ``main`` returns.
+
+    What a user can remedy ends the script with a line or two on stderr instead of a
+    traceback: a write that failed (a full disk, a read-only or forbidden folder; status
+    1), an executor that cannot be reached (2), an interrupt (Ctrl-C, or SIGTERM while a
+    data set is generated; 130). A data set being generated keeps its finished chunks,
+    so running the script again resumes it.
+    """
+    prog = Path(sys.argv[0]).name
+    try:
+        result = main(args)
+    except KeyboardInterrupt:
+        sys.stderr.write(f"{prog}: interrupted; run it again to resume\n")
+        sys.exit(130)
+    except ExecutorUnavailable as error:
+        sys.stderr.write(f"{prog}: error: {error}\n")
+        sys.exit(2)
+    except OSError as error:
+        failure = write_failure(error)
+        if failure is None:
+            raise
+        sys.stderr.write(
+            f"{prog}: error: {failure}\n{prog}: free some space or choose a writable "
+            "folder, then run it again (a data set being generated resumes where it stopped)\n"
+        )
+        sys.exit(1)
+    sys.exit(result if isinstance(result, int) and not isinstance(result, bool) else 0)
 
 
 @dataclass
