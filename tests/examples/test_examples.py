@@ -28,6 +28,7 @@ def run(name: str, *argv, check: bool = True) -> subprocess.CompletedProcess:
         capture_output=True,
         text=True,
         timeout=300,
+        env=os.environ | {"PYTHONPATH": str(ROOT)},  # this checkout's packages, not an install's
     )
     if check:
         assert done.returncode == 0, done.stderr[-3000:]
