@@ -19,6 +19,7 @@ import json
 import math
 import numbers
 import operator
+import os
 import sys
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, fields
@@ -35,6 +36,7 @@ __all__ = [
     "check_executor",
     "check_float",
     "check_int",
+    "check_threads",
     "config_or_exit",
     "run_script",
 ]
@@ -77,6 +79,15 @@ def check_float(
     if not math.isfinite(number) or below or number > high:
         raise ConfigError(field, f"{value!r} is out of range; expected {expected}")
     return number
+
+
+def check_threads(field: str, value) -> int:
+    """A number of torch threads: an int from 1 to the CPU cores this process may use."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cores = os.cpu_count() or 1
+    return check_int(field, value, 1, cores)
 
 
 def check_choice(field: str, value: T, choices: Iterable[T]) -> T:

@@ -115,7 +115,7 @@ def write_failure(error: BaseException) -> str | None:
     :data:`WRITE_ERRNOS`; None for any other error."""
     if not isinstance(error, OSError) or error.errno not in WRITE_ERRNOS:
         return None
-    where = f" {error.filename}" if error.filename else ""
+    where = f" {error.filename}" if error.filename else " a file"
     return f"could not write{where}: {error.strerror or error}"
 
 

@@ -109,6 +109,9 @@ def test_a_bad_number_exits_with_a_usage_error():
         ("physics_bounds", ["--step", "0"], "--step: 0.0 is out of range"),
         ("throwing", ["--bins", "4", "0"], "--bins: 0 is out of range"),
         ("throwing", ["--threads", "0"], "--threads: 0 is out of range"),
+        ("throwing", ["--threads", "1000000000000"], "--threads: 1000000000000 is out of range"),
+        ("throwing", ["--threads", "1e12"], "argument --threads: invalid int value: '1e12'"),
+        ("adaptive_throw", ["--threads", str(10**12)], "--threads: 1000000000000 is out of"),
         ("adaptive_throw", ["--budgets", "100", "50"], "--budgets: (100, 50) must increase"),
         ("adaptive_throw", ["--batch", "50", "--pool", "10"], "--pool: 10 is out of range"),
         ("tap_and_remove", ["--n", "-10"], "--n: -10 is out of range"),
@@ -233,3 +236,28 @@ def test_sigterm_to_reproduce_saves_the_data_set_and_releases_its_lock(tmp_path)
     _, alive = psutil.wait_procs(children, timeout=10)
     assert not alive, "the step or its workers outlived reproduce"
     assert not list(data.glob("*.lock"))
+
+
+FILE_SIZE_LIMITED = """
+import resource, runpy, signal, sys
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails with EFBIG
+resource.setrlimit(resource.RLIMIT_FSIZE, (2000, 2000))
+sys.argv = sys.argv[1:]
+runpy.run_path(sys.argv[0], run_name="__main__")
+"""
+
+
+def test_a_failed_write_is_two_lines_not_a_traceback(tmp_path):
+    """Files limited to 2 kB (as a full disk, the write itself fails): the script says what
+    happened and that a rerun resumes."""
+    argv = [str(ROOT / "examples" / "throw_kinematics.py"), "--grid", "2", "--n", "10"]
+    done = subprocess.run(
+        [sys.executable, "-c", FILE_SIZE_LIMITED, *argv, "--out", str(tmp_path)],
+        cwd=ROOT, capture_output=True, text=True, timeout=120,
+        env=os.environ | {"PYTHONPATH": str(ROOT)},
+    )  # fmt: skip
+    assert done.returncode == 1, done.stderr[-3000:]
+    lines = done.stderr.splitlines()
+    assert len(lines) == 2, done.stderr[-3000:]
+    assert lines[0] == "throw_kinematics.py: error: could not write a file: File too large"
+    assert "run it again" in lines[1]

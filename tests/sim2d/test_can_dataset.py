@@ -4,6 +4,7 @@ import concurrent.futures
 import errno
 import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -18,6 +19,7 @@ import pytest
 from sim2d import can_dataset, executors, field_throws, geometry, materials
 from sim2d.can_dataset import generate_dataset, load_dataset
 from sim2d.chunks import ChunkWarning, locked, read_npz, save_npz
+from sim2d.generate import main as generate_main
 
 BOTTOM_ROW = geometry.cans_to_mask([0, 1, 2, 3])
 SMALL = {"configs": [BOTTOM_ROW, 0], "angles": (0, 2), "repeats": 2, "chunk_size": 97}
@@ -570,3 +572,55 @@ def test_a_negative_seed_is_refused_naming_it(tmp_path):
     with pytest.raises(ValueError, match=r"seed=-1 is negative"):
         generate_dataset(tmp_path / "d.npz", seed=-1, progress=False, **SMALL)
     assert list(tmp_path.iterdir()) == []
+
+
+CLI_SMALL = ["--configs", str(BOTTOM_ROW), "0", "--angles", "0", "2", "--repeats", "2",
+             "--chunk-size", "97", "--quiet"]  # fmt: skip
+
+
+def test_the_command_line_says_a_full_disk_in_two_lines_and_a_rerun_resumes(
+    tmp_path, small, monkeypatch, capsys
+):
+    path = tmp_path / "d.npz"
+    parts = interrupted(path)
+    real = np.lib.format.write_array
+    writes = []
+
+    def full_disk(fp, array, *args, **kwargs):
+        writes.append(1)
+        if len(writes) > 20:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(fp, array, *args, **kwargs)
+
+    monkeypatch.setattr(np.lib.format, "write_array", full_disk)
+    with pytest.raises(SystemExit) as exited:
+        generate_main([str(path), *CLI_SMALL, "--executor", "process:1"])
+    assert exited.value.code == 1
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 2, lines
+    assert re.fullmatch(
+        r"python -m sim2d\.generate: error: could not write \S+d\.npz\.parts/chunk-\d+\.npz: "
+        r"No space left on device",
+        lines[0],
+    )
+    assert "run it again to resume" in lines[1]
+    saved = len(list(parts.glob("chunk-*.npz")))
+    monkeypatch.setattr(np.lib.format, "write_array", real)
+    assert generate_main([str(path), *CLI_SMALL, "--executor", "process:1"]) == 0
+    assert same_bytes(path, small) and saved > 3
+
+
+def test_the_command_line_says_a_read_only_folder_in_two_lines(tmp_path, monkeypatch, capsys):
+    real_open = os.open
+
+    def read_only(file, flags, *args, **kwargs):
+        if Path(file).parent == tmp_path and flags & (os.O_WRONLY | os.O_RDWR | os.O_CREAT):
+            raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(file))
+        return real_open(file, flags, *args, **kwargs)
+
+    monkeypatch.setattr(os, "open", read_only)
+    with pytest.raises(SystemExit) as exited:
+        generate_main([str(tmp_path / "d.npz"), *CLI_SMALL])
+    assert exited.value.code == 1
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 2 and lines[0].endswith("d.npz.lock: Read-only file system"), lines
