@@ -110,6 +110,9 @@ WRITE_ERRNOS = frozenset(
 )
 
 
+_READ_ONLY_ERRNOS = frozenset({errno.EROFS, errno.EACCES, errno.EPERM})
+
+
 def write_failure(error: BaseException) -> str | None:
     """One line saying which write failed and why, for an ``OSError`` of
     :data:`WRITE_ERRNOS`; None for any other error."""
@@ -154,8 +157,13 @@ def read_npz(path) -> dict[str, np.ndarray]:
 
 
 @contextlib.contextmanager
-def locked(path) -> Iterator[Path]:
+def locked(path, *, or_read_only: bool = False) -> Iterator[Path | None]:
     """Hold ``<path>.lock`` exclusively while writing ``path``.
+
+    With ``or_read_only``, a lock file that cannot be created because its folder cannot
+    be written to (a read-only file system, no permission) is not taken and None is
+    yielded: what is finished there can still be read (every file is renamed into place
+    whole), and any write fails naming its file.
 
     Raises
     ------
@@ -167,7 +175,13 @@ def locked(path) -> Iterator[Path]:
     lock = Path(f"{path}.lock")
     lock.parent.mkdir(parents=True, exist_ok=True)
     while True:
-        fd = os.open(lock, os.O_RDWR | os.O_CREAT, _file_mode())
+        try:
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT, _file_mode())
+        except OSError as error:
+            if not (or_read_only and error.errno in _READ_ONLY_ERRNOS):
+                raise
+            yield None
+            return
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -240,10 +254,10 @@ def _manifest_is_current(folder: Path, protocol: dict, key: str) -> bool:
     others = len(keys) - ours - keys.count(None)
     difference = _difference(saved, protocol)
     if ours or not others:
+        chunks = f"{ours} of its chunks do" if ours else "no chunk belongs to another"
         warnings.warn(
-            f"{manifest} does not describe this data set ({difference}), but its "
-            f"{ours} readable chunk(s) do{'' if others else ' and no other does'}; rewritten "
-            "(the chunks carry their protocol's key and are checked one by one)",
+            f"{manifest} does not describe this data set ({difference}), but {chunks}; "
+            "rewritten (the chunks carry their protocol's key and are checked one by one)",
             ChunkWarning,
             stacklevel=3,
         )
