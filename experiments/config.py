@@ -164,8 +164,18 @@ class Result:
 
     @classmethod
     def from_json(cls: type[T], text: str) -> T:
-        """The result :meth:`to_json` wrote; refuses a file of another experiment."""
-        data = json.loads(text)
+        """The result :meth:`to_json` wrote; ``ValueError`` for a file of another
+        experiment, or one that is not JSON (truncated, nested too deep) or not an object."""
+        try:
+            data = json.loads(text)
+        except (ValueError, RecursionError) as error:
+            raise ValueError(
+                f"not a {cls.__name__}: unreadable JSON ({type(error).__name__})"
+            ) from None
+        if not isinstance(data, dict):
+            raise ValueError(
+                f"not a {cls.__name__}: the JSON is a {type(data).__name__}, not an object"
+            )
         names = [f.name for f in fields(cls)]
         missing = [n for n in names if n not in data]
         if missing:
@@ -174,4 +184,8 @@ class Result:
 
     @classmethod
     def load(cls: type[T], path) -> T:
-        return cls.from_json(Path(path).read_text())
+        """:meth:`from_json` of a file; its ``ValueError`` names the file."""
+        try:
+            return cls.from_json(Path(path).read_text())
+        except ValueError as error:
+            raise ValueError(f"{path}: {error}") from None

@@ -90,6 +90,22 @@ def test_result_round_trip_and_refusal(tmp_path):
         Toy.from_json('{"name": "a", "values": []}')
 
 
+@pytest.mark.parametrize(
+    ("text", "why"),
+    [
+        ("null", "the JSON is a NoneType, not an object"),
+        ("[1, 2]", "the JSON is a list, not an object"),
+        ('{"name": ', r"unreadable JSON \(JSONDecodeError\)"),
+        ("[" * 100_000 + "]" * 100_000, r"unreadable JSON \(RecursionError\)"),
+    ],
+)
+def test_a_damaged_result_file_is_named(tmp_path, text, why):
+    path = tmp_path / "toy.json"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=rf"^{tmp_path}/toy\.json: not a Toy: {why}"):
+        Toy.load(path)
+
+
 def _raising(error: BaseException):
     def main(args):
         raise error
