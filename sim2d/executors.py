@@ -81,7 +81,9 @@ def parse_spec(spec: str) -> tuple[str, int | str | None]:
             raise ValueError(f"executor={spec!r} asks for {n} workers; expected at least 1")
         return kind, int(n)
     if host is not None:
-        return "dask", f"tcp://{host}:{port}"
+        if not 1 <= int(port) <= 65535:
+            raise ValueError(f"executor={spec!r} names port {port}; expected a port in 1..65535")
+        return "dask", f"tcp://{host}:{int(port)}"
     return "ray", None
 
 

@@ -624,3 +624,9 @@ def test_the_command_line_says_a_read_only_folder_in_two_lines(tmp_path, monkeyp
     assert exited.value.code == 1
     lines = capsys.readouterr().err.splitlines()
     assert len(lines) == 2 and lines[0].endswith("d.npz.lock: Read-only file system"), lines
+
+
+@pytest.mark.parametrize("port", ["0", "65536", "99999"])
+def test_a_port_out_of_range_is_refused_naming_it(port):
+    with pytest.raises(ValueError, match=rf"executor='dask://h:{port}' names port {port}; "):
+        executors.parse_spec(f"dask://h:{port}")
