@@ -229,10 +229,10 @@ def _sigterm_as_interrupt() -> Iterator[None]:
 def _manifest_is_current(folder: Path, protocol: dict, key: str) -> bool:
     """Whether ``folder``'s manifest describes ``protocol`` (False: write it).
 
-    Reads only. A manifest that is unreadable, or that describes another protocol while
-    the chunks carry this protocol's key (or no chunk is readable), is named in a warning
-    and is to be rewritten: the chunks carry their protocol's key and are checked one by
-    one, so none is lost. Refuses a folder whose chunks were computed for another protocol.
+    Reads only. A manifest that is unreadable or describes another protocol is judged by
+    the chunks, which carry their protocol's key: when some carry this protocol's (or
+    none is readable) it is named in a warning and is to be rewritten, and no chunk is
+    lost; when they all belong to another protocol the folder is refused.
     """
     manifest = folder / "manifest.json"
     if not manifest.exists():
@@ -240,32 +240,27 @@ def _manifest_is_current(folder: Path, protocol: dict, key: str) -> bool:
     try:
         saved = json.loads(manifest.read_text())
     except (ValueError, OSError, RecursionError) as error:
-        warnings.warn(
-            f"{manifest} is truncated or corrupt ({type(error).__name__}); rewritten "
-            "(the chunks carry their protocol's key and are checked one by one)",
-            ChunkWarning,
-            stacklevel=3,
-        )
-        return False
-    if saved == protocol:
-        return True
+        what = f"is truncated or corrupt ({type(error).__name__})"
+    else:
+        if saved == protocol:
+            return True
+        what = f"does not describe this data set ({_difference(saved, protocol)})"
     keys = [_chunk_key(file) for file in sorted(folder.glob("chunk-*.npz"))]
     ours = keys.count(key)
     others = len(keys) - ours - keys.count(None)
-    difference = _difference(saved, protocol)
     if ours or not others:
         chunks = f"{ours} of its chunks do" if ours else "no chunk belongs to another"
         warnings.warn(
-            f"{manifest} does not describe this data set ({difference}), but {chunks}; "
-            "rewritten (the chunks carry their protocol's key and are checked one by one)",
+            f"{manifest} {what}; rewritten ({chunks}: the chunks carry their protocol's "
+            "key and are checked one by one)",
             ChunkWarning,
             stacklevel=3,
         )
         return False
     raise ValueError(
         f"{folder} holds {others} chunk(s) of a different data set (its manifest.json "
-        f"{difference}); none was computed for these constants and arguments. Delete "
-        "that folder or choose another path"
+        f"{what}); none was computed for these constants and arguments. Delete that "
+        "folder or choose another path"
     )
 
 

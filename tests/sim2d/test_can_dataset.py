@@ -535,9 +535,14 @@ def test_a_folder_of_another_data_set_is_refused_naming_what_differs(tmp_path):
     with pytest.raises(ValueError, match=r"3 chunk\(s\) of a different data set .*seed: 0 there"):
         generate_dataset(path, executor=SerialExecutor(), progress=False, **SMALL | {"seed": 1})
     # the same, with its manifest edited as well: its chunks still tell
-    (path.with_name("d.npz.parts") / "manifest.json").write_text("null")
+    manifest = path.with_name("d.npz.parts") / "manifest.json"
+    manifest.write_text("null")
     with pytest.raises(ValueError, match=r"different data set .*holds a JSON NoneType"):
         generate_dataset(path, executor=SerialExecutor(), progress=False, **SMALL | {"seed": 1})
+    manifest.write_text('{"format_ver')  # or truncated: no chunk of the other data set is lost
+    with pytest.raises(ValueError, match=r"different data set .*is truncated or corrupt"):
+        generate_dataset(path, executor=SerialExecutor(), progress=False, **SMALL | {"seed": 1})
+    assert len(list(manifest.parent.glob("chunk-*.npz"))) == 3
 
 
 def test_a_data_set_with_deeply_nested_metadata_is_named(tmp_path, small):
