@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim2d import can_dataset, executors, field_throws, geometry, materials
+from sim2d import can_dataset, chunks, executors, field_throws, geometry, materials
 from sim2d.can_dataset import generate_dataset, load_dataset
 from sim2d.chunks import ChunkWarning, locked, read_npz, save_npz
 from sim2d.generate import main as generate_main
@@ -635,3 +635,29 @@ def test_the_command_line_says_a_read_only_folder_in_two_lines(tmp_path, monkeyp
 def test_a_port_out_of_range_is_refused_naming_it(port):
     with pytest.raises(ValueError, match=rf"executor='dask://h:{port}' names port {port}; "):
         executors.parse_spec(f"dask://h:{port}")
+
+
+def test_random_damage_to_a_chunk_is_named_or_harmless(tmp_path):
+    """Bytes overwritten anywhere in a chunk: the chunk check names the file, or the
+    arrays read are those saved (the damage hit no field that matters)."""
+    rows = np.array([[BOTTOM_ROW, field, 0, 0] for field in range(10)])
+    arrays = can_dataset._simulate_chunk(rows, 0.003, 0)
+    file = tmp_path / "chunk-000000.npz"
+    save_npz(file, arrays | {"protocol": np.array("key")})
+    good = file.read_bytes()
+    rng = np.random.default_rng(0)
+    named = 0
+    for _ in range(400):
+        data = bytearray(good)
+        for i in rng.integers(len(data), size=rng.choice([1, 2, 5])):
+            data[i] = rng.integers(256)
+        file.write_bytes(bytes(data))
+        problem = chunks._problem(file, "key", lambda k, a: can_dataset._chunk_problem(rows, a), 0)
+        if problem is None:
+            read = read_npz(file)
+            assert all(np.array_equal(read[n], arrays[n]) for n in arrays)
+            assert all(read[n].dtype == arrays[n].dtype for n in arrays)
+        else:
+            assert str(file) in problem
+            named += 1
+    assert named > 200
