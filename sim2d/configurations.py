@@ -14,7 +14,7 @@ has moved more than the tolerance, which makes the 1024 runs take seconds.
 The result depends only on the physical constants, so it is cached on disk as JSON,
 keyed by a hash of :func:`sim2d.materials.physical_constants` and the two constants here;
 a cache that is damaged in any way (not JSON, or JSON of another shape) is recomputed
-and rewritten.
+and rewritten, and a cache folder that cannot be written to is named in a warning.
 The cache directory is ``$EFFECT_NETWORKS_CACHE`` if set, else
 ``~/.cache/effect-networks``.
 """
@@ -26,6 +26,7 @@ import hashlib
 import json
 import math
 import os
+import warnings
 from functools import lru_cache
 from pathlib import Path
 
@@ -159,7 +160,6 @@ def stable_configurations(
     if cached is not None:
         return cached
     stable = _compute(executor)
-    file.parent.mkdir(parents=True, exist_ok=True)
     payload = {
         "key": _cache_key(),
         "constants": materials.physical_constants(),
@@ -169,7 +169,15 @@ def stable_configurations(
         "stable": list(stable),
     }
     # Written to a temporary file and renamed, so concurrent readers never see half a file.
-    write_text(file, json.dumps(payload, indent=1))
+    try:
+        file.parent.mkdir(parents=True, exist_ok=True)
+        write_text(file, json.dumps(payload, indent=1))
+    except OSError as error:  # a read-only or full cache folder: the result stands
+        warnings.warn(
+            f"could not cache the stable configurations in {file} ({error.strerror or error}); "
+            "they are simulated again next time",
+            stacklevel=2,
+        )
     return stable
 
 

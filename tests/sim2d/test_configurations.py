@@ -1,8 +1,11 @@
 """Tests of the physics enumeration of stable configurations (sim2d/configurations.py)."""
 
+import errno
 import itertools
 import json
+import os
 from concurrent.futures import Future, ProcessPoolExecutor
+from pathlib import Path
 
 import pytest
 
@@ -148,3 +151,21 @@ def test_a_good_cache_is_read_as_written(tmp_path, monkeypatch):
     file.write_text(_cache_with())
     monkeypatch.setattr(configurations, "_compute", lambda executor=None: (1,))
     assert stable_configurations(path=file) == (0, 15)
+
+
+def test_a_cache_folder_that_cannot_be_written_is_named_and_the_result_stands(
+    tmp_path, monkeypatch
+):
+    real_open = os.open
+
+    def read_only(file, flags, *args, **kwargs):
+        if tmp_path in Path(file).parents and flags & (os.O_WRONLY | os.O_RDWR | os.O_CREAT):
+            raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(file))
+        return real_open(file, flags, *args, **kwargs)
+
+    monkeypatch.setattr(os, "open", read_only)
+    monkeypatch.setattr(configurations, "_compute", lambda executor=None: (0, 15))
+    file = tmp_path / "stable.json"
+    with pytest.warns(UserWarning, match=r"could not cache .*stable\.json .*Read-only"):
+        assert stable_configurations(path=file) == (0, 15)
+    assert not file.exists()
