@@ -19,7 +19,7 @@ import torch
 
 from experiments.active import LEARNERS, QUICK, ActiveConfig, ActiveResult, run_active
 from experiments.cans import SCALES
-from experiments.config import config_or_exit
+from experiments.config import config_or_exit, run_script
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -101,4 +101,4 @@ def main(args: argparse.Namespace) -> ActiveResult:
 
 
 if __name__ == "__main__":
-    main(parse_args())
+    run_script(main, parse_args())

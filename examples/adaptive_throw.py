@@ -26,7 +26,7 @@ from experiments.adaptive_throw import (
     AdaptiveThrowResult,
     run_adaptive_throw,
 )
-from experiments.config import check_int, config_or_exit
+from experiments.config import check_threads, config_or_exit, run_script
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -60,7 +60,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument("--threads", type=int, default=1, help="torch threads (timings: 1)")
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
     args = parser.parse_args(argv)
-    config_or_exit(parser, lambda: check_int("threads", args.threads, 1))
+    config_or_exit(parser, lambda: check_threads("threads", args.threads))
     sizes = {
         "n_train": args.n_train,
         "n_test": args.n_test,
@@ -96,4 +96,4 @@ def main(args: argparse.Namespace) -> AdaptiveThrowResult:
 
 
 if __name__ == "__main__":
-    main(parse_args())
+    run_script(main, parse_args())

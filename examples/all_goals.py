@@ -19,7 +19,7 @@ import argparse
 import torch
 
 from experiments.all_goals import AllGoalsConfig, AllGoalsResult, run_all_goals
-from experiments.config import config_or_exit
+from experiments.config import config_or_exit, run_script
 
 QUICK = dict(step=0.01, train_repeats=2, bound_repeats=4, episodes=10, n_throws=5000, bins=8)
 SIZED = ("step", "train_repeats", "bound_repeats", "episodes", "n_throws", "bins")
@@ -75,4 +75,4 @@ def main(args: argparse.Namespace) -> AllGoalsResult:
 
 
 if __name__ == "__main__":
-    main(parse_args())
+    run_script(main, parse_args())

@@ -24,7 +24,7 @@ from experiments.can_tossing import (
     run_can_tossing,
 )
 from experiments.cans import SCALES
-from experiments.config import config_or_exit
+from experiments.config import config_or_exit, run_script
 
 
 def parse_args(argv=None) -> argparse.Namespace:
@@ -72,4 +72,4 @@ def main(args: argparse.Namespace) -> CanTossingResult:
 
 
 if __name__ == "__main__":
-    main(parse_args())
+    run_script(main, parse_args())

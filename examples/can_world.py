@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import argparse
 
-from experiments.config import config_or_exit
+from experiments.config import config_or_exit, run_script
 from experiments.pictures import DEFAULT_FIELD, CanWorldConfig, CanWorldPictures, draw_can_world
 from sim2d import geometry
 
@@ -50,4 +50,4 @@ def main(args: argparse.Namespace) -> CanWorldPictures:
 
 
 if __name__ == "__main__":
-    main(parse_args())
+    run_script(main, parse_args())

@@ -17,7 +17,7 @@ import torch
 
 from experiments.cans import SCALES
 from experiments.combined import PROPOSALS, CombinedConfig, CombinedResult, run_combined
-from experiments.config import config_or_exit
+from experiments.config import config_or_exit, run_script
 from sim2d.combined import TABLE_TOP_Z
 
 
@@ -82,4 +82,4 @@ def main(args: argparse.Namespace) -> CombinedResult:
 
 
 if __name__ == "__main__":
-    main(parse_args())
+    run_script(main, parse_args())

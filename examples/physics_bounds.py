@@ -16,7 +16,7 @@ import argparse
 import torch
 
 from experiments.cans import SCALES
-from experiments.config import config_or_exit
+from experiments.config import config_or_exit, run_script
 from experiments.physics_bounds import (
     PhysicsBoundsConfig,
     PhysicsBoundsResult,
@@ -72,4 +72,4 @@ def main(args: argparse.Namespace) -> PhysicsBoundsResult:
 
 
 if __name__ == "__main__":
-    main(parse_args())
+    run_script(main, parse_args())

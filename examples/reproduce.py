@@ -19,12 +19,14 @@ also refreshes the results block of README.md.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import signal
 import subprocess
 import sys
 import time
 from pathlib import Path
 
-from experiments.config import check_executor, config_or_exit
+from experiments.config import check_executor, config_or_exit, run_script
 from experiments.summary import refresh_readme, run_record, summary_markdown
 
 HERE = Path(__file__).resolve().parent
@@ -65,6 +67,37 @@ def steps(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
     ]
 
 
+def run_step(command: list[str]) -> tuple[int, signal.Signals | None]:
+    """Run one step as a child process: its exit status, and the signal that stopped us.
+
+    SIGTERM (``kill``, the end of a batch job) is passed on to the step, which saves the
+    chunks it finished and releases the data set's lock; Ctrl-C reaches the step from
+    the terminal itself. Either way this process waits for the step to end, and the
+    caller starts no further step.
+    """
+    stopped: list[signal.Signals] = []
+    children: list[subprocess.Popen] = []
+
+    def stop(signum, frame):
+        stopped.append(signal.Signals(signum))
+        if signum == signal.SIGTERM:
+            for child in children:
+                with contextlib.suppress(ProcessLookupError):
+                    child.send_signal(signum)
+
+    previous = {s: signal.signal(s, stop) for s in (signal.SIGTERM, signal.SIGINT)}
+    try:
+        child = subprocess.Popen(command)
+        children.append(child)
+        if signal.SIGTERM in stopped:  # it came while the step was starting
+            child.send_signal(signal.SIGTERM)
+        code = child.wait()
+    finally:
+        for s, handler in previous.items():
+            signal.signal(s, handler)
+    return code, (stopped[0] if stopped else None)
+
+
 def main(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -74,8 +107,14 @@ def main(args: argparse.Namespace) -> int:
             continue
         print(f"\n=== {name} {' '.join(argv)}", flush=True)
         start = time.perf_counter()
-        code = subprocess.call([sys.executable, str(HERE / f"{name}.py"), *argv])
+        code, stopped = run_step([sys.executable, str(HERE / f"{name}.py"), *argv])
         times[name] = time.perf_counter() - start
+        if stopped is not None:
+            print(
+                f"stopped by {stopped.name} during {name}; run it again to resume",
+                file=sys.stderr,
+            )
+            return 128 + stopped
         if code != 0:
             print(f"{name} failed with exit code {code}", file=sys.stderr)
             return code
@@ -114,4 +153,4 @@ def parse_args(argv=None) -> argparse.Namespace:
 
 
 if __name__ == "__main__":
-    sys.exit(main(parse_args()))
+    run_script(main, parse_args())

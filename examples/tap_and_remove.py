@@ -14,7 +14,7 @@ import argparse
 
 import torch
 
-from experiments.config import config_or_exit
+from experiments.config import config_or_exit, run_script
 from experiments.tap_and_remove import (
     TapAndRemoveConfig,
     TapAndRemoveResult,
@@ -46,4 +46,4 @@ def main(args: argparse.Namespace) -> TapAndRemoveResult:
 
 
 if __name__ == "__main__":
-    main(parse_args())
+    run_script(main, parse_args())

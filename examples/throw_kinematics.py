@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import argparse
 
-from experiments.config import config_or_exit
+from experiments.config import config_or_exit, run_script
 from experiments.pictures import (
     ThrowKinematicsConfig,
     ThrowKinematicsResult,
@@ -44,4 +44,4 @@ def main(args: argparse.Namespace) -> ThrowKinematicsResult:
 
 
 if __name__ == "__main__":
-    main(parse_args())
+    run_script(main, parse_args())

@@ -15,7 +15,7 @@ import argparse
 
 import torch
 
-from experiments.config import check_int, config_or_exit
+from experiments.config import check_threads, config_or_exit, run_script
 from experiments.throwing import (
     BIN_CANDIDATES,
     QUICK,
@@ -42,7 +42,7 @@ def parse_args(argv=None) -> argparse.Namespace:
     )
     parser.add_argument("--quiet", action="store_true", help="no progress bars")
     args = parser.parse_args(argv)
-    config_or_exit(parser, lambda: check_int("threads", args.threads, 1))
+    config_or_exit(parser, lambda: check_threads("threads", args.threads))
     sizes = QUICK if args.quick else {"n_train": args.n_train, "n_test": args.n_test}
     sizes = {"bins": tuple(args.bins)} | sizes
     args.config = config_or_exit(
@@ -64,4 +64,4 @@ def main(args: argparse.Namespace) -> ThrowingResult:
 
 
 if __name__ == "__main__":
-    main(parse_args())
+    run_script(main, parse_args())

@@ -4,7 +4,9 @@ An experiment is a function of one frozen settings dataclass (``...Config``) tha
 returns a result dataclass. A settings dataclass checks every field in
 ``__post_init__`` with the functions here, which raise :class:`ConfigError` (a
 ``ValueError``) naming the field, the value and what was expected; a script turns it
-into a command-line error with :func:`config_or_exit`. A result dataclass derives from
+into a command-line error with :func:`config_or_exit`, and runs its ``main`` with
+:func:`run_script` (what a user can remedy ends it with a short message, not a
+traceback). A result dataclass derives from
 :class:`Result`: ``to_json`` / ``from_json`` / ``load`` round-trip its fields (plain
 JSON values: numbers, strings, lists, dicts with string keys), ``to_markdown`` is its
 report, and ``save(out)`` writes its files.
@@ -17,12 +19,15 @@ import json
 import math
 import numbers
 import operator
+import os
+import sys
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, TypeVar
 
-from sim2d.executors import parse_spec
+from sim2d.chunks import write_failure
+from sim2d.executors import ExecutorUnavailable, parse_spec
 
 __all__ = [
     "ConfigError",
@@ -31,7 +36,9 @@ __all__ = [
     "check_executor",
     "check_float",
     "check_int",
+    "check_threads",
     "config_or_exit",
+    "run_script",
 ]
 
 T = TypeVar("T")
@@ -74,6 +81,15 @@ def check_float(
     return number
 
 
+def check_threads(field: str, value) -> int:
+    """A number of torch threads: an int from 1 to the CPU cores this process may use."""
+    try:
+        cores = len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        cores = os.cpu_count() or 1
+    return check_int(field, value, 1, cores)
+
+
 def check_choice(field: str, value: T, choices: Iterable[T]) -> T:
     """``value`` if it is one of ``choices``."""
     choices = tuple(choices)
@@ -105,6 +121,36 @@ def config_or_exit(parser: argparse.ArgumentParser, make: Callable[[], T]) -> T:
     raise AssertionError("parser.error returns only by raising")  # pragma: no cover
 
 
+def run_script(main: Callable[[argparse.Namespace], object], args: argparse.Namespace):
+    """Run a script's ``main(args)`` and exit: status 0, or the int ``main`` returns.
+
+    What a user can remedy ends the script with a line or two on stderr instead of a
+    traceback: a write that failed (a full disk, a read-only or forbidden folder; status
+    1), an executor that cannot be reached (2), an interrupt (Ctrl-C, or SIGTERM while a
+    data set is generated; 130). A data set being generated keeps its finished chunks,
+    so running the script again resumes it.
+    """
+    prog = Path(sys.argv[0]).name
+    try:
+        result = main(args)
+    except KeyboardInterrupt:
+        sys.stderr.write(f"{prog}: interrupted; run it again to resume\n")
+        sys.exit(130)
+    except ExecutorUnavailable as error:
+        sys.stderr.write(f"{prog}: error: {error}\n")
+        sys.exit(2)
+    except OSError as error:
+        failure = write_failure(error)
+        if failure is None:
+            raise
+        sys.stderr.write(
+            f"{prog}: error: {failure}\n{prog}: free some space or choose a writable "
+            "folder, then run it again (a data set being generated resumes where it stopped)\n"
+        )
+        sys.exit(1)
+    sys.exit(result if isinstance(result, int) and not isinstance(result, bool) else 0)
+
+
 @dataclass
 class Result:
     """Base of the experiments' results: JSON round trip of the dataclass's fields."""
@@ -118,8 +164,18 @@ class Result:
 
     @classmethod
     def from_json(cls: type[T], text: str) -> T:
-        """The result :meth:`to_json` wrote; refuses a file of another experiment."""
-        data = json.loads(text)
+        """The result :meth:`to_json` wrote; ``ValueError`` for a file of another
+        experiment, or one that is not JSON (truncated, nested too deep) or not an object."""
+        try:
+            data = json.loads(text)
+        except (ValueError, RecursionError) as error:
+            raise ValueError(
+                f"not a {cls.__name__}: unreadable JSON ({type(error).__name__})"
+            ) from None
+        if not isinstance(data, dict):
+            raise ValueError(
+                f"not a {cls.__name__}: the JSON is a {type(data).__name__}, not an object"
+            )
         names = [f.name for f in fields(cls)]
         missing = [n for n in names if n not in data]
         if missing:
@@ -128,4 +184,8 @@ class Result:
 
     @classmethod
     def load(cls: type[T], path) -> T:
-        return cls.from_json(Path(path).read_text())
+        """:meth:`from_json` of a file; its ``ValueError`` names the file."""
+        try:
+            return cls.from_json(Path(path).read_text())
+        except ValueError as error:
+            raise ValueError(f"{path}: {error}") from None

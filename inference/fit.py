@@ -156,16 +156,21 @@ def fit_statistics(
     parameters.
     """
     _refuse_adaptive(net, "fit_statistics")
-    total = None
+    total, empty = None, 0
     for chunk in tqdm(chunks, desc="fit (chunks)", unit="chunk", disable=not progress):
         if not isinstance(chunk, Mapping):
             raise ValueError(
                 f"data must be a mapping of rows or an iterable of such chunks; got a "
                 f"chunk of type {type(chunk).__name__}"
             )
-        total = statistics(net, _complete(net, chunk)).merged_into(total)
+        enc = net.encode(chunk)
+        if len(enc) and enc.n_rows == 0:  # a chunk of no rows (a split's last) adds nothing
+            empty += 1
+            continue
+        total = statistics(net, _complete(net, enc)).merged_into(total)
     if total is None:
-        raise ValueError("no training rows: the iterable of chunks was empty")
+        why = f"each of the {empty} chunks has 0 rows" if empty else "the iterable was empty"
+        raise ValueError(f"no training rows: {why}")
     return total
 
 

@@ -63,6 +63,8 @@ def simulate(
     check_params(net, params)
     if not isinstance(n, int) or isinstance(n, bool) or n < 1:
         raise ValueError(f"n must be a positive int, got {n!r}")
+    if not isinstance(seed, int) or isinstance(seed, bool) or not -(2**63) <= seed < 2**64:
+        raise ValueError(f"seed={seed!r} is invalid; expected an int in -2**63..2**64 - 1")
     enc = net.encode(evidence if evidence is not None else {})
     if len(enc) and enc.n_rows not in (1, n):
         raise ValueError(f"evidence has {enc.n_rows} rows; give one row or n = {n} rows")

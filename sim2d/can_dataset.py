@@ -36,7 +36,9 @@ Generation is written in chunks to ``<path>.parts/`` (:func:`sim2d.chunks.run_ch
 one ``.npz`` per chunk, written atomically, checked when reused), so an interrupted run
 resumes where it stopped and a damaged chunk is computed again; the chunks are merged
 into ``path`` at the end and then removed. ``<path>.lock`` keeps a second generator off
-the same path. The chunks run on any executor (:mod:`sim2d.executors`); workers return
+the same path; a finished data set is recognised without it (so it is usable in a
+read-only folder), and the temporary file of a merge that was killed is removed by the
+next run. The chunks run on any executor (:mod:`sim2d.executors`); workers return
 arrays and this process writes the files, byte for byte the same on every executor.
 
 Format versions: 2 runs every throw under :data:`sim2d.materials.STOPPING` and steps the
@@ -58,7 +60,14 @@ from pathlib import Path
 import numpy as np
 
 from sim2d import geometry, materials
-from sim2d.chunks import ChunkWarning, locked, read_npz, run_chunks, save_npz
+from sim2d.chunks import (
+    ChunkWarning,
+    locked,
+    read_npz,
+    remove_temporaries,
+    run_chunks,
+    save_npz,
+)
 from sim2d.configurations import SETTLE_TIME, STABLE_TOLERANCE, stable_configurations
 from sim2d.executors import parse_spec
 from sim2d.field_throws import aim_offset, aim_seed, is_throwable, launch_state, outcome_of
@@ -274,20 +283,19 @@ def generate_dataset(
         configs, angles, repeats, jitter, chunk_size
     )
     seed = as_int(seed, "seed")
+    if seed < 0:
+        raise ValueError(f"seed={seed} is negative; expected an int >= 0")
     if executor is not None and isinstance(executor, str):
         parse_spec(executor)  # a bad specification fails before any work
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     metadata = _metadata(configs, angles, repeats, jitter, seed, chunk_size)
+    if _finished(path, metadata):  # read only: usable in a read-only folder, without the lock
+        return path
+    path.parent.mkdir(parents=True, exist_ok=True)
     with locked(path):
-        if path.exists():
-            try:
-                existing = load_dataset(path).metadata
-            except ValueError as error:
-                warnings.warn(f"{error}; generating it again", ChunkWarning, stacklevel=2)
-                existing = None
-            if existing == metadata:
-                return path
+        remove_temporaries(path)  # a merge that was killed
+        if _finished(path, metadata, warn=True):  # another generator finished it meanwhile
+            return path
         rows = _rows(configs, angles, repeats)
         chunks = [rows[i : i + chunk_size] for i in range(0, len(rows), chunk_size)]
 
@@ -315,6 +323,22 @@ def generate_dataset(
         save_npz(path, merged)
         shutil.rmtree(files[0].parent if files else path.with_name(path.name + ".parts"))
     return path
+
+
+def _finished(path: Path, metadata: dict, *, warn: bool = False) -> bool:
+    """Whether ``path`` holds the data set ``metadata`` describes (read only).
+
+    The file is replaced in one rename, so it can be read without the lock. With
+    ``warn``, a damaged file is named in a warning (it is generated again).
+    """
+    if not path.exists():
+        return False
+    try:
+        return load_dataset(path).metadata == metadata
+    except ValueError as error:
+        if warn:
+            warnings.warn(f"{error}; generating it again", ChunkWarning, stacklevel=3)
+        return False
 
 
 def _chunk_problem(rows: np.ndarray, arrays: dict[str, np.ndarray]) -> str | None:
@@ -349,8 +373,13 @@ def load_dataset(path) -> CanDataset:
         raise ValueError(f"path={str(path)!r} lacks arrays {missing}; expected a can data set")
     try:
         metadata = json.loads(str(data["metadata"]))
-    except ValueError:
+    except (ValueError, RecursionError):
         raise ValueError(f"path={str(path)!r} has unreadable metadata; expected JSON") from None
+    if not isinstance(metadata, dict):
+        raise ValueError(
+            f"path={str(path)!r} has metadata of JSON type {type(metadata).__name__}; "
+            "expected an object"
+        )
     if metadata.get("format_version") != FORMAT_VERSION:
         raise ValueError(
             f"path={str(path)!r} has format version {metadata.get('format_version')}; "

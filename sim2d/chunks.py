@@ -5,14 +5,21 @@ collects the arrays as the tasks finish and writes each chunk to its own ``.npz`
 parts folder. A later call with the same protocol resumes: chunks already saved and
 intact are kept, missing ones are computed. What can go wrong on the way is handled:
 
-- a chunk file that is truncated, corrupt, of another protocol or of the wrong shape is
-  named in a warning and computed again (only that chunk); a corrupt manifest is named
-  and rewritten, since every chunk carries its protocol's key itself;
+- a chunk file that is truncated, corrupt (in any field of its zip or array headers), of
+  another protocol or of the wrong shape is named in a warning and computed again (only
+  that chunk); every chunk carries its protocol's key itself, so a manifest that is
+  corrupt, or edited into other JSON while the chunks carry this protocol's key, is
+  named and rewritten, and a folder is refused only when its chunks belong to another
+  protocol (the message says which fields of the manifest differ);
 - :func:`locked` keeps two processes from writing one output (an OS file lock, released
   when its holder ends, however it ends);
 - files are written to a temporary file, flushed and renamed (:func:`save_npz`), so a
-  crash or a full disk leaves no half file and no stray temporary file; they are created
-  with the permissions of an ordinary file (0666 less the umask, 0644 usually);
+  crash or a full disk leaves no half file; a failed write removes its temporary file,
+  and the temporary files a killed writer left are removed by the next run (which holds
+  the lock); files are created with the permissions of an ordinary file (0666 less the
+  umask, 0644 usually);
+- an executor that cannot be opened (a Dask scheduler that does not answer) fails before
+  anything is written;
 - an interrupt (SIGINT, or SIGTERM while running) saves the chunks already finished and
   cancels the rest.
 
@@ -40,12 +47,15 @@ import numpy as np
 from sim2d.executors import as_finished, open_executor
 
 __all__ = [
+    "WRITE_ERRNOS",
     "ChunkWarning",
     "locked",
     "protocol_key",
     "read_npz",
+    "remove_temporaries",
     "run_chunks",
     "save_npz",
+    "write_failure",
     "write_text",
 ]
 
@@ -70,19 +80,46 @@ def _file_mode() -> int:
 
 @contextlib.contextmanager
 def _atomic_file(path: Path, mode: str = "wb") -> Iterator:
-    """A temporary file in ``path``'s folder, renamed to ``path`` once fully written."""
-    fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
+    """A temporary file in ``path``'s folder, renamed to ``path`` once fully written.
+
+    An ``OSError`` that does not say which file it is about (a full disk) is raised
+    again naming ``path``.
+    """
+    tmp = None
     try:
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=f".{path.name}.", suffix=".tmp")
         os.fchmod(fd, _file_mode())
         with os.fdopen(fd, mode) as file:
             yield file
             file.flush()
             os.fsync(file.fileno())
         os.replace(tmp, path)
-    except BaseException:
-        with contextlib.suppress(OSError):
-            os.unlink(tmp)
+    except BaseException as error:
+        if tmp is not None:
+            with contextlib.suppress(OSError):
+                os.unlink(tmp)
+        if isinstance(error, OSError) and (error.filename is None or tmp is None):
+            raise OSError(error.errno, error.strerror or str(error), str(path)) from error
         raise
+
+
+#: The errors of a write that the user can remedy: a full disk or quota, a read-only or
+#: forbidden folder, a file-size limit.
+WRITE_ERRNOS = frozenset(
+    {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EFBIG}
+)
+
+
+_READ_ONLY_ERRNOS = frozenset({errno.EROFS, errno.EACCES, errno.EPERM})
+
+
+def write_failure(error: BaseException) -> str | None:
+    """One line saying which write failed and why, for an ``OSError`` of
+    :data:`WRITE_ERRNOS`; None for any other error."""
+    if not isinstance(error, OSError) or error.errno not in WRITE_ERRNOS:
+        return None
+    where = f" {error.filename}" if error.filename else " a file"
+    return f"could not write{where}: {error.strerror or error}"
 
 
 def save_npz(path, arrays: dict[str, np.ndarray]) -> Path:
@@ -110,15 +147,23 @@ def read_npz(path) -> dict[str, np.ndarray]:
     try:
         with np.load(path, allow_pickle=False) as data:
             return {name: data[name] for name in data.files}
-    except (OSError, EOFError, ValueError, KeyError, zipfile.BadZipFile) as error:
+    except Exception as error:
+        # Damage can reach any field zipfile or numpy reads: a changed compression method
+        # or flag raises NotImplementedError, an encryption bit RuntimeError, a changed
+        # header ValueError or EOFError; each means the same: this file is unusable.
         raise ValueError(
             f"{path} is truncated or corrupt ({type(error).__name__}: {error})"
         ) from None
 
 
 @contextlib.contextmanager
-def locked(path) -> Iterator[Path]:
+def locked(path, *, or_read_only: bool = False) -> Iterator[Path | None]:
     """Hold ``<path>.lock`` exclusively while writing ``path``.
+
+    With ``or_read_only``, a lock file that cannot be created because its folder cannot
+    be written to (a read-only file system, no permission) is not taken and None is
+    yielded: what is finished there can still be read (every file is renamed into place
+    whole), and any write fails naming its file.
 
     Raises
     ------
@@ -130,7 +175,13 @@ def locked(path) -> Iterator[Path]:
     lock = Path(f"{path}.lock")
     lock.parent.mkdir(parents=True, exist_ok=True)
     while True:
-        fd = os.open(lock, os.O_RDWR | os.O_CREAT, _file_mode())
+        try:
+            fd = os.open(lock, os.O_RDWR | os.O_CREAT, _file_mode())
+        except OSError as error:
+            if not (or_read_only and error.errno in _READ_ONLY_ERRNOS):
+                raise
+            yield None
+            return
         try:
             fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
         except BlockingIOError:
@@ -175,26 +226,83 @@ def _sigterm_as_interrupt() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
-def _manifest(folder: Path, protocol: dict) -> None:
+def _manifest_is_current(folder: Path, protocol: dict, key: str) -> bool:
+    """Whether ``folder``'s manifest describes ``protocol`` (False: write it).
+
+    Reads only. A manifest that is unreadable or describes another protocol is judged by
+    the chunks, which carry their protocol's key: when some carry this protocol's (or
+    none is readable) it is named in a warning and is to be rewritten, and no chunk is
+    lost; when they all belong to another protocol the folder is refused.
+    """
     manifest = folder / "manifest.json"
-    if manifest.exists():
-        try:
-            saved = json.loads(manifest.read_text())
-        except (ValueError, OSError) as error:
-            warnings.warn(
-                f"{manifest} is truncated or corrupt ({type(error).__name__}); rewritten "
-                "(the chunks carry their protocol's key and are checked one by one)",
-                ChunkWarning,
-                stacklevel=3,
-            )
-        else:
-            if saved != protocol:
-                raise ValueError(
-                    f"{folder} holds chunks of a different data set (other constants or "
-                    "arguments); delete that folder or choose another path"
-                )
-            return
-    write_text(manifest, json.dumps(protocol))
+    if not manifest.exists():
+        return False
+    try:
+        saved = json.loads(manifest.read_text())
+    except (ValueError, OSError, RecursionError) as error:
+        what = f"is truncated or corrupt ({type(error).__name__})"
+    else:
+        if saved == protocol:
+            return True
+        what = f"does not describe this data set ({_difference(saved, protocol)})"
+    keys = [_chunk_key(file) for file in sorted(folder.glob("chunk-*.npz"))]
+    ours = keys.count(key)
+    others = len(keys) - ours - keys.count(None)
+    if ours or not others:
+        chunks = f"{ours} of its chunks do" if ours else "no chunk belongs to another"
+        warnings.warn(
+            f"{manifest} {what}; rewritten ({chunks}: the chunks carry their protocol's "
+            "key and are checked one by one)",
+            ChunkWarning,
+            stacklevel=3,
+        )
+        return False
+    raise ValueError(
+        f"{folder} holds {others} chunk(s) of a different data set (its manifest.json "
+        f"{what}); none was computed for these constants and arguments. Delete that "
+        "folder or choose another path"
+    )
+
+
+def _chunk_key(file: Path) -> str | None:
+    """The protocol key a chunk file carries, or None if it cannot be read."""
+    try:
+        with np.load(file, allow_pickle=False) as data:
+            return str(data["protocol"])
+    except Exception:  # damaged: checked (and recomputed) with the other chunks
+        return None
+
+
+def _difference(saved, protocol: dict) -> str:
+    """How a manifest's JSON differs from ``protocol``, field by field, briefly."""
+    if not isinstance(saved, dict):
+        return f"holds a JSON {type(saved).__name__}, not an object"
+
+    def brief(value) -> str:
+        text = json.dumps(value)
+        return text if len(text) <= 40 else text[:37] + "..."
+
+    changed = [
+        f"{name}: {brief(saved[name])} there, {brief(protocol[name])} here"
+        for name in sorted(set(saved) & set(protocol))
+        if saved[name] != protocol[name]
+    ]
+    changed += [f"{name}: missing there" for name in sorted(set(protocol) - set(saved))]
+    changed += [f"{name}: not expected" for name in sorted(set(saved) - set(protocol))]
+    shown = "; ".join(changed[:4]) + ("; ..." if len(changed) > 4 else "")
+    return f"differs in {shown}"
+
+
+def remove_temporaries(path) -> None:
+    """Remove the temporary files that killed writers of ``path`` left.
+
+    ``path``'s name may be a glob pattern (``folder / "*"``: every file of the folder).
+    Call it holding the lock on the output (:func:`locked`), when no writer is at work.
+    """
+    path = Path(path)
+    for stale in path.parent.glob(f".{path.name}.*.tmp"):
+        with contextlib.suppress(OSError):
+            stale.unlink()
 
 
 def _problem(file: Path, key: str, check, k: int) -> str | None:
@@ -226,6 +334,8 @@ def run_chunks(
     ----------
     folder : path-like
         The parts folder (created); ``chunk-<k>.npz`` per chunk and ``manifest.json``.
+        The caller holds a lock (:func:`locked`) on the output the folder is for: the
+        temporary files found in the folder are a killed writer's and are removed.
     protocol : dict
         JSON-serialisable description of what is computed; chunks of another protocol
         are never reused (the folder is refused, or a stray chunk recomputed).
@@ -251,9 +361,9 @@ def run_chunks(
         The chunk files, in chunk order, all intact.
     """
     folder = Path(folder)
-    folder.mkdir(parents=True, exist_ok=True)
-    _manifest(folder, protocol)
     key = protocol_key(protocol)
+    current = _manifest_is_current(folder, protocol, key)
+    remove_temporaries(folder / "*")
     files = [folder / f"chunk-{k:06d}.npz" for k in range(len(chunk_args))]
     sizes = list(sizes) if sizes is not None else [1] * len(files)
     todo = []
@@ -267,21 +377,23 @@ def run_chunks(
             file.unlink()
             todo.append(k)
 
-    bar = None
-    if progress:
-        from tqdm.auto import tqdm
-
-        bar = tqdm(total=sum(sizes), unit="throw", desc=desc, smoothing=0.05)
-        bar.update(sum(sizes) - sum(sizes[k] for k in todo))
-
     def save(k: int, arrays: dict[str, np.ndarray]) -> None:
         save_npz(files[k], {**arrays, "protocol": np.array(key)})
 
     with contextlib.ExitStack() as stack:
-        if not todo:
-            pass
-        elif executor is None or isinstance(executor, str):
+        # The executor opens before anything is written: an unreachable cluster leaves
+        # no folder or manifest behind.
+        if todo and (executor is None or isinstance(executor, str)):
             executor = stack.enter_context(open_executor(executor))
+        folder.mkdir(parents=True, exist_ok=True)
+        if not current:
+            write_text(folder / "manifest.json", json.dumps(protocol))
+        bar = None
+        if progress:
+            from tqdm.auto import tqdm
+
+            bar = tqdm(total=sum(sizes), unit="throw", desc=desc, smoothing=0.05)
+            bar.update(sum(sizes) - sum(sizes[k] for k in todo))
         stack.enter_context(_sigterm_as_interrupt())
         if bar is not None:
             stack.callback(bar.close)

@@ -231,7 +231,7 @@ def explore(
     folder = Path(folder)
     outcomes: dict[int, np.ndarray] = {}
     layer = [int(start)] if start else []
-    with locked(folder):
+    with locked(folder, or_read_only=True):  # a finished run is usable in a read-only folder
         for k in range(depth):
             if not layer:
                 break

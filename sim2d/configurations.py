@@ -12,7 +12,9 @@ off, so a slow creep is not mistaken for rest. A subset is rejected as soon as o
 has moved more than the tolerance, which makes the 1024 runs take seconds.
 
 The result depends only on the physical constants, so it is cached on disk as JSON,
-keyed by a hash of :func:`sim2d.materials.physical_constants` and the two constants here.
+keyed by a hash of :func:`sim2d.materials.physical_constants` and the two constants here;
+a cache that is damaged in any way (not JSON, or JSON of another shape) is recomputed
+and rewritten, and a cache folder that cannot be written to is named in a warning.
 The cache directory is ``$EFFECT_NETWORKS_CACHE`` if set, else
 ``~/.cache/effect-networks``.
 """
@@ -24,6 +26,7 @@ import hashlib
 import json
 import math
 import os
+import warnings
 from functools import lru_cache
 from pathlib import Path
 
@@ -153,15 +156,10 @@ def stable_configurations(
         if path is not None
         else cache_dir() / f"stable_configurations-{_cache_key()}.json"
     )
-    if file.exists():
-        try:
-            data = json.loads(file.read_text())
-        except ValueError:  # a damaged cache is recomputed and rewritten
-            data = {}
-        if data.get("key") == _cache_key():
-            return tuple(data["stable"])
+    cached = _read_cache(file)
+    if cached is not None:
+        return cached
     stable = _compute(executor)
-    file.parent.mkdir(parents=True, exist_ok=True)
     payload = {
         "key": _cache_key(),
         "constants": materials.physical_constants(),
@@ -171,8 +169,37 @@ def stable_configurations(
         "stable": list(stable),
     }
     # Written to a temporary file and renamed, so concurrent readers never see half a file.
-    write_text(file, json.dumps(payload, indent=1))
+    try:
+        file.parent.mkdir(parents=True, exist_ok=True)
+        write_text(file, json.dumps(payload, indent=1))
+    except OSError as error:  # a read-only or full cache folder: the result stands
+        warnings.warn(
+            f"could not cache the stable configurations in {file} ({error.strerror or error}); "
+            "they are simulated again next time",
+            stacklevel=2,
+        )
     return stable
+
+
+def _read_cache(file: Path) -> tuple[int, ...] | None:
+    """The configurations cached in ``file``; None if it is missing, of other constants,
+    or damaged in any way (unreadable, not JSON, JSON of another shape): recompute."""
+    try:
+        data = json.loads(file.read_text())
+    except (OSError, ValueError, RecursionError):
+        return None
+    if not isinstance(data, dict) or data.get("key") != _cache_key():
+        return None
+    stable = data.get("stable")
+    n = 1 << geometry.N_CANS
+    if (
+        not isinstance(stable, list)
+        or not all(type(m) is int and 0 <= m < n for m in stable)
+        or stable != sorted(set(stable))
+        or data.get("n_stable") != len(stable)
+    ):
+        return None
+    return tuple(stable)
 
 
 @lru_cache(maxsize=1)

@@ -15,7 +15,9 @@ by :func:`open_executor`:
 ``ray``             Ray: the cluster named by ``RAY_ADDRESS`` if set, else a local one
 ==================  ================================================================
 
-Workers need this package importable (installed in the same version on every machine)
+An executor that cannot be opened raises :class:`ExecutorUnavailable` naming the
+specification (a Dask scheduler that does not answer within ``DASK_CONNECT_TIMEOUT``
+seconds, for instance). Workers need this package importable (installed in the same version on every machine)
 but no shared disk: they return arrays and the calling process writes the files. Every
 executor opened here returns ``concurrent.futures.Future`` objects, so results can be
 collected as they finish (:func:`as_finished`).
@@ -27,13 +29,30 @@ import concurrent.futures
 import contextlib
 import os
 import re
+import socket
 import threading
 from collections.abc import Iterator
 
-__all__ = ["RayExecutor", "as_finished", "default_spec", "open_executor", "parse_spec"]
+__all__ = [
+    "DASK_CONNECT_TIMEOUT",
+    "ExecutorUnavailable",
+    "RayExecutor",
+    "as_finished",
+    "default_spec",
+    "open_executor",
+    "parse_spec",
+]
 
 _SPEC = re.compile(r"^(?:(process|dask-local):(\d+)|dask://([^\s:/]+):(\d+)|(ray))$")
 _EXPECTED = "process:N, dask-local:N, dask://HOST:PORT or ray"
+
+#: Seconds to wait for a Dask scheduler to answer (a refused connection is retried until
+#: then): long enough for a scheduler across a network, short enough to tell a user soon.
+DASK_CONNECT_TIMEOUT = 10
+
+
+class ExecutorUnavailable(RuntimeError):
+    """An executor specification names a cluster that cannot be reached."""
 
 
 def default_spec() -> str:
@@ -62,7 +81,9 @@ def parse_spec(spec: str) -> tuple[str, int | str | None]:
             raise ValueError(f"executor={spec!r} asks for {n} workers; expected at least 1")
         return kind, int(n)
     if host is not None:
-        return "dask", f"tcp://{host}:{port}"
+        if not 1 <= int(port) <= 65535:
+            raise ValueError(f"executor={spec!r} names port {port}; expected a port in 1..65535")
+        return "dask", f"tcp://{host}:{int(port)}"
     return "ray", None
 
 
@@ -135,7 +156,18 @@ def open_executor(spec: str | None = None) -> Iterator:
                 )
                 client = stack.enter_context(Client(cluster))
             else:
-                client = stack.enter_context(Client(arg))
+                try:
+                    # A plain connection first: distributed retries a refused one until
+                    # its timeout, where nothing listening is known at once.
+                    host, port = arg.removeprefix("tcp://").rsplit(":", 1)
+                    socket.create_connection((host, int(port)), DASK_CONNECT_TIMEOUT).close()
+                    client = stack.enter_context(Client(arg, timeout=DASK_CONNECT_TIMEOUT))
+                except OSError as error:  # distributed's connection timeout is an OSError
+                    raise ExecutorUnavailable(
+                        f"executor={spec!r}: no Dask scheduler answers at {arg} "
+                        f"({error}); expected a running scheduler there "
+                        f"(`dask scheduler --port {port}`)"
+                    ) from None
             yield client.get_executor(pure=False)
     else:
         import ray

@@ -8,7 +8,9 @@
 
 Defaults give the full data set (every stable configuration x 195 fields x 3 angles x 3
 repeats). An interrupted run resumes where it stopped when started again with the same
-arguments; see :func:`sim2d.can_dataset.generate_dataset`.
+arguments; see :func:`sim2d.can_dataset.generate_dataset`. A full disk or a read-only
+folder ends the run with a two-line message (exit status 1), a bad argument or an
+unreachable cluster with a usage error (2).
 """
 
 from __future__ import annotations
@@ -18,6 +20,7 @@ import sys
 import time
 
 from sim2d.can_dataset import generate_dataset, load_dataset
+from sim2d.chunks import write_failure
 from sim2d.executors import default_spec, parse_spec
 
 __all__ = ["main"]
@@ -71,6 +74,16 @@ def main(argv=None) -> int:
         parser.exit(2, f"{parser.prog}: error: {error}\n")
     except KeyboardInterrupt:
         parser.exit(130, f"{parser.prog}: interrupted; run it again to resume\n")
+    except OSError as error:
+        failure = write_failure(error)
+        if failure is None:
+            raise
+        parser.exit(
+            1,
+            f"{parser.prog}: error: {failure}\n{parser.prog}: the chunks finished so far "
+            "are kept; free some space or choose a writable folder, then run it again to "
+            "resume\n",
+        )
     rows = len(load_dataset(path))
     print(f"{path}: {rows} throws in {time.perf_counter() - start:.1f} s")
     return 0

@@ -5,12 +5,16 @@ way a user runs it (a subprocess in the repository root), and its command line i
 """
 
 import json
+import os
+import signal
 import subprocess
 import sys
+import time
 from pathlib import Path
 
 import pytest
 
+from sim2d.chunks import locked
 from tests.helpers import load_example
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -24,6 +28,7 @@ def run(name: str, *argv, check: bool = True) -> subprocess.CompletedProcess:
         capture_output=True,
         text=True,
         timeout=300,
+        env=os.environ | {"PYTHONPATH": str(ROOT)},  # this checkout's packages, not an install's
     )
     if check:
         assert done.returncode == 0, done.stderr[-3000:]
@@ -104,6 +109,9 @@ def test_a_bad_number_exits_with_a_usage_error():
         ("physics_bounds", ["--step", "0"], "--step: 0.0 is out of range"),
         ("throwing", ["--bins", "4", "0"], "--bins: 0 is out of range"),
         ("throwing", ["--threads", "0"], "--threads: 0 is out of range"),
+        ("throwing", ["--threads", "1000000000000"], "--threads: 1000000000000 is out of range"),
+        ("throwing", ["--threads", "1e12"], "argument --threads: invalid int value: '1e12'"),
+        ("adaptive_throw", ["--threads", str(10**12)], "--threads: 1000000000000 is out of"),
         ("adaptive_throw", ["--budgets", "100", "50"], "--budgets: (100, 50) must increase"),
         ("adaptive_throw", ["--batch", "50", "--pool", "10"], "--pool: 10 is out of range"),
         ("tap_and_remove", ["--n", "-10"], "--n: -10 is out of range"),
@@ -152,3 +160,104 @@ def test_an_example_s_defaults_are_its_experiment_s(name):
         if f != "progress" and getattr(config, f) != getattr(default, f)
     }
     assert not differ, differ
+
+
+def _default_signals():
+    """A suite started in the background hands its children SIGINT ignored; the script
+    under test must see the signals as a terminal would send them."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+    signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+def _wait_for(condition, seconds: float, what: str) -> None:
+    deadline = time.monotonic() + seconds
+    while not condition():
+        assert time.monotonic() < deadline, what
+        time.sleep(0.1)
+
+
+HOLDS_THE_LOCK = """
+import sys, time
+from sim2d.chunks import locked
+with locked(sys.argv[1]):
+    open(sys.argv[2], "w").close()
+    time.sleep(120)
+"""
+
+
+def test_sigterm_to_reproduce_stops_its_running_step(tmp_path):
+    """A step that holds a data set's lock, run as reproduce runs its steps: SIGTERM to
+    reproduce ends the step too, and the lock is free at once."""
+    psutil = pytest.importorskip("psutil")
+    data, started = tmp_path / "d.npz", tmp_path / "started"
+    step = [sys.executable, "-c", HOLDS_THE_LOCK, str(data), str(started)]
+    driver = (
+        "import sys; from tests.helpers import load_example; "
+        f"code, stopped = load_example('reproduce').run_step({step!r}); "
+        "sys.exit(128 + stopped if stopped else code)"
+    )
+    proc = subprocess.Popen([sys.executable, "-c", driver], cwd=ROOT, preexec_fn=_default_signals)
+    try:
+        _wait_for(started.exists, 60, "the step started")
+        children = psutil.Process(proc.pid).children(recursive=True)
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=30) == 128 + signal.SIGTERM
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    gone, alive = psutil.wait_procs(children, timeout=10)
+    assert not alive, "the step outlived reproduce"
+    with locked(data):  # free: a RuntimeError here names the holder
+        pass
+
+
+@pytest.mark.slow  # starts torch twice and a data set's generation
+def test_sigterm_to_reproduce_saves_the_data_set_and_releases_its_lock(tmp_path):
+    psutil = pytest.importorskip("psutil")
+    data, out = tmp_path / "data", tmp_path / "out"
+    proc = subprocess.Popen(
+        [sys.executable, str(ROOT / "examples" / "reproduce.py"), "--quick", "--only",
+         "can_tossing", "--data-dir", str(data), "--out", str(out), "--executor", "process:1"],
+        cwd=ROOT, stderr=subprocess.PIPE, text=True, preexec_fn=_default_signals,
+        env=os.environ | {"PYTHONPATH": str(ROOT)},  # this checkout's packages
+    )  # fmt: skip
+    try:
+        _wait_for(lambda: list(data.glob("*.parts/manifest.json")), 240, "the chunks started")
+        time.sleep(1)
+        children = psutil.Process(proc.pid).children(recursive=True)
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=60)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+    assert proc.returncode == 128 + signal.SIGTERM, err
+    assert "interrupted; run it again to resume" in err  # the step saved what it finished
+    assert "stopped by SIGTERM during can_tossing" in err
+    _, alive = psutil.wait_procs(children, timeout=10)
+    assert not alive, "the step or its workers outlived reproduce"
+    assert not list(data.glob("*.lock"))
+
+
+FILE_SIZE_LIMITED = """
+import resource, runpy, signal, sys
+signal.signal(signal.SIGXFSZ, signal.SIG_IGN)  # a write past the limit fails with EFBIG
+resource.setrlimit(resource.RLIMIT_FSIZE, (2000, 2000))
+sys.argv = sys.argv[1:]
+runpy.run_path(sys.argv[0], run_name="__main__")
+"""
+
+
+def test_a_failed_write_is_two_lines_not_a_traceback(tmp_path):
+    """Files limited to 2 kB (as a full disk, the write itself fails): the script says what
+    happened and that a rerun resumes."""
+    argv = [str(ROOT / "examples" / "throw_kinematics.py"), "--grid", "2", "--n", "10"]
+    done = subprocess.run(
+        [sys.executable, "-c", FILE_SIZE_LIMITED, *argv, "--out", str(tmp_path)],
+        cwd=ROOT, capture_output=True, text=True, timeout=120,
+        env=os.environ | {"PYTHONPATH": str(ROOT)},
+    )  # fmt: skip
+    assert done.returncode == 1, done.stderr[-3000:]
+    lines = done.stderr.splitlines()
+    assert len(lines) == 2, done.stderr[-3000:]
+    assert lines[0] == "throw_kinematics.py: error: could not write a file: File too large"
+    assert "run it again" in lines[1]

@@ -2,6 +2,7 @@
 script turns them into a usage error naming the option; results round-trip through JSON."""
 
 import argparse
+import errno
 import math
 from dataclasses import dataclass
 
@@ -15,8 +16,11 @@ from experiments.config import (
     check_executor,
     check_float,
     check_int,
+    check_threads,
     config_or_exit,
+    run_script,
 )
+from sim2d.executors import ExecutorUnavailable
 
 
 @pytest.mark.parametrize(
@@ -84,3 +88,70 @@ def test_result_round_trip_and_refusal(tmp_path):
     assert Toy.load(tmp_path / "toy.json") == toy
     with pytest.raises(ValueError, match=r"not a Toy: the JSON lacks \['nested'\]"):
         Toy.from_json('{"name": "a", "values": []}')
+
+
+@pytest.mark.parametrize(
+    ("text", "why"),
+    [
+        ("null", "the JSON is a NoneType, not an object"),
+        ("[1, 2]", "the JSON is a list, not an object"),
+        ('{"name": ', r"unreadable JSON \(JSONDecodeError\)"),
+        ("[" * 100_000 + "]" * 100_000, r"unreadable JSON \(RecursionError\)"),
+    ],
+)
+def test_a_damaged_result_file_is_named(tmp_path, text, why):
+    path = tmp_path / "toy.json"
+    path.write_text(text)
+    with pytest.raises(ValueError, match=rf"^{tmp_path}/toy\.json: not a Toy: {why}"):
+        Toy.load(path)
+
+
+def _raising(error: BaseException):
+    def main(args):
+        raise error
+
+    return main
+
+
+@pytest.mark.parametrize(
+    ("error", "code", "words"),
+    [
+        (OSError(errno.ENOSPC, "No space left on device"), 1,
+         "demo: error: could not write a file: No space left on device"),
+        (OSError(errno.EROFS, "Read-only file system", "/data/x.npz"), 1,
+         "demo: error: could not write /data/x.npz: Read-only file system"),
+        (PermissionError(errno.EACCES, "Permission denied", "/results"), 1,
+         "demo: error: could not write /results: Permission denied"),
+        (ExecutorUnavailable("executor='dask://s:1': no Dask scheduler answers"), 2,
+         "demo: error: executor='dask://s:1': no Dask scheduler answers"),
+        (KeyboardInterrupt(), 130, "demo: interrupted; run it again to resume"),
+    ],
+)  # fmt: skip
+def test_run_script_ends_what_a_user_can_remedy_with_a_short_message(
+    error, code, words, capsys, monkeypatch
+):
+    monkeypatch.setattr("sys.argv", ["demo"])
+    with pytest.raises(SystemExit) as exited:
+        run_script(_raising(error), argparse.Namespace())
+    assert exited.value.code == code
+    err = capsys.readouterr().err
+    assert err.startswith(words) and len(err.splitlines()) <= 2, err
+    if code == 1:
+        assert "run it again" in err
+
+
+def test_run_script_passes_other_errors_and_the_exit_status_on():
+    with pytest.raises(ConnectionResetError):  # not a write a user can remedy
+        run_script(_raising(ConnectionResetError(errno.ECONNRESET, "reset")), None)
+    for returned, code in ((3, 3), (None, 0), (Toy("a", [], {}), 0), (True, 0)):
+        with pytest.raises(SystemExit) as exited:
+            run_script(lambda args, r=returned: r, None)
+        assert exited.value.code == code
+
+
+def test_check_threads_is_bounded_by_the_cores(monkeypatch):
+    monkeypatch.setattr("os.sched_getaffinity", lambda pid: {0, 1, 2}, raising=False)
+    assert check_threads("threads", 3) == 3
+    for value in (0, 4, 10**12):
+        with pytest.raises(ConfigError, match=rf"^threads: {value} is out of range; .* 1\.\.3"):
+            check_threads("threads", value)

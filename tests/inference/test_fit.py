@@ -316,3 +316,21 @@ def test_an_unsettled_softmax_fit_warns_and_names_the_cpd():
         fit(net, data, l2=-1.0)
     with pytest.raises(ValueError, match="tol must be a finite number > 0"):
         fit(net, data, tol=0.0)
+
+
+def test_chunks_ending_with_an_empty_chunk_fit_as_their_rows():
+    rows = discrete_data(n=300)
+    chunks = [
+        rows.rows(torch.arange(300) < 200),
+        rows.rows(torch.arange(300) >= 200),
+        rows.rows(torch.zeros(300, dtype=torch.bool)),  # the last of a split: 0 rows
+    ]
+    assert [c.n_rows for c in chunks] == [200, 100, 0]
+    whole = fit(DISCRETE, rows).params
+    chunked = fit(DISCRETE, iter(chunks)).params
+    for site in whole.cpds:
+        assert torch.allclose(chunked[site].probs, whole[site].probs, rtol=0, atol=1e-12), site
+    with pytest.raises(ValueError, match="no training rows: each of the 2 chunks has 0 rows"):
+        fit(DISCRETE, iter([chunks[2], chunks[2]]))
+    with pytest.raises(ValueError, match="no training rows: the iterable was empty"):
+        fit(DISCRETE, iter([]))

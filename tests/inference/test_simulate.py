@@ -126,3 +126,14 @@ def test_bad_requests_are_named():
     net = EffectNetwork((Discrete("door", ("shut", "open")),), ("wait",))
     rows = simulate(net, random_params(net, 0), 3, {"initial.door": ["open"]})
     assert rows["initial.door"] == ["open"] * 3 and len(rows["end.door"]) == 3
+
+
+@pytest.mark.parametrize("seed", ["a", 1.5, True, None, -(2**63) - 1, 2**64])
+def test_a_bad_seed_is_named(seed):
+    with pytest.raises(ValueError, match=r"seed=.* is invalid; expected an int"):
+        simulate(NET, balanced_params(0), 3, seed=seed)
+
+
+def test_every_int_seed_torch_accepts_draws():
+    for seed in (-(2**63), -1, 0, 2**64 - 1):
+        assert len(simulate(NET, balanced_params(0), 2, seed=seed)["action"]) == 2

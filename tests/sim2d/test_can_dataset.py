@@ -2,7 +2,9 @@
 
 import concurrent.futures
 import errno
+import json
 import os
+import re
 import shutil
 import signal
 import subprocess
@@ -14,9 +16,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from sim2d import can_dataset, field_throws, geometry, materials
+from sim2d import can_dataset, chunks, executors, field_throws, geometry, materials
 from sim2d.can_dataset import generate_dataset, load_dataset
-from sim2d.chunks import ChunkWarning, locked
+from sim2d.chunks import ChunkWarning, locked, read_npz, save_npz
+from sim2d.generate import main as generate_main
 
 BOTTOM_ROW = geometry.cans_to_mask([0, 1, 2, 3])
 SMALL = {"configs": [BOTTOM_ROW, 0], "angles": (0, 2), "repeats": 2, "chunk_size": 97}
@@ -390,3 +393,271 @@ def test_pool_workers_end_with_the_generator(tmp_path, sig):
     assert saved and not out.exists()
     if sig != signal.SIGKILL:
         assert not Path(f"{out}.lock").exists()
+
+
+# --- damage and odd folders ----------------------------------------------------------------
+
+
+def _set_zip_field(file: Path, offset: int, value: int) -> None:
+    """Set a 2-byte field of the first entry's central-directory record (where zipfile reads
+    the compression method, at offset 10, the flags, 8, and the version needed, 6)."""
+    data = bytearray(file.read_bytes())
+    record = data.index(b"PK\x01\x02")
+    data[record + offset : record + offset + 2] = value.to_bytes(2, "little")
+    file.write_bytes(bytes(data))
+
+
+# Each of these raised NotImplementedError or RuntimeError from zipfile, not a ValueError.
+ZIP_DAMAGE = {
+    "compression method 99": (10, 99),
+    "compression method 1 (shrunk)": (10, 1),
+    "strong encryption flag": (8, 1 << 6),
+    "patched data flag": (8, 1 << 5),
+    "encryption flag": (8, 1),
+    "version needed 10.9": (6, 109),
+}
+
+
+@pytest.mark.parametrize("damage", ZIP_DAMAGE.values(), ids=ZIP_DAMAGE)
+def test_a_chunk_with_damaged_zip_headers_is_named_and_computed_again(tmp_path, small, damage):
+    path = tmp_path / "d.npz"
+    parts = interrupted(path)
+    _set_zip_field(parts / "chunk-000001.npz", *damage)
+    resume = SerialExecutor()
+    with pytest.warns(ChunkWarning, match=r"chunk-000001\.npz is truncated or corrupt"):
+        generate_dataset(path, executor=resume, progress=False, **SMALL)
+    assert resume.submitted == N_CHUNKS - 3 + 1
+    assert same_bytes(path, small)
+
+
+def test_read_npz_names_the_file_for_every_value_of_the_zip_header_fields(tmp_path):
+    file = tmp_path / "chunk.npz"
+    save_npz(file, {"a": np.arange(5, dtype=np.int16), "protocol": np.array("key")})
+    good = file.read_bytes()
+    for offset in (6, 8, 10):
+        for bit in range(16):
+            file.write_bytes(good)
+            _set_zip_field(file, offset, 1 << bit)
+            try:
+                arrays = read_npz(file)
+            except ValueError as error:
+                assert str(file) in str(error)
+            else:
+                assert arrays["a"].tolist() == list(range(5))
+
+
+def test_a_finished_data_set_in_a_read_only_folder_is_used(tmp_path, small, monkeypatch):
+    folder = tmp_path / "read-only"
+    folder.mkdir()
+    path = folder / "d.npz"
+    shutil.copy(small, path)
+    real_open = os.open
+
+    def read_only(file, flags, *args, **kwargs):  # the folder as a read-only mount has it
+        if Path(file).parent == folder and flags & (os.O_WRONLY | os.O_RDWR | os.O_CREAT):
+            raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(file))
+        return real_open(file, flags, *args, **kwargs)
+
+    monkeypatch.setattr(os, "open", read_only)
+    run = SerialExecutor()
+    assert generate_dataset(path, executor=run, progress=False, **SMALL) == path
+    assert run.submitted == 0 and list(folder.iterdir()) == [path]
+    with pytest.raises(OSError, match="Read-only"):  # one of other arguments is generated
+        generate_dataset(path, executor=run, progress=False, **SMALL | {"seed": 1})
+
+
+KILLED_IN_THE_MERGE = """
+import concurrent.futures, os, signal, sys
+from sim2d.can_dataset import generate_dataset
+
+real = os.replace
+
+def killed(src, dst):
+    if os.path.basename(dst) == "d.npz":  # the merged file, written but not yet renamed
+        os.kill(os.getpid(), signal.SIGKILL)
+    real(src, dst)
+
+os.replace = killed
+with concurrent.futures.ThreadPoolExecutor(1) as executor:
+    generate_dataset(sys.argv[1], configs=[0], angles=(0,), repeats=1, chunk_size=100,
+                     executor=executor, progress=False)
+"""
+
+
+def test_a_kill_during_the_merge_leaves_no_temporary_file_for_good(tmp_path):
+    path = tmp_path / "d.npz"
+    killed = subprocess.run(
+        [sys.executable, "-c", KILLED_IN_THE_MERGE, str(path)], capture_output=True, timeout=120
+    )
+    assert killed.returncode == -signal.SIGKILL, killed.stderr
+    assert not path.exists() and list(tmp_path.glob(".d.npz.*.tmp"))
+    parts = tmp_path / "d.npz.parts"
+    (parts / ".chunk-000002.npz.k1ll3d.tmp").write_bytes(b"half a chunk")  # killed mid-chunk
+    resume = SerialExecutor()
+    generate_dataset(
+        path, configs=[0], angles=(0,), repeats=1, chunk_size=100, executor=resume, progress=False
+    )
+    assert resume.submitted == 0  # every chunk was saved before the kill
+    assert len(load_dataset(path)) == 195
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["d.npz"]
+
+
+def _protocol_edited(manifest: Path) -> str:
+    protocol = json.loads(manifest.read_text())
+    return json.dumps(protocol | {"seed": 7})
+
+
+MANIFEST_EDITS = {
+    "null": lambda manifest: "null",
+    "a list": lambda manifest: "[1, 2]",
+    "an empty object": lambda manifest: "{}",
+    "another seed": _protocol_edited,
+    "deeply nested": lambda manifest: "[" * 100_000 + "]" * 100_000,
+}
+
+
+@pytest.mark.parametrize("edit", MANIFEST_EDITS.values(), ids=MANIFEST_EDITS)
+def test_a_manifest_edited_into_other_json_is_rewritten_and_no_chunk_is_lost(tmp_path, small, edit):
+    path = tmp_path / "d.npz"
+    parts = interrupted(path)
+    manifest = parts / "manifest.json"
+    manifest.write_text(edit(manifest))
+    resume = SerialExecutor()
+    with pytest.warns(ChunkWarning, match=r"manifest\.json (does not describe|is truncated)"):
+        generate_dataset(path, executor=resume, progress=False, **SMALL)
+    assert resume.submitted == N_CHUNKS - 3
+    assert same_bytes(path, small)
+
+
+def test_a_folder_of_another_data_set_is_refused_naming_what_differs(tmp_path):
+    path = tmp_path / "d.npz"
+    interrupted(path)
+    with pytest.raises(ValueError, match=r"3 chunk\(s\) of a different data set .*seed: 0 there"):
+        generate_dataset(path, executor=SerialExecutor(), progress=False, **SMALL | {"seed": 1})
+    # the same, with its manifest edited as well: its chunks still tell
+    manifest = path.with_name("d.npz.parts") / "manifest.json"
+    manifest.write_text("null")
+    with pytest.raises(ValueError, match=r"different data set .*holds a JSON NoneType"):
+        generate_dataset(path, executor=SerialExecutor(), progress=False, **SMALL | {"seed": 1})
+    manifest.write_text('{"format_ver')  # or truncated: no chunk of the other data set is lost
+    with pytest.raises(ValueError, match=r"different data set .*is truncated or corrupt"):
+        generate_dataset(path, executor=SerialExecutor(), progress=False, **SMALL | {"seed": 1})
+    assert len(list(manifest.parent.glob("chunk-*.npz"))) == 3
+
+
+def test_a_data_set_with_deeply_nested_metadata_is_named(tmp_path, small):
+    path = tmp_path / "d.npz"
+    arrays = dict(np.load(small))
+    save_npz(path, arrays | {"metadata": np.array("[" * 100_000 + "]" * 100_000)})
+    with pytest.raises(ValueError, match=r"d\.npz.* has unreadable metadata"):
+        load_dataset(path)
+    save_npz(path, arrays | {"metadata": np.array("null")})
+    with pytest.raises(ValueError, match=r"d\.npz.* has metadata of JSON type NoneType"):
+        load_dataset(path)
+
+
+def test_an_unreachable_dask_scheduler_fails_at_once_and_leaves_nothing(tmp_path):
+    pytest.importorskip("distributed")
+    import socket
+
+    with socket.socket() as probe:  # a port nothing listens on
+        probe.bind(("127.0.0.1", 0))
+        port = probe.getsockname()[1]
+    path = tmp_path / "d.npz"
+    start = time.monotonic()
+    with pytest.raises(
+        executors.ExecutorUnavailable, match=rf"dask://127\.0\.0\.1:{port}.*no Dask sched"
+    ):
+        generate_dataset(path, executor=f"dask://127.0.0.1:{port}", progress=False, **SMALL)
+    assert time.monotonic() - start < 5
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_a_negative_seed_is_refused_naming_it(tmp_path):
+    with pytest.raises(ValueError, match=r"seed=-1 is negative"):
+        generate_dataset(tmp_path / "d.npz", seed=-1, progress=False, **SMALL)
+    assert list(tmp_path.iterdir()) == []
+
+
+CLI_SMALL = ["--configs", str(BOTTOM_ROW), "0", "--angles", "0", "2", "--repeats", "2",
+             "--chunk-size", "97", "--quiet"]  # fmt: skip
+
+
+def test_the_command_line_says_a_full_disk_in_two_lines_and_a_rerun_resumes(
+    tmp_path, small, monkeypatch, capsys
+):
+    path = tmp_path / "d.npz"
+    parts = interrupted(path)
+    real = np.lib.format.write_array
+    writes = []
+
+    def full_disk(fp, array, *args, **kwargs):
+        writes.append(1)
+        if len(writes) > 20:
+            raise OSError(errno.ENOSPC, "No space left on device")
+        return real(fp, array, *args, **kwargs)
+
+    monkeypatch.setattr(np.lib.format, "write_array", full_disk)
+    with pytest.raises(SystemExit) as exited:
+        generate_main([str(path), *CLI_SMALL, "--executor", "process:1"])
+    assert exited.value.code == 1
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 2, lines
+    assert re.fullmatch(
+        r"python -m sim2d\.generate: error: could not write \S+d\.npz\.parts/chunk-\d+\.npz: "
+        r"No space left on device",
+        lines[0],
+    )
+    assert "run it again to resume" in lines[1]
+    saved = len(list(parts.glob("chunk-*.npz")))
+    monkeypatch.setattr(np.lib.format, "write_array", real)
+    assert generate_main([str(path), *CLI_SMALL, "--executor", "process:1"]) == 0
+    assert same_bytes(path, small) and saved > 3
+
+
+def test_the_command_line_says_a_read_only_folder_in_two_lines(tmp_path, monkeypatch, capsys):
+    real_open = os.open
+
+    def read_only(file, flags, *args, **kwargs):
+        if Path(file).parent == tmp_path and flags & (os.O_WRONLY | os.O_RDWR | os.O_CREAT):
+            raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(file))
+        return real_open(file, flags, *args, **kwargs)
+
+    monkeypatch.setattr(os, "open", read_only)
+    with pytest.raises(SystemExit) as exited:
+        generate_main([str(tmp_path / "d.npz"), *CLI_SMALL])
+    assert exited.value.code == 1
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 2 and lines[0].endswith("d.npz.lock: Read-only file system"), lines
+
+
+@pytest.mark.parametrize("port", ["0", "65536", "99999"])
+def test_a_port_out_of_range_is_refused_naming_it(port):
+    with pytest.raises(ValueError, match=rf"executor='dask://h:{port}' names port {port}; "):
+        executors.parse_spec(f"dask://h:{port}")
+
+
+def test_random_damage_to_a_chunk_is_named_or_harmless(tmp_path):
+    """Bytes overwritten anywhere in a chunk: the chunk check names the file, or the
+    arrays read are those saved (the damage hit no field that matters)."""
+    rows = np.array([[BOTTOM_ROW, field, 0, 0] for field in range(10)])
+    arrays = can_dataset._simulate_chunk(rows, 0.003, 0)
+    file = tmp_path / "chunk-000000.npz"
+    save_npz(file, arrays | {"protocol": np.array("key")})
+    good = file.read_bytes()
+    rng = np.random.default_rng(0)
+    named = 0
+    for _ in range(400):
+        data = bytearray(good)
+        for i in rng.integers(len(data), size=rng.choice([1, 2, 5])):
+            data[i] = rng.integers(256)
+        file.write_bytes(bytes(data))
+        problem = chunks._problem(file, "key", lambda k, a: can_dataset._chunk_problem(rows, a), 0)
+        if problem is None:
+            read = read_npz(file)
+            assert all(np.array_equal(read[n], arrays[n]) for n in arrays)
+            assert all(read[n].dtype == arrays[n].dtype for n in arrays)
+        else:
+            assert str(file) in problem
+            named += 1
+    assert named > 200

@@ -1,5 +1,9 @@
 """The combined scene: settle rule, first contact, the robot's ball entering the can world."""
 
+import errno
+import os
+from pathlib import Path
+
 import numpy as np
 import pytest
 
@@ -94,6 +98,20 @@ def test_explore_covers_every_state_its_throws_reach_and_resumes(tmp_path):
     same = explore(tmp_path / "x", geometry.FULL_PYRAMID, executor=again, progress=False, **kw)
     assert again.submitted == 0 and set(same) == set(out)
     assert all(np.array_equal(same[s], out[s]) for s in out)
+    # finished, it is usable in a read-only folder (no lock can be created there)
+    real_open = os.open
+
+    def read_only(file, flags, *args, **kwargs):
+        if tmp_path in Path(file).parents and flags & (os.O_WRONLY | os.O_RDWR | os.O_CREAT):
+            raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(file))
+        return real_open(file, flags, *args, **kwargs)
+
+    before = sorted(tmp_path.rglob("*"))
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setattr(os, "open", read_only)
+        read = explore(tmp_path / "x", geometry.FULL_PYRAMID, executor=again, progress=False, **kw)
+    assert again.submitted == 0 and all(np.array_equal(read[s], out[s]) for s in out)
+    assert sorted(tmp_path.rglob("*")) == before
 
 
 def test_explore_refuses_bad_arguments(tmp_path):

@@ -1,8 +1,11 @@
 """Tests of the physics enumeration of stable configurations (sim2d/configurations.py)."""
 
+import errno
 import itertools
 import json
+import os
 from concurrent.futures import Future, ProcessPoolExecutor
+from pathlib import Path
 
 import pytest
 
@@ -108,3 +111,61 @@ def test_an_executor_returning_no_flags_is_refused():
 
     with pytest.raises(RuntimeError, match=r"returned 1024 results of types \['str'\]"):
         stable_configurations(cache=False, executor=Garbage())
+
+
+def _cache_with(**fields) -> str:
+    good = {"key": configurations._cache_key(), "n_stable": 2, "stable": [0, 15]}
+    return json.dumps(good | fields)
+
+
+BAD_CACHES = {
+    "null": "null",
+    "a list": "[0, 15]",
+    "a number": "3",
+    "stable null": _cache_with(stable=None),
+    "stable of strings": _cache_with(stable=["0", "15"]),
+    "a mask out of range": _cache_with(stable=[0, 4096]),
+    "unsorted": _cache_with(stable=[15, 0]),
+    "a count that disagrees": _cache_with(n_stable=3),
+    "deeply nested": "[" * 100_000 + "]" * 100_000,
+}
+
+
+@pytest.mark.parametrize("text", BAD_CACHES.values(), ids=BAD_CACHES)
+def test_a_cache_of_another_shape_is_recomputed_and_rewritten(tmp_path, monkeypatch, text):
+    file = tmp_path / "stable.json"
+    file.write_text(text)
+    monkeypatch.setattr(configurations, "_compute", lambda executor=None: (0, 15, 1023))
+    assert stable_configurations(path=file) == (0, 15, 1023)
+    assert json.loads(file.read_text())["stable"] == [0, 15, 1023]
+
+    def no_simulation(executor=None):
+        raise AssertionError("recomputed although cached")
+
+    monkeypatch.setattr(configurations, "_compute", no_simulation)
+    assert stable_configurations(path=file) == (0, 15, 1023)
+
+
+def test_a_good_cache_is_read_as_written(tmp_path, monkeypatch):
+    file = tmp_path / "stable.json"
+    file.write_text(_cache_with())
+    monkeypatch.setattr(configurations, "_compute", lambda executor=None: (1,))
+    assert stable_configurations(path=file) == (0, 15)
+
+
+def test_a_cache_folder_that_cannot_be_written_is_named_and_the_result_stands(
+    tmp_path, monkeypatch
+):
+    real_open = os.open
+
+    def read_only(file, flags, *args, **kwargs):
+        if tmp_path in Path(file).parents and flags & (os.O_WRONLY | os.O_RDWR | os.O_CREAT):
+            raise OSError(errno.EROFS, os.strerror(errno.EROFS), str(file))
+        return real_open(file, flags, *args, **kwargs)
+
+    monkeypatch.setattr(os, "open", read_only)
+    monkeypatch.setattr(configurations, "_compute", lambda executor=None: (0, 15))
+    file = tmp_path / "stable.json"
+    with pytest.warns(UserWarning, match=r"could not cache .*stable\.json .*Read-only"):
+        assert stable_configurations(path=file) == (0, 15)
+    assert not file.exists()
