@@ -38,27 +38,50 @@ The queries of an EM-fitted network stay exact: the inverse query enumerates the
 clusters (their posterior given the effect) and conditions the best cluster's Gaussian,
 and the Pyro model is a plain mixture (:mod:`models.model`), so ``Predictive`` and
 ``TraceEnum_ELBO`` mean what they say.
+
+**Missing discrete values** (:func:`fit_missing`, what :func:`inference.fit` runs when
+``masks`` leave gaps) are the other latent variables EM serves. The E-step is exact: the
+Pyro model, traced under enumeration with the masked values latent
+(:func:`inference.enumerate_model`), gives each row's joint posterior over its missing
+values and its log-likelihood with them summed out. Each row then stands for one
+completed row per assignment of its missing values, weighted by that assignment's
+posterior, and the M-step is the closed form on the weighted statistics of the completed
+rows (:func:`inference.statistics.statistics` with ``weights``) -- exactly the expected
+sufficient statistics -- and, for a CPD without a closed form (softmax), its own
+weighted maximisation (Newton's method from the current parameters). Continuous values
+are never missing, so the pooled statistics behind the pseudo-count policy do not change
+between steps.
 """
 
 from __future__ import annotations
 
 import math
 import time
+import warnings
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import torch
 from tqdm.auto import tqdm
 
 from inference.compiled import quadratic_features
-from inference.fit import _check_settings, _complete
+from inference.enumeration import enumerate_model
+from inference.fit import ConvergenceWarning, FitResult, _check_settings, _complete, maximise_site
 from inference.statistics import params_from_statistics, statistics
 from models.cpds import Counts, LinearGaussianCPD, Moments, ParameterMixture, TableCPD
 from models.declaration import ACTION, EffectNetwork
 from models.evidence import DTYPE, Evidence
 from models.params import NetworkParams, check_params
 
-__all__ = ["EMResult", "em_step", "fit_em", "mixture_log_likelihood", "responsibilities"]
+__all__ = [
+    "EMResult",
+    "em_step",
+    "fit_em",
+    "fit_missing",
+    "missing_log_likelihood",
+    "mixture_log_likelihood",
+    "responsibilities",
+]
 
 
 @dataclass(frozen=True)
@@ -433,3 +456,170 @@ def _moments(group, r, x, y, groups) -> Moments:
     zz, zy, yy = sums.split([q * q, q * d, d * d], -1)
     rows = _weighted_sums(group, r, torch.ones(n, 1, dtype=DTYPE), groups)[:, 0]
     return Moments(zz.reshape(-1, q, q), zy.reshape(-1, q, d), yy.reshape(-1, d, d), rows)
+
+
+# ---------------------------------------------------------------- missing discrete values
+def fit_missing(
+    net: EffectNetwork,
+    enc: Evidence,
+    masks: Mapping[str, torch.Tensor],
+    *,
+    init: NetworkParams,
+    pseudo_count: float = 0.01,
+    min_variance: float = 1e-6,
+    l2: float = 0.01,
+    steps: int = 500,
+    tol: float = 1e-6,
+    progress: bool = False,
+) -> FitResult:
+    """Maximum likelihood with missing discrete values, by EM with exact E-steps.
+
+    ``enc``: complete, checked rows (:func:`inference.fit`'s), whatever they hold where a
+    value is missing; ``masks``: ``(n,)`` bool per discrete site, False where the row's
+    value is missing; ``init``: the start (``fit`` gives the closed form on the complete
+    rows). At most ``steps`` EM steps; the fit has converged when a step lowers the
+    per-row loss by less than ``tol`` (relative). ``l2``: the softmax slopes' prior.
+
+    ``FitResult.losses``: the per-row negative log-likelihood, the missing values summed
+    out and the softmax prior included, at the start and after each step. EM cannot raise
+    it (with ``pseudo_count = 0``; a pseudo-count's prior can ask for a hair more near the
+    optimum): a step that would is not taken, and the fit ends there as converged, so the
+    curve never rises.
+    """
+    _check_settings(pseudo_count=pseudo_count, min_variance=min_variance, steps=steps, tol=tol)
+    masks = _missing_masks(net, masks, enc.n_rows)
+    n = enc.n_rows
+    params = init
+    expanded, weights, log_lik = _completed_rows(net, params, enc, masks)
+    curve = [(_prior(net, params, l2) - log_lik) / n]
+    converged = False
+    bar = tqdm(total=steps, desc="fit (EM, missing values)", disable=not progress)
+    for _ in range(steps):
+        proposal = _m_step_missing(
+            net, params, expanded, weights, pseudo_count, min_variance, l2, steps
+        )
+        rows, w, log_lik = _completed_rows(net, proposal, enc, masks)
+        loss = (_prior(net, proposal, l2) - log_lik) / n
+        bar.update()
+        if not loss <= curve[-1]:  # a dip (a pseudo-count's prior), or NaN: stop before it
+            converged = True
+            break
+        params, expanded, weights = proposal, rows, w
+        curve.append(loss)
+        bar.set_postfix(loss=f"{loss:.6g}")
+        if curve[-2] - curve[-1] <= tol * max(1.0, abs(curve[-1])):
+            converged = True
+            break
+    bar.close()
+    if not converged:
+        warnings.warn(
+            f"EM over the missing values of {sorted(masks)} did not settle in {steps} steps "
+            f"(last relative gain of the log-likelihood above tol={tol:g}); raise steps",
+            ConvergenceWarning,
+            stacklevel=3,
+        )
+    return FitResult(params, tuple(curve), converged)
+
+
+def missing_log_likelihood(
+    net: EffectNetwork,
+    params: NetworkParams,
+    data: Mapping[str, object],
+    masks: Mapping[str, torch.Tensor],
+) -> float:
+    """The summed log-likelihood of rows with missing discrete values (False in
+    ``masks``), those values summed out: what :func:`fit_missing` raises."""
+    check_params(net, params)
+    enc = _complete(net, data)
+    return _completed_rows(net, params, enc, _missing_masks(net, masks, enc.n_rows))[2]
+
+
+def _missing_masks(
+    net: EffectNetwork, masks: Mapping[str, torch.Tensor], n: int
+) -> dict[str, torch.Tensor]:
+    """The masks with gaps, after checking that the completed rows have a closed form."""
+    out = {}
+    for site, mask in masks.items():
+        spec = net.site(site)
+        mask = torch.as_tensor(mask, dtype=torch.bool).reshape(-1)
+        if not spec.discrete or mask.shape[0] != n:
+            raise ValueError(
+                f"masks[{site!r}] must be ({n},) bool for a discrete site; got shape "
+                f"{tuple(mask.shape)} for a {'discrete' if spec.discrete else 'continuous'} one"
+            )
+        if bool(mask.all()):
+            continue
+        if spec.role == "cluster":
+            raise ValueError(
+                f"masks[{site!r}]: a parameter's cluster is its value's cell, never missing "
+                "on its own; give the parameter's value, or NaN where the action ignores it"
+            )
+        if spec.role == "action" and net.parameters:
+            raise ValueError(
+                f"masks[{site!r}]: a missing action in a network with parameters "
+                f"({[p.name for p in net.parameters]}) would leave the parameter's value "
+                "unknown under the actions that use it; EM fits missing actions only in "
+                "networks without parameters"
+            )
+        out[site] = mask
+    unfit = [
+        s.name
+        for s in net.sites
+        if not net.cpd(s.name).closed_form and not hasattr(net.cpd(s.name), "maximise")
+    ]
+    if out and unfit:
+        raise ValueError(
+            f"sites {unfit} have neither a closed form nor a maximise method: EM over "
+            "missing values has no M-step for them"
+        )
+    return out
+
+
+def _completed_rows(net, params, enc, masks) -> tuple[Evidence, torch.Tensor, float]:
+    """The E-step: every row once per assignment of its missing values that has posterior
+    weight, with that weight, and the summed log-likelihood (missing values summed out).
+    """
+    if not masks:
+        return enc, torch.ones(enc.n_rows, dtype=DTYPE), 0.0
+    enumerated = enumerate_model(net, params, enc, masks=masks)
+    assert set(enumerated.dims) == set(masks), (enumerated.dims, list(masks))
+    posterior = enumerated.posterior()  # (E_k, ..., E_1, n)
+    log_lik = float(enumerated.log_evidence.sum())
+    shape = posterior.shape[:-1]
+    flat = posterior.reshape(-1, enc.n_rows)
+    assignment, row = flat.nonzero(as_tuple=True)
+    values = {}
+    for site, dim in enumerated.dims.items():
+        size = net.site(site).size
+        assert posterior.shape[dim] == size, (site, posterior.shape, dim)
+        states = torch.arange(size).reshape(size, *([1] * (-dim - 2)))
+        values[site] = states.expand(shape).reshape(-1)[assignment]
+    completed = enc.rows(row) | net.encode_indices(values)
+    return completed, flat[assignment, row], log_lik
+
+
+def _m_step_missing(net, params, rows, weights, alpha, min_variance, l2, steps) -> NetworkParams:
+    """Every CPD refitted on the weighted completed rows: the closed form, and Newton's
+    method from the current parameters where there is none."""
+    stats = statistics(net, rows, weights)
+    cpds = params_from_statistics(net, stats, alpha, min_variance)
+    for spec in net.sites:
+        if net.cpd(spec.name).closed_form:
+            continue
+        start = replace(params[spec.name], n=cpds[spec.name].n)  # the new rows' counts
+        found = maximise_site(net, rows, spec.name, start, weights=weights, l2=l2, steps=steps)
+        cpds[spec.name] = found.params
+    return NetworkParams(cpds, params.pseudo_count)
+
+
+def _prior(net: EffectNetwork, params: NetworkParams, l2: float) -> float:
+    """The negative log of the Gaussian prior on the penalised tensors (the softmax
+    slopes; its constant left out), as :func:`inference.fit_gradient` adds it."""
+    total = 0.0
+    for spec in net.sites:
+        cpd = net.cpd(spec.name)
+        if cpd.closed_form:  # the closed-form kinds carry no such prior
+            continue
+        for tensor in cpd.penalised(cpd.free(params[spec.name])):
+            total += 0.5 * l2 * float(tensor.square().sum())
+    return total

@@ -40,7 +40,7 @@ import torch
 from pyro.infer import TraceEnum_ELBO
 from tqdm.auto import tqdm
 
-from inference.statistics import Statistics, params_from_statistics, statistics
+from inference.statistics import Statistics, flat_index, params_from_statistics, statistics
 from models.declaration import ACTION, EffectNetwork, cluster_site, param_site
 from models.evidence import Evidence, is_partial
 from models.model import effect_model
@@ -116,34 +116,101 @@ def fit(
         return FitResult(NetworkParams(cpds, pseudo_count))
     enc = _complete(net, data)
     masks = _masks(net, masks, enc.n_rows)
+    gaps = {site: m for site, m in masks.items() if not bool(m.all())}
     complete = torch.ones(enc.n_rows, dtype=torch.bool)
-    for m in masks.values():
+    for m in gaps.values():
         complete &= m
     if not complete.any():
         raise ValueError(
             "every row misses some value; at least one complete row is needed to start"
         )
-    every = bool(complete.all())
-    rows = enc if every else enc.rows(complete)  # no copy of the rows when none misses
+    rows = enc if not gaps else enc.rows(complete)  # no copy of the rows when none misses
     cpds = params_from_statistics(net, statistics(net, rows), pseudo_count, min_variance)
     params = NetworkParams(cpds, pseudo_count)
-    gradient_sites = [s for s in cpds if not net.cpd(s).closed_form]
-    if not every:
-        gradient_sites = list(cpds)
-    if not gradient_sites:
+    if gaps:
+        from inference.em import fit_missing  # em builds on this module
+
+        return fit_missing(
+            net,
+            enc,
+            gaps,
+            init=params,
+            pseudo_count=pseudo_count,
+            min_variance=min_variance,
+            l2=l2,
+            steps=steps,
+            tol=tol,
+            progress=progress,
+        )
+    return _fit_open_forms(net, enc, params, steps=steps, lr=lr, l2=l2, tol=tol, progress=progress)
+
+
+def _fit_open_forms(
+    net: EffectNetwork,
+    enc: Evidence,
+    params: NetworkParams,
+    *,
+    steps: int,
+    lr: float,
+    l2: float,
+    tol: float,
+    progress: bool,
+) -> FitResult:
+    """Complete rows: the CPDs without a closed form, from the closed form's start.
+
+    A kind with a ``maximise`` method (softmax: Newton's method per parent
+    configuration) finds its optimum itself; any other goes to :func:`fit_gradient`.
+    ``losses`` are the per-row penalised negative log-likelihood of the maximised CPDs at
+    the start and after each Newton iteration.
+    """
+    open_forms = [s.name for s in net.sites if not net.cpd(s.name).closed_form]
+    if not open_forms:
         return FitResult(params)
-    return fit_gradient(
-        net,
-        enc,
-        init=params,
-        sites=gradient_sites,
-        masks=masks,
-        steps=steps,
-        lr=lr,
-        l2=l2,
-        tol=tol,
-        progress=progress,
+    maximised = [s for s in open_forms if hasattr(net.cpd(s), "maximise")]
+    cpds = dict(params.cpds)
+    curves, unsettled = [], []
+    for site in tqdm(maximised, desc="fit (Newton)", disable=not progress):
+        result = maximise_site(net, enc, site, params[site], l2=l2, steps=steps)
+        cpds[site] = result.params
+        curves.append(result.objectives)
+        if not result.converged:
+            unsettled.append(site)
+    longest = max((len(c) for c in curves), default=0)
+    losses = tuple(sum(c[min(i, len(c) - 1)] for c in curves) / enc.n_rows for i in range(longest))
+    if unsettled:
+        warnings.warn(
+            f"the Newton fit of {unsettled} did not settle in {steps} steps (its gradient "
+            "is above the tolerance; the classes may be separated by the inputs, which "
+            "l2 > 0 keeps finite); raise steps",
+            ConvergenceWarning,
+            stacklevel=3,
+        )
+    params = NetworkParams(cpds, params.pseudo_count)
+    rest = [s for s in open_forms if s not in maximised]
+    if not rest:
+        return FitResult(params, losses, not unsettled)
+    result = fit_gradient(
+        net, enc, init=params, sites=rest, steps=steps, lr=lr, l2=l2, tol=tol, progress=progress
     )
+    return FitResult(result.params, losses + result.losses, result.converged and not unsettled)
+
+
+def maximise_site(
+    net: EffectNetwork,
+    enc: Evidence,
+    site: str,
+    start,
+    *,
+    weights: torch.Tensor | None = None,
+    l2: float,
+    steps: int,
+):
+    """The optimum of one CPD with a ``maximise`` method on complete rows ``enc``
+    (weighted by ``weights`` ``(n,)``, default 1), from ``start``."""
+    cpd = net.cpd(site)
+    index = flat_index(enc, cpd.parents, cpd.card)
+    x = torch.cat([enc[s].nan_to_num() for s in cpd.inputs], -1)
+    return cpd.maximise(index, x, enc[site], start, weights=weights, l2=l2, steps=steps)
 
 
 def fit_statistics(

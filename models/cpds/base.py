@@ -11,7 +11,7 @@ dynamax's emission components, a kind owns everything that depends on its form:
   continuous parents' values ``x`` ``(..., width)`` (``None`` without any);
 * ``initialize(generator)`` -- a neutral start (``generator=None``: uniform tables,
   zero slopes, unit covariances) or a valid random draw;
-* ``statistics(index, x, y)`` and ``m_step(stats, alpha, min_variance)`` -- the
+* ``statistics(index, x, y, weights)`` and ``m_step(stats, alpha, min_variance)`` -- the
   sufficient statistics of rows (they merge by ``+``) and the maximum-likelihood
   parameters they give (closed form, or the gradient route's start where
   ``closed_form`` is False);
@@ -94,9 +94,16 @@ class CPD:
         """The site's Pyro distribution given its parents (see the module)."""
         raise NotImplementedError
 
-    def statistics(self, index: torch.Tensor, x: torch.Tensor | None, y: torch.Tensor):
+    def statistics(
+        self,
+        index: torch.Tensor,
+        x: torch.Tensor | None,
+        y: torch.Tensor,
+        weights: torch.Tensor | None = None,
+    ):
         """Sufficient statistics of rows: ``index`` ``(n,)`` the flattened parent
-        configuration, ``x`` ``(n, width)`` or ``None``, ``y`` the site's values."""
+        configuration, ``x`` ``(n, width)`` or ``None``, ``y`` the site's values,
+        ``weights`` ``(n,)`` each row's weight (default 1; fractional in an EM step)."""
         raise NotImplementedError
 
     def m_step(self, stats, alpha: float, min_variance: float):
