@@ -128,65 +128,80 @@ class SoftmaxCPD(CPD):
         tolerance = GRADIENT_TOLERANCE * scale.clamp_min(1.0)
         chunk = max(1, CHUNK_ELEMENTS // (k * k * q * q))
 
-        def objective(theta: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-            logits = (theta[index] @ z[:, :, None])[..., 0]  # (n, K)
-            logp = logits.log_softmax(-1)
-            f = torch.zeros(groups, dtype=DTYPE).index_add_(0, index, -(target * logp).sum(-1))
+        def objective(theta, rows):
+            """Per configuration, over ``rows`` (index, z, target): the objective and the
+            rows' log-probabilities."""
+            i, zs, t = rows
+            logp = (theta[i] @ zs[:, :, None])[..., 0].log_softmax(-1)  # (m, K)
+            f = torch.zeros(groups, dtype=DTYPE).index_add_(0, i, -(t * logp).sum(-1))
             return f + 0.5 * (penalty * theta.square()).sum((1, 2)), logp
 
-        f, logp = objective(theta)
+        every = (index, z, target, w)
+        f = objective(theta, every[:3])[0]
         curve = [float(f.sum())]
         active = torch.ones(groups, dtype=torch.bool)
         stalled = torch.zeros(groups, dtype=torch.bool)
+        relative = torch.zeros(groups, dtype=DTYPE)
+        rows = every
         iterations = 0
-        for _ in range(steps + 1):
+        while True:
+            # only the rows of configurations still moving
+            if not bool(active.all()):
+                keep = active[rows[0]]
+                rows = tuple(r[keep] for r in rows)
+            i, zs, t, ws = rows
+            logp = objective(theta, rows[:3])[1]
             prob = logp.exp()
-            residual = w[:, None] * prob - target  # (n, K)
-            grad = (
-                torch.zeros(groups, k, q, dtype=DTYPE).index_add_(
-                    0, index, residual[:, :, None] * z[:, None, :]
-                )
-                + penalty * theta
+            residual = ws[:, None] * prob - t  # (m, K)
+            grad = torch.zeros(groups, k, q, dtype=DTYPE).index_add_(
+                0, i, residual[:, :, None] * zs[:, None, :]
             )
-            relative = grad.abs().amax((1, 2)) / tolerance * GRADIENT_TOLERANCE
-            active &= relative > GRADIENT_TOLERANCE
+            grad += penalty * theta
+            now = grad.abs().amax((1, 2)) / tolerance * GRADIENT_TOLERANCE
+            relative = torch.where(active, now, relative)
+            active &= now > GRADIENT_TOLERANCE
             if not bool(active.any()) or iterations == steps:
                 break
             iterations += 1
-            curvature = w[:, None, None] * (
+            keep = active[i]
+            if not bool(keep.all()):
+                rows = tuple(r[keep] for r in rows)
+                i, zs, t, ws = rows
+                prob = prob[keep]
+            curvature = ws[:, None, None] * (
                 torch.diag_embed(prob) - prob[:, :, None] * prob[:, None, :]
             )
             hessian = torch.zeros(groups, k, q, k, q, dtype=DTYPE)
-            for s in range(0, n, chunk):
-                c, zz = curvature[s : s + chunk], z[s : s + chunk]
-                rows = c[:, :, None, :, None] * (
-                    zz[:, None, :, None, None] * zz[:, None, None, None, :]
+            for c in range(0, i.shape[0], chunk):
+                cs, zc = curvature[c : c + chunk], zs[c : c + chunk]
+                terms = cs[:, :, None, :, None] * (
+                    zc[:, None, :, None, None] * zc[:, None, None, None, :]
                 )
-                hessian.index_add_(0, index[s : s + chunk], rows)
-            hessian = hessian.reshape(groups, k * q, k * q) + ridge + gauge
-            g = grad.reshape(groups, k * q)
-            step = -_solve(hessian[active], g[active])  # (A, K q)
-            slope = (step * g[active]).sum(-1)  # < 0: a descent direction
+                hessian.index_add_(0, i[c : c + chunk], terms)
+            hessian = hessian[active].reshape(-1, k * q, k * q) + ridge + gauge
+            g = grad[active].reshape(-1, k * q)
+            step = -_solve(hessian, g)  # (A, K q)
+            slope = (step * g).sum(-1)  # < 0: a descent direction
             # half the Newton decrement -slope predicts the gain left: below the
             # objective's rounding no step can show it, so the configuration stops
             spent = -slope <= 1e-15 * f[active].abs().clamp_min(1.0)
             pending = ~spent
-            t = torch.ones_like(slope)
+            length = torch.ones_like(slope)
             trial = theta.clone()
             for _ in range(60):  # halvings: 60 reach 1e-18 of a step
-                trial[active] = theta[active] + (t[:, None] * step).reshape(-1, k, q)
-                f_new, logp_new = objective(trial)
-                ok = f_new[active] <= f[active] + 1e-4 * t * slope
+                trial[active] = theta[active] + (length[:, None] * step).reshape(-1, k, q)
+                f_new = objective(trial, rows[:3])[0]
+                ok = f_new[active] <= f[active] + 1e-4 * length * slope
                 pending &= ~ok
                 if not bool(pending.any()):
                     break
-                t = torch.where(pending, 0.5 * t, t)
+                length = torch.where(pending, 0.5 * length, length)
             moved = active.clone()
             moved[active] = ~pending & ~spent  # no decrease at any step: rounding level
             theta[moved] = trial[moved]
+            f[moved] = f_new[moved]
             stalled |= active & ~moved
             active &= moved
-            f, logp = objective(theta)
             curve.append(float(f.sum()))
         # a configuration whose line search found no decrease is at the rounding floor
         # of its objective: converged if its gradient is near the tolerance
