@@ -314,9 +314,10 @@ KINDS, STATES, ACTIONS = (
 )
 
 
-def door_world(n=3000, seed=0):
+def door_world(n=3000, seed=0, parents=None):
     """Doors, drawers and switches, closed, ajar or open: ``end.state`` is a softmax of
-    the handle height and the effort per (kind, state, action), 27 configurations."""
+    the handle height and the effort per (kind, state, action), 27 configurations.
+    ``parents``: more parent sets for the network (the end kind's is its initial kind)."""
     import numpy as np
 
     net = EffectNetwork(
@@ -327,7 +328,7 @@ def door_world(n=3000, seed=0):
             Continuous("effort", 1),
         ),
         ACTIONS,
-        parents={"end.kind": ("initial.kind",)},
+        parents={"end.kind": ("initial.kind",)} | (parents or {}),
     )
     rng = np.random.default_rng(seed)
     kind, state, action = (rng.integers(0, 3, n) for _ in range(3))
