@@ -141,6 +141,7 @@ class SoftmaxCPD(CPD):
         curve = [float(f.sum())]
         active = torch.ones(groups, dtype=torch.bool)
         stalled = torch.zeros(groups, dtype=torch.bool)
+        unchecked = torch.zeros(groups, dtype=torch.bool)  # took a full step unchecked
         relative = torch.zeros(groups, dtype=DTYPE)
         rows = every
         iterations = 0
@@ -158,8 +159,12 @@ class SoftmaxCPD(CPD):
             )
             grad += penalty * theta
             now = grad.abs().amax((1, 2)) / tolerance * GRADIENT_TOLERANCE
+            # a full step taken without the line search that did not halve the gradient:
+            # the rounding floor
+            stuck = unchecked & (now > 0.5 * relative)
+            stalled |= stuck
             relative = torch.where(active, now, relative)
-            active &= now > GRADIENT_TOLERANCE
+            active &= (now > GRADIENT_TOLERANCE) & ~stuck
             if not bool(active.any()) or iterations == steps:
                 break
             iterations += 1
@@ -183,9 +188,10 @@ class SoftmaxCPD(CPD):
             step = -_solve(hessian, g)  # (A, K q)
             slope = (step * g).sum(-1)  # < 0: a descent direction
             # half the Newton decrement -slope predicts the gain left: below the
-            # objective's rounding no step can show it, so the configuration stops
-            spent = -slope <= 1e-15 * f[active].abs().clamp_min(1.0)
-            pending = ~spent
+            # objective's rounding no line search can see it, and Newton's full step is
+            # safe there (the quadratic region): taken unchecked
+            near = -slope <= 1e-15 * f[active].abs().clamp_min(1.0)
+            pending = ~near
             length = torch.ones_like(slope)
             trial = theta.clone()
             for _ in range(60):  # halvings: 60 reach 1e-18 of a step
@@ -197,9 +203,11 @@ class SoftmaxCPD(CPD):
                     break
                 length = torch.where(pending, 0.5 * length, length)
             moved = active.clone()
-            moved[active] = ~pending & ~spent  # no decrease at any step: rounding level
+            moved[active] = ~pending  # no decrease at any step length: rounding level
             theta[moved] = trial[moved]
             f[moved] = f_new[moved]
+            unchecked = active.clone()
+            unchecked[active] = near
             stalled |= active & ~moved
             active &= moved
             curve.append(float(f.sum()))
