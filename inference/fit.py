@@ -6,12 +6,16 @@ defines:
 * :func:`fit` -- closed form wherever it exists: tables are normalised counts,
   conditional linear Gaussians are per-configuration least squares with the residual
   covariance, cluster Gaussians are sample means and covariances. Softmax CPDs (a discrete
-  child of continuous parents) have no closed form and are fitted by gradient on the
-  model's log-likelihood; so are all CPDs when some rows miss a discrete value (the
-  marginal likelihood, with the missing values summed out by enumeration).
-* :func:`fit_gradient` -- ``TraceEnum_ELBO`` with an empty guide, minimised with Adam on
-  tensors local to the call (Pyro's global parameter store is left alone): with no
-  latent continuous sites, the ELBO *is* the (marginal) log-likelihood.
+  child of continuous parents) have no closed form: each parent configuration is a
+  multinomial logistic regression, solved by Newton's method
+  (:meth:`models.cpds.SoftmaxCPD.maximise`). When some rows miss a discrete value
+  (``masks``), EM with exact E-steps maximises the marginal likelihood, the missing
+  values summed out (:func:`inference.em.fit_missing`).
+* :func:`fit_gradient` -- ``TraceEnum_ELBO`` with an empty guide, minimised by L-BFGS
+  (Adam with gaps) on tensors local to the call (Pyro's global parameter store is left
+  alone): with no latent continuous sites, the ELBO *is* the (marginal) log-likelihood.
+  It differentiates the model itself, so it serves as the check of the other route and
+  fits a kind without a closed form or a ``maximise`` method of its own.
 
 The rule that an action which does not use a parameter ignores it
 (:meth:`EffectNetwork.parameter_in_use`) holds in training too: a row whose action does
@@ -93,10 +97,17 @@ def fit(
         range they weigh like ``(pooled spread / own spread)**2 * pseudo_count`` rows
         in its slope. Pass 0 when every configuration has rows enough.
     masks
-        ``(n,)`` bool per discrete site, False where the row's value is missing.
+        ``(n,)`` bool per discrete site, False where the row's value is missing (the
+        row's value there is ignored). With gaps the fit is EM (see
+        :func:`inference.em.fit_missing`), started from the closed form on the rows
+        that miss nothing; ``FitResult.losses`` is its per-row negative log-likelihood
+        (missing values summed out) at the start and after each step, never rising.
     steps, lr, l2, tol, progress
-        Gradient settings (see :func:`fit_gradient`), used only for Softmax CPDs or when
-        ``masks`` has gaps. ``progress`` also shows a bar over chunks.
+        ``steps``: the most Newton iterations of a softmax fit, or EM steps with gaps.
+        ``l2``: the precision of the softmax slopes' Gaussian prior. ``tol``: EM has
+        converged when a step gains less than ``tol`` (relative) per row. ``lr``: the
+        gradient route's (:func:`fit_gradient`), for a kind with neither a closed form
+        nor a ``maximise`` method. ``progress`` shows bars (over chunks, CPDs, steps).
     """
     _check_settings(
         pseudo_count=pseudo_count, min_variance=min_variance, steps=steps, lr=lr, l2=l2, tol=tol
