@@ -53,9 +53,10 @@ from models.params import NetworkParams, initial_params
 
 @dataclass(frozen=True)
 class FitResult:
-    """What fitting returns: new parameters; for a gradient fit the loss curve (the
-    per-row negative log-likelihood, prior included, at each evaluation) and whether it
-    settled within the tolerance."""
+    """What fitting returns: new parameters; for an iterative fit the loss curve (the
+    per-row negative log-likelihood, the softmax prior included: at each Newton
+    iteration, EM step or gradient evaluation) and whether it settled within the
+    tolerance."""
 
     params: NetworkParams
     losses: tuple[float, ...] = ()
