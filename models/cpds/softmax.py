@@ -132,7 +132,7 @@ class SoftmaxCPD(CPD):
             """Per configuration, over ``rows`` (index, z, target): the objective and the
             rows' log-probabilities."""
             i, zs, t = rows
-            logp = (theta[i] @ zs[:, :, None])[..., 0].log_softmax(-1)  # (m, K)
+            logp = torch.einsum("nkq,nq->nk", theta[i], zs).log_softmax(-1)  # (m, K)
             f = torch.zeros(groups, dtype=DTYPE).index_add_(0, i, -(t * logp).sum(-1))
             return f + 0.5 * (penalty * theta.square()).sum((1, 2)), logp
 
@@ -145,13 +145,16 @@ class SoftmaxCPD(CPD):
         relative = torch.zeros(groups, dtype=DTYPE)
         rows = every
         iterations = 0
+        logp = None  # the rows' log-probabilities, when the line search left them current
         while True:
             # only the rows of configurations still moving
-            if not bool(active.all()):
-                keep = active[rows[0]]
+            keep = active[rows[0]]
+            if not bool(keep.all()):
                 rows = tuple(r[keep] for r in rows)
+                logp = logp[keep] if logp is not None else None
             i, zs, t, ws = rows
-            logp = objective(theta, rows[:3])[1]
+            if logp is None:
+                logp = objective(theta, rows[:3])[1]
             prob = logp.exp()
             residual = ws[:, None] * prob - t  # (m, K)
             grad = torch.zeros(groups, k, q, dtype=DTYPE).index_add_(
@@ -173,17 +176,19 @@ class SoftmaxCPD(CPD):
                 rows = tuple(r[keep] for r in rows)
                 i, zs, t, ws = rows
                 prob = prob[keep]
+            # per row (diag(p) - p p^T) (x) z z^T, summed per configuration: the rows'
+            # class part and input part side by side, flat (one contiguous sum)
             curvature = ws[:, None, None] * (
                 torch.diag_embed(prob) - prob[:, :, None] * prob[:, None, :]
             )
-            hessian = torch.zeros(groups, k, q, k, q, dtype=DTYPE)
+            curvature = curvature.reshape(-1, k * k)
+            inputs = (zs[:, :, None] * zs[:, None, :]).reshape(-1, q * q)
+            hessian = torch.zeros(groups, k * k * q * q, dtype=DTYPE)
             for c in range(0, i.shape[0], chunk):
-                cs, zc = curvature[c : c + chunk], zs[c : c + chunk]
-                terms = cs[:, :, None, :, None] * (
-                    zc[:, None, :, None, None] * zc[:, None, None, None, :]
-                )
-                hessian.index_add_(0, i[c : c + chunk], terms)
-            hessian = hessian[active].reshape(-1, k * q, k * q) + ridge + gauge
+                terms = curvature[c : c + chunk, :, None] * inputs[c : c + chunk, None, :]
+                hessian.index_add_(0, i[c : c + chunk], terms.reshape(terms.shape[0], -1))
+            hessian = hessian[active].reshape(-1, k, k, q, q).transpose(2, 3)
+            hessian = hessian.reshape(-1, k * q, k * q) + ridge + gauge
             g = grad[active].reshape(-1, k * q)
             step = -_solve(hessian, g)  # (A, K q)
             slope = (step * g).sum(-1)  # < 0: a descent direction
@@ -196,7 +201,7 @@ class SoftmaxCPD(CPD):
             trial = theta.clone()
             for _ in range(60):  # halvings: 60 reach 1e-18 of a step
                 trial[active] = theta[active] + (length[:, None] * step).reshape(-1, k, q)
-                f_new = objective(trial, rows[:3])[0]
+                f_new, logp = objective(trial, rows[:3])
                 ok = f_new[active] <= f[active] + 1e-4 * length * slope
                 pending &= ~ok
                 if not bool(pending.any()):
@@ -204,6 +209,8 @@ class SoftmaxCPD(CPD):
                 length = torch.where(pending, 0.5 * length, length)
             moved = active.clone()
             moved[active] = ~pending  # no decrease at any step length: rounding level
+            if bool(pending.any()):
+                logp = None  # some configurations keep their iterate: not the trial's
             theta[moved] = trial[moved]
             f[moved] = f_new[moved]
             unchecked = active.clone()
