@@ -533,17 +533,19 @@ def missing_log_likelihood(
 
 
 def _missing_masks(
-    net: EffectNetwork, masks: Mapping[str, torch.Tensor], n: int
+    net: EffectNetwork, masks: Mapping[str, torch.Tensor], n: int | None
 ) -> dict[str, torch.Tensor]:
-    """The masks with gaps, after checking that the completed rows have a closed form."""
+    """The masks with gaps, after checking that the completed rows have a closed form
+    (``n``: the rows, or ``None`` to check before the rows are read)."""
     out = {}
     for site, mask in masks.items():
         spec = net.site(site)
         mask = torch.as_tensor(mask, dtype=torch.bool).reshape(-1)
-        if not spec.discrete or mask.shape[0] != n:
+        if not spec.discrete or (n is not None and mask.shape[0] != n):
+            kind = "discrete" if spec.discrete else "continuous"
             raise ValueError(
-                f"masks[{site!r}] must be ({n},) bool for a discrete site; got shape "
-                f"{tuple(mask.shape)} for a {'discrete' if spec.discrete else 'continuous'} one"
+                f"masks[{site!r}] must be {f'({n},) ' if n is not None else ''}bool for a "
+                f"discrete site; got shape {tuple(mask.shape)} for a {kind} one"
             )
         if bool(mask.all()):
             continue

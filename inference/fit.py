@@ -126,6 +126,10 @@ def fit(
             )
         cpds = params_from_statistics(net, stats, pseudo_count, min_variance)
         return FitResult(NetworkParams(cpds, pseudo_count))
+    if masks:
+        from inference.em import _missing_masks  # em builds on this module
+
+        _missing_masks(net, masks, None)  # what EM cannot fill, before the rows' checks
     enc = _complete(net, data)
     masks = _masks(net, masks, enc.n_rows)
     gaps = {site: m for site, m in masks.items() if not bool(m.all())}
