@@ -65,7 +65,7 @@ import torch
 from tqdm.auto import tqdm
 
 from inference.compiled import quadratic_features
-from inference.enumeration import enumerate_model
+from inference.enumeration import enumerate_model, row_chunks
 from inference.fit import ConvergenceWarning, FitResult, _check_settings, _complete, maximise_site
 from inference.statistics import params_from_statistics, statistics
 from models.cpds import Counts, LinearGaussianCPD, Moments, ParameterMixture, TableCPD
@@ -578,24 +578,35 @@ def _missing_masks(
 def _completed_rows(net, params, enc, masks) -> tuple[Evidence, torch.Tensor, float]:
     """The E-step: every row once per assignment of its missing values that has posterior
     weight, with that weight, and the summed log-likelihood (missing values summed out).
-    """
+    Rows go through the model in chunks whose joint posterior stays below
+    :data:`inference.enumeration.CHUNK_ELEMENTS`."""
     if not masks:
         return enc, torch.ones(enc.n_rows, dtype=DTYPE), 0.0
-    enumerated = enumerate_model(net, params, enc, masks=masks)
-    assert set(enumerated.dims) == set(masks), (enumerated.dims, list(masks))
-    posterior = enumerated.posterior()  # (E_k, ..., E_1, n)
-    log_lik = float(enumerated.log_evidence.sum())
-    shape = posterior.shape[:-1]
-    flat = posterior.reshape(-1, enc.n_rows)
-    assignment, row = flat.nonzero(as_tuple=True)
-    values = {}
-    for site, dim in enumerated.dims.items():
-        size = net.site(site).size
-        assert posterior.shape[dim] == size, (site, posterior.shape, dim)
-        states = torch.arange(size).reshape(size, *([1] * (-dim - 2)))
-        values[site] = states.expand(shape).reshape(-1)[assignment]
-    completed = enc.rows(row) | net.encode_indices(values)
-    return completed, flat[assignment, row], log_lik
+    size = math.prod(net.site(site).size for site in masks)
+    parts, weights, log_lik = [], [], 0.0
+    for chunk in row_chunks(enc.n_rows, size):
+        rows = enc.rows(chunk)
+        enumerated = enumerate_model(
+            net, params, rows, masks={s: m[chunk] for s, m in masks.items()}
+        )
+        assert set(enumerated.dims) == set(masks), (enumerated.dims, list(masks))
+        posterior = enumerated.posterior()  # (E_k, ..., E_1, n)
+        log_lik += float(enumerated.log_evidence.sum())
+        shape = posterior.shape[:-1]
+        flat = posterior.reshape(-1, rows.n_rows)
+        assignment, row = flat.nonzero(as_tuple=True)
+        values = {}
+        for site, dim in enumerated.dims.items():
+            k = net.site(site).size
+            assert posterior.shape[dim] == k, (site, posterior.shape, dim)
+            states = torch.arange(k).reshape(k, *([1] * (-dim - 2)))
+            values[site] = states.expand(shape).reshape(-1)[assignment]
+        parts.append(rows.rows(row) | net.encode_indices(values))
+        weights.append(flat[assignment, row])
+    if len(parts) == 1:
+        return parts[0], weights[0], log_lik
+    completed = {site: torch.cat([p[site] for p in parts]) for site in parts[0]}
+    return Evidence(net, completed, sum(p.n_rows for p in parts)), torch.cat(weights), log_lik
 
 
 #: The most Newton iterations of one M-step (from the last step's optimum it takes a

@@ -533,3 +533,20 @@ def test_missing_values_the_em_cannot_fill_are_refused():
         fit(net, rows, masks={"action": gap})
     with pytest.raises(ValueError, match=r"masks\['cluster.force'\].*cell"):
         fit(net, rows, masks={"cluster.force": gap})
+
+
+@pytest.mark.filterwarnings("ignore::inference.fit.ConvergenceWarning")  # 5 steps only
+def test_missing_values_e_step_in_row_chunks_is_the_same(monkeypatch):
+    import inference.enumeration
+
+    rows, masks = small_rows(n=200)
+    whole = fit(SMALL, rows, masks=masks, steps=5, tol=1e-300)
+    monkeypatch.setattr(inference.enumeration, "CHUNK_ELEMENTS", 100)  # 100 / 12: 8 rows
+    chunked = fit(SMALL, rows, masks=masks, steps=5, tol=1e-300)
+    torch.testing.assert_close(
+        torch.tensor(chunked.losses), torch.tensor(whole.losses), rtol=1e-13, atol=0
+    )
+    for site in whole.params.cpds:
+        torch.testing.assert_close(
+            chunked.params[site].probs, whole.params[site].probs, rtol=0, atol=1e-14
+        )
