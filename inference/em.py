@@ -1,4 +1,8 @@
-"""Adaptive parameter clusters: expectation-maximisation of a parameter's mixture.
+"""Expectation-maximisation: adaptive parameter clusters, and missing discrete values.
+
+Both latent variables are discrete, so both E-steps are exact posteriors and both
+M-steps are the closed form on posterior-weighted statistics (the last section covers
+missing values).
 
 Under the paper's grid layout a parameter's cluster *is* its value's equidistant cell,
 so :func:`inference.fit` files every row under one cluster and fits each cell's
