@@ -550,3 +550,28 @@ def test_missing_values_e_step_in_row_chunks_is_the_same(monkeypatch):
         torch.testing.assert_close(
             chunked.params[site].probs, whole.params[site].probs, rtol=0, atol=1e-14
         )
+
+
+@pytest.mark.filterwarnings("ignore::inference.fit.ConvergenceWarning")  # 20 steps at most
+@settings(max_examples=15, deadline=None)
+@given(
+    cards=st.lists(st.integers(2, 3), min_size=1, max_size=2),
+    n_actions=st.integers(1, 3),
+    n=st.integers(20, 80),
+    missing=st.sampled_from([0.1, 0.4, 0.8]),
+    seed=st.integers(0, 2**16),
+)
+def test_missing_values_em_on_random_discrete_networks(cards, n_actions, n, missing, seed):
+    from tests.helpers import discrete_network
+
+    net = discrete_network(cards, n_actions)
+    g = torch.Generator().manual_seed(seed)
+    sites = [s for s in net.sites if s.discrete]
+    rows = net.encode_indices({s.name: torch.randint(0, s.size, (n,), generator=g) for s in sites})
+    masks = {s.name: torch.rand(n, generator=g) > missing for s in sites}
+    for m in masks.values():
+        m[0] = True  # at least one complete row to start from
+    result = fit(net, rows, masks=masks, pseudo_count=0.0, steps=20, tol=1e-300)
+    curve = result.losses
+    assert all(b <= a for a, b in zip(curve, curve[1:], strict=False))
+    assert marginal_loss(net, result.params, rows, masks)[0] == pytest.approx(curve[-1], rel=1e-10)
