@@ -8,6 +8,9 @@ into chunks (or partitions on a cluster), each chunk's :class:`Statistics` compu
 apart, and the results added in any grouping: ``statistics(a) + statistics(b)`` is
 ``statistics(a ∪ b)`` up to the rounding of float additions (counts are exact).
 :func:`params_from_statistics` then gives the same parameters as one pass over all rows.
+Rows may carry weights (in an EM step, the posterior of a completion of a row's missing
+values): each row's terms are multiplied by its weight, so a weight ``k`` counts as ``k``
+copies of the row and fractional weights give the expected statistics.
 
 Pseudo-count policy (``pseudo_count``, written alpha): a table row is
 ``(counts + alpha) / (n + K alpha)``, so a parent configuration no sample reached is
