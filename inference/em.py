@@ -69,7 +69,7 @@ import torch
 from tqdm.auto import tqdm
 
 from inference.compiled import quadratic_features
-from inference.enumeration import enumerate_model, row_chunks
+from inference.enumeration import Enumerated, enumerate_model, row_chunks
 from inference.fit import ConvergenceWarning, FitResult, _check_settings, _complete, maximise_site
 from inference.statistics import params_from_statistics, statistics
 from models.cpds import Counts, LinearGaussianCPD, Moments, ParameterMixture, TableCPD
@@ -492,15 +492,16 @@ def fit_missing(
     """
     _check_settings(pseudo_count=pseudo_count, min_variance=min_variance, steps=steps, tol=tol)
     masks = _missing_masks(net, masks, enc.n_rows)
+    allowed = _actions_allowed(net, enc, masks)
     n = enc.n_rows
     params = init
-    expanded, weights, log_lik = _completed_rows(net, params, enc, masks)
+    expanded, weights, log_lik = _completed_rows(net, params, enc, masks, allowed)
     curve = [(_prior(net, params, l2) - log_lik) / n]
     converged = False
     bar = tqdm(total=steps, desc="fit (EM, missing values)", disable=not progress)
     for _ in range(steps):
         proposal = _m_step_missing(net, params, expanded, weights, pseudo_count, min_variance, l2)
-        rows, w, log_lik = _completed_rows(net, proposal, enc, masks)
+        rows, w, log_lik = _completed_rows(net, proposal, enc, masks, allowed)
         loss = (_prior(net, proposal, l2) - log_lik) / n
         bar.update()
         if not loss <= curve[-1]:  # a dip (a pseudo-count's prior), or NaN: stop before it
@@ -532,8 +533,11 @@ def missing_log_likelihood(
     """The summed log-likelihood of rows with missing discrete values (False in
     ``masks``), those values summed out: what :func:`fit_missing` raises."""
     check_params(net, params)
-    enc = _complete(net, data)
-    return _completed_rows(net, params, enc, _missing_masks(net, masks, enc.n_rows))[2]
+    unknown = masks.get(ACTION)
+    unknown = None if unknown is None else ~torch.as_tensor(unknown, dtype=torch.bool)
+    enc = _complete(net, data, unknown)
+    masks = _missing_masks(net, masks, enc.n_rows)
+    return _completed_rows(net, params, enc, masks, _actions_allowed(net, enc, masks))[2]
 
 
 def _missing_masks(
@@ -558,13 +562,6 @@ def _missing_masks(
                 f"masks[{site!r}]: a parameter's cluster is its value's cell, never missing "
                 "on its own; give the parameter's value, or NaN where the action ignores it"
             )
-        if spec.role == "action" and net.parameters:
-            raise ValueError(
-                f"masks[{site!r}]: a missing action in a network with parameters "
-                f"({[p.name for p in net.parameters]}) would leave the parameter's value "
-                "unknown under the actions that use it; EM fits missing actions only in "
-                "networks without parameters"
-            )
         out[site] = mask
     unfit = [
         s.name
@@ -579,33 +576,80 @@ def _missing_masks(
     return out
 
 
-def _completed_rows(net, params, enc, masks) -> tuple[Evidence, torch.Tensor, float]:
+def _actions_allowed(net: EffectNetwork, enc: Evidence, masks) -> torch.Tensor | None:
+    """``(A, n)`` bool, where the action is missing in a network with parameters: the
+    actions that agree with the row's parameter values. A training row gives a
+    parameter's value exactly when its action uses the parameter (:func:`inference.fit`
+    checks it where the action is given), so where the action is missing the presence
+    of each value is evidence of it. ``None`` where there is nothing to restrict."""
+    if ACTION not in masks or not net.mixtures:
+        return None
+    missing = ~masks[ACTION]
+    allowed = torch.ones(len(net.actions), enc.n_rows, dtype=torch.bool)
+    for m in net.mixtures:
+        present = ~torch.isnan(enc[m.value.site]).any(-1)  # (n,)
+        agree = m.uses[:, None] == present[None, :]  # (A, n)
+        allowed &= agree | ~missing[None, :]
+        none = ~allowed.any(0)
+        if bool(none.any()):
+            row = int(none.nonzero()[0])
+            what = "gives" if bool(present[row]) else "gives no"
+            raise ValueError(
+                f"site {ACTION!r}: row {row} is missing and {what} a value of "
+                f"{m.value.site!r}, which no action agrees with (a row gives a parameter's "
+                "value exactly when its action uses the parameter)"
+            )
+    return allowed
+
+
+def _completed_rows(net, params, enc, masks, allowed=None) -> tuple[Evidence, torch.Tensor, float]:
     """The E-step: every row once per assignment of its missing values that has posterior
     weight, with that weight, and the summed log-likelihood (missing values summed out).
+    ``allowed`` (:func:`_actions_allowed`) restricts a missing action; the parameters'
+    clusters then follow each assignment's action (the cell of the value, or cell 0).
     Rows go through the model in chunks whose joint posterior stays below
     :data:`inference.enumeration.CHUNK_ELEMENTS`."""
     if not masks:
         return enc, torch.ones(enc.n_rows, dtype=DTYPE), 0.0
     size = math.prod(net.site(site).size for site in masks)
+    model_rows = enc
+    if allowed is not None:  # the clusters follow the action: the model derives them
+        model_rows = enc.without(*(m.cluster.site for m in net.mixtures))
+        size *= math.prod(m.cluster.size for m in net.mixtures)
     parts, weights, log_lik = [], [], 0.0
     for chunk in row_chunks(enc.n_rows, size):
-        rows = enc.rows(chunk)
-        enumerated = enumerate_model(
-            net, params, rows, masks={s: m[chunk] for s, m in masks.items()}
-        )
-        assert set(enumerated.dims) == set(masks), (enumerated.dims, list(masks))
+        rows = model_rows.rows(chunk)
+        chunk_masks = {s: m[chunk] for s, m in masks.items()}
+        enumerated = enumerate_model(net, params, rows, masks=chunk_masks)
+        assert set(masks) <= set(enumerated.dims), (enumerated.dims, list(masks))
+        if allowed is not None:
+            dim = enumerated.dims[ACTION]
+            agree = allowed[:, chunk].reshape(len(net.actions), *([1] * (-dim - 2)), -1)
+            log_weight = enumerated.log_weight.masked_fill(~agree, -torch.inf)
+            enumerated = Enumerated(log_weight, enumerated.dims, enumerated.trace)
         posterior = enumerated.posterior()  # (E_k, ..., E_1, n)
         log_lik += float(enumerated.log_evidence.sum())
+        others = [d + posterior.dim() for s, d in enumerated.dims.items() if s not in masks]
+        if others:  # the clusters: summed out (each assignment's action fixes them)
+            posterior = posterior.sum(others, keepdim=True)
         shape = posterior.shape[:-1]
         flat = posterior.reshape(-1, rows.n_rows)
         assignment, row = flat.nonzero(as_tuple=True)
         values = {}
-        for site, dim in enumerated.dims.items():
+        for site in masks:
+            dim = enumerated.dims[site]
             k = net.site(site).size
             assert posterior.shape[dim] == k, (site, posterior.shape, dim)
             states = torch.arange(k).reshape(k, *([1] * (-dim - 2)))
             values[site] = states.expand(shape).reshape(-1)[assignment]
-        parts.append(rows.rows(row) | net.encode_indices(values))
+        completed = enc.rows(chunk).rows(row) | net.encode_indices(values)
+        if allowed is not None:
+            cells = {
+                m.cluster.site: m.cells(completed[m.value.site], completed[ACTION])
+                for m in net.mixtures
+            }
+            completed = completed | net.encode_indices(cells)
+        parts.append(completed)
         weights.append(flat[assignment, row])
     if len(parts) == 1:
         return parts[0], weights[0], log_lik

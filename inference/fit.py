@@ -130,7 +130,11 @@ def fit(
         from inference.em import _missing_masks  # em builds on this module
 
         _missing_masks(net, masks, None)  # what EM cannot fill, before the rows' checks
-    enc = _complete(net, data)
+    action_mask = (masks or {}).get(ACTION)
+    unknown_action = None
+    if action_mask is not None:
+        unknown_action = ~torch.as_tensor(action_mask, dtype=torch.bool).reshape(-1)
+    enc = _complete(net, data, unknown_action)
     masks = _masks(net, masks, enc.n_rows)
     gaps = {site: m for site, m in masks.items() if not bool(m.all())}
     complete = torch.ones(enc.n_rows, dtype=torch.bool)
@@ -433,8 +437,14 @@ def _masks(
 
 
 # ---------------------------------------------------------------------------- closed form
-def _complete(net: EffectNetwork, data: Mapping[str, object]) -> Evidence:
-    """Encode training rows, check them, and add each parameter's cluster (its cell)."""
+def _complete(
+    net: EffectNetwork, data: Mapping[str, object], unknown_action: torch.Tensor | None = None
+) -> Evidence:
+    """Encode training rows, check them, and add each parameter's cluster (its cell).
+
+    ``unknown_action`` ``(n,)`` bool: rows whose action is missing (``masks``), where a
+    parameter's value is not checked against the action and the cluster is a
+    placeholder (EM derives it per action)."""
     enc = net.encode(data)
     if not len(enc) or enc.n_rows == 0:
         raise ValueError("no training rows: fit needs at least one row of every site")
@@ -450,10 +460,14 @@ def _complete(net: EffectNetwork, data: Mapping[str, object]) -> Evidence:
         p_site = param_site(p.name)
         uses = m.in_use(enc[ACTION])
         present = ~torch.isnan(enc[p_site]).any(-1)
+        known = torch.ones_like(present)
+        if unknown_action is not None and unknown_action.shape == known.shape:
+            known = ~unknown_action  # (a mask of another shape is refused by _masks)
         for bad, why in (
             (uses & ~present, "uses the parameter, but the row gives no value"),
             (~uses & present, "does not use the parameter, but the row gives a value (give NaN)"),
         ):
+            bad = bad & known
             if bad.any():
                 row = int(bad.nonzero()[0])
                 raise ValueError(
@@ -462,7 +476,7 @@ def _complete(net: EffectNetwork, data: Mapping[str, object]) -> Evidence:
                 )
         derived = m.cells(enc[p_site], enc[ACTION])
         given = enc.get(cluster_site(p.name))
-        if given is not None and not torch.equal(given, derived):
+        if given is not None and not torch.equal(given[known], derived[known]):
             raise ValueError(
                 f"site {cluster_site(p.name)!r} disagrees with the equidistant cells of its parameter"
             )
