@@ -55,6 +55,14 @@ sufficient statistics -- and, for a CPD without a closed form (softmax), its own
 weighted maximisation (Newton's method from the current parameters). Continuous values
 are never missing, so the pooled statistics behind the pseudo-count policy do not change
 between steps.
+
+A missing action in a network with parameters: a training row gives a parameter's value
+exactly when its action uses the parameter (:func:`inference.fit` refuses a row that
+breaks the rule where the action is given), so where the action is missing, the
+presence of each value is evidence of it. The E-step keeps the actions that use exactly
+the parameters the row gives (the model's joint weight of the others is set to zero),
+and each completed row's clusters are its values' cells under its action. A row that no
+action agrees with (a value missing where every action would use it) is refused.
 """
 
 from __future__ import annotations
@@ -485,7 +493,8 @@ def fit_missing(
     per-row loss by less than ``tol`` (relative). ``l2``: the softmax slopes' prior.
 
     ``FitResult.losses``: the per-row negative log-likelihood, the missing values summed
-    out and the softmax prior included, at the start and after each step. EM cannot raise
+    out (a missing action over the actions that agree with the row's parameter values,
+    see the module) and the softmax prior included, at the start and after each step. EM cannot raise
     it (with ``pseudo_count = 0``; a pseudo-count's prior can ask for a hair more near the
     optimum): a step that would is not taken, and the fit ends there as converged, so the
     curve never rises.
