@@ -13,8 +13,12 @@ dynamax's emission components, a kind owns everything that depends on its form:
   zero slopes, unit covariances) or a valid random draw;
 * ``statistics(index, x, y, weights)`` and ``m_step(stats, alpha, min_variance)`` -- the
   sufficient statistics of rows (they merge by ``+``) and the maximum-likelihood
-  parameters they give (closed form, or the gradient route's start where
+  parameters they give (closed form, or the start of an iterative fit where
   ``closed_form`` is False);
+* optionally, where ``closed_form`` is False, ``maximise(index, x, y, start, weights=,
+  l2=, steps=)`` -- the kind's own optimiser on (weighted) rows, which :func:`inference.fit`
+  and its EM over missing values use (the softmax's Newton method); a kind without one
+  is fitted by the gradient route;
 * ``free(params)``, ``bound(free, params)``, ``penalised(free)`` -- the unconstrained
   tensors the gradient route optimises, the parameters they stand for, and the tensors
   that carry the L2 prior;
