@@ -18,7 +18,7 @@ dynamax's emission components, a kind owns everything that depends on its form:
 * optionally, where ``closed_form`` is False, ``maximise(index, x, y, start, weights=,
   l2=, steps=)`` -- the kind's own optimiser on (weighted) rows, which :func:`inference.fit`
   and its EM over missing values use (the softmax's Newton method); a kind without one
-  is fitted by the gradient route;
+  is fitted by the gradient route on complete rows, and refused by EM;
 * ``free(params)``, ``bound(free, params)``, ``penalised(free)`` -- the unconstrained
   tensors the gradient route optimises, the parameters they stand for, and the tensors
   that carry the L2 prior;
