@@ -575,7 +575,8 @@ def _missing_masks(
     unfit = [
         s.name
         for s in net.sites
-        if not net.cpd(s.name).closed_form and not hasattr(net.cpd(s.name), "maximise")
+        if not net.cpd(s.name).closed_form
+        and not callable(getattr(net.cpd(s.name), "maximise", None))
     ]
     if out and unfit:
         raise ValueError(

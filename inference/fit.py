@@ -186,7 +186,7 @@ def _fit_open_forms(
     open_forms = [s.name for s in net.sites if not net.cpd(s.name).closed_form]
     if not open_forms:
         return FitResult(params)
-    maximised = [s for s in open_forms if hasattr(net.cpd(s), "maximise")]
+    maximised = [s for s in open_forms if callable(getattr(net.cpd(s), "maximise", None))]
     cpds = dict(params.cpds)
     curves, unsettled = [], []
     for site in tqdm(maximised, desc="fit (Newton)", disable=not progress):
