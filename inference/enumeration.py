@@ -14,7 +14,7 @@ closed form. Nothing here samples.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable
+from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -150,6 +150,7 @@ def enumerate_model(
     *,
     keep: Iterable[str] = (),
     trace_only: Iterable[str] = (),
+    masks: Mapping[str, torch.Tensor] | None = None,
 ) -> Enumerated:
     """Trace the model with ``evidence`` and sum every observed or structural factor.
 
@@ -165,6 +166,9 @@ def enumerate_model(
     trace_only
         Unobserved continuous end sites to trace for their distribution (``fn``) without
         adding their factor (the model draws a value for them that nothing uses).
+    masks
+        ``(n,)`` bool per discrete site of ``evidence``: False where the row's value is
+        missing; the site is then enumerated (its posterior is the missing value's).
     """
     keep = set(keep)
     trace_only = set(trace_only)
@@ -184,6 +188,7 @@ def enumerate_model(
         evidence,
         end_sites=set(evidence) | keep | trace_only,
         collapse=True,
+        masks=masks,
     )
     trace.compute_log_prob()
     factors = []

@@ -6,12 +6,16 @@ defines:
 * :func:`fit` -- closed form wherever it exists: tables are normalised counts,
   conditional linear Gaussians are per-configuration least squares with the residual
   covariance, cluster Gaussians are sample means and covariances. Softmax CPDs (a discrete
-  child of continuous parents) have no closed form and are fitted by gradient on the
-  model's log-likelihood; so are all CPDs when some rows miss a discrete value (the
-  marginal likelihood, with the missing values summed out by enumeration).
-* :func:`fit_gradient` -- ``TraceEnum_ELBO`` with an empty guide, minimised with Adam on
-  tensors local to the call (Pyro's global parameter store is left alone): with no
-  latent continuous sites, the ELBO *is* the (marginal) log-likelihood.
+  child of continuous parents) have no closed form: each parent configuration is a
+  multinomial logistic regression, solved by Newton's method
+  (:meth:`models.cpds.SoftmaxCPD.maximise`). When some rows miss a discrete value
+  (``masks``), EM with exact E-steps maximises the marginal likelihood, the missing
+  values summed out (:func:`inference.em.fit_missing`).
+* :func:`fit_gradient` -- ``TraceEnum_ELBO`` with an empty guide, minimised by L-BFGS
+  (Adam with gaps) on tensors local to the call (Pyro's global parameter store is left
+  alone): with no latent continuous sites, the ELBO *is* the (marginal) log-likelihood.
+  It differentiates the model itself, so it serves as the check of the other route and
+  fits a kind without a closed form or a ``maximise`` method of its own.
 
 The rule that an action which does not use a parameter ignores it
 (:meth:`EffectNetwork.parameter_in_use`) holds in training too: a row whose action does
@@ -40,7 +44,7 @@ import torch
 from pyro.infer import TraceEnum_ELBO
 from tqdm.auto import tqdm
 
-from inference.statistics import Statistics, params_from_statistics, statistics
+from inference.statistics import Statistics, flat_index, params_from_statistics, statistics
 from models.declaration import ACTION, EffectNetwork, cluster_site, param_site
 from models.evidence import Evidence, check_magnitude, is_partial
 from models.model import effect_model
@@ -49,9 +53,10 @@ from models.params import NetworkParams, check_params, initial_params
 
 @dataclass(frozen=True)
 class FitResult:
-    """What fitting returns: new parameters; for a gradient fit the loss curve (the
-    per-row negative log-likelihood, prior included, at each evaluation) and whether it
-    settled within the tolerance."""
+    """What fitting returns: new parameters; for an iterative fit the loss curve (the
+    per-row negative log-likelihood, the softmax prior included: at each Newton
+    iteration, EM step or gradient evaluation) and whether it settled within the
+    tolerance."""
 
     params: NetworkParams
     losses: tuple[float, ...] = ()
@@ -93,10 +98,17 @@ def fit(
         range they weigh like ``(pooled spread / own spread)**2 * pseudo_count`` rows
         in its slope. Pass 0 when every configuration has rows enough.
     masks
-        ``(n,)`` bool per discrete site, False where the row's value is missing.
+        ``(n,)`` bool per discrete site, False where the row's value is missing (the
+        row's value there is ignored). With gaps the fit is EM (see
+        :func:`inference.em.fit_missing`), started from the closed form on the rows
+        that miss nothing; ``FitResult.losses`` is its per-row negative log-likelihood
+        (missing values summed out) at the start and after each step, never rising.
     steps, lr, l2, tol, progress
-        Gradient settings (see :func:`fit_gradient`), used only for Softmax CPDs or when
-        ``masks`` has gaps. ``progress`` also shows a bar over chunks.
+        ``steps``: the most Newton iterations of a softmax fit, or EM steps with gaps.
+        ``l2``: the precision of the softmax slopes' Gaussian prior. ``tol``: EM has
+        converged when a step gains less than ``tol`` (relative) per row. ``lr``: the
+        gradient route's (:func:`fit_gradient`), for a kind with neither a closed form
+        nor a ``maximise`` method. ``progress`` shows bars (over chunks, CPDs, steps).
     """
     _check_settings(
         pseudo_count=pseudo_count, min_variance=min_variance, steps=steps, lr=lr, l2=l2, tol=tol
@@ -114,36 +126,111 @@ def fit(
             )
         cpds = params_from_statistics(net, stats, pseudo_count, min_variance)
         return FitResult(NetworkParams(cpds, pseudo_count, net))
-    enc = _complete(net, data)
+    if masks:
+        from inference.em import _missing_masks  # em builds on this module
+
+        _missing_masks(net, masks, None)  # what EM cannot fill, before the rows' checks
+    action_mask = (masks or {}).get(ACTION)
+    unknown_action = None
+    if action_mask is not None:
+        unknown_action = ~torch.as_tensor(action_mask, dtype=torch.bool).reshape(-1)
+    enc = _complete(net, data, unknown_action)
     masks = _masks(net, masks, enc.n_rows)
+    gaps = {site: m for site, m in masks.items() if not bool(m.all())}
     complete = torch.ones(enc.n_rows, dtype=torch.bool)
-    for m in masks.values():
+    for m in gaps.values():
         complete &= m
     if not complete.any():
         raise ValueError(
             "every row misses some value; at least one complete row is needed to start"
         )
-    every = bool(complete.all())
-    rows = enc if every else enc.rows(complete)  # no copy of the rows when none misses
+    rows = enc if not gaps else enc.rows(complete)  # no copy of the rows when none misses
     cpds = params_from_statistics(net, statistics(net, rows), pseudo_count, min_variance)
     params = NetworkParams(cpds, pseudo_count, net)
-    gradient_sites = [s for s in cpds if not net.cpd(s).closed_form]
-    if not every:
-        gradient_sites = list(cpds)
-    if not gradient_sites:
+    if gaps:
+        from inference.em import fit_missing  # em builds on this module
+
+        return fit_missing(
+            net,
+            enc,
+            gaps,
+            init=params,
+            pseudo_count=pseudo_count,
+            min_variance=min_variance,
+            l2=l2,
+            steps=steps,
+            tol=tol,
+            progress=progress,
+        )
+    return _fit_open_forms(net, enc, params, steps=steps, lr=lr, l2=l2, tol=tol, progress=progress)
+
+
+def _fit_open_forms(
+    net: EffectNetwork,
+    enc: Evidence,
+    params: NetworkParams,
+    *,
+    steps: int,
+    lr: float,
+    l2: float,
+    tol: float,
+    progress: bool,
+) -> FitResult:
+    """Complete rows: the CPDs without a closed form, from the closed form's start.
+
+    A kind with a ``maximise`` method (softmax: Newton's method per parent
+    configuration) finds its optimum itself; any other goes to :func:`fit_gradient`.
+    ``losses`` are the per-row penalised negative log-likelihood of the maximised CPDs at
+    the start and after each Newton iteration.
+    """
+    open_forms = [s.name for s in net.sites if not net.cpd(s.name).closed_form]
+    if not open_forms:
         return FitResult(params)
-    return fit_gradient(
-        net,
-        enc,
-        init=params,
-        sites=gradient_sites,
-        masks=masks,
-        steps=steps,
-        lr=lr,
-        l2=l2,
-        tol=tol,
-        progress=progress,
+    maximised = [s for s in open_forms if callable(getattr(net.cpd(s), "maximise", None))]
+    cpds = dict(params.cpds)
+    curves, unsettled = [], []
+    for site in tqdm(maximised, desc="fit (Newton)", disable=not progress):
+        result = maximise_site(net, enc, site, params[site], l2=l2, steps=steps)
+        cpds[site] = result.params
+        curves.append(result.objectives)
+        if not result.converged:
+            unsettled.append(site)
+    longest = max((len(c) for c in curves), default=0)
+    losses = tuple(sum(c[min(i, len(c) - 1)] for c in curves) / enc.n_rows for i in range(longest))
+    if unsettled:
+        warnings.warn(
+            f"the Newton fit of {unsettled} did not settle in {steps} steps (its gradient "
+            "is above the tolerance; the classes may be separated by the inputs, which "
+            "l2 > 0 keeps finite); raise steps",
+            ConvergenceWarning,
+            stacklevel=3,
+        )
+    params = NetworkParams(cpds, params.pseudo_count, net)
+    rest = [s for s in open_forms if s not in maximised]
+    if not rest:
+        return FitResult(params, losses, not unsettled)
+    result = fit_gradient(
+        net, enc, init=params, sites=rest, steps=steps, lr=lr, l2=l2, tol=tol, progress=progress
     )
+    return FitResult(result.params, losses + result.losses, result.converged and not unsettled)
+
+
+def maximise_site(
+    net: EffectNetwork,
+    enc: Evidence,
+    site: str,
+    start,
+    *,
+    weights: torch.Tensor | None = None,
+    l2: float,
+    steps: int,
+):
+    """The optimum of one CPD with a ``maximise`` method on complete rows ``enc``
+    (weighted by ``weights`` ``(n,)``, default 1), from ``start``."""
+    cpd = net.cpd(site)
+    index = flat_index(enc, cpd.parents, cpd.card)
+    x = torch.cat([enc[s].nan_to_num() for s in cpd.inputs], -1)
+    return cpd.maximise(index, x, enc[site], start, weights=weights, l2=l2, steps=steps)
 
 
 def fit_statistics(
@@ -357,8 +444,14 @@ def _masks(
 
 
 # ---------------------------------------------------------------------------- closed form
-def _complete(net: EffectNetwork, data: Mapping[str, object]) -> Evidence:
-    """Encode training rows, check them, and add each parameter's cluster (its cell)."""
+def _complete(
+    net: EffectNetwork, data: Mapping[str, object], unknown_action: torch.Tensor | None = None
+) -> Evidence:
+    """Encode training rows, check them, and add each parameter's cluster (its cell).
+
+    ``unknown_action`` ``(n,)`` bool: rows whose action is missing (``masks``), where a
+    parameter's value is not checked against the action and the cluster is a
+    placeholder (EM derives it per action)."""
     enc = net.encode(data)
     if not len(enc) or enc.n_rows == 0:
         raise ValueError("no training rows: fit needs at least one row of every site")
@@ -374,10 +467,14 @@ def _complete(net: EffectNetwork, data: Mapping[str, object]) -> Evidence:
         p_site = param_site(p.name)
         uses = m.in_use(enc[ACTION])
         present = ~torch.isnan(enc[p_site]).any(-1)
+        known = torch.ones_like(present)
+        if unknown_action is not None and unknown_action.shape == known.shape:
+            known = ~unknown_action  # (a mask of another shape is refused by _masks)
         for bad, why in (
             (uses & ~present, "uses the parameter, but the row gives no value"),
             (~uses & present, "does not use the parameter, but the row gives a value (give NaN)"),
         ):
+            bad = bad & known
             if bad.any():
                 row = int(bad.nonzero()[0])
                 raise ValueError(
@@ -386,7 +483,7 @@ def _complete(net: EffectNetwork, data: Mapping[str, object]) -> Evidence:
                 )
         derived = m.cells(enc[p_site], enc[ACTION])
         given = enc.get(cluster_site(p.name))
-        if given is not None and not torch.equal(given, derived):
+        if given is not None and not torch.equal(given[known], derived[known]):
             raise ValueError(
                 f"site {cluster_site(p.name)!r} disagrees with the equidistant cells of its parameter"
             )

@@ -8,6 +8,9 @@ into chunks (or partitions on a cluster), each chunk's :class:`Statistics` compu
 apart, and the results added in any grouping: ``statistics(a) + statistics(b)`` is
 ``statistics(a ∪ b)`` up to the rounding of float additions (counts are exact).
 :func:`params_from_statistics` then gives the same parameters as one pass over all rows.
+Rows may carry weights (in an EM step, the posterior of a completion of a row's missing
+values): each row's terms are multiplied by its weight, so a weight ``k`` counts as ``k``
+copies of the row and fractional weights give the expected statistics.
 
 Pseudo-count policy (``pseudo_count``, written alpha): a table row is
 ``(counts + alpha) / (n + K alpha)``, so a parent configuration no sample reached is
@@ -59,22 +62,29 @@ class Statistics:
         return Statistics(total.sites, total.rows + self.rows, total.gradient)
 
 
-def statistics(net: EffectNetwork, enc: Evidence) -> Statistics:
-    """The sums of one chunk of complete, checked rows (see :func:`inference.fit`)."""
+def statistics(
+    net: EffectNetwork, enc: Evidence, weights: torch.Tensor | None = None
+) -> Statistics:
+    """The sums of one chunk of complete, checked rows (see :func:`inference.fit`), each
+    row counting ``weights`` ``(n,)`` (default 1; an EM step's responsibilities)."""
     sites: dict = {}
     flat: dict[tuple[str, ...], torch.Tensor] = {}  # sites sharing their parents share the index
     for m in net.mixtures:
         c_site, p_site = m.sites
-        sites |= m.statistics(enc[m.action], enc[c_site], enc[p_site])
+        sites |= m.statistics(enc[m.action], enc[c_site], enc[p_site], weights)
     for spec in net.sites:
         if spec.name in sites:
             continue
         cpd = net.cpd(spec.name)
         if cpd.parents not in flat:
-            flat[cpd.parents] = _flat_index(enc, cpd.parents, cpd.card)
+            flat[cpd.parents] = flat_index(enc, cpd.parents, cpd.card)
         inputs = [enc[s].nan_to_num() for s in cpd.inputs]
         x = torch.cat(inputs, -1) if inputs else None
-        sites[spec.name] = cpd.statistics(flat[cpd.parents], x, enc[spec.name])
+        args = (flat[cpd.parents], x, enc[spec.name])
+        # a kind of the user's may take no weights: ask for them only when there are some
+        sites[spec.name] = (
+            cpd.statistics(*args) if weights is None else cpd.statistics(*args, weights)
+        )
     gradient = tuple(s.name for s in net.sites if not net.cpd(s.name).closed_form)
     return Statistics({s.name: sites[s.name] for s in net.sites}, enc.n_rows, gradient)
 
@@ -89,7 +99,7 @@ def params_from_statistics(
     }
 
 
-def _flat_index(enc: Evidence, sites: tuple[str, ...], card: tuple[int, ...]) -> torch.Tensor:
+def flat_index(enc: Evidence, sites: tuple[str, ...], card: tuple[int, ...]) -> torch.Tensor:
     """``(n,)`` row-major index of the rows' configuration of ``sites``."""
     if not sites:
         return torch.zeros(enc.n_rows, dtype=torch.long)

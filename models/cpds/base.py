@@ -11,10 +11,14 @@ dynamax's emission components, a kind owns everything that depends on its form:
   continuous parents' values ``x`` ``(..., width)`` (``None`` without any);
 * ``initialize(generator)`` -- a neutral start (``generator=None``: uniform tables,
   zero slopes, unit covariances) or a valid random draw;
-* ``statistics(index, x, y)`` and ``m_step(stats, alpha, min_variance)`` -- the
+* ``statistics(index, x, y, weights)`` and ``m_step(stats, alpha, min_variance)`` -- the
   sufficient statistics of rows (they merge by ``+``) and the maximum-likelihood
-  parameters they give (closed form, or the gradient route's start where
+  parameters they give (closed form, or the start of an iterative fit where
   ``closed_form`` is False);
+* optionally, where ``closed_form`` is False, ``maximise(index, x, y, start, weights=,
+  l2=, steps=)`` -- the kind's own optimiser on (weighted) rows, which :func:`inference.fit`
+  and its EM over missing values use (the softmax's Newton method); a kind without one
+  is fitted by the gradient route on complete rows, and refused by EM;
 * ``free(params)``, ``bound(free, params)``, ``penalised(free)`` -- the unconstrained
   tensors the gradient route optimises, the parameters they stand for, and the tensors
   that carry the L2 prior;
@@ -94,9 +98,16 @@ class CPD:
         """The site's Pyro distribution given its parents (see the module)."""
         raise NotImplementedError
 
-    def statistics(self, index: torch.Tensor, x: torch.Tensor | None, y: torch.Tensor):
+    def statistics(
+        self,
+        index: torch.Tensor,
+        x: torch.Tensor | None,
+        y: torch.Tensor,
+        weights: torch.Tensor | None = None,
+    ):
         """Sufficient statistics of rows: ``index`` ``(n,)`` the flattened parent
-        configuration, ``x`` ``(n, width)`` or ``None``, ``y`` the site's values."""
+        configuration, ``x`` ``(n, width)`` or ``None``, ``y`` the site's values,
+        ``weights`` ``(n,)`` each row's weight (default 1; fractional in an EM step)."""
         raise NotImplementedError
 
     def m_step(self, stats, alpha: float, min_variance: float):

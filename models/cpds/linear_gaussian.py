@@ -121,26 +121,31 @@ class LinearGaussianCPD(CPD):
         loc, tril = self.loc_tril(params, index, x)
         return dist.MultivariateNormal(loc, scale_tril=tril)
 
-    def statistics(self, index: torch.Tensor, x: torch.Tensor | None, y: torch.Tensor) -> Moments:
+    def statistics(
+        self, index: torch.Tensor, x: torch.Tensor | None, y: torch.Tensor, weights=None
+    ) -> Moments:
         groups = math.prod(self.card)
         n_rows, d = y.shape
         ones = torch.ones(n_rows, 1, dtype=DTYPE)
         z = torch.cat([x, ones], -1) if x is not None else ones
         q = z.shape[-1]
+        weighted = z if weights is None else z * weights.to(DTYPE)[:, None]
         zz = torch.zeros(groups, q, q, dtype=DTYPE).index_add_(
-            0, index, z[:, :, None] * z[:, None, :]
+            0, index, weighted[:, :, None] * z[:, None, :]
         )
         zy = torch.zeros(groups, q, d, dtype=DTYPE).index_add_(
-            0, index, z[:, :, None] * y[:, None, :]
+            0, index, weighted[:, :, None] * y[:, None, :]
         )
+        yw = y if weights is None else y * weights.to(DTYPE)[:, None]
         yy = torch.zeros(groups, d, d, dtype=DTYPE).index_add_(
-            0, index, y[:, :, None] * y[:, None, :]
+            0, index, yw[:, :, None] * y[:, None, :]
         )
         if not all(bool(t.isfinite().all()) for t in (zz, zy, yy)):
             raise ValueError(
                 f"site {self.site!r}: the fit's second moments overflow float64; rescale the data"
             )
-        return Moments(zz, zy, yy, torch.bincount(index, minlength=groups).to(DTYPE))
+        rows = torch.bincount(index, weights=weighted[:, -1], minlength=groups).to(DTYPE)
+        return Moments(zz, zy, yy, rows)
 
     def m_step(self, stats: Moments, alpha: float, min_variance: float) -> LinearGaussian:
         """Per-configuration least squares of y on [x, 1] with pooled pseudo-rows."""

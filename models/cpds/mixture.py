@@ -415,12 +415,20 @@ class ParameterMixture:
         }
 
     # ---------------------------------------------------------------- fitting
-    def statistics(self, action: torch.Tensor, cluster: torch.Tensor, theta: torch.Tensor):
-        """The two sites' statistics, over the rows whose action uses the parameter."""
+    def statistics(
+        self,
+        action: torch.Tensor,
+        cluster: torch.Tensor,
+        theta: torch.Tensor,
+        weights: torch.Tensor | None = None,
+    ):
+        """The two sites' statistics, over the rows whose action uses the parameter
+        (each counting its weight, default 1)."""
         uses = self.in_use(action)
+        w = None if weights is None else weights[uses]
         return {
-            self.cluster.site: self.cluster.statistics(action[uses], None, cluster[uses]),
-            self.value.site: self.value.statistics(cluster[uses], None, theta[uses]),
+            self.cluster.site: self.cluster.statistics(action[uses], None, cluster[uses], w),
+            self.value.site: self.value.statistics(cluster[uses], None, theta[uses], w),
         }
 
     def randomize(self, value: LinearGaussian, generator: torch.Generator) -> LinearGaussian:

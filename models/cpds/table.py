@@ -119,8 +119,8 @@ class TableCPD(CPD):
             return dist.Categorical(logits=logs)
         return GatheredCategorical(logs, tuple(index))
 
-    def statistics(self, index: torch.Tensor, x, y: torch.Tensor) -> Counts:
-        return counts(index, y, self.card, self.size)
+    def statistics(self, index: torch.Tensor, x, y: torch.Tensor, weights=None) -> Counts:
+        return counts(index, y, self.card, self.size, weights)
 
     def m_step(self, stats: Counts, alpha: float, min_variance: float) -> Table:
         table = normalised(stats.counts, alpha)
@@ -265,12 +265,20 @@ def _is_range(i: torch.Tensor) -> bool:
     return bool((flat == torch.arange(flat.shape[0])).all())
 
 
-def counts(index: torch.Tensor, child: torch.Tensor, card: tuple[int, ...], k: int) -> Counts:
-    """Counts of ``child`` states per flattened parent configuration ``index``."""
+def counts(
+    index: torch.Tensor,
+    child: torch.Tensor,
+    card: tuple[int, ...],
+    k: int,
+    weights: torch.Tensor | None = None,
+) -> Counts:
+    """Counts of ``child`` states per flattened parent configuration ``index`` (each row
+    counting its weight, default 1)."""
     size = math.prod(card)
     flat = child if not card else torch.add(child, index, alpha=k)  # no parents: index 0
-    ones = torch.ones(flat.shape[0], dtype=DTYPE)  # weights: the counts come out as float64
-    found = torch.bincount(flat, weights=ones, minlength=size * k).to(DTYPE)  # int when empty
+    if weights is None:  # ones: the counts come out as float64
+        weights = torch.ones(flat.shape[0], dtype=DTYPE)
+    found = torch.bincount(flat, weights=weights.to(DTYPE), minlength=size * k).to(DTYPE)
     return Counts(found.reshape(*card, k))
 
 

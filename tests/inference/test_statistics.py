@@ -98,3 +98,22 @@ def test_chunk_limits_are_named():
     bad["end.door"] = ["ajar"] * 10
     with pytest.raises(ValueError, match="'ajar' is not one of its states"):
         fit_statistics(net, [bad])
+
+
+@settings(max_examples=10, deadline=None)
+@given(seed=st.integers(0, 100))
+def test_weighted_rows_count_as_repeated_rows(seed):
+    # the statistics an EM step gives: a row of weight k is the row k times, for every
+    # kind (tables, linear Gaussians, a parameter's cluster table and Gaussians)
+    from inference.fit import _complete
+    from inference.statistics import statistics
+
+    rows = _complete(THROW, simulate(THROW, random_params(THROW, seed), 300, seed=seed))
+    k = torch.as_tensor(np.random.default_rng(seed).integers(0, 4, rows.n_rows))
+    weighted = statistics(THROW, rows, k.to(torch.float64))
+    repeated = statistics(THROW, rows.rows(torch.arange(rows.n_rows).repeat_interleave(k)))
+    for site, s in weighted.sites.items():
+        for name, value in vars(s).items():
+            got = getattr(repeated.sites[site], name)
+            scale = float(value.abs().max()) or 1.0
+            torch.testing.assert_close(got, value, rtol=1e-12, atol=1e-13 * scale)
