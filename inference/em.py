@@ -637,7 +637,9 @@ def _completed_rows(net, params, enc, masks, allowed=None) -> tuple[Evidence, to
             dim = enumerated.dims[ACTION]
             agree = allowed[:, chunk].reshape(len(net.actions), *([1] * (-dim - 2)), -1)
             log_weight = enumerated.log_weight.masked_fill(~agree, -torch.inf)
-            enumerated = Enumerated(log_weight, enumerated.dims, enumerated.trace)
+            enumerated = Enumerated(
+                log_weight, enumerated.dims, enumerated.trace, enumerated.offsets
+            )
         posterior = enumerated.posterior()  # (E_k, ..., E_1, n)
         log_lik += float(enumerated.log_evidence.sum())
         others = [d + posterior.dim() for s, d in enumerated.dims.items() if s not in masks]

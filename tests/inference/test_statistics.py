@@ -90,7 +90,7 @@ def test_chunk_limits_are_named():
         fit(net, chunks(rows, [25, 25]))
     with pytest.raises(ValueError, match="masks need the rows in memory"):
         fit(net, chunks(rows, [50]), masks={"end.door": np.ones(50, bool)})
-    with pytest.raises(ValueError, match="iterable of chunks was empty"):
+    with pytest.raises(ValueError, match="no training rows: the iterable was empty"):
         fit(net, iter([]))
     with pytest.raises(ValueError, match="chunk of type str"):
         fit(net, ["rows"])
