@@ -13,6 +13,13 @@ defines:
   tensors local to the call (Pyro's global parameter store is left alone): with no
   latent continuous sites, the ELBO *is* the (marginal) log-likelihood.
 
+A parameter's cluster is data (:mod:`models.model`): a row that gives ``cluster.p``
+is filed under that cluster (rows drawn by :func:`inference.simulate` give the cluster
+they were drawn from, so ``fit(simulate(...))`` is the maximum-likelihood fit of the
+model that drew them); a row that gives the value alone is filed under the value's
+equidistant cell, the paper's clustering (then each cluster's Gaussian is the sample
+mean and covariance of the values in its cell).
+
 The rule that an action which does not use a parameter ignores it
 (:meth:`EffectNetwork.parameter_in_use`) holds in training too: a row whose action does
 not use ``p`` must leave ``param.p`` NaN (a value there is refused, not silently used),
@@ -351,7 +358,8 @@ def _masks(
 
 # ---------------------------------------------------------------------------- closed form
 def _complete(net: EffectNetwork, data: Mapping[str, object]) -> Evidence:
-    """Encode training rows, check them, and add each parameter's cluster (its cell)."""
+    """Encode training rows, check them, and add each parameter's cluster where the rows
+    do not give it (its value's cell)."""
     enc = net.encode(data)
     if not len(enc) or enc.n_rows == 0:
         raise ValueError("no training rows: fit needs at least one row of every site")
@@ -377,13 +385,18 @@ def _complete(net: EffectNetwork, data: Mapping[str, object]) -> Evidence:
                     f"site {p_site!r}: row {row} has action "
                     f"{net.actions[int(enc[ACTION][row])]!r}, which {why}"
                 )
-        derived = m.cells(enc[p_site], enc[ACTION])
         given = enc.get(cluster_site(p.name))
-        if given is not None and not torch.equal(given, derived):
+        if given is None:  # the rows' clusters are their values' cells
+            clusters[cluster_site(p.name)] = m.cells(enc[p_site], enc[ACTION])
+            continue
+        pinned = ~uses & (given != 0)
+        if pinned.any():
+            row = int(pinned.nonzero()[0])
             raise ValueError(
-                f"site {cluster_site(p.name)!r} disagrees with the equidistant cells of its parameter"
+                f"site {cluster_site(p.name)!r}: row {row} has cluster {int(given[row])} for "
+                f"action {net.actions[int(enc[ACTION][row])]!r}, which does not use "
+                f"{p.name!r}; such a row's cluster is 0"
             )
-        clusters[cluster_site(p.name)] = derived
     for site, value in enc.items():
         if not net.site(site).discrete:
             if net.site(site).role == "end" and is_partial(value):

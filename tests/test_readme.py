@@ -50,7 +50,9 @@ def test_readme_snippets_run(tmp_path, monkeypatch):
     assert abs(float(namespace["force_to_use"][0, 0]) - 10.0) < 0.5
     assert namespace["draws"]["param.force"].shape == (100, 5, 1)
     assert math.isfinite(namespace["loss"])
-    assert int(namespace["cluster"]) == 4  # 10 N: cell 4 of 8 over 0..20 N
+    # 10 N lies on the edge of cells 3 and 4 (of 8 over 0..20 N): a handler conditions the
+    # model itself, where the cluster's posterior is the mixture's responsibility
+    assert int(namespace["cluster"]) in (3, 4)
     assert '"param.force" -> "end.position"' in namespace["graph"].source
     assert len(namespace["rows"]["action"]) == 500
     no_parameter, _, clusters = namespace["rms"].values()
