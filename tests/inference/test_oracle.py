@@ -204,7 +204,7 @@ class Oracle:
             if not self.uses(values[self.m.action]):
                 if c != 0:
                     continue  # probability zero: cluster 0 with probability one
-            elif self.m.value.site in evidence:
+            elif self.m.value.site in evidence and self.m.cluster.site not in evidence:
                 cell = int(self.p.cluster_of(torch.tensor([[evidence[self.m.value.site]]]))[0])
                 if c != cell:
                     continue  # a value given alone is observed in its cell
@@ -401,6 +401,8 @@ def test_infer_action_is_the_oracle(case, data):
             )
     if data.draw(st.booleans(), label="force given"):
         ev["param.force"] = data.draw(values(EVIDENCE_MAGNITUDE), label="force")
+    if data.draw(st.integers(0, 3), label="cluster given") == 0:  # the cluster is data
+        ev["cluster.force"] = data.draw(st.integers(0, net.mixtures[0].parameter.n_clusters - 1))
     if not ev:
         with pytest.raises(ValueError, match="evidence is empty"):
             infer_action(net, params, {})
@@ -429,6 +431,8 @@ def test_predict_is_the_oracle(case, data):
     ev["action"] = action
     if oracle.uses(action) and data.draw(st.booleans(), label="force given"):
         ev["param.force"] = data.draw(values(EVIDENCE_MAGNITUDE), label="force")
+    if oracle.uses(action) and data.draw(st.integers(0, 3), label="cluster given") == 0:
+        ev["cluster.force"] = data.draw(st.integers(0, net.mixtures[0].parameter.n_clusters - 1))
     got = predict(net, params, encode(net, ev))
     sums_to_one(got.discrete["f0"])
     for f in net.features:
