@@ -10,6 +10,7 @@ from pyro import poutine
 from pyro.infer import Predictive, TraceEnum_ELBO, infer_discrete
 
 from inference import infer_action, predict
+from inference.enumeration import enumerate_model
 from models import (
     Continuous,
     Discrete,
@@ -19,6 +20,7 @@ from models import (
     random_params,
 )
 from models.declaration import DTYPE
+from tests.helpers import spilling_network
 
 NET = EffectNetwork(
     (Discrete("visible", (False, True)), Continuous("pos", 1)),
@@ -174,9 +176,6 @@ def default_form_log_density(net, params, data, site, values):
 def test_the_collapsed_form_is_the_default_form_with_the_parameter_integrated_out():
     # clusters spilling out of their cells: the value given its cluster is the cluster's
     # Gaussian, untruncated, so integrating it out is the closed-form marginal
-    from inference.enumeration import enumerate_model
-    from tests.helpers import spilling_network
-
     net, params = spilling_network()
     # Gauss-Legendre, 16 nodes on each of 1,400 panels 0.05 N wide over [-30, 40] N (the
     # narrowest integrand, the force given the position, is about 0.4 N wide)
