@@ -357,9 +357,7 @@ def explore(
     rows = enc.rows(index) | net.encode_indices(
         {s: torch.as_tensor(v) for s, v in state.outcomes.items()}
     )
-    params = NetworkParams(
-        {s: t.table(pseudo_count) for s, t in tables.items()}, pseudo_count, net
-    )
+    params = NetworkParams({s: t.table(pseudo_count) for s, t in tables.items()}, pseudo_count, net)
     return ExplorationResult(state.chosen, state.scores, rows, params, state)
 
 

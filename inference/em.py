@@ -299,7 +299,8 @@ def _e_step(net, params, enc, mixtures, buffers=None) -> tuple[list[torch.Tensor
     for index, m in enumerate(mixtures):
         action = enc[ACTION]
         uses = m.in_use(action)
-        log_table = params[m.cluster.site].probs.clamp_min(1e-300).log()  # (A, C)
+        # (A, C); an action not using p on cluster 0 only (its other cells impossible)
+        log_table = m.cluster.pin_logs(params[m.cluster.site].probs.clamp_min(1e-300).log())
         theta = enc[m.value.site].nan_to_num()
         one = torch.zeros(n, dtype=torch.long)
         log = buffers[index] if buffers is not None else None

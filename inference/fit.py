@@ -17,6 +17,13 @@ defines:
   It differentiates the model itself, so it serves as the check of the other route and
   fits a kind without a closed form or a ``maximise`` method of its own.
 
+A parameter's cluster is data (:mod:`models.model`): a row that gives ``cluster.p``
+is filed under that cluster (rows drawn by :func:`inference.simulate` give the cluster
+they were drawn from, so ``fit(simulate(...))`` is the maximum-likelihood fit of the
+model that drew them); a row that gives the value alone is filed under the value's
+equidistant cell, the paper's clustering (then each cluster's Gaussian is the sample
+mean and covariance of the values in its cell).
+
 The rule that an action which does not use a parameter ignores it
 (:meth:`EffectNetwork.parameter_in_use`) holds in training too: a row whose action does
 not use ``p`` must leave ``param.p`` NaN (a value there is refused, not silently used),
@@ -447,7 +454,8 @@ def _masks(
 def _complete(
     net: EffectNetwork, data: Mapping[str, object], unknown_action: torch.Tensor | None = None
 ) -> Evidence:
-    """Encode training rows, check them, and add each parameter's cluster (its cell).
+    """Encode training rows, check them, and add each parameter's cluster where the rows
+    do not give it (its value's cell).
 
     ``unknown_action`` ``(n,)`` bool: rows whose action is missing (``masks``), where a
     parameter's value is not checked against the action and the cluster is a
@@ -481,13 +489,18 @@ def _complete(
                     f"site {p_site!r}: row {row} has action "
                     f"{net.actions[int(enc[ACTION][row])]!r}, which {why}"
                 )
-        derived = m.cells(enc[p_site], enc[ACTION])
         given = enc.get(cluster_site(p.name))
-        if given is not None and not torch.equal(given[known], derived[known]):
+        if given is None:  # the rows' clusters are their values' cells
+            clusters[cluster_site(p.name)] = m.cells(enc[p_site], enc[ACTION])
+            continue
+        pinned = ~uses & (given != 0) & known
+        if pinned.any():
+            row = int(pinned.nonzero()[0])
             raise ValueError(
-                f"site {cluster_site(p.name)!r} disagrees with the equidistant cells of its parameter"
+                f"site {cluster_site(p.name)!r}: row {row} has cluster {int(given[row])} for "
+                f"action {net.actions[int(enc[ACTION][row])]!r}, which does not use "
+                f"{p.name!r}; such a row's cluster is 0"
             )
-        clusters[cluster_site(p.name)] = derived
     for site, value in enc.items():
         if not net.site(site).discrete:
             if net.site(site).role == "end" and is_partial(value):

@@ -625,10 +625,10 @@ def parameter_for_effect(
     ``c``'s linear Gaussians (weighted least squares; see
     :meth:`models.cpds.mixture.ParameterMixture.best_fit`), and among these candidates the
     one of highest joint density ``p(theta_c, evidence)``, exact (every cluster summed out;
-    under the grid layout the cluster is ``theta_c``'s cell, so a candidate outside its
-    own cell is scored under the cell it falls in). The factors that depend on the value
-    (the cluster table, the clusters' Gaussians, the observed effects' linear Gaussians
-    and the grid's cell factor) are summed over the clusters in closed form for every
+    under the grid layout a value given without its cluster comes with its cell, so a
+    candidate outside its own cell is scored under the cell it falls in). The factors
+    that depend on the value (the cluster table, the clusters' Gaussians, the observed
+    effects' linear Gaussians, and under the grid layout the value's cell) are summed over the clusters in closed form for every
     candidate; the others are one constant per row, read off a single evaluation of the
     model at the row's best candidate. Where another site depends on the cluster or the
     value (a discrete feature the parameter acts on, an unobserved effect), the model
@@ -698,8 +698,8 @@ def _candidate_scores(net, params, m, given: Evidence, children, acting, candida
     """``log sum_c' p(c' | action) p(theta | c') prod_j p(y_j | ..., c', theta)`` for every
     row and candidate ``theta`` ``(n, C, k)``, from the children's ``whitened`` terms
     (:meth:`models.cpds.mixture.ParameterMixture.whitened`): the factors of
-    ``log p(theta, evidence)`` that depend on the value (the grid's cell factor included),
-    in closed form. The other
+    ``log p(theta, evidence)`` that depend on the value (under the grid layout the value's
+    cell is its cluster), in closed form. The other
     factors are a constant per row. None where that does not hold: a site other than the
     observed continuous ``children`` depends on the cluster or the value, the cluster has
     parents besides the action, or a child's other continuous inputs are not all given.
@@ -744,7 +744,7 @@ def _candidate_scores(net, params, m, given: Evidence, children, acting, candida
     m0 = (b - (a @ theta_hat[..., None])[..., 0]).square().sum(-1)  # (n, C')
     base = log_norm - 0.5 * m0  # (n, C')
     shift = (upper @ theta_hat[..., None])[..., 0]  # (n, C', k)
-    if not m.parameter.adaptive:  # the cell factor: a value's only cluster is its cell
+    if not m.parameter.adaptive:  # grid: a value given alone comes with its cell
         cells = m.parameter.cluster_of(candidates)  # (n, C)
         rows = torch.arange(n)[:, None]
         z = (upper[rows, cells] @ candidates[..., None])[..., 0] - shift[rows, cells]

@@ -1,8 +1,10 @@
 """Rows drawn from a fitted effect network: the model generating data from itself.
 
 :func:`simulate` draws rows in :func:`inference.fit`'s own format (state labels, the
-parameter NaN where the action does not use it), so ``fit(net, simulate(net, params,
-n))`` recovers ``params`` within sampling error. Given evidence, the rows come from the
+parameter NaN where the action does not use it, each parameter's cluster as drawn), so
+``fit(net, simulate(net, params, n))`` recovers ``params`` within sampling error: the
+rows come from the model's one generative model (:mod:`models.model`), the cluster
+first, then the value from its cluster's Gaussian. Given evidence, the rows come from the
 model's exact conditional:
 
 1. the discrete sites the evidence depends on are drawn jointly from their posterior,
@@ -56,9 +58,12 @@ def simulate(
     Returns
     -------
     dict
-        Every site but the clusters: discrete sites a list of ``n`` state labels,
-        continuous ones an ``(n, d)`` float64 tensor; ``param.p`` is NaN in rows whose
-        action does not use ``p``.
+        Every site: discrete sites a list of ``n`` state labels, continuous ones an
+        ``(n, d)`` float64 tensor; ``param.p`` is NaN in rows whose action does not use
+        ``p``. ``cluster.p`` is the cluster each value was drawn from (0 where the action
+        does not use ``p``); the value, drawn from that cluster's Gaussian, may lie outside
+        the cluster's cell, and :func:`inference.fit` files the row under the cluster
+        given.
     """
     check_params(net, params)
     if not isinstance(n, int) or isinstance(n, bool) or n < 1:
@@ -74,7 +79,6 @@ def simulate(
     return {
         site: net.decode(site, value) if net.site(site).discrete else value
         for site, value in rows.items()
-        if net.site(site).role != "cluster"
     }
 
 

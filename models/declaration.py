@@ -160,12 +160,15 @@ class Parameter:
         features if it is the only parameter acting on each (an unknown value couples
         them; queries integrate it out of their joint).
     layout : {"grid", "adaptive"}
-        How the clusters relate to the value. ``"grid"`` (the paper's): the cluster *is*
-        the value's equidistant cell, a factor ties them, and :func:`inference.fit` fits
-        each cell's Gaussian in closed form. ``"adaptive"``: the ``prod(bins)`` clusters
-        are latent mixture components whose Gaussians may lie anywhere; nothing ties a
-        cluster to a cell, the cluster prior is the mixture's weights, and the cells only
-        seed :func:`inference.fit_em`, which fits the layout by expectation-maximisation.
+        How rows are clustered; the model is the same mixture under both (the cluster
+        from the action's table, the value from the cluster's untruncated Gaussian; see
+        :mod:`models.model`). ``"grid"`` (the paper's): a row giving the value without
+        its cluster is read as observing the value's equidistant cell as its cluster,
+        and :func:`inference.fit` fits each cluster's Gaussian in closed form.
+        ``"adaptive"``: the ``prod(bins)`` clusters are latent mixture components whose
+        Gaussians may lie anywhere; no cell is read, the cluster prior is the mixture's
+        weights, and the cells only seed :func:`inference.fit_em`, which fits the layout
+        by expectation-maximisation.
     """
 
     name: str

@@ -24,21 +24,29 @@ Two rules shape the parameter sites:
 
 * **An action that does not use a parameter ignores it**
   (:meth:`EffectNetwork.parameter_in_use`): its value has no effect on the affected
-  feature, its density is left out, its cluster sits on cell 0.
-* **The cluster is the parameter's equidistant cell.** A factor ``cluster.p.cell`` is
-  zero where ``cell(param.p) == cluster.p`` and ``-inf`` elsewhere, so conditioning on
-  ``param.p`` (by ``data`` or by ``pyro.condition``) fixes the cluster. Forward sampling
-  ignores factors: a sampled parameter may leave its cell's Gaussian's cell. Under the
-  adaptive layout (``Parameter(layout="adaptive")``) there is no tie: the factor is
-  zero, the cluster stays latent (enumerated) given the value, and the model is a plain
-  mixture of Gaussians whose weights are the cluster table.
+  feature, its density is left out, its cluster sits on cell 0 (probability one; the
+  other cells are impossible, not merely improbable).
+* **One generative model: a plain mixture, the cluster part of the data.** For an action
+  using ``p``: ``cluster.p ~ Categorical(table[action])``, then
+  ``param.p ~ MVN(mean[cluster], cov[cluster])``, untruncated (a drawn value may lie
+  outside its cluster's cell), then the affected features given both. Nothing in the
+  model ties a cluster to a cell. Under the grid layout the *data* do: a row that gives
+  ``param.p`` without ``cluster.p`` (training rows, query evidence, the model's
+  ``data``) is read as observing the value's equidistant cell as its cluster, which is
+  how the paper's training rows are clustered; a row that gives the cluster keeps it
+  (:func:`inference.simulate` returns the cluster it drew, :func:`inference.fit` uses
+  it). A value conditioned through a handler (``pyro.condition``) is conditioned in the
+  generative model: its cluster's posterior is the mixture's responsibility. Under the
+  adaptive layout (``Parameter(layout="adaptive")``) no cell is ever read: a known
+  value leaves its cluster latent.
 
 ``collapse=True`` is the form the exact queries run (and the one to give Pyro's exact
 sums, ``TraceEnum_ELBO`` and ``infer_discrete``). An unobserved continuous end site is
 then integrated out: it has no children, so its integral is one; it is still drawn, with
 its factor masked. A parameter given as NaN in a
 row, or not given at all, is then *unknown* in that row and is integrated out in closed
-form: the affected feature follows the marginal
+form (the default form's density integrated over the value, exactly: the cluster's
+Gaussian is untruncated): the affected feature follows the marginal
 ``MVN(W_x x + W_p mean[c] + b, cov + W_p cov_p[c] W_p^T)`` given the cluster ``c`` (a
 linear-Gaussian identity), so no continuous site is latent and every discrete sum is
 exact. Several parameters on one feature add their terms; a parameter acting on several
@@ -211,8 +219,9 @@ def _parameter(m: ParameterMixture, params, action, data, masks, collapse, n, ca
     if c_site in data or x is None or p.adaptive:  # adaptive: no cell fixes the cluster
         cluster = _discrete(c_site, cluster_fn, data, masks)
     else:
-        # The cell of a given parameter is the cluster; rows whose action does not use
-        # the parameter sit on cell 0; rows with an unknown value leave it latent.
+        # A value given without its cluster comes with its cell (the grid layout's reading
+        # of such rows); rows whose action does not use the parameter sit on cell 0; rows
+        # with an unknown value leave it latent.
         given = ~torch.isnan(x).any(-1)
         cell = m.cells(x, action)
         observed = given | ~uses
@@ -238,7 +247,6 @@ def _parameter(m: ParameterMixture, params, action, data, masks, collapse, n, ca
                 obs=x.nan_to_num() if x is not None else None,
             )
     theta = _continuous(p_site, theta)
-    pyro.factor(f"{c_site}.cell", m.cell_factor(theta, cluster, action))
     return cluster, theta, ~torch.isnan(theta).any(-1)
 
 

@@ -7,7 +7,11 @@ import itertools
 from concurrent.futures import Future
 from pathlib import Path
 
-from models import Continuous, Discrete, EffectNetwork, random_params
+import torch
+
+from models import Continuous, Discrete, EffectNetwork, Parameter, random_params
+from models.declaration import DTYPE
+from models.params import LinearGaussian, NetworkParams, Table
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
@@ -32,6 +36,7 @@ __all__ = [
     "discrete_network",
     "load_example",
     "random_params",
+    "spilling_network",
 ]
 
 
@@ -63,3 +68,45 @@ def brute_joint(net, params):
                     p *= float(params[f"end.{name}"].probs[(*init, a, v)])
                 joint[(init, a, end)] = p
     return joint
+
+
+def spilling_network() -> tuple[EffectNetwork, NetworkParams]:
+    """A push/wait network whose force clusters spill far out of their cells.
+
+    The force (0-10 N, four cells 2.5 N wide) acts on "push" only; its clusters'
+    Gaussians have standard deviations of 0.8-1.5 N, so a drawn force often lies in
+    another cluster's cell. The pushed position moves by a slope per cluster times the
+    force (noise 5 cm); "wait" keeps it (noise 1 cm).
+    """
+    net = EffectNetwork(
+        (Continuous("pos", 1),),
+        ("push", "wait"),
+        (Parameter("force", 0.0, 10.0, 4, ("push",), "pos"),),
+    )
+
+    def t(values):
+        return torch.tensor(values, dtype=DTYPE)
+
+    ones = torch.ones
+    sd = t([1.0, 1.5, 0.8, 1.2])
+    slope = t([0.05, 0.08, 0.1, 0.12])
+    weight = torch.zeros(2, 4, 1, 2, dtype=DTYPE)
+    weight[:, :, 0, 0] = t([[1.0] * 4, [0.9, 1.0, 1.0, 1.0]])
+    weight[0, :, 0, 1] = slope
+    bias = t([[[0.02], [-0.1], [0.05], [0.0]], [[0.01], [0.0], [0.0], [0.0]]])
+    noise = t([[0.05] * 4, [0.01, 1.0, 1.0, 1.0]])
+    cpds = {
+        "initial.pos": LinearGaussian(torch.zeros(1, 0, dtype=DTYPE), t([0.1]), t([[0.5]]), t(1.0)),
+        "action": Table(t([0.6, 0.4]), t(1.0)),
+        "cluster.force": Table(
+            t([[0.2, 0.3, 0.4, 0.1], [1.0, 0.0, 0.0, 0.0]]), ones(2, dtype=DTYPE)
+        ),
+        "param.force": LinearGaussian(
+            torch.zeros(4, 1, 0, dtype=DTYPE),
+            t([[1.5], [3.5], [6.5], [8.0]]),
+            sd[:, None, None],
+            ones(4, dtype=DTYPE),
+        ),
+        "end.pos": LinearGaussian(weight, bias, noise[..., None, None], ones(2, 4, dtype=DTYPE)),
+    }
+    return net, NetworkParams(cpds, 0.01)

@@ -53,7 +53,9 @@ def test_readme_snippets_run(tmp_path, monkeypatch):
     assert set(namespace["draws"]) == {site.name for site in namespace["net"].sites}
     assert math.isfinite(namespace["loss"])
     assert_loss_is_exact(namespace)
-    assert int(namespace["cluster"]) == 4  # 10 N: cell 4 of 8 over 0..20 N
+    # 10 N lies on the edge of cells 3 and 4 (of 8 over 0..20 N): a handler conditions the
+    # model itself, where the cluster's posterior is the mixture's responsibility
+    assert int(namespace["cluster"]) in (3, 4)
     assert '"param.force" -> "end.position"' in namespace["graph"].source
     assert len(namespace["rows"]["action"]) == 500
     no_parameter, _, clusters = namespace["rms"].values()

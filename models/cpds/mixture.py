@@ -18,11 +18,13 @@ Gaussian) and every rule that ties them together:
 * **An action that does not use the parameter ignores it.** Its cluster is pinned on
   cell 0 (not fitted), its value's density is left out, and the affected features'
   weights on the parameter are zero for it (fixed in the fit, ignored in the model).
-* **The cluster is the parameter's equidistant cell** (:meth:`cells`); in the model a
-  factor makes it so (:meth:`cell_factor`). Under the adaptive layout
-  (``Parameter(layout="adaptive")``) the cluster is a latent mixture component instead:
-  the factor is zero everywhere, a known value leaves its cluster latent (its posterior
-  is the mixture's responsibility), and the cells only seed the fit
+* **The cluster is data; under the grid layout a value given alone comes with its
+  cell** (:meth:`cells`). The value given its cluster is the cluster's Gaussian,
+  untruncated, so the model is a plain mixture; a row giving the value without its
+  cluster (training rows, query evidence) is read as observing the value's equidistant
+  cell. Under the adaptive layout (``Parameter(layout="adaptive")``) the cluster is a
+  latent mixture component instead: a known value leaves its cluster latent (its
+  posterior is the mixture's responsibility), and the cells only seed the fit
   (:func:`inference.fit_em`).
 * **An unknown value is integrated out in closed form**: for ``theta ~ N(m_c, S_c)`` and
   ``y = W_x x + W_p theta + b + e``, ``y ~ N(W_x x + W_p m_c + b, R + W_p S_c W_p^T)``
@@ -112,22 +114,10 @@ class ParameterMixture:
         return self.uses[action]
 
     def cells(self, theta: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-        """The cluster of each row: the value's cell, or 0 where the action does not use
-        the parameter (NaN values count as 0 there)."""
+        """The cluster a row giving the value alone is read as observing: the value's
+        cell, or 0 where the action does not use the parameter (NaN values count as 0
+        there)."""
         return torch.where(self.in_use(action), self.parameter.cluster_of(theta.nan_to_num()), 0)
-
-    def cell_factor(
-        self, theta: torch.Tensor, cluster: torch.Tensor, action: torch.Tensor
-    ) -> torch.Tensor:
-        """Log-factor: 0 where a known value lies in its cluster's cell, ``-inf`` where not
-        (0 everywhere under the adaptive layout: no cell ties the cluster)."""
-        known = ~torch.isnan(theta).any(-1)
-        factor = torch.zeros((), dtype=DTYPE)
-        if bool(known.any()) and not self.parameter.adaptive:
-            uses = self.in_use(action)
-            wrong = uses & known & (self.parameter.cluster_of(theta.nan_to_num()) != cluster)
-            factor = factor.masked_fill(wrong, -torch.inf)
-        return factor
 
     # ---------------------------------------------------------------- the affected feature
     def zero_weights(
@@ -402,7 +392,9 @@ class ParameterMixture:
         post_cov = prior.covariance - gain @ w_p @ prior.covariance
         eye = torch.eye(tril.shape[-1], dtype=tril.dtype)
         return {
-            "log_cluster": params[self.cluster.site].probs.clamp_min(1e-300).log(),
+            "log_cluster": self.cluster.pin_logs(
+                params[self.cluster.site].probs.clamp_min(1e-300).log()
+            ),
             "offset": marginal.bias,
             "whiten": torch.linalg.solve_triangular(tril, eye, upper=False),
             "log_norm": -tril.diagonal(dim1=-2, dim2=-1).log().sum(-1)

@@ -81,6 +81,17 @@ class TableCPD(CPD):
         fixed[0] = 1.0
         return torch.where(self.pinned[..., None], fixed, probs)
 
+    def pin_logs(self, logs: torch.Tensor) -> torch.Tensor:
+        """``logs`` with the pinned configurations exactly on state 0: log-probability 0
+        there and ``-inf`` elsewhere. (A zero probability's log is otherwise clamped to
+        ``log(eps)``, about -36, which would let a pinned configuration's other states
+        into every sum over them.)"""
+        if self.pinned is None:
+            return logs
+        fixed = torch.full((self.size,), -torch.inf, dtype=logs.dtype)
+        fixed[0] = 0.0
+        return torch.where(self.pinned[..., None], fixed, logs)
+
     def initialize(self, generator: torch.Generator | None = None, unseen: float = 0.0) -> Table:
         shape = self.shapes()["probs"]
         if generator is None:
@@ -96,7 +107,8 @@ class TableCPD(CPD):
         batch: for a table gathered at enumerated parents that is the enumerated
         tensor, far larger than the table. The values are those ``Categorical(probs)``
         computes (normalised, clamped to ``[eps, 1 - eps]``, then log), so a zero
-        probability stays finite. A table that is not being fitted by gradient keeps its
+        probability stays finite, except in pinned configurations (:meth:`pin_logs`):
+        their other states are impossible, ``-inf``. A table that is not being fitted by gradient keeps its
         logs (until its ``probs`` change in place), so repeated queries take them once.
         """
         if cache is not None and self.site in cache:
@@ -106,7 +118,7 @@ class TableCPD(CPD):
         if kept is not None and kept[0] is probs and kept[1] == probs._version:
             logs = kept[2]
         else:
-            logs = probs_to_logits(probs / probs.sum(-1, keepdim=True))
+            logs = self.pin_logs(probs_to_logits(probs / probs.sum(-1, keepdim=True)))
             if not probs.requires_grad:
                 object.__setattr__(params, "_logs", (probs, probs._version, logs))
         if cache is not None:

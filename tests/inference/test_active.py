@@ -262,7 +262,9 @@ def test_a_checkpoint_is_read_without_running_anything_in_it(tmp_path):
     pool, oracle, _ = world(3)
     marker, path = tmp_path / "ran", tmp_path / "state.pt"
     torch.save({"chosen": _RunsCode(marker)}, path)
-    with pytest.raises(ValueError, match=r"checkpoint .*state.pt.* is not a state saved by explore"):
+    with pytest.raises(
+        ValueError, match=r"checkpoint .*state.pt.* is not a state saved by explore"
+    ):
         explore(NET, pool, oracle, 6, checkpoint=path)
     assert not marker.exists()
     # a state explore saved still resumes (its generator state and settings included)

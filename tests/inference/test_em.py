@@ -653,3 +653,26 @@ def test_missing_values_em_on_random_discrete_networks(cards, n_actions, n, miss
     curve = result.losses
     assert all(b <= a for a, b in zip(curve, curve[1:], strict=False))
     assert marginal_loss(net, result.params, rows, masks)[0] == pytest.approx(curve[-1], rel=1e-10)
+
+
+def test_an_action_not_using_the_parameter_counts_on_cluster_0_only():
+    # "remove" keeps the can in place (noise 0.1): a row 5 m off is scored by remove's own
+    # Gaussian, not by the unfitted Gaussians of remove's other clusters
+    net = tap_net(3)
+    params = fit_em(net, tap_data(net), steps=3).params
+    row = net.encode_indices(
+        {
+            "initial.visible": torch.tensor([1]),
+            "action": torch.tensor([0]),
+            "param.force": torch.tensor([[float("nan")]], dtype=DTYPE),
+            "end.visible": torch.tensor([0]),
+            "end.pos": torch.tensor([[5.0]], dtype=DTYPE),
+        }
+    )
+    cpd = params["end.pos"]
+    mean, var = float(cpd.bias[1, 0, 0, 0]), float(cpd.covariance[1, 0, 0, 0, 0])
+    hand = -0.5 * (5.0 - mean) ** 2 / var - 0.5 * math.log(2 * math.pi * var)
+    assert hand < -1000
+    assert mixture_log_likelihood(net, params, row) == pytest.approx(hand, rel=1e-12)
+    resp = responsibilities(net, params, row)["force"][0]
+    assert float(resp[0]) == 1.0 and float(resp[1:].max()) <= 1e-300  # EM's floor, LOG_FLOOR

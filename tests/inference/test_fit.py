@@ -527,3 +527,37 @@ def test_weighted_rows_count_as_repeated_rows():
         for c in (weighted, repeated)
     ]
     torch.testing.assert_close(probs[0], probs[1], atol=1e-7, rtol=0)
+
+
+def test_a_row_giving_its_cluster_is_filed_under_it():
+    # The cluster is data: a force of 4.5 N drawn from cluster 0 (cells 0-5 and 5-10 N)
+    # lies in cell 0 anyway; one of 6 N drawn from cluster 0 lies in cell 1 but counts
+    # for cluster 0. Rows that give no cluster are filed under their cells.
+    net = EffectNetwork(
+        (Continuous("pos", 1),),
+        ("push", "wait"),
+        (Parameter("force", 0.0, 10.0, 2, "push", "pos"),),
+    )
+    nan = float("nan")
+    rows = {
+        "initial.pos": [[0.0], [0.1], [0.2], [0.3], [0.4]],
+        "action": ["push", "push", "push", "push", "wait"],
+        "param.force": [[4.5], [6.0], [7.0], [9.0], [nan]],
+        "end.pos": [[0.5], [0.7], [0.9], [1.2], [0.4]],
+    }
+    given = fit(net, rows | {"cluster.force": [0, 0, 1, 1, 0]}, pseudo_count=0.0).params
+    cells = fit(net, rows, pseudo_count=0.0).params
+    torch.testing.assert_close(
+        given["param.force"].bias[:, 0], torch.tensor([5.25, 8.0], dtype=DTYPE)
+    )
+    torch.testing.assert_close(
+        given["cluster.force"].probs[0], torch.tensor([0.5, 0.5], dtype=DTYPE)
+    )
+    torch.testing.assert_close(
+        cells["param.force"].bias[:, 0], torch.tensor([4.5, (6.0 + 7.0 + 9.0) / 3], dtype=DTYPE)
+    )
+    torch.testing.assert_close(
+        cells["cluster.force"].probs[0], torch.tensor([0.25, 0.75], dtype=DTYPE)
+    )
+    with pytest.raises(ValueError, match=r"'cluster.force': row 4 has cluster 1 for action 'wait'"):
+        fit(net, rows | {"cluster.force": [0, 0, 1, 1, 1]})

@@ -136,3 +136,84 @@ def test_a_partly_nan_parameter_is_refused():
     )
     with pytest.raises(ValueError, match=r"param.f.*whole row is NaN"):
         net.encode({"param.f": [[0.5, float("nan")]]})
+
+
+# A push/wait world: the force acts on "push" only. "wait" leaves the object where it was
+# (noise 5 mm); fitted P(cluster | wait) is exactly cell 0, the other cells of "wait"
+# are configurations no row reached (the pooled, wide Gaussians of the pseudo-counts).
+PUSH_WAIT = EffectNetwork(
+    (Continuous("position", 1),),
+    ("push", "wait"),
+    (Parameter("force", 0.0, 10.0, 4, ("push",), "position"),),
+)
+STILL = EffectNetwork((Continuous("position", 1),), ("push", "wait"))
+
+
+def push_wait_rows(n=2000, seed=0):
+    rng = np.random.default_rng(seed)
+    action = rng.choice(["push", "wait"], n)
+    start = rng.uniform(-1.0, 1.0, (n, 1))
+    force = np.where(action[:, None] == "push", rng.uniform(0.0, 10.0, (n, 1)), np.nan)
+    end = start + 0.05 * np.nan_to_num(force) + rng.normal(0.0, 0.005, (n, 1))
+    return {"initial.position": start, "action": action, "param.force": force, "end.position": end}
+
+
+def wait_log_density(params, x0, y):
+    """log p(end = y | start = x0, wait), read off the (wait, cell 0) linear Gaussian."""
+    cpd = params["end.position"]
+    w, b, var = cpd.weight[1, 0, 0], float(cpd.bias[1, 0, 0]), float(cpd.covariance[1, 0, 0, 0])
+    mean = float(w[0]) * x0 + b
+    return -0.5 * (y - mean) ** 2 / var - 0.5 * math.log(2 * math.pi * var)
+
+
+def push_log_density(params, x0, y):
+    """log p(end = y | start = x0, push), the force integrated out by hand: per cluster
+    c the Gaussian of mean w_x x0 + w_p m_c + b and variance R + w_p^2 s_c."""
+    cpd, prior = params["end.position"], params["param.force"]
+    terms = []
+    for c in range(4):
+        (w_x, w_p), b = cpd.weight[0, c, 0].tolist(), float(cpd.bias[0, c, 0])
+        m, s = float(prior.bias[c, 0]), float(prior.covariance[c, 0, 0])
+        var = float(cpd.covariance[0, c, 0, 0]) + w_p**2 * s
+        mean = w_x * x0 + w_p * m + b
+        log_c = math.log(float(params["cluster.force"].probs[0, c]))
+        terms.append(log_c - 0.5 * (y - mean) ** 2 / var - 0.5 * math.log(2 * math.pi * var))
+    return float(np.logaddexp.reduce(terms))
+
+
+def test_an_action_not_using_the_parameter_sits_on_its_one_configuration():
+    data = push_wait_rows()
+    params = fit(PUSH_WAIT, data).params
+    still = fit(STILL, {k: v for k, v in data.items() if k != "param.force"}).params
+    assert params["cluster.force"].probs[1].tolist() == [1.0, 0.0, 0.0, 0.0]
+    # moved 0.2 m (40 noise sds) while waiting: scored by wait's own Gaussian only, as in
+    # the same network without the parameter, and flagged
+    ev = {"initial.position": [[0.0]], "action": ["wait"], "end.position": [[0.2]]}
+    check = imitation_check(PUSH_WAIT, params, ev)
+    truth = wait_log_density(params, 0.0, 0.2)
+    assert truth < -700
+    assert float(check.log_likelihood[0]) == pytest.approx(truth, rel=1e-12)
+    assert float(check.log_likelihood[0]) == pytest.approx(
+        float(imitation_check(STILL, still, ev).log_likelihood[0]), rel=1e-9
+    )
+    assert bool(check.implausible[0]) and float(check.unseen[0]) == 0.0
+    # the action posterior: wait's likelihood is its own Gaussian's; wait was trained on
+    # about 1,000 rows, so it is not unseen
+    ev = {"initial.position": [[0.0]], "end.position": [[-0.3]]}
+    post = infer_action(PUSH_WAIT, params, ev)
+    log_wait = wait_log_density(params, 0.0, -0.3) + math.log(float(params["action"].probs[1]))
+    log_push = math.log(float(params["action"].probs[0])) + push_log_density(params, 0.0, -0.3)
+    assert float(post.prob("wait")[0]) == pytest.approx(
+        math.exp(log_wait - np.logaddexp(log_wait, log_push)), rel=1e-9, abs=1e-300
+    )
+    assert float(post.prob("push")[0]) == pytest.approx(
+        math.exp(log_push - np.logaddexp(log_wait, log_push)), rel=1e-9
+    )
+    assert float(post.unseen[0, 1]) == 0.0
+    assert post.best_names == tuple(post.actions[i] for i in post.probs.argmax(-1).tolist())
+    stay = infer_action(PUSH_WAIT, params, {"initial.position": [[0.0]], "end.position": [[0.0]]})
+    assert stay.best_names == ("wait",) and float(stay.unseen[0, 1]) == 0.0
+    # predict: one component for wait, its own
+    wait = predict(PUSH_WAIT, params, {"initial.position": [[0.0]], "action": ["wait"]})
+    assert wait.continuous["position"].weights.shape[-1] == 1
+    assert float(wait.unseen[0]) == 0.0

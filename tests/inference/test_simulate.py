@@ -3,6 +3,7 @@ draws given evidence follow the exact posteriors of the queries."""
 
 import math
 
+import numpy as np
 import pytest
 import torch
 
@@ -10,6 +11,7 @@ from inference import fit, infer_action, infer_parameter, simulate
 from models import Continuous, Discrete, EffectNetwork, Parameter, random_params
 from models.declaration import DTYPE
 from models.params import LinearGaussian, NetworkParams, Table, check_params
+from tests.helpers import spilling_network
 
 NET = EffectNetwork(
     (Discrete("door", ("shut", "open")), Continuous("pos", 1)),
@@ -46,7 +48,7 @@ def test_fit_of_simulated_rows_recovers_the_parameters():
     params = balanced_params(1)
     n = 20_000
     rows = simulate(NET, params, n, seed=3)
-    assert set(rows) == {s.name for s in NET.sites if s.role != "cluster"}
+    assert set(rows) == {s.name for s in NET.sites}
     assert all(
         math.isnan(f[0])
         for f, a in zip(rows["param.force"].tolist(), rows["action"], strict=True)
@@ -95,10 +97,9 @@ def test_draws_given_the_affected_feature_follow_the_cluster_posterior():
     ev = {"initial.door": ["open"], "initial.pos": [[0.0]], "action": ["push"], "end.pos": [[1.0]]}
     exact = infer_parameter(NET, params, "force", ev).cluster_probs[0]
     n = 4000
-    force = simulate(NET, params, n, ev, seed=1)["param.force"]
-    cells = NET.parameters[0].cluster_of(force)
-    freq = torch.bincount(cells, minlength=2).to(DTYPE) / n
-    assert (freq - exact).abs().max() < 0.05  # a drawn force may leave its cell's bounds
+    drawn = torch.tensor(simulate(NET, params, n, ev, seed=1)["cluster.force"])
+    freq = torch.bincount(drawn, minlength=2).to(DTYPE) / n
+    assert (freq - exact).abs().max() < 4 * math.sqrt(0.25 / n)
 
 
 def test_seeded_and_local():
@@ -137,3 +138,95 @@ def test_a_bad_seed_is_named(seed):
 def test_every_int_seed_torch_accepts_draws():
     for seed in (-(2**63), -1, 0, 2**64 - 1):
         assert len(simulate(NET, balanced_params(0), 2, seed=seed)["action"]) == 2
+
+
+def sampling_errors(net, params, rows):
+    """Every fitted number of the spilling network paired with its truth and its sampling
+    error at these rows: ``[(name, fitted-site, index, truth, error)]``. Tables: the
+    binomial error of each probability; Gaussians: ``sd / sqrt(n)`` for a mean, ``var *
+    sqrt(2 / n)`` for a variance; linear Gaussians: ``sqrt(var * (Z^T Z)^-1)`` per
+    coefficient of the rows' design ``Z`` (inputs and a one) in their configuration."""
+    n = len(rows["action"])
+    action = np.array(rows["action"])
+    cluster = np.array(rows["cluster.force"])
+    x = rows["initial.pos"][:, 0].numpy()
+    force = np.nan_to_num(rows["param.force"][:, 0].numpy())
+    out = []
+    for a in range(len(net.actions)):
+        p = float(params["action"].probs[a])
+        out.append(("action", (a,), p, math.sqrt(p * (1 - p) / n)))
+    pushed = action == "push"
+    for c in range(4):
+        p = float(params["cluster.force"].probs[0, c])
+        out.append(("cluster.force", (0, c), p, math.sqrt(p * (1 - p) / pushed.sum())))
+        here = pushed & (cluster == c)
+        var = float(params["param.force"].covariance[c, 0, 0])
+        out.append(
+            (
+                "param.force:mean",
+                (c,),
+                float(params["param.force"].bias[c, 0]),
+                math.sqrt(var / here.sum()),
+            )
+        )
+        out.append(("param.force:var", (c,), var, var * math.sqrt(2 / here.sum())))
+    var = float(params["initial.pos"].covariance[0, 0])
+    out.append(("initial.pos:mean", (), float(params["initial.pos"].bias[0]), math.sqrt(var / n)))
+    out.append(("initial.pos:var", (), var, var * math.sqrt(2 / n)))
+    cpd = params["end.pos"]
+    for a, c in [(0, 0), (0, 1), (0, 2), (0, 3), (1, 0)]:
+        here = (action == net.actions[a]) & (cluster == c)
+        columns = (
+            [x[here], force[here], np.ones(here.sum())]
+            if a == 0
+            else [x[here], np.ones(here.sum())]
+        )
+        design = np.stack(columns, -1)
+        var = float(cpd.covariance[a, c, 0, 0])
+        errors = np.sqrt(var * np.diag(np.linalg.inv(design.T @ design)))
+        truth = cpd.weight[a, c, 0, : len(columns) - 1].tolist() + [float(cpd.bias[a, c, 0])]
+        for k, (value, error) in enumerate(zip(truth, errors, strict=True)):
+            out.append(("end.pos:coef", (a, c, k), value, float(error)))
+        out.append(("end.pos:var", (a, c), var, var * math.sqrt(2 / here.sum())))
+    return out
+
+
+def fitted_value(fitted, name, index):
+    site, _, part = name.partition(":")
+    cpd = fitted[site]
+    if not part:
+        return float(cpd.probs[index])
+    if part == "mean":
+        return float(cpd.bias[(*index, 0)])
+    if part == "var":
+        return float(cpd.covariance[(*index, 0, 0)])
+    a, c, k = index  # coefficients: the weights on the inputs, then the bias
+    q = 2 if a == 0 else 1
+    return float(cpd.weight[a, c, 0, k]) if k < q else float(cpd.bias[a, c, 0])
+
+
+def misses(n, seed):
+    """The fitted numbers of fit(simulate(n rows)) more than their sampling error away,
+    each as (name, index, (fitted - truth) / error)."""
+    net, params = spilling_network()
+    rows = simulate(net, params, n, seed=seed)
+    fitted = fit(net, rows).params
+    out = []
+    for name, index, truth, error in sampling_errors(net, params, rows):
+        out.append((name, index, (fitted_value(fitted, name, index) - truth) / error))
+    return out
+
+
+def test_fit_of_simulated_rows_is_unbiased_where_clusters_spill_out_of_their_cells():
+    # The force drawn from its cluster's Gaussian often lies in another cell; the rows
+    # carry the cluster they were drawn from, and fit files them under it. (Filed under
+    # their cells instead, the cluster sds come back 20-50 % small.)
+    z = misses(20_000, seed=0)
+    worst = max(z, key=lambda t: abs(t[2]))
+    assert abs(worst[2]) < 4, worst
+
+
+def test_fit_of_200000_simulated_rows_recovers_every_parameter_within_3_sampling_errors():
+    z = misses(200_000, seed=1)
+    worst = max(z, key=lambda t: abs(t[2]))
+    assert abs(worst[2]) < 3, worst

@@ -2,6 +2,7 @@
 
 import math
 
+import numpy as np
 import pyro
 import pytest
 import torch
@@ -9,6 +10,7 @@ from pyro import poutine
 from pyro.infer import Predictive, TraceEnum_ELBO, infer_discrete
 
 from inference import infer_action, predict
+from inference.enumeration import enumerate_model
 from models import (
     Continuous,
     Discrete,
@@ -18,6 +20,7 @@ from models import (
     random_params,
 )
 from models.declaration import DTYPE
+from tests.helpers import spilling_network
 
 NET = EffectNetwork(
     (Discrete("visible", (False, True)), Continuous("pos", 1)),
@@ -211,3 +214,39 @@ def test_discrete_network_renders_too():
     net = EffectNetwork((Discrete("door", ("shut", "open")),), ("wait", "pull"))
     graph = pyro.render_model(effect_model, model_args=(net, random_params(net, 0)))
     assert '"initial.door" -> "end.door"' in graph.source
+
+
+def default_form_log_density(net, params, data, site, values):
+    """log p(data, site = value) per value ``(m, k)``, by the default form: the value
+    conditioned through a handler (so nothing ties it to a cell), the cluster enumerated
+    and summed out. ``data``: one row."""
+    m = values.shape[0]
+    rows = net.encode(data).repeat(m)
+    conditioned = poutine.condition(effect_model, data={site: values})
+    trace = poutine.trace(poutine.enum(conditioned, first_available_dim=-2)).get_trace(
+        net, params, rows
+    )
+    trace.compute_log_prob()
+    total = sum(s["log_prob"] for s in trace.nodes.values() if s["type"] == "sample")
+    return total.reshape(-1, m).logsumexp(0)
+
+
+def test_the_collapsed_form_is_the_default_form_with_the_parameter_integrated_out():
+    # clusters spilling out of their cells: the value given its cluster is the cluster's
+    # Gaussian, untruncated, so integrating it out is the closed-form marginal
+    net, params = spilling_network()
+    # Gauss-Legendre, 16 nodes on each of 1,400 panels 0.05 N wide over [-30, 40] N (the
+    # narrowest integrand, the force given the position, is about 0.4 N wide)
+    nodes, weights = np.polynomial.legendre.leggauss(16)
+    edges = np.linspace(-30.0, 40.0, 1401)
+    half = np.diff(edges)[:, None] / 2
+    force = ((edges[:-1, None] + half) + half * nodes).reshape(-1, 1)
+    log_w = np.log((half * weights).reshape(-1))
+    for x0, y in ((0.0, 0.3), (0.5, 1.4), (-0.4, -0.2), (0.1, 0.1)):
+        data = {"initial.pos": [[x0]], "action": ["push"], "end.pos": [[y]]}
+        collapsed = float(enumerate_model(net, params, net.encode(data)).log_evidence[0])
+        default = default_form_log_density(
+            net, params, data, "param.force", torch.tensor(force, dtype=DTYPE)
+        )
+        integrated = float((default + torch.tensor(log_w, dtype=DTYPE)).logsumexp(0))
+        assert integrated == pytest.approx(collapsed, abs=1e-9)

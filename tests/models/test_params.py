@@ -43,7 +43,9 @@ def test_parameters_fitted_for_other_state_order_are_refused_everywhere(tmp_path
     ev = {"initial.visible": [True], "action": ["remove"]}
     # with its own declaration, "remove" leaves the object invisible
     assert float(predict(fitted_for, params, ev).prob("visible", False)[0]) > 0.99
-    match = r"site 'initial.visible': .*fitted for states \(False, True\).*has states \(True, False\)"
+    match = (
+        r"site 'initial.visible': .*fitted for states \(False, True\).*has states \(True, False\)"
+    )
     with pytest.raises(ValueError, match=match):
         predict(other, params, ev)
     with pytest.raises(ValueError, match=match):
