@@ -191,9 +191,9 @@ def enumerate_model(
         masks=masks,
     )
     trace.compute_log_prob()
-    factors = []
+    bounded: list[torch.Tensor] = []  # tables and factors: 0, -inf or a probability's log
+    unbounded: dict[str, torch.Tensor] = {}  # densities and softmaxes, as traced
     dims: dict[str, int] = {}
-    offsets: dict[str, torch.Tensor] = {}  # (n,) each: see Enumerated
     for name, site in trace.nodes.items():
         if site["type"] != "sample":
             continue
@@ -201,19 +201,50 @@ def enumerate_model(
             dims[name] = site["infer"]["_enumerate_dim"]
         if name in trace_only:
             continue
-        lp = site["log_prob"]
         if _unbounded(net, name):
-            # a density (or a softmax of continuous inputs) may sit anywhere in float64;
-            # its row's largest value goes to the offset before the factors are summed,
-            # so that a large constant does not swallow the differences of the others
-            top = _row_max(lp)
-            lp = lp - top
-            offsets[name] = top.reshape(-1).expand(n)
-        factors.append(lp)
-    assert factors
+            unbounded[name] = site["log_prob"]
+        else:
+            bounded.append(site["log_prob"])
+    assert bounded or unbounded
+    # A density (or a softmax of continuous inputs) may sit anywhere in float64: a per-row
+    # constant of each goes to the offsets before the factors are summed, so that a large
+    # constant does not swallow the differences of the others. First each one's row
+    # maximum; where the factors' optima then disagree by far (a density left out for
+    # the actions not using a parameter and far in its tail for the others), each one's
+    # value at the row's most probable configuration, where the sum is then near 0 and
+    # the configurations near it keep their differences to float64's precision.
+    offsets: dict[str, torch.Tensor] = {}  # (n,) each: see Enumerated
+    for name, lp in unbounded.items():
+        offsets[name] = _row_max(lp).reshape(-1).expand(n)
+    total = _centred_sum(bounded, unbounded, offsets, dims, n)
+    top = _row_max(total)
+    if unbounded and bool((top.abs() > _CENTRED).any()):
+        best = total.reshape(-1, n).argmax(0)  # (n,) each row's most probable configuration
+        for name, lp in unbounded.items():
+            at_best = lp.expand(total.shape).reshape(-1, n).gather(0, best[None])[0]
+            # a row where nothing is possible keeps its maximum
+            offsets[name] = torch.where(torch.isfinite(at_best), at_best, offsets[name])
+        total = _centred_sum(bounded, unbounded, offsets, dims, n)
+        top = _row_max(total)
+    if bool((top.abs() > _CENTRED).any()):  # the factors' optima still disagree by far
+        total = total - top
+        offsets[""] = top.reshape(-1)
+    return Enumerated(total, dims, trace, offsets)
+
+
+def _centred_sum(
+    bounded: list[torch.Tensor],
+    unbounded: dict[str, torch.Tensor],
+    offsets: dict[str, torch.Tensor],
+    dims: dict[str, int],
+    n: int,
+) -> torch.Tensor:
+    """The factors' sum, ``(E_k, ..., E_1, n)``, each unbounded one less its ``(n,)``
+    offset."""
+    factors = bounded + [lp - offsets[name] for name, lp in unbounded.items()]
     # the largest factors first: their sum is one plain pass in their own memory order
     # (rows outermost for gathered tables), and the small ones broadcast onto it once
-    factors.sort(key=lambda lp: -lp.numel())
+    factors = sorted(factors, key=lambda lp: -lp.numel())
     total = factors[0]
     for i, lp in enumerate(factors[1:]):
         fits = (
@@ -227,11 +258,7 @@ def enumerate_model(
     total = total.expand(*total.shape[:-1], n) if total.shape[-1] != n else total
     while total.dim() < depth:
         total = total.unsqueeze(0)
-    top = _row_max(total)
-    if bool((top.abs() > _CENTRED).any()):  # the factors' optima disagree by far
-        total = total - top
-        offsets[""] = top.reshape(-1)
-    return Enumerated(total, dims, trace, offsets)
+    return total
 
 
 def log_ratio(a: Enumerated, b: Enumerated) -> torch.Tensor:

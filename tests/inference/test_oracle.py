@@ -44,18 +44,15 @@ from models import Continuous, Discrete, EffectNetwork, Parameter, random_params
 from models.cpds.linear_gaussian import LinearGaussian
 from models.cpds.softmax import Softmax
 from models.cpds.table import Table
+from models.evidence import MAX_MAGNITUDE
 from models.params import NetworkParams
 
-#: The largest magnitude of a continuous evidence value the tests draw, to be widened
-#: towards the accepted limit (``inference.fit.MAX_MAGNITUDE``, 1e150) once the queries
-#: normalise each row in log space per configuration at any magnitude.
-EVIDENCE_MAGNITUDE = 1e3
+#: The largest magnitude of a continuous evidence value the tests draw: the accepted
+#: limit (``models.evidence.MAX_MAGNITUDE``); beyond it evidence is refused.
+EVIDENCE_MAGNITUDE = MAX_MAGNITUDE
 
-#: How far a returned distribution's sum may be from 1. The target is 1e-12 at every
-#: accepted magnitude; normalising by ``exp(log p - log sum p)`` leaves the rounding of
-#: log-weights of magnitude ~1e4 (a value far from a narrow cluster), about 1e-12 off,
-#: so this is tightened to 1e-12 with the log-space normalisation per configuration.
-SUM_TOL = 1e-9
+#: How far a returned distribution's sum may be from 1, at every accepted magnitude.
+SUM_TOL = 1e-12
 
 PROB_TOL = 1e-8  # absolute, on probabilities
 LOG_RTOL = 1e-9  # relative, on log-densities (and absolute below magnitude 1)
@@ -505,8 +502,9 @@ def test_imitation_check_is_the_oracle(case, data):
 def plausibility_numbers(oracle: Oracle, ev: dict, observed: list[str]) -> tuple[float, ...]:
     """What ``implausible`` compares with its threshold (README, "Implausible evidence"):
     the observed discrete end sites' probability given the evidence without the end
-    sites, and the observed continuous end site's chi-square tail under its closest
-    possible component (the value integrated out where unknown)."""
+    sites, the observed continuous end site's chi-square tail under its closest
+    possible component (the value integrated out where unknown), and each continuous
+    initial state's tail under the model's Gaussian of it."""
     discrete = [s for s in observed if oracle.net.site(s).discrete]
     p_discrete = 1.0
     if discrete:
@@ -520,7 +518,15 @@ def plausibility_numbers(oracle: Oracle, ev: dict, observed: list[str]) -> tuple
             mean, var = oracle.predicted_moments({k: x for k, x in v.items() if k != "end.pos"})
             closest = min(closest, (mpf(ev["end.pos"]) - mean) ** 2 / var)
         tail = float(mp.erfc(mp.sqrt(closest / 2)))
-    return p_discrete, tail
+    # each continuous initial state under the model's own Gaussian of it: evidence far
+    # outside what the model was fitted on
+    initial = []
+    for f in oracle.net.features:
+        site = f"initial.{f.name}"
+        if isinstance(f, Continuous) and site in ev:
+            mean, var = oracle.gaussian_of(site, ev)
+            initial.append(float(mp.erfc(mp.sqrt((mpf(ev[site]) - mean) ** 2 / var / 2))))
+    return p_discrete, tail, *initial
 
 
 @st.composite
@@ -566,7 +572,7 @@ def test_infer_parameter_is_the_oracle(case):
         return
     fast = compiled.infer(encode(net, ev))
     sums_to_one(fast.cluster_probs)
-    assert np.abs(fast.cluster_probs[0].numpy() - want).max() <= 1e-6
+    assert np.abs(fast.cluster_probs[0].numpy() - want).max() <= PROB_TOL
 
 
 @CASE_SETTINGS
