@@ -522,7 +522,7 @@ def imitation_check(
         surprise = _discrete_surprise(net, params, prior, observed, log_lik)
     else:
         surprise = continuous_surprise(
-            net, params, enc, observed, log_joint, n_points=n_samples, seed=seed
+            net, params, enc, observed, n_points=n_samples, seed=seed
         )
 
     def unseen(e, _):

@@ -51,7 +51,13 @@ import math
 
 import torch
 
-from inference.enumeration import Enumerated, enumerate_model, enumeration_size, row_chunks
+from inference.enumeration import (
+    Enumerated,
+    enumerate_model,
+    enumeration_size,
+    log_ratio,
+    row_chunks,
+)
 from inference.plausibility import _mahalanobis
 from models.declaration import DTYPE, EffectNetwork
 from models.evidence import Evidence, observed_dims
@@ -76,7 +82,6 @@ def continuous_surprise(
     params: NetworkParams,
     evidence: Evidence,
     observed: list[str],
-    log_joint: torch.Tensor,
     *,
     n_points: int = QUADRATURE_POINTS,
     seed: int = 0,
@@ -84,8 +89,7 @@ def continuous_surprise(
     """``(n,)`` surprise of the observed end sites ``observed`` (at least one continuous)
     of every row of encoded ``evidence`` (at least one row).
 
-    ``log_joint`` ``(n,)``: ``log p(evidence)``, every site in it observed. ``n_points``:
-    quadrature points per component (directions times radii) for rows where a discrete
+    ``n_points``: quadrature points per component (directions times radii) for rows where a discrete
     outcome has several components; ``seed`` fixes the scrambled Sobol directions used
     beyond two continuous dimensions.
     """
@@ -95,20 +99,32 @@ def continuous_surprise(
     varied = evidence.without(*discrete)  # the discrete outcomes enumerated
     dof = sum(observed_dims(evidence[s]).sum(-1) for s in continuous).to(DTYPE)  # (n,)
 
-    def weights(e: Enumerated, _):
-        log_w = e.log_weight + e.log_offset  # log p(c, y*, E), (E..., n)
+    def weights(e: Enumerated, _, rows):
+        # Every log-weight below is held relative to the same per-row constant: the
+        # offsets of this enumeration's sites other than the observed continuous ones (a
+        # continuous initial state's density, say), which the joint shares, so that they
+        # cancel exactly instead of swallowing the differences at a large magnitude.
+        centred = e.log_weight  # log p(c, y*, E) less every offset, (E..., n)
+        own_total = 0.0  # the observed continuous sites' offsets
         d2 = torch.zeros((), dtype=DTYPE)
-        log_density = torch.zeros((), dtype=DTYPE)
+        log_density = torch.zeros((), dtype=DTYPE)  # theirs less their offsets
         for s in continuous:
             node = e.trace.nodes[s]
             d2 = d2 + _mahalanobis(node["fn"], node["value"])
-            log_density = log_density + node["log_prob"]
-        log_prior = torch.where(torch.isfinite(log_w), log_w - log_density, -torch.inf)
-        return tuple(
-            _by_outcome(e, discrete, t.expand(log_w.shape)) for t in (log_w, log_prior, d2)
-        )
+            own = e.offsets.get(s, 0.0)
+            log_density = log_density + (node["log_prob"] - own)
+            own_total = own_total + own
+        log_w = centred + own_total
+        log_prior = torch.where(torch.isfinite(centred), centred - log_density, -torch.inf)
+        # log p(o*, E) less the same constant: log p(o*, E) / p(varied) by the offsets
+        # that cancel, plus the varied evidence's own normaliser
+        full = enumerate_model(net, params, evidence.rows(rows))
+        joint = log_ratio(full, e) + e.log_norm + own_total
+        joint = torch.where(full.log_norm > -torch.inf, joint, -torch.inf)  # nothing possible
+        out = tuple(_by_outcome(e, discrete, t.expand(log_w.shape)) for t in (log_w, log_prior, d2))
+        return (*out, joint)
 
-    log_w, log_prior, d2 = _over_rows(net, params, varied, discrete, weights)  # (n, O, K)
+    log_w, log_prior, d2, log_joint = _over_rows(net, params, varied, discrete, weights)
     log_joint = log_joint[:, None, None]
     prob = (log_prior - log_prior.logsumexp((1, 2), keepdim=True)).exp()  # P(c | E)
     # one component per outcome: the chi-square probability of the ellipsoid
@@ -157,10 +173,11 @@ def _by_outcome(e: Enumerated, outcomes: list[str], t: torch.Tensor) -> torch.Te
 
 
 def _over_rows(net, params, evidence: Evidence, keep: list[str], fn):
-    """``fn(enumerated, chunk)`` over row chunks, its tuples concatenated along rows."""
+    """``fn(enumerated, chunk, rows)`` over row chunks (``rows`` the chunk's rows of
+    ``evidence``), its tuples concatenated along rows."""
     size = enumeration_size(net, evidence, keep)
     parts = [
-        fn(enumerate_model(net, params, evidence.rows(s), keep=keep), evidence.rows(s))
+        fn(enumerate_model(net, params, evidence.rows(s), keep=keep), evidence.rows(s), s)
         for s in row_chunks(evidence.n_rows, size)
     ]
     return tuple(torch.cat(p, 0) for p in zip(*parts, strict=True))
@@ -177,7 +194,7 @@ def _joint_gaussians(net, params, evidence: Evidence, continuous, discrete):
     values, so each slope column is the change of the mean when one observed value moves.
     """
 
-    def steps(e: Enumerated, chunk: Evidence):
+    def steps(e: Enumerated, chunk: Evidence, _):
         order = [s for s in e.trace.nodes if s in continuous]
         shape = e.log_weight.shape
         locs, covs, values, seens = {}, {}, {}, {}

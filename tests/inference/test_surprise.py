@@ -7,6 +7,7 @@ The surprise of an observation ``y*`` is ``P_{Y ~ p}(p(Y) > p(y*))`` for the pre
 ``p`` given the rest of the evidence."""
 
 import time
+import warnings
 from dataclasses import replace
 
 import numpy as np
@@ -15,6 +16,7 @@ import torch
 from scipy import stats
 
 from inference import imitation_check, predict
+from inference.plausibility import OutsideTrainingData
 from inference.surprise import _joint_gaussians
 from models import Continuous, Discrete, EffectNetwork, Parameter, Partial, random_params
 from models.declaration import DTYPE
@@ -347,3 +349,23 @@ def test_discrete_outcome_beside_a_mixture():
         star = np.log(p_vis[int(vis)]) + log_m(ys)
         want = sum(p * grid_surprise(log_m, grid, cell, ys, star - np.log(p)) for p in p_vis)
         np.testing.assert_allclose(got, want, rtol=0, atol=2e-4)
+
+
+@pytest.mark.parametrize("start", [0.0, 1e4, 1e6, 1e8])
+def test_the_surprise_is_exact_at_a_large_initial_state(start):
+    """A continuous initial state far out shifts every log-weight by its density (about
+    -start^2); the surprise keeps its digits: one Gaussian, P(chi2_1 < z^2) at z = 1.5
+    noise standard deviations, with the network's mean written by hand."""
+    net = EffectNetwork((Continuous("x"),), ("a", "b"))
+    params = random_params(net, 3)
+    g = params["end.x"]
+    mean = float(g.weight[1, 0, 0]) * start + float(g.bias[1, 0])
+    sd = float(g.scale_tril[1, 0, 0])
+    y = mean + 1.5 * sd
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", OutsideTrainingData)
+        got = imitation_check(
+            net, params, {"initial.x": [[start]], "action": ["b"], "end.x": [[y]]}
+        )
+    want = float(stats.chi2.cdf(((y - mean) / sd) ** 2, 1))
+    assert abs(float(got.surprise[0]) - want) < 1e-6
