@@ -354,18 +354,30 @@ def test_discrete_outcome_beside_a_mixture():
 @pytest.mark.parametrize("start", [0.0, 1e4, 1e6, 1e8])
 def test_the_surprise_is_exact_at_a_large_initial_state(start):
     """A continuous initial state far out shifts every log-weight by its density (about
-    -start^2); the surprise keeps its digits: one Gaussian, P(chi2_1 < z^2) at z = 1.5
-    noise standard deviations, with the network's mean written by hand."""
-    net = EffectNetwork((Continuous("x"),), ("a", "b"))
-    params = random_params(net, 3)
-    g = params["end.x"]
-    mean = float(g.weight[1, 0, 0]) * start + float(g.bias[1, 0])
-    sd = float(g.scale_tril[1, 0, 0])
-    y = mean + 1.5 * sd
+    -start^2 / 2); the surprise keeps its digits. Two discrete outcomes, one Gaussian
+    each (the softmax's slope set to 0, so p(visible) does not move with the start)."""
+    net = EffectNetwork((Discrete("visible", (False, True)), Continuous("pos", 1)), ("a", "b"))
+    params = random_params(net, 7)
+    soft = replace(params["end.visible"], weight=torch.zeros_like(params["end.visible"].weight))
+    params = replace(params, cpds=params.cpds | {"end.visible": soft})
+    p_vis = soft.bias[1, 0].softmax(-1).numpy()
+    g = params["end.pos"]
+    mean = float(g.weight[1, 0, 0, 0]) * start + float(g.bias[1, 0, 0])
+    sd = float(g.scale_tril[1, 0, 0, 0])
+    pos1 = mean + 0.7 * sd
+    log_star = np.log(p_vis[0]) + stats.norm.logpdf(0.7) - np.log(sd)
+    want = 0.0
+    for v in (0, 1):
+        r2 = 2 * (np.log(p_vis[v]) - np.log(sd) - 0.5 * np.log(2 * np.pi) - log_star)
+        want += p_vis[v] * stats.chi2.cdf(max(r2, 0.0), 1)
+    evidence = {
+        "initial.visible": [True],
+        "initial.pos": [[start]],
+        "action": ["a"],
+        "end.visible": [False],
+        "end.pos": [[pos1]],
+    }
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", OutsideTrainingData)
-        got = imitation_check(
-            net, params, {"initial.x": [[start]], "action": ["b"], "end.x": [[y]]}
-        )
-    want = float(stats.chi2.cdf(((y - mean) / sd) ** 2, 1))
+        got = imitation_check(net, params, evidence)
     assert abs(float(got.surprise[0]) - want) < 1e-6
