@@ -7,7 +7,7 @@ Times :func:`inference.fit_em` (the throw network with adaptive target clusters 
 a ``bins x bins`` grid, 29,000 noise-free throws, ``--steps`` EM steps, no early stop) on
 one torch thread, and beside it the peer: the grid layout's closed-form
 :func:`inference.fit` on the same rows. Each figure is the median over ``--repeats`` runs
-of ``time.perf_counter`` after one warm-up. Goal (issue 14, part B): the fit under 2 s on
+of ``time.perf_counter`` after one warm-up. Goal: the fit under 2 s on
 one core. Both fits use ``--pseudo-count`` (default 0, as the adaptive throw experiment).
 """
 

@@ -12,7 +12,7 @@ network's own tables (the end configuration's is 107 x 11 x 195 x 107 cells, 196
 cost the same in every mode, so what grows with the data is the peak above that one.
 Both modes must give the same tables (checked).
 
-Goal (issue 13, part E): the chunked fit's peak stays at the one-chunk fit's whatever
+Goal: the chunked fit's peak stays at the one-chunk fit's whatever
 the number of rows; the one-pass fit's grows with them.
 """
 

@@ -7,11 +7,10 @@ count. Run::
 
     .venv/bin/python benchmarks/queries.py [--n-queries 10000] [--pgmpy-queries 200]
 
-Goals (issue 2): batched under 1 us per query amortised (within 5x of the raw gather),
-one query under 50 us, fitting the 74,000-row table under 10 ms. Issue 11 tightens them to
-<= 1.5 us batched, <= 50 us one query, <= 5 ms fitting.
+Goals: batched <= 1.5 us per query amortised (within 5x of the raw gather), one query
+<= 50 us, fitting the 74,000-row table <= 5 ms.
 
-Query patterns (issue 11), on the can network's structure (config 42 and count 11 both
+Query patterns, on the can network's structure (config 42 and count 11 both
 initial and end features, action 195): the initial state observed, partly observed (the
 count unknown), latent (the end state only), each timed beside pgmpy's
 VariableElimination on the same rows. Goal: within 2x of pgmpy per query, or faster.
@@ -20,6 +19,10 @@ Imitation check with a continuous end feature (``--imitation-rows``, default 10,
 ``--imitation-only`` skips the rest): a 1-D one-Gaussian network (the surprise in closed
 form; goal: 10,000 rows under 0.5 s), and README's tap network with the force unknown (a
 mixture of 8 clusters per row: the quadrature), each row's surprise deterministic.
+
+Pyro's ``Predictive`` on README's tap network (``--predictive-only`` skips the rest): 100
+draws of 5 rows, one model run per draw (the default) beside one vectorised run
+(``parallel=True``, README's form).
 """
 
 from __future__ import annotations
@@ -144,11 +147,7 @@ def imitation(rows: int) -> dict[str, float]:
         "end.pos": rng.normal(size=(rows, 1)),
     }
     line_params = random_params(line, 0)
-    tap = EffectNetwork(
-        (Discrete("visible", (False, True)), Continuous("position", 1)),
-        ("look", "remove", "tap"),
-        (Parameter("force", low=0.0, high=20.0, bins=8, actions=("tap",), affects="position"),),
-    )
+    tap = _tap_network()
     mixed = {
         "initial.visible": [True] * rows,
         "initial.position": np.zeros((rows, 1)),
@@ -168,6 +167,8 @@ def main(args: argparse.Namespace) -> dict[str, float]:
     torch.set_num_threads(args.threads)
     if args.imitation_only:
         return _print_imitation(args.imitation_rows)
+    if args.predictive_only:
+        return _print_predictive()
     net = network()
     rows = random_rows(net, 74_000, 0)
     fit_s = median_seconds(lambda: fit(net, rows), 7)
@@ -288,6 +289,37 @@ def main(args: argparse.Namespace) -> dict[str, float]:
         print(f"max |ours - pgmpy| over the patterns = {max(diffs):.2e}")
     if args.imitation_rows:
         figures |= _print_imitation(args.imitation_rows)
+    figures |= _print_predictive()
+    return figures
+
+
+def _tap_network() -> EffectNetwork:
+    return EffectNetwork(
+        (Discrete("visible", (False, True)), Continuous("position", 1)),
+        ("look", "remove", "tap"),
+        (Parameter("force", low=0.0, high=20.0, bins=8, actions=("tap",), affects="position"),),
+    )
+
+
+def _print_predictive() -> dict[str, float]:
+    """Seconds of ``Predictive(effect_model, num_samples=100)`` on 5 rows, one run per
+    draw and vectorised (``parallel=True``)."""
+    from pyro.infer import Predictive
+
+    from models import effect_model
+
+    net = _tap_network()
+    params = random_params(net, 0)
+    sites = [site.name for site in net.sites]
+    figures = {}
+    for name, parallel in (("sequential", False), ("parallel", True)):
+        run = Predictive(effect_model, num_samples=100, parallel=parallel, return_sites=sites)
+        figures[f"predictive_{name}_s"] = median_seconds(
+            lambda run=run: run(net, params, n_rows=5), 3
+        )
+    print("\nPredictive(effect_model, num_samples=100), 5 rows (s)")
+    print(f"{'one model run per draw (default)':<44}{figures['predictive_sequential_s']:>14.3f}")
+    print(f"{'parallel=True (README)':<44}{figures['predictive_parallel_s']:>14.3f}")
     return figures
 
 
@@ -325,6 +357,7 @@ def parse_args(argv=None) -> argparse.Namespace:
         "--imitation-rows", type=int, default=10_000, help="imitation_check rows (0: skip)"
     )
     parser.add_argument("--imitation-only", action="store_true", help="time imitation_check alone")
+    parser.add_argument("--predictive-only", action="store_true", help="time Predictive alone")
     return parser.parse_args(argv)
 
 

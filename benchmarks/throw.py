@@ -9,7 +9,7 @@ test hits and one hit at a time, both through the traced Pyro model
 (:func:`inference.infer_parameter`) and through its compiled tables
 (:func:`inference.compiled.compile_parameter_query`, the same numbers, tested equal). Each
 figure is the median over ``--repeats`` runs of ``time.perf_counter`` after one warm-up.
-Goals (issue 4, tightened by issue 11): fit under 50 ms; batched inverse at most 5 us per
+Goals: fit under 50 ms; batched inverse at most 5 us per
 query; one query at most 100 us. ``--profile`` prints where a query's time goes, stage by stage.
 Also timed, without a goal: the inverse model (:func:`inference.parameter_for_effect`),
 batched over ``--effect-rows`` hits, on the grid clusters and on the same clusters made

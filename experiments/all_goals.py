@@ -74,7 +74,7 @@ __all__ = [
 
 TRAIN_SEED = 2  # the robot's experience; the physics bound's uses seed 1, the can data set 0
 PLAY_SEED = 3
-#: the issue's goal: the exact planner's success over the bound, averaged over goals
+#: the goal: the exact planner's success over the bound, averaged over goals
 GOAL_RATIO = 0.90
 MAX_STEP = 0.1  # m between aim heights: coarser says little about a 6.4 cm can
 MAX_HORIZON = 20  # throws

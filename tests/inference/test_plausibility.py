@@ -63,7 +63,7 @@ def test_discrete_plausibility_is_the_evidence_probability(cards, n_actions, see
 
 
 def door_rows(n: int, seed: int) -> dict:
-    """A door that no action opens while it is locked (the issue's example)."""
+    """A door that no action opens while it is locked (a door that stays locked)."""
     rng = np.random.default_rng(seed)
     doors = rng.choice(["locked", "shut", "open"], n)
     actions = rng.choice(["wait", "push", "unlock"], n)
