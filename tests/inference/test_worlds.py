@@ -41,7 +41,8 @@ from inference import (
     predict,
     simulate,
 )
-from models import Continuous, Discrete, EffectNetwork, Parameter, load, save, to_pgmpy
+from inference.compiled import compile_parameter_query
+from models import Continuous, Discrete, EffectNetwork, Parameter, Partial, load, save, to_pgmpy
 from models.evidence import MAX_MAGNITUDE
 
 SUM_TOL = 1e-12
@@ -791,3 +792,91 @@ def test_affordance_imitation_check_on_ten_thousand_rows():
     mean = g.weight[index][:, 0, 0] * enc["initial.size"][:, 0] + g.bias[index][:, 0]
     d2 = (enc["end.size"][:, 0] - mean) ** 2 / g.covariance[index][:, 0, 0]
     np.testing.assert_allclose(check.surprise.numpy(), chi2.cdf(d2.numpy(), 1), atol=1e-12)
+
+
+def test_compiled_parameter_query_equals_the_traced_one():
+    net, params = push_world()
+    ev = {
+        "initial.moved": [False, True, False],
+        "initial.position": [[0.1, 0.1], [0.0, -0.5], [0.3, 0.3]],
+        "action": ["push"] * 3,
+        "end.position": [[0.17, 0.13], [0.09, -0.41], [0.31, 0.302]],
+    }
+    traced = infer_parameter(net, params, "force", ev, mixture=True)
+    compiled = compile_parameter_query(net, params, "force").infer(ev, mixture=True)
+    np.testing.assert_allclose(compiled.cluster_probs, traced.cluster_probs, atol=1e-12)
+    np.testing.assert_allclose(compiled.mean, traced.mean, atol=1e-10)
+    np.testing.assert_allclose(compiled.mixture.mean, traced.mixture.mean, atol=1e-10)
+    one = {k: v[:1] for k, v in ev.items()}
+    single = compile_parameter_query(net, params, "force").infer(one)
+    np.testing.assert_allclose(single.cluster_probs[0], traced.cluster_probs[0], atol=1e-12)
+
+
+def test_infer_action_from_one_observed_dimension():
+    """``Partial`` evidence: the oracle's Gaussians marginalised onto x."""
+    net, params = push_world()
+    start, x = np.array([0.1, 0.1]), 0.17
+    ev = {
+        "initial.moved": [False],
+        "initial.position": [start.tolist()],
+        "end.position": Partial([[x, np.nan]], observed=[True, False]),
+    }
+    oracle = PushOracle(net, params, exact=False)
+    row = row_of(moved=0, position=tuple(start))
+    logs = []
+    for a in range(3):
+        terms = []
+        for c in range(9) if oracle.uses[a] else [0]:
+            mean, noise, gain = oracle.end_gaussian(row, 0, a, c)
+            mean, var = mean[0], noise[0][0]
+            if oracle.uses[a]:
+                mu = params["param.force"].bias[c].numpy()
+                s = params["param.force"].covariance[c].numpy()
+                g = np.array(gain[0])
+                mean, var = mean + g @ mu, var + g @ s @ g
+            prior = float(params["cluster.force"].probs[a, c])
+            terms.append(
+                math.log(prior) - (x - mean) ** 2 / (2 * var) - math.log(2 * math.pi * var) / 2
+            )
+        logs.append(math.log(params["action"].probs[a]) + np.logaddexp.reduce(terms))
+    probs = np.exp(np.array(logs) - np.logaddexp.reduce(logs))
+    post = infer_action(net, params, ev)
+    np.testing.assert_allclose(post.probs[0].numpy(), probs, atol=PROB_TOL)
+
+
+def test_surprise_over_a_discrete_and_a_continuous_outcome():
+    """P(p(O) > p(o*)) with O = (end.moved, end.position), independent given the start,
+    the action and the force: summed over the moved states, integrated on a grid."""
+    net, params = push_world()
+    given = {
+        "initial.moved": [False],
+        "initial.position": [[0.1, 0.1]],
+        "action": ["push"],
+        "param.force": [[4.0, 8.0]],
+    }
+    end, end_moved = np.array([0.17, 0.185]), False
+    check = imitation_check(
+        net, params, given | {"end.position": [end.tolist()], "end.moved": [end_moved]}
+    )
+    pred = predict(net, params, given)
+    moved = pred.discrete["moved"][0].numpy()
+    mix = pred.continuous["position"]
+    assert mix.means.shape[1] == 1 or float(mix.weights[0].max()) == 1.0
+    k = int(mix.weights[0].argmax())
+    mean, cov = mix.means[0, k].numpy(), mix.covs[0, k].numpy()
+    # p(O) = p(m) N(y): outcomes more likely than o* in state m lie inside an ellipse
+    # whose squared radius is D*^2 + 2 log(p(m) / p(m*)); its mass is the chi-square CDF
+    resid = end - mean
+    d2 = resid @ np.linalg.solve(cov, resid)
+    expected = sum(
+        moved[m] * chi2.cdf(max(d2 + 2 * math.log(moved[m] / moved[int(end_moved)]), 0.0), 2)
+        for m in range(2)
+    )
+    assert float(check.surprise[0]) == pytest.approx(expected, abs=1e-9)
+    truth = (
+        math.log(moved[int(end_moved)])
+        - d2 / 2
+        - 0.5 * math.log(np.linalg.det(cov))
+        - math.log(2 * math.pi)
+    )
+    assert float(check.log_likelihood[0]) == pytest.approx(truth, rel=1e-9)
