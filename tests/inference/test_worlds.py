@@ -30,7 +30,8 @@ import torch
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from mpmath import mp, mpf
-from scipy.stats import chi2
+from scipy.optimize import brentq
+from scipy.stats import chi2, norm
 
 from inference import (
     fit,
@@ -880,3 +881,46 @@ def test_surprise_over_a_discrete_and_a_continuous_outcome():
         - math.log(2 * math.pi)
     )
     assert float(check.log_likelihood[0]) == pytest.approx(truth, rel=1e-9)
+
+
+def test_affordance_with_the_shape_unknown():
+    """The shape summed out: predict's end shape is pgmpy's; the surprise over the
+    three shapes' Gaussians is the predictive mass denser than the observation (grid)."""
+    from pgmpy.inference import VariableElimination
+
+    net, params = affordance_world()
+    bn, _ = to_pgmpy(net, params)
+    given = {"initial.size": [[0.2]], "initial.colour": ["red"], "action": ["push"]}
+    pred = predict(net, params, given)
+    theirs = VariableElimination(bn).query(
+        ["end.shape"], evidence={"action": "push"}, show_progress=False
+    )
+    order = [theirs.state_names["end.shape"].index(s) for s in SHAPES]
+    np.testing.assert_allclose(pred.discrete["shape"][0].numpy(), theirs.values[order], atol=1e-12)
+    mix = pred.continuous["size"]
+    w, m, v = mix.weights[0].numpy(), mix.means[0, :, 0].numpy(), mix.covs[0, :, 0, 0].numpy()
+    np.testing.assert_allclose(w, params["initial.shape"].probs.numpy(), atol=1e-12)
+
+    def density(y):
+        return (w * np.exp(-((y[:, None] - m) ** 2) / (2 * v)) / np.sqrt(2 * np.pi * v)).sum(1)
+
+    observed = 0.185
+    check = imitation_check(net, params, given | {"end.size": [[observed]]})
+    level = density(np.array([observed]))[0]
+    assert float(check.log_likelihood[0]) == pytest.approx(math.log(level), rel=1e-12)
+    # the set denser than the observation: intervals between the roots of f(y) = level,
+    # found by bisection from a grid's sign changes; their mass from the normal CDF
+    grid = np.linspace(0.0, 0.4, 40_001)
+    above = density(grid) > level
+    roots = [
+        brentq(lambda y: density(np.array([y]))[0] - level, grid[i], grid[i + 1], xtol=1e-15)
+        for i in np.nonzero(above[1:] != above[:-1])[0]
+    ]
+    assert not above[0] and not above[-1] and len(roots) % 2 == 0
+
+    def mass(a, b):
+        sd = np.sqrt(v)
+        return float((w * (norm.cdf((b - m) / sd) - norm.cdf((a - m) / sd))).sum())
+
+    expected = sum(mass(a, b) for a, b in zip(roots[::2], roots[1::2], strict=True))
+    assert float(check.surprise[0]) == pytest.approx(expected, abs=1e-9)
