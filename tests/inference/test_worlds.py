@@ -431,12 +431,9 @@ def test_push_world_at_every_magnitude(scale, signs, shift, end_far, moved, end_
     check = imitation_check(net, params, ev | {"action": ["push"]})
     assert not torch.isnan(check.surprise).any() and 0.0 <= float(check.surprise[0]) <= 1.0
     assert not torch.isnan(check.log_likelihood).any()
-    # infer_parameter needs the end position's discrete parents (initial.moved)
-    aim = infer_parameter(
-        net, params, "force", {"initial.moved": [False]} | ev | {"action": ["push"]}
-    )
+    aim = infer_parameter(net, params, "force", ev | {"action": ["push"]}, mixture=True)
     assert abs(float(aim.cluster_probs.sum()) - 1.0) < SUM_TOL
-    assert not torch.isnan(aim.mean).any()
+    assert not torch.isnan(aim.mean).any() and not torch.isnan(aim.mixture.mean).any()
 
 
 @pytest.mark.parametrize("site", ["initial.position", "end.position", "param.force"])
@@ -924,3 +921,54 @@ def test_affordance_with_the_shape_unknown():
 
     expected = sum(mass(a, b) for a, b in zip(roots[::2], roots[1::2], strict=True))
     assert float(check.surprise[0]) == pytest.approx(expected, abs=1e-9)
+
+
+def test_infer_parameter_with_the_initial_state_unknown():
+    """``initial.moved`` unknown: the cluster's posterior sums over it, and the force given
+    the best cluster is the mixture over it (integrated on the force's grid)."""
+    net, params = push_world()
+    row = row_of(moved=None, position=(0.1, 0.1), end_position=(0.17, 0.13))
+    ev = evidence_of(row) | {"action": ["push"]}
+    post = infer_parameter(net, params, "force", ev, mixture=True)
+    oracle = PushOracle(net, params, exact=False)
+    logs = np.array(
+        [
+            [
+                oracle.log_initial(row, moved)
+                + math.log(params["cluster.force"].probs[0, c])
+                + oracle.log_unknown_force(row, moved, 0, c)
+                for c in range(9)
+            ]
+            for moved in range(2)
+        ]
+    )
+    joint = np.exp(logs - np.logaddexp.reduce(logs.ravel()))  # p(moved, cluster | evidence)
+    np.testing.assert_allclose(post.cluster_probs[0].numpy(), joint.sum(0), atol=1e-9)
+    c = int(post.best_cluster[0])
+    assert c == int(joint.sum(0).argmax())
+    mu = params["param.force"].bias[c].numpy()
+    s = params["param.force"].covariance[c].numpy()
+    sd = np.sqrt(np.diag(s))
+    axes = [np.linspace(mu[i] - 12 * sd[i], mu[i] + 12 * sd[i], 801) for i in range(2)]
+    f0, f1 = np.meshgrid(*axes, indexing="ij")
+    f = np.stack([f0.ravel(), f1.ravel()], -1)
+    d = f - mu
+    total = np.zeros(len(f))
+    for moved in range(2):
+        mean, noise, gain = oracle.end_gaussian(row, moved, 0, c)
+        resid = np.array(row["end_position"]) - (np.array(mean) + f @ np.array(gain).T)
+        log = (
+            oracle.log_initial(row, moved)
+            - 0.5 * np.einsum("ni,ij,nj->n", d, np.linalg.inv(s), d)
+            - 0.5 * np.einsum("ni,ij,nj->n", resid, np.linalg.inv(np.array(noise)), resid)
+            - 0.5 * math.log(np.linalg.det(np.array(noise)))
+        )
+        total += np.exp(log)
+    mean = (total[:, None] * f).sum(0) / total.sum()
+    np.testing.assert_allclose(post.mean[0].numpy(), mean, atol=1e-6)
+    centred = f - mean
+    cov = (total[:, None, None] * centred[:, :, None] * centred[:, None, :]).sum(0) / total.sum()
+    np.testing.assert_allclose(post.cov[0].numpy(), cov, atol=1e-6)
+    assert abs(float(post.mixture.weights.sum()) - 1.0) < SUM_TOL
+    given = infer_parameter(net, params, "force", ev | {"initial.moved": [False]})
+    assert given.mean.shape == post.mean.shape
