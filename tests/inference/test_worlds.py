@@ -542,7 +542,9 @@ def test_imitation_surprise_is_the_chi_square_cdf_and_deterministic():
     observed = density(np.array([end]))[0]
     cell = (grid[1] - grid[0]) ** 2
     assert values.sum() * cell == pytest.approx(1.0, abs=1e-3)
-    assert float(one[0]) == pytest.approx(values[values > observed].sum() * cell, abs=2e-3)
+    # the quadrature's 16 directions x 16 radii per component: 3.0e-4 off here (the
+    # grid's own error is below 1e-5); 5.9e-6 with n_samples=65536
+    assert float(one[0]) == pytest.approx(values[values > observed].sum() * cell, abs=5e-4)
 
 
 def test_infer_parameter_against_the_integrated_posterior():
@@ -972,3 +974,25 @@ def test_infer_parameter_with_the_initial_state_unknown():
     assert abs(float(post.mixture.weights.sum()) - 1.0) < SUM_TOL
     given = infer_parameter(net, params, "force", ev | {"initial.moved": [False]})
     assert given.mean.shape == post.mean.shape
+
+
+def test_trace_enum_elbo_loss_is_the_log_evidence():
+    """README's ``TraceEnum_ELBO(...).loss`` on the collapsed model: ``-log p(evidence)``,
+    the force and the initial ``moved`` where unknown summed out, ``end.moved`` left out."""
+    from pyro.infer import TraceEnum_ELBO
+
+    from models import effect_model
+
+    net, params = push_world()
+    mp.dps = 30
+    for row in ORDINARY_ROWS:
+        row = dict(row) | {"action": ACTIONS.index("push")}
+        evidence = net.encode(evidence_of(row))
+        loss = TraceEnum_ELBO(max_plate_nesting=1).loss(
+            lambda evidence=evidence: effect_model(net, params, evidence, collapse=True),
+            lambda: None,
+        )
+        oracle = PushOracle(net, params, exact=True)
+        movements = [row["moved"]] if row["moved"] is not None else [0, 1]
+        truth = float(oracle.logsumexp([oracle.log_joint(row, m, 0) for m in movements]))
+        assert -loss == pytest.approx(truth, rel=1e-12, abs=1e-12)
