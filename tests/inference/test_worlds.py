@@ -996,3 +996,67 @@ def test_trace_enum_elbo_loss_is_the_log_evidence():
         movements = [row["moved"]] if row["moved"] is not None else [0, 1]
         truth = float(oracle.logsumexp([oracle.log_joint(row, m, 0) for m in movements]))
         assert -loss == pytest.approx(truth, rel=1e-12, abs=1e-12)
+
+
+def affordance_oracle(params, size, end_size, shape, colour, end_shape) -> list:
+    """p(action | evidence) for the affordance world, in mpmath: the unknown initial
+    shape and colour summed out; ``None`` where not given (end_size too)."""
+    logs = []
+    for a in range(3):
+        terms = []
+        for s in [shape] if shape is not None else range(3):
+            for c in [colour] if colour is not None else range(4):
+                term = mp.log(mpf(float(params["action"].probs[a])))
+                term += mp.log(mpf(float(params["initial.shape"].probs[s])))
+                term += mp.log(mpf(float(params["initial.colour"].probs[c])))
+                if end_shape is not None:
+                    term += mp.log(mpf(float(params["end.shape"].probs[s, a, end_shape])))
+                if end_size is not None:
+                    g = params["end.size"]
+                    mean = mpf(float(g.weight[s, c, a, 0, 0])) * mpf(size) + mpf(
+                        float(g.bias[s, c, a, 0])
+                    )
+                    var = mpf(float(g.covariance[s, c, a, 0, 0]))
+                    term += -((mpf(end_size) - mean) ** 2) / (2 * var) - mp.log(2 * mp.pi * var) / 2
+                terms.append(term)
+        top = max(terms)
+        logs.append(top + mp.log(mp.fsum(mp.exp(t - top) for t in terms)))
+    top = max(logs)
+    total = top + mp.log(mp.fsum(mp.exp(t - top) for t in logs))
+    return [float(mp.exp(t - total)) for t in logs]
+
+
+@pytest.mark.filterwarnings("ignore::inference.plausibility.OutsideTrainingData")
+@settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(
+    scale=magnitudes,
+    sign=st.sampled_from([-1.0, 1.0]),
+    growth=st.floats(0.5, 1.5),
+    far=st.booleans(),
+    shape=st.sampled_from([None, 0, 1, 2]),
+    colour=st.sampled_from([None, 0, 3]),
+    end_shape=st.sampled_from([None, 0, 1, 2]),
+)
+def test_affordance_world_at_every_magnitude(scale, sign, growth, far, shape, colour, end_shape):
+    net, params = affordance_world()
+    size = sign * scale
+    end_size = -size if far else size * growth
+    ev = {"initial.size": [[size]], "end.size": [[end_size]]}
+    if shape is not None:
+        ev["initial.shape"] = [SHAPES[shape]]
+    if colour is not None:
+        ev["initial.colour"] = [COLOURS[colour]]
+    if end_shape is not None:
+        ev["end.shape"] = [SHAPES[end_shape]]
+    if abs(end_size) > MAX_MAGNITUDE:
+        with pytest.raises(ValueError, match="end.size"):
+            infer_action(net, params, ev)
+        return
+    mp.dps = PushOracle.DIGITS
+    probs = affordance_oracle(params, size, end_size, shape, colour, end_shape)
+    post = infer_action(net, params, ev)
+    assert not torch.isnan(post.probs).any()
+    assert abs(float(post.probs.sum()) - 1.0) < SUM_TOL
+    np.testing.assert_allclose(post.probs[0].numpy(), probs, atol=PROB_TOL)
+    check = imitation_check(net, params, ev | {"action": ["push"]})
+    assert not torch.isnan(check.surprise).any() and 0.0 <= float(check.surprise[0]) <= 1.0
