@@ -1060,3 +1060,26 @@ def test_affordance_world_at_every_magnitude(scale, sign, growth, far, shape, co
     np.testing.assert_allclose(post.probs[0].numpy(), probs, atol=PROB_TOL)
     check = imitation_check(net, params, ev | {"action": ["push"]})
     assert not torch.isnan(check.surprise).any() and 0.0 <= float(check.surprise[0]) <= 1.0
+
+
+def test_a_force_on_a_rail_is_nearest_the_cluster_mean_to_rounding():
+    """A 2-D force moving an object along a 1-D rail (noise 1 mm): the force for a wanted
+    position lies on the line ``w . f + b = y`` nearest the cluster's mean in its own
+    metric, ``mu + S w' (w S w')^-1 (y - b - w mu)``, to 1e-10 (a ridge on the normal
+    equations left them at condition 1e10 and the answer 1e-6 off)."""
+    net = EffectNetwork(
+        (Continuous("rail", 1, initial=False),),
+        ("push",),
+        (Parameter("force", (0.0, 0.0), (10.0, 10.0), (1, 1), ("push",), "rail"),),
+    )
+    rng = np.random.default_rng(5)
+    force = rng.uniform(0.0, 10.0, (400, 2)) * [1.0, 0.3]
+    rail = 0.1 * np.tanh(force @ [[0.2], [0.1]]) + rng.normal(0.0, 0.001, (400, 1))
+    params = fit(net, {"action": ["push"] * 400, "param.force": force, "end.rail": rail}).params
+    g, prior = params["end.rail"], params["param.force"]
+    w, b = g.weight[0, 0].numpy(), g.bias[0, 0].numpy()
+    mu, s = prior.bias[0].numpy(), prior.covariance[0].numpy()
+    for want in (0.02, 0.05, 0.09):
+        aim = parameter_for_effect(net, params, "force", {"end.rail": [[want]]})
+        expected = mu + s @ w.T @ np.linalg.solve(w @ s @ w.T, want - b - w @ mu)
+        np.testing.assert_allclose(aim.value[0].numpy(), expected, rtol=1e-10, atol=1e-12)
