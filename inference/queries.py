@@ -34,6 +34,7 @@ for that row. Empty evidence rows (``n = 0``) give empty results of the right sh
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Hashable, Mapping
 from dataclasses import dataclass, field, fields, is_dataclass, replace
@@ -521,9 +522,7 @@ def imitation_check(
     if all(net.site(s).discrete for s in observed):
         surprise = _discrete_surprise(net, params, prior, observed, log_lik)
     else:
-        surprise = continuous_surprise(
-            net, params, enc, observed, n_points=n_samples, seed=seed
-        )
+        surprise = continuous_surprise(net, params, enc, observed, n_points=n_samples, seed=seed)
 
     def unseen(e, _):
         post = e.posterior(strict=False)  # an impossible outcome rests on no configuration
@@ -589,6 +588,18 @@ def infer_parameter(
     if not children:  # only discrete effects observed
         answer = _parameter_from_cluster(net, params, m, enc, observed, mixture)
         return replace(answer, implausible=flag)
+    latent = sorted(
+        {s for child in children for s in child.parents if s not in enc and s != m.cluster.site}
+        - {
+            q.cluster.site
+            for q in (net.acting_on(m.child) if m.child is not None else ())
+            if q is not m
+        }
+    )
+    if latent and all(net.site(s).role == "initial" for s in latent):
+        return replace(
+            _over_latent_parents(net, params, m, enc, children, latent, mixture), implausible=flag
+        )
     enc, acting = _given_others(net, m, enc, children, "infer_parameter")
     probs = _chunked(net, params, enc, set(), lambda e, _: e.marginal(cluster_site(p.name)))
     best = probs.argmax(-1)
@@ -833,6 +844,56 @@ def _given_others(net, m, enc: Evidence, children, query: str):
                 f"{query} needs the discrete parents {missing} of {child.site!r} as evidence"
             )
     return enc, acting
+
+
+def _over_latent_parents(net, params, m, enc, children, latent, mixture) -> ParameterPosterior:
+    """:func:`infer_parameter` where initial states the observed effects depend on are
+    unknown: their states and the cluster enumerated jointly (their exact posterior), the
+    parameter given the best cluster a mixture over those states (its mean and covariance
+    returned, by the law of total covariance), each cluster's in ``mixture`` likewise."""
+    p = m.parameter
+    sites = [*latent, m.cluster.site]
+
+    def joint(e: Enumerated, _):
+        w = e.log_weight
+        keep = [w.dim() + e.dims[s] for s in sites]
+        others = [d for d in range(w.dim() - 1) if d not in keep]
+        w = w.logsumexp(others, keepdim=True) if others else w
+        w = w.permute(w.dim() - 1, *keep, *others).reshape(w.shape[-1], -1)
+        return (w - w.logsumexp(-1, keepdim=True)).exp()
+
+    sizes = [net.site(s).size for s in latent]
+    n, c = enc.n_rows, p.n_clusters
+    weights = _chunked(net, params, enc, set(), joint).reshape(n, -1, c)  # (n, S, C)
+    probs = weights.sum(1)
+    best = probs.argmax(-1)
+    every = torch.arange(c).expand(n, -1)
+    means, covs, unseen = [], [], []
+    for states in itertools.product(*[range(k) for k in sizes]):
+        given = enc | net.encode_indices(
+            {s: torch.full((n,), i) for s, i in zip(latent, states, strict=True)}
+        )
+        given, acting = _given_others(net, m, given, children, "infer_parameter")
+        mean, cov = m.posterior(params, children, given, every, acting=acting)
+        means.append(mean)
+        covs.append(cov)
+        flag = torch.zeros(n, dtype=torch.bool)
+        for child in children:
+            index = tuple(given[s] if s != m.cluster.site else best for s in child.parents)
+            flag = flag | ~child.seen(params[child.site])[index]
+        unseen.append(flag)
+    means, covs = torch.stack(means, 1), torch.stack(covs, 1)  # (n, S, C, k), (n, S, C, k, k)
+    share = weights / probs.clamp_min(1e-300)[:, None, :]  # p(states | cluster, evidence)
+    mean = (share[..., None] * means).sum(1)  # (n, C, k)
+    spread = means - mean[:, None]
+    cov = (share[..., None, None] * (covs + spread[..., :, None] * spread[..., None, :])).sum(1)
+    rows = torch.arange(n)
+    unseen = (share[rows, :, best] * torch.stack(unseen, 1).to(DTYPE)).sum(1)
+    full = GaussianMixture(probs, mean, cov) if mixture else None
+    answer, answer_cov = mean[rows, best], cov[rows, best]
+    return ParameterPosterior(
+        probs, best, answer, answer_cov, unseen, outside_range(p, answer), full
+    )
 
 
 def _parameter_from_cluster(net, params, m, enc, observed, mixture) -> ParameterPosterior:

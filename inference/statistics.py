@@ -16,9 +16,10 @@ Pseudo-count policy (``pseudo_count``, written alpha): a table row is
 ``(counts + alpha) / (n + K alpha)``, so a parent configuration no sample reached is
 uniform; a Gaussian configuration gets alpha pseudo-rows of the pooled statistics of its
 site (all rows together), so an unseen one is the pooled fit and a rarely seen one is
-shrunk towards it. Covariances get ``min_variance`` on the diagonal so that a
-configuration with fewer rows than dimensions stays positive definite. ``alpha = 0`` and
-``min_variance = 0`` give the plain sample statistics where every configuration is seen.
+shrunk towards it. A covariance's eigenvalues are floored at ``min_variance``, so that a
+configuration with fewer rows than dimensions stays positive definite; one whose spread
+exceeds it in every direction keeps its estimate. ``alpha = 0`` gives the plain sample
+statistics where every configuration is seen.
 """
 
 from __future__ import annotations

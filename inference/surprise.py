@@ -31,9 +31,10 @@ outcome is one Gaussian, unknown parameters integrated out in closed form. So
   over fixed directions ``u`` (``+-1`` in one dimension, equally spaced angles in two, a
   fixed scrambled Sobol set with antithetic pairs beyond) and, along each ray, over the
   chi-distributed radius ``r``: the radii where the outcome is more likely are bracketed
-  on a grid, their ends interpolated linearly in ``r^2`` (exact where one component
-  dominates, whose log-density is linear in ``r^2``), and their chi-square probability
-  summed in closed form. On each component's ball only the components whose density
+  on a grid, their ends found by regula falsi in ``r^2`` (the Illinois variant, started
+  from the linear interpolation, which is exact where one component dominates: its
+  log-density is linear in ``r^2``), and their chi-square probability summed in closed
+  form. In one dimension (the directions +-1) this is exact to rounding. On each component's ball only the components whose density
   can matter there are weighed (a bound per pair). Deterministic: the same row gets the
   same surprise wherever it sits in the batch. Rows observing some dimensions of a
   feature are integrated over those dimensions' marginal.
@@ -350,7 +351,15 @@ def _quadrature(log_prior, mean, tril, log_joint, n_points, seed) -> torch.Tenso
             a, b = excess[..., :-1][crossing], excess[..., 1:][crossing]
             s0 = s[:, None, None, None, :-1].expand_as(crossing)[crossing]
             s1 = s[:, None, None, None, 1:].expand_as(crossing)[crossing]
-            at = s0 + (s1 - s0) * (a / (a - b))  # linear in r^2 between the nodes
+            rows, outcome, comp, ray, _ = crossing.nonzero().unbind(-1)
+            at = _crossing(
+                base[part][rows, outcome, comp, :, 0, 0],
+                linear[part][rows, outcome, comp, :, ray, 0],
+                quadratic[part][rows, outcome, comp, :, ray, 0],
+                level[part][rows, 0, 0, 0, 0],
+                (s0, a),
+                (s1, b),
+            )
             shape = cdf[..., None].expand_as(crossing)[crossing]
             signed = torch.where(a > 0, 1.0, -1.0) * torch.special.gammainc(shape, at / 2)
             mass = mass + torch.zeros_like(excess[..., 1:]).index_put_(
@@ -358,3 +367,28 @@ def _quadrature(log_prior, mean, tril, log_joint, n_points, seed) -> torch.Tenso
             ).sum(-1)
         out.append(mass.mean(-1))  # over the directions
     return torch.cat(out, 0)
+
+
+#: Illinois steps that refine each crossing of the level along a ray (from the linear
+#: interpolation in r^2, exact where one component dominates, to float64 rounding where
+#: several overlap).
+_CROSSING_STEPS = 12
+
+
+def _crossing(base, linear, quadratic, level, low, high) -> torch.Tensor:
+    """``(N,)`` squared radii where the mixture's log-density along a ray, ``logsumexp(base
+    - r (linear + r quadratic))`` over the components (``(N, K)`` each), meets ``level``
+    ``(N,)``: the Illinois variant of regula falsi in ``r^2`` between the bracketing
+    nodes ``low`` and ``high`` (``(r^2, excess)`` pairs of opposite signs)."""
+    (s0, f0), (s1, f1) = low, high
+    for _ in range(_CROSSING_STEPS):
+        step = torch.where(f1 != f0, f1 * (s1 - s0) / (f1 - f0), 0.0)
+        s = (s1 - step).clamp(torch.minimum(s0, s1), torch.maximum(s0, s1))
+        r = s.sqrt()[:, None]
+        f = torch.sub(base, r * torch.addcmul(linear, r, quadratic)).logsumexp(-1) - level
+        switch = f * f1 < 0
+        s0, f0 = torch.where(switch, s1, s0), torch.where(switch, f1, f0 / 2)
+        s1, f1 = s, f
+        if not bool((f != 0).any()):
+            break
+    return s1

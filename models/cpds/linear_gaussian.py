@@ -6,8 +6,9 @@ The maximum-likelihood estimate is per-configuration least squares of ``y`` on
 ``[x, 1]`` with the residual covariance, computed from sums that merge by addition
 (:class:`Moments`). Pseudo-count policy (``alpha``): a configuration gets ``alpha``
 pseudo-rows of the pooled statistics of its site, so an unseen one is the pooled fit
-and a rarely seen one is shrunk towards it; covariances get ``min_variance`` on the
-diagonal, so a configuration with fewer rows than dimensions stays positive definite.
+and a rarely seen one is shrunk towards it; a covariance's eigenvalues are floored at
+``min_variance``, so a configuration with fewer rows than dimensions stays positive
+definite and one with more keeps its estimate.
 """
 
 from __future__ import annotations
@@ -181,7 +182,7 @@ class LinearGaussianCPD(CPD):
         beta = torch.linalg.solve(szz + ridge[:, None, None] * torch.eye(q, dtype=DTYPE), szy)
         resid = syy - szy.mT @ beta - beta.mT @ szy + beta.mT @ szz @ beta
         cov = resid / total.clamp_min(1e-300)[:, None, None]
-        cov = 0.5 * (cov + cov.mT) + min_variance * torch.eye(d, dtype=DTYPE)
+        cov = floor_variance(0.5 * (cov + cov.mT), min_variance)
         tril = safe_cholesky(cov, site)
         return LinearGaussian(
             beta[:, : q - 1, :].mT.reshape(*card, d, q - 1),
@@ -199,6 +200,26 @@ class LinearGaussianCPD(CPD):
 
     def bound(self, free: dict[str, torch.Tensor], params: LinearGaussian) -> LinearGaussian:
         return LinearGaussian(free["weight"], free["bias"], _LOWER_CHOLESKY(free["tril"]), params.n)
+
+
+def floor_variance(cov: torch.Tensor, min_variance: float) -> torch.Tensor:
+    """``cov`` ``(G, d, d)`` with every eigenvalue below ``min_variance`` raised to it.
+
+    A floor, not an addition: a covariance whose spread is above ``min_variance`` in every
+    direction is left as estimated (so refitting rows drawn from fitted parameters gives
+    those parameters back, whatever the noise's scale), and one with fewer rows than
+    dimensions becomes positive definite.
+    """
+    if min_variance <= 0 or not cov.numel():
+        return cov
+    low = torch.linalg.eigvalsh(cov)[..., 0] < min_variance
+    if not bool(low.any()):
+        return cov
+    values, vectors = torch.linalg.eigh(cov[low])
+    cov = cov.clone()
+    floored = (vectors * values.clamp_min(min_variance)[..., None, :]) @ vectors.mT
+    cov[low] = 0.5 * (floored + floored.mT)
+    return cov
 
 
 def safe_cholesky(cov: torch.Tensor, site: str, tries: int = 24) -> torch.Tensor:

@@ -359,20 +359,21 @@ class ParameterMixture:
         ``A theta = b``, i.e. of ``y_j = offset_j + W_j theta`` over the children, each
         weighted by its inverse noise covariance. Where the children leave some directions
         of ``theta`` free (fewer effect dims than parameter dims, or a zero weight), the
-        solution nearest the cluster's mean in the cluster's own metric (a ridge ``1e-10``
-        times the data term's size, towards the mean). Returns the value ``(..., k)`` and
+        solution nearest the cluster's mean in the cluster's own metric (the minimum-norm
+        least-squares solution in the cluster's whitened coordinates). Returns the value ``(..., k)`` and
         the children's squared Mahalanobis distance from their prediction at it, summed
         ``(...)``: zero when the value produces the observed effect exactly."""
         slope, target = whitened[0], whitened[1]
-        info = slope.mT @ slope
-        pull = slope.mT @ target[..., None]
         mean, cov = self.belief(params, cluster)
-        precision = torch.cholesky_inverse(torch.linalg.cholesky(cov))
-        size = info.diagonal(dim1=-2, dim2=-1).sum(-1)
-        scale = precision.diagonal(dim1=-2, dim2=-1).sum(-1)
-        ridge = (1e-10 * torch.where(size > 0, size, scale) / scale)[..., None, None]
-        system = info + ridge * precision
-        value = torch.linalg.solve(system, pull + ridge * precision @ mean[..., None])
+        # in the cluster's whitened coordinates theta = mean + L z, the solution nearest
+        # the mean is the minimum-norm least-squares z (by SVD: exact where directions are
+        # free, where a ridge on the normal equations would leave them ill-conditioned)
+        tril = torch.linalg.cholesky(cov)
+        lead = torch.broadcast_shapes(slope.shape[:-2], tril.shape[:-2], target.shape[:-1])
+        design = (slope @ tril).expand(*lead, *slope.shape[-2:])
+        rest = (target - (slope @ mean[..., None])[..., 0]).expand(*lead, target.shape[-1])
+        z = torch.linalg.lstsq(design, rest[..., None], driver="gelsd").solution
+        value = mean[..., None] + tril @ z
         miss = (target - (slope @ value)[..., 0]).square().sum(-1)
         return value[..., 0], miss
 
