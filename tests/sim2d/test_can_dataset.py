@@ -631,6 +631,27 @@ def test_the_command_line_says_a_read_only_folder_in_two_lines(tmp_path, monkeyp
     assert len(lines) == 2 and lines[0].endswith("d.npz.lock: Read-only file system"), lines
 
 
+def test_the_command_line_says_a_path_it_cannot_write_in_two_lines(tmp_path, capsys):
+    # a file where the data set's folder is needed
+    (tmp_path / "file").write_text("")
+    with pytest.raises(SystemExit) as exited:
+        generate_main([str(tmp_path / "file" / "d.npz"), *CLI_SMALL])
+    assert exited.value.code == 1
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 2, lines
+    assert lines[0].startswith("python -m sim2d.generate: error: could not write ")
+    assert "stands where" in lines[0] and "run it again" in lines[1]
+
+
+def test_a_folder_as_the_data_set_is_refused_before_any_throw(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(can_dataset, "run_chunks", None)  # nothing may be computed
+    with pytest.raises(SystemExit) as exited:
+        generate_main([str(tmp_path), *CLI_SMALL])
+    assert exited.value.code == 2
+    err = capsys.readouterr().err
+    assert f"path {str(tmp_path)!r} is a folder" in err and "Traceback" not in err
+
+
 @pytest.mark.parametrize("port", ["0", "65536", "99999"])
 def test_a_port_out_of_range_is_refused_naming_it(port):
     with pytest.raises(ValueError, match=rf"executor='dask://h:{port}' names port {port}; "):
