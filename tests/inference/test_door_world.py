@@ -404,16 +404,23 @@ def test_discrete_queries_equal_pgmpy_variable_elimination(pattern):
     from pgmpy.inference import VariableElimination
 
     from inference import fit, infer_action, predict
+    from inference.compiled import compile_discrete
 
     net = door_world(None, handle=False)
     params = fit(net, door_rows(400, seed=7, handle=False)).params
     ve = VariableElimination(pgmpy_network(net, params))
     rows = door_rows(6, seed=8, handle=False)
     posterior = infer_action(net, params, {s: rows[s] for s in pattern})
+    compiled = compile_discrete(net, params)
+    tables = compiled.infer_action({s: rows[s] for s in pattern})
     for i in range(6):
         evidence = {s: int(index_of(s, rows[s][i : i + 1])[0]) for s in pattern}
         expected = ve.query(["action"], evidence=evidence, show_progress=False).values
         np.testing.assert_allclose(posterior.probs[i].numpy(), expected, rtol=0, atol=1e-12)
+        np.testing.assert_allclose(tables.probs[i].numpy(), expected, rtol=0, atol=1e-12)
+        one = compiled.infer_action({s: rows[s][i : i + 1] for s in pattern})  # one row
+        np.testing.assert_allclose(one.probs[0].numpy(), expected, rtol=0, atol=1e-12)
+        assert one.best_names == (ACTIONS[int(np.argmax(expected))],) or one.unseen.any()
     # predict: the initial sites of the pattern and an action; every end feature
     initial = [s for s in pattern if s.startswith("initial.")]
     prediction = predict(net, params, {s: rows[s] for s in initial} | {"action": rows["action"]})
@@ -574,3 +581,52 @@ def test_infer_discrete_draws_the_exact_posterior(fitted):
     p = posterior["action"][0]
     freq = np.bincount(drawn, minlength=4) / 2000
     assert (np.abs(freq - p) <= 5 * np.sqrt(p * (1 - p) / 2000) + 1e-9).all()
+
+
+@pytest.mark.parametrize(
+    "observed",
+    [
+        ("end.door", "end.drawer", "end.switch", "end.handle_angle"),
+        ("end.door", "end.handle_angle"),
+        ("end.door", "end.switch"),
+    ],
+    ids=lambda p: "+".join(p),
+)
+def test_imitation_surprise_equals_the_closed_form(fitted, observed):
+    # surprise = P(p(O | E) > p(o* | E)): per discrete outcome d, the Gaussian's share
+    # of angles whose density exceeds p(o*) / p(d), erf(r / sqrt 2) at radius r
+    from scipy.special import erf
+
+    from inference import imitation_check
+
+    net, params = fitted
+    rows = door_rows(6, seed=14)
+    initial = ("initial.door", "initial.drawer", "initial.switch", "initial.handle_angle")
+    given = {s: rows[s] for s in (*initial, "action")}
+    check = imitation_check(net, params, given | {s: rows[s] for s in observed})
+    discrete = [s for s in observed if net.site(s).discrete]
+    for i in range(6):
+        row = {s: (rows[s][i : i + 1] if s == "initial.handle_angle" else index_of(s, rows[s][i]))
+               for s in given}  # fmt: skip
+
+        def p_discrete(assignment, row=row):
+            values = row | {s: np.array([k]) for s, k in zip(discrete, assignment, strict=True)}
+            return math.exp(sum(log_factor(net, params, s, values)[0] for s in discrete))
+
+        level = p_discrete([int(index_of(s, rows[s][i])[0]) for s in discrete])
+        sd = None
+        if "end.handle_angle" in observed:
+            density = math.exp(log_factor(net, params, "end.handle_angle", row | {
+                "end.handle_angle": rows["end.handle_angle"][i : i + 1]})[0])  # fmt: skip
+            a = int(row["action"][0])
+            sd = float(params["end.handle_angle"].scale_tril[a, 0, 0])
+            level *= density
+        surprise = 0.0
+        for assignment in itertools.product(*(range(net.site(s).size) for s in discrete)):
+            p = p_discrete(assignment)
+            if sd is None:
+                surprise += p if p > level else 0.0
+                continue
+            peak = level / p * sd * math.sqrt(2 * math.pi)  # the level against the peak
+            surprise += p * float(erf(math.sqrt(-math.log(peak)))) if peak < 1 else 0.0
+        assert float(check.surprise[i]) == pytest.approx(surprise, abs=1e-12)
