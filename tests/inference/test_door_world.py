@@ -253,6 +253,46 @@ def test_missing_values_em_never_lowers_the_likelihood_and_is_fast():
     assert ours == pytest.approx(own, rel=1e-12)
 
 
+def test_a_missing_value_is_ignored_whatever_stands_in_its_place():
+    # None, NaN or a label the site does not have where masks say missing: the same fit
+    from inference import fit
+    from inference.em import missing_log_likelihood
+
+    net = door_world()
+    rows = door_rows(300, seed=15)
+    masks = masked(rows, 16)
+    holes = dict(rows)
+    for site, junk in (("end.door", None), ("initial.drawer", "ajar"), ("action", np.nan)):
+        values = rows[site].astype(object)
+        values[~masks[site]] = junk
+        holes[site] = values
+    expected = fit(net, rows, masks=masks)
+    found = fit(net, holes, masks=masks)
+    assert found.losses == expected.losses
+    for site in expected.params.cpds:
+        for name in expected.params[site].__dataclass_fields__:
+            value = getattr(expected.params[site], name)
+            assert torch.equal(getattr(found.params[site], name), value), (site, name)
+    assert missing_log_likelihood(net, found.params, holes, masks) == missing_log_likelihood(
+        net, found.params, rows, masks
+    )
+
+
+@pytest.mark.parametrize(
+    ("masks", "words"),
+    [
+        ({"end.doors": np.ones(50, bool)}, r"masks\['end\.doors'\]: no such site"),
+        ({"end.door": np.full(50, 0.5)}, r"masks\['end\.door'\] must hold bools"),
+        ({"end.door": np.full(50, "no")}, r"masks\['end\.door'\] must hold bools"),
+    ],
+)
+def test_bad_masks_are_value_errors_naming_the_site(masks, words):
+    from inference import fit
+
+    with pytest.raises(ValueError, match=words):
+        fit(door_world(), door_rows(50), masks=masks)
+
+
 def tiny_world() -> EffectNetwork:
     return EffectNetwork(
         features=(Discrete("door", STATES["door"]), Continuous("handle_angle", 1)),
