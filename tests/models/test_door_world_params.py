@@ -135,3 +135,11 @@ def test_a_billion_bins_are_refused_at_once_naming_the_site():
             ),
         )
     assert time.perf_counter() - start < 1.0
+
+
+def test_saving_onto_a_folder_is_refused_naming_it(door, tmp_path):
+    net, params = door
+    (tmp_path / "door.pt").mkdir()
+    with pytest.raises(ValueError, match=r"'[^']*door\.pt' is a folder"):
+        save(tmp_path / "door.pt", net, params)
+    assert [p.name for p in tmp_path.iterdir()] == ["door.pt"]  # nothing written beside it
