@@ -143,3 +143,11 @@ def test_saving_onto_a_folder_is_refused_naming_it(door, tmp_path):
     with pytest.raises(ValueError, match=r"'[^']*door\.pt' is a folder"):
         save(tmp_path / "door.pt", net, params)
     assert [p.name for p in tmp_path.iterdir()] == ["door.pt"]  # nothing written beside it
+
+
+def test_states_or_actions_given_as_a_set_are_refused():
+    # a set's order (each label's index) may differ from one run to the next
+    with pytest.raises(ValueError, match=r"feature 'door': states must be an ordered sequence"):
+        Discrete("door", set(STATES["door"]))
+    with pytest.raises(ValueError, match=r"actions must be an ordered sequence"):
+        EffectNetwork(features=(Discrete("door", STATES["door"]),), actions=frozenset(ACTIONS))
