@@ -1,4 +1,4 @@
-"""Saving, loading and declaring the door world (tests/inference/test_door_world.py):
+"""The door world (tests/inference/test_door_world.py) saved, loaded, declared and modelled:
 files that fail or are damaged never pass for the model, and declarations that would
 mean something else are refused by name."""
 
@@ -151,3 +151,24 @@ def test_states_or_actions_given_as_a_set_are_refused():
         Discrete("door", set(STATES["door"]))
     with pytest.raises(ValueError, match=r"actions must be an ordered sequence"):
         EffectNetwork(features=(Discrete("door", STATES["door"]),), actions=frozenset(ACTIONS))
+
+
+@pytest.mark.parametrize(
+    ("end_sites", "words"),
+    [
+        ("end.door", r"end_sites must be a collection of end site names, got 'end\.door'"),
+        ({"end.doors"}, r"end_sites \['end\.doors'\] are not sites of this network"),
+    ],
+)
+def test_end_sites_that_would_leave_the_model_silently_are_refused(door, end_sites, words):
+    # a string's letters, or a misspelt name, used to drop every end site without a word
+    from pyro.infer import TraceEnum_ELBO
+
+    from models import effect_model
+
+    net, params = door
+    evidence = net.encode({"initial.handle_angle": [[0.2]], "end.door": ["open"]})
+    with pytest.raises(ValueError, match=words):
+        TraceEnum_ELBO(max_plate_nesting=1).loss(
+            lambda: effect_model(net, params, evidence, end_sites=end_sites), lambda: None
+        )
