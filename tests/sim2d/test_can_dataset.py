@@ -652,6 +652,18 @@ def test_a_folder_as_the_data_set_is_refused_before_any_throw(tmp_path, capsys, 
     assert f"path {str(tmp_path)!r} is a folder" in err and "Traceback" not in err
 
 
+def _sigterm_disposition() -> str:
+    return repr(signal.getsignal(signal.SIGTERM))
+
+
+def test_a_pool_worker_ends_at_sigterm_whatever_its_parent_turns_it_into():
+    # workers forked while the generator turns SIGTERM into KeyboardInterrupt used to
+    # inherit that handler: a SIGTERM to the process group then printed a traceback from
+    # a pymunk finaliser in a worker (2 runs of 10)
+    with chunks._sigterm_as_interrupt(), executors.open_executor("process:1") as pool:
+        assert pool.submit(_sigterm_disposition).result() == repr(signal.SIG_DFL)
+
+
 @pytest.mark.parametrize("port", ["0", "65536", "99999"])
 def test_a_port_out_of_range_is_refused_naming_it(port):
     with pytest.raises(ValueError, match=rf"executor='dask://h:{port}' names port {port}; "):
