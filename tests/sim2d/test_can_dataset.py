@@ -656,12 +656,36 @@ def _sigterm_disposition() -> str:
     return repr(signal.getsignal(signal.SIGTERM))
 
 
-def test_a_pool_worker_ends_at_sigterm_whatever_its_parent_turns_it_into():
+def test_a_pool_worker_leaves_sigterm_to_its_parent():
     # workers forked while the generator turns SIGTERM into KeyboardInterrupt used to
     # inherit that handler: a SIGTERM to the process group then printed a traceback from
-    # a pymunk finaliser in a worker (2 runs of 10)
+    # a pymunk finaliser in a worker (2 runs of 10); a worker that died of it broke the
+    # pool under the parent's cancelled futures (another traceback)
     with chunks._sigterm_as_interrupt(), executors.open_executor("process:1") as pool:
-        assert pool.submit(_sigterm_disposition).result() == repr(signal.SIG_DFL)
+        assert pool.submit(_sigterm_disposition).result() == repr(signal.SIG_IGN)
+
+
+@pytest.mark.slow
+def test_sigterm_to_the_generator_s_process_group_ends_it_in_one_line(tmp_path):
+    # as `timeout` or a terminal's hang-up sends it: the parent and every pool worker
+    for trial in range(6):
+        path = tmp_path / f"d{trial}.npz"
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "sim2d.generate", str(path), "--executor", "process:2",
+             "--quiet", "--chunk-size", "50", "--configs", str(BOTTOM_ROW), "0", "1023"],
+            cwd=Path(__file__).resolve().parents[2], stderr=subprocess.PIPE, text=True,
+            start_new_session=True,
+        )  # fmt: skip
+        parts = path.with_name(path.name + ".parts")
+        deadline = time.monotonic() + 120
+        while len(list(parts.glob("chunk-*.npz"))) < 2 + trial and time.monotonic() < deadline:
+            time.sleep(0.02)
+        os.killpg(proc.pid, signal.SIGTERM)
+        err = proc.communicate(timeout=60)[1]
+        assert proc.returncode == 130, err
+        assert err.strip().splitlines() == [
+            "python -m sim2d.generate: interrupted; run it again to resume"
+        ], err
 
 
 @pytest.mark.parametrize("port", ["0", "65536", "99999"])
