@@ -670,3 +670,74 @@ def test_imitation_surprise_equals_the_closed_form(fitted, observed):
             peak = level / p * sd * math.sqrt(2 * math.pi)  # the level against the peak
             surprise += p * float(erf(math.sqrt(-math.log(peak)))) if peak < 1 else 0.0
         assert float(check.surprise[i]) == pytest.approx(surprise, abs=1e-12)
+
+
+def test_an_unknown_torque_integrated_out_equals_numerical_integration():
+    # "turn" takes a torque (4 cells on [0, 2]) that moves the handle; the torque is
+    # unknown: the collapsed model's ELBO and infer_action against the joint summed over
+    # actions and clusters, the torque integrated on a fine grid
+    from pyro.infer import TraceEnum_ELBO
+    from scipy.stats import norm
+
+    from inference import fit, infer_action
+    from models import Parameter, effect_model
+
+    net = EffectNetwork(
+        features=(Discrete("door", STATES["door"]), Continuous("handle_angle", 1)),
+        actions=ACTIONS,
+        parameters=(Parameter("torque", 0.0, 2.0, 4, actions=("turn",), affects="handle_angle"),),
+        parents={
+            "end.door": ("initial.door", "action", "initial.handle_angle"),
+            "end.handle_angle": ("initial.handle_angle", "action"),
+        },
+    )
+    rows = door_rows(2000, seed=3)
+    torque = np.where(
+        rows["action"] == "turn", np.random.default_rng(0).uniform(0, 2, 2000), np.nan
+    )
+    rows["end.handle_angle"] = rows["end.handle_angle"] + 0.3 * np.nan_to_num(torque)[:, None]
+    kept = ("initial.door", "initial.handle_angle", "action", "end.door", "end.handle_angle")
+    params = fit(net, {s: rows[s] for s in kept} | {"param.torque": torque[:, None]}).params
+    x, y = 0.4, 0.9
+    evidence = {"initial.door": ["locked"], "initial.handle_angle": [[x]], "end.door": ["open"]}
+    evidence |= {"end.handle_angle": [[y]]}
+    enc = net.encode(evidence)
+    loss = TraceEnum_ELBO(max_plate_nesting=1).loss(
+        lambda: effect_model(net, params, enc, collapse=True), lambda: None
+    )
+    posterior = infer_action(net, params, evidence)
+
+    p = {s.name: params[s.name] for s in net.sites}
+    start = math.log(p["initial.door"].probs[0]) + norm.logpdf(
+        x,
+        float(p["initial.handle_angle"].bias[0]),
+        float(p["initial.handle_angle"].scale_tril[0, 0]),
+    )
+    t = np.linspace(-20.0, 22.0, 400_001)
+    joint = np.zeros(4)
+    for a, name in enumerate(ACTIONS):
+        logits = p["end.door"].weight[0, a, :, 0].numpy() * x + p["end.door"].bias[0, a].numpy()
+        opened = np.exp(logits - logits.max())[2] / np.exp(logits - logits.max()).sum()
+        moved = 0.0
+        for c in range(4):
+            share = float(p["cluster.torque"].probs[a, c])
+            if share == 0.0:  # an action that does not use the torque: cluster 0 only
+                continue
+            (w_x, w_t), b = (
+                p["end.handle_angle"].weight[a, c, 0].tolist(),
+                float(p["end.handle_angle"].bias[a, c, 0]),
+            )
+            sd = float(p["end.handle_angle"].scale_tril[a, c, 0, 0])
+            if name != "turn":
+                moved += share * norm.pdf(y, w_x * x + b, sd)
+                continue
+            m, s = float(p["param.torque"].bias[c, 0]), float(p["param.torque"].scale_tril[c, 0, 0])
+            density = norm.pdf(t, m, s) * norm.pdf(y, w_x * x + w_t * t + b, sd)
+            moved += share * density.sum() * (t[1] - t[0])
+        joint[a] = float(p["action"].probs[a]) * opened * moved
+    expected = -(start + math.log(joint.sum()))
+    assert loss == pytest.approx(expected, rel=1e-9)
+    assert -float(posterior.log_evidence[0]) == pytest.approx(expected, rel=1e-9)
+    np.testing.assert_allclose(
+        posterior.probs[0].numpy(), joint / joint.sum(), rtol=1e-8, atol=1e-12
+    )
