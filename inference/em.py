@@ -73,12 +73,20 @@ import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 
+import numpy as np
 import torch
 from tqdm.auto import tqdm
 
 from inference.compiled import quadratic_features
 from inference.enumeration import Enumerated, enumerate_model, row_chunks
-from inference.fit import ConvergenceWarning, FitResult, _check_settings, _complete, maximise_site
+from inference.fit import (
+    ConvergenceWarning,
+    FitResult,
+    _check_settings,
+    _complete,
+    ignore_missing,
+    maximise_site,
+)
 from inference.statistics import params_from_statistics, statistics
 from models.cpds import Counts, LinearGaussianCPD, Moments, ParameterMixture, TableCPD
 from models.declaration import ACTION, EffectNetwork
@@ -545,8 +553,8 @@ def missing_log_likelihood(
     ``masks``), those values summed out: what :func:`fit_missing` raises."""
     check_params(net, params)
     unknown = masks.get(ACTION)
-    unknown = None if unknown is None else ~torch.as_tensor(unknown, dtype=torch.bool)
-    enc = _complete(net, data, unknown)
+    unknown = None if unknown is None else ~_mask_values(ACTION, unknown)
+    enc = _complete(net, ignore_missing(net, data, masks), unknown)
     masks = _missing_masks(net, masks, enc.n_rows)
     return _completed_rows(net, params, enc, masks, _actions_allowed(net, enc, masks))[2]
 
@@ -558,8 +566,8 @@ def _missing_masks(
     (``n``: the rows, or ``None`` to check before the rows are read)."""
     out = {}
     for site, mask in masks.items():
-        spec = net.site(site)
-        mask = torch.as_tensor(mask, dtype=torch.bool).reshape(-1)
+        spec = _mask_site(net, site)
+        mask = _mask_values(site, mask)
         if not spec.discrete or (n is not None and mask.shape[0] != n):
             kind = "discrete" if spec.discrete else "continuous"
             raise ValueError(
@@ -586,6 +594,33 @@ def _missing_masks(
             "missing values has no M-step for them"
         )
     return out
+
+
+def _mask_site(net: EffectNetwork, site: object):
+    """The site a mask is given for; a ``ValueError`` naming it if there is no such site."""
+    names = [s.name for s in net.sites]
+    if site not in names:
+        raise ValueError(f"masks[{site!r}]: no such site; the network's sites are {names}")
+    return net.site(site)
+
+
+def _mask_values(site: str, mask: object) -> torch.Tensor:
+    """A mask as a flat bool tensor: bools, or the numbers 0 and 1; anything else (a
+    fraction, NaN) is a ``ValueError`` naming the site."""
+    if not isinstance(mask, torch.Tensor):
+        mask = np.asarray(mask)
+        if mask.dtype == object or mask.dtype.kind not in "biuf":
+            raise ValueError(
+                f"masks[{site!r}] must hold bools (False where missing), got dtype {mask.dtype}"
+            )
+        mask = torch.from_numpy(mask)
+    if mask.dtype != torch.bool:
+        if mask.is_complex() or not bool(((mask == 0) | (mask == 1)).all()):
+            raise ValueError(
+                f"masks[{site!r}] must hold bools (False where missing) or 0/1, got values "
+                f"other than 0 and 1"
+            )
+    return mask.to(torch.bool).reshape(-1)
 
 
 def _actions_allowed(net: EffectNetwork, enc: Evidence, masks) -> torch.Tensor | None:

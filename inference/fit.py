@@ -46,6 +46,7 @@ import warnings
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
+import numpy as np
 import pyro
 import torch
 from pyro.infer import TraceEnum_ELBO
@@ -137,10 +138,13 @@ def fit(
         from inference.em import _missing_masks  # em builds on this module
 
         _missing_masks(net, masks, None)  # what EM cannot fill, before the rows' checks
+        data = ignore_missing(net, data, masks)
     action_mask = (masks or {}).get(ACTION)
     unknown_action = None
     if action_mask is not None:
-        unknown_action = ~torch.as_tensor(action_mask, dtype=torch.bool).reshape(-1)
+        from inference.em import _mask_values  # em builds on this module
+
+        unknown_action = ~_mask_values(ACTION, action_mask)
     enc = _complete(net, data, unknown_action)
     masks = _masks(net, masks, enc.n_rows)
     gaps = {site: m for site, m in masks.items() if not bool(m.all())}
@@ -436,14 +440,45 @@ def _check_settings(**settings: float) -> None:
             raise ValueError(f"{name} must be {want}, got {value!r}")
 
 
+def ignore_missing(
+    net: EffectNetwork, data: Mapping[str, object], masks: Mapping[str, object]
+) -> Mapping[str, object]:
+    """The rows with each value that ``masks`` mark missing replaced by a declared state:
+    the value there is ignored, so ``None``, NaN, an empty string or any label may stand
+    in its place. Encoded rows (:class:`Evidence`) hold valid indices throughout."""
+    if isinstance(data, Evidence):
+        return data
+    from inference.em import _mask_values  # em builds on this module
+
+    out = dict(data)
+    for site, mask in masks.items():
+        if site not in data or not net.site(site).discrete:
+            continue
+        missing = ~_mask_values(site, mask).numpy()
+        values = data[site]
+        if isinstance(values, torch.Tensor):
+            values = values.tolist()
+        values = np.asarray(values, dtype=object).reshape(-1)
+        if not missing.any() or values.shape != missing.shape:  # a wrong length: refused later
+            continue
+        spec = net.site(site)
+        states = net.actions if site == ACTION else net.feature(spec.feature).states
+        values = values.copy()
+        values[missing] = states[0]
+        out[site] = values
+    return out
+
+
 def _masks(
     net: EffectNetwork, masks: Mapping[str, object] | None, n: int
 ) -> dict[str, torch.Tensor]:
+    from inference.em import _mask_site, _mask_values  # em builds on this module
+
     out = {}
     for k, v in (masks or {}).items():
-        if not net.site(k).discrete:
+        if not _mask_site(net, k).discrete:
             raise ValueError(f"masks are for discrete sites; {k!r} is continuous")
-        m = torch.as_tensor(v, dtype=torch.bool).reshape(-1)
+        m = _mask_values(k, v)
         if m.shape[0] != n:
             raise ValueError(f"masks[{k!r}] has {m.shape[0]} rows, the data {n}")
         out[k] = m

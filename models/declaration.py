@@ -88,6 +88,11 @@ class Discrete:
             raise ValueError(
                 f"feature {self.name!r}: states must be a sequence of labels, got {self.states!r}"
             )
+        if isinstance(self.states, set | frozenset):  # the order gives each state its index
+            raise ValueError(
+                f"feature {self.name!r}: states must be an ordered sequence (a tuple or a "
+                f"list), got the set {self.states!r}, whose order may change between runs"
+            )
         object.__setattr__(self, "states", tuple(_state_label(self.name, s) for s in self.states))
         if len(self.states) < 2:
             raise ValueError(f"feature {self.name!r} needs at least two states, got {self.states}")
@@ -337,6 +342,11 @@ class EffectNetwork:
             raise ValueError(
                 f"actions must be a sequence of action names, got {self.actions!r} (one "
                 f"action is written ({self.actions!r},))"
+            )
+        if isinstance(self.actions, set | frozenset):  # the order gives each action its index
+            raise ValueError(
+                f"actions must be an ordered sequence (a tuple or a list), got the set "
+                f"{self.actions!r}, whose order may change between runs"
             )
         object.__setattr__(self, "features", tuple(self.features))
         object.__setattr__(self, "actions", tuple(self.actions))

@@ -129,7 +129,7 @@ def effect_model(
     data = net.encode(data) if data is not None else Evidence(net, {}, 0)
     n = _rows(data, n_rows)
     masks = dict(masks or {})
-    wanted = None if end_sites is None else net.end_sites_needed(end_sites)
+    wanted = None if end_sites is None else net.end_sites_needed(_site_names(net, end_sites))
     mixtures = {m.cluster.site: m for m in net.mixtures}
     acting: dict[str, tuple[ParameterMixture, ...]] = {}  # continuous site -> its parameters
     shared = [m for m in net.mixtures if len(m.continuous) > 1]
@@ -316,3 +316,24 @@ def _continuous(site: str, value: object) -> torch.Tensor:
     if isinstance(value, torch.Tensor) and value.is_floating_point():
         return value if value.dtype == DTYPE else value.to(DTYPE)
     raise ValueError(f"site {site!r} received {value!r}: expected a float tensor of shape (n, dim)")
+
+
+def _site_names(net: EffectNetwork, end_sites: object) -> list[str]:
+    """``end_sites`` as a list of the network's site names: a string (whose letters
+    would be taken for names) or a name the network lacks is a ``ValueError``, since
+    leaving an end site out changes the model silently. Names of other roles are ignored
+    (the queries pass their whole evidence)."""
+    if isinstance(end_sites, str | bytes) or not hasattr(end_sites, "__iter__"):
+        raise ValueError(
+            f"end_sites must be a collection of end site names, got {end_sites!r} (one site "
+            f"is written ({end_sites!r},))"
+        )
+    names = list(end_sites)
+    sites = {s.name for s in net.sites}
+    unknown = [name for name in names if name not in sites]
+    if unknown:
+        ends = [s.name for s in net.sites if s.role == "end"]
+        raise ValueError(
+            f"end_sites {unknown} are not sites of this network; its end sites: {ends}"
+        )
+    return names

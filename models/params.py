@@ -128,6 +128,8 @@ def save(path: str | Path, net: EffectNetwork, params: NetworkParams) -> Path:
     """
     check_params(net, params)
     path = Path(path)
+    if path.is_dir():  # the rename would fail last, naming the temporary file
+        raise ValueError(f"{str(path)!r} is a folder; expected the path of the file to save")
     cpds = {
         site: {
             "type": type(c).__name__,

@@ -288,6 +288,8 @@ def generate_dataset(
     if executor is not None and isinstance(executor, str):
         parse_spec(executor)  # a bad specification fails before any work
     path = Path(path)
+    if path.is_dir():  # refused before any throw is computed: the rename would fail last
+        raise ValueError(f"path {str(path)!r} is a folder; expected the data set's file (.npz)")
     metadata = _metadata(configs, angles, repeats, jitter, seed, chunk_size)
     if _finished(path, metadata):  # read only: usable in a read-only folder, without the lock
         return path

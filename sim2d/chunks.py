@@ -103,10 +103,15 @@ def _atomic_file(path: Path, mode: str = "wb") -> Iterator:
         raise
 
 
+#: Errors of a path that cannot be a folder or a file to write: a file where a folder is
+#: needed (``mkdir`` gives EEXIST, a path through it ENOTDIR), a folder where the file
+#: goes, a name too long.
+_PATH_ERRNOS = frozenset({errno.EEXIST, errno.ENOTDIR, errno.EISDIR, errno.ENAMETOOLONG})
 #: The errors of a write that the user can remedy: a full disk or quota, a read-only or
-#: forbidden folder, a file-size limit.
-WRITE_ERRNOS = frozenset(
-    {errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EFBIG}
+#: forbidden folder, a file-size limit, a path that cannot be written (see above).
+WRITE_ERRNOS = (
+    frozenset({errno.ENOSPC, errno.EDQUOT, errno.EROFS, errno.EACCES, errno.EPERM, errno.EFBIG})
+    | _PATH_ERRNOS
 )
 
 
@@ -118,8 +123,14 @@ def write_failure(error: BaseException) -> str | None:
     :data:`WRITE_ERRNOS`; None for any other error."""
     if not isinstance(error, OSError) or error.errno not in WRITE_ERRNOS:
         return None
-    where = f" {error.filename}" if error.filename else " a file"
-    return f"could not write{where}: {error.strerror or error}"
+    name = error.filename2 if error.errno == errno.EISDIR and error.filename2 else error.filename
+    where = f" {name}" if name else " a file"
+    why = error.strerror or str(error)
+    if error.errno in (errno.EEXIST, errno.ENOTDIR):
+        why += " (a file stands where a folder is needed)"
+    elif error.errno == errno.EISDIR:
+        why += " (a folder stands where the file goes)"
+    return f"could not write{where}: {why}"
 
 
 def save_npz(path, arrays: dict[str, np.ndarray]) -> Path:

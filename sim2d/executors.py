@@ -90,16 +90,24 @@ def parse_spec(spec: str) -> tuple[str, int | str | None]:
 def _end_with_parent(parent: int) -> None:
     """Pool-worker initializer: exit as soon as the process that started the pool is gone.
 
-    The worker also ignores SIGINT: a Ctrl-C reaches the whole process group, and the
-    parent saves what finished and shuts the pool down. A pool worker blocks on its task queue, whose other end the forked workers keep open
-    themselves, so a parent killed by a signal would leave them waiting forever.
+    The worker also ignores SIGINT and SIGTERM: a Ctrl-C or a SIGTERM to the process
+    group reaches every worker too, and the parent saves what finished and shuts the
+    pool down (a worker that died of the signal instead would break the pool under the
+    parent's cancelled futures, whose bookkeeping thread then fails with a traceback). A
+    pool worker blocks on its task queue, whose other end the forked workers keep open
+    themselves, so a parent killed by a signal would leave them waiting forever: the
+    kernel kills the worker then (SIGKILL, which cannot be ignored), or the watch below.
     """
     import ctypes
     import signal
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
+    # ... and so is SIGTERM. A worker forked while the parent turns SIGTERM into
+    # KeyboardInterrupt (so that it saves what finished) would otherwise inherit that
+    # handler, whose interrupt can land in a pymunk finaliser and print a traceback.
+    signal.signal(signal.SIGTERM, signal.SIG_IGN)
     with contextlib.suppress(OSError, AttributeError):  # Linux: the kernel tells us
-        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM))  # PR_SET_PDEATHSIG
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL))  # PR_SET_PDEATHSIG
 
     def watch() -> None:  # everywhere else (and for a parent that died before prctl)
         while os.getppid() == parent:

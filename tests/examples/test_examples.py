@@ -6,6 +6,7 @@ way a user runs it (a subprocess in the repository root), and its command line i
 
 import json
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -261,3 +262,26 @@ def test_a_failed_write_is_two_lines_not_a_traceback(tmp_path):
     assert len(lines) == 2, done.stderr[-3000:]
     assert lines[0] == "throw_kinematics.py: error: could not write a file: File too large"
     assert "run it again" in lines[1]
+
+
+JUNK = ["-1", "0", "nan", "inf", "-inf", "1e12", "1e400", "x", "", "3.5"]
+
+
+@pytest.mark.parametrize("name", EXAMPLES)
+def test_every_option_takes_junk_with_a_usage_error_or_a_value(name, capsys):
+    # --help, and each option of each example given junk: exit 0 for help, a usage error
+    # (exit 2, one "error:" line) or parsed settings; never a traceback
+    example = load_example(name)
+    with pytest.raises(SystemExit) as exited:
+        example.parse_args(["--help"])
+    assert exited.value.code == 0
+    usage = capsys.readouterr().out
+    options = sorted(set(re.findall(r"(--[a-z][a-z-]*)( [A-Z{])?", usage)) - {("--help", "")})
+    assert options
+    for option, takes_value in options:
+        for argv in ([option, value] for value in JUNK) if takes_value else [[option]]:
+            try:
+                example.parse_args(argv)
+            except SystemExit as refused:
+                err = capsys.readouterr().err
+                assert refused.code == 2 and "error: " in err and "Traceback" not in err, argv

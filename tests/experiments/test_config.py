@@ -155,3 +155,23 @@ def test_check_threads_is_bounded_by_the_cores(monkeypatch):
     for value in (0, 4, 10**12):
         with pytest.raises(ConfigError, match=rf"^threads: {value} is out of range; .* 1\.\.3"):
             check_threads("threads", value)
+
+
+@pytest.mark.parametrize("where", ["file", "file/sub"])
+def test_run_script_says_a_file_in_the_way_of_the_output_folder_in_two_lines(
+    where, tmp_path, capsys, monkeypatch
+):
+    # --out naming a file, or a folder below one: mkdir's own error, not a traceback
+    (tmp_path / "file").write_text("")
+    monkeypatch.setattr("sys.argv", ["demo"])
+
+    def make_folder(args):
+        (tmp_path / where).mkdir(parents=True, exist_ok=True)
+
+    with pytest.raises(SystemExit) as exited:
+        run_script(make_folder, None)
+    assert exited.value.code == 1
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 2, lines
+    assert lines[0].startswith(f"demo: error: could not write {tmp_path / where}: ")
+    assert lines[0].endswith("(a file stands where a folder is needed)")

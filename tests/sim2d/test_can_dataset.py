@@ -631,6 +631,63 @@ def test_the_command_line_says_a_read_only_folder_in_two_lines(tmp_path, monkeyp
     assert len(lines) == 2 and lines[0].endswith("d.npz.lock: Read-only file system"), lines
 
 
+def test_the_command_line_says_a_path_it_cannot_write_in_two_lines(tmp_path, capsys):
+    # a file where the data set's folder is needed
+    (tmp_path / "file").write_text("")
+    with pytest.raises(SystemExit) as exited:
+        generate_main([str(tmp_path / "file" / "d.npz"), *CLI_SMALL])
+    assert exited.value.code == 1
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 2, lines
+    assert lines[0].startswith("python -m sim2d.generate: error: could not write ")
+    assert "stands where" in lines[0] and "run it again" in lines[1]
+
+
+def test_a_folder_as_the_data_set_is_refused_before_any_throw(tmp_path, capsys, monkeypatch):
+    monkeypatch.setattr(can_dataset, "run_chunks", None)  # nothing may be computed
+    with pytest.raises(SystemExit) as exited:
+        generate_main([str(tmp_path), *CLI_SMALL])
+    assert exited.value.code == 2
+    err = capsys.readouterr().err
+    assert f"path {str(tmp_path)!r} is a folder" in err and "Traceback" not in err
+
+
+def _sigterm_disposition() -> str:
+    return repr(signal.getsignal(signal.SIGTERM))
+
+
+def test_a_pool_worker_leaves_sigterm_to_its_parent():
+    # workers forked while the generator turns SIGTERM into KeyboardInterrupt used to
+    # inherit that handler: a SIGTERM to the process group then printed a traceback from
+    # a pymunk finaliser in a worker (2 runs of 10); a worker that died of it broke the
+    # pool under the parent's cancelled futures (another traceback)
+    with chunks._sigterm_as_interrupt(), executors.open_executor("process:1") as pool:
+        assert pool.submit(_sigterm_disposition).result() == repr(signal.SIG_IGN)
+
+
+@pytest.mark.slow
+def test_sigterm_to_the_generator_s_process_group_ends_it_in_one_line(tmp_path):
+    # as `timeout` or a terminal's hang-up sends it: the parent and every pool worker
+    for trial in range(6):
+        path = tmp_path / f"d{trial}.npz"
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "sim2d.generate", str(path), "--executor", "process:2",
+             "--quiet", "--chunk-size", "50", "--configs", str(BOTTOM_ROW), "0", "1023"],
+            cwd=Path(__file__).resolve().parents[2], stderr=subprocess.PIPE, text=True,
+            start_new_session=True,
+        )  # fmt: skip
+        parts = path.with_name(path.name + ".parts")
+        deadline = time.monotonic() + 120
+        while len(list(parts.glob("chunk-*.npz"))) < 2 + trial and time.monotonic() < deadline:
+            time.sleep(0.02)
+        os.killpg(proc.pid, signal.SIGTERM)
+        err = proc.communicate(timeout=60)[1]
+        assert proc.returncode == 130, err
+        assert err.strip().splitlines() == [
+            "python -m sim2d.generate: interrupted; run it again to resume"
+        ], err
+
+
 @pytest.mark.parametrize("port", ["0", "65536", "99999"])
 def test_a_port_out_of_range_is_refused_naming_it(port):
     with pytest.raises(ValueError, match=rf"executor='dask://h:{port}' names port {port}; "):
