@@ -155,8 +155,7 @@ def test_trace_enum_elbo_is_exact_with_a_continuous_end_site_left_out():
         PARAMS["initial.visible"].probs[1].log()
         + PARAMS["action"].probs[2].log()
         + (
-            PARAMS["cluster.force"].probs[2].log()
-            + force.log_prob(torch.tensor(10.0, dtype=DTYPE))
+            PARAMS["cluster.force"].probs[2].log() + force.log_prob(torch.tensor(10.0, dtype=DTYPE))
         ).logsumexp(0)
         + soft.log_softmax(-1)[0]
         + torch.distributions.Normal(start.bias[0], start.scale_tril[0, 0]).log_prob(
