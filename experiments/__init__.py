@@ -16,6 +16,7 @@ line into the settings, call the function and save the result.
 :mod:`.pictures`        figures of the can world and of the robot's throw
 :mod:`.cans`            the can data set at a scale and the can network on it
 :mod:`.config`          checks of settings, and the results' JSON round trip
+:mod:`.evaluation`      scoring: Table I's bins, ROC, aim-robust choice, aim pooling
 :mod:`.summary`         the results table from the JSON files, for README.md
 =====================  ==============================================================
 """

@@ -14,7 +14,7 @@ count) is fitted by maximum likelihood on the 0° throws of the can data set onl
   throw changed the count, plus one unchanged case per start. Two ways to pick among
   fields tied in the exact posterior: ``index`` (the query's argmax, lowest index) and
   ``aim`` (the tied field whose neighbours also succeed under the model:
-  :func:`inference.evaluation.aim_robust_best`). All four are measured on the same
+  :func:`experiments.evaluation.aim_robust_best`). All four are measured on the same
   seeds; the settings name the headline.
 * **Emulation.** A demonstrated throw's observed end configuration is the evidence; the
   best field for it is thrown, and we count how often it reproduces the demonstrated end
@@ -27,7 +27,7 @@ count) is fitted by maximum likelihood on the 0° throws of the can data set onl
   table for one (configuration, field) rests on a few jittered throws and misses
   outcomes the field produces now and then; the pooled surprise scores the observed end
   configuration under the intended field's predictive averaged over an aim error of
-  ``sigma`` fields (:func:`inference.evaluation.aim_pooled`), ``sigma`` chosen on a
+  ``sigma`` fields (:func:`experiments.evaluation.aim_pooled`), ``sigma`` chosen on a
   separate validation draw of perturbed throws.
 
 Every evaluation throw draws its aim jitter from ``SeedSequence([seed, purpose])``, never
@@ -51,8 +51,7 @@ from experiments.config import (
     check_float,
     check_int,
 )
-from inference import imitation_check
-from inference.evaluation import (
+from experiments.evaluation import (
     ACCURACY_BINS,
     accuracy_histogram,
     aim_pooled,
@@ -61,6 +60,7 @@ from inference.evaluation import (
     roc_curve,
     tail_surprise,
 )
+from inference import imitation_check
 from models.can_network import config_index, count
 from sim2d import field_throws, geometry, materials
 from sim2d.executors import open_executor

@@ -10,7 +10,7 @@ import torch
 from experiments import can_tossing as ct
 from experiments.cans import can_dataset, fit_can_network
 from experiments.config import ConfigError
-from inference.evaluation import ACCURACY_BINS, roc_auc
+from experiments.evaluation import ACCURACY_BINS, roc_auc
 from sim2d import field_throws
 from tests.helpers import InlineExecutor
 
