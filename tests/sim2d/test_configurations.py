@@ -57,16 +57,25 @@ def test_enumeration_result():
     assert all(configurations.is_stable(m) for m in stable)
 
 
-def test_enumeration_is_deterministic_serial_and_parallel():
-    serial = stable_configurations(cache=False)
+@pytest.fixture(scope="session")
+def simulated_serially():
+    """All 1024 subsets simulated once in this process, without the cache (seconds), shared
+    by the tests that compare other ways of running the enumeration with it."""
+    return stable_configurations(cache=False)
+
+
+def test_enumeration_is_deterministic_serial_and_parallel(simulated_serially):
     with ProcessPoolExecutor(max_workers=2) as executor:
         parallel = stable_configurations(cache=False, executor=executor)
-    assert serial == parallel == stable_configurations()
+    assert simulated_serially == parallel == stable_configurations()
 
 
-def test_enumeration_is_cached(tmp_path, monkeypatch):
+def test_enumeration_is_cached(tmp_path, monkeypatch, simulated_serially):
+    # the simulation is the shared one: this test is about the cache around it
+    monkeypatch.setattr(configurations, "_compute", lambda executor=None: simulated_serially)
     file = tmp_path / "stable.json"
     first = stable_configurations(path=file)
+    assert first == simulated_serially
     assert json.loads(file.read_text())["stable"] == list(first)
 
     def no_simulation(executor=None):
@@ -93,7 +102,19 @@ def test_bad_mask():
         settles(-1)
 
 
+def test_enumeration_on_a_dask_client_uses_only_submit_and_result(
+    dask_executor, simulated_serially
+):
+    from distributed import Client
+
+    client = Client.current()  # a Dask client's own futures: truthy objects, not bools
+    assert stable_configurations(cache=False, executor=client) == simulated_serially
+
+
+@pytest.mark.slow
 def test_enumeration_on_dask_uses_only_submit_and_result(dask_executor):
+    """The full comparison: a fresh serial run, then a Dask client's futures and the opened
+    Dask executor each simulate all 1024 subsets."""
     from distributed import Client
 
     serial = stable_configurations(cache=False)
