@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 import torch
 
-from inference import fit, infer_action, infer_parameter, simulate
+from inference import fit, imitation_check, infer_action, infer_parameter, predict, simulate
 from models import Continuous, Discrete, EffectNetwork, Parameter, random_params
 
 warnings.filterwarnings("ignore", category=UserWarning)
@@ -210,3 +210,64 @@ def test_infer_parameter_ignores_a_parameter_the_action_does_not_use():
         assert abs(float(left_out.mixture.mean[i, 0]) - mean / weight) < 1e-8
     with pytest.raises(ValueError, match="param.height"):
         infer_parameter(net, params, "force", evidence(sample) | {"action": ["lift"] * 4})
+
+
+def batch_evidence(rows, n):
+    return {
+        k: (np.asarray(rows[k])[:n])
+        for k in ("initial.on", "initial.pos", "initial.tilt", "end.on", "end.pos")
+    }
+
+
+def take(ev, index):
+    return {k: v[index] for k, v in ev.items()}
+
+
+def fields_of(result, name="") -> dict:
+    """Every tensor a query result holds (nested results and dicts of them), by a name."""
+    if isinstance(result, torch.Tensor):
+        return {name: result}
+    if isinstance(result, dict):
+        items = result.items()
+    elif hasattr(result, "__dict__"):
+        items = vars(result).items()
+    else:
+        return {}
+    out = {}
+    for key, value in items:
+        out |= fields_of(value, f"{name}.{key}")
+    return out
+
+
+@pytest.mark.filterwarnings("ignore::inference.plausibility.OutsideTrainingData")
+def test_every_row_answers_alike_in_batches_of_0_1_and_10000():
+    net, params, _ = shelf_world()
+    rows = simulate(net, params, 10_000, seed=5)
+    ev = batch_evidence(rows, 10_000)
+    push = {"action": np.array(["push"] * 10_000)}
+    queries = {
+        "infer_action": lambda e: infer_action(net, params, e),
+        "predict": lambda e: predict(
+            net, params, {k: e[k] for k in ("initial.on", "initial.pos", "initial.tilt", "action")}
+        ),
+        "imitation_check": lambda e: imitation_check(net, params, e),
+        "infer_parameter": lambda e: infer_parameter(
+            net, params, "force", {k: v for k, v in e.items()}, mixture=True
+        ),
+    }
+    for name, query in queries.items():
+        full_ev = ev | push if name != "infer_action" else ev
+        whole = fields_of(query(full_ev))
+        empty = fields_of(query(take(full_ev, slice(0, 0))))
+        for index in (0, 4_321, 9_999):
+            one = fields_of(query(take(full_ev, slice(index, index + 1))))
+            assert one and one.keys() == whole.keys(), name
+            for key, value in one.items():
+                torch.testing.assert_close(
+                    value,
+                    whole[key][index : index + 1],
+                    rtol=1e-12,
+                    atol=1e-12,
+                    msg=f"{name}.{key}",
+                )
+                assert empty[key].shape == (0, *value.shape[1:]), f"{name}.{key}"
