@@ -20,7 +20,8 @@ import pytest
 import torch
 
 from inference import fit, imitation_check, infer_action, infer_parameter, predict, simulate
-from models import Continuous, Discrete, EffectNetwork, Parameter, random_params
+from inference.compiled import compile_discrete, compile_parameter_query
+from models import Continuous, Discrete, EffectNetwork, Parameter, Partial, random_params
 
 warnings.filterwarnings("ignore", category=UserWarning)
 
@@ -271,3 +272,106 @@ def test_every_row_answers_alike_in_batches_of_0_1_and_10000():
                     msg=f"{name}.{key}",
                 )
                 assert empty[key].shape == (0, *value.shape[1:]), f"{name}.{key}"
+
+
+# ---------------------------------------------------------------- a parameter on two features
+def slide_network() -> EffectNetwork:
+    """A speed (hit, nudge) acting on a 2-D position and a spin; the spin's own parents."""
+    return EffectNetwork(
+        features=(Discrete("lit", (False, True)), Continuous("xy", 2), Continuous("spin", 1)),
+        actions=("hit", "nudge", "wait"),
+        parameters=(Parameter("speed", 0.0, 4.0, 4, ("hit", "nudge"), ("xy", "spin")),),
+        parents={"end.spin": ("initial.spin", "action", "initial.lit")},
+    )
+
+
+@functools.cache
+def slide_world():
+    net = slide_network()
+    return net, fit(net, simulate(net, random_params(net, seed=1), 4000, seed=1)).params
+
+
+def slide_oracle(params, row, action, observed):
+    """Cluster posterior and per-cluster posterior mean and variance of the speed, by
+    Gaussian conditioning by hand: the observed entries of (end.xy, end.spin) are jointly
+    Gaussian given the cluster, linear in the speed."""
+    lit = int(row["initial.lit"])
+    x = np.concatenate([row["initial.xy"], row["initial.spin"]])
+    y = np.concatenate([row["end.xy"], row["end.spin"]])
+    logs, means, variances = [], [], []
+    for c in range(4):
+        m = float(params["param.speed"].bias[c, 0])
+        s = float(params["param.speed"].covariance[c, 0, 0])
+        w_xy = params["end.xy"].weight[lit, action, c].numpy()  # (2, 3 + 1)
+        w_sp = params["end.spin"].weight[lit, action, c].numpy()  # (1, 1 + 1)
+        slope = np.concatenate([w_xy[:, -1], w_sp[:, -1]])
+        offset = np.concatenate(
+            [
+                w_xy[:, :3] @ x + params["end.xy"].bias[lit, action, c].numpy(),
+                w_sp[:, :1] @ x[2:] + params["end.spin"].bias[lit, action, c].numpy(),
+            ]
+        )
+        noise = np.zeros((3, 3))
+        noise[:2, :2] = params["end.xy"].covariance[lit, action, c].numpy()
+        noise[2:, 2:] = params["end.spin"].covariance[lit, action, c].numpy()
+        o = np.asarray(observed)
+        a, r = slope[o], (y - offset - slope * m)[o]
+        cov = s * np.outer(a, a) + noise[np.ix_(o, o)]
+        logs.append(
+            math.log(float(params["cluster.speed"].probs[action, c]))
+            - 0.5
+            * (
+                r @ np.linalg.solve(cov, r)
+                + np.linalg.slogdet(cov)[1]
+                + o.sum() * math.log(2 * math.pi)
+            )
+        )
+        gain = s * np.linalg.solve(cov, a)
+        means.append(m + gain @ r)
+        variances.append(s - s * gain @ a)
+    logs = np.array(logs)
+    return np.exp(logs - np.logaddexp.reduce(logs)), np.array(means), np.array(variances)
+
+
+@pytest.mark.filterwarnings("ignore::inference.plausibility.OutsideTrainingData")
+def test_a_parameter_on_two_features_one_in_part_traced_compiled_and_by_hand():
+    net, params = slide_world()
+    rows = simulate(net, params, 12, seed=3)
+    n = 12
+    mask = np.ones((n, 3), bool)
+    mask[:, 1] = np.arange(n) % 3 == 0  # y seen in every third row
+    mask[1::4, 0] = False  # x unseen in some rows (then y or the spin decide)
+    mask[2::4, :2] = False  # the position unseen
+    xy = np.asarray(rows["end.xy"])
+    ev = {k: rows[k] for k in ("initial.lit", "initial.xy", "initial.spin", "end.spin")} | {
+        "action": ["hit", "nudge"] * 6,
+        "end.xy": Partial(np.where(mask[:, :2], xy, np.nan), observed=mask[:, :2]),
+    }
+    traced = infer_parameter(net, params, "speed", ev, mixture=True)
+    compiled = compile_parameter_query(net, params, "speed").infer(ev, mixture=True)
+    for key, value in fields_of(traced).items():
+        if key.endswith("implausible"):
+            continue
+        other = fields_of(compiled)[key]
+        torch.testing.assert_close(other, value, rtol=0, atol=1e-12, msg=key)
+    for i in range(n):
+        row = {
+            k: np.asarray(rows[k][i], float).reshape(-1)
+            for k in ("initial.xy", "initial.spin", "end.xy", "end.spin")
+        }
+        row["initial.lit"] = bool(rows["initial.lit"][i])
+        probs, means, variances = slide_oracle(params, row, i % 2, mask[i])
+        np.testing.assert_allclose(traced.cluster_probs[i].numpy(), probs, atol=1e-10)
+        np.testing.assert_allclose(traced.mixture.means[i, :, 0].numpy(), means, atol=1e-10)
+        np.testing.assert_allclose(traced.mixture.covs[i, :, 0, 0].numpy(), variances, atol=1e-10)
+        best = int(np.argmax(probs))
+        assert int(traced.best_cluster[i]) == best
+        assert abs(float(traced.mean[i, 0]) - means[best]) < 1e-10
+
+
+def test_compiled_forms_refuse_what_they_do_not_serve_clearly():
+    net, params, _ = shelf_world()
+    with pytest.raises(ValueError, match="infer_parameter"):
+        compile_parameter_query(net, params, "force")
+    with pytest.raises(ValueError):
+        compile_discrete(net, params)
