@@ -19,7 +19,7 @@ import numpy as np
 import pytest
 import torch
 
-from inference import fit, imitation_check, infer_action, infer_parameter, predict, simulate
+from inference import fit, fit_em, imitation_check, infer_action, infer_parameter, predict, simulate
 from inference.compiled import compile_discrete, compile_parameter_query
 from models import Continuous, Discrete, EffectNetwork, Parameter, Partial, random_params
 
@@ -375,3 +375,71 @@ def test_compiled_forms_refuse_what_they_do_not_serve_clearly():
         compile_parameter_query(net, params, "force")
     with pytest.raises(ValueError):
         compile_discrete(net, params)
+
+
+# ---------------------------------------------------------------- the adaptive layout
+@functools.cache
+def adaptive_push_world():
+    net = EffectNetwork(
+        (Continuous("pos", 1),),
+        ("push", "wait"),
+        (Parameter("force", 0.0, 10.0, 4, ("push",), "pos", layout="adaptive"),),
+    )
+    rng = np.random.default_rng(0)
+    n = 1500
+    action = rng.choice(["push", "wait"], n)
+    pos = rng.uniform(-1, 1, (n, 1))
+    force = np.where(action[:, None] == "push", rng.uniform(0, 10, (n, 1)), np.nan)
+    noise = np.where(action[:, None] == "push", 0.02, 0.005)
+    end = pos + 0.05 * np.nan_to_num(force) + rng.normal(0.0, noise, (n, 1))
+    rows = {"initial.pos": pos, "action": action, "param.force": force, "end.pos": end}
+    return net, fit_em(net, rows).params
+
+
+def test_adaptive_layout_an_action_not_using_the_parameter_sits_on_cluster_0():
+    """ "wait" does not use the force: its cluster table is [1, 0, 0, 0] and every query
+    scores it with its one configuration's Gaussian (the others are the pooled, wide fit
+    of configurations no row reached); "push" is the mixture over the fitted clusters,
+    the force integrated out by hand."""
+    net, params = adaptive_push_world()
+    np.testing.assert_array_equal(params["cluster.force"].probs[1].numpy(), [1.0, 0.0, 0.0, 0.0])
+    start, end = np.array([0.0, 0.1, -0.4, 0.5]), np.array([0.2, -0.3, -0.4, 0.9])
+    gauss = params["end.pos"]
+
+    def log_normal(y, mean, var):
+        return -0.5 * ((y - mean) ** 2 / var + np.log(2 * np.pi * var))
+
+    wait = log_normal(
+        end,
+        float(gauss.weight[1, 0, 0, 0]) * start + float(gauss.bias[1, 0, 0]),
+        float(gauss.covariance[1, 0, 0, 0]),
+    )
+    push_terms = []
+    for c in range(4):
+        slope, w_f = (float(v) for v in gauss.weight[0, c, 0])
+        m, s = (
+            float(params["param.force"].bias[c, 0]),
+            float(params["param.force"].covariance[c, 0, 0]),
+        )
+        mean = slope * start + w_f * m + float(gauss.bias[0, c, 0])
+        var = w_f**2 * s + float(gauss.covariance[0, c, 0, 0])
+        push_terms.append(
+            math.log(float(params["cluster.force"].probs[0, c])) + log_normal(end, mean, var)
+        )
+    push = np.logaddexp.reduce(np.stack(push_terms), 0)
+    ev = {"initial.pos": start[:, None], "end.pos": end[:, None]}
+    for name, want in (("wait", wait), ("push", push)):
+        got = imitation_check(net, params, ev | {"action": [name] * 4}).log_likelihood.numpy()
+        np.testing.assert_allclose(got, want, rtol=1e-12, atol=1e-9)
+    prior = params["action"].probs.numpy()
+    joint = np.stack([push, wait], 1) + np.log(prior)
+    want = np.exp(joint - np.logaddexp.reduce(joint, 1, keepdims=True))
+    posterior = infer_action(net, params, ev)
+    np.testing.assert_allclose(posterior.probs.numpy(), want, atol=1e-12)
+    assert not posterior.unseen.any()
+    spread = predict(net, params, {"initial.pos": start[:, None], "action": ["wait"] * 4})
+    np.testing.assert_allclose(
+        spread.continuous["pos"].cov[:, 0, 0].numpy(),
+        float(gauss.covariance[1, 0, 0, 0]),
+        rtol=1e-12,
+    )
