@@ -590,3 +590,61 @@ def test_imitation_log_likelihood_against_integration():
                 + math.log(table(params, "action", (a,)))
             )
             assert abs(float(got.log_likelihood[i]) - (logs[a] - base)) < 1e-9, (name, i)
+
+
+# ---------------------------------------------------------------- a parameter on a discrete feature only
+@functools.cache
+def switch_world():
+    """A force (push only) acting on a discrete feature alone; the light's own parents
+    (an end parent)."""
+    net = EffectNetwork(
+        (Discrete("on", (False, True)), Discrete("lit", ("off", "dim", "bright"))),
+        ("push", "wait"),
+        (Parameter("force", 0.0, 10.0, 4, ("push",), "on"),),
+        parents={"end.lit": ("initial.lit", "end.on")},
+    )
+    return net, fit(net, simulate(net, random_params(net, seed=4), 2000, seed=4)).params
+
+
+def test_a_parameter_on_a_discrete_feature_only_against_the_tables():
+    net, params = switch_world()
+    assert net.cpd("end.on").parents == ("initial.on", "initial.lit", "action", "cluster.force")
+    ev = {
+        "initial.on": [True, True, False],
+        "initial.lit": ["off", "dim", "bright"],
+        "end.on": [False, True, False],
+        "end.lit": ["dim", "dim", "off"],
+    }
+    keys = [(1, 0, 0, 1), (1, 1, 1, 1), (0, 2, 0, 0)]  # on, lit, end.on, end.lit indices
+    cluster, end_on = params["cluster.force"].probs.numpy(), params["end.on"].probs.numpy()
+    prior, light = params["action"].probs.numpy(), params["end.lit"].probs.numpy()
+    mean = params["param.force"].bias.numpy()[:, 0]
+    var = params["param.force"].covariance.numpy()[:, 0, 0]
+    got = infer_parameter(net, params, "force", ev | {"action": ["push"] * 3}, mixture=True)
+    given = infer_action(net, params, ev | {"param.force": [[1.0], [5.0], [np.nan]]})
+    for i, (on, lit, e_on, e_lit) in enumerate(keys):
+        w = cluster[0] * end_on[on, lit, 0, :, e_on]
+        np.testing.assert_allclose(got.cluster_probs[i].numpy(), w / w.sum(), atol=1e-12)
+        assert abs(float(got.mixture.mean[i, 0]) - (w / w.sum()) @ mean) < 1e-12
+        force = [1.0, 5.0, None][i]
+        if force is None:  # unknown: summed over the clusters
+            push = prior[0] * w.sum()
+        else:  # given: its cell is the cluster, and its density counts under "push" only
+            c = int(force // 2.5)
+            density = math.exp(-0.5 * (force - mean[c]) ** 2 / var[c]) / math.sqrt(
+                2 * math.pi * var[c]
+            )
+            push = prior[0] * cluster[0, c] * density * end_on[on, lit, 0, c, e_on]
+        wait = prior[1] * end_on[on, lit, 1, 0, e_on]  # "wait" sits on cluster 0
+        # end.lit depends on end.on (given) alone: the same factor under both actions
+        assert light[lit, e_on, e_lit] > 0
+        np.testing.assert_allclose(given.probs[i].numpy(), [push, wait] / (push + wait), atol=1e-12)
+    strong = predict(
+        net,
+        params,
+        {"initial.on": [True], "initial.lit": ["off"], "action": ["push"], "param.force": [[9.0]]},
+    )
+    np.testing.assert_allclose(strong.discrete["on"][0].numpy(), end_on[1, 0, 0, 3], atol=1e-12)
+    np.testing.assert_allclose(
+        strong.discrete["lit"][0].numpy(), end_on[1, 0, 0, 3] @ light[0], atol=1e-12
+    )
