@@ -648,3 +648,44 @@ def test_a_parameter_on_a_discrete_feature_only_against_the_tables():
     np.testing.assert_allclose(
         strong.discrete["lit"][0].numpy(), end_on[1, 0, 0, 3] @ light[0], atol=1e-12
     )
+
+
+# ---------------------------------------------------------------- compiled: one row and many
+@pytest.mark.filterwarnings("ignore::inference.plausibility.OutsideTrainingData")
+def test_compiled_parameter_query_one_row_in_every_form_equals_its_row_in_10000():
+    """A 2-D force whose feature's only parents are the action and the cluster (user
+    parents): the single-row path in every documented form, the batched path and the
+    traced query agree."""
+    net = EffectNetwork(
+        (Discrete("on", (False, True)), Continuous("pos", 2)),
+        ("push", "throw", "wait"),
+        (Parameter("force", (0.0, 0.0), (10.0, 5.0), (3, 2), ("push", "throw"), "pos"),),
+        parents={"end.pos": ("action",), "end.on": ("initial.on", "action")},
+    )
+    params = fit(net, simulate(net, random_params(net, seed=6), 3000, seed=6)).params
+    rows = simulate(net, params, 10_000, seed=7)
+    y = np.asarray(rows["end.pos"])
+    query = compile_parameter_query(net, params, "force")
+    batch = query.infer({"end.pos": y, "action": ["throw"] * 10_000}, mixture=True)
+    traced = infer_parameter(
+        net,
+        params,
+        "force",
+        {
+            "end.pos": y[:50],
+            "action": ["throw"] * 50,
+            "initial.pos": y[:50] * 0,
+            "initial.on": [True] * 50,
+        },
+        mixture=True,
+    )
+    for key, value in fields_of(traced).items():
+        torch.testing.assert_close(fields_of(batch)[key][:50], value, rtol=0, atol=1e-12, msg=key)
+    for i in (0, 17, 9_999):
+        for form in (y[i], y[i : i + 1], list(y[i]), torch.tensor(y[i])):
+            one = fields_of(query.infer({"end.pos": form, "action": "throw"}, mixture=True))
+            for key, value in fields_of(batch).items():
+                torch.testing.assert_close(one[key], value[i : i + 1], rtol=0, atol=1e-12, msg=key)
+    empty = fields_of(query.infer({"end.pos": y[:0], "action": []}, mixture=True))
+    for key, value in fields_of(batch).items():
+        assert empty[key].shape == (0, *value.shape[1:]), key
