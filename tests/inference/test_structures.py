@@ -689,3 +689,20 @@ def test_compiled_parameter_query_one_row_in_every_form_equals_its_row_in_10000(
     empty = fields_of(query.infer({"end.pos": y[:0], "action": []}, mixture=True))
     for key, value in fields_of(batch).items():
         assert empty[key].shape == (0, *value.shape[1:]), key
+
+
+@pytest.mark.filterwarnings("ignore::inference.plausibility.OutsideTrainingData")
+def test_adaptive_compiled_equals_traced_from_ordinary_values_to_the_limit():
+    net, params = adaptive_push_world()
+    values = np.concatenate([np.linspace(-1.0, 2.0, 301), [1e3, -1e3, 1e10, 1e50, 1e150, -1e150]])
+    ev = {
+        "initial.pos": np.full((values.size, 1), 0.1),
+        "end.pos": values[:, None],
+        "action": ["push"] * values.size,
+    }
+    traced = fields_of(infer_parameter(net, params, "force", ev, mixture=True))
+    compiled = fields_of(compile_parameter_query(net, params, "force").infer(ev, mixture=True))
+    assert traced.keys() == compiled.keys()
+    for key, value in traced.items():
+        torch.testing.assert_close(compiled[key], value, rtol=0, atol=1e-12, msg=key)
+    assert_distribution(compiled[".cluster_probs"], "compiled")
