@@ -706,3 +706,45 @@ def test_adaptive_compiled_equals_traced_from_ordinary_values_to_the_limit():
     for key, value in traced.items():
         torch.testing.assert_close(compiled[key], value, rtol=0, atol=1e-12, msg=key)
     assert_distribution(compiled[".cluster_probs"], "compiled")
+
+
+# ---------------------------------------------------------------- fitting with user parents
+def test_fit_is_per_configuration_least_squares_with_two_parameters():
+    """Each configuration of end.pos (on, action, force cluster, height cluster) is the
+    least-squares fit on its rows' inputs, the parameters an action does not use dropped
+    (numpy's lstsq). A fixed ridge used to move well-posed configurations by up to 3e-6."""
+    net = shelf_network()
+    rows = simulate(net, random_params(net, seed=0), 3000, seed=0)
+    params = fit(net, rows, pseudo_count=0).params["end.pos"]
+    on = np.asarray(rows["initial.on"]).astype(int)
+    action = np.array([ACTIONS.index(a) for a in np.asarray(rows["action"])])
+    force, height = np.asarray(rows["cluster.force"]), np.asarray(rows["cluster.height"])
+    inputs = np.concatenate(
+        [
+            rows["initial.pos"],
+            rows["initial.tilt"],
+            np.nan_to_num(rows["param.force"]),
+            np.nan_to_num(rows["param.height"]),
+        ],
+        1,
+    )
+    y = np.asarray(rows["end.pos"])[:, 0]
+    checked = 0
+    for o, a, c, h in itertools.product(range(2), range(3), range(3), range(2)):
+        rows_here = (on == o) & (action == a) & (force == c) & (height == h)
+        if rows_here.sum() < 10:
+            continue
+        used = [0, 1] + ([2] if a in (0, 1) else []) + ([3] if a == 1 else [])
+        design = np.concatenate([inputs[rows_here][:, used], np.ones((rows_here.sum(), 1))], 1)
+        coef, *_ = np.linalg.lstsq(design, y[rows_here], rcond=None)
+        weight = np.zeros(4)
+        weight[used] = coef[:-1]
+        residual = y[rows_here] - design @ coef
+        np.testing.assert_allclose(
+            params.weight[o, a, c, h, 0].numpy(), weight, rtol=1e-9, atol=1e-10
+        )
+        assert abs(float(params.bias[o, a, c, h, 0]) - coef[-1]) < 1e-9
+        variance = residual @ residual / rows_here.sum()
+        assert abs(float(params.covariance[o, a, c, h, 0, 0]) / variance - 1) < 1e-9
+        checked += 1
+    assert checked >= 10
