@@ -748,3 +748,32 @@ def test_fit_is_per_configuration_least_squares_with_two_parameters():
         assert abs(float(params.covariance[o, a, c, h, 0, 0]) / variance - 1) < 1e-9
         checked += 1
     assert checked >= 10
+
+
+def test_predict_integrates_the_unknown_height_by_hand():
+    """Lift with the force given (cell 1) and the height unknown: the position is the
+    mixture over the height's clusters of the linear-Gaussian marginal; the tilt (its
+    parents: the initial tilt, the action and the given end.on) one Gaussian."""
+    net, params, _ = shelf_world()
+    ev = {
+        "initial.on": [True],
+        "initial.pos": [[0.2]],
+        "initial.tilt": [[-0.1]],
+        "action": ["lift"],
+        "param.force": [[4.0]],
+        "end.on": [False],
+    }
+    got = predict(net, params, ev)
+    pos, gauss = got.continuous["pos"], params["end.pos"]
+    for h in range(2):
+        w = gauss.weight[1, 1, 1, h, 0].numpy()
+        m = float(params["param.height"].bias[h, 0])
+        s = float(params["param.height"].covariance[h, 0, 0])
+        mean = w @ [0.2, -0.1, 4.0, m] + float(gauss.bias[1, 1, 1, h, 0])
+        var = w[3] ** 2 * s + float(gauss.covariance[1, 1, 1, h, 0, 0])
+        assert abs(float(pos.weights[0, h]) - float(params["cluster.height"].probs[1, h])) < 1e-12
+        assert abs(float(pos.means[0, h, 0]) - mean) < 1e-12
+        assert abs(float(pos.covs[0, h, 0, 0]) - var) < 1e-12
+    tilt = params["end.tilt"]
+    want = float(tilt.weight[1, 0, 0, 0]) * -0.1 + float(tilt.bias[1, 0, 0])
+    assert abs(float(got.continuous["tilt"].mean[0, 0]) - want) < 1e-12
