@@ -723,8 +723,8 @@ def test_fit_is_per_configuration_least_squares_with_two_parameters():
         [
             rows["initial.pos"],
             rows["initial.tilt"],
-            np.nan_to_num(rows["param.force"]),
-            np.nan_to_num(rows["param.height"]),
+            np.nan_to_num(np.asarray(rows["param.force"])),
+            np.nan_to_num(np.asarray(rows["param.height"])),
         ],
         1,
     )
