@@ -777,3 +777,45 @@ def test_predict_integrates_the_unknown_height_by_hand():
     tilt = params["end.tilt"]
     want = float(tilt.weight[1, 0, 0, 0]) * -0.1 + float(tilt.bias[1, 0, 0])
     assert abs(float(got.continuous["tilt"].mean[0, 0]) - want) < 1e-12
+
+
+@pytest.mark.filterwarnings("ignore::inference.plausibility.OutsideTrainingData")
+def test_slide_with_per_row_masks_answers_alike_in_batches_and_forms():
+    """10,000 rows with their own masks of the 2-D position: the compiled and traced
+    inverse queries agree to 1e-12, and a row alone gets its row's answer from both and
+    from infer_action."""
+    net, params = slide_world()
+    n = 10_000
+    rows = simulate(net, params, n, seed=11)
+    mask = np.random.default_rng(0).random((n, 2)) < 0.6
+    xy = np.where(mask, np.asarray(rows["end.xy"]), np.nan)
+    action = np.asarray(rows["action"])
+    given = {
+        k: np.asarray(rows[k]) for k in ("initial.lit", "initial.xy", "initial.spin", "end.spin")
+    }
+    ev = given | {"action": np.where(action == "wait", "hit", action)}
+    query = compile_parameter_query(net, params, "speed")
+    queries = {
+        "compiled": lambda e, m: query.infer(
+            e | {"end.xy": Partial(xy[m], observed=mask[m])}, mixture=True
+        ),
+        "traced": lambda e, m: infer_parameter(
+            net, params, "speed", e | {"end.xy": Partial(xy[m], observed=mask[m])}, mixture=True
+        ),
+        "infer_action": lambda e, m: infer_action(
+            net,
+            params,
+            {k: v for k, v in e.items() if k != "action"}
+            | {"end.xy": Partial(xy[m], observed=mask[m])},
+        ),
+    }
+    whole = {name: fields_of(q(ev, slice(None))) for name, q in queries.items()}
+    for key, value in whole["traced"].items():
+        torch.testing.assert_close(whole["compiled"][key], value, rtol=0, atol=1e-12, msg=key)
+    for i in (0, 77, 9_999):
+        part = slice(i, i + 1)
+        for name, q in queries.items():
+            for key, value in fields_of(q(take(ev, part), part)).items():
+                torch.testing.assert_close(
+                    value, whole[name][key][part], rtol=0, atol=1e-12, msg=f"{name}{key}"
+                )
