@@ -822,19 +822,25 @@ def _inverse_evidence(net, m, enc: Evidence, query: str) -> tuple[Evidence, list
 
 
 def _given_others(net, m, enc: Evidence, children, query: str):
-    """The other parameters acting on the same feature, which must be given: the evidence
-    with their cells as clusters, and every parameter acting on the feature (in input
-    order). Checks that the observed children's discrete parents are given."""
+    """The other parameters acting on the same feature, which must be given in every row
+    whose action uses them (elsewhere they are ignored, NaN or absent): the evidence with
+    their cells as clusters, and every parameter acting on the feature (in input order).
+    Checks that the observed children's discrete parents are given."""
     p = m.parameter
     acting = net.acting_on(m.child) if m.child is not None else (m,)
     for q in acting:
         if q is m:
             continue
+        uses = q.in_use(enc[q.action])
         theta = enc.get(q.value.site)
-        if theta is None or bool(torch.isnan(theta).any()):
+        if theta is None:
+            theta = torch.full((enc.n_rows, q.parameter.dim), float("nan"), dtype=DTYPE)
+        unknown = torch.isnan(theta).any(-1) & uses
+        if bool(unknown.any()):
+            row = int(unknown.nonzero()[0])
             raise ValueError(
-                f"{query}({p.name!r}) needs {q.value.site!r} in every row: it acts on "
-                f"{m.child!r} too"
+                f"{query}({p.name!r}) needs {q.value.site!r} in every row whose action uses "
+                f"it: it acts on {m.child!r} too (row {row} leaves it unknown)"
             )
         enc = enc | net.encode_indices({q.cluster.site: q.cells(theta, enc[q.action])})
     for child in children:

@@ -178,7 +178,14 @@ class LinearGaussianCPD(CPD):
                 s.yy.sum(0),
                 n_rows,
             )
-        ridge = 1e-10 * szz.diagonal(dim1=-2, dim2=-1).mean(-1).clamp_min(1e-12)
+        # a ridge only where the inputs are (nearly) collinear: judged on the correlation
+        # form, so that a well-posed configuration is plain least squares (a ridge there
+        # moves the solution by its share of the smallest eigenvalue: 1e-6 seen)
+        diagonal = szz.diagonal(dim1=-2, dim2=-1)
+        scale = diagonal.clamp_min(1e-300).rsqrt()
+        smallest = torch.linalg.eigvalsh(szz * scale[:, :, None] * scale[:, None, :])[:, 0]
+        ridge = 1e-10 * diagonal.mean(-1).clamp_min(1e-12)
+        ridge = torch.where(smallest > 1e-8, 0.0, ridge)
         beta = torch.linalg.solve(szz + ridge[:, None, None] * torch.eye(q, dtype=DTYPE), szy)
         resid = syy - szy.mT @ beta - beta.mT @ szy + beta.mT @ szz @ beta
         cov = resid / total.clamp_min(1e-300)[:, None, None]
