@@ -123,6 +123,11 @@ def fit(
     )
     _refuse_adaptive(net, "fit")
     if not isinstance(data, Mapping):
+        if isinstance(data, str | bytes) or not isinstance(data, Iterable):
+            raise ValueError(
+                "data must be a mapping of rows by site or an iterable of such chunks; got "
+                f"{type(data).__name__}"
+            )
         if masks:
             raise ValueError("masks need the rows in memory: give data as one mapping")
         stats = fit_statistics(net, data, progress=progress)
