@@ -37,7 +37,9 @@ SUM_TOL = 1e-12
 
 # ----------------------------------------------------------------- random networks
 @st.composite
-def networks(draw, *, adaptive: bool | None = False, closed: bool = False) -> EffectNetwork:
+def networks(
+    draw, *, adaptive: bool | None = False, closed: bool = False, parameter: bool | None = None
+) -> EffectNetwork:
     """A network of 1-3 features (discrete or continuous), 2-3 actions and perhaps a
     parameter that some, never all, actions use, acting on a continuous feature.
     ``closed``: discrete end features take discrete parents only (tables, no softmax)."""
@@ -52,7 +54,7 @@ def networks(draw, *, adaptive: bool | None = False, closed: bool = False) -> Ef
         features.append(Continuous("pos", 1))
     actions = ("push", "wait", "look")[: draw(st.integers(2, 3))]
     parameters = ()
-    if draw(st.booleans()):
+    if parameter or parameter is None and draw(st.booleans()):
         target = draw(st.sampled_from([f.name for f in features if isinstance(f, Continuous)]))
         users = actions[: draw(st.integers(1, len(actions) - 1))]
         layout = (
@@ -114,8 +116,8 @@ def assert_distribution(p: torch.Tensor) -> None:
 
 # ------------------------------------------------------- fit(simulate) recovers params
 @pytest.mark.slow
-@settings(max_examples=6, deadline=None, derandomize=True)
-@given(net=networks(), seed=st.integers(0, 2**16))
+@settings(max_examples=12, deadline=None, derandomize=True)
+@given(net=networks(parameter=True), seed=st.integers(0, 2**16))
 def test_fit_of_simulate_recovers_every_parameter_within_sampling_error(net, seed):
     truth = random_params(net, seed=seed)
     rows = simulate(net, truth, 20_000, seed=seed + 1)
@@ -139,7 +141,7 @@ def test_fit_of_simulate_recovers_every_parameter_within_sampling_error(net, see
             se = true_var * (2 / n.clamp_min(1)).sqrt()
             err = (var - true_var).abs()
             assert (err[seen] <= 3 * se[seen]).all(), (site.name, err[seen].max())
-            if site.role == "param":  # a cluster's mean: sd / sqrt(n)
+            if not cpd.width:  # a mean without inputs (a root, a cluster): sd / sqrt(n)
                 se_mean = (true_var / n.clamp_min(1)).sqrt()
                 err = (got.bias - want.bias).abs()
                 assert (err[seen] <= 3 * se_mean[seen]).all(), (site.name, err[seen].max())
@@ -243,7 +245,10 @@ def check_every_query(net, params, rows) -> None:
 
 
 @settings(max_examples=10, deadline=None, derandomize=True)
-@given(net=networks(adaptive=None), seed=st.integers(0, 2**16))
+@given(  # fit_em needs closed forms: the adaptive networks have no softmax
+    net=st.one_of(networks(parameter=True), networks(adaptive=True, closed=True, parameter=True)),
+    seed=st.integers(0, 2**16),
+)
 def test_random_and_simulated_rows_are_accepted_by_every_query(net, seed):
     params = random_params(net, seed=seed)
     rows = simulate(net, params, 20, seed=seed)
