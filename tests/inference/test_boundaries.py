@@ -403,3 +403,34 @@ def test_a_value_at_the_limit_is_answered_and_beyond_it_refused():
     for v in (1.0000001e150, -math.inf):
         with pytest.raises(ValueError, match="'initial.pos'"):
             predict(net, params, ev | {"initial.pos": [[v]]})
+
+
+def test_settings_take_numpy_counts_and_refuse_float32_and_bools_by_name():
+    net, _, rows = push_world()
+    want = fit(net, rows, pseudo_count=0.5, steps=7).params
+    got = fit(net, rows, pseudo_count=np.float64(0.5), steps=np.int64(7)).params
+    assert_same_params(net, got, want)
+    bad = (
+        {"pseudo_count": True},
+        {"pseudo_count": np.float32(0.5)},  # would compute rows in float32: 4e-10 off
+        {"steps": np.bool_(True)},
+        {"min_variance": 1j},
+    )
+    for setting in bad:
+        with pytest.raises(ValueError, match=next(iter(setting))):
+            fit(net, rows, **setting)
+
+
+def test_masks_of_the_wrong_container_or_shape_are_named():
+    net, _, rows = push_world()
+    mask = np.ones(30, bool)
+    mask[3] = False
+    with pytest.raises(ValueError, match="masks must map"):
+        fit(net, rows, masks=[mask])
+    with pytest.raises(ValueError, match=r"masks\['initial.d'\].*shape \(30, 1\)"):
+        fit(net, rows, masks={"initial.d": mask[:, None]})
+    with pytest.raises(ValueError, match=r"masks\['initial.d'\]"):
+        fit(net, rows, masks={"initial.d": ["yes"] * 30})
+    one = fit(net, rows, masks={"initial.d": mask}).params  # bool, 0/1, list, tensor: alike
+    for same in (mask.astype(int), list(mask), torch.as_tensor(mask)):
+        assert_same_params(net, fit(net, rows, masks={"initial.d": same}).params, one)
