@@ -23,9 +23,11 @@ from inference import (
     imitation_check,
     infer_action,
     infer_parameter,
+    parameter_for_effect,
     predict,
     simulate,
 )
+from inference.compiled import compile_parameter_query
 from inference.em import fit_em
 from inference.fit import fit_statistics
 from inference.statistics import Counts
@@ -297,11 +299,12 @@ def test_save_load_round_trip_for_every_kind(tmp_path, layout):
 
 
 # ------------------------------------------------------------------------ bad input
-def push_world():
+def push_world(softmax: bool = True):
     net = EffectNetwork(
         (Discrete("d", ("a", "b")), Continuous("pos", 1)),
         ("push", "wait"),
         parameters=(Parameter("force", 0.0, 10.0, 3, actions=("push",), affects="pos"),),
+        parents={} if softmax else {"end.d": ("initial.d", "action")},
     )
     params = random_params(net, seed=0)
     rows = simulate(net, params, 30, {"action": ["push", "wait"] * 15}, seed=0)
@@ -407,8 +410,8 @@ def test_a_value_at_the_limit_is_answered_and_beyond_it_refused():
 
 def test_settings_take_numpy_counts_and_refuse_float32_and_bools_by_name():
     net, _, rows = push_world()
-    want = fit(net, rows, pseudo_count=0.5, steps=7).params
-    got = fit(net, rows, pseudo_count=np.float64(0.5), steps=np.int64(7)).params
+    want = fit(net, rows, pseudo_count=0.5, steps=70).params
+    got = fit(net, rows, pseudo_count=np.float64(0.5), steps=np.int64(70)).params
     assert_same_params(net, got, want)
     bad = (
         {"pseudo_count": True},
@@ -434,3 +437,78 @@ def test_masks_of_the_wrong_container_or_shape_are_named():
     one = fit(net, rows, masks={"initial.d": mask}).params  # bool, 0/1, list, tensor: alike
     for same in (mask.astype(int), list(mask), torch.as_tensor(mask)):
         assert_same_params(net, fit(net, rows, masks={"initial.d": same}).params, one)
+
+
+def test_chunks_of_one_action_each_equal_the_rows():
+    """A chunk whose rows all leave the parameter NaN (an action that does not use it),
+    one of a single row, and empty ones, against the one-pass fit."""
+    net, _, rows = push_world(softmax=False)
+    push = [i for i, a in enumerate(rows["action"]) if a == "push"]
+    wait = [i for i, a in enumerate(rows["action"]) if a == "wait"]
+
+    def take(index):
+        return {
+            s: (v[index] if isinstance(v, torch.Tensor) else [v[i] for i in index])
+            for s, v in rows.items()
+        }
+
+    chunks = [take([]), take(wait), take(push[:1]), take([]), take(push[1:]), take([])]
+    assert torch.isnan(chunks[1]["param.force"]).all()
+    whole = fit(net, concatenate(chunks)).params
+    assert_same_params(net, fit(net, chunks).params, whole, rtol=1e-12)
+
+
+QUERIES = {
+    "predict": lambda net, params, ev: predict(net, params, ev | {"action": ["push"]}),
+    "infer_action": lambda net, params, ev: infer_action(net, params, ev | {"end.pos": [[0.1]]}),
+    "imitation_check": lambda net, params, ev: imitation_check(
+        net, params, ev | {"action": ["push"], "end.pos": [[0.1]]}
+    ),
+    "infer_parameter": lambda net, params, ev: infer_parameter(
+        net, params, "force", ev | {"action": ["push"], "end.pos": [[0.1]]}
+    ),
+    "parameter_for_effect": lambda net, params, ev: parameter_for_effect(
+        net, params, "force", ev | {"action": ["push"], "end.pos": [[0.1]]}
+    ),
+    "compiled": lambda net, params, ev: compile_parameter_query(net, params, "force").infer(
+        ev | {"action": "push", "end.pos": [0.1]}
+    ),
+}
+
+
+@pytest.mark.parametrize("query", QUERIES)
+@pytest.mark.parametrize(
+    "bad, site",
+    [
+        ({"initial.pos": [[0.0, 1.0]]}, "initial.pos"),
+        ({"initial.pos": [[[0.0]]]}, "initial.pos"),
+        ({"initial.pos": [[np.nan]]}, "initial.pos"),
+        ({"initial.pos": [[np.inf]]}, "initial.pos"),
+        ({"initial.pos": [[2e150]]}, "initial.pos"),
+        ({"initial.pos": [[1j]]}, "initial.pos"),
+        ({"initial.pos": [[True]]}, "initial.pos"),
+        ({"initial.pos": torch.tensor([[True]])}, "initial.pos"),
+        ({"initial.pos": [["0.1"]]}, "initial.pos"),
+        ({"initial.d": ["z"]}, "initial.d"),
+        ({"initial.d": [["a"]]}, "initial.d"),
+        ({"initial.colour": ["a"]}, "initial.colour"),
+        ({"param.force": [[np.inf]]}, "param.force"),
+        ({"param.force": [[True]]}, "param.force"),
+    ],
+)
+def test_every_query_refuses_bad_evidence_naming_the_site(query, bad, site):
+    net, params, _ = push_world()
+    ev = {"initial.d": ["a"], "initial.pos": [[0.0]]} | bad
+    with pytest.raises(ValueError, match=f"'{site}'"):
+        QUERIES[query](net, params, ev)
+
+
+@pytest.mark.parametrize("query", QUERIES)
+def test_every_query_takes_every_float_container_alike(query):
+    net, params, _ = push_world()
+    want = QUERIES[query](net, params, {"initial.d": ["a"], "initial.pos": [[0.25]]})
+    for pos in (np.float64(0.25), np.array([[0.25]], np.float32), torch.tensor([[0.25]]), [0.25]):
+        got = QUERIES[query](net, params, {"initial.d": np.array(["a"]), "initial.pos": pos})
+        for name, x in vars(want).items():
+            if isinstance(x, torch.Tensor) and x.is_floating_point():
+                torch.testing.assert_close(getattr(got, name), x, rtol=1e-12, atol=1e-12)
