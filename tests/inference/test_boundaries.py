@@ -117,7 +117,6 @@ def assert_distribution(p: torch.Tensor) -> None:
 
 
 # ------------------------------------------------------- fit(simulate) recovers params
-@pytest.mark.slow
 @settings(max_examples=12, deadline=None, derandomize=True)
 @given(net=networks(parameter=True), seed=st.integers(0, 2**16))
 def test_fit_of_simulate_recovers_every_parameter_within_sampling_error(net, seed):
