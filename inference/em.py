@@ -614,6 +614,10 @@ def _mask_values(site: str, mask: object) -> torch.Tensor:
                 f"masks[{site!r}] must hold bools (False where missing), got dtype {mask.dtype}"
             )
         mask = torch.from_numpy(mask)
+    if mask.dim() > 1:
+        raise ValueError(
+            f"masks[{site!r}] must be one bool per row, shape (n,), got shape {tuple(mask.shape)}"
+        )
     if mask.dtype != torch.bool:
         if mask.is_complex() or not bool(((mask == 0) | (mask == 1)).all()):
             raise ValueError(

@@ -123,6 +123,11 @@ def fit(
     )
     _refuse_adaptive(net, "fit")
     if not isinstance(data, Mapping):
+        if isinstance(data, str | bytes) or not isinstance(data, Iterable):
+            raise ValueError(
+                "data must be a mapping of rows by site or an iterable of such chunks; got "
+                f"{type(data).__name__}"
+            )
         if masks:
             raise ValueError("masks need the rows in memory: give data as one mapping")
         stats = fit_statistics(net, data, progress=progress)
@@ -134,6 +139,10 @@ def fit(
             )
         cpds = params_from_statistics(net, stats, pseudo_count, min_variance)
         return FitResult(NetworkParams(cpds, pseudo_count, net))
+    if masks is not None and not isinstance(masks, Mapping):
+        raise ValueError(
+            f"masks must map discrete site names to (n,) bool masks, got {type(masks).__name__}"
+        )
     if masks:
         from inference.em import _missing_masks  # em builds on this module
 
@@ -424,9 +433,11 @@ def _settled(before: float, after: float, tol: float) -> bool:
 def _check_settings(**settings: float) -> None:
     """Refuse settings that would make fitting spin or return NaN."""
     for name, value in settings.items():
+        # A float32 setting would turn the float64 arithmetic it enters into float32:
+        # Python (or numpy float64) numbers only; a numpy integer is a count as good as int.
         ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
         if name == "steps":
-            ok = isinstance(value, int) and not isinstance(value, bool) and value >= 1
+            ok = isinstance(value, int | np.integer) and not isinstance(value, bool) and value >= 1
         elif name in ("lr", "tol"):
             ok = ok and value > 0
         else:
@@ -437,6 +448,8 @@ def _check_settings(**settings: float) -> None:
                 if name == "steps"
                 else ("a finite number > 0" if name in ("lr", "tol") else "a finite number >= 0")
             )
+            if name != "steps":
+                want += " (a Python float or int)"
             raise ValueError(f"{name} must be {want}, got {value!r}")
 
 

@@ -23,6 +23,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
+import numpy as np
 import torch
 from pyro import poutine
 
@@ -32,7 +33,7 @@ from models.declaration import ACTION, DTYPE, EffectNetwork
 from models.evidence import Evidence, is_partial
 from models.gaussian import condition_on_observed
 from models.model import effect_model
-from models.params import NetworkParams, check_params
+from models.params import NetworkParams, check_params, check_seed
 
 
 def simulate(
@@ -66,10 +67,9 @@ def simulate(
         given.
     """
     check_params(net, params)
-    if not isinstance(n, int) or isinstance(n, bool) or n < 1:
+    if not isinstance(n, int | np.integer) or isinstance(n, bool) or n < 1:
         raise ValueError(f"n must be a positive int, got {n!r}")
-    if not isinstance(seed, int) or isinstance(seed, bool) or not -(2**63) <= seed < 2**64:
-        raise ValueError(f"seed={seed!r} is invalid; expected an int in -2**63..2**64 - 1")
+    n, seed = int(n), check_seed(seed)
     enc = net.encode(evidence if evidence is not None else {})
     if len(enc) and enc.n_rows not in (1, n):
         raise ValueError(f"evidence has {enc.n_rows} rows; give one row or n = {n} rows")

@@ -290,6 +290,11 @@ def _rows(spec: SiteSpec, value: object) -> torch.Tensor:
         raise ValueError(
             f"site {spec.name!r}: expected numbers of shape (n, {spec.size}), got {value!r}"
         ) from exc
+    if (raw.dtype == torch.bool) if isinstance(raw, torch.Tensor) else raw.dtype.kind == "b":
+        raise ValueError(
+            f"site {spec.name!r}: bool values are not numbers here (got {value!r}); "
+            f"expected real numbers of shape (n, {spec.size})"
+        )
     if raw.is_complex() if isinstance(raw, torch.Tensor) else raw.dtype.kind == "c":
         raise ValueError(
             f"site {spec.name!r}: complex numbers are not evidence (got {value!r}); "

@@ -21,6 +21,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 
+import numpy as np
 import torch
 
 from models.cpds import CPD as KindCPD
@@ -295,6 +296,17 @@ def _check_archive(path: Path) -> None:
             )
 
 
+def check_seed(seed: object) -> int:
+    """``seed`` as a Python int, a Python or numpy integer in -2**63..2**64 - 1 (torch's range)."""
+    if (
+        not isinstance(seed, int | np.integer)
+        or isinstance(seed, bool)
+        or not -(2**63) <= int(seed) < 2**64
+    ):
+        raise ValueError(f"seed={seed!r} is invalid; expected an int in -2**63..2**64 - 1")
+    return int(seed)
+
+
 def random_params(net: EffectNetwork, seed: int, *, unseen: float = 0.0) -> NetworkParams:
     """Valid random parameters for ``net``: for tests, priors and simulation studies.
 
@@ -306,9 +318,10 @@ def random_params(net: EffectNetwork, seed: int, *, unseen: float = 0.0) -> Netw
     fitted one does, and actions not using the parameter sit on cell 0. ``unseen``: the
     share of parent configurations marked as reached by no training row (``n = 0``).
     """
+    seed = check_seed(seed)
     if not 0.0 <= unseen <= 1.0:
         raise ValueError(f"unseen must lie in [0, 1], got {unseen!r}")
-    g = torch.Generator().manual_seed(int(seed))
+    g = torch.Generator().manual_seed(seed)
     cpds = {s.name: net.cpd(s.name).initialize(g, unseen) for s in net.sites}
     for m in net.mixtures:
         cpds[m.value.site] = m.randomize(cpds[m.value.site], g)
