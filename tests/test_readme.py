@@ -1,4 +1,5 @@
-"""Every Python snippet in README.md runs, in order, and says what its comments say."""
+"""Every Python snippet in README.md and then in its guide (docs/guide.md, which continues
+the quick start) runs, in order, and says what its comments say."""
 
 import math
 import os
@@ -10,10 +11,12 @@ import pytest
 import torch
 
 README = Path(__file__).resolve().parents[1] / "README.md"
+GUIDE = README.parent / "docs" / "guide.md"
 
 
 def snippets() -> list[str]:
-    blocks = re.findall(r"^( *)```python\n(.*?)^\1```", README.read_text(), re.S | re.M)
+    text = README.read_text() + "\n" + GUIDE.read_text()
+    blocks = re.findall(r"^( *)```python\n(.*?)^\1```", text, re.S | re.M)
     out = []
     for indent, body in blocks:
         lines = [
