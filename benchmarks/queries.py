@@ -33,6 +33,7 @@ import time
 
 import numpy as np
 import torch
+from scipy import stats
 from timing import median_seconds  # benchmarks/timing.py, beside this script
 
 from inference import fit, imitation_check, infer_action
@@ -155,10 +156,21 @@ def imitation(rows: int) -> dict[str, float]:
         "end.position": rng.normal(size=(rows, 1)),
     }
     tap_params = random_params(tap, 1)
+    g = line_params["end.pos"]  # action "a": the end position's one Gaussian
+
+    def by_hand():
+        # the peer: the same closed form written out in numpy and scipy, no model traced
+        mean = one["initial.pos"][:, 0] * float(g.weight[0, 0, 0]) + float(g.bias[0, 0])
+        z = (one["end.pos"][:, 0] - mean) / float(g.scale_tril[0, 0, 0])
+        return stats.chi2.cdf(z**2, 1)
+
+    ours = imitation_check(line, line_params, one).surprise.numpy()
     return {
         "imitation_one_gaussian_s": median_seconds(
             lambda: imitation_check(line, line_params, one), 5
         ),
+        "imitation_scipy_by_hand_s": median_seconds(by_hand, 5),
+        "imitation_scipy_max_difference": float(np.abs(ours - by_hand()).max()),
         "imitation_mixture_s": median_seconds(lambda: imitation_check(tap, tap_params, mixed), 1),
     }
 
@@ -330,6 +342,9 @@ def _print_imitation(rows: int) -> dict[str, float]:
     print(f"{'what':<44}{'measured':>14}{'goal':>16}")
     one, mixture = figures["imitation_one_gaussian_s"], figures["imitation_mixture_s"]
     print(f"{'one Gaussian (closed form)':<44}{one:>14.3f}{_verdict(one, goal):>16}")
+    peer = figures["imitation_scipy_by_hand_s"]
+    print(f"{'  peer: scipy chi2.cdf, distances by hand':<44}{peer:>14.3f}{'reference':>16}")
+    print(f"  largest |ours - scipy| = {figures['imitation_scipy_max_difference']:.1e}")
     print(f"{'8-cluster mixture (quadrature)':<44}{mixture:>14.3f}{_verdict(mixture, None):>16}")
     return figures
 
