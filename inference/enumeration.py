@@ -322,6 +322,29 @@ def _row_max(lp: torch.Tensor) -> torch.Tensor:
     return torch.where(torch.isfinite(top), top, 0.0)
 
 
+def over_row_chunks(
+    net: EffectNetwork,
+    params: NetworkParams,
+    evidence: Evidence,
+    keep: Iterable[str],
+    fn,
+    trace_only: Iterable[str] = (),
+):
+    """``fn(enumerated, chunk, rows)`` over row chunks of encoded ``evidence`` (``chunk``
+    its rows ``rows``, a slice; ``enumerated`` the model summed on them with ``keep`` and
+    ``trace_only`` as :func:`enumerate_model` takes them), the results concatenated along
+    the rows (a tuple element by element)."""
+    size = enumeration_size(net, evidence, keep)
+    outs = []
+    for rows in row_chunks(evidence.n_rows, size):
+        chunk = evidence.rows(rows)
+        enumerated = enumerate_model(net, params, chunk, keep=keep, trace_only=trace_only)
+        outs.append(fn(enumerated, chunk, rows))
+    if isinstance(outs[0], tuple):
+        return tuple(torch.cat(parts, 0) for parts in zip(*outs, strict=True))
+    return torch.cat(outs, 0)
+
+
 # Elements of one chunk's joint tensor (8 MiB of float64). Larger chunks cost more than
 # they save: each joint-sized tensor of a chunk is fresh memory, and glibc hands blocks of
 # tens of MiB back to the system when they are freed, so every call pays page faults on

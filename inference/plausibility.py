@@ -35,9 +35,7 @@ import torch
 
 from inference.enumeration import (
     conditional_log_evidence,
-    enumerate_model,
-    enumeration_size,
-    row_chunks,
+    over_row_chunks,
 )
 from models.cpds import concat_inputs
 from models.declaration import DTYPE, EffectNetwork, end_site
@@ -111,11 +109,11 @@ def plausibility(
     if discrete:
         if log_evidence is None or continuous:
             given = evidence.without(*continuous)
-            log_evidence = _over_rows(net, params, given, lambda e, _: e.log_evidence)
+            log_evidence = over_row_chunks(net, params, given, (), lambda e, *_: e.log_evidence)
         prior = evidence.without(*ends)
         if log_prior is None:
             log_prior = (  # nothing observed: probability 1
-                _over_rows(net, params, prior, lambda e, _: e.log_evidence)
+                over_row_chunks(net, params, prior, (), lambda e, *_: e.log_evidence)
                 if len(prior)
                 else torch.zeros(evidence.n_rows, dtype=DTYPE)
             )
@@ -179,7 +177,7 @@ def _closest_distance(net, params, evidence, sites) -> tuple[torch.Tensor, torch
     the distance of the observed dimensions under their marginal)."""
     dof = sum(observed_dims(evidence[s]).sum(-1) for s in sites).to(DTYPE)
 
-    def fn(e, _):
+    def fn(e, *_):
         d2 = torch.zeros((), dtype=DTYPE)
         for s in sites:
             node = e.trace.nodes[s]
@@ -188,7 +186,7 @@ def _closest_distance(net, params, evidence, sites) -> tuple[torch.Tensor, torch
         d2 = torch.where(torch.isfinite(w), d2.expand_as(w), torch.inf)
         return d2.reshape(-1, w.shape[-1]).min(0).values
 
-    return _over_rows(net, params, evidence, fn), dof
+    return over_row_chunks(net, params, evidence, (), fn), dof
 
 
 def _mahalanobis(fn, value: torch.Tensor) -> torch.Tensor:
@@ -205,15 +203,3 @@ def _mahalanobis(fn, value: torch.Tensor) -> torch.Tensor:
         upper=False,
     )
     return z.squeeze(-1).square().sum(-1)
-
-
-def _over_rows(net, params, evidence: Evidence, fn) -> torch.Tensor:
-    """``fn(enumerated, chunk)`` over row chunks, concatenated."""
-    size = enumeration_size(net, evidence)
-    return torch.cat(
-        [
-            fn(enumerate_model(net, params, evidence.rows(s)), evidence.rows(s))
-            for s in row_chunks(evidence.n_rows, size)
-        ],
-        0,
-    )

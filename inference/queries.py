@@ -46,9 +46,7 @@ from pyro.ops.indexing import Vindex
 from inference.enumeration import (
     Enumerated,
     conditional_log_evidence,
-    enumerate_model,
-    enumeration_size,
-    row_chunks,
+    over_row_chunks,
 )
 from inference.plausibility import IMPLAUSIBLE_BELOW, check_threshold, plausibility
 from inference.surprise import QUADRATURE_POINTS, continuous_surprise
@@ -293,20 +291,6 @@ def no_rows(result):
     return result
 
 
-def _chunked(net, params, enc: Evidence, keep, fn, trace_only=()):
-    """Run ``fn(enumerated, chunk_evidence)`` over row chunks and concatenate the results."""
-    size = enumeration_size(net, enc, keep)
-    outs = []
-    for s in row_chunks(enc.n_rows, size):
-        chunk = enc.rows(s)
-        outs.append(
-            fn(enumerate_model(net, params, chunk, keep=keep, trace_only=trace_only), chunk)
-        )
-    if isinstance(outs[0], tuple):
-        return tuple(torch.cat(parts, 0) for parts in zip(*outs, strict=True))
-    return torch.cat(outs, 0)
-
-
 def _unseen_mass(
     net: EffectNetwork, params: NetworkParams, e: Enumerated, sites: list[str]
 ) -> torch.Tensor:
@@ -355,11 +339,13 @@ def predict(
     for f in targets:
         site = end_site(f)
         if net.site(site).discrete:
-            discrete[f] = _chunked(net, params, enc, {site}, lambda e, _, s=site: e.marginal(s))
+            discrete[f] = over_row_chunks(
+                net, params, enc, {site}, lambda e, *_, s=site: e.marginal(s)
+            )
         else:
             continuous[f] = _mixture(net, params, enc, site)
 
-    def unseen(e, _):
+    def unseen(e, *_):
         post = e.posterior()
         return (
             (post * _unseen_mass(net, params, e, unseen_sites)).reshape(-1, post.shape[-1]).sum(0)
@@ -368,7 +354,7 @@ def predict(
     states = {f: net.feature(f).states for f in discrete}
     # the unseen flag reads the targets' parents: latent end parents must be traced
     end_parents = {q for s in unseen_sites for q in net.cpd(s).parents if net.site(q).role == "end"}
-    unseen_mass = _chunked(net, params, enc, end_parents, unseen).clamp(0, 1)
+    unseen_mass = over_row_chunks(net, params, enc, end_parents, unseen).clamp(0, 1)
     flag = plausibility(net, params, enc).implausible(below)
     return Prediction(discrete, continuous, unseen_mass, states, flag)
 
@@ -378,7 +364,7 @@ def _mixture(net, params, enc, site) -> GaussianMixture:
     are conditioned on its observed dimensions (which hold their value, variance 0)."""
     partial = site in enc
 
-    def fn(e: Enumerated, chunk: Evidence):
+    def fn(e: Enumerated, chunk: Evidence, _):
         post = e.posterior()  # (E..., n)
         d_fn = e.trace.nodes[site]["fn"]
         n = post.shape[-1]
@@ -394,7 +380,7 @@ def _mixture(net, params, enc, site) -> GaussianMixture:
             cov.reshape(-1, n, *cov.shape[-2:]).transpose(0, 1),
         )
 
-    w, m, c = _chunked(net, params, enc, set(), fn, trace_only=set() if partial else {site})
+    w, m, c = over_row_chunks(net, params, enc, set(), fn, trace_only=set() if partial else {site})
     keep = w.sum(0) > 0  # drop components no row can reach
     return GaussianMixture(w[:, keep], m[:, keep], c[:, keep])
 
@@ -443,7 +429,7 @@ def infer_action(
         )
     observed_end = [end_site(f.name) for f in net.features if end_site(f.name) in enc]
 
-    def fn(e: Enumerated, _):
+    def fn(e: Enumerated, *_):
         post = e.posterior()
         dim = e.dims[ACTION]
         others = [d for d in range(post.dim() - 1) if d != post.dim() + dim]
@@ -461,7 +447,7 @@ def infer_action(
         per_action = joint.sum(others).T if others else joint.T
         return probs, per_action / probs.clamp_min(1e-300), e.log_evidence
 
-    probs, unseen, log_evidence = _chunked(net, params, enc, set(), fn)
+    probs, unseen, log_evidence = over_row_chunks(net, params, enc, set(), fn)
     unseen = unseen.clamp(0, 1)
     score = probs.clone()
     if allowed is not None:
@@ -516,35 +502,35 @@ def imitation_check(
             )
         )
     prior = enc.without(*observed)
-    log_joint = _chunked(net, params, enc, set(), lambda e, _: e.log_evidence)
-    log_prior = _chunked(net, params, prior, set(), lambda e, _: e.log_evidence)
+    log_joint = over_row_chunks(net, params, enc, set(), lambda e, *_: e.log_evidence)
+    log_prior = over_row_chunks(net, params, prior, set(), lambda e, *_: e.log_evidence)
     log_lik = conditional_log_evidence(net, params, enc, prior, log_joint, log_prior)
     if all(net.site(s).discrete for s in observed):
         surprise = _discrete_surprise(net, params, prior, observed, log_lik)
     else:
         surprise = continuous_surprise(net, params, enc, observed, n_points=n_samples, seed=seed)
 
-    def unseen(e, _):
+    def unseen(e, *_):
         post = e.posterior(strict=False)  # an impossible outcome rests on no configuration
         return (post * _unseen_mass(net, params, e, observed)).reshape(-1, post.shape[-1]).sum(0)
 
     flag = plausibility(net, params, enc, log_evidence=log_joint, log_prior=log_prior)
     flag = flag.implausible(below)
-    unseen_mass = _chunked(net, params, enc, set(), unseen).clamp(0, 1)
+    unseen_mass = over_row_chunks(net, params, enc, set(), unseen).clamp(0, 1)
     return ImitationCheck(log_lik, surprise, unseen_mass, flag)
 
 
 def _discrete_surprise(net, params, prior, observed, log_lik) -> torch.Tensor:
     """P(outcome strictly more likely than the observed one), by enumerating outcomes."""
 
-    def fn(e: Enumerated, _):
+    def fn(e: Enumerated, *_):
         w = e.log_weight - e.log_norm  # joint over outcomes and latents, (E..., n)
         outcome_dims = [w.dim() + e.dims[s] for s in observed]
         latent_dims = [d for d in range(w.dim() - 1) if d not in outcome_dims]
         joint = w.logsumexp(latent_dims, keepdim=True) if latent_dims else w
         return joint.reshape(-1, w.shape[-1]).T  # (n, outcomes)
 
-    joint = _chunked(net, params, prior, set(observed), fn)
+    joint = over_row_chunks(net, params, prior, set(observed), fn)
     more_likely = joint > log_lik[:, None] + 1e-9
     return (joint.exp() * more_likely).sum(-1).clamp(0, 1)
 
@@ -601,7 +587,7 @@ def infer_parameter(
             _over_latent_parents(net, params, m, enc, children, latent, mixture), implausible=flag
         )
     enc, acting = _given_others(net, m, enc, children, "infer_parameter")
-    probs = _chunked(net, params, enc, set(), lambda e, _: e.marginal(cluster_site(p.name)))
+    probs = over_row_chunks(net, params, enc, set(), lambda e, *_: e.marginal(cluster_site(p.name)))
     best = probs.argmax(-1)
     mean, cov = m.posterior(params, children, enc, best, acting=acting)
     unseen = torch.zeros(enc.n_rows, dtype=torch.bool)
@@ -679,12 +665,12 @@ def parameter_for_effect(
     if fast is None:  # a factor beyond the mixture depends on the value: the model scores all
         scored = enc.repeat(c)
         scored = Evidence(net, dict(scored) | {m.value.site: candidates.reshape(n * c, -1)}, n * c)
-        log_density = _chunked(net, params, scored, set(), lambda e, _: e.log_evidence)
+        log_density = over_row_chunks(net, params, scored, set(), lambda e, *_: e.log_evidence)
         log_density = log_density.reshape(n, c)
     else:  # the model scores each row's best; the rest differ from it by the mixture's terms
         best = first_best(fast)
         scored = Evidence(net, dict(enc) | {m.value.site: candidates[rows, best]}, n)
-        exact = _chunked(net, params, scored, set(), lambda e, _: e.log_evidence)
+        exact = over_row_chunks(net, params, scored, set(), lambda e, *_: e.log_evidence)
         top = fast[rows, best]
         shift = torch.where(torch.isfinite(top), exact - top, 0.0)
         log_density = torch.where(torch.isfinite(exact)[:, None], fast + shift[:, None], -torch.inf)
@@ -860,7 +846,7 @@ def _over_latent_parents(net, params, m, enc, children, latent, mixture) -> Para
     p = m.parameter
     sites = [*latent, m.cluster.site]
 
-    def joint(e: Enumerated, _):
+    def joint(e: Enumerated, *_):
         w = e.log_weight
         keep = [w.dim() + e.dims[s] for s in sites]
         others = [d for d in range(w.dim() - 1) if d not in keep]
@@ -870,7 +856,7 @@ def _over_latent_parents(net, params, m, enc, children, latent, mixture) -> Para
 
     sizes = [net.site(s).size for s in latent]
     n, c = enc.n_rows, p.n_clusters
-    weights = _chunked(net, params, enc, set(), joint).reshape(n, -1, c)  # (n, S, C)
+    weights = over_row_chunks(net, params, enc, set(), joint).reshape(n, -1, c)  # (n, S, C)
     probs = weights.sum(1)
     best = probs.argmax(-1)
     every = torch.arange(c).expand(n, -1)
@@ -907,12 +893,12 @@ def _parameter_from_cluster(net, params, m, enc, observed, mixture) -> Parameter
     depend on its cell, so the parameter given its best cluster is that cluster's
     Gaussian."""
 
-    def fn(e: Enumerated, _):
+    def fn(e: Enumerated, *_):
         post = e.posterior()
         unseen = (post * _unseen_mass(net, params, e, observed)).reshape(-1, post.shape[-1])
         return e.marginal(m.cluster.site), unseen.sum(0)
 
-    probs, unseen = _chunked(net, params, enc, set(), fn)
+    probs, unseen = over_row_chunks(net, params, enc, set(), fn)
     best = probs.argmax(-1)
     prior = params[m.value.site]
     mean, cov = prior.bias[best], prior.covariance[best]

@@ -55,8 +55,8 @@ import torch
 from inference.enumeration import (
     Enumerated,
     enumerate_model,
-    enumeration_size,
     log_ratio,
+    over_row_chunks,
     row_chunks,
 )
 from inference.plausibility import _mahalanobis
@@ -125,7 +125,7 @@ def continuous_surprise(
         out = tuple(_by_outcome(e, discrete, t.expand(log_w.shape)) for t in (log_w, log_prior, d2))
         return (*out, joint)
 
-    log_w, log_prior, d2, log_joint = _over_rows(net, params, varied, discrete, weights)
+    log_w, log_prior, d2, log_joint = over_row_chunks(net, params, varied, discrete, weights)
     log_joint = log_joint[:, None, None]
     prob = (log_prior - log_prior.logsumexp((1, 2), keepdim=True)).exp()  # P(c | E)
     # one component per outcome: the chi-square probability of the ellipsoid
@@ -171,17 +171,6 @@ def _by_outcome(e: Enumerated, outcomes: list[str], t: torch.Tensor) -> torch.Te
     o = math.prod(t.shape[d] for d in first)
     order = [rows, *first, *rest, *range(depth, depth + event)]
     return t.permute(order).reshape(n, o, -1, *t.shape[depth:])
-
-
-def _over_rows(net, params, evidence: Evidence, keep: list[str], fn):
-    """``fn(enumerated, chunk, rows)`` over row chunks (``rows`` the chunk's rows of
-    ``evidence``), its tuples concatenated along rows."""
-    size = enumeration_size(net, evidence, keep)
-    parts = [
-        fn(enumerate_model(net, params, evidence.rows(s), keep=keep), evidence.rows(s), s)
-        for s in row_chunks(evidence.n_rows, size)
-    ]
-    return tuple(torch.cat(p, 0) for p in zip(*parts, strict=True))
 
 
 def _joint_gaussians(net, params, evidence: Evidence, continuous, discrete):
@@ -240,7 +229,7 @@ def _joint_gaussians(net, params, evidence: Evidence, continuous, discrete):
         tril = _assemble(trils)
         return _by_outcome(e, discrete, mean), _by_outcome(e, discrete, tril)
 
-    return _over_rows(net, params, evidence, discrete, steps)
+    return over_row_chunks(net, params, evidence, discrete, steps)
 
 
 def _assemble(blocks) -> torch.Tensor:

@@ -469,11 +469,11 @@ def test_closed_form_scores_equal_the_models_own(case, monkeypatch):
 
     net, params, p, evidence = CASES[case]()
     m = net.mixture(p)
-    scored_rows, chunked = [], queries._chunked
+    scored_rows, chunked = [], queries.over_row_chunks
     with monkeypatch.context() as patch:
         patch.setattr(
             queries,
-            "_chunked",
+            "over_row_chunks",
             lambda n, q, e, *a: scored_rows.append(e.n_rows) or chunked(n, q, e, *a),
         )
         fast = parameter_for_effect(net, params, p, evidence)
