@@ -39,8 +39,8 @@ from inference.enumeration import (
 )
 from models.cpds import concat_inputs
 from models.declaration import DTYPE, EffectNetwork, end_site
-from models.evidence import Evidence, is_partial, observed_dims
-from models.gaussian import mask_unobserved
+from models.evidence import Evidence, observed_dims
+from models.gaussian import mahalanobis
 from models.params import NetworkParams
 
 IMPLAUSIBLE_BELOW = 1e-4
@@ -166,7 +166,7 @@ def initial_tails(net: EffectNetwork, params: NetworkParams, evidence) -> dict[s
         index = [evidence[q] for q in cpd.parents]
         x = concat_inputs([evidence[q] for q in cpd.inputs])
         fn = cpd.distribution(params[spec.name], index, x, cache)
-        d2 = _mahalanobis(fn, evidence[spec.name])
+        d2 = mahalanobis(fn, evidence[spec.name])
         out[spec.name] = torch.special.gammaincc(torch.tensor(spec.size / 2, dtype=DTYPE), d2 / 2)
     return out
 
@@ -181,25 +181,9 @@ def _closest_distance(net, params, evidence, sites) -> tuple[torch.Tensor, torch
         d2 = torch.zeros((), dtype=DTYPE)
         for s in sites:
             node = e.trace.nodes[s]
-            d2 = d2 + _mahalanobis(node["fn"], node["value"])
+            d2 = d2 + mahalanobis(node["fn"], node["value"])
         w = e.log_weight
         d2 = torch.where(torch.isfinite(w), d2.expand_as(w), torch.inf)
         return d2.reshape(-1, w.shape[-1]).min(0).values
 
     return over_row_chunks(net, params, evidence, (), fn), dof
-
-
-def _mahalanobis(fn, value: torch.Tensor) -> torch.Tensor:
-    """Squared Mahalanobis distance of ``value`` under the Gaussian ``fn``, batch-shaped."""
-    diff = value - fn.loc
-    tril = fn.scale_tril
-    if is_partial(value):  # the observed dimensions' marginal
-        value, loc, cov, _ = mask_unobserved(value, fn.loc, tril @ tril.mT)
-        diff, tril = value - loc, torch.linalg.cholesky(cov)
-    shape = torch.broadcast_shapes(diff.shape[:-1], tril.shape[:-2])
-    z = torch.linalg.solve_triangular(
-        tril.expand(*shape, *tril.shape[-2:]),
-        diff.expand(*shape, diff.shape[-1])[..., None],
-        upper=False,
-    )
-    return z.squeeze(-1).square().sum(-1)

@@ -59,10 +59,9 @@ from inference.enumeration import (
     over_row_chunks,
     row_chunks,
 )
-from inference.plausibility import _mahalanobis
 from models.declaration import DTYPE, EffectNetwork
 from models.evidence import Evidence, observed_dims
-from models.gaussian import mask_unobserved
+from models.gaussian import mahalanobis, mask_unobserved
 from models.params import NetworkParams
 
 LOG_2PI = math.log(2 * math.pi)
@@ -111,7 +110,7 @@ def continuous_surprise(
         log_density = torch.zeros((), dtype=DTYPE)  # theirs less their offsets
         for s in continuous:
             node = e.trace.nodes[s]
-            d2 = d2 + _mahalanobis(node["fn"], node["value"])
+            d2 = d2 + mahalanobis(node["fn"], node["value"])
             own = e.offsets.get(s, 0.0)
             log_density = log_density + (node["log_prob"] - own)
             own_total = own_total + own

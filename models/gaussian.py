@@ -100,3 +100,21 @@ def condition_on_observed(
     mean, post = condition_linear_gaussian(loc, cov, eye, torch.zeros_like(y), noise, y)
     both = seen[..., :, None] | seen[..., None, :]
     return torch.where(seen, y.nan_to_num(), mean), torch.where(both, 0.0, post)
+
+
+def mahalanobis(fn, value: torch.Tensor) -> torch.Tensor:
+    """Squared Mahalanobis distance of ``value`` under the Gaussian ``fn`` (a distribution
+    with ``loc`` and ``scale_tril``), batch-shaped; a value with NaN dimensions (partial
+    evidence) is measured in its observed dimensions' marginal."""
+    diff = value - fn.loc
+    tril = fn.scale_tril
+    if bool(torch.isnan(value).any()):  # the observed dimensions' marginal
+        value, loc, cov, _ = mask_unobserved(value, fn.loc, tril @ tril.mT)
+        diff, tril = value - loc, torch.linalg.cholesky(cov)
+    shape = torch.broadcast_shapes(diff.shape[:-1], tril.shape[:-2])
+    z = torch.linalg.solve_triangular(
+        tril.expand(*shape, *tril.shape[-2:]),
+        diff.expand(*shape, diff.shape[-1])[..., None],
+        upper=False,
+    )
+    return z.squeeze(-1).square().sum(-1)
