@@ -14,7 +14,7 @@ per (kind, state, action), 27 configurations of 3 classes on 2 inputs.
   softmax site, and how far its optimum lies from Newton's.
 * **Missing values** -- :func:`inference.fit` with ``masks``: ``kind`` missing in 30 %
   of ``--em-rows`` rows and ``end.state`` in 20 % (EM with exact E-steps,
-  :func:`inference.em.fit_missing`); goal converged under 2 s. Beside it the old route,
+  :func:`inference.fitting.em.fit_missing`); goal converged under 2 s. Beside it the old route,
   ``fit_gradient`` with the masks (500 Adam steps on the marginal likelihood), on
   ``--old-em-rows`` rows.
 

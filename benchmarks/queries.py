@@ -37,7 +37,7 @@ from scipy import stats
 from timing import median_seconds  # benchmarks/timing.py, beside this script
 
 from inference import fit, imitation_check, infer_action
-from inference.compiled import compile_discrete
+from inference.queries.compiled import compile_discrete
 from models import Continuous, Discrete, EffectNetwork, Evidence, Parameter, random_params
 from models.can_network import can_network
 from models.declaration import DTYPE

@@ -7,7 +7,7 @@ Times :func:`inference.fit` on the training rows, and the inverse query (hit -> 
 cluster posterior by enumeration, best cluster, Gaussian conditioning) batched over the
 test hits and one hit at a time, both through the traced Pyro model
 (:func:`inference.infer_parameter`) and through its compiled tables
-(:func:`inference.compiled.compile_parameter_query`, the same numbers, tested equal). Each
+(:func:`inference.queries.compiled.compile_parameter_query`, the same numbers, tested equal). Each
 figure is the median over ``--repeats`` runs of ``time.perf_counter`` after one warm-up.
 Goals: fit under 50 ms; batched inverse at most 5 us per
 query; one query at most 100 us. ``--profile`` prints where a query's time goes, stage by stage.
@@ -32,7 +32,7 @@ from timing import median_seconds  # benchmarks/timing.py, beside this script
 
 from experiments.adaptive_throw import adaptive_throw_network
 from inference import fit, fit_em, infer_parameter, parameter_for_effect
-from inference.compiled import compile_parameter_query
+from inference.queries.compiled import compile_parameter_query
 from models.throw_network import TARGET, throw_data, throw_network
 from sim2d.throw import sample_targets, throw
 
@@ -186,7 +186,7 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
         report("traced Pyro model (inference.infer_parameter):", seconds)
         compiled = measure_compiled(net, data, test, args.repeats, args.singles)
         print(
-            f"compiled query (inference.compiled.compile_parameter_query), built in {1e3 * compiled['compile']:.1f} ms:"
+            f"compiled query (inference.queries.compiled.compile_parameter_query), built in {1e3 * compiled['compile']:.1f} ms:"
         )
         for key, what in (
             ("batched", "inverse query, batched, per query"),

@@ -2,7 +2,7 @@
 
 Table I's can network is fitted on every 0° throw of the can data set (every stable
 configuration x every throwable field x its repeats). Here a learner chooses which
-throws to make (:func:`inference.active.explore`) and the learning curve of Table I's
+throws to make (:func:`inference.design.active.explore`) and the learning curve of Table I's
 exact fraction against the number of throws used is measured for each strategy, beside
 the network fitted on every throw.
 
@@ -28,7 +28,7 @@ the network fitted on every throw.
   (:func:`inference.fit`, scored with both tie-break rules) and with each row's prior
   pooled from the neighbouring fields' throws (:func:`inference.fit_pooled`, kernel
   width ``pool_sigma`` fields, ``pool_strength`` pseudo-throws; score ``pooled``). Either
-  way the start and field priors are the pool's (:func:`inference.active.
+  way the start and field priors are the pool's (:func:`inference.design.active.
   with_pool_prior`), not the learner's play frequencies, which would otherwise steer the
   choice towards often-played fields. The full data is fitted the same two ways, and the
   goal is measured against its best score.
@@ -71,8 +71,8 @@ from experiments.config import (
 )
 from experiments.physics_bounds import BOUND_SEED, held_out_best
 from inference import fit, fit_pooled, grid_kernel
-from inference.active import explore, with_pool_prior
-from inference.compiled import compile_discrete
+from inference.design.active import explore, with_pool_prior
+from inference.queries.compiled import compile_discrete
 from models.can_network import can_network, can_rows, config_index
 from sim2d import field_throws, geometry
 from sim2d.can_dataset import generate_dataset, load_dataset
@@ -93,7 +93,7 @@ __all__ = [
     "table_one_on_replays",
 ]
 
-#: The strategies compared: ``{name: (inference.active strategy, shared prior?)}``.
+#: The strategies compared: ``{name: (inference.design.active strategy, shared prior?)}``.
 LEARNERS = {
     "eig": ("eig", False),
     "eig_shared": ("eig", True),
@@ -287,7 +287,7 @@ def cases_seen(rows, cases) -> float:
 def _model(net, rows, pool, throwable, pooling=None) -> CanModel:
     """The can model fitted on ``rows``: plainly, or pooled with ``pooling = (kernel,
     strength)``; the start and field priors are the pool's (design-free:
-    :func:`inference.active.with_pool_prior`)."""
+    :func:`inference.design.active.with_pool_prior`)."""
     if pooling is None:
         params = fit(net, rows).params
     else:

@@ -28,7 +28,7 @@ uniform targets on the 2 m x 2 m area, their hits, re-throw RMS per axis ``y``, 
   throws, :func:`plane_residuals`).
 * **Active throw targets.** Learning the grid network from few throws, each batch of
   targets chosen among a pool of random candidates by the expected information gain
-  about the clusters' regressions (:func:`inference.active_gaussian.select_by_information`)
+  about the clusters' regressions (:func:`inference.design.active_gaussian.select_by_information`)
   against random targets; re-throw RMS against the number of throws. The grid size
   follows the data: ``clamp(round(sqrt(n / 30)), 2, 16)`` clusters per axis for ``n``
   throws (about 30 throws per cluster), the same for both strategies.
@@ -52,7 +52,7 @@ from tqdm.auto import tqdm
 from experiments.config import ConfigError, Result, check_float, check_int
 from experiments.throwing import HIT_MARGIN_M, get_data, rms
 from inference import fit, fit_em, infer_parameter, parameter_for_effect
-from inference.active_gaussian import select_by_information
+from inference.design.active_gaussian import select_by_information
 from models.declaration import EffectNetwork
 from models.throw_network import TARGET, hit_evidence, throw_data, throw_network
 from sim2d.throw import TARGET_AREA, ReleaseNoise, sample_targets, throw

@@ -55,8 +55,8 @@ from experiments.physics_bounds import (
 )
 from experiments.throwing import MAX_BINS, fit_throws, get_data
 from inference import fit, predict
-from inference.compiled import compile_parameter_query
-from inference.planning import exact_plan, paper_planner
+from inference.queries.compiled import compile_parameter_query
+from inference.queries.planning import exact_plan, paper_planner
 from models.can_network import can_network, can_rows
 from models.throw_network import TARGET
 from sim2d import geometry

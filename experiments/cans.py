@@ -14,7 +14,7 @@ import numpy as np
 import torch
 
 from inference import fit, predict
-from inference.compiled import CompiledNetwork, compile_discrete
+from inference.queries.compiled import CompiledNetwork, compile_discrete
 from models import EffectNetwork, NetworkParams
 from models.can_network import can_network, can_rows
 from sim2d import field_throws, geometry

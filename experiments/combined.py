@@ -14,7 +14,7 @@ where the can network's training throw through that field first meets the cans (
 network was trained on that angle's parabolas). The can network is trained on the angle
 whose direction is closest to the robot's measured impact direction.
 
-Planners (:mod:`inference.planning`): the paper's round planner, whose actions in a round
+Planners (:mod:`inference.queries.planning`): the paper's round planner, whose actions in a round
 are the fields whose most probable end configuration is the (intermediate) goal; and an
 exact planner that maximises the probability of reaching the goal within ``horizon``
 throws under the learned models, with the throw's uncertainty (the throw network's
@@ -43,8 +43,8 @@ from experiments.config import (
 )
 from experiments.throwing import MAX_BINS, fit_throws, get_data
 from inference import predict
-from inference.compiled import compile_parameter_query
-from inference.planning import exact_plan, paper_planner
+from inference.queries.compiled import compile_parameter_query
+from inference.queries.planning import exact_plan, paper_planner
 from models.throw_network import TARGET
 from sim2d import geometry, materials
 from sim2d.combined import CAN_BAND, TABLE_TOP_Z, first_contact, play_throw, settle

@@ -39,7 +39,7 @@ from experiments.config import (
     check_float,
     check_int,
 )
-from inference.planning import exact_plan, policy_value
+from inference.queries.planning import exact_plan, policy_value
 from sim2d import field_throws, geometry
 from sim2d.can_dataset import generate_dataset, load_dataset
 from sim2d.combined import TABLE_TOP_Z, explore

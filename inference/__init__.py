@@ -1,9 +1,9 @@
 """Fitting (maximum likelihood) and exact queries on effect networks."""
 
-from inference.em import EMResult, fit_em
-from inference.enumeration import Enumerated, enumerate_model
-from inference.fit import ConvergenceWarning, FitResult, fit, fit_gradient, fit_statistics
-from inference.pooling import fit_pooled, grid_kernel
+from inference.fitting.em import EMResult, fit_em
+from inference.fitting.fit import ConvergenceWarning, FitResult, fit, fit_gradient, fit_statistics
+from inference.fitting.pooling import fit_pooled, grid_kernel
+from inference.fitting.statistics import Statistics, params_from_statistics
 from inference.queries import (
     ActionPosterior,
     GaussianMixture,
@@ -17,8 +17,8 @@ from inference.queries import (
     parameter_for_effect,
     predict,
 )
-from inference.simulate import simulate
-from inference.statistics import Statistics, params_from_statistics
+from inference.queries.enumeration import Enumerated, enumerate_model
+from inference.queries.simulate import simulate
 
 __all__ = [
     "ActionPosterior",

@@ -1,140 +1,20 @@
-"""Fit tables with a prior shared by similar actions (for networks learned from few plays).
+"""Deprecated import path: this module is now :mod:`inference.fitting.pooling`.
 
-The maximum-likelihood fit (:func:`inference.fit`) learns every row of an end site's
-table from the plays of that row alone. When the actions are points of a space in which
-nearby actions have similar effects (the cells of a grid a robot aims at, say) and each
-(initial state, action) pair has been played only once or never, that wastes what the
-neighbouring actions' plays say. :func:`fit_pooled` keeps the row's own counts and gives
-it a Dirichlet prior built from its neighbours' plays under the same other parents:
-
-* ``kernel`` ``W`` ``(A, A)``, non-negative: ``W[a, b]`` how much action ``b``'s plays
-  say about action ``a`` (:func:`grid_kernel` gives Gaussian weights on a grid). The
-  diagonal is ignored: a row's own plays are its data, not its prior.
-* For a row with action ``a`` (the other parents fixed), the neighbours' counts
-  ``N[a] = sum_b W[a, b] c[b]`` (``c[b]`` the counts of the row with action ``b``), their
-  weight ``t[a] = sum_k N[a, k]`` and their distribution ``m[a] = N[a] / t[a]``.
-* The prior is ``Dirichlet(alpha + w[a] m[a])`` with ``w[a] = strength * min(1, t[a])``:
-  ``strength`` pseudo-plays of the neighbours' distribution, fewer where the neighbours
-  hold less than one (weighted) play, so one distant play does not decide an unplayed
-  row. The table row is the posterior mean ``(c[a] + alpha + w[a] m[a]) / (n[a] + K alpha
-  + w[a])`` and its evidence count ``n[a] + w[a]`` (a row with no own play but played
-  neighbours is not *unseen* to the queries).
-
-``strength = 0`` (or a kernel without off-diagonal weight) gives exactly
-:func:`inference.fit`'s tables. Only end sites' tables whose parents include the action are
-pooled; every other CPD is the plain fit. Queries on the result are as exact as on any
-fitted network: the pooling changes the parameters, not the inference.
+Every name is forwarded there with a ``DeprecationWarning``; the old path goes away in
+the next release.
 """
 
-from __future__ import annotations
+import importlib
+import warnings
 
-import math
-from collections.abc import Iterable, Mapping
+_NEW = "inference.fitting.pooling"
 
-import torch
-
-from inference.fit import FitResult, _check_settings, fit_statistics
-from inference.statistics import params_from_statistics
-from models.cpds.table import Table, TableCPD
-from models.declaration import ACTION, EffectNetwork
-from models.evidence import DTYPE
-from models.params import NetworkParams
-
-__all__ = ["fit_pooled", "grid_kernel"]
+warnings.warn(
+    f"inference.pooling moved to {_NEW}; import it from there",
+    DeprecationWarning,
+    stacklevel=2,
+)
 
 
-def grid_kernel(grid_shape: tuple[int, int], sigma: float) -> torch.Tensor:
-    """``(A, A)`` Gaussian weights ``exp(-d^2 / (2 sigma^2))`` between the cells of a
-    ``(rows, columns)`` grid in row-major order (``A = rows * columns``, ``d`` the distance
-    in cells); ``sigma = 0`` gives the identity (no pooling)."""
-    if len(grid_shape) != 2 or not all(
-        isinstance(k, int) and not isinstance(k, bool) and k >= 1 for k in grid_shape
-    ):
-        raise ValueError(f"grid_shape must be two ints >= 1, got {grid_shape!r}")
-    if not isinstance(sigma, (int, float)) or not math.isfinite(sigma) or sigma < 0:
-        raise ValueError(f"sigma must be a finite number >= 0, got {sigma!r}")
-    rows, cols = grid_shape
-    if sigma == 0:
-        return torch.eye(rows * cols, dtype=DTYPE)
-    cell = torch.arange(rows * cols)
-    r, c = cell // cols, cell % cols
-    d2 = ((r[:, None] - r[None]) ** 2 + (c[:, None] - c[None]) ** 2).to(DTYPE)
-    return torch.exp(-d2 / (2 * sigma**2))
-
-
-def fit_pooled(
-    net: EffectNetwork,
-    data: Mapping[str, object] | Iterable[Mapping[str, object]],
-    kernel: torch.Tensor,
-    *,
-    strength: float = 0.5,
-    pseudo_count: float = 0.01,
-    min_variance: float = 1e-6,
-    progress: bool = False,
-) -> FitResult:
-    """Fit ``net`` like :func:`inference.fit`, with the end sites' table rows given a prior
-    from the plays of similar actions (see the module).
-
-    Parameters
-    ----------
-    data
-        Training rows (or an iterable of row chunks), as :func:`inference.fit` reads them.
-        Every CPD needs a closed form (tables, linear Gaussians).
-    kernel
-        ``(A, A)`` non-negative weights between the network's actions.
-    strength
-        Pseudo-plays of the neighbours' distribution in a row's prior (>= 0).
-    pseudo_count, min_variance, progress
-        As in :func:`inference.fit`.
-    """
-    _check_settings(pseudo_count=pseudo_count, min_variance=min_variance)
-    if (
-        not isinstance(strength, (int, float))
-        or isinstance(strength, bool)
-        or not math.isfinite(strength)
-        or strength < 0
-    ):
-        raise ValueError(f"strength must be a finite number >= 0, got {strength!r}")
-    n_actions = len(net.actions)
-    kernel = torch.as_tensor(kernel, dtype=DTYPE)
-    if kernel.shape != (n_actions, n_actions):
-        raise ValueError(
-            f"kernel must be ({n_actions}, {n_actions}) for the network's {n_actions} "
-            f"actions, got {tuple(kernel.shape)}"
-        )
-    if not bool(torch.isfinite(kernel).all()) or bool((kernel < 0).any()):
-        raise ValueError("kernel must hold finite non-negative weights")
-    chunks = [data] if isinstance(data, Mapping) else data
-    stats = fit_statistics(net, chunks, progress=progress)
-    if stats.gradient:
-        raise ValueError(
-            f"sites {list(stats.gradient)} have no closed-form fit; fit_pooled needs every "
-            "CPD in closed form (tables and linear Gaussians)"
-        )
-    cpds = params_from_statistics(net, stats, pseudo_count, min_variance)
-    off = kernel.clone()
-    off.fill_diagonal_(0.0)
-    for spec in net.sites:
-        cpd = net.cpd(spec.name)
-        if spec.role != "end" or not isinstance(cpd, TableCPD) or ACTION not in cpd.parents:
-            continue
-        if cpd.pinned is not None:
-            continue
-        axis = cpd.parents.index(ACTION)
-        counts = stats.sites[spec.name].counts.to(DTYPE).movedim(axis, -2)  # (..., A, K)
-        cpds[spec.name] = _pooled(counts, off, strength, pseudo_count, axis)
-    return FitResult(NetworkParams(cpds, pseudo_count, net))
-
-
-def _pooled(counts, off, strength, alpha, axis) -> Table:
-    """The pooled table of ``counts`` ``(..., A, K)`` (action axis moved next to last),
-    returned with the action axis back at ``axis``."""
-    k = counts.shape[-1]
-    neighbours = torch.einsum("ab,...bk->...ak", off, counts)
-    weight = neighbours.sum(-1, keepdim=True)
-    m = torch.where(weight > 0, neighbours / weight.clamp_min(1e-300), 0.0)
-    w = strength * weight.clamp(max=1.0)
-    n = counts.sum(-1, keepdim=True)
-    total = n + k * alpha + w
-    probs = torch.where(total > 0, (counts + alpha + w * m) / total.clamp_min(1e-300), 1.0 / k)
-    return Table(probs.movedim(-2, axis), (n + w)[..., 0].movedim(-1, axis))
+def __getattr__(name: str):
+    return getattr(importlib.import_module(_NEW), name)

@@ -1,110 +1,20 @@
-"""Sufficient statistics of the closed-form fit, and the parameters they give.
+"""Deprecated import path: this module is now :mod:`inference.fitting.statistics`.
 
-Every closed-form CPD is a function of sums over rows: a table of its counts; a
-conditional linear Gaussian of ``sum z z^T``, ``sum z y^T``, ``sum y y^T`` and the row
-count per parent configuration (``z = [x, 1]``, its continuous parents and a one).
-Sums merge by addition, which is associative and commutative, so a data set can be cut
-into chunks (or partitions on a cluster), each chunk's :class:`Statistics` computed
-apart, and the results added in any grouping: ``statistics(a) + statistics(b)`` is
-``statistics(a ∪ b)`` up to the rounding of float additions (counts are exact).
-:func:`params_from_statistics` then gives the same parameters as one pass over all rows.
-Rows may carry weights (in an EM step, the posterior of a completion of a row's missing
-values): each row's terms are multiplied by its weight, so a weight ``k`` counts as ``k``
-copies of the row and fractional weights give the expected statistics.
-
-Pseudo-count policy (``pseudo_count``, written alpha): a table row is
-``(counts + alpha) / (n + K alpha)``, so a parent configuration no sample reached is
-uniform; a Gaussian configuration gets alpha pseudo-rows of the pooled statistics of its
-site (all rows together), so an unseen one is the pooled fit and a rarely seen one is
-shrunk towards it. A covariance's eigenvalues are floored at ``min_variance``, so that a
-configuration with fewer rows than dimensions stays positive definite; one whose spread
-exceeds it in every direction keeps its estimate. ``alpha = 0`` gives the plain sample
-statistics where every configuration is seen.
+Every name is forwarded there with a ``DeprecationWarning``; the old path goes away in
+the next release.
 """
 
-from __future__ import annotations
+import importlib
+import warnings
 
-from dataclasses import dataclass
+_NEW = "inference.fitting.statistics"
 
-import torch
-
-from models.cpds import Counts, Moments
-from models.declaration import EffectNetwork
-from models.evidence import Evidence
-
-
-@dataclass(frozen=True)
-class Statistics:
-    """Sufficient statistics of every closed-form CPD of one network, per site.
-
-    ``gradient`` names the sites whose kind has no closed form (their statistics only
-    seed the gradient fit, which needs the rows themselves).
-    """
-
-    sites: dict[str, Counts | Moments]
-    rows: int
-    gradient: tuple[str, ...] = ()
-
-    def __add__(self, other: Statistics) -> Statistics:
-        if set(self.sites) != set(other.sites):
-            raise ValueError("statistics of two different networks cannot be merged")
-        merged = {site: self.sites[site] + other.sites[site] for site in self.sites}
-        return Statistics(merged, self.rows + other.rows, self.gradient)
-
-    def merged_into(self, total: Statistics | None) -> Statistics:
-        """``total + self``, adding into ``total``'s tensors in place (no copy of a big
-        table per chunk); ``self`` when ``total`` is ``None``."""
-        if total is None:
-            return self
-        if set(self.sites) != set(total.sites):
-            raise ValueError("statistics of two different networks cannot be merged")
-        for site, s in self.sites.items():
-            total.sites[site].add_(s)
-        return Statistics(total.sites, total.rows + self.rows, total.gradient)
+warnings.warn(
+    f"inference.statistics moved to {_NEW}; import it from there",
+    DeprecationWarning,
+    stacklevel=2,
+)
 
 
-def statistics(
-    net: EffectNetwork, enc: Evidence, weights: torch.Tensor | None = None
-) -> Statistics:
-    """The sums of one chunk of complete, checked rows (see :func:`inference.fit`), each
-    row counting ``weights`` ``(n,)`` (default 1; an EM step's responsibilities)."""
-    sites: dict = {}
-    flat: dict[tuple[str, ...], torch.Tensor] = {}  # sites sharing their parents share the index
-    for m in net.mixtures:
-        c_site, p_site = m.sites
-        sites |= m.statistics(enc[m.action], enc[c_site], enc[p_site], weights)
-    for spec in net.sites:
-        if spec.name in sites:
-            continue
-        cpd = net.cpd(spec.name)
-        if cpd.parents not in flat:
-            flat[cpd.parents] = flat_index(enc, cpd.parents, cpd.card)
-        inputs = [enc[s].nan_to_num() for s in cpd.inputs]
-        x = torch.cat(inputs, -1) if inputs else None
-        args = (flat[cpd.parents], x, enc[spec.name])
-        # a kind of the user's may take no weights: ask for them only when there are some
-        sites[spec.name] = (
-            cpd.statistics(*args) if weights is None else cpd.statistics(*args, weights)
-        )
-    gradient = tuple(s.name for s in net.sites if not net.cpd(s.name).closed_form)
-    return Statistics({s.name: sites[s.name] for s in net.sites}, enc.n_rows, gradient)
-
-
-def params_from_statistics(
-    net: EffectNetwork, stats: Statistics, alpha: float, min_variance: float
-) -> dict:
-    """Every kind's ``m_step``: the closed-form maximum-likelihood CPDs (for kinds without
-    one, the gradient route's start)."""
-    return {
-        s.name: net.cpd(s.name).m_step(stats.sites[s.name], alpha, min_variance) for s in net.sites
-    }
-
-
-def flat_index(enc: Evidence, sites: tuple[str, ...], card: tuple[int, ...]) -> torch.Tensor:
-    """``(n,)`` row-major index of the rows' configuration of ``sites``."""
-    if not sites:
-        return torch.zeros(enc.n_rows, dtype=torch.long)
-    index = enc[sites[0]]
-    for s, k in zip(sites[1:], card[1:], strict=True):
-        index = index * k + enc[s]
-    return index
+def __getattr__(name: str):
+    return getattr(importlib.import_module(_NEW), name)

@@ -118,3 +118,33 @@ def mahalanobis(fn, value: torch.Tensor) -> torch.Tensor:
         upper=False,
     )
     return z.squeeze(-1).square().sum(-1)
+
+
+def chi_square_tail(dof: int, x: float) -> float:
+    """``P(X > x)`` for ``X`` chi-square with ``dof >= 1`` degrees of freedom: the
+    regularised ``gammaincc(dof / 2, x / 2)`` in closed form, from ``Q(1, h) = e^-h`` (even
+    ``dof``) or ``Q(1/2, h) = erfc(sqrt h)`` (odd) up by ``Q(a + 1, h) = Q(a, h) + h^a
+    e^-h / Gamma(a + 1)``."""
+    h = x / 2
+    if h == math.inf:
+        return 0.0
+    a, tail = (0.5, math.erfc(math.sqrt(h))) if dof % 2 else (1.0, math.exp(-h))
+    if h == 0 or a >= dof / 2:
+        return tail
+    # the terms relative to the first, h^a e^-h / Gamma(a + 1), whose log is log_first
+    # (the first term itself may be subnormal where the sum is not)
+    log_first = a * math.log(h) - h - math.lgamma(a + 1)
+    total, term = 0.0, 1.0
+    while a < dof / 2:
+        total += term
+        a += 1
+        term *= h / a
+        if total > 1e280:  # keep the sum finite: move a factor into log_first
+            total, term, log_first = total * 1e-280, term * 1e-280, log_first + 280 * math.log(10)
+    return tail + math.exp(math.log(total) + log_first)
+
+
+def quadratic_features(y: torch.Tensor) -> torch.Tensor:
+    """``(n, F)``: ``y_i y_j`` for ``i <= j`` (row-major), ``y_i``, and 1, of ``y`` ``(n, d)``."""
+    i, j = torch.triu_indices(y.shape[-1], y.shape[-1])
+    return torch.cat([y[:, i] * y[:, j], y, torch.ones_like(y[:, :1])], -1)

@@ -71,7 +71,7 @@ def assert_loss_is_exact(namespace):
     by enumeration, also where a continuous end site is left out of the evidence."""
     from pyro.infer import TraceEnum_ELBO
 
-    from inference.enumeration import enumerate_model
+    from inference.queries.enumeration import enumerate_model
 
     net, params, pushed = namespace["net"], namespace["params"], namespace["pushed"]
     given = {"param.force": [[10.0]]}

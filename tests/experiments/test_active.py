@@ -10,7 +10,7 @@ from experiments.can_tossing import PROTOCOLS, RULES, table_one_cases
 from experiments.cans import CanModel, can_dataset, fit_can_network
 from experiments.config import ConfigError
 from inference import fit_pooled, grid_kernel
-from inference.compiled import compile_discrete
+from inference.queries.compiled import compile_discrete
 from models.can_network import config_index
 from sim2d import geometry
 

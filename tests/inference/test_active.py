@@ -12,7 +12,7 @@ from hypothesis import strategies as st
 from scipy import integrate, stats
 
 from inference import fit, infer_action
-from inference.active import (
+from inference.design.active import (
     STRATEGIES,
     ExplorationState,
     dirichlet_eig,

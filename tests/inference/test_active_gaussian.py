@@ -5,7 +5,7 @@ import math
 import pytest
 import torch
 
-from inference.active_gaussian import regression_information, select_by_information
+from inference.design.active_gaussian import regression_information, select_by_information
 from models import Continuous, EffectNetwork, Parameter
 from models.declaration import DTYPE
 

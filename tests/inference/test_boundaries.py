@@ -27,10 +27,10 @@ from inference import (
     predict,
     simulate,
 )
-from inference.compiled import compile_parameter_query
-from inference.em import fit_em
-from inference.fit import fit_statistics
-from inference.statistics import Counts
+from inference.fitting.em import fit_em
+from inference.fitting.fit import fit_statistics
+from inference.fitting.statistics import Counts
+from inference.queries.compiled import compile_parameter_query
 from models import Continuous, Discrete, EffectNetwork, Parameter, load, random_params, save
 from models.params import initial_params
 

@@ -11,7 +11,7 @@ from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from inference import infer_action
-from inference.compiled import compile_discrete
+from inference.queries.compiled import compile_discrete
 from models import Continuous, EffectNetwork
 from tests.helpers import discrete_network, random_params
 
@@ -54,7 +54,7 @@ def test_compile_refuses_continuous_networks():
 
 def test_compiled_parameter_query_equals_traced():
     from inference import infer_parameter
-    from inference.compiled import compile_parameter_query
+    from inference.queries.compiled import compile_parameter_query
     from tests.inference.test_queries_mixed import NET
 
     params = random_params(NET, 21, unseen=0.2)
@@ -79,7 +79,7 @@ def test_compiled_parameter_query_equals_traced():
 
 def test_compiled_parameter_query_with_one_shared_configuration():
     from inference import infer_parameter
-    from inference.compiled import compile_parameter_query
+    from inference.queries.compiled import compile_parameter_query
     from tests.inference.test_queries_mixed import NET
 
     params = random_params(NET, 4)
@@ -143,7 +143,7 @@ def test_answers_with_latent_initial_sites_equal_the_answers_per_row(
     observed configuration (the others summed out, in chunks of any size) are those
     computed row by row, and the traced model's: posterior, evidence, unseen mass, best
     action (with and without allowed actions and the unseen rule) and the flag."""
-    import inference.compiled as compiled_module
+    import inference.queries.compiled as compiled_module
 
     chunk = compiled_module.ANSWERS_CHUNK if chunk is None else chunk  # 40: small chunks
     with mock.patch.object(compiled_module, "ANSWERS_CHUNK", chunk):
@@ -233,7 +233,7 @@ def assert_same_answer(a, b):
 def test_compiled_query_of_a_parameter_on_two_continuous_features(seed, which):
     """One aim acting on end.land (2-D) and end.roll: their joint Gaussian per cluster."""
     from inference import infer_parameter
-    from inference.compiled import CompiledJointParameterQuery, compile_parameter_query
+    from inference.queries.compiled import CompiledJointParameterQuery, compile_parameter_query
     from models import Partial
     from tests.inference.test_parameter_effects import throwing
 
@@ -265,7 +265,7 @@ def test_compiled_query_of_a_parameter_on_two_continuous_features(seed, which):
 
 def test_compiled_query_of_a_parameter_on_a_continuous_and_a_discrete_feature():
     from inference import infer_parameter
-    from inference.compiled import compile_parameter_query
+    from inference.queries.compiled import compile_parameter_query
     from models import Continuous, Discrete, Parameter
 
     force = Parameter("force", 0.0, 6.0, 3, ("push",), ("pos", "upright"))
@@ -301,7 +301,7 @@ def test_compiled_query_of_a_parameter_on_a_continuous_and_a_discrete_feature():
 
 
 def test_compiled_query_refuses_a_feature_shared_by_two_parameters():
-    from inference.compiled import compile_parameter_query
+    from inference.queries.compiled import compile_parameter_query
     from tests.inference.test_parameter_effects import sliding
 
     net, params = sliding()
@@ -313,7 +313,7 @@ def test_compiled_query_without_other_inputs_answers_as_the_traced_model():
     """A feature whose only continuous input is the parameter (the throw's hit): every
     cluster's mean is fixed; the same answers as the traced model."""
     from inference import infer_parameter
-    from inference.compiled import compile_parameter_query
+    from inference.queries.compiled import compile_parameter_query
     from models import Continuous, Parameter
 
     target = Parameter("target", (0.0, 0.0), (1.0, 2.0), (3, 4), ("throw", "lob"), "hit")
@@ -352,7 +352,7 @@ def test_one_row_queries_answer_as_the_batched_query_and_the_traced_model(
     batched query's answers and the traced model's, flags and mixture included, for
     every way of giving one row."""
     from inference import infer_parameter
-    from inference.compiled import compile_parameter_query
+    from inference.queries.compiled import compile_parameter_query
 
     net = _one_row_network(dim)
     params = random_params(net, seed, unseen=0.3)
@@ -402,7 +402,7 @@ def test_one_row_queries_answer_as_the_batched_query_and_the_traced_model(
 def test_one_row_query_with_an_impossible_cluster_and_the_default_action():
     """A cluster the action never takes is left out of the closest-cluster distance; with
     one action using the parameter, the action may be left out of the evidence."""
-    from inference.compiled import compile_parameter_query
+    from inference.queries.compiled import compile_parameter_query
     from models import Parameter
 
     target = Parameter("target", (0.0, 0.0), (1.0, 2.0), (3, 4), ("throw",), "hit")
@@ -424,7 +424,7 @@ def test_one_row_query_with_an_impossible_cluster_and_the_default_action():
 
 
 def test_one_row_query_reports_bad_evidence_as_before():
-    from inference.compiled import compile_parameter_query
+    from inference.queries.compiled import compile_parameter_query
     from models import Partial
 
     net = _one_row_network()
@@ -453,7 +453,7 @@ def test_chi_square_tail_is_the_regularised_upper_gamma(dof, x):
     gammaincc, which the traced queries use, is within about 1e-10 of it)."""
     import mpmath
 
-    from inference.compiled import chi_square_tail
+    from models.gaussian import chi_square_tail
 
     with mpmath.workdps(40):
         expected = float(mpmath.gammainc(dof / 2, x / 2, mpmath.inf, regularized=True))
@@ -507,7 +507,7 @@ def test_compiled_parameter_query_keeps_every_digit_with_a_small_fitted_noise(la
     query's cluster posterior agrees with the traced model's to 1e-12, batched and one
     row at a time, picks the same best cluster, and matches a 50-digit oracle."""
     from inference import fit, fit_em, infer_parameter
-    from inference.compiled import compile_parameter_query
+    from inference.queries.compiled import compile_parameter_query
     from models.throw_network import throw_data, throw_network
 
     net = throw_network((8, 8))
@@ -543,7 +543,7 @@ def test_compiled_parameter_query_refuses_a_hit_with_no_probability_in_float64()
     its density underflows under every cluster; the compiled query, batched and one row,
     refuses the row by name as the traced one does, instead of answering NaN."""
     from inference import infer_parameter
-    from inference.compiled import compile_parameter_query
+    from inference.queries.compiled import compile_parameter_query
     from models.params import NetworkParams
 
     net = _one_row_network()
@@ -581,7 +581,7 @@ def test_one_row_query_refuses_complex_and_huge_hits_as_encode_does(hit, match):
     general path names the site), never reading 5j as 0 or answering beyond the limit."""
     import warnings
 
-    from inference.compiled import compile_parameter_query
+    from inference.queries.compiled import compile_parameter_query
 
     net = _one_row_network()
     query = compile_parameter_query(net, random_params(net, 1), "target")

@@ -222,7 +222,7 @@ def masked(rows, seed, sites=("end.door", "initial.drawer", "action", "end.switc
 
 def test_missing_values_em_never_lowers_the_likelihood_and_is_fast():
     from inference import fit
-    from inference.em import missing_log_likelihood
+    from inference.fitting.em import missing_log_likelihood
 
     net = door_world()
     rows = door_rows(1000, seed=3)
@@ -256,7 +256,7 @@ def test_missing_values_em_never_lowers_the_likelihood_and_is_fast():
 def test_a_missing_value_is_ignored_whatever_stands_in_its_place():
     # None, NaN or a label the site does not have where masks say missing: the same fit
     from inference import fit
-    from inference.em import missing_log_likelihood
+    from inference.fitting.em import missing_log_likelihood
 
     net = door_world()
     rows = door_rows(300, seed=15)
@@ -444,7 +444,7 @@ def test_discrete_queries_equal_pgmpy_variable_elimination(pattern):
     from pgmpy.inference import VariableElimination
 
     from inference import fit, infer_action, predict
-    from inference.compiled import compile_discrete
+    from inference.queries.compiled import compile_discrete
 
     net = door_world(None, handle=False)
     params = fit(net, door_rows(400, seed=7, handle=False)).params

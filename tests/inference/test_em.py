@@ -17,8 +17,8 @@ from inference import (
     infer_parameter,
     predict,
 )
-from inference.compiled import compile_parameter_query
-from inference.em import em_step, mixture_log_likelihood, responsibilities
+from inference.fitting.em import em_step, mixture_log_likelihood, responsibilities
+from inference.queries.compiled import compile_parameter_query
 from models import Continuous, Discrete, EffectNetwork, Parameter
 from models.declaration import DTYPE
 from models.params import load, save
@@ -415,7 +415,7 @@ def test_missing_values_em_reaches_the_brute_force_maximum():
     mine = score(result.params)
     assert mine >= best - 1e-7
     assert mine == pytest.approx(-result.losses[-1] * rows.n_rows, rel=1e-12)
-    from inference.em import missing_log_likelihood
+    from inference.fitting.em import missing_log_likelihood
 
     assert missing_log_likelihood(SMALL, result.params, rows, masks) == pytest.approx(
         mine, rel=1e-12
@@ -613,13 +613,13 @@ def test_missing_values_the_em_cannot_fill_are_refused():
         fit(net, rows, masks=masks)
 
 
-@pytest.mark.filterwarnings("ignore::inference.fit.ConvergenceWarning")  # 5 steps only
+@pytest.mark.filterwarnings("ignore::inference.fitting.fit.ConvergenceWarning")  # 5 steps only
 def test_missing_values_e_step_in_row_chunks_is_the_same(monkeypatch):
-    import inference.enumeration
+    import inference.queries.enumeration
 
     rows, masks = small_rows(n=200)
     whole = fit(SMALL, rows, masks=masks, steps=5, tol=1e-300)
-    monkeypatch.setattr(inference.enumeration, "CHUNK_ELEMENTS", 100)  # 100 / 12: 8 rows
+    monkeypatch.setattr(inference.queries.enumeration, "CHUNK_ELEMENTS", 100)  # 100 / 12: 8 rows
     chunked = fit(SMALL, rows, masks=masks, steps=5, tol=1e-300)
     torch.testing.assert_close(
         torch.tensor(chunked.losses), torch.tensor(whole.losses), rtol=1e-13, atol=0
@@ -630,7 +630,7 @@ def test_missing_values_e_step_in_row_chunks_is_the_same(monkeypatch):
         )
 
 
-@pytest.mark.filterwarnings("ignore::inference.fit.ConvergenceWarning")  # 20 steps at most
+@pytest.mark.filterwarnings("ignore::inference.fitting.fit.ConvergenceWarning")  # 20 steps at most
 @settings(max_examples=15, deadline=None)
 @given(
     cards=st.lists(st.integers(2, 3), min_size=1, max_size=2),

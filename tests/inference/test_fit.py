@@ -169,7 +169,7 @@ def test_fit_rejects_bad_data():
         fit(net, tap)
 
 
-@pytest.mark.filterwarnings("ignore::inference.fit.ConvergenceWarning")  # 5 steps only
+@pytest.mark.filterwarnings("ignore::inference.fitting.fit.ConvergenceWarning")  # 5 steps only
 def test_fitting_leaves_pyros_param_store_alone():
     import pyro
 
@@ -468,7 +468,7 @@ def test_softmax_fit_reaches_the_gradient_routes_optimum():
     # the traced Pyro model minimised by L-BFGS (the route that differentiates the
     # model itself) finds the same optimum
     from inference import params_from_statistics
-    from inference.statistics import statistics
+    from inference.fitting.statistics import statistics
     from models.params import NetworkParams
 
     net, data = noisy_threshold_world()

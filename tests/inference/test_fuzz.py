@@ -18,7 +18,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from inference import fit, imitation_check, infer_action, predict
-from inference.compiled import compile_discrete
+from inference.queries.compiled import compile_discrete
 from models import Continuous, Discrete, EffectNetwork, Parameter, random_params
 
 STATE_KINDS = {
@@ -256,7 +256,7 @@ def test_every_distribution_sums_to_one_at_every_accepted_magnitude(
     import warnings
 
     from inference import infer_parameter
-    from inference.plausibility import OutsideTrainingData
+    from inference.queries.plausibility import OutsideTrainingData
 
     params = random_params(net, seed)
     big = sign * 10.0**exponent

@@ -5,6 +5,8 @@ deprecated re-export of the scoring that moved there."""
 import ast
 from pathlib import Path
 
+import pytest
+
 import inference
 
 PACKAGE = Path(inference.__file__).parent
@@ -37,3 +39,39 @@ def test_no_inference_module_imports_experiments():
 def test_the_deprecated_reexport_is_the_only_upward_import():
     (shim,) = DEPRECATED_REEXPORTS
     assert imported_packages(ast.parse(shim.read_text())) == {"experiments", "warnings"}
+
+
+#: Old flat module -> where it lives now (the old path forwards there with a warning).
+MOVED = {
+    "em": "inference.fitting.em",
+    "pooling": "inference.fitting.pooling",
+    "statistics": "inference.fitting.statistics",
+    "compiled": "inference.queries.compiled",
+    "enumeration": "inference.queries.enumeration",
+    "plausibility": "inference.queries.plausibility",
+    "surprise": "inference.queries.surprise",
+    "planning": "inference.queries.planning",
+    "active": "inference.design.active",
+    "active_gaussian": "inference.design.active_gaussian",
+}
+
+
+@pytest.mark.parametrize("old", sorted(MOVED))
+def test_old_flat_paths_forward_with_a_warning(old):
+    import importlib
+    import sys
+
+    sys.modules.pop(f"inference.{old}", None)
+    with pytest.warns(DeprecationWarning, match=MOVED[old]):
+        shim = importlib.import_module(f"inference.{old}")
+    new = importlib.import_module(MOVED[old])
+    public = [n for n in dir(new) if not n.startswith("_") and not n.startswith("__")]
+    assert public, MOVED[old]
+    for name in public:
+        assert getattr(shim, name) is getattr(new, name)
+
+
+def test_the_package_face_keeps_its_functions():
+    """``inference.fit`` and ``inference.simulate`` are the functions, not modules."""
+    assert callable(inference.fit) and inference.fit.__module__ == "inference.fitting.fit"
+    assert inference.simulate.__module__ == "inference.queries.simulate"

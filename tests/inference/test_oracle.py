@@ -38,8 +38,8 @@ from inference import (
     parameter_for_effect,
     predict,
 )
-from inference.compiled import compile_parameter_query
-from inference.plausibility import IMPLAUSIBLE_BELOW
+from inference.queries.compiled import compile_parameter_query
+from inference.queries.plausibility import IMPLAUSIBLE_BELOW
 from models import Continuous, Discrete, EffectNetwork, Parameter, random_params
 from models.cpds.linear_gaussian import LinearGaussian
 from models.cpds.softmax import Softmax

@@ -18,8 +18,8 @@ from scipy import stats
 from torch.distributions import MultivariateNormal
 
 from inference import fit, imitation_check, infer_action, infer_parameter, predict, simulate
-from inference.compiled import compile_parameter_query
-from inference.plausibility import plausibility
+from inference.queries.compiled import compile_parameter_query
+from inference.queries.plausibility import plausibility
 from models import Continuous, Discrete, EffectNetwork, Parameter, Partial
 from models.declaration import DTYPE
 from tests.helpers import random_params

@@ -5,7 +5,7 @@ import itertools
 import pytest
 import torch
 
-from inference.planning import (
+from inference.queries.planning import (
     INTERMEDIATE,
     NO_HIT,
     SUCCESS,

@@ -10,8 +10,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from inference import fit, imitation_check, infer_action, infer_parameter, predict
-from inference.compiled import compile_discrete, compile_parameter_query
-from inference.plausibility import IMPLAUSIBLE_BELOW, plausibility
+from inference.queries.compiled import compile_discrete, compile_parameter_query
+from inference.queries.plausibility import IMPLAUSIBLE_BELOW, plausibility
 from models import Continuous, Discrete, EffectNetwork, Parameter
 from models.declaration import DTYPE
 from tests.helpers import brute_joint, discrete_network, random_params
@@ -253,7 +253,7 @@ def test_an_initial_state_far_outside_the_training_data_is_flagged_by_name():
     """A distance of 1e6 m where training covered 0.1-1.2 m: every query flags the row
     and names the field; inside the range nothing is flagged. The tail is the chi-square
     tail of the value under the training rows' own mean and spread."""
-    from inference.plausibility import OutsideTrainingData
+    from inference.queries.plausibility import OutsideTrainingData
 
     net, params, trained = _distance_world()
     rows = {"initial.distance": [[0.6], [1e6], [1.3]], "initial.pos": [[0.0]] * 3}
@@ -284,7 +284,7 @@ def test_the_discrete_flag_and_the_imitation_likelihood_hold_at_a_large_initial_
     position's Gaussian density, computed by hand in 50 digits."""
     import warnings
 
-    from inference.plausibility import OutsideTrainingData
+    from inference.queries.plausibility import OutsideTrainingData
 
     net, params, _ = _distance_world()
     x = 1e8

@@ -173,7 +173,7 @@ def test_ties_go_to_the_lowest_index_whatever_the_rounding():
 
 
 def test_allowed_actions_by_name_and_mask():
-    from inference.compiled import compile_discrete
+    from inference.queries.compiled import compile_discrete
 
     net = discrete_network([2], 3)
     params = random_params(net, 4)
@@ -199,7 +199,7 @@ def test_allowed_actions_by_name_and_mask():
 
 def test_empty_batches_give_empty_results():
     from inference import infer_parameter
-    from inference.compiled import compile_discrete, compile_parameter_query
+    from inference.queries.compiled import compile_discrete, compile_parameter_query
     from tests.inference.test_queries_mixed import NET
 
     net = discrete_network([2, 3], 4)
@@ -250,7 +250,7 @@ def test_answers_do_not_depend_on_the_row_chunks(seed, zero_n, data):
     same answers (posterior, evidence, unseen mass, best, flags) as one chunk of all."""
     from unittest import mock
 
-    import inference.enumeration as enumeration
+    import inference.queries.enumeration as enumeration
 
     net = discrete_network([3, 2], 4)
     params = random_params(net, seed, unseen=zero_n)

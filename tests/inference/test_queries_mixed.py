@@ -172,7 +172,7 @@ def test_joint_surprise_of_discrete_and_continuous_end_features():
 
 
 def test_full_parameter_posterior_is_the_integral_over_the_force():
-    from inference.compiled import compile_parameter_query
+    from inference.queries.compiled import compile_parameter_query
 
     params = random_params(NET, 6)
     vis0, action = 1, 2  # push

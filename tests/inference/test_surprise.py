@@ -1,4 +1,4 @@
-"""The imitation surprise with continuous end features (inference.surprise), against
+"""The imitation surprise with continuous end features (inference.queries.surprise), against
 oracles built by hand from the parameters: scipy's chi-square CDF where one Gaussian
 component predicts the outcome, numerical integration of the predictive mixture where
 several do.
@@ -16,8 +16,8 @@ import torch
 from scipy import stats
 
 from inference import imitation_check, predict
-from inference.plausibility import OutsideTrainingData
-from inference.surprise import _joint_gaussians
+from inference.queries.plausibility import OutsideTrainingData
+from inference.queries.surprise import _joint_gaussians
 from models import Continuous, Discrete, EffectNetwork, Parameter, Partial, random_params
 from models.declaration import DTYPE
 

@@ -42,7 +42,7 @@ from inference import (
     predict,
     simulate,
 )
-from inference.compiled import compile_parameter_query
+from inference.queries.compiled import compile_parameter_query
 from models import Continuous, Discrete, EffectNetwork, Parameter, Partial, load, save, to_pgmpy
 from models.evidence import MAX_MAGNITUDE
 
@@ -389,7 +389,7 @@ def test_wait_scores_as_without_the_force():
 magnitudes = st.floats(-3.0, math.log10(MAX_MAGNITUDE)).map(lambda e: 10.0**e)
 
 
-@pytest.mark.filterwarnings("ignore::inference.plausibility.OutsideTrainingData")
+@pytest.mark.filterwarnings("ignore::inference.queries.plausibility.OutsideTrainingData")
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(
     scale=magnitudes,
@@ -1026,7 +1026,7 @@ def affordance_oracle(params, size, end_size, shape, colour, end_shape) -> list:
     return [float(mp.exp(t - total)) for t in logs]
 
 
-@pytest.mark.filterwarnings("ignore::inference.plausibility.OutsideTrainingData")
+@pytest.mark.filterwarnings("ignore::inference.queries.plausibility.OutsideTrainingData")
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(
     scale=magnitudes,

@@ -10,7 +10,7 @@ from pyro import poutine
 from pyro.infer import Predictive, TraceEnum_ELBO, infer_discrete
 
 from inference import infer_action, predict
-from inference.enumeration import enumerate_model
+from inference.queries.enumeration import enumerate_model
 from models import (
     Continuous,
     Discrete,

@@ -16,8 +16,8 @@ from hypothesis import strategies as st
 from pyro.infer.inspect import get_dependencies
 
 from inference import fit, infer_action, predict, simulate
-from inference.compiled import compile_discrete
-from inference.plausibility import OutsideTrainingData
+from inference.queries.compiled import compile_discrete
+from inference.queries.plausibility import OutsideTrainingData
 from models import (
     Continuous,
     Discrete,

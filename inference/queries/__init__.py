@@ -12,7 +12,7 @@
   the executed action, and a surprise score: the predictive probability of an outcome
   strictly more likely than the one observed, over the joint of all observed end
   features (exact for discrete end states and where one Gaussian predicts the continuous
-  ones; a deterministic quadrature where a mixture does: :mod:`inference.surprise`).
+  ones; a deterministic quadrature where a mixture does: :mod:`inference.queries.surprise`).
   Near 1: the action did not do what it usually does.
 * :func:`infer_parameter` -- the paper's inverse parameter query: the cluster posterior by
   enumeration, the most probable cluster added to the evidence, then the parameter by
@@ -24,7 +24,7 @@
 Every query reports ``unseen``: the posterior probability that its answer rests on a
 parent configuration no training row reached (answered from the pseudo-count prior alone),
 and ``implausible``: a row whose observed end state the model gives almost no probability
-(:mod:`inference.plausibility`; threshold ``implausible_below``). Both warn; the answer
+(:mod:`inference.queries.plausibility`; threshold ``implausible_below``). Both warn; the answer
 is still given.
 
 Evidence follows one convention (:mod:`models.evidence`): state labels for discrete
@@ -43,13 +43,13 @@ import numpy as np
 import torch
 from pyro.ops.indexing import Vindex
 
-from inference.enumeration import (
+from inference.queries.enumeration import (
     Enumerated,
     conditional_log_evidence,
     over_row_chunks,
 )
-from inference.plausibility import IMPLAUSIBLE_BELOW, check_threshold, plausibility
-from inference.surprise import QUADRATURE_POINTS, continuous_surprise
+from inference.queries.plausibility import IMPLAUSIBLE_BELOW, check_threshold, plausibility
+from inference.queries.surprise import QUADRATURE_POINTS, continuous_surprise
 from models.declaration import (
     ACTION,
     DTYPE,
@@ -96,7 +96,7 @@ class Prediction:
     continuous: dict[str, GaussianMixture]
     unseen: torch.Tensor  # (n,) probability of resting on an unseen configuration
     states: dict[str, tuple] = field(default_factory=dict)
-    implausible: torch.Tensor | None = None  # (n,) bool; see inference.plausibility
+    implausible: torch.Tensor | None = None  # (n,) bool; see inference.queries.plausibility
 
     def prob(self, feature: str, state: Hashable) -> torch.Tensor:
         """``(n,)`` probability that ``feature`` ends in ``state`` (a label)."""
@@ -122,7 +122,7 @@ class Prediction:
 class ActionPosterior:
     """``probs`` ``(n, A)`` over ``actions``; ``best`` ``(n,)`` index; ``unseen`` ``(n, A)``;
     ``implausible`` ``(n,)`` bool: the observed end state has (almost) no probability
-    under the model (see :mod:`inference.plausibility`; ``None`` from the compiled
+    under the model (see :mod:`inference.queries.plausibility`; ``None`` from the compiled
     queries), so ``best`` answers a question the model cannot explain."""
 
     probs: torch.Tensor
@@ -158,7 +158,7 @@ class ImitationCheck:
       ``P(chi2_d < D^2)``.
     * ``unseen``: the posterior probability that the observed end sites' configuration
       was never reached in training.
-    * ``implausible`` bool (see :mod:`inference.plausibility`).
+    * ``implausible`` bool (see :mod:`inference.queries.plausibility`).
     """
 
     log_likelihood: torch.Tensor
@@ -176,7 +176,7 @@ class ParameterPosterior:
     action the declaration does not cover). ``mixture``: with ``mixture=True``, the full
     posterior of the parameter, one Gaussian per cluster weighted by ``cluster_probs``.
     ``implausible`` ``(n,)`` bool: the observed end state has (almost) no probability
-    under the model (see :mod:`inference.plausibility`; ``None`` from the compiled query).
+    under the model (see :mod:`inference.queries.plausibility`; ``None`` from the compiled query).
     """
 
     cluster_probs: torch.Tensor
@@ -314,7 +314,7 @@ def predict(
     """End-state distribution of every end feature not in ``evidence``.
 
     ``implausible`` flags rows whose observed end features (if any are given) have a
-    probability below ``implausible_below`` (:mod:`inference.plausibility`).
+    probability below ``implausible_below`` (:mod:`inference.queries.plausibility`).
     """
     below = check_threshold(implausible_below)
     enc = _prepare(net, params, evidence)
@@ -406,7 +406,7 @@ def infer_action(
         (its likelihood is the uniform prior's), unless every allowed action is unseen.
     implausible_below
         ``implausible`` flags rows whose observed end state has a probability below this
-        under the model, every action summed out (:mod:`inference.plausibility`); such a
+        under the model, every action summed out (:mod:`inference.queries.plausibility`); such a
         row still gets its posterior and ``best``.
     """
     below = check_threshold(implausible_below)
@@ -477,10 +477,10 @@ def imitation_check(
     discrete outcome has one Gaussian component (the action and the parameter given, say)
     and a deterministic quadrature where it has several (an unknown parameter's clusters):
     ``n_samples`` points per component (directions times radii), ``seed`` fixing the
-    quasi-random directions beyond two continuous dimensions (:mod:`inference.surprise`).
+    quasi-random directions beyond two continuous dimensions (:mod:`inference.queries.surprise`).
     The same row gets the same answer in any batch. ``implausible`` flags rows whose
     observed end state has a probability below ``implausible_below`` given the executed
-    action (:mod:`inference.plausibility`).
+    action (:mod:`inference.queries.plausibility`).
     """
     below = check_threshold(implausible_below)
     enc = _prepare(net, params, evidence)
@@ -551,7 +551,7 @@ def infer_parameter(
     posterior mean of the parameter; the paper's best-cluster answer stays in ``mean``.
     ``implausible`` flags rows whose observed end state has a probability below
     ``implausible_below`` given the action, the parameter integrated out
-    (:mod:`inference.plausibility`).
+    (:mod:`inference.queries.plausibility`).
     """
     below = check_threshold(implausible_below)
     m = net.mixture(parameter)

@@ -27,7 +27,7 @@ import numpy as np
 import torch
 from pyro import poutine
 
-from inference.enumeration import enumerate_model
+from inference.queries.enumeration import enumerate_model
 from models.cpds import ParameterMixture
 from models.declaration import ACTION, DTYPE, EffectNetwork
 from models.evidence import Evidence, is_partial

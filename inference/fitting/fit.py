@@ -10,7 +10,7 @@ defines:
   multinomial logistic regression, solved by Newton's method
   (:meth:`models.cpds.SoftmaxCPD.maximise`). When some rows miss a discrete value
   (``masks``), EM with exact E-steps maximises the marginal likelihood, the missing
-  values summed out (:func:`inference.em.fit_missing`).
+  values summed out (:func:`inference.fitting.em.fit_missing`).
 * :func:`fit_gradient` -- ``TraceEnum_ELBO`` with an empty guide, minimised by L-BFGS
   (Adam with gaps) on tensors local to the call (Pyro's global parameter store is left
   alone): with no latent continuous sites, the ELBO *is* the (marginal) log-likelihood.
@@ -33,7 +33,7 @@ Every loop is bounded and every input checked: a value whose square would overfl
 (beyond ``models.evidence.MAX_MAGNITUDE``), a non-finite or negative setting, zero rows, or a covariance
 that no jitter makes positive definite raise a ``ValueError`` naming the site.
 
-The closed form runs on sufficient statistics (:mod:`inference.statistics`, where the
+The closed form runs on sufficient statistics (:mod:`inference.fitting.statistics`, where the
 pseudo-count policy is written): ``data`` may be an iterable of row chunks whose
 statistics are summed, so a data set larger than memory, or partitioned on a cluster,
 fits to the same parameters.
@@ -52,7 +52,7 @@ import torch
 from pyro.infer import TraceEnum_ELBO
 from tqdm.auto import tqdm
 
-from inference.statistics import Statistics, flat_index, params_from_statistics, statistics
+from inference.fitting.statistics import Statistics, flat_index, params_from_statistics, statistics
 from models.declaration import ACTION, EffectNetwork, cluster_site, param_site
 from models.evidence import Evidence, check_magnitude, is_partial
 from models.model import effect_model
@@ -97,7 +97,7 @@ def fit(
         network must be present. ``param.p`` holds NaN in rows whose action does not use
         ``p``. Or an iterable of such row chunks (a generator, say), read once: each
         chunk's sufficient statistics are computed and summed
-        (:mod:`inference.statistics`), so the rows never need to be in memory together.
+        (:mod:`inference.fitting.statistics`), so the rows never need to be in memory together.
         Chunks serve networks whose CPDs all have a closed form, without ``masks``.
     pseudo_count, min_variance
         The pseudo-count policy (README, "Unseen configurations") and the covariance
@@ -108,7 +108,7 @@ def fit(
     masks
         ``(n,)`` bool per discrete site, False where the row's value is missing (the
         row's value there is ignored). With gaps the fit is EM (see
-        :func:`inference.em.fit_missing`), started from the closed form on the rows
+        :func:`inference.fitting.em.fit_missing`), started from the closed form on the rows
         that miss nothing; ``FitResult.losses`` is its per-row negative log-likelihood
         (missing values summed out) at the start and after each step, never rising.
     steps, lr, l2, tol, progress
@@ -144,14 +144,14 @@ def fit(
             f"masks must map discrete site names to (n,) bool masks, got {type(masks).__name__}"
         )
     if masks:
-        from inference.em import _missing_masks  # em builds on this module
+        from inference.fitting.em import _missing_masks  # em builds on this module
 
         _missing_masks(net, masks, None)  # what EM cannot fill, before the rows' checks
         data = ignore_missing(net, data, masks)
     action_mask = (masks or {}).get(ACTION)
     unknown_action = None
     if action_mask is not None:
-        from inference.em import _mask_values  # em builds on this module
+        from inference.fitting.em import _mask_values  # em builds on this module
 
         unknown_action = ~_mask_values(ACTION, action_mask)
     enc = _complete(net, data, unknown_action)
@@ -168,7 +168,7 @@ def fit(
     cpds = params_from_statistics(net, statistics(net, rows), pseudo_count, min_variance)
     params = NetworkParams(cpds, pseudo_count, net)
     if gaps:
-        from inference.em import fit_missing  # em builds on this module
+        from inference.fitting.em import fit_missing  # em builds on this module
 
         return fit_missing(
             net,
@@ -259,7 +259,7 @@ def fit_statistics(
     """The summed sufficient statistics of row chunks (each checked as :func:`fit` does).
 
     Statistics of partitions computed apart (on a cluster's workers, say) add up with
-    ``+``; :func:`inference.statistics.params_from_statistics` turns the sum into
+    ``+``; :func:`inference.fitting.statistics.params_from_statistics` turns the sum into
     parameters.
     """
     _refuse_adaptive(net, "fit_statistics")
@@ -461,7 +461,7 @@ def ignore_missing(
     in its place. Encoded rows (:class:`Evidence`) hold valid indices throughout."""
     if isinstance(data, Evidence):
         return data
-    from inference.em import _mask_values  # em builds on this module
+    from inference.fitting.em import _mask_values  # em builds on this module
 
     out = dict(data)
     for site, mask in masks.items():
@@ -485,7 +485,7 @@ def ignore_missing(
 def _masks(
     net: EffectNetwork, masks: Mapping[str, object] | None, n: int
 ) -> dict[str, torch.Tensor]:
-    from inference.em import _mask_site, _mask_values  # em builds on this module
+    from inference.fitting.em import _mask_site, _mask_values  # em builds on this module
 
     out = {}
     for k, v in (masks or {}).items():

@@ -1,0 +1,33 @@
+"""Fitting an effect network to training rows by maximum likelihood.
+
+The closed form for tables and Gaussians (:func:`fit`, on sufficient statistics that
+merge by addition: :mod:`inference.fitting.statistics`), Newton steps for softmax CPDs,
+EM for adaptive clusters and missing discrete values (:mod:`inference.fitting.em`), the
+gradient route (:func:`fit_gradient`) and a shared prior over table rows
+(:mod:`inference.fitting.pooling`).
+"""
+
+from inference.fitting.em import EMResult, fit_em
+from inference.fitting.fit import (
+    ConvergenceWarning,
+    FitResult,
+    fit,
+    fit_gradient,
+    fit_statistics,
+)
+from inference.fitting.pooling import fit_pooled, grid_kernel
+from inference.fitting.statistics import Statistics, params_from_statistics
+
+__all__ = [
+    "ConvergenceWarning",
+    "EMResult",
+    "FitResult",
+    "Statistics",
+    "fit",
+    "fit_em",
+    "fit_gradient",
+    "fit_pooled",
+    "fit_statistics",
+    "grid_kernel",
+    "params_from_statistics",
+]
