@@ -36,19 +36,48 @@ only NaN an encoded end feature holds (a NaN given as a plain value is still an 
 from __future__ import annotations
 
 from collections.abc import Hashable, Iterator, Mapping
-from typing import TYPE_CHECKING
+from typing import Protocol
 
 import numpy as np
 import torch
 
-if TYPE_CHECKING:
-    from models.declaration import EffectNetwork, SiteSpec
+from models.dtype import DTYPE, MAX_MAGNITUDE
+from models.features import Feature
+from models.sites import SiteSpec
 
-DTYPE = torch.float64  # every continuous value and every probability is float64
+__all__ = [
+    "DTYPE",
+    "MAX_MAGNITUDE",
+    "Evidence",
+    "Network",
+    "Partial",
+    "check_magnitude",
+    "decode",
+    "encode",
+    "is_partial",
+    "labels",
+    "observed_dims",
+]
 
-#: Largest magnitude of a continuous value, for training and queries alike: its square,
-#: summed over 10^7 rows, stays finite in float64.
-MAX_MAGNITUDE = 1e150
+
+class Network(Protocol):
+    """What evidence reads of a network: :class:`~models.declaration.EffectNetwork` is one.
+
+    (Written out here so that evidence depends on the declarations' leaves only, not on
+    the network that encodes with it.)
+    """
+
+    @property
+    def actions(self) -> tuple[str, ...]: ...
+
+    @property
+    def sites(self) -> tuple[SiteSpec, ...]: ...
+
+    def site(self, name: str) -> SiteSpec: ...
+
+    def feature(self, name: str) -> Feature: ...
+
+    def encode(self, evidence: Mapping[str, object]) -> Evidence: ...
 
 
 class Partial:
@@ -95,7 +124,7 @@ class Evidence(Mapping):
 
     __slots__ = ("_values", "n_rows", "net")
 
-    def __init__(self, net: EffectNetwork, values: dict[str, torch.Tensor], n_rows: int):
+    def __init__(self, net: Network, values: dict[str, torch.Tensor], n_rows: int):
         self.net = net
         self._values = values
         self.n_rows = n_rows
@@ -163,7 +192,7 @@ def _merge(a: Evidence, b: Evidence) -> Evidence:
     return Evidence(a.net, a._values | b._values, n)
 
 
-def encode(net: EffectNetwork, evidence: Mapping[str, object], *, indices: bool) -> Evidence:
+def encode(net: Network, evidence: Mapping[str, object], *, indices: bool) -> Evidence:
     """Validate ``evidence`` (labels, or indices when ``indices``) into :class:`Evidence`."""
     if isinstance(evidence, Evidence):
         if indices:
@@ -188,14 +217,14 @@ def encode(net: EffectNetwork, evidence: Mapping[str, object], *, indices: bool)
     return Evidence(net, values, next(iter(rows.values()), 0))
 
 
-def _spec(net: EffectNetwork, name: object) -> SiteSpec:
+def _spec(net: Network, name: object) -> SiteSpec:
     names = [s.name for s in net.sites]
     if name not in names:
         raise ValueError(f"evidence on site {name!r}, which does not exist; sites are {names}")
     return net.site(name)
 
 
-def labels(net: EffectNetwork, spec: SiteSpec) -> tuple[Hashable, ...]:
+def labels(net: Network, spec: SiteSpec) -> tuple[Hashable, ...]:
     """The labels of a discrete site's states, in index order."""
     if spec.role == "action":
         return net.actions
@@ -223,7 +252,7 @@ def _as_array(spec: SiteSpec, value: object) -> np.ndarray:
     return array
 
 
-def _encode_labels(net: EffectNetwork, spec: SiteSpec, value: object) -> torch.Tensor:
+def _encode_labels(net: Network, spec: SiteSpec, value: object) -> torch.Tensor:
     array = _as_array(spec, value)
     states = labels(net, spec)
     if array.dtype.kind == "c" and not any(isinstance(s, complex) for s in states):
@@ -382,7 +411,7 @@ def _encode_partial(spec: SiteSpec, partial: Partial) -> torch.Tensor:
     return x
 
 
-def decode(net: EffectNetwork, site: str, index: torch.Tensor) -> list:
+def decode(net: Network, site: str, index: torch.Tensor) -> list:
     """State labels of ``(n,)`` state indices of a discrete site."""
     states = labels(net, net.site(site))
     return [states[i] for i in index.reshape(-1).tolist()]

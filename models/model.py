@@ -76,7 +76,8 @@ from pyro import poutine
 
 from models.cpds import ParameterMixture, concat_inputs
 from models.cpds.mixture import affected_loc_tril
-from models.declaration import DTYPE, EffectNetwork
+from models.declaration import EffectNetwork
+from models.dtype import DTYPE
 from models.evidence import Evidence, is_partial
 from models.gaussian import partial_log_density
 from models.params import NetworkParams, check_bound

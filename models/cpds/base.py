@@ -37,7 +37,7 @@ from typing import ClassVar
 
 import torch
 
-from models.evidence import DTYPE
+from models.dtype import DTYPE
 
 
 @dataclass(frozen=True)

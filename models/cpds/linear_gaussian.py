@@ -21,7 +21,7 @@ import torch
 from pyro.ops.indexing import Vindex
 
 from models.cpds.base import CPD
-from models.evidence import DTYPE
+from models.dtype import DTYPE
 
 
 @dataclass(frozen=True)

@@ -40,7 +40,6 @@ from __future__ import annotations
 import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import torch
 from pyro.ops.indexing import Vindex
@@ -48,11 +47,9 @@ from pyro.ops.indexing import Vindex
 from models.cpds.base import concat_inputs
 from models.cpds.linear_gaussian import LinearGaussian, LinearGaussianCPD
 from models.cpds.table import TableCPD
-from models.evidence import DTYPE
+from models.dtype import DTYPE
+from models.features import Parameter
 from models.gaussian import condition_linear_gaussian, mask_unobserved
-
-if TYPE_CHECKING:
-    from models.declaration import Parameter
 
 
 @dataclass(frozen=True)

@@ -27,7 +27,7 @@ from pyro.ops.indexing import Vindex
 
 from models.cpds.base import CPD
 from models.cpds.table import Counts, counts, normalised
-from models.evidence import DTYPE
+from models.dtype import DTYPE
 
 
 @dataclass(frozen=True)

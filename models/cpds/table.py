@@ -18,7 +18,7 @@ from torch.distributions.utils import probs_to_logits
 from torch.utils.weak import WeakIdKeyDictionary
 
 from models.cpds.base import CPD
-from models.evidence import DTYPE
+from models.dtype import DTYPE
 
 
 @dataclass(frozen=True)
