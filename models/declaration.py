@@ -19,30 +19,37 @@ that cuts the parameter's range into equidistant cells; per cluster one joint Ga
 the parameter and the continuous features it affects (a mixture of Gaussians); a
 discrete feature it affects depends on the cluster.
 
-A declaration holds structure only. Fitted numbers live in :mod:`models.params`.
+A declaration holds structure only. Fitted numbers live in :mod:`models.params`. The
+parts it is declared from are in :mod:`models.features` (features, parameters) and
+:mod:`models.sites` (the sites' names), the steps from a declaration to its structure
+(sites, parents, order, kinds) in :mod:`models.structure`; their names callers use are
+importable from here too.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
-from typing import Literal
 
 import torch
 
-from models.cpds import (
-    CPD,
-    KINDS,
-    LinearGaussianCPD,
-    ParameterMixture,
-    TableCPD,
-    default_kind,
-)
+from models.cpds import CPD, KINDS, ParameterMixture
 from models.dtype import DTYPE
 from models.evidence import Evidence, decode, encode
 from models.features import LAYOUTS, Continuous, Discrete, Feature, FeatureKind, Parameter
 from models.sites import ACTION, SiteSpec, cluster_site, end_site, initial_site, param_site
+from models.structure import (
+    MAX_CPD_ENTRIES,
+    build_cpds,
+    check_declaration,
+    declared_sites,
+    differing_from_fig1,
+    fig1_parents,
+    parents_of,
+    resolve_kinds,
+    site_identity,
+    topological,
+)
 
 __all__ = [  # the names callers import from here
     "ACTION",
@@ -61,13 +68,6 @@ __all__ = [  # the names callers import from here
     "initial_site",
     "param_site",
 ]
-
-#: The most numbers one site's conditional distribution may hold, all its tensors
-#: together (a table: parent configurations x states; a linear Gaussian: configurations x
-#: (d + d * inputs + d * d + 1)). A declaration beyond it is refused, naming the site,
-#: before anything of that size is allocated: 10**8 float64 numbers are 800 MB, and
-#: fitting or querying needs several such arrays.
-MAX_CPD_ENTRIES = 10**8
 
 
 @dataclass(frozen=True)
@@ -127,81 +127,26 @@ class EffectNetwork:
     _identity: dict[str, tuple] = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
-        if isinstance(self.actions, str | bytes) or not hasattr(self.actions, "__iter__"):
-            raise ValueError(
-                f"actions must be a sequence of action names, got {self.actions!r} (one "
-                f"action is written ({self.actions!r},))"
-            )
-        if isinstance(self.actions, set | frozenset):  # the order gives each action its index
-            raise ValueError(
-                f"actions must be an ordered sequence (a tuple or a list), got the set "
-                f"{self.actions!r}, whose order may change between runs"
-            )
-        object.__setattr__(self, "features", tuple(self.features))
-        object.__setattr__(self, "actions", tuple(self.actions))
-        object.__setattr__(self, "parameters", tuple(self.parameters))
-        if not self.features:
-            raise ValueError("an effect network needs at least one feature")
-        if not self.actions or len(set(self.actions)) != len(self.actions):
-            raise ValueError(
-                f"actions must be a non-empty tuple of distinct names, got {self.actions}"
-            )
-        names = [f.name for f in self.features] + [p.name for p in self.parameters]
-        if len(set(names)) != len(names):
-            raise ValueError(f"feature and parameter names must be distinct, got {names}")
-        by_name = {f.name: f for f in self.features}
-        for p in self.parameters:
-            unknown = [f for f in p.features if f not in by_name]
-            if unknown:
-                raise ValueError(
-                    f"parameter {p.name!r} affects {unknown}, which are not features of this "
-                    f"network (features: {list(by_name)})"
-                )
-            continuous = [f for f in p.features if isinstance(by_name[f], Continuous)]
-            crowded = [
-                f
-                for f in continuous
-                if len(continuous) > 1
-                and any(f in q.features for q in self.parameters if q is not p)
-            ]
-            if crowded:
-                raise ValueError(
-                    f"parameter {p.name!r} acts on several continuous features, so it must "
-                    f"be the only parameter acting on each; {crowded} have others (an "
-                    "unknown value would couple the parameters). Merge them into one "
-                    "parameter of higher dimension"
-                )
-            shared = [
-                f for f in p.features if any(f in q.features for q in self.parameters if q is not p)
-            ]
-            if p.adaptive and shared:
-                raise ValueError(
-                    f"parameter {p.name!r} has the adaptive layout, so it must be the only "
-                    f"parameter acting on its features; {shared} have others (a given value "
-                    "of an adaptive parameter does not fix its cluster)"
-                )
-            unknown = set(p.actions) - set(self.actions)
-            if unknown:
-                raise ValueError(f"parameter {p.name!r} names unknown actions {sorted(unknown)}")
-        declared: dict[str, SiteSpec] = {}
-        for f in self.features:
-            if f.initial:
-                declared[initial_site(f.name)] = _spec(initial_site(f.name), f, "initial")
-        declared[ACTION] = SiteSpec(ACTION, True, len(self.actions), "action")
-        for p in self.parameters:
-            declared[cluster_site(p.name)] = SiteSpec(
-                cluster_site(p.name), True, p.n_clusters, "cluster"
-            )
-            declared[param_site(p.name)] = SiteSpec(param_site(p.name), False, p.dim, "param")
-        for f in self.features:
-            declared[end_site(f.name)] = _spec(end_site(f.name), f, "end")
-        parents = _parents(self, declared)
-        object.__setattr__(self, "parents", _explicit(parents, _fig1_parents(declared)))
-        sites = {name: declared[name] for name in _topological(declared, parents)}
+        features, actions, parameters = check_declaration(
+            self.features, self.actions, self.parameters
+        )
+        object.__setattr__(self, "features", features)
+        object.__setattr__(self, "actions", actions)
+        object.__setattr__(self, "parameters", parameters)
+        declared = declared_sites(features, actions, parameters)
+        parents = parents_of(self.parents, parameters, declared)
+        object.__setattr__(self, "parents", differing_from_fig1(parents, fig1_parents(declared)))
+        sites = {name: declared[name] for name in topological(declared, parents)}
         object.__setattr__(self, "_sites", sites)
-        object.__setattr__(self, "kinds", _kinds(self.kinds, sites))
-        _build_cpds(self, sites, parents)
-        object.__setattr__(self, "_identity", {s: _site_identity(self, s) for s in sites})
+        object.__setattr__(self, "kinds", resolve_kinds(self.kinds, sites))
+        cpds, mixtures = build_cpds(actions, parameters, dict(self.kinds), sites, parents)
+        object.__setattr__(self, "_cpds", cpds)
+        object.__setattr__(self, "_mixtures", mixtures)
+        identity = {
+            s: site_identity(spec, cpds[s], actions, parameters, features)
+            for s, spec in sites.items()
+        }
+        object.__setattr__(self, "_identity", identity)
 
     # ----------------------------------------------------------------- structure
     @property
@@ -409,270 +354,3 @@ class EffectNetwork:
             parents={site: tuple(ps) for site, ps in d.get("parents", {}).items()},
             kinds=named,
         )
-
-
-def _site_identity(net: EffectNetwork, site: str) -> tuple[tuple[str, object], ...]:
-    """One site's part of :meth:`EffectNetwork.identity`."""
-    spec, cpd = net._sites[site], net._cpds[site]
-    own: tuple[tuple[str, object], ...]
-    if spec.role == "action":
-        own = (("actions", net.actions),)
-    elif spec.role in ("cluster", "param"):
-        p = next(p for p in net.parameters if site in (cluster_site(p.name), param_site(p.name)))
-        own = (
-            ("range", (p.low, p.high)),
-            ("bins", p.bins),
-            ("layout", p.layout),
-            ("actions using it", tuple(a for a in net.actions if a in p.actions)),
-        )
-    elif spec.discrete:
-        states = net.feature(spec.feature).states
-        own = (("states", states), ("state types", tuple(type(x).__name__ for x in states)))
-    else:
-        own = (("dim", spec.size),)
-    return (
-        ("role", spec.role),
-        *own,
-        ("size", spec.size),
-        ("kind", cpd.name),
-        ("discrete parents", cpd.parents),
-        ("continuous parents", cpd.inputs),
-    )
-
-
-def _spec(name: str, f: Feature, role: Literal["initial", "end"]) -> SiteSpec:
-    if isinstance(f, Discrete):
-        return SiteSpec(name, True, f.cardinality, role, f.name)
-    return SiteSpec(name, False, f.dim, role, f.name)
-
-
-# ---------------------------------------------------------------------------- structure
-def _fig1_parents(sites: Mapping[str, SiteSpec]) -> dict[str, tuple[str, ...]]:
-    """The paper's Fig. 1: initial sites are roots; every initial site and the action are
-    parents of every end site."""
-    initial = tuple(s for s, spec in sites.items() if spec.role == "initial")
-    return {
-        s: (initial + (ACTION,) if spec.role == "end" else ())
-        for s, spec in sites.items()
-        if spec.role in ("initial", "end")
-    }
-
-
-def _explicit(parents: Mapping, fig1: Mapping) -> tuple[tuple[str, tuple[str, ...]], ...]:
-    """The declared parent sets that differ from Fig. 1's (as sets), in site order."""
-    return tuple((s, parents[s]) for s in fig1 if set(parents[s]) != set(fig1[s]))
-
-
-def _parents(net: EffectNetwork, sites: Mapping[str, SiteSpec]) -> dict[str, tuple[str, ...]]:
-    """Every initial and end site's declared parents (Fig. 1's where not declared),
-    checked: names, roles, duplicates, and the action for a parameter's feature."""
-    given = net.parents
-    if isinstance(given, Mapping):
-        given = tuple(given.items())
-    try:
-        given = {str(site): ps for site, ps in given}
-    except (TypeError, ValueError):
-        raise ValueError(
-            f"parents must map a site to its parent sites, e.g. "
-            f"{{'end.f': ('initial.f', 'action')}}; got {net.parents!r}"
-        ) from None
-    parents = _fig1_parents(sites)
-    for site, ps in given.items():
-        spec = sites.get(site)
-        if spec is None or spec.role not in ("initial", "end"):
-            why = (
-                "is not a site of this network"
-                if spec is None
-                else "has fixed parents (the action is a root; a parameter's cluster and "
-                "value hang off the action)"
-            )
-            raise ValueError(
-                f"parents names {site!r}, which {why}; declare the parents of initial or end "
-                f"sites: {[s for s in parents]}"
-            )
-        if isinstance(ps, str) or not hasattr(ps, "__iter__"):
-            raise ValueError(f"parents of {site!r} must be a sequence of site names, got {ps!r}")
-        ps = tuple(ps)
-        if len(set(ps)) != len(ps):
-            raise ValueError(f"parents of {site!r} repeat a site: {ps}")
-        for q in ps:
-            _check_parent(site, spec, q, sites)
-        parents[site] = ps
-    for p in net.parameters:
-        for f in p.features:
-            if ACTION not in parents[end_site(f)]:
-                raise ValueError(
-                    f"parameter {p.name!r} affects {f!r}, so the action must be a parent of "
-                    f"{end_site(f)!r} (it decides whether the parameter is used)"
-                )
-    return parents
-
-
-def _check_parent(site: str, spec: SiteSpec, parent: str, sites: Mapping[str, SiteSpec]) -> None:
-    q = sites.get(parent)
-    if q is None:
-        hint = ""
-        if isinstance(parent, str) and parent in {s.feature for s in sites.values()}:
-            hint = f" (a feature's sites are 'initial.{parent}' and 'end.{parent}')"
-        raise ValueError(
-            f"parent {parent!r} of {site!r} is not a site of this network{hint}; sites: "
-            f"{[s for s, x in sites.items() if x.role in ('initial', 'action', 'end')]}"
-        )
-    if q.role in ("cluster", "param"):
-        raise ValueError(
-            f"parent {parent!r} of {site!r}: a parameter's sites join the parents of the "
-            "feature it affects by themselves (Parameter(affects=...)); do not name them"
-        )
-    if spec.role == "initial" and q.role != "initial":
-        raise ValueError(
-            f"{parent!r} cannot be a parent of the initial site {site!r}: the initial state "
-            "is before the action, so its parents can only be other initial sites"
-        )
-    if spec.role == "end" and q.role == "end" and not q.discrete:
-        raise ValueError(
-            f"the continuous end site {parent!r} cannot be a parent of {site!r}: queries sum "
-            "unobserved parents out exactly, which a continuous end state does not allow; "
-            "use its initial site or a discrete end feature"
-        )
-
-
-def _topological(
-    sites: Mapping[str, SiteSpec], parents: Mapping[str, tuple[str, ...]]
-) -> list[str]:
-    """Site names with parents before children, otherwise in declaration order; a cycle
-    raises, naming its sites."""
-    order: list[str] = []
-    state: dict[str, str] = {}
-
-    def visit(s: str, path: list[str]) -> None:
-        if state.get(s) == "done":
-            return
-        if state.get(s) == "open":
-            cycle = path[path.index(s) :] + [s]
-            raise ValueError(
-                f"the declared parents form a cycle: {' -> '.join(reversed(cycle))}; a site "
-                "cannot depend on itself, even through others"
-            )
-        state[s] = "open"
-        for q in parents.get(s, ()):
-            visit(q, [*path, s])
-        state[s] = "done"
-        order.append(s)
-
-    for role in ("initial", "action", "cluster", "end"):
-        for s, spec in sites.items():
-            if spec.role == role or (role == "cluster" and spec.role == "param"):
-                visit(s, [])
-    return order
-
-
-def _kinds(given, sites: Mapping[str, SiteSpec]) -> tuple[tuple[str, type[CPD]], ...]:
-    """Declared kinds as ``(site, class)`` pairs in site order, names resolved."""
-    if isinstance(given, Mapping):
-        given = tuple(given.items())
-    known = {k.name: k for k in KINDS}
-    out = {}
-    for site, kind in given:
-        spec = sites.get(site)
-        if spec is None or spec.role not in ("initial", "end"):
-            raise ValueError(
-                f"kinds names {site!r}, which is not an initial or end site of this network; "
-                f"sites: {[s for s, x in sites.items() if x.role in ('initial', 'end')]}"
-            )
-        if isinstance(kind, str):
-            if kind not in known:
-                raise ValueError(
-                    f"site {site!r}: unknown kind {kind!r}; the toolkit's kinds are "
-                    f"{sorted(known)} (pass the class of a kind of your own)"
-                )
-            kind = known[kind]
-        if not (isinstance(kind, type) and issubclass(kind, CPD)) or not kind.name:
-            raise ValueError(
-                f"site {site!r}: kind {kind!r} must be a name or a subclass of models.cpds.CPD "
-                "with a name"
-            )
-        out[site] = kind
-    return tuple((s, out[s]) for s in sites if s in out)
-
-
-def _check_size(cpd: CPD, why: str) -> None:
-    """Refuse a site whose fitted numbers would exceed :data:`MAX_CPD_ENTRIES`, before
-    anything of that size is allocated."""
-    entries = sum(math.prod(shape) for shape in cpd.shapes().values())
-    if entries > MAX_CPD_ENTRIES:
-        raise ValueError(
-            f"site {cpd.site!r} would hold {entries:.3g} numbers ({why}); a site holds at "
-            f"most MAX_CPD_ENTRIES = {MAX_CPD_ENTRIES:.0e}. Use fewer bins or states, or "
-            "declare fewer parents (EffectNetwork(parents=...))"
-        )
-
-
-def _build_cpds(
-    net: EffectNetwork, sites: Mapping[str, SiteSpec], parents: Mapping[str, tuple[str, ...]]
-) -> None:
-    """Every site's kind, the parameters' mixtures first (their sites join the parents of
-    the features they affect)."""
-    actions = len(net.actions)
-    mixtures = {
-        p.name: ParameterMixture.of(
-            p,
-            ACTION,
-            torch.tensor([a in p.actions for a in net.actions]),
-            cluster_site(p.name),
-            param_site(p.name),
-            tuple(end_site(f) for f in p.features),
-            tuple(end_site(f) for f in p.features if not sites[end_site(f)].discrete),
-        )
-        for p in net.parameters
-    }
-    for m in mixtures.values():
-        _check_size(m.cluster, f"parameter {m.parameter.name!r} has {m.parameter.n_clusters} cells")
-        _check_size(m.value, f"parameter {m.parameter.name!r} has {m.parameter.n_clusters} cells")
-    declared = dict(net.kinds)
-    cpds: dict[str, CPD] = {}
-    for site, spec in sites.items():
-        if spec.role == "action":
-            cpds[site] = TableCPD(site, (), (), actions)
-            continue
-        if spec.role in ("cluster", "param"):
-            continue
-        ps = [q for q in sites if q in parents[site]]  # site (topological) order
-        discrete = [q for q in ps if sites[q].discrete]
-        inputs = [q for q in ps if not sites[q].discrete]
-        acting = [m for m in mixtures.values() if site in m.affected]
-        discrete += [m.cluster.site for m in acting]
-        if not spec.discrete:
-            inputs += [m.value.site for m in acting]
-        card = tuple(sites[q].size for q in discrete)
-        width = sum(sites[q].size for q in inputs)
-        kind = declared.get(site) or default_kind(spec.discrete, width)
-        refused = kind.refuses(spec.discrete, width)
-        if refused is not None:
-            what = "discrete" if spec.discrete else "continuous"
-            raise ValueError(
-                f"site {site!r} ({what}, {width} continuous input dims) cannot have kind "
-                f"{kind.name!r}: {refused}"
-            )
-        _check_size(
-            kind(site, tuple(discrete), card, spec.size, tuple(inputs), width),
-            f"its discrete parents {discrete} have {math.prod(card)} configurations",
-        )
-        extra = {}
-        if acting and not spec.discrete:
-            if not issubclass(kind, LinearGaussianCPD):
-                raise ValueError(
-                    f"site {site!r} is affected by parameter {acting[0].parameter.name!r}, so "
-                    f"its kind must be a linear Gaussian, not {kind.name!r}"
-                )
-            zero = torch.zeros(math.prod(card), width, dtype=torch.bool)
-            end = width
-            for m in reversed(acting):  # the parameters are the last inputs, in this order
-                zero |= m.zero_weights(tuple(discrete), card, width, end)
-                end -= m.parameter.dim
-            extra["zero_weights"] = zero
-        cpds[site] = kind(site, tuple(discrete), card, spec.size, tuple(inputs), width, **extra)
-    for m in mixtures.values():
-        cpds[m.cluster.site] = m.cluster
-        cpds[m.value.site] = m.value
-    object.__setattr__(net, "_cpds", {s: cpds[s] for s in sites})
-    object.__setattr__(net, "_mixtures", mixtures)

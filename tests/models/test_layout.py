@@ -1,4 +1,5 @@
-"""The shape of models/: its imports form no circle and point to nothing above it.
+"""The shape of models/: its imports form no circle, point to nothing above it, and no
+room grows past 600 lines.
 
 The import graph is read from the source (an ast walk), so it counts every import: at the
 top, inside functions, and under ``if TYPE_CHECKING``, where a type-only circle hides.
@@ -13,6 +14,7 @@ ROOT = Path(__file__).resolve().parents[2]
 MODELS = ROOT / "models"
 #: The packages models/ sits below (its imports point down only).
 ABOVE = ("inference", "experiments", "examples", "sim2d", "benchmarks")
+MAX_LINES = 600
 
 
 def module_name(path: Path, root: Path) -> str:
@@ -121,3 +123,12 @@ def test_models_imports_nothing_above_it(above):
     }
     wrong = {m: t for m, t in wrong.items() if t}
     assert not wrong, f"models/ imports from {above}/: {wrong}"
+
+
+def test_no_room_in_models_is_above_600_lines():
+    long = {
+        str(p.relative_to(ROOT)): n
+        for p in MODELS.rglob("*.py")
+        if (n := len(p.read_text().splitlines())) > MAX_LINES
+    }
+    assert not long, f"modules above {MAX_LINES} lines: {long}"
