@@ -3,13 +3,13 @@
 from models.cpds import (
     CPD,
     KINDS,
-    LinearGaussian,
     LinearGaussianCPD,
+    LinearGaussianParams,
     ParameterMixture,
-    Softmax,
     SoftmaxCPD,
-    Table,
+    SoftmaxParams,
     TableCPD,
+    TableParams,
 )
 from models.declaration import (
     ACTION,
@@ -22,30 +22,37 @@ from models.declaration import (
     initial_site,
     param_site,
 )
+from models.deprecation import renamed
 from models.evidence import Evidence, Partial
 from models.interop import PgmpyNetwork, from_pgmpy, read_bif, to_pgmpy, write_bif
 from models.model import effect_model
 from models.params import NetworkParams, load, random_params, save
+
+#: The containers' names before they were named for their kinds, for one release.
+__getattr__ = renamed(
+    __name__,
+    {"Table": "TableParams", "Softmax": "SoftmaxParams", "LinearGaussian": "LinearGaussianParams"},
+)
 
 __all__ = [
     "ACTION",
     "CPD",
     "KINDS",
     "LinearGaussianCPD",
+    "LinearGaussianParams",
     "ParameterMixture",
     "SoftmaxCPD",
+    "SoftmaxParams",
     "TableCPD",
+    "TableParams",
     "Continuous",
     "Discrete",
     "EffectNetwork",
     "Evidence",
-    "LinearGaussian",
     "NetworkParams",
     "Parameter",
     "Partial",
     "PgmpyNetwork",
-    "Softmax",
-    "Table",
     "cluster_site",
     "effect_model",
     "end_site",

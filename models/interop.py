@@ -51,7 +51,7 @@ from models.declaration import (
     end_site,
     initial_site,
 )
-from models.params import NetworkParams, Table, check_params
+from models.params import NetworkParams, TableParams, check_params
 
 if TYPE_CHECKING:
     from pgmpy.models import DiscreteBayesianNetwork
@@ -85,7 +85,7 @@ def to_pgmpy(net: EffectNetwork, params: NetworkParams) -> PgmpyNetwork:
     net : EffectNetwork
         The declaration.
     params : NetworkParams
-        Its parameters (checked against ``net``). The counts ``Table.n`` and the
+        Its parameters (checked against ``net``). The counts ``TableParams.n`` and the
         pseudo-count are not part of a pgmpy network and are dropped.
 
     Returns
@@ -95,7 +95,7 @@ def to_pgmpy(net: EffectNetwork, params: NetworkParams) -> PgmpyNetwork:
         order; state names are the declared labels (action names for ``action``);
         each end node's ``TabularCPD`` has evidence ``net.discrete_parents(feature)``
         in that order (pgmpy's columns: the first evidence variable varies slowest,
-        as ``Table.probs.reshape(-1, K)`` rows do).
+        as ``TableParams.probs.reshape(-1, K)`` rows do).
 
     Raises
     ------
@@ -448,7 +448,7 @@ def _from_pgmpy(model, *, n, actions_node, kind, order, pseudo_count, relabel):
         values = np.where(np.abs(total - 1) > EXACT_SUM, values / total, values)
         probs = torch.as_tensor(values, dtype=DTYPE)
         assert tuple(probs.shape) == shapes[site]["probs"], (site, probs.shape)
-        tables[site] = Table(probs, counts[site])
+        tables[site] = TableParams(probs, counts[site])
     params = NetworkParams({s: tables[s] for s in shapes}, float(pseudo_count), net)
     check_params(net, params)
     return net, params

@@ -25,8 +25,9 @@ import numpy as np
 import torch
 
 from models.cpds import CPD as KindCPD
-from models.cpds import LinearGaussian, Softmax, Table, map_tensors
+from models.cpds import LinearGaussianParams, SoftmaxParams, TableParams, map_tensors
 from models.declaration import EffectNetwork
+from models.deprecation import renamed
 
 FORMAT = "effect-networks"
 #: Version 2 added the content checksum (``sha256``); files of other versions are refused.
@@ -38,7 +39,35 @@ PAYLOAD_KEYS = frozenset({"format", "version", "declaration", "pseudo_count", "c
 MAX_STRUCTURE_BYTES = 16 * 2**20
 
 
-CPD = Table | LinearGaussian | Softmax  # the toolkit's containers (a user kind adds its own)
+#: The fitted numbers of one site: one of the toolkit's containers (a user kind adds its own).
+SiteParams = TableParams | LinearGaussianParams | SoftmaxParams
+
+#: The ``type`` a saved file gives a site's numbers. The toolkit's containers keep the
+#: names format 2 was written with (their classes were named ``Table``, ``Softmax`` and
+#: ``LinearGaussian`` then), so files saved before and after the rename read alike; a
+#: user kind's container is saved under its class name.
+SAVED_NAMES: dict[type, str] = {
+    TableParams: "Table",
+    SoftmaxParams: "Softmax",
+    LinearGaussianParams: "LinearGaussian",
+}
+
+#: Names before the rename, for one release (``CPD`` was this module's name for
+#: :data:`SiteParams`, which :class:`models.cpds.CPD`, the kind, shares).
+__getattr__ = renamed(
+    __name__,
+    {
+        "Table": "TableParams",
+        "Softmax": "SoftmaxParams",
+        "LinearGaussian": "LinearGaussianParams",
+        "CPD": "SiteParams",
+    },
+)
+
+
+def saved_name(container: type) -> str:
+    """The ``type`` under which :func:`save` writes a container (:data:`SAVED_NAMES`)."""
+    return SAVED_NAMES.get(container, container.__name__)
 
 
 @dataclass(frozen=True)
@@ -53,11 +82,11 @@ class NetworkParams:
     things there. Parameters assembled by hand without it are checked by shape only.
     """
 
-    cpds: dict[str, CPD]
+    cpds: dict[str, SiteParams]
     pseudo_count: float
     network: EffectNetwork | None = field(default=None, repr=False, compare=False)
 
-    def __getitem__(self, site: str) -> CPD:
+    def __getitem__(self, site: str) -> SiteParams:
         return self.cpds[site]
 
     def map(self, fn) -> NetworkParams:
@@ -133,7 +162,7 @@ def save(path: str | Path, net: EffectNetwork, params: NetworkParams) -> Path:
         raise ValueError(f"{str(path)!r} is a folder; expected the path of the file to save")
     cpds = {
         site: {
-            "type": type(c).__name__,
+            "type": saved_name(type(c)),
             **{f.name: _cpu(getattr(c, f.name)) for f in fields(c)},
         }
         for site, c in params.cpds.items()
@@ -211,8 +240,8 @@ def load(
         for site, entry in payload["cpds"].items():
             entry = dict(entry)
             cls = net.cpd(site).params_type
-            if entry.pop("type") != cls.__name__:
-                raise ValueError(f"site {site!r} holds no {cls.__name__}")
+            if entry.pop("type") != saved_name(cls):
+                raise ValueError(f"site {site!r} holds no {cls.__name__} ({saved_name(cls)!r})")
             names = {f.name for f in fields(cls)}
             if set(entry) != names:
                 raise ValueError(

@@ -1,12 +1,16 @@
 """Conditional-distribution kinds: each one class that owns its behaviour.
 
-=====================  ==================================  ==========================
+=====================  ==================================  ===============================
 kind (``name``)        site                                fitted numbers
-=====================  ==================================  ==========================
-``table``              discrete child, discrete parents    :class:`Table`
-``softmax``            discrete child, continuous parents  :class:`Softmax`
-``linear_gaussian``    continuous child                    :class:`LinearGaussian`
-=====================  ==================================  ==========================
+=====================  ==================================  ===============================
+``table``              discrete child, discrete parents    :class:`TableParams`
+``softmax``            discrete child, continuous parents  :class:`SoftmaxParams`
+``linear_gaussian``    continuous child                    :class:`LinearGaussianParams`
+=====================  ==================================  ===============================
+
+A kind (``TableCPD``, ...) is the structure of one site's distribution, as pgmpy's
+``TabularCPD`` is; its fitted numbers are a separate typed container named for it
+(``TableParams``, ...), as dynamax keeps ``ParamsCategoricalHMM`` apart from the model.
 
 and :class:`ParameterMixture`, the cluster/value pair of an action parameter. A network
 picks for each site the first kind of :data:`KINDS` that does not refuse it
@@ -16,10 +20,11 @@ a subclass of :class:`CPD` (or of a built-in kind) passed to the declaration.
 """
 
 from models.cpds.base import CPD, concat_inputs, map_tensors
-from models.cpds.linear_gaussian import LinearGaussian, LinearGaussianCPD, Moments
+from models.cpds.linear_gaussian import LinearGaussianCPD, LinearGaussianParams, Moments
 from models.cpds.mixture import ParameterMixture
-from models.cpds.softmax import Softmax, SoftmaxCPD
-from models.cpds.table import Counts, Table, TableCPD
+from models.cpds.softmax import SoftmaxCPD, SoftmaxParams
+from models.cpds.table import Counts, TableCPD, TableParams
+from models.deprecation import renamed
 
 #: The toolkit's kinds, in the order a site's default kind is chosen.
 KINDS: tuple[type[CPD], ...] = (TableCPD, SoftmaxCPD, LinearGaussianCPD)
@@ -30,18 +35,24 @@ def default_kind(discrete: bool, width: int) -> type[CPD]:
     return next(k for k in KINDS if k.refuses(discrete, width) is None)
 
 
+#: The containers' names before they were named for their kinds, for one release.
+__getattr__ = renamed(
+    __name__,
+    {"Table": "TableParams", "Softmax": "SoftmaxParams", "LinearGaussian": "LinearGaussianParams"},
+)
+
 __all__ = [
     "CPD",
     "KINDS",
     "Counts",
-    "LinearGaussian",
     "LinearGaussianCPD",
+    "LinearGaussianParams",
     "Moments",
     "ParameterMixture",
-    "Softmax",
     "SoftmaxCPD",
-    "Table",
+    "SoftmaxParams",
     "TableCPD",
+    "TableParams",
     "concat_inputs",
     "default_kind",
     "map_tensors",

@@ -3,8 +3,8 @@
 A kind is the structure of one site's conditional distribution: the site, its discrete
 parents (the axes of its tables), its continuous parents (the inputs of its linear
 maps) and its own size. It is frozen and holds no fitted numbers; those live in the
-kind's typed container (``params_type``: :class:`~models.cpds.table.Table`, ...). Like
-dynamax's emission components, a kind owns everything that depends on its form:
+kind's typed container, named for it (``params_type``: ``TableCPD`` fits a
+:class:`~models.cpds.table.TableParams`, ...). Like dynamax's emission components, a kind owns everything that depends on its form:
 
 * ``distribution(params, index, x, cache)`` -- the Pyro distribution of the site given
   its discrete parents' values ``index`` (state indices, broadcastable) and its
@@ -22,8 +22,9 @@ dynamax's emission components, a kind owns everything that depends on its form:
 * ``free(params)``, ``bound(free, params)``, ``penalised(free)`` -- the unconstrained
   tensors the gradient route optimises, the parameters they stand for, and the tensors
   that carry the L2 prior;
-* ``check(params)`` -- validation against the declared shapes; the container's class
-  name is the save format's ``type``.
+* ``check(params)`` -- validation against the declared shapes; the save format names
+  the container by its class name (the toolkit's own by their names of format 2,
+  :data:`models.params.SAVED_NAMES`).
 
 Shapes use ``P...`` for the parents' cardinalities ``card``, ``K`` for a discrete
 site's states and ``d`` for a continuous site's dimension (both ``size``), and ``p``
@@ -80,7 +81,8 @@ class CPD:
         kind = self.params_type.__name__
         if type(params) is not self.params_type:
             raise ValueError(
-                f"site {self.site!r}: expected a {kind} CPD, got {type(params).__name__}"
+                f"site {self.site!r}: expected {kind} (the numbers of a {self.name!r} site), "
+                f"got {type(params).__name__}"
             )
         for name, shape in self.shapes().items():
             got = tuple(getattr(params, name).shape)

@@ -21,11 +21,15 @@ import torch
 from pyro.ops.indexing import Vindex
 
 from models.cpds.base import CPD
+from models.deprecation import renamed
 from models.dtype import DTYPE
+
+#: The name of :class:`LinearGaussianParams` before the rename, for one release.
+__getattr__ = renamed(__name__, {"LinearGaussian": "LinearGaussianParams"})
 
 
 @dataclass(frozen=True)
-class LinearGaussian:
+class LinearGaussianParams:
     """Conditional linear Gaussian: ``x_child ~ N(weight @ x_parents + bias, scale_tril @ scale_tril.T)``.
 
     ``weight`` ``(P..., d, p)``, ``bias`` ``(P..., d)``, ``scale_tril`` ``(P..., d, d)``,
@@ -76,7 +80,7 @@ class LinearGaussianCPD(CPD):
     zero_weights: torch.Tensor | None = field(default=None, compare=False, repr=False)
 
     name = "linear_gaussian"
-    params_type = LinearGaussian
+    params_type = LinearGaussianParams
     discrete = False
 
     def shapes(self) -> dict[str, tuple[int, ...]]:
@@ -90,21 +94,21 @@ class LinearGaussianCPD(CPD):
 
     def initialize(
         self, generator: torch.Generator | None = None, unseen: float = 0.0
-    ) -> LinearGaussian:
+    ) -> LinearGaussianParams:
         shapes, d = self.shapes(), self.size
         if generator is None:
             eye = torch.eye(d, dtype=DTYPE).expand(shapes["scale_tril"]).clone()
             zeros = (torch.zeros(shapes[k], dtype=DTYPE) for k in ("weight", "bias"))
-            return LinearGaussian(*zeros, eye, torch.zeros(self.card, dtype=DTYPE))
+            return LinearGaussianParams(*zeros, eye, torch.zeros(self.card, dtype=DTYPE))
         n = self.counts_reached(generator, unseen)
         a = self.noise(generator, shapes["scale_tril"])
         cov = a @ a.mT / d + 0.3 * torch.eye(d, dtype=DTYPE)
         weight = self.noise(generator, shapes["weight"])
         bias = self.noise(generator, shapes["bias"])
-        return LinearGaussian(weight, bias, torch.linalg.cholesky(cov), n)
+        return LinearGaussianParams(weight, bias, torch.linalg.cholesky(cov), n)
 
     def loc_tril(
-        self, params: LinearGaussian, index, x: torch.Tensor | None
+        self, params: LinearGaussianParams, index, x: torch.Tensor | None
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """The mean ``(..., d)`` and Cholesky factor ``(..., d, d)`` given the parents."""
         if not index:
@@ -118,7 +122,9 @@ class LinearGaussianCPD(CPD):
             loc = loc + (weight @ x.unsqueeze(-1)).squeeze(-1)
         return loc, tril
 
-    def distribution(self, params: LinearGaussian, index, x, cache) -> dist.MultivariateNormal:
+    def distribution(
+        self, params: LinearGaussianParams, index, x, cache
+    ) -> dist.MultivariateNormal:
         loc, tril = self.loc_tril(params, index, x)
         return dist.MultivariateNormal(loc, scale_tril=tril)
 
@@ -148,7 +154,7 @@ class LinearGaussianCPD(CPD):
         rows = torch.bincount(index, weights=weighted[:, -1], minlength=groups).to(DTYPE)
         return Moments(zz, zy, yy, rows)
 
-    def m_step(self, stats: Moments, alpha: float, min_variance: float) -> LinearGaussian:
+    def m_step(self, stats: Moments, alpha: float, min_variance: float) -> LinearGaussianParams:
         """Per-configuration least squares of y on [x, 1] with pooled pseudo-rows."""
         s, card, site = stats, self.card, self.site
         szz, szy, syy, n = s.zz, s.zy, s.yy, s.n
@@ -191,22 +197,26 @@ class LinearGaussianCPD(CPD):
         cov = resid / total.clamp_min(1e-300)[:, None, None]
         cov = floor_variance(0.5 * (cov + cov.mT), min_variance)
         tril = safe_cholesky(cov, site)
-        return LinearGaussian(
+        return LinearGaussianParams(
             beta[:, : q - 1, :].mT.reshape(*card, d, q - 1),
             beta[:, q - 1, :].reshape(*card, d),
             tril.reshape(*card, d, d),
             n.reshape(card),
         )
 
-    def free(self, params: LinearGaussian) -> dict[str, torch.Tensor]:
+    def free(self, params: LinearGaussianParams) -> dict[str, torch.Tensor]:
         return {
             "weight": params.weight,
             "bias": params.bias,
             "tril": _LOWER_CHOLESKY.inv(params.scale_tril),
         }
 
-    def bound(self, free: dict[str, torch.Tensor], params: LinearGaussian) -> LinearGaussian:
-        return LinearGaussian(free["weight"], free["bias"], _LOWER_CHOLESKY(free["tril"]), params.n)
+    def bound(
+        self, free: dict[str, torch.Tensor], params: LinearGaussianParams
+    ) -> LinearGaussianParams:
+        return LinearGaussianParams(
+            free["weight"], free["bias"], _LOWER_CHOLESKY(free["tril"]), params.n
+        )
 
 
 def floor_variance(cov: torch.Tensor, min_variance: float) -> torch.Tensor:

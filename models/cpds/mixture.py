@@ -45,7 +45,7 @@ import torch
 from pyro.ops.indexing import Vindex
 
 from models.cpds.base import concat_inputs
-from models.cpds.linear_gaussian import LinearGaussian, LinearGaussianCPD
+from models.cpds.linear_gaussian import LinearGaussianCPD, LinearGaussianParams
 from models.cpds.table import TableCPD
 from models.dtype import DTYPE
 from models.features import Parameter
@@ -134,7 +134,7 @@ class ParameterMixture:
         after = len(parents) - 1 - parents.index(self.action)
         return per_action.reshape(-1, *([1] * (after + trailing)))
 
-    def marginal(self, params: Mapping, child: LinearGaussianCPD) -> LinearGaussian:
+    def marginal(self, params: Mapping, child: LinearGaussianCPD) -> LinearGaussianParams:
         """The affected feature's CPD with the parameter integrated out, per configuration:
         ``weight`` ``W_x`` ``(P..., d, p - k)``, ``bias`` ``b + W_p m_c`` ``(P..., d)``,
         ``scale_tril`` the Cholesky factor of ``R + W_p S_c W_p^T``. For actions not using
@@ -149,7 +149,7 @@ class ParameterMixture:
         # prior.bias (C, k) aligns with the cluster axis, the child's last parent
         offset = cpd.bias + (w_p @ prior.bias.unsqueeze(-1)).squeeze(-1)
         cov = cpd.covariance + w_p @ prior.covariance @ w_p.mT
-        return LinearGaussian(w_x, offset, torch.linalg.cholesky(cov), cpd.n)
+        return LinearGaussianParams(w_x, offset, torch.linalg.cholesky(cov), cpd.n)
 
     def child_loc_tril(
         self,
@@ -421,7 +421,9 @@ class ParameterMixture:
             self.value.site: self.value.statistics(cluster[uses], None, theta[uses], w),
         }
 
-    def randomize(self, value: LinearGaussian, generator: torch.Generator) -> LinearGaussian:
+    def randomize(
+        self, value: LinearGaussianParams, generator: torch.Generator
+    ) -> LinearGaussianParams:
         """Random cluster Gaussians, each inside its own cell as a fitted one is: mean in
         the cell's middle half, standard deviation an eighth of the cell."""
         p = self.parameter
@@ -431,7 +433,7 @@ class ParameterMixture:
         offset = (torch.rand(p.n_clusters, p.dim, generator=generator, dtype=DTYPE) - 0.5) * 0.5
         mean = p.cluster_centres() + offset * width
         tril = torch.diag_embed((width / 8).expand(p.n_clusters, p.dim))
-        return LinearGaussian(value.weight, mean, tril, value.n)
+        return LinearGaussianParams(value.weight, mean, tril, value.n)
 
 
 def affected_loc_tril(

@@ -27,11 +27,15 @@ from pyro.ops.indexing import Vindex
 
 from models.cpds.base import CPD
 from models.cpds.table import Counts, counts, normalised
+from models.deprecation import renamed
 from models.dtype import DTYPE
+
+#: The name of :class:`SoftmaxParams` before the rename, for one release.
+__getattr__ = renamed(__name__, {"Softmax": "SoftmaxParams"})
 
 
 @dataclass(frozen=True)
-class Softmax:
+class SoftmaxParams:
     """Discrete child of continuous parents: ``logits = weight @ x_parents + bias``.
 
     ``weight`` ``(P..., K, p)``, ``bias`` ``(P..., K)``, ``n`` ``(P...)``.
@@ -47,7 +51,7 @@ class SoftmaxCPD(CPD):
     """Per discrete-parent configuration a linear map of the continuous parents to logits."""
 
     name = "softmax"
-    params_type = Softmax
+    params_type = SoftmaxParams
     discrete = True
     closed_form = False
 
@@ -61,16 +65,20 @@ class SoftmaxCPD(CPD):
         card, k = self.card, self.size
         return {"weight": (*card, k, self.width), "bias": (*card, k), "n": card}
 
-    def initialize(self, generator: torch.Generator | None = None, unseen: float = 0.0) -> Softmax:
+    def initialize(
+        self, generator: torch.Generator | None = None, unseen: float = 0.0
+    ) -> SoftmaxParams:
         shapes = self.shapes()
         if generator is None:
-            return Softmax(*(torch.zeros(shapes[k], dtype=DTYPE) for k in ("weight", "bias", "n")))
+            return SoftmaxParams(
+                *(torch.zeros(shapes[k], dtype=DTYPE) for k in ("weight", "bias", "n"))
+            )
         n = self.counts_reached(generator, unseen)
-        return Softmax(
+        return SoftmaxParams(
             self.noise(generator, shapes["weight"]), self.noise(generator, shapes["bias"]), n
         )
 
-    def distribution(self, params: Softmax, index, x, cache) -> dist.Categorical:
+    def distribution(self, params: SoftmaxParams, index, x, cache) -> dist.Categorical:
         # The logits in log space per configuration: slopes and offsets taken relative to
         # their mean over the states (the same softmax), so that a slope all states share
         # cancels before it meets a large input, then shifted by their maximum, so that
@@ -85,18 +93,18 @@ class SoftmaxCPD(CPD):
     def statistics(self, index: torch.Tensor, x, y: torch.Tensor, weights=None) -> Counts:
         return counts(index, y, self.card, self.size, weights)
 
-    def m_step(self, stats: Counts, alpha: float, min_variance: float) -> Softmax:
+    def m_step(self, stats: Counts, alpha: float, min_variance: float) -> SoftmaxParams:
         # the table's log-frequencies with zero slopes
         start = normalised(stats.counts, max(alpha, 1e-3))
         weight = torch.zeros(self.shapes()["weight"], dtype=DTYPE)
-        return Softmax(weight, start.probs.log(), start.n)
+        return SoftmaxParams(weight, start.probs.log(), start.n)
 
     def maximise(
         self,
         index: torch.Tensor,
         x: torch.Tensor,
         y: torch.Tensor,
-        start: Softmax,
+        start: SoftmaxParams,
         *,
         weights: torch.Tensor | None = None,
         l2: float = 0.01,
@@ -230,14 +238,14 @@ class SoftmaxCPD(CPD):
         floor = torch.where(stalled, STALLED_TOLERANCE, GRADIENT_TOLERANCE)
         converged = bool((relative <= floor).all())
         weight, bias = theta.reshape(*self.card, k, q).split([p, 1], -1)
-        params = Softmax(weight.contiguous(), bias[..., 0].contiguous(), start.n)
+        params = SoftmaxParams(weight.contiguous(), bias[..., 0].contiguous(), start.n)
         return SoftmaxFit(params, tuple(curve), converged, float(relative.max()))
 
-    def free(self, params: Softmax) -> dict[str, torch.Tensor]:
+    def free(self, params: SoftmaxParams) -> dict[str, torch.Tensor]:
         return {"weight": params.weight, "bias": params.bias}
 
-    def bound(self, free: dict[str, torch.Tensor], params: Softmax) -> Softmax:
-        return Softmax(free["weight"], free["bias"], params.n)
+    def bound(self, free: dict[str, torch.Tensor], params: SoftmaxParams) -> SoftmaxParams:
+        return SoftmaxParams(free["weight"], free["bias"], params.n)
 
     def penalised(self, free: dict[str, torch.Tensor]) -> list[torch.Tensor]:
         return [free["weight"]]
@@ -261,7 +269,7 @@ class SoftmaxFit:
     Newton iteration; whether every configuration converged; and the largest gradient
     component relative to its configuration's row scale at the end."""
 
-    params: Softmax
+    params: SoftmaxParams
     objectives: tuple[float, ...]
     converged: bool
     relative_gradient: float

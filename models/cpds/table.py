@@ -18,11 +18,15 @@ from torch.distributions.utils import probs_to_logits
 from torch.utils.weak import WeakIdKeyDictionary
 
 from models.cpds.base import CPD
+from models.deprecation import renamed
 from models.dtype import DTYPE
+
+#: The name of :class:`TableParams` before the rename, for one release.
+__getattr__ = renamed(__name__, {"Table": "TableParams"})
 
 
 @dataclass(frozen=True)
-class Table:
+class TableParams:
     """Categorical child of discrete parents: ``probs`` ``(P..., K)``, ``n`` ``(P...)``."""
 
     probs: torch.Tensor
@@ -60,7 +64,7 @@ class TableCPD(CPD):
     pinned: torch.Tensor | None = field(default=None, compare=False, repr=False)
 
     name = "table"
-    params_type = Table
+    params_type = TableParams
     discrete = True
     tabular = True
 
@@ -92,15 +96,17 @@ class TableCPD(CPD):
         fixed[0] = 0.0
         return torch.where(self.pinned[..., None], fixed, logs)
 
-    def initialize(self, generator: torch.Generator | None = None, unseen: float = 0.0) -> Table:
+    def initialize(
+        self, generator: torch.Generator | None = None, unseen: float = 0.0
+    ) -> TableParams:
         shape = self.shapes()["probs"]
         if generator is None:
             probs = torch.full(shape, 1.0 / self.size, dtype=DTYPE)
-            return Table(self.pin(probs), torch.zeros(self.card, dtype=DTYPE))
+            return TableParams(self.pin(probs), torch.zeros(self.card, dtype=DTYPE))
         n = self.counts_reached(generator, unseen)
-        return Table(self.pin((2 * self.noise(generator, shape)).softmax(-1)), n)
+        return TableParams(self.pin((2 * self.noise(generator, shape)).softmax(-1)), n)
 
-    def log_table(self, params: Table, cache: dict | None) -> torch.Tensor:
+    def log_table(self, params: TableParams, cache: dict | None) -> torch.Tensor:
         """Log-probabilities of the table, taken once per model call (``cache``).
 
         A Categorical built from probabilities takes their log lazily over its whole
@@ -114,7 +120,7 @@ class TableCPD(CPD):
         if cache is not None and self.site in cache:
             return cache[self.site]
         probs = params.probs
-        kept = params.__dict__.get("_logs")  # fitted tables: once per Table, not per call
+        kept = params.__dict__.get("_logs")  # fitted tables: once per TableParams, not per call
         if kept is not None and kept[0] is probs and kept[1] == probs._version:
             logs = kept[2]
         else:
@@ -125,7 +131,7 @@ class TableCPD(CPD):
             cache[self.site] = logs
         return logs
 
-    def distribution(self, params: Table, index, x, cache) -> dist.TorchDistribution:
+    def distribution(self, params: TableParams, index, x, cache) -> dist.TorchDistribution:
         logs = self.log_table(params, cache)
         if not index:
             return dist.Categorical(logits=logs)
@@ -134,15 +140,15 @@ class TableCPD(CPD):
     def statistics(self, index: torch.Tensor, x, y: torch.Tensor, weights=None) -> Counts:
         return counts(index, y, self.card, self.size, weights)
 
-    def m_step(self, stats: Counts, alpha: float, min_variance: float) -> Table:
+    def m_step(self, stats: Counts, alpha: float, min_variance: float) -> TableParams:
         table = normalised(stats.counts, alpha)
-        return Table(self.pin(table.probs), table.n) if self.pinned is not None else table
+        return TableParams(self.pin(table.probs), table.n) if self.pinned is not None else table
 
-    def free(self, params: Table) -> dict[str, torch.Tensor]:
+    def free(self, params: TableParams) -> dict[str, torch.Tensor]:
         return {"logits": params.probs.clamp_min(1e-12).log()}
 
-    def bound(self, free: dict[str, torch.Tensor], params: Table) -> Table:
-        return Table(self.pin(free["logits"].softmax(-1)), params.n)
+    def bound(self, free: dict[str, torch.Tensor], params: TableParams) -> TableParams:
+        return TableParams(self.pin(free["logits"].softmax(-1)), params.n)
 
 
 class GatheredCategorical(dist.TorchDistribution):
@@ -294,7 +300,7 @@ def counts(
     return Counts(found.reshape(*card, k))
 
 
-def normalised(counts: torch.Tensor, alpha: float) -> Table:
+def normalised(counts: torch.Tensor, alpha: float) -> TableParams:
     """The pseudo-count policy's table of ``counts`` (a new tensor; ``counts`` is kept)."""
     counts = counts.to(DTYPE)  # no copy for float64 counts
     k = counts.shape[-1]
@@ -303,4 +309,4 @@ def normalised(counts: torch.Tensor, alpha: float) -> Table:
     unseen = n == 0
     if bool(unseen.any()):
         probs[unseen] = 1.0 / k
-    return Table(probs, n)
+    return TableParams(probs, n)

@@ -299,5 +299,73 @@ def test_an_unknown_entry_is_refused(tmp_path):
         payload | {"cpds": payload["cpds"] | {"end.pos": entry | {"spare": torch.zeros(9)}}},
         tmp_path / "spare.pt",
     )
-    with pytest.raises(ValueError, match=r"site 'end.pos': its LinearGaussian holds"):
+    with pytest.raises(ValueError, match=r"site 'end.pos': its LinearGaussianParams holds"):
         load(tmp_path / "spare.pt")
+
+
+# ------------------------------------------------ files saved before the containers' rename
+#: A file's payload as the toolkit wrote it while the containers were named ``Table``,
+#: ``Softmax`` and ``LinearGaussian`` (format 2): every kind once, fixed numbers, and the
+#: checksum that toolkit's ``save`` wrote for them.
+OLD_DECLARATION = (
+    '{"features": [{"type": "discrete", "name": "door", "states": ["shut", "open"], '
+    '"kind": "object", "initial": true}, {"type": "continuous", "name": "x", "dim": 1, '
+    '"kind": "object", "initial": true}], "actions": ["push", "wait"], "parameters": []}'
+)
+OLD_SHA256 = "cddc2f5b99d129d8cf0e64324269d400a1cd412eb3b865725576dbe1e4294401"
+
+
+def old_cpds() -> dict:
+    def f64(v):
+        return torch.tensor(v, dtype=torch.float64)
+
+    return {
+        "initial.door": {"type": "Table", "probs": f64([0.25, 0.75]), "n": f64(4.0)},
+        "initial.x": {
+            "type": "LinearGaussian",
+            "weight": torch.zeros(1, 0, dtype=torch.float64),
+            "bias": f64([0.5]),
+            "scale_tril": f64([[2.0]]),
+            "n": f64(4.0),
+        },
+        "action": {"type": "Table", "probs": f64([0.5, 0.5]), "n": f64(4.0)},
+        "end.door": {
+            "type": "Softmax",
+            "weight": f64([[[[1.0], [-1.0]], [[0.0], [0.0]]], [[[0.5], [0.0]], [[0.0], [2.0]]]]),
+            "bias": f64([[[0.0, 1.0], [1.0, 0.0]], [[0.0, 0.0], [0.5, 0.5]]]),
+            "n": f64([[1.0, 1.0], [1.0, 1.0]]),
+        },
+        "end.x": {
+            "type": "LinearGaussian",
+            "weight": f64([[[[1.0]], [[0.0]]], [[[2.0]], [[1.0]]]]),
+            "bias": f64([[[0.0], [1.0]], [[2.0], [3.0]]]),
+            "scale_tril": f64([[[[1.0]], [[1.0]]], [[[0.5]], [[0.5]]]]),
+            "n": f64([[1.0, 1.0], [1.0, 1.0]]),
+        },
+    }
+
+
+def test_a_file_saved_before_the_rename_loads_and_saves_alike(tmp_path):
+    from models.cpds import LinearGaussianParams, SoftmaxParams, TableParams
+
+    payload = {
+        "format": "effect-networks",
+        "version": 2,
+        "declaration": OLD_DECLARATION,
+        "pseudo_count": 0.5,
+        "cpds": old_cpds(),
+        "sha256": OLD_SHA256,
+    }
+    torch.save(payload, tmp_path / "old.pt")
+    net, params = load(tmp_path / "old.pt")
+    kinds = {"Table": TableParams, "Softmax": SoftmaxParams, "LinearGaussian": LinearGaussianParams}
+    for site, entry in old_cpds().items():
+        assert type(params[site]) is kinds[entry.pop("type")]
+        for name, value in entry.items():
+            assert torch.equal(getattr(params[site], name), value), (site, name)
+    # saved again, the file holds the same payload: the same names and checksum
+    again = torch.load(save(tmp_path / "again.pt", net, params), weights_only=True)
+    assert {s: e["type"] for s, e in again["cpds"].items()} == {
+        s: e["type"] for s, e in payload["cpds"].items()
+    }
+    assert again["sha256"] == OLD_SHA256
