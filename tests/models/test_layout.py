@@ -115,6 +115,13 @@ def test_models_has_no_import_circle():
     assert cycle is None, f"models/ imports in a circle: {' -> '.join(cycle)}"
 
 
+@pytest.mark.parametrize(
+    "leaf", ["models.dtype", "models.sites", "models.features", "models.gaussian"]
+)
+def test_the_leaves_import_nothing_of_models_but_the_dtype(leaf):
+    assert import_graph(MODELS)[leaf] <= {"models.dtype"}
+
+
 @pytest.mark.parametrize("above", ABOVE)
 def test_models_imports_nothing_above_it(above):
     wrong = {
