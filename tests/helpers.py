@@ -10,8 +10,9 @@ from pathlib import Path
 import torch
 
 from models import Continuous, Discrete, EffectNetwork, Parameter, random_params
+from models.cpds import LinearGaussianParams, TableParams
 from models.declaration import DTYPE
-from models.params import LinearGaussian, NetworkParams, Table
+from models.params import NetworkParams
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 
@@ -96,17 +97,21 @@ def spilling_network() -> tuple[EffectNetwork, NetworkParams]:
     bias = t([[[0.02], [-0.1], [0.05], [0.0]], [[0.01], [0.0], [0.0], [0.0]]])
     noise = t([[0.05] * 4, [0.01, 1.0, 1.0, 1.0]])
     cpds = {
-        "initial.pos": LinearGaussian(torch.zeros(1, 0, dtype=DTYPE), t([0.1]), t([[0.5]]), t(1.0)),
-        "action": Table(t([0.6, 0.4]), t(1.0)),
-        "cluster.force": Table(
+        "initial.pos": LinearGaussianParams(
+            torch.zeros(1, 0, dtype=DTYPE), t([0.1]), t([[0.5]]), t(1.0)
+        ),
+        "action": TableParams(t([0.6, 0.4]), t(1.0)),
+        "cluster.force": TableParams(
             t([[0.2, 0.3, 0.4, 0.1], [1.0, 0.0, 0.0, 0.0]]), ones(2, dtype=DTYPE)
         ),
-        "param.force": LinearGaussian(
+        "param.force": LinearGaussianParams(
             torch.zeros(4, 1, 0, dtype=DTYPE),
             t([[1.5], [3.5], [6.5], [8.0]]),
             sd[:, None, None],
             ones(4, dtype=DTYPE),
         ),
-        "end.pos": LinearGaussian(weight, bias, noise[..., None, None], ones(2, 4, dtype=DTYPE)),
+        "end.pos": LinearGaussianParams(
+            weight, bias, noise[..., None, None], ones(2, 4, dtype=DTYPE)
+        ),
     }
     return net, NetworkParams(cpds, 0.01)

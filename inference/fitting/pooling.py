@@ -35,7 +35,7 @@ import torch
 
 from inference.fitting.fit import FitResult, _check_settings, fit_statistics
 from inference.fitting.statistics import params_from_statistics
-from models.cpds.table import Table, TableCPD
+from models.cpds.table import TableCPD, TableParams
 from models.declaration import ACTION, EffectNetwork
 from models.evidence import DTYPE
 from models.params import NetworkParams
@@ -126,7 +126,7 @@ def fit_pooled(
     return FitResult(NetworkParams(cpds, pseudo_count, net))
 
 
-def _pooled(counts, off, strength, alpha, axis) -> Table:
+def _pooled(counts, off, strength, alpha, axis) -> TableParams:
     """The pooled table of ``counts`` ``(..., A, K)`` (action axis moved next to last),
     returned with the action axis back at ``axis``."""
     k = counts.shape[-1]
@@ -137,4 +137,4 @@ def _pooled(counts, off, strength, alpha, axis) -> Table:
     n = counts.sum(-1, keepdim=True)
     total = n + k * alpha + w
     probs = torch.where(total > 0, (counts + alpha + w * m) / total.clamp_min(1e-300), 1.0 / k)
-    return Table(probs.movedim(-2, axis), (n + w)[..., 0].movedim(-1, axis))
+    return TableParams(probs.movedim(-2, axis), (n + w)[..., 0].movedim(-1, axis))

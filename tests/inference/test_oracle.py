@@ -41,9 +41,9 @@ from inference import (
 from inference.queries.compiled import compile_parameter_query
 from inference.queries.plausibility import IMPLAUSIBLE_BELOW
 from models import Continuous, Discrete, EffectNetwork, Parameter, random_params
-from models.cpds.linear_gaussian import LinearGaussian
-from models.cpds.softmax import Softmax
-from models.cpds.table import Table
+from models.cpds.linear_gaussian import LinearGaussianParams
+from models.cpds.softmax import SoftmaxParams
+from models.cpds.table import TableParams
 from models.evidence import MAX_MAGNITUDE
 from models.params import NetworkParams
 
@@ -166,15 +166,15 @@ class Oracle:
         """log-density of ``site``'s value given its parents in ``values``."""
         cpd, theta = self.net.cpd(site), self.params[site]
         index = tuple(values[s] for s in cpd.parents)
-        if isinstance(theta, Table):
+        if isinstance(theta, TableParams):
             p = float(theta.probs[(*index, values[site])])
             return mp.log(mpf(p)) if p > 0 else -mp.inf
-        if isinstance(theta, Softmax):
+        if isinstance(theta, SoftmaxParams):
             x = self.inputs(site, values)
             w, b = theta.weight[index].tolist(), theta.bias[index].tolist()
             logits = [self.linear(w[k], b[k], x) for k in range(len(b))]
             return logits[values[site]] - log_sum_exp(logits)
-        assert isinstance(theta, LinearGaussian)
+        assert isinstance(theta, LinearGaussianParams)
         mean, var = self.gaussian_of(site, values)
         return -((mpf(values[site]) - mean) ** 2) / (2 * var) - mp.log(2 * mp.pi * var) / 2
 

@@ -9,8 +9,9 @@ import torch
 
 from inference import fit, infer_action, infer_parameter, simulate
 from models import Continuous, Discrete, EffectNetwork, Parameter, random_params
+from models.cpds import LinearGaussianParams, TableParams
 from models.declaration import DTYPE
-from models.params import LinearGaussian, NetworkParams, Table, check_params
+from models.params import NetworkParams, check_params
 from tests.helpers import spilling_network
 
 NET = EffectNetwork(
@@ -24,10 +25,10 @@ def balanced_params(seed):
     """Random parameters with every configuration well visited (for recovery tests)."""
     p = random_params(NET, seed)
     cpds = dict(p.cpds)
-    cpds["action"] = Table(torch.tensor([0.5, 0.5], dtype=DTYPE), p["action"].n)
-    cpds["initial.door"] = Table(torch.tensor([0.5, 0.5], dtype=DTYPE), p["initial.door"].n)
+    cpds["action"] = TableParams(torch.tensor([0.5, 0.5], dtype=DTYPE), p["action"].n)
+    cpds["initial.door"] = TableParams(torch.tensor([0.5, 0.5], dtype=DTYPE), p["initial.door"].n)
     c = p["cluster.force"]
-    cpds["cluster.force"] = Table(torch.tensor([[1.0, 0.0], [0.5, 0.5]], dtype=DTYPE), c.n)
+    cpds["cluster.force"] = TableParams(torch.tensor([[1.0, 0.0], [0.5, 0.5]], dtype=DTYPE), c.n)
     soft = p["end.door"]
     cpds["end.door"] = type(soft)(0.5 * soft.weight, 0.3 * soft.bias, soft.n)
     return NetworkParams(cpds, p.pseudo_count)
@@ -77,7 +78,7 @@ def test_fit_of_simulated_rows_recovers_the_parameters():
         assert (got.weight[door, 0, 0, 0, :1] - truth.weight[door, 0, 0, 0, :1]).abs().max() < 0.1
     assert (got.covariance > 0).all()
     lg = fitted["param.force"]
-    assert isinstance(lg, LinearGaussian)
+    assert isinstance(lg, LinearGaussianParams)
     assert (lg.bias - params["param.force"].bias).abs().max() < 0.05
 
 
