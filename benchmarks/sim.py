@@ -46,7 +46,7 @@ from sim2d import can_dataset, materials
 from sim2d.configurations import stable_configurations
 from sim2d.executors import default_spec
 from sim2d.field_throws import aim_offset, aim_seed, is_throwable, launch_state, outcome_of
-from sim2d.world import simulate
+from sim2d.world import run_ball
 
 GOAL_SPEEDUP = 3.0
 GOAL_FULL_SECONDS = 90.0  # on 2 cores
@@ -82,7 +82,7 @@ def sample(n: int, seed: int) -> tuple[list, int, int]:
 def run(throws, variant: dict) -> tuple[float, list]:
     """CPU seconds to simulate ``throws`` and their outcomes."""
     start = time.process_time()
-    outcomes = [outcome_of(c, simulate(c, p, v, **variant)) for c, p, v in throws]
+    outcomes = [outcome_of(c, run_ball(c, p, v, **variant)) for c, p, v in throws]
     return time.process_time() - start, outcomes
 
 

@@ -42,7 +42,7 @@ from experiments.config import (
 from inference.queries.planning import exact_plan, policy_value
 from sim2d import field_throws, geometry
 from sim2d.can_dataset import generate_dataset, load_dataset
-from sim2d.combined import TABLE_TOP_Z, explore
+from sim2d.combined import TABLE_TOP_Z, reachable_throws
 from sim2d.configurations import stable_configurations
 from sim2d.executors import open_executor
 from sim2d.throw import TARGET_AREA
@@ -177,14 +177,14 @@ def robot_throws(
     progress: bool = True,
 ) -> dict[int, np.ndarray]:
     """The robot's exact throws at every face height from every state reachable from the
-    full pyramid within ``horizon - 1`` throws (:func:`sim2d.combined.explore`).
+    full pyramid within ``horizon - 1`` throws (:func:`sim2d.combined.reachable_throws`).
 
     Saved under ``data_dir`` in a folder named by the arguments, so every experiment that
     asks for the same throws (the combined bound here, :mod:`experiments.all_goals`)
     shares them; resumed when interrupted. ``{state: (heights, repeats) next states}``.
     """
     name = f"robot_throws_{table_z}_{step}_{jitter}_{repeats}_seed{seed}"
-    return explore(
+    return reachable_throws(
         Path(data_dir) / name, geometry.FULL_PYRAMID, depth=horizon, table_z=table_z,
         step=step, repeats=repeats, jitter=jitter, seed=seed, executor=executor,
         progress=progress,

@@ -25,6 +25,7 @@ import numpy as np
 import torch
 
 from models.declaration import Discrete, EffectNetwork
+from models.deprecation import renamed
 from models.evidence import Evidence
 
 N_FIELDS = 195
@@ -68,10 +69,10 @@ def can_rows(
     return net.encode_indices(
         {
             "initial.config": config_index(net, start_config),
-            "initial.count": torch.as_tensor(count(start_config)),
+            "initial.count": torch.as_tensor(n_cans(start_config)),
             "action": torch.as_tensor(field),
             "end.config": config_index(net, end_config),
-            "end.count": torch.as_tensor(count(end_config)),
+            "end.count": torch.as_tensor(n_cans(end_config)),
         }
     )
 
@@ -88,9 +89,14 @@ def config_index(net: EffectNetwork, masks: np.ndarray) -> torch.Tensor:
     return torch.as_tensor(index)
 
 
-def count(masks: np.ndarray) -> np.ndarray:
+def n_cans(masks: np.ndarray) -> np.ndarray:
     """Number of standing cans in each mask."""
     masks = np.asarray(masks, dtype=np.int64)
     return np.array([bin(int(m)).count("1") for m in masks.reshape(-1)], dtype=np.int64).reshape(
         masks.shape
     )
+
+
+__getattr__ = renamed(
+    __name__, {"count": "n_cans"}, "count is the network's feature; n_cans the function"
+)

@@ -72,7 +72,7 @@ from sim2d.configurations import SETTLE_TIME, STABLE_TOLERANCE, stable_configura
 from sim2d.executors import parse_spec
 from sim2d.field_throws import aim_offset, aim_seed, is_throwable, launch_state, outcome_of
 from sim2d.validation import as_int, check_index
-from sim2d.world import simulate
+from sim2d.world import run_ball
 
 __all__ = ["FORMAT_VERSION", "CanDataset", "generate_dataset", "load_dataset"]
 
@@ -144,7 +144,7 @@ def _simulate_chunk(rows: np.ndarray, jitter: float, seed: int) -> dict[str, np.
             continue
         out["throwable"][k] = True
         position, velocity = launch_state(fld, angle, offset=aim_offset(jitter, row_seed))
-        outcome = outcome_of(config, simulate(config, position, velocity))
+        outcome = outcome_of(config, run_ball(config, position, velocity))
         out["end_config"][k] = outcome.end_config
         out["thrown_off"][k] = outcome.thrown_off
         out["count_after"][k] = outcome.count_after

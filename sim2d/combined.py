@@ -186,7 +186,7 @@ def throws_from(
     return {"heights": heights, "next_states": next_states}
 
 
-def explore(
+def reachable_throws(
     folder,
     start: int,
     *,

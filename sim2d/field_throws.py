@@ -10,7 +10,7 @@ line and the field cannot be thrown (:func:`is_throwable`). An aim error (the ji
 moves the field centre by a seeded, clipped normal offset (:func:`aim_offset`).
 
 :func:`play_ball` plays any ball state into a configuration; :func:`throw_at_field` is
-the throw at a field. Both simulate with :func:`sim2d.world.simulate` and read the
+the throw at a field. Both simulate with :func:`sim2d.world.run_ball` and read the
 outcome off the end state with the outcome rule: a can is thrown off when, at the end,
 it moved more than ``THROWN_OFF_VERTICAL`` (1 cm) vertically or more than
 ``THROWN_OFF_HORIZONTAL`` (10 cm) horizontally from its start, or left the scene. The
@@ -39,7 +39,7 @@ from sim2d.geometry import (
     mask_to_cans,
 )
 from sim2d.validation import as_int, check_index, check_vector
-from sim2d.world import Run, simulate
+from sim2d.world import Run, run_ball
 
 __all__ = [
     "ThrowOutcome",
@@ -255,7 +255,7 @@ def play_ball(config: int, position, velocity) -> ThrowOutcome:
     position = check_vector(position, "position")
     velocity = check_vector(velocity, "velocity")
     check_ball_position(config, position)
-    return outcome_of(config, simulate(config, position, velocity))
+    return outcome_of(config, run_ball(config, position, velocity))
 
 
 def field_launch(config, field, angle, jitter, seed) -> tuple[int, np.ndarray, np.ndarray]:
@@ -300,4 +300,4 @@ def throw_at_field(
         an unthrowable action (:func:`is_throwable`), or a negative or non-finite jitter.
     """
     config, position, velocity = field_launch(config, field, angle, jitter, seed)
-    return outcome_of(config, simulate(config, position, velocity))
+    return outcome_of(config, run_ball(config, position, velocity))

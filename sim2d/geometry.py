@@ -29,7 +29,7 @@ Can indices run row by row from the bottom, and within a row from the near side
 - ``FAR_FLANK = (3, 6, 8, 9)``: the far diagonal edge, bottom to top.
 
 A configuration is a subset of the ten cans, written as a 10-bit int mask (bit i set:
-can i stands at its standard position); :func:`count` is its number of cans. Which
+can i stands at its standard position); :func:`n_cans` is its number of cans. Which
 subsets are physically possible is decided by simulation in :mod:`sim2d.configurations`.
 
 An action is a field and an angle. The fields are a grid of 15 columns x 13 rows over
@@ -73,7 +73,7 @@ __all__ = [
     "can_positions",
     "cans_to_mask",
     "check_mask",
-    "count",
+    "n_cans",
     "field_centres",
     "mask_to_cans",
 ]
@@ -181,6 +181,6 @@ def cans_to_mask(cans) -> int:
     return mask
 
 
-def count(mask: int) -> int:
+def n_cans(mask: int) -> int:
     """Number of cans in a configuration mask."""
     return check_mask(mask).bit_count()

@@ -13,7 +13,7 @@ import numpy as np
 
 from sim2d import materials as m
 from sim2d.field_throws import ThrowOutcome, field_launch, outcome_of
-from sim2d.world import simulate
+from sim2d.world import run_ball
 
 __all__ = ["ThrowRecording", "record_throw"]
 
@@ -65,7 +65,7 @@ def record_throw(
         raise ValueError(f"frame_interval={frame_interval!r} is invalid; expected seconds > 0")
     config, position, velocity = field_launch(config, field, angle, jitter, seed)
     frames: list[tuple[int, np.ndarray, np.ndarray]] = []
-    run = simulate(
+    run = run_ball(
         config,
         position,
         velocity,

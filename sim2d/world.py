@@ -1,7 +1,7 @@
 """The pymunk world of the cans and its stepping: table, cans, ball, stopping rules.
 
 :func:`new_space` builds the table top, :func:`add_cans` a configuration's cans at their
-standard positions and :func:`add_ball` the ball; :func:`simulate` runs one ball state
+standard positions and :func:`add_ball` the ball; :func:`run_ball` runs one ball state
 against a configuration with the fixed step until a stopping rule fires and returns
 what is left (:class:`Run`). It is the only simulation loop of a ball in the can world.
 
@@ -29,7 +29,7 @@ additions and removals, post-step callbacks) than in the C step for this small w
 Between checks nothing is added or removed and no callback changes the space, so the
 loop calls pymunk's C step (``cpSpaceStep`` through pymunk's cffi binding) and reads
 body states through the same binding. The results are the same numbers, bit for bit:
-``simulate(..., reference=True)`` runs the same loop through the public API, and the
+``run_ball(..., reference=True)`` runs the same loop through the public API, and the
 tests compare the two.
 """
 
@@ -66,7 +66,7 @@ __all__ = [
     "add_cans",
     "clear_miss",
     "new_space",
-    "simulate",
+    "run_ball",
 ]
 
 BALL_TYPE, CAN_TYPE = 1, 2  # pymunk collision types
@@ -78,7 +78,7 @@ FrameCallback = Callable[[int, np.ndarray, np.ndarray], None]
 
 @dataclass(frozen=True)
 class Run:
-    """What one run of :func:`simulate` left behind.
+    """What one run of :func:`run_ball` left behind.
 
     Attributes
     ----------
@@ -202,7 +202,7 @@ def clear_miss(
     semi-implicit Euler (each step the position moves by the velocity times the step, then
     gravity is added to the velocity), which is repeated here with the same floating-point
     operations in the same order, so the positions, the step at which a stopping rule
-    fires and hence the :class:`Run` are those :func:`simulate` would step to, bit for bit
+    fires and hence the :class:`Run` are those :func:`run_ball` would step to, bit for bit
     (tested against the public API). The answer is None when at any step up to the end
     the ball comes within ``CLEAR_MARGIN`` of a can of ``config`` or of the table top.
     """
@@ -213,7 +213,7 @@ def clear_miss(
         )
     dt, every = stepping.time_step, m.CHECK_EVERY
     max_steps = round(m.MAX_SIM_TIME / dt)
-    checks = -(-max_steps // every)  # simulate checks every `every` steps from `every` on
+    checks = -(-max_steps // every)  # run_ball checks every `every` steps from `every` on
     n = checks * every
     # pymunk's integration: x_{k+1} = x_k + vx dt, vz_{k+1} = vz_k + (-g) dt, z_{k+1} =
     # z_k + vz_k dt; np.add.accumulate adds left to right, one addition at a time.
@@ -277,7 +277,7 @@ def _binding_api(space: pymunk.Space):
     )
 
 
-def simulate(
+def run_ball(
     config: int,
     position,
     velocity,

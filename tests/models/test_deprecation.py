@@ -43,3 +43,15 @@ def test_an_unknown_name_is_an_attribute_error():
         fallback("Tabel")
     with pytest.raises(AttributeError):
         importlib.import_module("models").Tabel  # noqa: B018
+
+
+def test_the_can_networks_count_function_is_n_cans():
+    import numpy as np
+
+    from models import can_network
+
+    masks = np.array([[0, 1], [0b1011, 1023]])
+    assert can_network.n_cans(masks).tolist() == [[0, 1], [3, 10]]
+    with pytest.warns(DeprecationWarning, match="n_cans"):
+        old = can_network.count
+    assert old is can_network.n_cans

@@ -80,11 +80,13 @@ def test_exact_throws_hit_the_heights_they_aim_at():
 
 
 def test_explore_covers_every_state_its_throws_reach_and_resumes(tmp_path):
-    from sim2d.combined import explore, throws_from
+    from sim2d.combined import reachable_throws, throws_from
 
     kw = dict(depth=2, step=0.05, repeats=2, jitter=0.003, seed=5)
     serial = InlineExecutor()
-    out = explore(tmp_path / "x", geometry.FULL_PYRAMID, executor=serial, progress=False, **kw)
+    out = reachable_throws(
+        tmp_path / "x", geometry.FULL_PYRAMID, executor=serial, progress=False, **kw
+    )
     full = out[geometry.FULL_PYRAMID]
     assert np.array_equal(
         full, throws_from(geometry.FULL_PYRAMID, TABLE_TOP_Z, 0.05, 2, 0.003, 5)["next_states"]
@@ -95,7 +97,9 @@ def test_explore_covers_every_state_its_throws_reach_and_resumes(tmp_path):
     }
     assert serial.submitted == len(out)
     again = InlineExecutor()
-    same = explore(tmp_path / "x", geometry.FULL_PYRAMID, executor=again, progress=False, **kw)
+    same = reachable_throws(
+        tmp_path / "x", geometry.FULL_PYRAMID, executor=again, progress=False, **kw
+    )
     assert again.submitted == 0 and set(same) == set(out)
     assert all(np.array_equal(same[s], out[s]) for s in out)
     # finished, it is usable in a read-only folder (no lock can be created there)
@@ -109,18 +113,20 @@ def test_explore_covers_every_state_its_throws_reach_and_resumes(tmp_path):
     before = sorted(tmp_path.rglob("*"))
     with pytest.MonkeyPatch.context() as patch:
         patch.setattr(os, "open", read_only)
-        read = explore(tmp_path / "x", geometry.FULL_PYRAMID, executor=again, progress=False, **kw)
+        read = reachable_throws(
+            tmp_path / "x", geometry.FULL_PYRAMID, executor=again, progress=False, **kw
+        )
     assert again.submitted == 0 and all(np.array_equal(read[s], out[s]) for s in out)
     assert sorted(tmp_path.rglob("*")) == before
 
 
 def test_explore_refuses_bad_arguments(tmp_path):
-    from sim2d.combined import explore
+    from sim2d.combined import reachable_throws
 
     with pytest.raises(ValueError, match="depth"):
-        explore(tmp_path, geometry.FULL_PYRAMID, depth=0)
+        reachable_throws(tmp_path, geometry.FULL_PYRAMID, depth=0)
     with pytest.raises(ValueError, match="not a physically possible"):
-        explore(tmp_path, geometry.cans_to_mask([9]), depth=1)
+        reachable_throws(tmp_path, geometry.cans_to_mask([9]), depth=1)
 
 
 def test_play_policy_stops_at_the_goal_and_replays_with_its_seed():

@@ -97,7 +97,7 @@ def test_outcome_invariants(config, fld, seed):
     o = field_throws.throw_at_field(config, fld, 1, jitter=0.003, seed=seed)
     assert o.start_config == config
     assert o.end_config | o.thrown_off == config and o.end_config & o.thrown_off == 0
-    assert o.count_before == geometry.count(config) and o.count_after == geometry.count(
+    assert o.count_before == geometry.n_cans(config) and o.count_after == geometry.n_cans(
         o.end_config
     )
     assert o.touched & ~config == 0 and o.hit_any_can == bool(o.touched)

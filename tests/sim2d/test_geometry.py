@@ -67,4 +67,4 @@ def test_field_centres_grid():
 def test_mask_round_trip(members):
     mask = geometry.cans_to_mask(members)
     assert geometry.mask_to_cans(mask) == tuple(sorted(members))
-    assert geometry.count(mask) == len(members)
+    assert geometry.n_cans(mask) == len(members)

@@ -10,7 +10,7 @@ from hypothesis import strategies as st
 
 from sim2d import field_throws, geometry, materials, recording
 from sim2d.configurations import stable_configurations
-from sim2d.world import clear_miss, simulate
+from sim2d.world import clear_miss, run_ball
 
 #: The current step and solver iterations with the cans asleep until touched.
 ASLEEP = materials.Stepping(materials.TIME_STEP, materials.SOLVER_ITERATIONS, start_asleep=True)
@@ -80,8 +80,8 @@ def test_stepping_through_the_binding_equals_the_public_api(
     offset = field_throws.aim_offset(0.003, seed)
     position, velocity = field_throws.launch_state(fld, angle, offset=offset)
     rules = {"stopping": stopping, "stepping": stepping}
-    fast = simulate(config, position, velocity, **rules)
-    reference = simulate(config, position, velocity, **rules, reference=True)
+    fast = run_ball(config, position, velocity, **rules)
+    reference = run_ball(config, position, velocity, **rules, reference=True)
     assert np.array_equal(fast.end_positions, reference.end_positions, equal_nan=True)
     assert (fast.removed, fast.touched, fast.steps, fast.timed_out) == (
         reference.removed, reference.touched, reference.steps, reference.timed_out
@@ -90,7 +90,7 @@ def test_stepping_through_the_binding_equals_the_public_api(
 
 def test_a_can_on_the_table_falls_asleep_and_a_settled_pyramid_stops():
     """A ball that rolls away beyond every can ends the run long before the cap."""
-    run = simulate(geometry.FULL_PYRAMID, (geometry.ENTRY_X, 0.3), (7.0, 0.0))
+    run = run_ball(geometry.FULL_PYRAMID, (geometry.ENTRY_X, 0.3), (7.0, 0.0))
     assert run.touched and not run.timed_out
     assert run.steps * materials.TIME_STEP < materials.MAX_SIM_TIME
 
@@ -112,13 +112,13 @@ def test_a_body_removed_at_the_scene_margin_has_moved_enough_to_be_thrown_off():
 )
 def test_cans_that_start_asleep_stand_exactly_still_until_touched(config, height):
     """A ball flying over the pyramid leaves every can exactly where it stood."""
-    run = simulate(config, (geometry.ENTRY_X, height), (7.0, 0.0), stepping=ASLEEP)
+    run = run_ball(config, (geometry.ENTRY_X, height), (7.0, 0.0), stepping=ASLEEP)
     assert not run.touched and not run.removed and not run.timed_out
     cans = list(geometry.mask_to_cans(config))
     assert np.array_equal(run.end_positions[cans], geometry.can_positions()[cans])
     # awake from the start, the same cans sink into their contacts instead
     if config:
-        awake = simulate(
+        awake = run_ball(
             config, (geometry.ENTRY_X, height), (7.0, 0.0), stepping=materials.STEPPING
         )
         assert not np.array_equal(awake.end_positions[cans], geometry.can_positions()[cans])
@@ -127,7 +127,7 @@ def test_cans_that_start_asleep_stand_exactly_still_until_touched(config, height
 def test_a_touch_wakes_the_whole_pyramid():
     """The ball nudges only the near bottom can (0.1 m/s), yet the top can moves too, and
     every other can ends at rest within a millimetre of its place."""
-    run = simulate(geometry.FULL_PYRAMID, (geometry.ENTRY_X, 0.07), (0.1, 0.0), stepping=ASLEEP)
+    run = run_ball(geometry.FULL_PYRAMID, (geometry.ENTRY_X, 0.07), (0.1, 0.0), stepping=ASLEEP)
     assert run.touched == 1 and not run.removed and not run.timed_out
     moved = np.abs(run.end_positions - geometry.can_positions())
     assert np.all(moved[9] > 0) and np.all(moved[1:] < 1e-3)
@@ -148,7 +148,7 @@ def test_a_clear_miss_without_pymunk_is_the_simulated_run_bit_for_bit(config, he
     except ValueError:
         return  # the ball starts inside a can
     run = clear_miss(config, position, velocity, stepping=ASLEEP)
-    reference = simulate(config, position, velocity, stepping=ASLEEP, reference=True)
+    reference = run_ball(config, position, velocity, stepping=ASLEEP, reference=True)
     if run is None:
         return
     assert np.array_equal(run.end_positions, reference.end_positions, equal_nan=True)
