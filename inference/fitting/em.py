@@ -73,19 +73,18 @@ import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
 
-import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from inference.fitting.fit import (
-    ConvergenceWarning,
-    FitResult,
-    _check_settings,
-    _complete,
+from inference.fitting.result import ConvergenceWarning, FitResult
+from inference.fitting.rows import (
+    check_settings,
     ignore_missing,
-    maximise_site,
+    mask_values,
+    missing_masks,
+    training_rows,
 )
-from inference.fitting.statistics import params_from_statistics, statistics
+from inference.fitting.statistics import maximise_site, params_from_statistics, statistics
 from inference.queries.enumeration import Enumerated, enumerate_model, row_chunks
 from models.cpds import Counts, LinearGaussianCPD, Moments, ParameterMixture, TableCPD
 from models.declaration import ACTION, EffectNetwork
@@ -171,7 +170,7 @@ def fit_em(
         On a bad setting, a network without adaptive parameters or outside the scope
         above, or rows :func:`fit` would refuse.
     """
-    _check_settings(pseudo_count=pseudo_count, min_variance=min_variance, steps=steps, tol=tol)
+    check_settings(pseudo_count=pseudo_count, min_variance=min_variance, steps=steps, tol=tol)
     start = time.perf_counter()
     mixtures = _adaptive(net)
     if not isinstance(data, Mapping):
@@ -179,7 +178,7 @@ def fit_em(
             f"data must be one mapping of rows (EM revisits them every step), got "
             f"{type(data).__name__}"
         )
-    enc = _complete(net, data)
+    enc = training_rows(net, data)
     if init is None:
         init = NetworkParams(
             params_from_statistics(net, statistics(net, enc), pseudo_count, min_variance),
@@ -216,10 +215,10 @@ def em_step(
 ) -> NetworkParams:
     """One EM step from ``params``: responsibilities under ``params``, then the weighted
     closed-form refit of every adaptive mixture's sites (the others are kept)."""
-    _check_settings(pseudo_count=pseudo_count, min_variance=min_variance)
+    check_settings(pseudo_count=pseudo_count, min_variance=min_variance)
     mixtures = _adaptive(net)
     check_params(net, params)
-    enc = _complete(net, data)
+    enc = training_rows(net, data)
     resp, _ = _e_step(net, params, enc, mixtures)
     return _m_step(net, params, enc, mixtures, resp, pseudo_count, min_variance)
 
@@ -231,7 +230,7 @@ def responsibilities(
     value and the features it acts on (keyed by parameter name)."""
     mixtures = _adaptive(net)
     check_params(net, params)
-    resp, _ = _e_step(net, params, _complete(net, data), mixtures)
+    resp, _ = _e_step(net, params, training_rows(net, data), mixtures)
     return {m.parameter.name: r.T for m, r in zip(mixtures, resp, strict=True)}
 
 
@@ -241,7 +240,7 @@ def mixture_log_likelihood(
     """The mean per-row log-likelihood :func:`fit_em` reports for ``params``."""
     mixtures = _adaptive(net)
     check_params(net, params)
-    return _e_step(net, params, _complete(net, data), mixtures)[1]
+    return _e_step(net, params, training_rows(net, data), mixtures)[1]
 
 
 # ---------------------------------------------------------------------------- internals
@@ -509,8 +508,8 @@ def fit_missing(
     optimum): a step that would is not taken, and the fit ends there as converged, so the
     curve never rises.
     """
-    _check_settings(pseudo_count=pseudo_count, min_variance=min_variance, steps=steps, tol=tol)
-    masks = _missing_masks(net, masks, enc.n_rows)
+    check_settings(pseudo_count=pseudo_count, min_variance=min_variance, steps=steps, tol=tol)
+    masks = missing_masks(net, masks, enc.n_rows)
     allowed = _actions_allowed(net, enc, masks)
     n = enc.n_rows
     params = init
@@ -553,78 +552,10 @@ def missing_log_likelihood(
     ``masks``), those values summed out: what :func:`fit_missing` raises."""
     check_params(net, params)
     unknown = masks.get(ACTION)
-    unknown = None if unknown is None else ~_mask_values(ACTION, unknown)
-    enc = _complete(net, ignore_missing(net, data, masks), unknown)
-    masks = _missing_masks(net, masks, enc.n_rows)
+    unknown = None if unknown is None else ~mask_values(ACTION, unknown)
+    enc = training_rows(net, ignore_missing(net, data, masks), unknown)
+    masks = missing_masks(net, masks, enc.n_rows)
     return _completed_rows(net, params, enc, masks, _actions_allowed(net, enc, masks))[2]
-
-
-def _missing_masks(
-    net: EffectNetwork, masks: Mapping[str, torch.Tensor], n: int | None
-) -> dict[str, torch.Tensor]:
-    """The masks with gaps, after checking that the completed rows have a closed form
-    (``n``: the rows, or ``None`` to check before the rows are read)."""
-    out = {}
-    for site, mask in masks.items():
-        spec = _mask_site(net, site)
-        mask = _mask_values(site, mask)
-        if not spec.discrete or (n is not None and mask.shape[0] != n):
-            kind = "discrete" if spec.discrete else "continuous"
-            raise ValueError(
-                f"masks[{site!r}] must be {f'({n},) ' if n is not None else ''}bool for a "
-                f"discrete site; got shape {tuple(mask.shape)} for a {kind} one"
-            )
-        if bool(mask.all()):
-            continue
-        if spec.role == "cluster":
-            raise ValueError(
-                f"masks[{site!r}]: a parameter's cluster is its value's cell, never missing "
-                "on its own; give the parameter's value, or NaN where the action ignores it"
-            )
-        out[site] = mask
-    unfit = [
-        s.name
-        for s in net.sites
-        if not net.cpd(s.name).closed_form
-        and not callable(getattr(net.cpd(s.name), "maximise", None))
-    ]
-    if out and unfit:
-        raise ValueError(
-            f"sites {unfit} have neither a closed form nor a maximise method: EM over "
-            "missing values has no M-step for them"
-        )
-    return out
-
-
-def _mask_site(net: EffectNetwork, site: object):
-    """The site a mask is given for; a ``ValueError`` naming it if there is no such site."""
-    names = [s.name for s in net.sites]
-    if site not in names:
-        raise ValueError(f"masks[{site!r}]: no such site; the network's sites are {names}")
-    return net.site(site)
-
-
-def _mask_values(site: str, mask: object) -> torch.Tensor:
-    """A mask as a flat bool tensor: bools, or the numbers 0 and 1; anything else (a
-    fraction, NaN) is a ``ValueError`` naming the site."""
-    if not isinstance(mask, torch.Tensor):
-        mask = np.asarray(mask)
-        if mask.dtype == object or mask.dtype.kind not in "biuf":
-            raise ValueError(
-                f"masks[{site!r}] must hold bools (False where missing), got dtype {mask.dtype}"
-            )
-        mask = torch.from_numpy(mask)
-    if mask.dim() > 1:
-        raise ValueError(
-            f"masks[{site!r}] must be one bool per row, shape (n,), got shape {tuple(mask.shape)}"
-        )
-    if mask.dtype != torch.bool:
-        if mask.is_complex() or not bool(((mask == 0) | (mask == 1)).all()):
-            raise ValueError(
-                f"masks[{site!r}] must hold bools (False where missing) or 0/1, got values "
-                f"other than 0 and 1"
-            )
-    return mask.to(torch.bool).reshape(-1)
 
 
 def _actions_allowed(net: EffectNetwork, enc: Evidence, masks) -> torch.Tensor | None:
