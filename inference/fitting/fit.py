@@ -10,7 +10,7 @@ defines:
   multinomial logistic regression, solved by Newton's method
   (:meth:`models.cpds.SoftmaxCPD.maximise`). When some rows miss a discrete value
   (``masks``), EM with exact E-steps maximises the marginal likelihood, the missing
-  values summed out (:func:`inference.fitting.em.fit_missing`).
+  values summed out (:func:`inference.fitting.missing.fit_missing`).
 * :func:`fit_gradient` -- ``TraceEnum_ELBO`` with an empty guide, minimised by L-BFGS
   (Adam with gaps) on tensors local to the call (Pyro's global parameter store is left
   alone): with no latent continuous sites, the ELBO *is* the (marginal) log-likelihood.
@@ -49,7 +49,7 @@ import torch
 from pyro.infer import TraceEnum_ELBO
 from tqdm.auto import tqdm
 
-from inference.fitting.em import fit_missing
+from inference.fitting.missing import fit_missing
 from inference.fitting.result import ConvergenceWarning, FitResult
 from inference.fitting.rows import (
     check_settings,
@@ -113,7 +113,7 @@ def fit(
     masks
         ``(n,)`` bool per discrete site, False where the row's value is missing (the
         row's value there is ignored). With gaps the fit is EM (see
-        :func:`inference.fitting.em.fit_missing`), started from the closed form on the rows
+        :func:`inference.fitting.missing.fit_missing`), started from the closed form on the rows
         that miss nothing; ``FitResult.losses`` is its per-row negative log-likelihood
         (missing values summed out) at the start and after each step, never rising.
     steps, lr, l2, tol, progress

@@ -125,3 +125,10 @@ def test_fitting_and_design_import_at_the_top(folder):
                     if isinstance(inner, ast.Import | ast.ImportFrom)
                 ]
     assert offenders == []
+
+
+@pytest.mark.parametrize("folder", ["fitting", "design"])
+def test_fitting_and_design_rooms_stay_small(folder):
+    """One concept per module: none above 600 lines."""
+    sizes = {p.name: len(p.read_text().splitlines()) for p in (PACKAGE / folder).glob("*.py")}
+    assert sizes and max(sizes.values()) <= 600, sizes
