@@ -375,7 +375,7 @@ def fit_gradient(
             return loss
 
         optimiser.step(closure)
-        state = optimiser.state[optimiser._params[0]]
+        state = optimiser.state[optimiser.param_groups[0]["params"][0]]  # LBFGS keeps it there
         iterations = state.get("n_iter", steps)
         exhausted = iterations >= steps or state.get("func_evals", 0) >= steps * 5 // 4
         bar.update(min(iterations, steps))
