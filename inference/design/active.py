@@ -64,7 +64,7 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from inference.fitting.fit import _check_settings
+from inference.fitting.rows import check_settings
 from models.cpds.table import TableCPD, normalised
 from models.declaration import ACTION, EffectNetwork
 from models.evidence import DTYPE, Evidence
@@ -246,7 +246,7 @@ def explore(
         A tqdm bar over the candidates chosen.
     """
     _check_network(net)
-    _check_settings(pseudo_count=pseudo_count, prior_strength=prior_strength)
+    check_settings(pseudo_count=pseudo_count, prior_strength=prior_strength)
     if strategy not in STRATEGIES:
         raise ValueError(f"strategy must be one of {STRATEGIES}, got {strategy!r}")
     if strategy != "random" and pseudo_count == 0:

@@ -22,7 +22,7 @@ from collections.abc import Mapping
 
 import torch
 
-from inference.fitting.fit import _complete
+from inference.fitting.rows import training_rows
 from inference.fitting.statistics import statistics
 from models.declaration import ACTION, EffectNetwork
 from models.evidence import DTYPE
@@ -75,7 +75,7 @@ def regression_information(
 def _information(net, parameter, data, candidates, prior_precision):
     if not (isinstance(prior_precision, int | float) and prior_precision > 0):
         raise ValueError(f"prior_precision must be a number > 0, got {prior_precision!r}")
-    enc = _complete(net, data)
+    enc = training_rows(net, data)
     cpd = net.cpd(net.mixture(parameter).child)
     zz = statistics(net, enc).sites[cpd.site].zz.clone()  # (G, q, q)
     zz += prior_precision * torch.eye(zz.shape[-1], dtype=DTYPE)

@@ -1,8 +1,9 @@
-"""Expectation-maximisation: adaptive parameter clusters, and missing discrete values.
+"""Expectation-maximisation for adaptive parameter clusters.
 
-Both latent variables are discrete, so both E-steps are exact posteriors and both
-M-steps are the closed form on posterior-weighted statistics (the last section covers
-missing values).
+The cluster is a discrete latent variable, so the E-step is an exact posterior and the
+M-step the closed form on posterior-weighted statistics. EM over missing discrete values,
+the other latent variables it serves, is :mod:`inference.fitting.missing`
+(:func:`fit_missing` and :func:`missing_log_likelihood` are re-exported here).
 
 Under the paper's grid layout a parameter's cluster *is* its value's equidistant cell,
 so :func:`inference.fit` files every row under one cluster and fits each cell's
@@ -42,58 +43,28 @@ The queries of an EM-fitted network stay exact: the inverse query enumerates the
 clusters (their posterior given the effect) and conditions the best cluster's Gaussian,
 and the Pyro model is a plain mixture (:mod:`models.model`), so ``Predictive`` and
 ``TraceEnum_ELBO`` mean what they say.
-
-**Missing discrete values** (:func:`fit_missing`, what :func:`inference.fit` runs when
-``masks`` leave gaps) are the other latent variables EM serves. The E-step is exact: the
-Pyro model, traced under enumeration with the masked values latent
-(:func:`inference.enumerate_model`), gives each row's joint posterior over its missing
-values and its log-likelihood with them summed out. Each row then stands for one
-completed row per assignment of its missing values, weighted by that assignment's
-posterior, and the M-step is the closed form on the weighted statistics of the completed
-rows (:func:`inference.fitting.statistics.statistics` with ``weights``) -- exactly the expected
-sufficient statistics -- and, for a CPD without a closed form (softmax), its own
-weighted maximisation (Newton's method from the current parameters). Continuous values
-are never missing, so the pooled statistics behind the pseudo-count policy do not change
-between steps.
-
-A missing action in a network with parameters: a training row gives a parameter's value
-exactly when its action uses the parameter (:func:`inference.fit` refuses a row that
-breaks the rule where the action is given), so where the action is missing, the
-presence of each value is evidence of it. The E-step keeps the actions that use exactly
-the parameters the row gives (the model's joint weight of the others is set to zero),
-and each completed row's clusters are its values' cells under its action. A row that no
-action agrees with (a value missing where every action would use it) is refused.
 """
 
 from __future__ import annotations
 
 import math
 import time
-import warnings
 from collections.abc import Mapping
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
-import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from inference.fitting.fit import (
-    ConvergenceWarning,
-    FitResult,
-    _check_settings,
-    _complete,
-    ignore_missing,
-    maximise_site,
-)
+from inference.fitting.missing import fit_missing, missing_log_likelihood
+from inference.fitting.rows import check_settings, training_rows
 from inference.fitting.statistics import params_from_statistics, statistics
-from inference.queries.enumeration import Enumerated, enumerate_model, row_chunks
 from models.cpds import Counts, LinearGaussianCPD, Moments, ParameterMixture, TableCPD
 from models.declaration import ACTION, EffectNetwork
 from models.evidence import DTYPE, Evidence
 from models.gaussian import quadratic_features
 from models.params import NetworkParams, check_params
 
-__all__ = [
+__all__ = [  # fit_missing and missing_log_likelihood live in inference.fitting.missing
     "EMResult",
     "em_step",
     "fit_em",
@@ -171,7 +142,7 @@ def fit_em(
         On a bad setting, a network without adaptive parameters or outside the scope
         above, or rows :func:`fit` would refuse.
     """
-    _check_settings(pseudo_count=pseudo_count, min_variance=min_variance, steps=steps, tol=tol)
+    check_settings(pseudo_count=pseudo_count, min_variance=min_variance, steps=steps, tol=tol)
     start = time.perf_counter()
     mixtures = _adaptive(net)
     if not isinstance(data, Mapping):
@@ -179,7 +150,7 @@ def fit_em(
             f"data must be one mapping of rows (EM revisits them every step), got "
             f"{type(data).__name__}"
         )
-    enc = _complete(net, data)
+    enc = training_rows(net, data)
     if init is None:
         init = NetworkParams(
             params_from_statistics(net, statistics(net, enc), pseudo_count, min_variance),
@@ -216,10 +187,10 @@ def em_step(
 ) -> NetworkParams:
     """One EM step from ``params``: responsibilities under ``params``, then the weighted
     closed-form refit of every adaptive mixture's sites (the others are kept)."""
-    _check_settings(pseudo_count=pseudo_count, min_variance=min_variance)
+    check_settings(pseudo_count=pseudo_count, min_variance=min_variance)
     mixtures = _adaptive(net)
     check_params(net, params)
-    enc = _complete(net, data)
+    enc = training_rows(net, data)
     resp, _ = _e_step(net, params, enc, mixtures)
     return _m_step(net, params, enc, mixtures, resp, pseudo_count, min_variance)
 
@@ -231,7 +202,7 @@ def responsibilities(
     value and the features it acts on (keyed by parameter name)."""
     mixtures = _adaptive(net)
     check_params(net, params)
-    resp, _ = _e_step(net, params, _complete(net, data), mixtures)
+    resp, _ = _e_step(net, params, training_rows(net, data), mixtures)
     return {m.parameter.name: r.T for m, r in zip(mixtures, resp, strict=True)}
 
 
@@ -241,7 +212,7 @@ def mixture_log_likelihood(
     """The mean per-row log-likelihood :func:`fit_em` reports for ``params``."""
     mixtures = _adaptive(net)
     check_params(net, params)
-    return _e_step(net, params, _complete(net, data), mixtures)[1]
+    return _e_step(net, params, training_rows(net, data), mixtures)[1]
 
 
 # ---------------------------------------------------------------------------- internals
@@ -478,267 +449,3 @@ def _moments(group, r, x, y, groups) -> Moments:
     zz, zy, yy = sums.split([q * q, q * d, d * d], -1)
     rows = _weighted_sums(group, r, torch.ones(n, 1, dtype=DTYPE), groups)[:, 0]
     return Moments(zz.reshape(-1, q, q), zy.reshape(-1, q, d), yy.reshape(-1, d, d), rows)
-
-
-# ---------------------------------------------------------------- missing discrete values
-def fit_missing(
-    net: EffectNetwork,
-    enc: Evidence,
-    masks: Mapping[str, torch.Tensor],
-    *,
-    init: NetworkParams,
-    pseudo_count: float = 0.01,
-    min_variance: float = 1e-6,
-    l2: float = 0.01,
-    steps: int = 500,
-    tol: float = 1e-6,
-    progress: bool = False,
-) -> FitResult:
-    """Maximum likelihood with missing discrete values, by EM with exact E-steps.
-
-    ``enc``: complete, checked rows (:func:`inference.fit`'s), whatever they hold where a
-    value is missing; ``masks``: ``(n,)`` bool per discrete site, False where the row's
-    value is missing; ``init``: the start (``fit`` gives the closed form on the complete
-    rows). At most ``steps`` EM steps; the fit has converged when a step lowers the
-    per-row loss by less than ``tol`` (relative). ``l2``: the softmax slopes' prior.
-
-    ``FitResult.losses``: the per-row negative log-likelihood, the missing values summed
-    out (a missing action over the actions that agree with the row's parameter values,
-    see the module) and the softmax prior included, at the start and after each step. EM cannot raise
-    it (with ``pseudo_count = 0``; a pseudo-count's prior can ask for a hair more near the
-    optimum): a step that would is not taken, and the fit ends there as converged, so the
-    curve never rises.
-    """
-    _check_settings(pseudo_count=pseudo_count, min_variance=min_variance, steps=steps, tol=tol)
-    masks = _missing_masks(net, masks, enc.n_rows)
-    allowed = _actions_allowed(net, enc, masks)
-    n = enc.n_rows
-    params = init
-    expanded, weights, log_lik = _completed_rows(net, params, enc, masks, allowed)
-    curve = [(_prior(net, params, l2) - log_lik) / n]
-    converged = False
-    bar = tqdm(total=steps, desc="fit (EM, missing values)", disable=not progress)
-    for _ in range(steps):
-        proposal = _m_step_missing(net, params, expanded, weights, pseudo_count, min_variance, l2)
-        rows, w, log_lik = _completed_rows(net, proposal, enc, masks, allowed)
-        loss = (_prior(net, proposal, l2) - log_lik) / n
-        bar.update()
-        if not loss <= curve[-1]:  # a dip (a pseudo-count's prior), or NaN: stop before it
-            converged = True
-            break
-        params, expanded, weights = proposal, rows, w
-        curve.append(loss)
-        bar.set_postfix(loss=f"{loss:.6g}")
-        if curve[-2] - curve[-1] <= tol * max(1.0, abs(curve[-1])):
-            converged = True
-            break
-    bar.close()
-    if not converged:
-        warnings.warn(
-            f"EM over the missing values of {sorted(masks)} did not settle in {steps} steps "
-            f"(last relative gain of the log-likelihood above tol={tol:g}); raise steps",
-            ConvergenceWarning,
-            stacklevel=3,
-        )
-    return FitResult(params, tuple(curve), converged)
-
-
-def missing_log_likelihood(
-    net: EffectNetwork,
-    params: NetworkParams,
-    data: Mapping[str, object],
-    masks: Mapping[str, torch.Tensor],
-) -> float:
-    """The summed log-likelihood of rows with missing discrete values (False in
-    ``masks``), those values summed out: what :func:`fit_missing` raises."""
-    check_params(net, params)
-    unknown = masks.get(ACTION)
-    unknown = None if unknown is None else ~_mask_values(ACTION, unknown)
-    enc = _complete(net, ignore_missing(net, data, masks), unknown)
-    masks = _missing_masks(net, masks, enc.n_rows)
-    return _completed_rows(net, params, enc, masks, _actions_allowed(net, enc, masks))[2]
-
-
-def _missing_masks(
-    net: EffectNetwork, masks: Mapping[str, torch.Tensor], n: int | None
-) -> dict[str, torch.Tensor]:
-    """The masks with gaps, after checking that the completed rows have a closed form
-    (``n``: the rows, or ``None`` to check before the rows are read)."""
-    out = {}
-    for site, mask in masks.items():
-        spec = _mask_site(net, site)
-        mask = _mask_values(site, mask)
-        if not spec.discrete or (n is not None and mask.shape[0] != n):
-            kind = "discrete" if spec.discrete else "continuous"
-            raise ValueError(
-                f"masks[{site!r}] must be {f'({n},) ' if n is not None else ''}bool for a "
-                f"discrete site; got shape {tuple(mask.shape)} for a {kind} one"
-            )
-        if bool(mask.all()):
-            continue
-        if spec.role == "cluster":
-            raise ValueError(
-                f"masks[{site!r}]: a parameter's cluster is its value's cell, never missing "
-                "on its own; give the parameter's value, or NaN where the action ignores it"
-            )
-        out[site] = mask
-    unfit = [
-        s.name
-        for s in net.sites
-        if not net.cpd(s.name).closed_form
-        and not callable(getattr(net.cpd(s.name), "maximise", None))
-    ]
-    if out and unfit:
-        raise ValueError(
-            f"sites {unfit} have neither a closed form nor a maximise method: EM over "
-            "missing values has no M-step for them"
-        )
-    return out
-
-
-def _mask_site(net: EffectNetwork, site: object):
-    """The site a mask is given for; a ``ValueError`` naming it if there is no such site."""
-    names = [s.name for s in net.sites]
-    if site not in names:
-        raise ValueError(f"masks[{site!r}]: no such site; the network's sites are {names}")
-    return net.site(site)
-
-
-def _mask_values(site: str, mask: object) -> torch.Tensor:
-    """A mask as a flat bool tensor: bools, or the numbers 0 and 1; anything else (a
-    fraction, NaN) is a ``ValueError`` naming the site."""
-    if not isinstance(mask, torch.Tensor):
-        mask = np.asarray(mask)
-        if mask.dtype == object or mask.dtype.kind not in "biuf":
-            raise ValueError(
-                f"masks[{site!r}] must hold bools (False where missing), got dtype {mask.dtype}"
-            )
-        mask = torch.from_numpy(mask)
-    if mask.dim() > 1:
-        raise ValueError(
-            f"masks[{site!r}] must be one bool per row, shape (n,), got shape {tuple(mask.shape)}"
-        )
-    if mask.dtype != torch.bool:
-        if mask.is_complex() or not bool(((mask == 0) | (mask == 1)).all()):
-            raise ValueError(
-                f"masks[{site!r}] must hold bools (False where missing) or 0/1, got values "
-                f"other than 0 and 1"
-            )
-    return mask.to(torch.bool).reshape(-1)
-
-
-def _actions_allowed(net: EffectNetwork, enc: Evidence, masks) -> torch.Tensor | None:
-    """``(A, n)`` bool, where the action is missing in a network with parameters: the
-    actions that agree with the row's parameter values. A training row gives a
-    parameter's value exactly when its action uses the parameter (:func:`inference.fit`
-    checks it where the action is given), so where the action is missing the presence
-    of each value is evidence of it. ``None`` where there is nothing to restrict."""
-    if ACTION not in masks or not net.mixtures:
-        return None
-    missing = ~masks[ACTION]
-    allowed = torch.ones(len(net.actions), enc.n_rows, dtype=torch.bool)
-    for m in net.mixtures:
-        present = ~torch.isnan(enc[m.value.site]).any(-1)  # (n,)
-        agree = m.uses[:, None] == present[None, :]  # (A, n)
-        allowed &= agree | ~missing[None, :]
-        none = ~allowed.any(0)
-        if bool(none.any()):
-            row = int(none.nonzero()[0])
-            what = "gives" if bool(present[row]) else "gives no"
-            raise ValueError(
-                f"site {ACTION!r}: row {row} is missing and {what} a value of "
-                f"{m.value.site!r}, which no action agrees with (a row gives a parameter's "
-                "value exactly when its action uses the parameter)"
-            )
-    return allowed
-
-
-def _completed_rows(net, params, enc, masks, allowed=None) -> tuple[Evidence, torch.Tensor, float]:
-    """The E-step: every row once per assignment of its missing values that has posterior
-    weight, with that weight, and the summed log-likelihood (missing values summed out).
-    ``allowed`` (:func:`_actions_allowed`) restricts a missing action; the parameters'
-    clusters then follow each assignment's action (the cell of the value, or cell 0).
-    Rows go through the model in chunks whose joint posterior stays below
-    :data:`inference.queries.enumeration.CHUNK_ELEMENTS`."""
-    if not masks:
-        return enc, torch.ones(enc.n_rows, dtype=DTYPE), 0.0
-    size = math.prod(net.site(site).size for site in masks)
-    model_rows = enc
-    if allowed is not None:  # the clusters follow the action: the model derives them
-        model_rows = enc.without(*(m.cluster.site for m in net.mixtures))
-        size *= math.prod(m.cluster.size for m in net.mixtures)
-    parts, weights, log_lik = [], [], 0.0
-    for chunk in row_chunks(enc.n_rows, size):
-        rows = model_rows.rows(chunk)
-        chunk_masks = {s: m[chunk] for s, m in masks.items()}
-        enumerated = enumerate_model(net, params, rows, masks=chunk_masks)
-        assert set(masks) <= set(enumerated.dims), (enumerated.dims, list(masks))
-        if allowed is not None:
-            dim = enumerated.dims[ACTION]
-            agree = allowed[:, chunk].reshape(len(net.actions), *([1] * (-dim - 2)), -1)
-            log_weight = enumerated.log_weight.masked_fill(~agree, -torch.inf)
-            enumerated = Enumerated(
-                log_weight, enumerated.dims, enumerated.trace, enumerated.offsets
-            )
-        posterior = enumerated.posterior()  # (E_k, ..., E_1, n)
-        log_lik += float(enumerated.log_evidence.sum())
-        others = [d + posterior.dim() for s, d in enumerated.dims.items() if s not in masks]
-        if others:  # the clusters: summed out (each assignment's action fixes them)
-            posterior = posterior.sum(others, keepdim=True)
-        shape = posterior.shape[:-1]
-        flat = posterior.reshape(-1, rows.n_rows)
-        assignment, row = flat.nonzero(as_tuple=True)
-        values = {}
-        for site in masks:
-            dim = enumerated.dims[site]
-            k = net.site(site).size
-            assert posterior.shape[dim] == k, (site, posterior.shape, dim)
-            states = torch.arange(k).reshape(k, *([1] * (-dim - 2)))
-            values[site] = states.expand(shape).reshape(-1)[assignment]
-        completed = enc.rows(chunk).rows(row) | net.encode_indices(values)
-        if allowed is not None:
-            cells = {
-                m.cluster.site: m.cells(completed[m.value.site], completed[ACTION])
-                for m in net.mixtures
-            }
-            completed = completed | net.encode_indices(cells)
-        parts.append(completed)
-        weights.append(flat[assignment, row])
-    if len(parts) == 1:
-        return parts[0], weights[0], log_lik
-    completed = {site: torch.cat([p[site] for p in parts]) for site in parts[0]}
-    return Evidence(net, completed, sum(p.n_rows for p in parts)), torch.cat(weights), log_lik
-
-
-#: The most Newton iterations of one M-step (from the last step's optimum it takes a
-#: few; an M-step that only raises the objective keeps EM's guarantee all the same).
-M_STEP_ITERATIONS = 100
-
-
-def _m_step_missing(net, params, rows, weights, alpha, min_variance, l2) -> NetworkParams:
-    """Every CPD refitted on the weighted completed rows: the closed form, and Newton's
-    method from the current parameters where there is none."""
-    stats = statistics(net, rows, weights)
-    cpds = params_from_statistics(net, stats, alpha, min_variance)
-    for spec in net.sites:
-        if net.cpd(spec.name).closed_form:
-            continue
-        start = replace(params[spec.name], n=cpds[spec.name].n)  # the new rows' counts
-        found = maximise_site(
-            net, rows, spec.name, start, weights=weights, l2=l2, steps=M_STEP_ITERATIONS
-        )
-        cpds[spec.name] = found.params
-    return NetworkParams(cpds, params.pseudo_count, net)
-
-
-def _prior(net: EffectNetwork, params: NetworkParams, l2: float) -> float:
-    """The negative log of the Gaussian prior on the penalised tensors (the softmax
-    slopes; its constant left out), as :func:`inference.fit_gradient` adds it."""
-    total = 0.0
-    for spec in net.sites:
-        cpd = net.cpd(spec.name)
-        if cpd.closed_form:  # the closed-form kinds carry no such prior
-            continue
-        for tensor in cpd.penalised(cpd.free(params[spec.name])):
-            total += 0.5 * l2 * float(tensor.square().sum())
-    return total

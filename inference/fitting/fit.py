@@ -10,7 +10,7 @@ defines:
   multinomial logistic regression, solved by Newton's method
   (:meth:`models.cpds.SoftmaxCPD.maximise`). When some rows miss a discrete value
   (``masks``), EM with exact E-steps maximises the marginal likelihood, the missing
-  values summed out (:func:`inference.fitting.em.fit_missing`).
+  values summed out (:func:`inference.fitting.missing.fit_missing`).
 * :func:`fit_gradient` -- ``TraceEnum_ELBO`` with an empty guide, minimised by L-BFGS
   (Adam with gaps) on tensors local to the call (Pyro's global parameter store is left
   alone): with no latent continuous sites, the ELBO *is* the (marginal) log-likelihood.
@@ -41,38 +41,43 @@ fits to the same parameters.
 
 from __future__ import annotations
 
-import math
 import warnings
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass
 
-import numpy as np
 import pyro
 import torch
 from pyro.infer import TraceEnum_ELBO
 from tqdm.auto import tqdm
 
-from inference.fitting.statistics import Statistics, flat_index, params_from_statistics, statistics
-from models.declaration import ACTION, EffectNetwork, cluster_site, param_site
-from models.evidence import Evidence, check_magnitude, is_partial
+from inference.fitting.missing import fit_missing
+from inference.fitting.result import ConvergenceWarning, FitResult
+from inference.fitting.rows import (
+    check_settings,
+    ignore_missing,
+    mask_values,
+    missing_masks,
+    refuse_adaptive,
+    row_masks,
+    training_rows,
+)
+from inference.fitting.statistics import (
+    Statistics,
+    maximise_site,
+    params_from_statistics,
+    statistics,
+)
+from models.declaration import ACTION, EffectNetwork
+from models.evidence import Evidence
 from models.model import effect_model
 from models.params import NetworkParams, check_params, initial_params
 
-
-@dataclass(frozen=True)
-class FitResult:
-    """What fitting returns: new parameters; for an iterative fit the loss curve (the
-    per-row negative log-likelihood, the softmax prior included: at each Newton
-    iteration, EM step or gradient evaluation) and whether it settled within the
-    tolerance."""
-
-    params: NetworkParams
-    losses: tuple[float, ...] = ()
-    converged: bool = True
-
-
-class ConvergenceWarning(UserWarning):
-    """A gradient fit stopped before its loss settled (the CPDs are named)."""
+__all__ = [  # FitResult and ConvergenceWarning live in inference.fitting.result
+    "ConvergenceWarning",
+    "FitResult",
+    "fit",
+    "fit_gradient",
+    "fit_statistics",
+]
 
 
 def fit(
@@ -108,7 +113,7 @@ def fit(
     masks
         ``(n,)`` bool per discrete site, False where the row's value is missing (the
         row's value there is ignored). With gaps the fit is EM (see
-        :func:`inference.fitting.em.fit_missing`), started from the closed form on the rows
+        :func:`inference.fitting.missing.fit_missing`), started from the closed form on the rows
         that miss nothing; ``FitResult.losses`` is its per-row negative log-likelihood
         (missing values summed out) at the start and after each step, never rising.
     steps, lr, l2, tol, progress
@@ -118,10 +123,10 @@ def fit(
         gradient route's (:func:`fit_gradient`), for a kind with neither a closed form
         nor a ``maximise`` method. ``progress`` shows bars (over chunks, CPDs, steps).
     """
-    _check_settings(
+    check_settings(
         pseudo_count=pseudo_count, min_variance=min_variance, steps=steps, lr=lr, l2=l2, tol=tol
     )
-    _refuse_adaptive(net, "fit")
+    refuse_adaptive(net, "fit")
     if not isinstance(data, Mapping):
         if isinstance(data, str | bytes) or not isinstance(data, Iterable):
             raise ValueError(
@@ -144,18 +149,14 @@ def fit(
             f"masks must map discrete site names to (n,) bool masks, got {type(masks).__name__}"
         )
     if masks:
-        from inference.fitting.em import _missing_masks  # em builds on this module
-
-        _missing_masks(net, masks, None)  # what EM cannot fill, before the rows' checks
+        missing_masks(net, masks, None)  # what EM cannot fill, before the rows' checks
         data = ignore_missing(net, data, masks)
     action_mask = (masks or {}).get(ACTION)
     unknown_action = None
     if action_mask is not None:
-        from inference.fitting.em import _mask_values  # em builds on this module
-
-        unknown_action = ~_mask_values(ACTION, action_mask)
-    enc = _complete(net, data, unknown_action)
-    masks = _masks(net, masks, enc.n_rows)
+        unknown_action = ~mask_values(ACTION, action_mask)
+    enc = training_rows(net, data, unknown_action)
+    masks = row_masks(net, masks, enc.n_rows)
     gaps = {site: m for site, m in masks.items() if not bool(m.all())}
     complete = torch.ones(enc.n_rows, dtype=torch.bool)
     for m in gaps.values():
@@ -168,8 +169,6 @@ def fit(
     cpds = params_from_statistics(net, statistics(net, rows), pseudo_count, min_variance)
     params = NetworkParams(cpds, pseudo_count, net)
     if gaps:
-        from inference.fitting.em import fit_missing  # em builds on this module
-
         return fit_missing(
             net,
             enc,
@@ -235,24 +234,6 @@ def _fit_open_forms(
     return FitResult(result.params, losses + result.losses, result.converged and not unsettled)
 
 
-def maximise_site(
-    net: EffectNetwork,
-    enc: Evidence,
-    site: str,
-    start,
-    *,
-    weights: torch.Tensor | None = None,
-    l2: float,
-    steps: int,
-):
-    """The optimum of one CPD with a ``maximise`` method on complete rows ``enc``
-    (weighted by ``weights`` ``(n,)``, default 1), from ``start``."""
-    cpd = net.cpd(site)
-    index = flat_index(enc, cpd.parents, cpd.card)
-    x = torch.cat([enc[s].nan_to_num() for s in cpd.inputs], -1)
-    return cpd.maximise(index, x, enc[site], start, weights=weights, l2=l2, steps=steps)
-
-
 def fit_statistics(
     net: EffectNetwork, chunks: Iterable[Mapping[str, object]], *, progress: bool = False
 ) -> Statistics:
@@ -262,7 +243,7 @@ def fit_statistics(
     ``+``; :func:`inference.fitting.statistics.params_from_statistics` turns the sum into
     parameters.
     """
-    _refuse_adaptive(net, "fit_statistics")
+    refuse_adaptive(net, "fit_statistics")
     total, empty = None, 0
     for chunk in tqdm(chunks, desc="fit (chunks)", unit="chunk", disable=not progress):
         if not isinstance(chunk, Mapping):
@@ -274,7 +255,7 @@ def fit_statistics(
         if len(enc) and enc.n_rows == 0:  # a chunk of no rows (a split's last) adds nothing
             empty += 1
             continue
-        total = statistics(net, _complete(net, enc)).merged_into(total)
+        total = statistics(net, training_rows(net, enc)).merged_into(total)
     if total is None:
         why = f"each of the {empty} chunks has 0 rows" if empty else "the iterable was empty"
         raise ValueError(f"no training rows: {why}")
@@ -315,10 +296,10 @@ def fit_gradient(
     has settled when the loss changes by less than ``tol`` (relative) per step; otherwise
     a :class:`ConvergenceWarning` names the CPDs and ``FitResult.converged`` is False.
     """
-    _check_settings(pseudo_count=pseudo_count, steps=steps, lr=lr, l2=l2, tol=tol)
-    _refuse_adaptive(net, "fit_gradient")
-    enc = _complete(net, data)
-    masks = _masks(net, masks, enc.n_rows)
+    check_settings(pseudo_count=pseudo_count, steps=steps, lr=lr, l2=l2, tol=tol)
+    refuse_adaptive(net, "fit_gradient")
+    enc = training_rows(net, data)
+    masks = row_masks(net, masks, enc.n_rows)
     if init is not None:
         check_params(net, init)
     init = init or initial_params(net, pseudo_count)
@@ -394,7 +375,7 @@ def fit_gradient(
             return loss
 
         optimiser.step(closure)
-        state = optimiser.state[optimiser._params[0]]
+        state = optimiser.state[optimiser.param_groups[0]["params"][0]]  # LBFGS keeps it there
         iterations = state.get("n_iter", steps)
         exhausted = iterations >= steps or state.get("func_evals", 0) >= steps * 5 // 4
         bar.update(min(iterations, steps))
@@ -415,147 +396,5 @@ def fit_gradient(
     return FitResult(params, tuple(losses), settled)
 
 
-def _refuse_adaptive(net: EffectNetwork, name: str) -> None:
-    """The closed form files each row under its value's cell: wrong for adaptive clusters."""
-    adaptive = [p.name for p in net.parameters if p.adaptive]
-    if adaptive:
-        raise ValueError(
-            f"{name} files each row under its parameter's cell, but the clusters of "
-            f"{adaptive} are adaptive (latent components): fit the network with "
-            "inference.fit_em"
-        )
-
-
 def _settled(before: float, after: float, tol: float) -> bool:
     return abs(before - after) <= tol * max(1.0, abs(after))
-
-
-def _check_settings(**settings: float) -> None:
-    """Refuse settings that would make fitting spin or return NaN."""
-    for name, value in settings.items():
-        # A float32 setting would turn the float64 arithmetic it enters into float32:
-        # Python (or numpy float64) numbers only; a numpy integer is a count as good as int.
-        ok = isinstance(value, int | float) and not isinstance(value, bool) and math.isfinite(value)
-        if name == "steps":
-            ok = isinstance(value, int | np.integer) and not isinstance(value, bool) and value >= 1
-        elif name in ("lr", "tol"):
-            ok = ok and value > 0
-        else:
-            ok = ok and value >= 0
-        if not ok:
-            want = (
-                "a positive int"
-                if name == "steps"
-                else ("a finite number > 0" if name in ("lr", "tol") else "a finite number >= 0")
-            )
-            if name != "steps":
-                want += " (a Python float or int)"
-            raise ValueError(f"{name} must be {want}, got {value!r}")
-
-
-def ignore_missing(
-    net: EffectNetwork, data: Mapping[str, object], masks: Mapping[str, object]
-) -> Mapping[str, object]:
-    """The rows with each value that ``masks`` mark missing replaced by a declared state:
-    the value there is ignored, so ``None``, NaN, an empty string or any label may stand
-    in its place. Encoded rows (:class:`Evidence`) hold valid indices throughout."""
-    if isinstance(data, Evidence):
-        return data
-    from inference.fitting.em import _mask_values  # em builds on this module
-
-    out = dict(data)
-    for site, mask in masks.items():
-        if site not in data or not net.site(site).discrete:
-            continue
-        missing = ~_mask_values(site, mask).numpy()
-        values = data[site]
-        if isinstance(values, torch.Tensor):
-            values = values.tolist()
-        values = np.asarray(values, dtype=object).reshape(-1)
-        if not missing.any() or values.shape != missing.shape:  # a wrong length: refused later
-            continue
-        spec = net.site(site)
-        states = net.actions if site == ACTION else net.feature(spec.feature).states
-        values = values.copy()
-        values[missing] = states[0]
-        out[site] = values
-    return out
-
-
-def _masks(
-    net: EffectNetwork, masks: Mapping[str, object] | None, n: int
-) -> dict[str, torch.Tensor]:
-    from inference.fitting.em import _mask_site, _mask_values  # em builds on this module
-
-    out = {}
-    for k, v in (masks or {}).items():
-        if not _mask_site(net, k).discrete:
-            raise ValueError(f"masks are for discrete sites; {k!r} is continuous")
-        m = _mask_values(k, v)
-        if m.shape[0] != n:
-            raise ValueError(f"masks[{k!r}] has {m.shape[0]} rows, the data {n}")
-        out[k] = m
-    return out
-
-
-# ---------------------------------------------------------------------------- closed form
-def _complete(
-    net: EffectNetwork, data: Mapping[str, object], unknown_action: torch.Tensor | None = None
-) -> Evidence:
-    """Encode training rows, check them, and add each parameter's cluster where the rows
-    do not give it (its value's cell).
-
-    ``unknown_action`` ``(n,)`` bool: rows whose action is missing (``masks``), where a
-    parameter's value is not checked against the action and the cluster is a
-    placeholder (EM derives it per action)."""
-    enc = net.encode(data)
-    if not len(enc) or enc.n_rows == 0:
-        raise ValueError("no training rows: fit needs at least one row of every site")
-    missing = [s.name for s in net.sites if s.name not in enc and s.role != "cluster"]
-    if missing:
-        raise ValueError(
-            f"training data must give every site; missing {missing}. (Give parameters as NaN in "
-            f"rows whose action does not use them; mark missing discrete values with `masks`.)"
-        )
-    clusters = {}
-    for m in net.mixtures:
-        p = m.parameter
-        p_site = param_site(p.name)
-        uses = m.in_use(enc[ACTION])
-        present = ~torch.isnan(enc[p_site]).any(-1)
-        known = torch.ones_like(present)
-        if unknown_action is not None and unknown_action.shape == known.shape:
-            known = ~unknown_action  # (a mask of another shape is refused by _masks)
-        for bad, why in (
-            (uses & ~present, "uses the parameter, but the row gives no value"),
-            (~uses & present, "does not use the parameter, but the row gives a value (give NaN)"),
-        ):
-            bad = bad & known
-            if bad.any():
-                row = int(bad.nonzero()[0])
-                raise ValueError(
-                    f"site {p_site!r}: row {row} has action "
-                    f"{net.actions[int(enc[ACTION][row])]!r}, which {why}"
-                )
-        given = enc.get(cluster_site(p.name))
-        if given is None:  # the rows' clusters are their values' cells
-            clusters[cluster_site(p.name)] = m.cells(enc[p_site], enc[ACTION])
-            continue
-        pinned = ~uses & (given != 0) & known
-        if pinned.any():
-            row = int(pinned.nonzero()[0])
-            raise ValueError(
-                f"site {cluster_site(p.name)!r}: row {row} has cluster {int(given[row])} for "
-                f"action {net.actions[int(enc[ACTION][row])]!r}, which does not use "
-                f"{p.name!r}; such a row's cluster is 0"
-            )
-    for site, value in enc.items():
-        if not net.site(site).discrete:
-            if net.site(site).role == "end" and is_partial(value):
-                row = int(torch.isnan(value).any(-1).nonzero()[0])
-                raise ValueError(
-                    f"site {site!r}: row {row} is observed in some dimensions only (Partial); "
-                    "fit needs every dimension of every continuous feature"
-                )
-            check_magnitude(site, value)  # the rule evidence follows (models.evidence)
-    return enc | net.encode_indices(clusters) if clusters else enc

@@ -33,7 +33,9 @@ from collections.abc import Iterable, Mapping
 
 import torch
 
-from inference.fitting.fit import FitResult, _check_settings, fit_statistics
+from inference.fitting.fit import fit_statistics
+from inference.fitting.result import FitResult
+from inference.fitting.rows import check_settings
 from inference.fitting.statistics import params_from_statistics
 from models.cpds.table import TableCPD, TableParams
 from models.declaration import ACTION, EffectNetwork
@@ -87,7 +89,7 @@ def fit_pooled(
     pseudo_count, min_variance, progress
         As in :func:`inference.fit`.
     """
-    _check_settings(pseudo_count=pseudo_count, min_variance=min_variance)
+    check_settings(pseudo_count=pseudo_count, min_variance=min_variance)
     if (
         not isinstance(strength, (int, float))
         or isinstance(strength, bool)

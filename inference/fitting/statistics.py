@@ -20,6 +20,11 @@ shrunk towards it. A covariance's eigenvalues are floored at ``min_variance``, s
 configuration with fewer rows than dimensions stays positive definite; one whose spread
 exceeds it in every direction keeps its estimate. ``alpha = 0`` gives the plain sample
 statistics where every configuration is seen.
+
+A kind without a closed form (softmax) has no sufficient statistics to sum: it is
+maximised on the rows themselves, by its own ``maximise`` method (Newton's method per
+parent configuration), which :func:`maximise_site` runs on complete, possibly weighted
+rows for both :func:`inference.fit` and EM over missing values.
 """
 
 from __future__ import annotations
@@ -108,3 +113,43 @@ def flat_index(enc: Evidence, sites: tuple[str, ...], card: tuple[int, ...]) -> 
     for s, k in zip(sites[1:], card[1:], strict=True):
         index = index * k + enc[s]
     return index
+
+
+def maximise_site(
+    net: EffectNetwork,
+    enc: Evidence,
+    site: str,
+    start,
+    *,
+    weights: torch.Tensor | None = None,
+    l2: float,
+    steps: int,
+):
+    """The optimum of one CPD with a ``maximise`` method on complete rows.
+
+    Parameters
+    ----------
+    net
+        The network.
+    enc
+        Complete, checked rows (:func:`inference.fitting.rows.training_rows`).
+    site
+        The site whose CPD is maximised; its kind has a ``maximise`` method.
+    start
+        The CPD's parameters to start from.
+    weights
+        ``(n,)`` row weights (an EM step's posterior weights); default 1.
+    l2, steps
+        The precision of the slopes' Gaussian prior and the most Newton iterations.
+
+    Returns
+    -------
+    models.cpds.softmax.SoftmaxFit
+        What the kind's ``maximise`` returns: ``params``, ``objectives`` (the penalised
+        negative log-likelihood, summed over rows, at the start and per iteration) and
+        ``converged``.
+    """
+    cpd = net.cpd(site)
+    index = flat_index(enc, cpd.parents, cpd.card)
+    x = torch.cat([enc[s].nan_to_num() for s in cpd.inputs], -1)
+    return cpd.maximise(index, x, enc[site], start, weights=weights, l2=l2, steps=steps)

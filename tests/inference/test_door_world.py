@@ -222,7 +222,7 @@ def masked(rows, seed, sites=("end.door", "initial.drawer", "action", "end.switc
 
 def test_missing_values_em_never_lowers_the_likelihood_and_is_fast():
     from inference import fit
-    from inference.fitting.em import missing_log_likelihood
+    from inference.fitting.missing import missing_log_likelihood
 
     net = door_world()
     rows = door_rows(1000, seed=3)
@@ -256,7 +256,7 @@ def test_missing_values_em_never_lowers_the_likelihood_and_is_fast():
 def test_a_missing_value_is_ignored_whatever_stands_in_its_place():
     # None, NaN or a label the site does not have where masks say missing: the same fit
     from inference import fit
-    from inference.fitting.em import missing_log_likelihood
+    from inference.fitting.missing import missing_log_likelihood
 
     net = door_world()
     rows = door_rows(300, seed=15)

@@ -105,10 +105,10 @@ def test_chunk_limits_are_named():
 def test_weighted_rows_count_as_repeated_rows(seed):
     # the statistics an EM step gives: a row of weight k is the row k times, for every
     # kind (tables, linear Gaussians, a parameter's cluster table and Gaussians)
-    from inference.fitting.fit import _complete
+    from inference.fitting.rows import training_rows
     from inference.fitting.statistics import statistics
 
-    rows = _complete(THROW, simulate(THROW, random_params(THROW, seed), 300, seed=seed))
+    rows = training_rows(THROW, simulate(THROW, random_params(THROW, seed), 300, seed=seed))
     k = torch.as_tensor(np.random.default_rng(seed).integers(0, 4, rows.n_rows))
     weighted = statistics(THROW, rows, k.to(torch.float64))
     repeated = statistics(THROW, rows.rows(torch.arange(rows.n_rows).repeat_interleave(k)))

@@ -1,0 +1,25 @@
+"""What a fit returns, and the warning of a fit that stopped before it settled."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from models.params import NetworkParams
+
+__all__ = ["ConvergenceWarning", "FitResult"]
+
+
+@dataclass(frozen=True)
+class FitResult:
+    """What fitting returns: new parameters; for an iterative fit the loss curve (the
+    per-row negative log-likelihood, the softmax prior included: at each Newton
+    iteration, EM step or gradient evaluation) and whether it settled within the
+    tolerance."""
+
+    params: NetworkParams
+    losses: tuple[float, ...] = ()
+    converged: bool = True
+
+
+class ConvergenceWarning(UserWarning):
+    """A gradient fit stopped before its loss settled (the CPDs are named)."""
