@@ -128,8 +128,12 @@ def make_parser(exp: Experiment, description: str | None = None) -> argparse.Arg
     shared.add_argument(
         "--out", default=str(exp.out("results")), help="folder for the files (default: %(default)s)"
     )
-    quick = ", ".join(f"{k}={v}" for k, v in exp.quick.items()) or "none"
-    shared.add_argument("--quick", action="store_true", help=f"a first look: {quick}")
+    quick = ", ".join(f"{k}={v}" for k, v in exp.quick.items())
+    shared.add_argument(
+        "--quick",
+        action="store_true",
+        help=f"a first look: {quick}" if quick else "the defaults (they are quick already)",
+    )
     shared.add_argument("--quiet", action="store_true", help="no progress bars")
     shared.add_argument(
         "--threads", type=int, default=1, help="torch threads (small tensors: 1 is fastest)"
