@@ -85,6 +85,15 @@ def test_example_runs_with_its_tiny_settings(name, tmp_path, tiny_data_dir, caps
         assert row.startswith("| ") and row.endswith("|"), row
 
 
+@pytest.mark.slow  # starts torch once per script; the test above runs the same command lines
+@pytest.mark.parametrize("name", EXPERIMENTS)
+def test_every_script_runs_as_a_user_runs_it(name, tmp_path, tiny_data_dir):
+    out = tmp_path / "out"
+    done = run(name, *tiny_arguments(name, out, tiny_data_dir))
+    result = experiment(name).result.load(out / f"{name}.json")
+    assert result.to_markdown().strip() in done.stdout
+
+
 def test_reproduce_runs_a_step_as_a_script(tmp_path, tiny_data_dir):
     out = tmp_path / "out"
     run("reproduce", "--quick", "--only", "throw_kinematics", "--out", out)
