@@ -36,11 +36,9 @@ NOT_FLAGS = ("progress",)
 
 
 def _plain(text: str) -> str:
-    """Docstring markup as plain text: roles and double backquotes dropped, ``%`` escaped
-    for argparse."""
+    """Docstring markup as plain text: roles and double backquotes dropped."""
     text = re.sub(r":\w+:`~?([^`]+)`", r"\1", text)
-    text = text.replace("``", "")
-    return " ".join(text.split()).replace("%", "%%")
+    return " ".join(text.replace("``", "").split())
 
 
 def field_help(config: type) -> dict[str, str]:
@@ -100,7 +98,7 @@ def _add_field(parser: argparse.ArgumentParser, f: dataclasses.Field, hint, help
     shown = list(default) if isinstance(default, tuple) else default
     if "default" not in help_text:
         help_text = f"{help_text} (default: {shown})"
-    kw: dict = {"default": argparse.SUPPRESS, "help": help_text}
+    kw: dict = {"default": argparse.SUPPRESS, "help": help_text.replace("%", "%%")}
     if hint is bool:
         action = "store_true" if not default else argparse.BooleanOptionalAction
         parser.add_argument(_flag(f.name), action=action, **kw)
@@ -141,10 +139,13 @@ def make_parser(exp: Experiment, description: str | None = None) -> argparse.Arg
     return parser
 
 
-def parse_args(name: str, argv=None, description: str | None = None) -> argparse.Namespace:
-    """The command line of experiment ``name``: ``config`` (its checked settings),
-    ``out``, ``threads``; a bad value exits with a usage error naming the flag."""
-    exp = experiment(name)
+def parse_args(
+    name: str | Experiment, argv=None, description: str | None = None
+) -> argparse.Namespace:
+    """The command line of experiment ``name`` (or of the declaration itself):
+    ``experiment``, ``config`` (its checked settings), ``out``, ``threads``; a bad value
+    exits with a usage error naming the flag."""
+    exp = name if isinstance(name, Experiment) else experiment(name)
     parser = make_parser(exp, description)
     args = parser.parse_args(argv)
     config_or_exit(parser, lambda: check_threads("threads", args.threads))
@@ -172,7 +173,7 @@ def _perform(args: argparse.Namespace):
     return result
 
 
-def main(name: str, description: str | None = None, argv=None):
+def main(name: str | Experiment, description: str | None = None, argv=None):
     """Run experiment ``name`` from the command line (``argv``, default ``sys.argv``) and
     exit (:func:`experiments.config.run_script`)."""
     run_script(_perform, parse_args(name, argv, description))

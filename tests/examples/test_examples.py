@@ -200,7 +200,7 @@ def test_help_text_comes_from_the_settings_docstring():
     assert helps["horizon"] == "Throws the exact planner may use, 1..MAX_HORIZON."
     assert helps["scale"].startswith("The can data set's scale")  # the shared settings'
     assert "progress bars" in helps["progress"].lower()
-    usage = cli.make_parser(experiment("combined")).format_help()
+    usage = " ".join(cli.make_parser(experiment("combined")).format_help().split())
     assert "--n-throws" in usage and "Throws that train the throw network." in usage
     assert "(default: 29000)" in usage and "--progress" not in usage
 
