@@ -106,7 +106,12 @@ def _add_field(parser: argparse.ArgumentParser, f: dataclasses.Field, hint, help
     if origin is tuple:
         kw["nargs"] = "+"
         hint = args[0]
-    kw["type"] = {int: int, float: float}.get(hint, str)
+    if hint not in (int, float, str, Path):
+        raise TypeError(
+            f"{f.name}: a {hint} setting has no command-line flag; use int, "
+            "float, str, Path or bool, a tuple of one of them, or X | None"
+        )
+    kw["type"] = {int: int, float: float}.get(hint, str)  # a Path: its Config converts it
     parser.add_argument(_flag(f.name), **kw)
 
 

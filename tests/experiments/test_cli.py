@@ -118,3 +118,13 @@ def test_main_runs_saves_and_prints(tmp_path, capsys):
     assert capsys.readouterr().out == "4 balls\n\n"
     assert ToyResult.load(tmp_path / "toy.json") == ToyResult(4, [1.0, 1.5])
     assert (tmp_path / "toy.md").read_text() == "4 balls\n"
+
+
+def test_a_setting_without_a_flag_type_is_refused():
+    @dataclass(frozen=True)
+    class Odd:
+        weights: dict = field(default_factory=dict)
+
+    odd = Experiment(Odd, run_toy, ToyResult, order=1)
+    with pytest.raises(TypeError, match="weights: a <class 'dict'> setting has no"):
+        cli.make_parser(odd)
