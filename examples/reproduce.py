@@ -1,12 +1,14 @@
 """Reproduce the paper's experiments end to end and write ``results/``.
 
-Runs each example script in turn (each can also be run alone): the §III illustration,
-the worlds' pictures, throwing (§IV-B) and beyond the paper its adaptive clusters and
-active throw targets, can tossing (§IV-A, Table I), the combined system (§IV-C, Tables
-II-IV), the physics' own bounds, and beyond the paper Table I learned from a fraction of
-the throws by active exploration (:mod:`experiments.active`) and the combined system on
-every goal the physics reaches (:mod:`experiments.all_goals`). The can data set is generated
-once under ``--data-dir`` (resumable) and reused. Then writes ``run.json`` (scale,
+Runs the script of every experiment in :func:`experiments.registry.experiments` in
+turn (each can also be run alone; ``--quick`` gives each its quick settings): the §III
+illustration, the worlds' pictures, throwing (§IV-B) and beyond the paper its adaptive
+clusters and active throw targets, can tossing (§IV-A, Table I), the combined system
+(§IV-C, Tables II-IV), the physics' own bounds, and beyond the paper the combined system
+on every goal the physics reaches (:mod:`experiments.all_goals`) and Table I learned from
+a fraction of the throws by active exploration (:mod:`experiments.active`). The can data
+set is generated once under ``--data-dir`` (resumable; default: the cache folder, see
+docs/data.md) and reused. Then writes ``run.json`` (scale,
 commit, date, machine, each step's wall time) and ``summary.md`` (the paper's numbers
 beside ours and the bounds: :mod:`experiments.summary`); a full-scale run of every step
 also refreshes the results block of README.md.
@@ -27,6 +29,7 @@ import time
 from pathlib import Path
 
 from experiments.config import check_executor, config_or_exit, run_script
+from experiments.registry import experiments
 from experiments.summary import refresh_readme, run_record, summary_markdown
 
 HERE = Path(__file__).resolve().parent
@@ -34,37 +37,17 @@ README = HERE.parent / "README.md"
 
 
 def steps(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
-    """``(script name, its arguments)`` in order; a new experiment adds its step here."""
-    out, data, quick = args.out, args.data_dir, args.quick
-    scale = ["--scale", "quick" if quick else "full", "--data-dir", data, "--out", out]
-    executor = ["--executor", args.executor] if args.executor else []
-    return [
-        ("tap_and_remove", ["--out", f"{out}/tap_and_remove"] + (["--n", "600"] if quick else [])),
-        (
-            "can_world",  # fewer GIF frames at the quick scale (same throw, same pictures)
-            ["--out", f"{out}/can_world"]
-            + (["--frame-interval", "0.04", "--fps", "12"] if quick else []),
-        ),
-        ("throw_kinematics", ["--out", f"{out}/throw"]),
-        ("throwing", ["--out", out] + (["--quick"] if quick else [])),
-        ("adaptive_throw", ["--out", out] + (["--quick"] if quick else [])),
-        ("can_tossing", [*scale, *executor] + (["--n-demos", "100"] if quick else [])),
-        (
-            "combined",
-            [*scale, *executor] + (["--n-throws", "5000", "--episodes", "10"] if quick else []),
-        ),
-        (
-            "physics_bounds",
-            [*scale, *executor]
-            + (["--repeats", "8", "--step", "0.01", "--combined-repeats", "4"] if quick else []),
-        ),
-        ("active", [*scale, *executor] + (["--quick"] if quick else [])),
-        (
-            "all_goals",  # the quick scale: the standard table only
-            ["--data-dir", data, "--out", out, *executor]
-            + (["--quick", "--table-z", "0.75"] if quick else []),
-        ),
-    ]
+    """``(script name, its arguments)`` for every experiment, in order
+    (:func:`experiments.registry.experiments`)."""
+    result = []
+    for name, exp in experiments().items():
+        argv = ["--out", str(exp.out(args.out))] + (["--quick"] if args.quick else [])
+        if "data_dir" in exp.fields and args.data_dir is not None:
+            argv += ["--data-dir", args.data_dir]
+        if "executor" in exp.fields and args.executor:
+            argv += ["--executor", args.executor]
+        result.append((name, argv))
+    return result
 
 
 def run_step(command: list[str]) -> tuple[int, signal.Signals | None]:
@@ -133,9 +116,16 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(
         description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter
     )
-    parser.add_argument("--quick", action="store_true", help="small scale, a few minutes")
+    parser.add_argument(
+        "--quick", action="store_true", help="each experiment's quick settings, a few minutes"
+    )
     parser.add_argument("--out", default="results")
-    parser.add_argument("--data-dir", default="data")
+    parser.add_argument(
+        "--data-dir",
+        default=None,
+        help="generated data (default: data in the cache folder, $EFFECT_NETWORKS_CACHE or "
+        "~/.cache/effect-networks; docs/data.md)",
+    )
     parser.add_argument("--only", nargs="*", help="run only these steps")
     parser.add_argument(
         "--executor",

@@ -1,9 +1,11 @@
 """The paper's experiments as a library: one module per experiment.
 
 Each experiment is a function of a frozen, checked settings dataclass that returns a
-result dataclass (``to_json``, ``from_json``/``load``, ``to_markdown``, ``save``); its
-figures are drawn by functions beside it. The scripts in ``examples/`` parse a command
-line into the settings, call the function and save the result.
+result dataclass (``to_json``, ``from_json``/``load``, ``to_markdown``, ``figures``,
+``summary_rows``, ``save``), and declares itself once (:mod:`.registry`); the larger
+ones keep their report beside them (``*_report``). The scripts in ``examples/`` call
+:func:`.cli.main`, which parses a command line into the settings, runs the experiment
+and saves the result.
 
 =====================  ==============================================================
 :mod:`.tap_and_remove`  §III: remove and tap, with and without a parameter site
@@ -15,8 +17,10 @@ line into the settings, call the function and save the result.
 :mod:`.active`          beyond the paper: Table I from a fraction of the throws
 :mod:`.pictures`        figures of the can world and of the robot's throw
 :mod:`.cans`            the can data set at a scale and the can network on it
-:mod:`.config`          checks of settings, and the results' JSON round trip
+:mod:`.config`          checks of settings, and the results' base (JSON, report, files)
+:mod:`.registry`        every experiment's declaration (``EXPERIMENTS`` in its module)
+:mod:`.cli`             an experiment's command line, derived from its settings
 :mod:`.evaluation`      scoring: Table I's bins, ROC, aim-robust choice, aim pooling
-:mod:`.summary`         the results table from the JSON files, for README.md
+:mod:`.summary`         the results table from the saved results, for README.md
 =====================  ==============================================================
 """

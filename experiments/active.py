@@ -47,6 +47,7 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 import torch
@@ -60,16 +61,18 @@ from experiments.can_tossing import (
     start_evidence,
     table_one_cases,
 )
-from experiments.cans import SCALES, CanModel, can_dataset, start_configurations
+from experiments.can_tossing_report import TABLE_I_PROTOCOLS
+from experiments.cans import SCALES, CanDataSettings, CanModel, can_dataset, start_configurations
 from experiments.config import (
     ConfigError,
     Result,
     check_choice,
-    check_executor,
     check_float,
     check_int,
+    percent,
 )
 from experiments.physics_bounds import BOUND_SEED, held_out_best
+from experiments.registry import Experiment
 from inference import fit, fit_pooled, grid_kernel
 from inference.design.active import explore, with_pool_prior
 from inference.queries.compiled import compile_discrete
@@ -87,7 +90,6 @@ __all__ = [
     "can_pool",
     "bound_by_repeats",
     "cases_seen",
-    "plot_curves",
     "replay_counts",
     "run_active",
     "table_one_on_replays",
@@ -111,14 +113,13 @@ QUICK = {"scale": "quick", "repeats": 8, "fractions": (0.05, 0.1, 0.2, 0.5), "ba
 
 
 @dataclass(frozen=True)
-class ActiveConfig:
-    """Settings of :func:`run_active`; every field is checked on construction.
+class ActiveConfig(CanDataSettings):
+    """Settings of :func:`run_active`; every field is checked on construction (the can data
+    set's, and where the replays are simulated if they are not under ``data_dir`` yet:
+    :class:`experiments.cans.CanDataSettings`).
 
     Attributes
     ----------
-    scale, data_dir, executor
-        The can data set (:func:`experiments.cans.can_dataset`) and where the replays are
-        simulated if they are not under ``data_dir`` yet.
     repeats : int
         Held-out replays per (start, field), >= 2 (the physics bound's file at this
         count is reused).
@@ -146,9 +147,6 @@ class ActiveConfig:
         Progress bars.
     """
 
-    scale: str = "full"
-    data_dir: Path = Path("data")
-    executor: str | None = None
     repeats: int = 16
     fractions: tuple[float, ...] = (0.02, 0.05, 0.1, 0.2, 0.5)
     learners: tuple[str, ...] = tuple(LEARNERS)
@@ -163,9 +161,7 @@ class ActiveConfig:
     progress: bool = True
 
     def __post_init__(self):
-        check_choice("scale", self.scale, SCALES)
-        object.__setattr__(self, "data_dir", Path(self.data_dir))
-        check_executor("executor", self.executor)
+        super().__post_init__()
         check_int("repeats", self.repeats, 2)
         object.__setattr__(self, "fractions", tuple(self.fractions))
         if not self.fractions:
@@ -323,6 +319,8 @@ class ActiveResult(Result):
     ``seconds[learner]`` the learner's choosing time; ``settings`` the config.
     """
 
+    experiment_name: ClassVar[str] = "active"
+
     scale: str
     n_pool: int
     n_dataset: int
@@ -343,17 +341,44 @@ class ActiveResult(Result):
     settings: dict
 
     def to_markdown(self) -> str:
+        """Per protocol and rule, each learner's exact fraction at every budget
+        (:func:`experiments.active_report.markdown`)."""
+        from experiments.active_report import markdown
+
         return markdown(self)
 
-    def save(self, out) -> list[Path]:
-        """Write ``active.json``, ``active.md`` and ``active.png`` to the folder ``out``."""
-        out = Path(out)
-        out.mkdir(parents=True, exist_ok=True)
-        files = [out / "active.json", out / "active.md"]
-        files[0].write_text(self.to_json())
-        files[1].write_text(self.to_markdown())
-        files.append(plot_curves(self, out / "active.png"))
-        return files
+    def figures(self, out: Path) -> list[Path]:
+        from experiments.active_report import plot_curves
+
+        return [plot_curves(self, out / "active.png")]
+
+    def summary_rows(self, results) -> list[str]:
+        """Per protocol, each learner at the budget nearest ``GOAL_FRACTION`` of the full
+        data's throws (plain fit with tie-break ``aim``, and pooled), beside the bound."""
+        k = min(range(len(self.fractions)), key=lambda i: abs(self.fractions[i] - GOAL_FRACTION))
+        rows = []
+        for protocol, words in TABLE_I_PROTOCOLS.items():
+            learners = ", ".join(
+                f"{name} {percent(c[protocol]['aim'][k])} "
+                f"(pooled {percent(c[protocol]['pooled'][k])})"
+                for name, c in self.curves.items()
+            )
+            reached = [
+                name
+                for name, g in self.goal.items()
+                if any(v is not None and v <= self.budgets[k] for v in g[protocol].values())
+            ]
+            full = self.full[protocol]
+            rows.append(
+                f"| cans, beyond the paper: Table I ({words}) learned by active exploration "
+                f"from {percent(self.fractions[k], 0)} of the {self.n_pool:,} 0° throws, exact "
+                f"on {self.repeats} held-out replays | - | {learners}; full data "
+                f"{percent(full['aim'])} (pooled {percent(full['pooled'])}) (goal: within 1 "
+                "point of the full data's best: "
+                + (", ".join(reached) if reached else "not reached")
+                + f") | {percent(self.bound[protocol])} held out |"
+            )
+        return rows
 
 
 def run_active(config: ActiveConfig) -> ActiveResult:
@@ -479,119 +504,13 @@ def run_active(config: ActiveConfig) -> ActiveResult:
     )
 
 
-def markdown(r: ActiveResult) -> str:
-    """The report: per protocol and rule, each learner's exact fraction at every budget."""
-    lines = [
-        f"# Active exploration of the can world (scale {r.scale})",
-        "",
-        f"Pool: the {r.n_pool:,} throwable 0° throws Table I fits on ({r.n_pairs:,} "
-        f"(configuration, field) pairs; the whole data set has {r.n_dataset:,} throws). "
-        f"Exact fraction of Table I's cases, each chosen field scored on {r.repeats} "
-        "held-out replays. Goal: within 1 point of the full data's best score with at "
-        f"most {100 * GOAL_FRACTION:.0f} % of its throws.",
-        "",
-    ]
-    head = " | ".join(f"{100 * f:g} % ({b:,})" for f, b in zip(r.fractions, r.budgets, strict=True))
-    for p in PROTOCOLS:
-        for rule in SCORES:
-            how = (
-                f"tables pooled over neighbouring fields (sigma {r.settings['pool_sigma']:g} "
-                f"cells, strength {r.settings['pool_strength']:g}), tie-break aim"
-                if rule == "pooled"
-                else f"plain fit, tie-break {rule}"
-            )
-            lines += [
-                f"## {p} ({r.n_cases[p]:,} cases), {how}",
-                "",
-                f"| learner | {head} | fewest throws within 1 point |",
-                "|---|" + "---:|" * (len(r.budgets) + 1),
-            ]
-            for name, c in r.curves.items():
-                cells = " | ".join(f"{100 * v:.2f}" for v in c[p][rule])
-                g = r.goal[name][p][rule]
-                reached = "not reached" if g is None else f"{g:,} ({100 * g / r.n_pool:.1f} %)"
-                lines.append(f"| {name} | {cells} | {reached} |")
-            lines += [
-                f"| full data ({r.n_pool:,}) | "
-                + " | ".join(f"{100 * r.full[p][rule]:.2f}" for _ in r.budgets)
-                + " | |",
-                "",
-            ]
-        lines += [
-            f"Physics bound ({p}): {100 * r.bound[p]:.2f} % (the simulator's best field "
-            "chosen on half of the replays, scored on the other half); chosen on 1, 2, ... "
-            "replays of every pair (1 per pair is "
-            f"{100 * r.n_pairs / r.n_pool:.0f} % of the pool's throws): "
-            + ", ".join(f"{100 * v:.2f}" for v in r.bound_by_repeats[p])
-            + ". Cases whose desired "
-            "count some chosen throw reached from their start, % at each budget: "
-            + "; ".join(
-                f"{name} " + ", ".join(f"{100 * v:.1f}" for v in seen[p])
-                for name, seen in r.cases_seen.items()
-            )
-            + ".",
-            "",
-        ]
-    lines += [
-        f"Mean over {r.settings['n_seeds']} seed(s). Distinct (configuration, field) pairs "
-        "played (mean): "
-        + "; ".join(
-            f"{name} " + ", ".join(f"{c:,.0f}" for c in np.mean(cov, 0))
-            for name, cov in r.pairs_covered.items()
-        )
-        + ".",
-        "Choosing time (CPU s, whole run): "
-        + ", ".join(f"{name} {s:.1f}" for name, s in r.seconds.items())
-        + ".",
-        "",
-    ]
-    return "\n".join(lines)
-
-
-def plot_curves(result: ActiveResult, path) -> Path:
-    """Exact fraction against throws used, one panel per protocol: per learner the pooled
-    fit solid, the plain fit with tie-break ``aim`` dashed and ``index`` dotted; the full
-    data's three as black lines of the same styles, the band within one point of its best,
-    the physics bound grey; saved to ``path``."""
-    from matplotlib.figure import Figure
-
-    styles = {"pooled": "o-", "aim": "--", "index": ":"}
-    fig = Figure(figsize=(11, 4.6), layout="constrained")
-    axes = fig.subplots(1, len(PROTOCOLS))
-    x = 100 * np.asarray(result.budgets) / result.n_pool
-    for ax, p in zip(axes, PROTOCOLS, strict=True):
-        for k, (name, c) in enumerate(result.curves.items()):
-            for rule, style in styles.items():
-                ax.plot(
-                    x,
-                    100 * np.asarray(c[p][rule]),
-                    style,
-                    color=f"C{k}",
-                    ms=4,
-                    label=name if rule == "pooled" else None,
-                )
-        for rule, style in styles.items():
-            ax.axhline(
-                100 * result.full[p][rule],
-                color="k",
-                ls=style.lstrip("o"),
-                lw=1,
-                label=f"full data ({result.n_pool:,} throws)" if rule == "pooled" else None,
-            )
-        best = 100 * max(result.full[p].values())
-        ax.axhspan(best - 100 * GOAL_POINTS, best, color="0.85", label="within 1 point")
-        ax.axhline(100 * result.bound[p], color="0.5", lw=2, alpha=0.6, label="physics bound")
-        ax.axvline(100 * GOAL_FRACTION, color="0.5", ls=":", lw=1)
-        ax.set_xscale("log")
-        ax.set_xticks(x, [f"{v:.3g}" for v in x])
-        ax.minorticks_off()
-        ax.set_xlabel("throws used, % of the full data's 0° throws (log scale)")
-        ax.set_ylabel("Table I exact, % of cases (held-out replays)")
-        ax.set_title(
-            f"{p} ({result.n_cases[p]:,} cases); solid: pooled fit, dashed / dotted: plain "
-            "fit, tie-break aim / index",
-            fontsize=9,
-        )
-    axes[0].legend(fontsize=8, loc="lower right")
-    fig.savefig(path, dpi=120)
-    return Path(path)
+EXPERIMENTS = (
+    Experiment(
+        ActiveConfig,
+        run_active,
+        ActiveResult,
+        order=100,
+        tiny={"scale": "tiny", "repeats": 2, "fractions": (0.3, 1.0), "batch_size": 20},
+        quick=QUICK,
+    ),
+)

@@ -44,12 +44,14 @@ import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 import torch
 from tqdm.auto import tqdm
 
 from experiments.config import ConfigError, Result, check_float, check_int
+from experiments.registry import Experiment
 from experiments.throwing import HIT_MARGIN_M, get_data, rms
 from inference import fit, fit_em, infer_parameter, parameter_for_effect
 from inference.design.active_gaussian import select_by_information
@@ -65,7 +67,6 @@ __all__ = [
     "adaptive_throw_network",
     "local_inverse",
     "plane_residuals",
-    "plot_adaptive_throw",
     "run_adaptive_throw",
 ]
 
@@ -407,6 +408,8 @@ class AdaptiveThrowResult(Result):
     ``{n, bins, rms_y_m, rms_z_m}``. ``goals``: each goal's verdict.
     """
 
+    experiment_name: ClassVar[str] = "adaptive_throw"
+
     n_train: int
     n_test: int
     seed: int
@@ -422,100 +425,20 @@ class AdaptiveThrowResult(Result):
 
     def to_markdown(self) -> str:
         """Both layouts side by side, the references, the active curves and the goals, in
-        cm."""
-        cm = 100.0
-        lines = [
-            f"# Adaptive clusters and active throw targets ({self.n_train} training throws, "
-            f"{self.n_test} test hits)",
-            "",
-            f"Re-throw RMS (cm), noise-free; fit time on one torch thread; every fit with "
-            f"pseudo-count {self.pseudo_count:g}:",
-            "",
-            "| clusters | layout | query | fit (s) | EM steps | y (cm) | z (cm) | median (cm) "
-            "| 99 % (cm) | best candidate y / z (cm) |",
-            "|---:|---|---|---:|---:|---:|---:|---:|---:|---:|",
-        ]
-        for row in self.layouts:
-            best = "-"
-            if "best_rms_y_m" in row:
-                best = f"{cm * row['best_rms_y_m']:.4f} / {cm * row['best_rms_z_m']:.4f}"
-            lines.append(
-                f"| {row['n_clusters']} | {row['layout']} | {row['query']} | "
-                f"{row['fit_s']:.2f} | {row['em_steps']} | {cm * row['rms_y_m']:.4f} | "
-                f"{cm * row['rms_z_m']:.4f} | {cm * row['median_m']:.4f} | "
-                f"{cm * row['p99_m']:.3f} | {best} |"
-            )
-        f = self.floor
-        lines += [
-            f"| - | Newton on local quadratic fits to the {f['neighbours']} nearest training "
-            f"throws (a reference) | - | - | - | {cm * f['rms_y_m']:.4f} | "
-            f"{cm * f['rms_z_m']:.4f} | {cm * f['median_m']:.4f} | {cm * f['p99_m']:.3f} | - |",
-            "",
-            "Best candidate: the re-throw RMS had every hit taken the cluster candidate of the "
-            "inverse model that the throw itself says misses least.",
-            "",
-            "What linear pieces leave of the map's curvature: RMS residual (cm) of one "
-            "least-squares plane per equidistant cell through the unclamped training throws "
-            "(an inverse answering with one piece re-throws with that piece's residual at "
-            "its aim):",
-            "",
-            "| clusters | y (cm) | z (cm) |",
-            "|---:|---:|---:|",
-            *(
-                f"| {r['n_clusters']} | {cm * r['rms_y_m']:.4f} | {cm * r['rms_z_m']:.4f} |"
-                for r in self.pieces
-            ),
-            "",
-            f"With release noise (trained with it; each desired hit re-thrown "
-            f"{self.noisy_bound['repeats']} times with it); scatter: the same throws about "
-            "their noise-free hits:",
-            "",
-            "| clusters | layout | query | y (cm) | z (cm) | scatter y | scatter z "
-            "| y / scatter | z / scatter |",
-            "|---:|---|---|---:|---:|---:|---:|---:|---:|",
-        ]
-        bound = self.noisy_bound | {
-            "n_clusters": "-",
-            "layout": "the noise-free throw inverted by local Newton (the physics' bound)",
-            "query": "-",
-        }
-        for row in [*self.noisy, bound]:
-            lines.append(
-                f"| {row['n_clusters']} | {row['layout']} | {row['query']} | "
-                f"{cm * row['rms_y_m']:.3f} | {cm * row['rms_z_m']:.3f} | "
-                f"{cm * row['scatter_y_m']:.3f} | {cm * row['scatter_z_m']:.3f} | "
-                f"{row['ratio_y']:.3f} | {row['ratio_z']:.3f} |"
-            )
-        b = self.noisy_bound
-        lines += [
-            "",
-            f"The bound's aims thrown without noise miss the desired hits by "
-            f"{cm * b['miss_median_m']:.4f} cm (median) and {cm * b['miss_p90_m']:.3f} cm "
-            "(90th percentile): those hits lie beyond what a noise-free throw reaches.",
-            "",
-            "Active throw targets (grid layout, about 30 throws per cluster), re-throw RMS "
-            "(cm) against the number of throws:",
-            "",
-            "| throws | clusters per axis | random y | random z | active y | active z |",
-            "|---:|---:|---:|---:|---:|---:|",
-        ]
-        for r, a in zip(self.active["random"], self.active["information"], strict=True):
-            lines.append(
-                f"| {r['n']} | {r['bins']} | {cm * r['rms_y_m']:.3f} | {cm * r['rms_z_m']:.3f} "
-                f"| {cm * a['rms_y_m']:.3f} | {cm * a['rms_z_m']:.3f} |"
-            )
-        lines += ["", "Goals:", ""]
-        lines += [f"- {name}: {'met' if ok else 'missed'}" for name, ok in self.goals.items()]
-        return "\n".join(lines) + "\n"
+        cm (:func:`experiments.adaptive_throw_report.markdown`)."""
+        from experiments.adaptive_throw_report import markdown
 
-    def save(self, out) -> list[Path]:
-        """Write ``adaptive_throw.json``, ``.md`` and ``adaptive_throw.png`` to ``out``."""
-        out = Path(out)
-        out.mkdir(parents=True, exist_ok=True)
-        files = [out / "adaptive_throw.json", out / "adaptive_throw.md"]
-        files[0].write_text(self.to_json())
-        files[1].write_text(self.to_markdown())
-        return [*files, plot_adaptive_throw(self, out / "adaptive_throw.png")]
+        return markdown(self)
+
+    def figures(self, out: Path) -> list[Path]:
+        from experiments.adaptive_throw_report import plot_adaptive_throw
+
+        return [plot_adaptive_throw(self, out / "adaptive_throw.png")]
+
+    def summary_rows(self, results) -> list[str]:
+        from experiments.adaptive_throw_report import summary_rows
+
+        return summary_rows(self)
 
 
 def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
@@ -618,84 +541,21 @@ def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
     )
 
 
-def plot_adaptive_throw(result: AdaptiveThrowResult, path) -> Path:
-    """Error against cluster count (both layouts, the references) and the active curves."""
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(13, 4.5), layout="constrained")
-    ax, ax_ll, ax_active = fig.subplots(1, 3)
-    steps = sorted({r["em_steps"] for r in result.layouts if r["layout"] == "adaptive"})
-    series = [("grid", 0, "o")] + [("adaptive", s, "s") for s in steps]
-    for layout, n_steps, marker in series:
-        for query, ls in zip(QUERIES, ("--", "-"), strict=True):
-            # each grid size's row after this many EM steps (or its last, if EM settled)
-            rows = {}
-            for r in result.layouts:
-                if r["layout"] == layout and r["query"] == query and r["em_steps"] <= n_steps:
-                    rows[r["n_clusters"]] = r
-            rows = [rows[c] for c in sorted(rows)]
-            label = layout if layout == "grid" else f"adaptive, {n_steps} EM steps"
-            ax.plot(
-                [r["n_clusters"] for r in rows],
-                [100 * max(r["rms_y_m"], r["rms_z_m"]) for r in rows],
-                marker=marker,
-                ls=ls,
-                label=f"{label}, {query}",
-            )
-    worst = max(result.floor["rms_y_m"], result.floor["rms_z_m"])
-    ax.axhline(100 * worst, color="grey", ls=":", lw=1, label="local Newton (reference)")
-    ax.plot(
-        [r["n_clusters"] for r in result.pieces],
-        [100 * max(r["rms_y_m"], r["rms_z_m"]) for r in result.pieces],
-        color="grey",
-        ls="-.",
-        marker=".",
-        label="best planes per cell, unclamped (curvature)",
-    )
-    ax.axhline(100 * GOAL_RMS_M, color="black", ls="-.", lw=1, label="goal")
-    ax.set(
-        xscale="log",
-        yscale="log",
-        xlabel="clusters",
-        ylabel="re-throw RMS, worse axis [cm]",
-        title="Error against cluster count (noise-free)",
-    )
-    _plain_ticks(ax, sorted({r["n_clusters"] for r in result.layouts}))
-    shown = [*result.layouts, *result.pieces]
-    low = min(100 * GOAL_RMS_M, *(100 * max(r["rms_y_m"], r["rms_z_m"]) for r in shown))
-    ax.set_ylim(bottom=low / 40)  # room for the legend below the curves
-    ax.legend(fontsize=7, loc="lower left")
-    ax_ll.plot(result.em_log_likelihoods, "o-", ms=3)
-    ax_ll.set(xlabel="EM step", ylabel="mean log-likelihood per row", title="EM, largest grid")
-    for strategy, color in (("random", "tab:blue"), ("information", "tab:orange")):
-        rows = result.active[strategy]
-        for key, ls in (("rms_y_m", "-"), ("rms_z_m", "--")):
-            ax_active.plot(
-                [r["n"] for r in rows],
-                [100 * r[key] for r in rows],
-                color=color,
-                ls=ls,
-                marker="o",
-                label=f"{strategy} {key[4]}",
-            )
-    ax_active.set(
-        xscale="log",
-        yscale="log",
-        xlabel="throws",
-        ylabel="re-throw RMS [cm]",
-        title="Active vs random throw targets",
-    )
-    _plain_ticks(ax_active, [r["n"] for r in result.active["random"]])
-    ax_active.legend(fontsize=7)
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(path, dpi=110)
-    return path
-
-
-def _plain_ticks(ax, values) -> None:
-    """Log-scaled x axis labelled at ``values`` only, in plain numbers."""
-    from matplotlib.ticker import NullFormatter
-
-    ax.set_xticks(values, [str(v) for v in values])
-    ax.xaxis.set_minor_formatter(NullFormatter())
+EXPERIMENTS = (
+    Experiment(
+        AdaptiveThrowConfig,
+        run_adaptive_throw,
+        AdaptiveThrowResult,
+        order=50,
+        tiny={
+            "n_train": 300,
+            "n_test": 20,
+            "bins": (2,),
+            "em_steps": (1, 2),
+            "budgets": (40, 80),
+            "batch": 20,
+            "pool": 60,
+        },
+        quick=QUICK,
+    ),
+)

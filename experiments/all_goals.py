@@ -34,18 +34,20 @@ import math
 import time
 from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 import torch
 
+from experiments.cans import SimulationSettings
 from experiments.combined import Robot
 from experiments.config import (
     ConfigError,
     Result,
     check_choice,
-    check_executor,
     check_float,
     check_int,
+    percent,
 )
 from experiments.physics_bounds import (
     BOUND_SEED,
@@ -53,6 +55,7 @@ from experiments.physics_bounds import (
     empirical_transition,
     robot_throws,
 )
+from experiments.registry import Experiment
 from experiments.throwing import MAX_BINS, fit_throws, get_data
 from inference import fit, predict
 from inference.queries.compiled import compile_parameter_query
@@ -82,13 +85,12 @@ MAX_JITTER = 0.05  # m
 
 
 @dataclass(frozen=True)
-class AllGoalsConfig:
-    """Settings of :func:`run_all_goals`; every field is checked on construction.
+class AllGoalsConfig(SimulationSettings):
+    """Settings of :func:`run_all_goals`; every field is checked on construction (where
+    the simulations are saved and run: :class:`experiments.cans.SimulationSettings`).
 
     Attributes
     ----------
-    data_dir : Path
-        Where the simulations are saved (and resumed from).
     table_z : tuple of float
         Table-top heights above the robot's floor, m; one experiment each.
     step : float
@@ -109,13 +111,10 @@ class AllGoalsConfig:
         Throw with release noise.
     seed : int
         Seeds the throw network's data.
-    executor : str or None
-        Where the simulations run (:mod:`sim2d.executors`); None: every core here.
     progress : bool
         Progress bars.
     """
 
-    data_dir: Path = Path("data")
     table_z: tuple[float, ...] = (TABLE_TOP_Z, 0.35)
     step: float = 0.005
     train_repeats: int = 6
@@ -127,11 +126,10 @@ class AllGoalsConfig:
     jitter: float = 0.003
     noise: bool = False
     seed: int = 0
-    executor: str | None = None
     progress: bool = True
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "data_dir", Path(self.data_dir))
+        super().__post_init__()
         heights = tuple(self.table_z) if isinstance(self.table_z, (list, tuple)) else None
         if not heights:
             raise ConfigError("table_z", f"{self.table_z!r}: expected one or more heights, m")
@@ -157,7 +155,6 @@ class AllGoalsConfig:
         check_float("jitter", self.jitter, 0.0, MAX_JITTER, unit="m")
         check_choice("noise", self.noise, (False, True))
         check_int("seed", self.seed, 0)
-        check_executor("executor", self.executor)
 
     def to_dict(self) -> dict:
         """The settings as JSON values."""
@@ -177,6 +174,8 @@ class AllGoalsResult(Result):
     ``bound_in_sample``, ``exact_measured``, ``exact_predicted``, ``exact_throws`` (mean
     throws used), ``paper_measured``, ``paper_plays``. Success figures are fractions.
     """
+
+    experiment_name: ClassVar[str] = "all_goals"
 
     settings: dict
     tables: list[dict]
@@ -222,15 +221,29 @@ class AllGoalsResult(Result):
                 )
         return "\n".join(lines) + "\n"
 
-    def save(self, out) -> list[Path]:
-        """Write ``all_goals.json``, ``all_goals.md`` and the figure ``all_goals.png``."""
-        out = Path(out)
-        out.mkdir(parents=True, exist_ok=True)
-        files = [out / "all_goals.json", out / "all_goals.md", out / "all_goals.png"]
-        files[0].write_text(self.to_json())
-        files[1].write_text(self.to_markdown())
-        plot(self, files[2])
-        return files
+    def figures(self, out: Path) -> list[Path]:
+        plot(self, out / "all_goals.png")
+        return [out / "all_goals.png"]
+
+    def summary_rows(self, results) -> list[str]:
+        """Per table height, every goal the bound reaches: both planners beside the bound."""
+        rows = []
+        for t in self.tables:
+
+            def mean(key, goals=t["goals"]):
+                return sum(g[key] for g in goals) / len(goals) if goals else None
+
+            rows.append(
+                f"| combined, beyond the paper: every goal reachable within "
+                f"{self.settings['horizon']} throws (table {t['table_z']} m, {t['reachable']} "
+                f"goals) | - | exact planner {percent(mean('exact_measured'), 1)} mean success, "
+                f"{percent(t['exact_over_bound'], 1)} of the bound per goal on average "
+                f"(goal {percent(self.goal_ratio, 0)}); paper planner "
+                f"{percent(mean('paper_measured'), 1)}, {percent(t['paper_over_bound'], 1)} | "
+                f"{percent(mean('bound'), 1)} mean held out, "
+                f"{percent(mean('bound_in_sample'), 1)} in sample |"
+            )
+        return rows
 
 
 # --- the learned side --------------------------------------------------------------------
@@ -474,3 +487,35 @@ def plot(result: AllGoalsResult, path) -> None:
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     plt.close(fig)
+
+
+#: A first look: the standard table only, coarser heights, fewer repeats and plays.
+QUICK = {
+    "table_z": (TABLE_TOP_Z,),
+    "step": 0.01,
+    "train_repeats": 2,
+    "bound_repeats": 4,
+    "episodes": 10,
+    "n_throws": 5000,
+    "bins": 8,
+}
+
+EXPERIMENTS = (
+    Experiment(
+        AllGoalsConfig,
+        run_all_goals,
+        AllGoalsResult,
+        order=90,
+        tiny={
+            "table_z": (TABLE_TOP_Z,),
+            "step": 0.05,
+            "train_repeats": 1,
+            "bound_repeats": 2,
+            "horizon": 1,
+            "episodes": 1,
+            "n_throws": 300,
+            "bins": 2,
+        },
+        quick=QUICK,
+    ),
+)

@@ -38,16 +38,16 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from experiments.cans import SCALES, CanModel, can_dataset, fit_can_network
+from experiments.cans import CanDataSettings, CanModel, can_dataset, fit_can_network
 from experiments.config import (
     Result,
     check_choice,
-    check_executor,
     check_float,
     check_int,
 )
@@ -57,9 +57,9 @@ from experiments.evaluation import (
     aim_pooled,
     aim_robust_best,
     roc_auc,
-    roc_curve,
     tail_surprise,
 )
+from experiments.registry import Experiment
 from inference import imitation_check
 from models.can_network import config_index, count
 from sim2d import field_throws, geometry, materials
@@ -73,8 +73,6 @@ __all__ = [
     "emulation",
     "imitation",
     "play_table_one",
-    "plot_roc",
-    "plot_table_one",
     "run_can_tossing",
     "summarise",
     "table_one",
@@ -89,17 +87,12 @@ MAX_AIM_ERROR = geometry.PYRAMID_HEIGHT / 2
 
 
 @dataclass(frozen=True)
-class CanTossingConfig:
-    """Settings of :func:`run_can_tossing`; every field is checked on construction.
+class CanTossingConfig(CanDataSettings):
+    """Settings of :func:`run_can_tossing`; every field is checked on construction (the
+    can data set's: :class:`experiments.cans.CanDataSettings`).
 
     Attributes
     ----------
-    scale : str
-        The can data set's scale, a key of :data:`experiments.cans.SCALES`.
-    data_dir : Path
-        Where the can data set is generated (or reused).
-    executor : str or None
-        Where the data set is simulated (:mod:`sim2d.executors`); None: every core here.
     seed : int
         Seeds every evaluation throw (>= 0).
     rule, cases : str
@@ -117,9 +110,6 @@ class CanTossingConfig:
         Progress bars.
     """
 
-    scale: str = "full"
-    data_dir: Path = Path("data")
-    executor: str | None = None
     seed: int = 0
     rule: str = "aim"
     cases: str = "counts"
@@ -129,9 +119,7 @@ class CanTossingConfig:
     progress: bool = True
 
     def __post_init__(self):
-        check_choice("scale", self.scale, SCALES)
-        object.__setattr__(self, "data_dir", Path(self.data_dir))
-        check_executor("executor", self.executor)
+        super().__post_init__()
         check_int("seed", self.seed, 0)
         check_choice("rule", self.rule, RULES)
         check_choice("cases", self.cases, PROTOCOLS)
@@ -532,6 +520,8 @@ class CanTossingResult(Result):
     ``emulation`` and ``imitation`` are :func:`emulation`'s and :func:`imitation`'s.
     """
 
+    experiment_name: ClassVar[str] = "can_tossing"
+
     scale: str
     cases: str
     rule: str
@@ -546,20 +536,27 @@ class CanTossingResult(Result):
     imitation: dict
 
     def to_markdown(self) -> str:
+        """Table I under both protocols and rules beside the paper's, emulation and
+        imitation (:func:`experiments.can_tossing_report.markdown`)."""
+        from experiments.can_tossing_report import markdown
+
         return markdown(self)
 
-    def save(self, out) -> list[Path]:
-        """Write ``can_tossing.json``, ``.md``, ``_table1.png`` and (when the imitation
-        has both classes) ``_roc.png`` to the folder ``out``; their paths."""
-        out = Path(out)
-        out.mkdir(parents=True, exist_ok=True)
-        files = [out / "can_tossing.json", out / "can_tossing.md"]
-        files[0].write_text(self.to_json())
-        files[1].write_text(self.to_markdown())
-        files.append(plot_table_one(self, out / "can_tossing_table1.png"))
+    def figures(self, out: Path) -> list[Path]:
+        """``can_tossing_table1.png`` and (when the imitation has both classes)
+        ``can_tossing_roc.png``."""
+        from experiments.can_tossing_report import plot_roc, plot_table_one
+
+        files = [plot_table_one(self, out / "can_tossing_table1.png")]
         if self.imitation["auc"] is not None:
             files.append(plot_roc(self.imitation, out / "can_tossing_roc.png"))
         return files
+
+    def summary_rows(self, results) -> list[str]:
+        """Table I under both protocols beside the physics bound, emulation, imitation."""
+        from experiments.can_tossing_report import can_rows, table_one_rows
+
+        return table_one_rows(self, results.get("physics_bounds")) + can_rows(self)
 
 
 def run_can_tossing(config: CanTossingConfig) -> CanTossingResult:
@@ -590,128 +587,13 @@ def run_can_tossing(config: CanTossingConfig) -> CanTossingResult:
     )
 
 
-def markdown(r: CanTossingResult) -> str:
-    """The report: Table I under both protocols and rules beside the paper's, emulation and
-    imitation."""
-    tabs = r.table_one
-    cols = [(m, rule) for m in ("counts", "actions") for rule in ("index", "aim")]
-    lines = [
-        f"# Can tossing (scale {r.scale}; headline: cases {r.cases}, rule {r.rule})",
-        "",
-        "| accuracy | "
-        + " | ".join(f"{m}/{rule} # | %" for m, rule in cols)
-        + " | paper # | paper % |",
-        "|---|" + "---:|---:|" * (len(cols) + 1),
-    ]
-    for b in ACCURACY_BINS:
-        cells = []
-        for m, rule in cols:
-            t = tabs[m][rule]
-            cells += [str(t["histogram"][b]), f"{100 * t['histogram'][b] / t['n_cases']:.2f}"]
-        lines.append(
-            f"| {b} | " + " | ".join(cells) + f" | {PAPER_TABLE_I[b]} | {PAPER_PERCENT[b]:.2f} |"
-        )
-    cells = [f"{tabs[m][rule]['n_cases']} | " for m, rule in cols]
-    lines.append("| cases | " + " | ".join(cells) + f" | {PAPER_CASES} | |")
-    lines.append("")
-    for m, rule in cols:
-        t = tabs[m][rule]
-        line = f"- {m}/{rule}: exact {100 * t['exact_fraction']:.2f} %"
-        if t["n_unreachable"] and t["exact_fraction_reachable"] is not None:
-            line += (
-                f"; {t['n_unreachable']} cases ask for a count no 0° training throw reached, "
-                f"exact among the others {100 * t['exact_fraction_reachable']:.2f} %"
-            )
-        lines.append(line)
-    e, i = r.emulation, r.imitation
-    v = i["validation"]
-    lines += [
-        f"- emulation ({e['n_demonstrations']} demonstrations): same end configuration "
-        f"{100 * e['same_end_config']:.1f} %, same count {100 * e['same_count']:.1f} % "
-        f"(demonstrated field re-thrown: {100 * e['reference_same_end_config']:.1f} % / "
-        f"{100 * e['reference_same_count']:.1f} %)",
-        f"- imitation ({i['n_throws']} throws, aim error {100 * i['aim_error_m']:.1f} cm, "
-        f"{i['n_failed']} failed): ROC AUC of surprise "
-        + ("n/a (one class only)" if i["auc"] is None else f"{i['auc']:.3f}")
-        + f"; against the intended throw's usual outcomes ({i['n_failed_ordinary']} failed): "
-        + ("n/a" if i["auc_ordinary"] is None else f"{i['auc_ordinary']:.3f}"),
-        f"- imitation, pooled surprise (aim error {i['aim_sigma']:g} fields): ROC AUC "
-        + f"{_auc_text(i['auc_pooled'])}; against the usual outcomes "
-        + f"{_auc_text(i['auc_ordinary_pooled'])}. Aim error chosen on a validation draw "
-        + f"({v['n_throws']} throws, {v['n_failed']} / {v['n_failed_ordinary']} failed) by "
-        + "the second AUC: "
-        + ", ".join(
-            f"{b['sigma']:g}: {_auc_text(b['auc'])} / {_auc_text(b['auc_ordinary'])}"
-            for b in v["by_sigma"]
-        ),
-        "",
-    ]
-    return "\n".join(lines)
-
-
-def _auc_text(auc: float | None) -> str:
-    return "n/a" if auc is None else f"{auc:.3f}"
-
-
-def plot_table_one(result: CanTossingResult, path) -> Path:
-    """Bar chart of Table I's bins: each protocol and rule beside the paper; saved to ``path``."""
-    from matplotlib.figure import Figure
-
-    tables = result.table_one
-    series = {
-        f"ours, {m}, {rule}": [100 * t["histogram"][b] / t["n_cases"] for b in ACCURACY_BINS]
-        for m in tables
-        for rule, t in tables[m].items()
-    }
-    series["paper"] = [PAPER_PERCENT[b] for b in ACCURACY_BINS]
-    fig = Figure(figsize=(8, 4.2))
-    ax = fig.subplots()
-    x = np.arange(len(ACCURACY_BINS))
-    width = 0.8 / len(series)
-    for k, (label, values) in enumerate(series.items()):
-        ax.bar(x + (k - (len(series) - 1) / 2) * width, values, width, label=label)
-    ax.set_xticks(x, ACCURACY_BINS)
-    ax.set_yscale("log")
-    ax.set_xlabel("desired minus achieved count")
-    ax.set_ylabel("% of cases (log scale)")
-    ax.set_title("Table I: best field for a desired count, thrown at 0°")
-    ax.legend(fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    return Path(path)
-
-
-def plot_roc(result: dict, path) -> Path:
-    """ROC curves of the imitation surprise (``result``: :func:`imitation`'s); saved to ``path``."""
-    from matplotlib.figure import Figure
-
-    fig = Figure(figsize=(5.6, 5.0))
-    ax = fig.subplots()
-    for (key, label), colour in zip(
-        (
-            ("failed", "not the unperturbed throw's outcome"),
-            ("failed_ordinary", "none of the usual outcomes"),
-        ),
-        ("C0", "C1"),
-        strict=True,
-    ):
-        suffix = "" if key == "failed" else "_ordinary"
-        for scores, style, name in (
-            ("surprise", "-", "surprise"),
-            ("pooled_surprise", "--", f"pooled, {result['aim_sigma']:g} fields"),
-        ):
-            auc = result[f"auc{suffix}" + ("_pooled" if scores == "pooled_surprise" else "")]
-            if auc is not None:
-                fpr, tpr = roc_curve(result[scores], result[key])
-                ax.plot(fpr, tpr, style, color=colour, label=f"failed: {label}; {name} ({auc:.3f})")
-    ax.plot([0, 1], [0, 1], ":", color="0.5", label="chance")
-    ax.set_xlabel("false-positive rate (successful throws flagged)")
-    ax.set_ylabel("true-positive rate (failed throws flagged)")
-    ax.set_title(
-        f"Imitation: {result['n_throws']} throws aimed {100 * result['aim_error_m']:.0f} cm off",
-        fontsize=10,
-    )
-    ax.legend(loc="lower right", fontsize=8)
-    fig.tight_layout()
-    fig.savefig(path, dpi=120)
-    return Path(path)
+EXPERIMENTS = (
+    Experiment(
+        CanTossingConfig,
+        run_can_tossing,
+        CanTossingResult,
+        order=60,
+        tiny={"scale": "tiny", "n_demos": 2},
+        quick={"scale": "quick", "n_demos": 100},
+    ),
+)

@@ -1,8 +1,15 @@
 """The can data set at a scale, and the can network (Fig. 2) fitted on one angle's throws.
 
 Shared by the can experiments (:mod:`experiments.can_tossing`, :mod:`experiments.combined`,
-:mod:`experiments.physics_bounds`); composes sim2d (data), models (the network) and
-inference (fitting, compiled queries).
+:mod:`experiments.physics_bounds`, :mod:`experiments.active`); composes sim2d (data),
+models (the network) and inference (fitting, compiled queries). Their common settings
+are written once here: :class:`SimulationSettings` (where simulations are saved and
+run) and :class:`CanDataSettings` (those and the data set's scale).
+
+Generated data has one home (docs/data.md): the folder a command names (``--data-dir``),
+else :func:`default_data_dir`, ``data`` in the cache folder of
+:func:`sim2d.configurations.cache_dir` (``$EFFECT_NETWORKS_CACHE``, else
+``~/.cache/effect-networks``), whatever the current directory.
 """
 
 from __future__ import annotations
@@ -13,15 +20,25 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from experiments.config import check_choice, check_executor
 from inference import fit, predict
 from inference.queries.compiled import CompiledNetwork, compile_discrete
 from models import EffectNetwork, NetworkParams
 from models.can_network import can_network, can_rows
 from sim2d import field_throws, geometry
 from sim2d.can_dataset import CanDataset, generate_dataset, load_dataset
-from sim2d.configurations import stable_configurations
+from sim2d.configurations import cache_dir, stable_configurations
 
-__all__ = ["SCALES", "CanModel", "can_dataset", "fit_can_network", "start_configurations"]
+__all__ = [
+    "SCALES",
+    "CanDataSettings",
+    "CanModel",
+    "SimulationSettings",
+    "can_dataset",
+    "default_data_dir",
+    "fit_can_network",
+    "start_configurations",
+]
 
 #: Scales: how many start configurations (None: all) and repeats per throw.
 SCALES = {
@@ -29,6 +46,53 @@ SCALES = {
     "quick": {"n_configs": 16, "repeats": 3},
     "tiny": {"n_configs": 3, "repeats": 1},
 }
+
+
+def default_data_dir() -> Path:
+    """Where generated data is saved unless a folder is named: ``data`` in the cache folder
+    (``$EFFECT_NETWORKS_CACHE``, else ``~/.cache/effect-networks``)."""
+    return cache_dir() / "data"
+
+
+@dataclass(frozen=True)
+class SimulationSettings:
+    """Settings of an experiment that simulates; checked on construction.
+
+    Attributes
+    ----------
+    data_dir : Path
+        Where the simulations are saved as they finish, and resumed or reused from
+        (default: data in the cache folder, $EFFECT_NETWORKS_CACHE or
+        ~/.cache/effect-networks).
+    executor : str or None
+        Where they run (:mod:`sim2d.executors`): process:N | dask-local:N |
+        dask://HOST:PORT | ray; None: every core here.
+    """
+
+    data_dir: Path | None = None
+    executor: str | None = None
+
+    def __post_init__(self):
+        folder = default_data_dir() if self.data_dir is None else Path(self.data_dir)
+        object.__setattr__(self, "data_dir", folder)
+        check_executor("executor", self.executor)
+
+
+@dataclass(frozen=True)
+class CanDataSettings(SimulationSettings):
+    """Settings of an experiment on the can data set (:func:`can_dataset`).
+
+    Attributes
+    ----------
+    scale : str
+        The can data set's scale, a key of ``SCALES`` (full, quick, tiny).
+    """
+
+    scale: str = "full"
+
+    def __post_init__(self):
+        check_choice("scale", self.scale, SCALES)
+        super().__post_init__()
 
 
 def start_configurations(n_configs: int | None) -> list[int]:

@@ -27,20 +27,21 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass, field
-from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from experiments.cans import SCALES, CanModel, can_dataset, fit_can_network
+from experiments.cans import CanDataSettings, CanModel, can_dataset, fit_can_network
 from experiments.config import (
     Result,
     check_choice,
-    check_executor,
     check_float,
     check_int,
+    percent,
 )
+from experiments.registry import Experiment
 from experiments.throwing import MAX_BINS, fit_throws, get_data
 from inference import predict
 from inference.queries.compiled import compile_parameter_query
@@ -71,13 +72,12 @@ MAX_JITTER = 0.05  # m: beyond a field's height, the aim says nothing
 
 
 @dataclass(frozen=True)
-class CombinedConfig:
-    """Settings of :func:`run_combined`; every field is checked on construction.
+class CombinedConfig(CanDataSettings):
+    """Settings of :func:`run_combined`; every field is checked on construction (the can
+    data set's: :class:`experiments.cans.CanDataSettings`).
 
     Attributes
     ----------
-    scale, data_dir, executor
-        The can data set (:func:`experiments.cans.can_dataset`).
     n_throws : int
         Throws that train the throw network.
     bins : int
@@ -103,9 +103,6 @@ class CombinedConfig:
         Progress bars.
     """
 
-    scale: str = "full"
-    data_dir: Path = Path("data")
-    executor: str | None = None
     n_throws: int = 29_000
     bins: int = 16
     horizon: int = 6
@@ -118,9 +115,7 @@ class CombinedConfig:
     progress: bool = True
 
     def __post_init__(self):
-        check_choice("scale", self.scale, SCALES)
-        object.__setattr__(self, "data_dir", Path(self.data_dir))
-        check_executor("executor", self.executor)
+        super().__post_init__()
         check_int("n_throws", self.n_throws, 10)
         check_int("bins", self.bins, 1, MAX_BINS)
         check_int("horizon", self.horizon, 1, MAX_HORIZON)
@@ -382,6 +377,8 @@ class CombinedResult(Result):
     direction, the angle the can network was trained on, the table height and jitter.
     """
 
+    experiment_name: ClassVar[str] = "combined"
+
     scenarios: dict[str, dict]
     angle_choice: dict
     release_noise: bool
@@ -408,14 +405,26 @@ class CombinedResult(Result):
         )
         return "\n\n".join([head, *tables, "\n".join(lines)]) + "\n"
 
-    def save(self, out) -> list[Path]:
-        """Write ``combined.json`` and ``combined.md`` to the folder ``out``."""
-        out = Path(out)
-        out.mkdir(parents=True, exist_ok=True)
-        files = [out / "combined.json", out / "combined.md"]
-        files[0].write_text(self.to_json())
-        files[1].write_text(self.to_markdown())
-        return files
+    def summary_rows(self, results) -> list[str]:
+        """The paper's three scenarios, each beside its bound at the same table height."""
+        table_z = str(self.angle_choice.get("table_z", ""))
+        bounds = results["physics_bounds"].combined if "physics_bounds" in results else {}
+        bounds = bounds.get(table_z, {})
+        rows = []
+        for name, table in TABLES.items():
+            s, bound = self.scenarios[name], ""
+            if name in bounds:
+                bound = (
+                    f"{percent(bounds[name]['success_bound'], 1)} held out, "
+                    f"{percent(bounds[name]['success_in_sample'], 1)} in sample"
+                )
+            rows.append(
+                f"| §IV-C combined, {table}, {name.replace('_', ' ')} (table {table_z} m) | "
+                f"{percent(s['paper_success_rate'])} | {percent(s['success_rate'])} (paper "
+                f"planner); {percent(s['success_rate_exact_planner'], 1)} (exact planner) | "
+                f"{bound} |"
+            )
+        return rows
 
 
 def run_combined(config: CombinedConfig) -> CombinedResult:
@@ -437,3 +446,15 @@ def run_combined(config: CombinedConfig) -> CombinedResult:
         scale=config.scale,
         seconds=time.perf_counter() - started,
     )
+
+
+EXPERIMENTS = (
+    Experiment(
+        CombinedConfig,
+        run_combined,
+        CombinedResult,
+        order=70,
+        tiny={"scale": "tiny", "n_throws": 300, "bins": 2, "episodes": 1, "horizon": 1},
+        quick={"scale": "quick", "n_throws": 5000, "episodes": 10},
+    ),
+)

@@ -9,7 +9,9 @@ into a command-line error with :func:`config_or_exit`, and runs its ``main`` wit
 traceback). A result dataclass derives from
 :class:`Result`: ``to_json`` / ``from_json`` / ``load`` round-trip its fields (plain
 JSON values: numbers, strings, lists, dicts with string keys), ``to_markdown`` is its
-report, and ``save(out)`` writes its files.
+report, ``figures(out)`` draws its figures, ``summary_rows`` are its rows of the results
+table (:mod:`experiments.summary`), and ``save(out)`` writes them all as
+``<experiment_name>.json``, ``.md`` and the figures' files.
 """
 
 from __future__ import annotations
@@ -21,12 +23,12 @@ import numbers
 import operator
 import os
 import sys
-from collections.abc import Callable, Iterable
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, fields
 from pathlib import Path
-from typing import Any, TypeVar
+from typing import Any, ClassVar, TypeVar
 
-from sim2d.chunks import write_failure
+from sim2d.chunks import write_failure, write_text
 from sim2d.executors import ExecutorUnavailable, parse_spec
 
 __all__ = [
@@ -38,6 +40,7 @@ __all__ = [
     "check_int",
     "check_threads",
     "config_or_exit",
+    "percent",
     "run_script",
 ]
 
@@ -151,9 +154,49 @@ def run_script(main: Callable[[argparse.Namespace], object], args: argparse.Name
     sys.exit(result if isinstance(result, int) and not isinstance(result, bool) else 0)
 
 
+def percent(x: float | None, digits: int = 2) -> str:
+    """The fraction ``x`` in per cent with ``digits`` decimals, or ``n/a`` for None."""
+    return "n/a" if x is None else f"{100 * x:.{digits}f} %"
+
+
 @dataclass
 class Result:
-    """Base of the experiments' results: JSON round trip of the dataclass's fields."""
+    """Base of the experiments' results: JSON round trip of the dataclass's fields, and
+    their files.
+
+    A subclass names its experiment in the class variable ``experiment_name`` (its files
+    are ``<experiment_name>.json`` and ``.md``), writes its report in :meth:`to_markdown`, and may
+    draw figures (:meth:`figures`) and give rows of the results table
+    (:meth:`summary_rows`).
+    """
+
+    experiment_name: ClassVar[str] = ""
+
+    def to_markdown(self) -> str:
+        """The report, in Markdown."""
+        raise NotImplementedError(f"{type(self).__name__} has no report")
+
+    def figures(self, out: Path) -> list[Path]:
+        """Draw the figures into the folder ``out``; their paths (none by default)."""
+        return []
+
+    def summary_rows(self, results: Mapping[str, Result]) -> list[str]:
+        """Rows of the results table (``| experiment | paper | ours | bound |``), given every
+        result of the run by experiment name; none by default."""
+        return []
+
+    def save(self, out) -> list[Path]:
+        """Write ``<name>.json``, ``<name>.md`` and the figures to the folder ``out``
+        (made if absent); the paths written."""
+        name = self.experiment_name
+        assert name, f"{type(self).__name__} names no experiment"
+        out = Path(out)
+        out.mkdir(parents=True, exist_ok=True)
+        files = [
+            write_text(out / f"{name}.json", self.to_json()),
+            write_text(out / f"{name}.md", self.to_markdown()),
+        ]
+        return files + list(self.figures(out))
 
     def to_dict(self) -> dict[str, Any]:
         """The fields by name (values are shared, not copied)."""

@@ -24,21 +24,21 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 import torch
 
 from experiments.can_tossing import ANGLE, PROTOCOLS, table_one_cases
-from experiments.cans import SCALES, can_dataset, start_configurations
+from experiments.cans import SCALES, CanDataSettings, can_dataset, start_configurations
 from experiments.combined import MAX_HORIZON, SCENARIOS
 from experiments.config import (
     ConfigError,
     Result,
-    check_choice,
-    check_executor,
     check_float,
     check_int,
 )
+from experiments.registry import Experiment
 from inference.queries.planning import exact_plan, policy_value
 from sim2d import field_throws, geometry
 from sim2d.can_dataset import generate_dataset, load_dataset
@@ -64,14 +64,13 @@ BOUND_SEED = 1  # the training data set uses seed 0: these throws are fresh
 
 
 @dataclass(frozen=True)
-class PhysicsBoundsConfig:
-    """Settings of :func:`run_physics_bounds`; every field is checked on construction.
+class PhysicsBoundsConfig(CanDataSettings):
+    """Settings of :func:`run_physics_bounds`; every field is checked on construction (the
+    can data set's: :class:`experiments.cans.CanDataSettings`; the bounds' own simulations
+    are saved beside it and run on the same executor).
 
     Attributes
     ----------
-    scale, data_dir, executor
-        The can data set (:func:`experiments.cans.can_dataset`); the bounds' own
-        simulations are saved beside it and run on the same executor.
     repeats : int
         Table I: throws per (start, field), >= 2 (half choose, half score).
     table_z : tuple of float
@@ -87,9 +86,6 @@ class PhysicsBoundsConfig:
         Progress bars.
     """
 
-    scale: str = "full"
-    data_dir: Path = Path("data")
-    executor: str | None = None
     repeats: int = 16
     table_z: tuple[float, ...] = (TABLE_TOP_Z,)
     step: float = 0.005
@@ -98,9 +94,7 @@ class PhysicsBoundsConfig:
     progress: bool = True
 
     def __post_init__(self):
-        check_choice("scale", self.scale, SCALES)
-        object.__setattr__(self, "data_dir", Path(self.data_dir))
-        check_executor("executor", self.executor)
+        super().__post_init__()
         check_int("repeats", self.repeats, 2)
         object.__setattr__(self, "table_z", tuple(self.table_z))
         if not self.table_z:
@@ -277,6 +271,8 @@ class PhysicsBoundsResult(Result):
     (``str(table_z)``) and scenario, :func:`combined_bound`'s.
     """
 
+    experiment_name: ClassVar[str] = "physics_bounds"
+
     scale: str
     table_one: dict[str, dict]
     horizon: int
@@ -315,14 +311,14 @@ class PhysicsBoundsResult(Result):
             lines.append(f"| {table_z} | " + " | ".join(cells) + " |")
         return "\n".join(lines) + "\n"
 
-    def save(self, out) -> list[Path]:
-        """Write ``physics_bounds.json`` and ``physics_bounds.md`` to the folder ``out``."""
-        out = Path(out)
-        out.mkdir(parents=True, exist_ok=True)
-        files = [out / "physics_bounds.json", out / "physics_bounds.md"]
-        files[0].write_text(self.to_json())
-        files[1].write_text(self.to_markdown())
-        return files
+    def summary_rows(self, results) -> list[str]:
+        """Table I's bounds, when the can-tossing result (which shows them beside its own
+        figures) is missing; the combined bounds are the combined result's rows."""
+        if "can_tossing" in results:
+            return []
+        from experiments.can_tossing_report import table_one_rows
+
+        return table_one_rows(None, self)
 
 
 def run_physics_bounds(config: PhysicsBoundsConfig) -> PhysicsBoundsResult:
@@ -341,3 +337,15 @@ def run_physics_bounds(config: PhysicsBoundsConfig) -> PhysicsBoundsResult:
         combined=combined,
         seconds=time.perf_counter() - started,
     )
+
+
+EXPERIMENTS = (
+    Experiment(
+        PhysicsBoundsConfig,
+        run_physics_bounds,
+        PhysicsBoundsResult,
+        order=80,
+        tiny={"scale": "tiny", "repeats": 2, "combined_repeats": 2, "step": 0.1},
+        quick={"scale": "quick", "repeats": 8, "step": 0.01, "combined_repeats": 4},
+    ),
+)

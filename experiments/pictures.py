@@ -13,10 +13,12 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 
 from experiments.config import ConfigError, Result, check_float, check_int
+from experiments.registry import Experiment
 from sim2d import geometry, recording, render
 from sim2d.configurations import check_config
 from sim2d.field_throws import check_throwable
@@ -42,11 +44,21 @@ MAX_FRAME_INTERVAL = 1.0  # s
 class CanWorldConfig:
     """Settings of :func:`draw_can_world`; every field is checked on construction.
 
-    ``config``: the start configuration (a physically possible mask); ``field`` (0..194)
-    and ``angle`` (0: flat, 1: descending, 2: ascending) a throwable action; ``jitter``:
-    aim error sd, m, in ``[0, MAX_JITTER]``; ``seed`` of the aim error (>= 0);
-    ``frame_interval``: seconds between GIF frames, in ``(0, MAX_FRAME_INTERVAL]``;
-    ``fps``: GIF frames per second (1..100).
+    Attributes
+    ----------
+    config : int
+        The start configuration, a physically possible mask of the cans.
+    field, angle : int
+        The throw: a field (0..194) and an angle (0: flat, 1: descending, 2: ascending)
+        that can throw at it.
+    jitter : float
+        Aim error sd, m, in ``[0, MAX_JITTER]``.
+    seed : int
+        Seeds the aim error (>= 0).
+    frame_interval : float
+        Seconds between GIF frames, in ``(0, MAX_FRAME_INTERVAL]``.
+    fps : int
+        GIF frames per second (1..100).
     """
 
     config: int = geometry.FULL_PYRAMID
@@ -86,11 +98,17 @@ class CanWorldConfig:
 class CanWorldPictures(Result):
     """The recorded throw's outcome (``outcome``: text) and the pictures' paths by name."""
 
+    experiment_name: ClassVar[str] = "can_world"
+
     outcome: str
     files: dict[str, str]
 
     def to_markdown(self) -> str:
         return "\n".join([self.outcome, *(f"- {k}: {v}" for k, v in self.files.items())]) + "\n"
+
+    def figures(self, out: Path) -> list[Path]:
+        """The pictures :func:`draw_can_world` drew."""
+        return [Path(path) for path in self.files.values()]
 
 
 def draw_can_world(config: CanWorldConfig, out) -> CanWorldPictures:
@@ -129,8 +147,17 @@ FLIGHT_TARGETS = np.array(
 
 @dataclass(frozen=True)
 class ThrowKinematicsConfig:
-    """Settings of :func:`draw_throw_kinematics`: ``grid`` targets per side in the figure
-    (2..100), ``n`` uniform targets to throw at (>= 1), ``seed`` (>= 0)."""
+    """Settings of :func:`draw_throw_kinematics`; every field is checked on construction.
+
+    Attributes
+    ----------
+    grid : int
+        Targets per side in the figure (2..100).
+    n : int
+        Uniform targets to throw at (>= 1).
+    seed : int
+        Seeds the targets and the release noise (>= 0).
+    """
 
     grid: int = 15
     n: int = 30_000
@@ -146,6 +173,8 @@ class ThrowKinematicsConfig:
 class ThrowKinematicsResult(Result):
     """The throw's numbers: shares in [0, 1], the time of ``n`` throws (s), the release
     noise's scatter at the plane (m, sd per axis), and the figures' paths."""
+
+    experiment_name: ClassVar[str] = "throw_kinematics"
 
     n: int
     clamped_share: float
@@ -164,6 +193,10 @@ class ThrowKinematicsResult(Result):
             f"{100 * self.noise_scatter_y_m:.2f} cm (y), {100 * self.noise_scatter_z_m:.2f} cm "
             "(z) sd\n"
         )
+
+    def figures(self, out: Path) -> list[Path]:
+        """The figures :func:`draw_throw_kinematics` drew."""
+        return [Path(path) for path in self.files.values()]
 
 
 def draw_throw_kinematics(config: ThrowKinematicsConfig, out) -> ThrowKinematicsResult:
@@ -193,3 +226,26 @@ def draw_throw_kinematics(config: ThrowKinematicsConfig, out) -> ThrowKinematics
         noise_scatter_z_m=float(scatter[1]),
         files={k: str(v) for k, v in files.items()},
     )
+
+
+EXPERIMENTS = (
+    Experiment(
+        CanWorldConfig,
+        draw_can_world,
+        CanWorldPictures,
+        order=20,
+        tiny={"frame_interval": 0.5},
+        quick={"frame_interval": 0.04, "fps": 12},  # fewer GIF frames, the same throw
+        folder="can_world",
+        draws=True,
+    ),
+    Experiment(
+        ThrowKinematicsConfig,
+        draw_throw_kinematics,
+        ThrowKinematicsResult,
+        order=30,
+        tiny={"grid": 2, "n": 10},
+        folder="throw",
+        draws=True,
+    ),
+)

@@ -16,10 +16,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 
 from experiments.config import Result, check_int
+from experiments.registry import Experiment
 from inference import fit, imitation_check, infer_action, predict
 from models import Continuous, Discrete, EffectNetwork, Parameter
 
@@ -38,8 +40,17 @@ MAX_BINS = 200  # force clusters
 
 @dataclass(frozen=True)
 class TapAndRemoveConfig:
-    """Settings of :func:`run_tap_and_remove`: ``n`` training rows (the test has a quarter,
-    at least 50), ``bins`` force clusters in ``1..MAX_BINS``, ``seed`` >= 0."""
+    """Settings of :func:`run_tap_and_remove`; every field is checked on construction.
+
+    Attributes
+    ----------
+    n : int
+        Training rows (the test has a quarter, at least 50), >= 10.
+    bins : int
+        Force clusters, ``1..MAX_BINS``.
+    seed : int
+        Seeds both draws (>= 0).
+    """
 
     n: int = 2000
     bins: int = 8
@@ -108,6 +119,8 @@ class TapAndRemoveResult(Result):
     (``predicted``), for the figure.
     """
 
+    experiment_name: ClassVar[str] = "tap_and_remove"
+
     n_train: int
     remove: dict
     rms_m: dict[str, float]
@@ -129,14 +142,12 @@ class TapAndRemoveResult(Result):
         ]
         return "\n".join(lines)
 
-    def save(self, out) -> list[Path]:
-        """Write ``tap_and_remove.json``, ``.md`` and ``.png`` to the folder ``out``."""
-        out = Path(out)
-        out.mkdir(parents=True, exist_ok=True)
-        files = [out / "tap_and_remove.json", out / "tap_and_remove.md"]
-        files[0].write_text(self.to_json())
-        files[1].write_text(self.to_markdown())
-        return [*files, plot_taps(self, out / "tap_and_remove.png")]
+    def figures(self, out: Path) -> list[Path]:
+        return [plot_taps(self, out / "tap_and_remove.png")]
+
+    def summary_rows(self, results) -> list[str]:
+        cells = "; ".join(f"{label} {rms:.4f} m" for label, rms in self.rms_m.items())
+        return [f"| §III tap: RMS prediction of the end position | qualitative | {cells} | |"]
 
 
 def run_tap_and_remove(config: TapAndRemoveConfig) -> TapAndRemoveResult:
@@ -227,3 +238,16 @@ def plot_taps(result: TapAndRemoveResult, path) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=120)
     return path
+
+
+EXPERIMENTS = (
+    Experiment(
+        TapAndRemoveConfig,
+        run_tap_and_remove,
+        TapAndRemoveResult,
+        order=10,
+        tiny={"n": 100, "bins": 2},
+        quick={"n": 600},
+        folder="tap_and_remove",
+    ),
+)

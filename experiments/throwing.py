@@ -25,11 +25,13 @@ from __future__ import annotations
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import ClassVar
 
 import numpy as np
 from tqdm.auto import tqdm
 
 from experiments.config import ConfigError, Result, check_int
+from experiments.registry import Experiment
 from inference import fit, infer_parameter
 from models.throw_network import TARGET, hit_evidence, throw_data, throw_network
 from sim2d.throw import (
@@ -165,6 +167,8 @@ class ThrowingResult(Result):
     errors ``(n, 2)``, metres.
     """
 
+    experiment_name: ClassVar[str] = "throwing"
+
     n_train: int
     n_test: int
     seed: int
@@ -231,14 +235,18 @@ class ThrowingResult(Result):
         ]
         return "\n".join(lines)
 
-    def save(self, out) -> list[Path]:
-        """Write ``throwing.json``, ``throwing.md`` and ``throwing_errors.png`` to ``out``."""
-        out = Path(out)
-        out.mkdir(parents=True, exist_ok=True)
-        files = [out / "throwing.json", out / "throwing.md"]
-        files[0].write_text(self.to_json())
-        files[1].write_text(self.to_markdown())
-        return [*files, plot_errors(self, out / "throwing_errors.png")]
+    def figures(self, out: Path) -> list[Path]:
+        return [plot_errors(self, out / "throwing_errors.png")]
+
+    def summary_rows(self, results) -> list[str]:
+        return [
+            f"| §IV-B throw: re-thrown RMS y / z (m) | {self.paper_rms_y_m:.4f} / "
+            f"{self.paper_rms_z_m:.4f} | {self.rms_y_m:.4f} / {self.rms_z_m:.4f} "
+            f"({self.n_clusters} clusters; one Gaussian: {self.rms_y_m_single_gaussian:.4f} / "
+            f"{self.rms_z_m_single_gaussian:.4f}; with release noise {self.rms_y_m_noisy:.4f} / "
+            f"{self.rms_z_m_noisy:.4f} beside the noise's own scatter "
+            f"{self.noise_scatter_y_m:.4f} / {self.noise_scatter_z_m:.4f}) | |"
+        ]
 
 
 def run_throwing(config: ThrowingConfig) -> ThrowingResult:
@@ -353,3 +361,15 @@ def _rectangle(area, **kwargs):
         lw=1,
         **kwargs,
     )
+
+
+EXPERIMENTS = (
+    Experiment(
+        ThrowingConfig,
+        run_throwing,
+        ThrowingResult,
+        order=40,
+        tiny={"n_train": 100, "n_test": 10, "bins": (1, 2)},
+        quick=QUICK,
+    ),
+)

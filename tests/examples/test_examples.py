@@ -1,7 +1,9 @@
-"""Every example runs as a script with tiny arguments; bad numbers are usage errors.
+"""Every example runs with its experiment's tiny settings; bad numbers are usage errors.
 
-The experiments themselves are tested in tests/experiments; here each script is run the
-way a user runs it (a subprocess in the repository root), and its command line is checked.
+The experiments themselves are tested in tests/experiments; here each script's command
+line (:mod:`experiments.cli`, derived from its settings) is run in this process with the
+tiny settings the experiment declares, reproduce runs a script the way a user does (a
+subprocess in the repository root), and every command line is checked.
 """
 
 import json
@@ -15,11 +17,14 @@ from pathlib import Path
 
 import pytest
 
+from experiments import cli
+from experiments.registry import experiment, experiments
 from sim2d.chunks import locked
 from tests.helpers import load_example
 
 ROOT = Path(__file__).resolve().parents[2]
-EXAMPLES = sorted(p.stem for p in (ROOT / "examples").glob("*.py"))
+SCRIPTS = sorted(p.stem for p in (ROOT / "examples").glob("*.py"))
+EXPERIMENTS = list(experiments())
 
 
 def run(name: str, *argv, check: bool = True) -> subprocess.CompletedProcess:
@@ -36,59 +41,66 @@ def run(name: str, *argv, check: bool = True) -> subprocess.CompletedProcess:
     return done
 
 
-def tiny_arguments(name: str, out: Path, data: Path) -> list:
-    """Arguments that make each example run in seconds."""
-    cans = ["--scale", "tiny", "--data-dir", data, "--out", out, "--quiet"]
-    return {
-        "tap_and_remove": ["--n", 100, "--bins", 2, "--out", out],
-        "can_world": ["--frame-interval", 0.5, "--out", out],
-        "throw_kinematics": ["--grid", 2, "--n", 10, "--out", out],
-        "throwing": ["--n-train", 100, "--n-test", 10, "--bins", 1, 2, "--out", out, "--quiet"],
-        "adaptive_throw": [
-            *["--n-train", 300, "--n-test", 20, "--bins", 2, "--em-steps", 1, 2],
-            *["--budgets", 40, 80, "--batch", 20, "--pool", 60, "--out", out, "--quiet"],
-        ],
-        "can_tossing": [*cans, "--n-demos", 2],
-        "combined": [*cans, "--n-throws", 300, "--bins", 2, "--episodes", 1, "--horizon", 1],
-        "physics_bounds": [*cans, "--repeats", 2, "--combined-repeats", 2, "--step", 0.1],
-        "all_goals": [
-            *["--step", 0.05, "--train-repeats", 1, "--bound-repeats", 2, "--horizon", 1],
-            *["--episodes", 1, "--n-throws", 300, "--bins", 2, "--table-z", 0.75],
-            *["--data-dir", data, "--out", out, "--quiet"],
-        ],
-        "active": [*cans, "--repeats", 2, "--fractions", 0.3, 1.0, "--batch-size", 20],
-        "reproduce": ["--quick", "--only", "throw_kinematics", "--out", out, "--data-dir", data],
-    }[name]
+def flags(settings) -> list[str]:
+    """Command-line flags that give ``settings`` (field -> value)."""
+    argv = []
+    for name, value in settings.items():
+        flag = "--" + name.replace("_", "-")
+        if value is True:
+            argv.append(flag)
+        elif value is not False:
+            values = value if isinstance(value, tuple) else (value,)
+            argv += [flag, *map(str, values)]
+    return argv
 
 
-WRITES = {
-    "tap_and_remove": ["tap_and_remove.json", "tap_and_remove.png"],
-    "can_world": ["pyramid.png", "throw.png", "throw.gif"],
-    "throw_kinematics": ["target_to_hit.png", "flight_paths.png"],
-    "throwing": ["throwing.json", "throwing.md", "throwing_errors.png"],
-    "adaptive_throw": ["adaptive_throw.json", "adaptive_throw.md", "adaptive_throw.png"],
-    "can_tossing": ["can_tossing.json", "can_tossing.md", "can_tossing_table1.png"],
-    "combined": ["combined.json", "combined.md"],
-    "physics_bounds": ["physics_bounds.json", "physics_bounds.md"],
-    "all_goals": ["all_goals.json", "all_goals.md", "all_goals.png"],
-    "active": ["active.json", "active.md", "active.png"],
-    "reproduce": ["run.json", "summary.md", "throw/flight_paths.png"],
-}
+def tiny_arguments(name: str, out: Path, data: Path) -> list[str]:
+    """The experiment's tiny settings as flags, its files under ``out``, its data in ``data``."""
+    exp = experiment(name)
+    argv = flags(exp.tiny) + ["--out", str(out), "--quiet"]
+    return argv + (["--data-dir", str(data)] if "data_dir" in exp.fields else [])
 
 
-def test_every_example_is_covered():
-    assert set(EXAMPLES) == set(WRITES)
+def test_every_script_is_an_experiment_s_or_reproduce():
+    assert set(SCRIPTS) == set(EXPERIMENTS) | {"reproduce"}
+    for name in EXPERIMENTS:  # a script is its docstring and the call
+        text = (ROOT / "examples" / f"{name}.py").read_text()
+        assert f'main("{name}", __doc__)' in text, name
+        assert len(text.split('"""', 2)[2].strip().splitlines()) <= 4, name
 
 
-@pytest.mark.parametrize("name", EXAMPLES)
-def test_example_runs_as_a_script(name, tmp_path, tiny_data_dir):
+@pytest.mark.parametrize("name", EXPERIMENTS)
+def test_example_runs_with_its_tiny_settings(name, tmp_path, tiny_data_dir, capsys):
+    """The script's command line, run in this process: its files, its report printed,
+    and the result read back."""
     out = tmp_path / "out"
-    run(name, *tiny_arguments(name, out, tiny_data_dir))
-    for file in WRITES[name]:
-        assert (out / file).stat().st_size > 0, file
-    if name == "reproduce":
-        assert json.loads((out / "run.json").read_text())["scale"] == "quick"
-        assert "| throw_kinematics |" in (out / "summary.md").read_text()
+    with pytest.raises(SystemExit) as exited:
+        cli.main(name, argv=tiny_arguments(name, out, tiny_data_dir))
+    assert exited.value.code == 0
+    exp = experiment(name)
+    result = exp.result.load(out / f"{name}.json")
+    assert capsys.readouterr().out.strip() == result.to_markdown().strip()
+    assert (out / f"{name}.md").read_text() == result.to_markdown()
+    for row in result.summary_rows({name: result}):
+        assert row.startswith("| ") and row.endswith("|"), row
+
+
+@pytest.mark.slow  # starts torch once per script; the test above runs the same command lines
+@pytest.mark.parametrize("name", EXPERIMENTS)
+def test_every_script_runs_as_a_user_runs_it(name, tmp_path, tiny_data_dir):
+    out = tmp_path / "out"
+    done = run(name, *tiny_arguments(name, out, tiny_data_dir))
+    result = experiment(name).result.load(out / f"{name}.json")
+    assert result.to_markdown().strip() in done.stdout
+
+
+def test_reproduce_runs_a_step_as_a_script(tmp_path, tiny_data_dir):
+    out = tmp_path / "out"
+    run("reproduce", "--quick", "--only", "throw_kinematics", "--out", out)
+    assert json.loads((out / "run.json").read_text())["scale"] == "quick"
+    assert "| throw_kinematics |" in (out / "summary.md").read_text()
+    for file in ("throw_kinematics.json", "target_to_hit.png", "flight_paths.png"):
+        assert (out / "throw" / file).stat().st_size > 0, file
 
 
 def test_a_bad_number_exits_with_a_usage_error():
@@ -99,15 +111,24 @@ def test_a_bad_number_exits_with_a_usage_error():
     assert done.returncode == 2 and "error: --bound-repeats: 5 is odd" in done.stderr
 
 
+def parse(name: str, argv):
+    """The command line of script ``name``, parsed."""
+    if name == "reproduce":
+        return load_example(name).parse_args(argv)
+    return cli.parse_args(name, argv)
+
+
 @pytest.mark.parametrize(
     ("name", "argv", "words"),
     [
         ("can_tossing", ["--aim-error", "1e9"], "--aim-error: 1000000000.0 is out of range"),
         ("can_tossing", ["--n-demos", "0"], "--n-demos: 0 is out of range"),
+        ("can_tossing", ["--scale", "huge"], "--scale: 'huge' is not one of 'full', 'quick'"),
         ("combined", ["--episodes", "-1"], "--episodes: -1 is out of range"),
         ("combined", ["--table-z", "nan"], "--table-z: nan is out of range"),
         ("physics_bounds", ["--repeats", "1"], "--repeats: 1 is out of range"),
         ("physics_bounds", ["--step", "0"], "--step: 0.0 is out of range"),
+        ("physics_bounds", ["--executor", "threads"], "--executor: executor='threads'"),
         ("throwing", ["--bins", "4", "0"], "--bins: 0 is out of range"),
         ("throwing", ["--threads", "0"], "--threads: 0 is out of range"),
         ("throwing", ["--threads", "1000000000000"], "--threads: 1000000000000 is out of range"),
@@ -121,39 +142,48 @@ def test_a_bad_number_exits_with_a_usage_error():
         ("active", ["--fractions", "0.5", "0"], "--fractions: 0.0 is out of range"),
         ("active", ["--fractions", "0.5", "0.2"], "--fractions: (0.5, 0.2) must increase"),
         ("active", ["--sites", "end.colour"], "--sites: 'end.colour' is not one of"),
+        ("all_goals", ["--quick", "--bins", "0"], "--bins: 0 is out of range"),
         ("reproduce", ["--executor", "threads"], "--executor: executor='threads'"),
         ("reproduce", ["--only", "can_tossing", "can_tosing"], "unknown step(s) ['can_tosing']"),
     ],
 )
 def test_command_lines_are_checked(name, argv, words, capsys):
     with pytest.raises(SystemExit) as exited:
-        load_example(name).parse_args(argv)
+        parse(name, argv)
     assert exited.value.code == 2
     assert words in capsys.readouterr().err
 
 
-def test_the_executor_reaches_every_simulating_step():
+def test_the_executor_and_the_data_folder_reach_every_simulating_step():
     reproduce = load_example("reproduce")
-    steps = dict(reproduce.steps(reproduce.parse_args(["--quick", "--executor", "dask://s:8786"])))
-    for name in ("can_tossing", "combined", "physics_bounds", "active"):
-        i = steps[name].index("--executor")
-        assert steps[name][i + 1] == "dask://s:8786", name
+    argv = ["--quick", "--executor", "dask://s:8786", "--data-dir", "/d"]
+    steps = dict(reproduce.steps(reproduce.parse_args(argv)))
+    simulating = ("can_tossing", "combined", "physics_bounds", "all_goals", "active")
+    for name in simulating:
+        config = parse(name, steps[name]).config
+        assert (config.executor, config.data_dir) == ("dask://s:8786", Path("/d")), name
+    assert set(simulating) < set(steps) and list(steps) == EXPERIMENTS
     assert all(
         "--executor" not in a for a in dict(reproduce.steps(reproduce.parse_args([]))).values()
     )
-    # every step's arguments parse, at both scales
+    # every step's arguments parse, at both scales; --quick gives the quick settings
     for argv in ([], ["--quick"]):
         for name, step_argv in reproduce.steps(reproduce.parse_args(argv)):
-            load_example(name).parse_args(step_argv)
+            config = parse(name, step_argv).config
+            expected = experiment(name).config(**(experiment(name).quick if argv else {}))
+            assert config == expected, name
 
 
-@pytest.mark.parametrize("name", [n for n in EXAMPLES if n != "reproduce"])
+def test_a_flag_given_wins_over_the_quick_settings():
+    assert parse("throwing", ["--quick", "--n-train", "700"]).config.n_train == 700
+    assert parse("throwing", ["--quick"]).config.n_test == 200
+    assert parse("active", ["--quick", "--scale", "tiny"]).config.scale == "tiny"
+
+
+@pytest.mark.parametrize("name", EXPERIMENTS)
 def test_an_example_s_defaults_are_its_experiment_s(name):
     """A script with no arguments runs the library's default settings (progress aside)."""
-    args = load_example(name).parse_args([])
-    config = getattr(args, "config", None)
-    if config is None:
-        pytest.skip(f"{name} has no settings dataclass")
+    config = parse(name, []).config
     default = type(config)()
     differ = {
         f: (getattr(config, f), getattr(default, f))
@@ -161,6 +191,18 @@ def test_an_example_s_defaults_are_its_experiment_s(name):
         if f != "progress" and getattr(config, f) != getattr(default, f)
     }
     assert not differ, differ
+
+
+def test_help_text_comes_from_the_settings_docstring():
+    from experiments.combined import CombinedConfig
+
+    helps = cli.field_help(CombinedConfig)
+    assert helps["horizon"] == "Throws the exact planner may use, 1..MAX_HORIZON."
+    assert helps["scale"].startswith("The can data set's scale")  # the shared settings'
+    assert "progress bars" in helps["progress"].lower()
+    usage = " ".join(cli.make_parser(experiment("combined")).format_help().split())
+    assert "--n-throws" in usage and "Throws that train the throw network." in usage
+    assert "(default: 29000)" in usage and "--progress" not in usage
 
 
 def _default_signals():
@@ -267,13 +309,12 @@ def test_a_failed_write_is_two_lines_not_a_traceback(tmp_path):
 JUNK = ["-1", "0", "nan", "inf", "-inf", "1e12", "1e400", "x", "", "3.5"]
 
 
-@pytest.mark.parametrize("name", EXAMPLES)
+@pytest.mark.parametrize("name", SCRIPTS)
 def test_every_option_takes_junk_with_a_usage_error_or_a_value(name, capsys):
     # --help, and each option of each example given junk: exit 0 for help, a usage error
     # (exit 2, one "error:" line) or parsed settings; never a traceback
-    example = load_example(name)
     with pytest.raises(SystemExit) as exited:
-        example.parse_args(["--help"])
+        parse(name, ["--help"])
     assert exited.value.code == 0
     usage = capsys.readouterr().out
     options = sorted(set(re.findall(r"(--[a-z][a-z-]*)( [A-Z{])?", usage)) - {("--help", "")})
@@ -281,7 +322,7 @@ def test_every_option_takes_junk_with_a_usage_error_or_a_value(name, capsys):
     for option, takes_value in options:
         for argv in ([option, value] for value in JUNK) if takes_value else [[option]]:
             try:
-                example.parse_args(argv)
+                parse(name, argv)
             except SystemExit as refused:
                 err = capsys.readouterr().err
                 assert refused.code == 2 and "error: " in err and "Traceback" not in err, argv

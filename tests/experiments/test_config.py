@@ -5,6 +5,7 @@ import argparse
 import errno
 import math
 from dataclasses import dataclass
+from typing import ClassVar
 
 import numpy as np
 import pytest
@@ -20,6 +21,7 @@ from experiments.config import (
     config_or_exit,
     run_script,
 )
+from sim2d.chunks import write_text
 from sim2d.executors import ExecutorUnavailable
 
 
@@ -88,6 +90,29 @@ def test_result_round_trip_and_refusal(tmp_path):
     assert Toy.load(tmp_path / "toy.json") == toy
     with pytest.raises(ValueError, match=r"not a Toy: the JSON lacks \['nested'\]"):
         Toy.from_json('{"name": "a", "values": []}')
+
+
+@dataclass
+class Drawn(Result):
+    experiment_name: ClassVar[str] = "drawn"
+
+    value: float
+
+    def to_markdown(self) -> str:
+        return f"value {self.value}\n"
+
+    def figures(self, out):
+        return [write_text(out / "drawn.txt", "a figure")]
+
+
+def test_save_writes_the_json_the_report_and_the_figures(tmp_path):
+    out = tmp_path / "made" / "here"
+    files = Drawn(2.5).save(out)
+    assert files == [out / "drawn.json", out / "drawn.md", out / "drawn.txt"]
+    assert Drawn.load(out / "drawn.json") == Drawn(2.5)
+    assert (out / "drawn.md").read_text() == "value 2.5\n"
+    assert not list(out.glob(".*"))  # no temporary file left
+    assert Toy("a", [], {}).summary_rows({}) == [] and Toy("a", [], {}).figures(out) == []
 
 
 @pytest.mark.parametrize(

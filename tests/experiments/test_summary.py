@@ -1,11 +1,21 @@
-"""experiments.summary builds the results table from small fake JSON files, and refreshes
+"""experiments.summary builds the results table from small fake results, and refreshes
 the README block between its markers only."""
 
+import dataclasses
 import json
 
 import pytest
 
 from experiments import summary
+from experiments.registry import experiment
+
+
+def write_result(folder, name: str, content: dict) -> None:
+    """Experiment ``name``'s result file holding ``content``, its other fields None."""
+    cls = experiment(name).result
+    path = experiment(name).result_file(folder)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    path.write_text(json.dumps({f.name: None for f in dataclasses.fields(cls)} | content))
 
 
 def fake_results(folder):
@@ -91,10 +101,10 @@ def fake_results(folder):
             },
         },
     }
-    (folder / "tap_and_remove").mkdir()
-    files["tap_and_remove/tap_and_remove.json"] = {"rms_m": {"no parameter site": 0.2964}}
+    files["tap_and_remove.json"] = {"rms_m": {"no parameter site": 0.2964}}
+    (folder / "run.json").write_text(json.dumps(files.pop("run.json")))
     for name, content in files.items():
-        (folder / name).write_text(json.dumps(content))
+        write_result(folder, name.removesuffix(".json"), content)
 
 
 def test_summary_from_fake_results(tmp_path):
@@ -160,7 +170,7 @@ def test_every_goal_rows_state_both_planners_beside_the_bound(tmp_path):
         "goals": [goal, other],
     }
     result = {"settings": {"horizon": 6}, "goal_ratio": 0.9, "tables": [table]}
-    (tmp_path / "all_goals.json").write_text(json.dumps(result))
+    write_result(tmp_path, "all_goals", result)
     (row,) = [r for r in summary.summary_markdown(tmp_path).splitlines() if "every goal" in r]
     assert "table 0.35 m, 2 goals" in row and "within 6 throws" in row
     assert "exact planner 62.5 % mean success, 75.0 % of the bound" in row
@@ -190,7 +200,7 @@ def test_active_rows_give_each_learner_at_ten_percent_beside_the_full_data(tmp_p
         },
         "bound": {"counts": 0.77, "actions": 0.95},
     }
-    (tmp_path / "active.json").write_text(json.dumps(result))
+    write_result(tmp_path, "active", result)
     rows = [r for r in summary.summary_markdown(tmp_path).splitlines() if "active" in r]
     assert len(rows) == 2
     counts, actions = rows
@@ -224,19 +234,19 @@ def test_adaptive_throw_rows(tmp_path):
             ("adaptive", 256, 0.0008, 0.0006),
         )
     ]
-    (tmp_path / "adaptive_throw.json").write_text(
-        json.dumps(
+    write_result(
+        tmp_path,
+        "adaptive_throw",
+        (
             {
                 "layouts": layouts,
                 "noisy": [
-                    {"layout": "grid", "rms_y_m": 0.023, "rms_z_m": 0.0115},
-                    {"layout": "adaptive", "rms_y_m": 0.021, "rms_z_m": 0.011},
+                    {"layout": "grid", "ratio_y": 1.15, "ratio_z": 1.15},
+                    {"layout": "adaptive", "ratio_y": 1.05, "ratio_z": 1.10},
                 ],
-                "noise_scatter_y_m": 0.02,
-                "noise_scatter_z_m": 0.01,
             }
             | THROW_FLOOR_AND_ACTIVE
-        )
+        ),
     )
     text = summary.summary_markdown(tmp_path)
     assert (
@@ -272,8 +282,10 @@ def test_adaptive_throw_rows_with_both_queries(tmp_path):
             ("adaptive", "effect", 1.08, 1.12),
         )
     ]
-    (tmp_path / "adaptive_throw.json").write_text(
-        json.dumps(
+    write_result(
+        tmp_path,
+        "adaptive_throw",
+        (
             {
                 "layouts": layouts,
                 "noisy": noisy,
@@ -284,7 +296,7 @@ def test_adaptive_throw_rows_with_both_queries(tmp_path):
                 ],
             }
             | THROW_FLOOR_AND_ACTIVE
-        )
+        ),
     )
     text = summary.summary_markdown(tmp_path)
     assert (
@@ -323,11 +335,13 @@ def test_adaptive_throw_rows_show_the_goals_checkpoint_and_the_noisy_size(tmp_pa
         for layout in ("grid", "adaptive")
         for query in ("posterior", "effect")
     ]
-    (tmp_path / "adaptive_throw.json").write_text(
-        json.dumps(
+    write_result(
+        tmp_path,
+        "adaptive_throw",
+        (
             {"layouts": layouts, "noisy": noisy, "noisy_bound": {"ratio_y": 1.07, "ratio_z": 1.1}}
             | THROW_FLOOR_AND_ACTIVE
-        )
+        ),
     )
     text = summary.summary_markdown(tmp_path)
     assert (
@@ -335,3 +349,9 @@ def test_adaptive_throw_rows_show_the_goals_checkpoint_and_the_noisy_size(tmp_pa
         in text
     )
     assert "with release noise (256 clusters), times the noise's own scatter: adaptive 1.10" in text
+
+
+def test_a_result_file_of_another_shape_is_named(tmp_path):
+    (tmp_path / "throwing.json").write_text(json.dumps({"rms_y_m": 0.1}))
+    with pytest.raises(ValueError, match=r"throwing\.json: not a ThrowingResult: the JSON lacks"):
+        summary.summary_markdown(tmp_path)

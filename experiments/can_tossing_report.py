@@ -1,0 +1,203 @@
+"""The can-tossing experiment's report: its Markdown, its figures and its rows of the
+results table (:mod:`experiments.can_tossing`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from experiments.can_tossing import PAPER_CASES, PAPER_PERCENT, PAPER_TABLE_I
+from experiments.config import percent
+from experiments.evaluation import ACCURACY_BINS, roc_curve
+
+if TYPE_CHECKING:
+    from experiments.can_tossing import CanTossingResult
+    from experiments.physics_bounds import PhysicsBoundsResult
+
+__all__ = [
+    "TABLE_I_PROTOCOLS",
+    "can_rows",
+    "markdown",
+    "plot_roc",
+    "plot_table_one",
+    "table_one_rows",
+]
+
+#: Table I's protocols (:data:`experiments.can_tossing.PROTOCOLS`) in the results table's words.
+TABLE_I_PROTOCOLS = {
+    "counts": "one case per reachable desired count",
+    "actions": "one case per count-changing action, the paper's wording",
+}
+
+
+def markdown(r: CanTossingResult) -> str:
+    """The report: Table I under both protocols and rules beside the paper's, emulation and
+    imitation."""
+    tabs = r.table_one
+    cols = [(m, rule) for m in ("counts", "actions") for rule in ("index", "aim")]
+    lines = [
+        f"# Can tossing (scale {r.scale}; headline: cases {r.cases}, rule {r.rule})",
+        "",
+        "| accuracy | "
+        + " | ".join(f"{m}/{rule} # | %" for m, rule in cols)
+        + " | paper # | paper % |",
+        "|---|" + "---:|---:|" * (len(cols) + 1),
+    ]
+    for b in ACCURACY_BINS:
+        cells = []
+        for m, rule in cols:
+            t = tabs[m][rule]
+            cells += [str(t["histogram"][b]), f"{100 * t['histogram'][b] / t['n_cases']:.2f}"]
+        lines.append(
+            f"| {b} | " + " | ".join(cells) + f" | {PAPER_TABLE_I[b]} | {PAPER_PERCENT[b]:.2f} |"
+        )
+    cells = [f"{tabs[m][rule]['n_cases']} | " for m, rule in cols]
+    lines.append("| cases | " + " | ".join(cells) + f" | {PAPER_CASES} | |")
+    lines.append("")
+    for m, rule in cols:
+        t = tabs[m][rule]
+        line = f"- {m}/{rule}: exact {100 * t['exact_fraction']:.2f} %"
+        if t["n_unreachable"] and t["exact_fraction_reachable"] is not None:
+            line += (
+                f"; {t['n_unreachable']} cases ask for a count no 0° training throw reached, "
+                f"exact among the others {100 * t['exact_fraction_reachable']:.2f} %"
+            )
+        lines.append(line)
+    e, i = r.emulation, r.imitation
+    v = i["validation"]
+    lines += [
+        f"- emulation ({e['n_demonstrations']} demonstrations): same end configuration "
+        f"{100 * e['same_end_config']:.1f} %, same count {100 * e['same_count']:.1f} % "
+        f"(demonstrated field re-thrown: {100 * e['reference_same_end_config']:.1f} % / "
+        f"{100 * e['reference_same_count']:.1f} %)",
+        f"- imitation ({i['n_throws']} throws, aim error {100 * i['aim_error_m']:.1f} cm, "
+        f"{i['n_failed']} failed): ROC AUC of surprise "
+        + ("n/a (one class only)" if i["auc"] is None else f"{i['auc']:.3f}")
+        + f"; against the intended throw's usual outcomes ({i['n_failed_ordinary']} failed): "
+        + ("n/a" if i["auc_ordinary"] is None else f"{i['auc_ordinary']:.3f}"),
+        f"- imitation, pooled surprise (aim error {i['aim_sigma']:g} fields): ROC AUC "
+        + f"{_auc_text(i['auc_pooled'])}; against the usual outcomes "
+        + f"{_auc_text(i['auc_ordinary_pooled'])}. Aim error chosen on a validation draw "
+        + f"({v['n_throws']} throws, {v['n_failed']} / {v['n_failed_ordinary']} failed) by "
+        + "the second AUC: "
+        + ", ".join(
+            f"{b['sigma']:g}: {_auc_text(b['auc'])} / {_auc_text(b['auc_ordinary'])}"
+            for b in v["by_sigma"]
+        ),
+        "",
+    ]
+    return "\n".join(lines)
+
+
+def _auc_text(auc: float | None) -> str:
+    return "n/a" if auc is None else f"{auc:.3f}"
+
+
+def plot_table_one(result: CanTossingResult, path) -> Path:
+    """Bar chart of Table I's bins: each protocol and rule beside the paper; saved to ``path``."""
+    from matplotlib.figure import Figure
+
+    tables = result.table_one
+    series = {
+        f"ours, {m}, {rule}": [100 * t["histogram"][b] / t["n_cases"] for b in ACCURACY_BINS]
+        for m in tables
+        for rule, t in tables[m].items()
+    }
+    series["paper"] = [PAPER_PERCENT[b] for b in ACCURACY_BINS]
+    fig = Figure(figsize=(8, 4.2))
+    ax = fig.subplots()
+    x = np.arange(len(ACCURACY_BINS))
+    width = 0.8 / len(series)
+    for k, (label, values) in enumerate(series.items()):
+        ax.bar(x + (k - (len(series) - 1) / 2) * width, values, width, label=label)
+    ax.set_xticks(x, ACCURACY_BINS)
+    ax.set_yscale("log")
+    ax.set_xlabel("desired minus achieved count")
+    ax.set_ylabel("% of cases (log scale)")
+    ax.set_title("Table I: best field for a desired count, thrown at 0°")
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    return Path(path)
+
+
+def plot_roc(result: dict, path) -> Path:
+    """ROC curves of the imitation surprise (``result``: :func:`imitation`'s); saved to ``path``."""
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(5.6, 5.0))
+    ax = fig.subplots()
+    for (key, label), colour in zip(
+        (
+            ("failed", "not the unperturbed throw's outcome"),
+            ("failed_ordinary", "none of the usual outcomes"),
+        ),
+        ("C0", "C1"),
+        strict=True,
+    ):
+        suffix = "" if key == "failed" else "_ordinary"
+        for scores, style, name in (
+            ("surprise", "-", "surprise"),
+            ("pooled_surprise", "--", f"pooled, {result['aim_sigma']:g} fields"),
+        ):
+            auc = result[f"auc{suffix}" + ("_pooled" if scores == "pooled_surprise" else "")]
+            if auc is not None:
+                fpr, tpr = roc_curve(result[scores], result[key])
+                ax.plot(fpr, tpr, style, color=colour, label=f"failed: {label}; {name} ({auc:.3f})")
+    ax.plot([0, 1], [0, 1], ":", color="0.5", label="chance")
+    ax.set_xlabel("false-positive rate (successful throws flagged)")
+    ax.set_ylabel("true-positive rate (failed throws flagged)")
+    ax.set_title(
+        f"Imitation: {result['n_throws']} throws aimed {100 * result['aim_error_m']:.0f} cm off",
+        fontsize=10,
+    )
+    ax.legend(loc="lower right", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    return Path(path)
+
+
+def table_one_rows(c: CanTossingResult | None, b: PhysicsBoundsResult | None) -> list[str]:
+    """Table I under both protocols, ours (``c``) beside the physics bound (``b``); either
+    may be missing."""
+    if c is None and b is None:
+        return []
+    rows = []
+    for protocol, words in TABLE_I_PROTOCOLS.items():
+        paper = ours = bound = ""
+        if c is not None:
+            paper = f"{percent(c.paper['exact_fraction'])} of {c.paper['n_cases']:,}"
+            t = c.table_one[protocol]
+            head, other = t[c.rule], [rule for rule in t if rule != c.rule]
+            ours = f"{percent(head['exact_fraction'])} of {head['n_cases']:,}" + "".join(
+                f" (tie-break {rule}: {percent(t[rule]['exact_fraction'])})" for rule in other
+            )
+        bounds = b.table_one if b is not None else {}
+        if protocol in bounds:
+            t = bounds[protocol]
+            bound = (
+                f"{percent(t['exact_fraction_bound'])} held out, "
+                f"{percent(t['exact_fraction_in_sample'])} in sample ({t['repeats']} repeats)"
+            )
+        rows.append(f"| §IV-A cans, Table I exact: {words} | {paper} | {ours} | {bound} |")
+    return rows
+
+
+def can_rows(c: CanTossingResult) -> list[str]:
+    """Emulation and imitation."""
+    e, i = c.emulation, c.imitation
+
+    def auc(x):
+        return "n/a" if x is None else f"{x:.3f}"
+
+    return [
+        f"| cans: emulation, same end configuration | - | "
+        f"{percent(e['same_end_config'], 1)} of {e['n_demonstrations']} demonstrations "
+        f"(the demonstrated field re-thrown: {percent(e['reference_same_end_config'], 1)}) | |",
+        f"| cans: imitation, ROC AUC of the surprise (failed = not the unperturbed throw's "
+        f"outcome / none of the usual outcomes) | - | {auc(i['auc'])} / "
+        f"{auc(i['auc_ordinary'])}; aim-pooled ({i['aim_sigma']:g} fields): "
+        f"{auc(i['auc_pooled'])} / {auc(i['auc_ordinary_pooled'])} ({i['n_throws']} throws) | |",
+    ]

@@ -1,0 +1,124 @@
+"""Every experiment, declared once in its own module.
+
+An experiment module ends with ``EXPERIMENTS = (Experiment(...),)``: its settings
+dataclass, its run function, its result type (whose ``experiment_name`` names the experiment, its
+files and its script ``examples/<name>.py``), the settings of a run in seconds for the
+tests (``tiny``) and of ``./reproduce --quick`` (``quick``), where its files go below
+the results folder, and its place in the paper's order. :func:`experiments` finds every
+declaration in the package; ``./reproduce``, the results table
+(:mod:`experiments.summary`), the scripts' command lines (:mod:`experiments.cli`) and
+the tests iterate over it, so a new experiment is its module, its script and its test.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import functools
+import importlib
+import pkgutil
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from types import MappingProxyType
+from typing import Any
+
+from experiments.config import Result
+
+__all__ = ["Experiment", "experiment", "experiments"]
+
+
+@dataclass(frozen=True)
+class Experiment:
+    """One experiment's declaration.
+
+    Attributes
+    ----------
+    config : type
+        Its settings: a frozen dataclass that checks every field on construction (a
+        ``progress`` field is the scripts' ``--quiet``).
+    run : callable
+        ``run(config)`` returns the result; with ``draws``, ``run(config, out)`` draws
+        into the folder ``out`` while it runs.
+    result : type
+        Its :class:`experiments.config.Result` subclass; its ``experiment_name`` is the
+        experiment's name.
+    order : int
+        Its place in ``./reproduce`` and in the results table (the paper's order; a step
+        runs after the steps whose simulations it reuses).
+    tiny, quick : mapping
+        Settings (field -> value) of a run in seconds (the tests), and of
+        ``./reproduce --quick`` and a script's ``--quick``.
+    folder : str
+        Its files' folder below the results folder ("": the results folder itself).
+    draws : bool
+        ``run`` takes the output folder.
+    """
+
+    config: type
+    run: Callable[..., Result]
+    result: type[Result]
+    order: int
+    tiny: Mapping[str, Any] = field(default_factory=dict)
+    quick: Mapping[str, Any] = field(default_factory=dict)
+    folder: str = ""
+    draws: bool = False
+
+    def __post_init__(self):
+        assert dataclasses.is_dataclass(self.config), self.config
+        assert issubclass(self.result, Result) and self.result.experiment_name, self.result
+        for settings in (self.tiny, self.quick):
+            unknown = set(settings) - self.fields
+            assert not unknown, f"{self.name}: {sorted(unknown)} are not settings"
+        object.__setattr__(self, "tiny", MappingProxyType(dict(self.tiny)))
+        object.__setattr__(self, "quick", MappingProxyType(dict(self.quick)))
+
+    @property
+    def name(self) -> str:
+        return self.result.experiment_name
+
+    @property
+    def fields(self) -> set[str]:
+        """The names of its settings."""
+        return {f.name for f in dataclasses.fields(self.config)}
+
+    def out(self, results) -> Path:
+        """Its files' folder below the results folder ``results``."""
+        return Path(results) / self.folder if self.folder else Path(results)
+
+    def result_file(self, results) -> Path:
+        """Its JSON file below the results folder ``results``."""
+        return self.out(results) / f"{self.name}.json"
+
+    def perform(self, config, out) -> Result:
+        """Run it with the settings ``config`` and save its files to the folder ``out``."""
+        result = self.run(config, out) if self.draws else self.run(config)
+        result.save(out)
+        return result
+
+
+@functools.cache
+def _registry() -> Mapping[str, Experiment]:
+    import experiments as package
+
+    found: list[Experiment] = []
+    for module in pkgutil.iter_modules(package.__path__):
+        found += getattr(importlib.import_module(f"experiments.{module.name}"), "EXPERIMENTS", ())
+    found.sort(key=lambda e: e.order)
+    names = [e.name for e in found]
+    assert len(set(names)) == len(names), f"experiments declared twice: {names}"
+    return MappingProxyType({e.name: e for e in found})
+
+
+def experiments() -> Mapping[str, Experiment]:
+    """Every declared experiment by name, in order."""
+    return _registry()
+
+
+def experiment(name: str) -> Experiment:
+    """The experiment ``name``; a ``ValueError`` lists the names when there is none."""
+    try:
+        return _registry()[name]
+    except KeyError:
+        raise ValueError(
+            f"no experiment {name!r}; the experiments are {', '.join(_registry())}"
+        ) from None
