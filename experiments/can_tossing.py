@@ -61,7 +61,7 @@ from experiments.evaluation import (
 )
 from experiments.registry import Experiment
 from inference import imitation_check
-from models.can_network import config_index, count
+from models.can_network import config_index, n_cans
 from sim2d import field_throws, geometry, materials
 from sim2d.executors import open_executor
 
@@ -161,7 +161,7 @@ def table_one_cases(data, mode: str = "counts") -> tuple[np.ndarray, np.ndarray]
         pairs = np.unique(np.stack([data.start_config[sel], data.count_after[sel]], 1), axis=0)
         start, desired = pairs[:, 0], pairs[:, 1]
     starts = np.unique(data.start_config[(data.angle == ANGLE) & (data.start_config != 0)])
-    unchanged = count(starts)
+    unchanged = n_cans(starts)
     if mode == "counts":  # only where the unchanged count is not already a case
         have = {(int(s), int(c)) for s, c in zip(start, desired, strict=True)}
         keep = [(int(s), int(c)) not in have for s, c in zip(starts, unchanged, strict=True)]
@@ -188,7 +188,7 @@ def start_evidence(model: CanModel, start: np.ndarray) -> dict:
     """Query evidence of the start configurations ``(n,)`` masks: configuration and count."""
     return {
         "initial.config": start,
-        "initial.count": count(start),
+        "initial.count": n_cans(start),
     }
 
 
@@ -269,7 +269,7 @@ def play_table_one(
         "desired": desired,
         "field": fields,
         "seed": seeds,
-        "achieved": count(end),
+        "achieved": n_cans(end),
         "reachable": np.isin(start * 16 + desired, seen),
     }
 
@@ -318,7 +318,7 @@ def emulation(
         start, field, jitter, fresh_seeds(seed, DEMO, n), "demonstrations", progress, executor
     )
     known = np.isin(shown, model.states)  # end configurations the network has a state for
-    ev = start_evidence(model, start) | {"end.count": torch.as_tensor(count(shown))}
+    ev = start_evidence(model, start) | {"end.count": torch.as_tensor(n_cans(shown))}
     fields = choose(model, ev, rule)  # count only: the fallback for unknown configurations
     if known.any():
         ev_known = model.net.encode(ev).rows(torch.as_tensor(known))
@@ -332,10 +332,10 @@ def emulation(
         "n_demonstrations": n,
         "n_unknown_end_config": int((~known).sum()),
         "same_end_config": float(np.mean(copied == shown)),
-        "same_count": float(np.mean(count(copied) == count(shown))),
+        "same_count": float(np.mean(n_cans(copied) == n_cans(shown))),
         "same_field_chosen": float(np.mean(fields == field)),
         "reference_same_end_config": float(np.mean(again == shown)),
-        "reference_same_count": float(np.mean(count(again) == count(shown))),
+        "reference_same_count": float(np.mean(n_cans(again) == n_cans(shown))),
     }
 
 
@@ -457,7 +457,7 @@ def imitation(
         ev = start_evidence(model, start[known]) | {
             "action": [model.net.actions[f] for f in field[known]],
             "end.config": observed[known],
-            "end.count": count(observed[known]),
+            "end.count": n_cans(observed[known]),
         }
         surprise[known] = imitation_check(model.net, model.params, ev).surprise.numpy()
 

@@ -107,7 +107,7 @@ def plot_pyramid(path, config: int = g.FULL_PYRAMID, *, example_field: int = 97)
 
     fig = _figure(9, 6)
     ax = fig.add_subplot()
-    _setup_axes(ax, f"can world: {g.count(config)} cans, 15 x 13 fields, 3 angles")
+    _setup_axes(ax, f"can world: {g.n_cans(config)} cans, 15 x 13 fields, 3 angles")
     _draw_cans(ax, _standard_poses(config), [_CAN_COLOUR] * g.N_CANS)
     ax.add_patch(
         Rectangle(
