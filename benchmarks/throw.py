@@ -89,7 +89,7 @@ def measure_effect_adaptive(net, targets, hits, rows, repeats: int) -> dict[str,
     params = fit_em(adaptive, throw_data(adaptive, targets, hits), steps=5).params
     n = len(rows["end.hit"])
     seconds = median_seconds(lambda: parameter_for_effect(adaptive, params, TARGET, rows), repeats)
-    with mock.patch("inference.queries._candidate_scores", return_value=None):
+    with mock.patch("inference.queries.inverse._candidate_scores", return_value=None):
         peer = median_seconds(lambda: parameter_for_effect(adaptive, params, TARGET, rows), 1)
     print(
         f"inverse model on the same clusters made adaptive (5 EM steps), per query: "
@@ -101,15 +101,15 @@ def measure_effect_adaptive(net, targets, hits, rows, repeats: int) -> dict[str,
 
 #: Stages of one inverse query, as (file suffix, function) in the profile.
 STAGES = (
-    ("inference/queries.py", "infer_parameter", "the whole query"),
+    ("inference/queries/parameter.py", "infer_parameter", "the whole query"),
     ("models/params.py", "check_params", "checking the parameters' shapes"),
     ("models/declaration.py", "encode", "validating and encoding the evidence"),
-    ("inference/enumeration.py", "enumerate_model", "tracing the model, summing log-probs"),
+    ("inference/queries/enumeration.py", "enumerate_model", "tracing the model, summing log-probs"),
     ("models/model.py", "effect_model", "  running the Pyro model under trace+enum"),
     ("torch/distributions/distribution.py", "__init__", "  building distributions (+checks)"),
     ("pyro/poutine/trace_struct.py", "compute_log_prob", "  log-probabilities"),
-    ("inference/enumeration.py", "marginal", "cluster posterior from the log-weights"),
-    ("inference/queries.py", "_condition_on_cluster", "Gaussian conditioning, best cluster"),
+    ("inference/queries/enumeration.py", "marginal", "cluster posterior from the log-weights"),
+    ("models/cpds/mixture.py", "posterior", "Gaussian conditioning, best cluster"),
 )
 
 

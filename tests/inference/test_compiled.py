@@ -143,10 +143,10 @@ def test_answers_with_latent_initial_sites_equal_the_answers_per_row(
     observed configuration (the others summed out, in chunks of any size) are those
     computed row by row, and the traced model's: posterior, evidence, unseen mass, best
     action (with and without allowed actions and the unseen rule) and the flag."""
-    import inference.queries.compiled as compiled_module
+    import inference.queries.action as action_module
 
-    chunk = compiled_module.ANSWERS_CHUNK if chunk is None else chunk  # 40: small chunks
-    with mock.patch.object(compiled_module, "ANSWERS_CHUNK", chunk):
+    chunk = action_module.ANSWERS_CHUNK if chunk is None else chunk  # 40: small chunks
+    with mock.patch.object(action_module, "ANSWERS_CHUNK", chunk):
         _latent_answers_case(seed, zero_n, given_sites, data)
 
 

@@ -163,7 +163,7 @@ def test_unseen_configuration_is_reported():
 
 
 def test_ties_go_to_the_lowest_index_whatever_the_rounding():
-    from inference.queries import first_best
+    from inference.queries.batching import first_best
 
     score = torch.tensor(
         [[0.2, 0.4, 0.4 * (1 + 1e-12), 0.1], [0.5, 0.5 * (1 - 1e-12), 0.0, 0.0]], dtype=DTYPE
