@@ -7,7 +7,7 @@ Times :func:`inference.fit` on the training rows, and the inverse query (hit -> 
 cluster posterior by enumeration, best cluster, Gaussian conditioning) batched over the
 test hits and one hit at a time, both through the traced Pyro model
 (:func:`inference.infer_parameter`) and through its compiled tables
-(:func:`inference.queries.compiled.compile_parameter_query`, the same numbers, tested equal). Each
+(:func:`inference.compile`, the same numbers, tested equal). Each
 figure is the median over ``--repeats`` runs of ``time.perf_counter`` after one warm-up.
 Goals: fit under 50 ms; batched inverse at most 5 us per
 query; one query at most 100 us. ``--profile`` prints where a query's time goes, stage by stage.
@@ -30,9 +30,9 @@ import pyro
 import torch
 from timing import median_seconds  # benchmarks/timing.py, beside this script
 
+import inference
 from experiments.adaptive_throw import adaptive_throw_network
 from inference import fit, fit_em, infer_parameter, parameter_for_effect
-from inference.queries.compiled import compile_parameter_query
 from models.throw_network import TARGET, throw_data, throw_network
 from sim2d.throw import sample_targets, throw
 
@@ -68,14 +68,16 @@ def measure(net, data, hits, repeats: int, singles: int) -> dict[str, float]:
 def measure_compiled(net, data, hits, repeats: int, singles: int) -> dict[str, float]:
     """Seconds for the compiled query: build it once (as "fit"), then query it."""
     params = fit(net, data).params
-    compile_s = median_seconds(lambda: compile_parameter_query(net, params, TARGET), repeats)
-    query = compile_parameter_query(net, params, TARGET)
-    batched_s = median_seconds(lambda: query.infer({"end.hit": hits}), repeats)
+    compile_s = median_seconds(
+        lambda: inference.compile(net, params).parameter_query(TARGET), repeats
+    )
+    compiled = inference.compile(net, params)
+    batched_s = median_seconds(lambda: compiled.infer_parameter(TARGET, {"end.hit": hits}), repeats)
     one = [{"end.hit": hits[i : i + 1]} for i in range(min(singles, len(hits)))]
 
     def single_queries():
         for evidence in one:
-            query.infer(evidence)
+            compiled.infer_parameter(TARGET, evidence)
 
     single_s = median_seconds(single_queries, repeats) / len(one)
     return {"compile": compile_s, "batched": batched_s / len(hits), "single": single_s}
@@ -186,7 +188,7 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
         report("traced Pyro model (inference.infer_parameter):", seconds)
         compiled = measure_compiled(net, data, test, args.repeats, args.singles)
         print(
-            f"compiled query (inference.queries.compiled.compile_parameter_query), built in {1e3 * compiled['compile']:.1f} ms:"
+            f"compiled query (inference.compile(net, params).infer_parameter), built in {1e3 * compiled['compile']:.1f} ms:"
         )
         for key, what in (
             ("batched", "inverse query, batched, per query"),

@@ -6,11 +6,13 @@ from inference.fitting.pooling import fit_pooled, grid_kernel
 from inference.fitting.statistics import Statistics, params_from_statistics
 from inference.queries import (
     ActionPosterior,
+    CompiledQueries,
     GaussianMixture,
     ImitationCheck,
     ParameterForEffect,
     ParameterPosterior,
     Prediction,
+    compile,
     imitation_check,
     infer_action,
     infer_parameter,
@@ -22,6 +24,7 @@ from inference.queries.simulate import simulate
 
 __all__ = [
     "ActionPosterior",
+    "CompiledQueries",
     "ConvergenceWarning",
     "EMResult",
     "Enumerated",
@@ -32,6 +35,7 @@ __all__ = [
     "ParameterPosterior",
     "Statistics",
     "Prediction",
+    "compile",
     "enumerate_model",
     "fit",
     "fit_em",

@@ -33,6 +33,7 @@ for that row. Empty evidence rows (``n = 0``) give empty results of the right sh
 """
 
 from inference.queries.action import infer_action
+from inference.queries.compiled import CompiledQueries, compile
 from inference.queries.forward import imitation_check, predict
 from inference.queries.inverse import parameter_for_effect
 from inference.queries.parameter import infer_parameter
@@ -47,11 +48,13 @@ from inference.queries.results import (
 
 __all__ = [
     "ActionPosterior",
+    "CompiledQueries",
     "GaussianMixture",
     "ImitationCheck",
     "ParameterForEffect",
     "ParameterPosterior",
     "Prediction",
+    "compile",
     "imitation_check",
     "infer_action",
     "infer_parameter",

@@ -1,26 +1,211 @@
-"""The compiled queries' building blocks, under their former path.
+"""One compiled surface for the questions: :func:`compile` returns a
+:class:`CompiledQueries` whose methods carry the traced queries' names, arguments (less
+``net`` and ``params``) and result types.
 
-:class:`CompiledNetwork` and :func:`compile_discrete` live in
-:mod:`inference.queries.action`; :func:`compile_parameter_query` and
-:class:`CompiledJointParameterQuery` in :mod:`inference.queries.parameter`;
-:class:`CompiledParameterQuery` in :mod:`inference.queries.parameter_tables`.
+A method answers from tables read once off the model where they can answer the
+evidence, and otherwise calls the traced query; each method's docstring says which. The
+tables are built on first use and kept:
+
+* ``infer_action``: the discrete factor tables
+  (:class:`~inference.queries.action.CompiledNetwork`) where every site is discrete;
+* ``infer_parameter``: the compiled parameter posterior
+  (:func:`~inference.queries.parameter.compile_parameter_query`) where no other parameter
+  acts on the parameter's continuous features and the evidence is one it reads;
+* ``predict``, ``imitation_check``, ``parameter_for_effect``: the traced queries.
+
+The building blocks' former names here (``compile_discrete``, ``compile_parameter_query``,
+``CompiledNetwork``, ``CompiledParameterQuery``, ``CompiledJointParameterQuery``,
+``ANSWERS_BUDGET``, ``ANSWERS_CHUNK``) still resolve, with a ``DeprecationWarning``.
 """
 
-from inference.queries.action import (
-    ANSWERS_BUDGET,
-    ANSWERS_CHUNK,
-    CompiledNetwork,
-    compile_discrete,
-)
-from inference.queries.parameter import CompiledJointParameterQuery, compile_parameter_query
-from inference.queries.parameter_tables import CompiledParameterQuery
+from __future__ import annotations
 
-__all__ = [
-    "ANSWERS_BUDGET",
-    "ANSWERS_CHUNK",
-    "CompiledJointParameterQuery",
-    "CompiledNetwork",
-    "CompiledParameterQuery",
-    "compile_discrete",
-    "compile_parameter_query",
-]
+import importlib
+import warnings
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
+
+import torch
+
+from inference.queries.action import compile_discrete as _compile_discrete
+from inference.queries.action import infer_action
+from inference.queries.forward import imitation_check, predict
+from inference.queries.inverse import parameter_for_effect
+from inference.queries.parameter import compile_parameter_query as _compile_parameter_query
+from inference.queries.parameter import infer_parameter, shared_features
+from inference.queries.plausibility import IMPLAUSIBLE_BELOW
+from inference.queries.results import (
+    ActionPosterior,
+    ImitationCheck,
+    ParameterForEffect,
+    ParameterPosterior,
+    Prediction,
+)
+from inference.queries.surprise import QUADRATURE_POINTS
+from models.declaration import EffectNetwork
+from models.params import NetworkParams, check_params
+
+if TYPE_CHECKING:  # the building blocks' names stay deprecated at runtime (see __getattr__)
+    from inference.queries.action import CompiledNetwork
+    from inference.queries.parameter import CompiledJointParameterQuery
+    from inference.queries.parameter_tables import CompiledParameterQuery
+
+
+def compile(net: EffectNetwork, params: NetworkParams) -> CompiledQueries:
+    """The questions on ``net`` with fitted ``params``, answered from compiled tables
+    where they can be (built on first use) and by the traced model otherwise; the same
+    answers either way (tested equal)."""
+    check_params(net, params)
+    return CompiledQueries(net, params)
+
+
+@dataclass(frozen=True, eq=False)
+class CompiledQueries:
+    """The questions on one fitted network; built by :func:`compile`.
+
+    Each method has the free function's name, arguments (less ``net`` and ``params``)
+    and result type. ``action_tables`` and :meth:`parameter_query` are the compiled
+    building blocks the methods answer from (``None`` where there are none).
+    """
+
+    net: EffectNetwork
+    params: NetworkParams = field(repr=False)
+    _built: dict = field(default_factory=dict, init=False, repr=False)
+
+    @property
+    def action_tables(self) -> CompiledNetwork | None:
+        """The discrete factor tables (built on first use); ``None`` where a site is
+        continuous."""
+        if "action" not in self._built:
+            discrete = all(s.discrete for s in self.net.sites)
+            self._built["action"] = _compile_discrete(self.net, self.params) if discrete else None
+        return self._built["action"]
+
+    def parameter_query(
+        self, parameter: str
+    ) -> CompiledParameterQuery | CompiledJointParameterQuery | None:
+        """The compiled parameter posterior of ``parameter`` (built on first use);
+        ``None`` where another parameter acts on one of its continuous features."""
+        key = ("parameter", parameter)
+        if key not in self._built:
+            refused = shared_features(self.net, parameter)
+            self._built[key] = (
+                None if refused else _compile_parameter_query(self.net, self.params, parameter)
+            )
+        return self._built[key]
+
+    def predict(
+        self,
+        evidence: Mapping[str, object],
+        *,
+        implausible_below: float = IMPLAUSIBLE_BELOW,
+    ) -> Prediction:
+        """:func:`inference.predict`, answered by the traced model (no tables yet)."""
+        return predict(self.net, self.params, evidence, implausible_below=implausible_below)
+
+    def imitation_check(
+        self,
+        evidence: Mapping[str, object],
+        *,
+        n_samples: int = QUADRATURE_POINTS,
+        seed: int = 0,
+        implausible_below: float = IMPLAUSIBLE_BELOW,
+    ) -> ImitationCheck:
+        """:func:`inference.imitation_check`, answered by the traced model (no tables
+        yet)."""
+        return imitation_check(
+            self.net,
+            self.params,
+            evidence,
+            n_samples=n_samples,
+            seed=seed,
+            implausible_below=implausible_below,
+        )
+
+    def parameter_for_effect(
+        self, parameter: str, evidence: Mapping[str, object]
+    ) -> ParameterForEffect:
+        """:func:`inference.parameter_for_effect`, the inverse model, answered by the
+        traced model (its candidates scored in closed form where it can)."""
+        return parameter_for_effect(self.net, self.params, parameter, evidence)
+
+    def infer_action(
+        self,
+        evidence: Mapping[str, object],
+        *,
+        allowed: torch.Tensor | None = None,
+        avoid_unseen: bool = True,
+        implausible_below: float = IMPLAUSIBLE_BELOW,
+    ) -> ActionPosterior:
+        """:func:`inference.infer_action`, answered from the discrete factor tables where
+        every site is discrete (any evidence, unknown initial states included), by the
+        traced model otherwise."""
+        tables = self.action_tables
+        if tables is None:
+            return infer_action(
+                self.net,
+                self.params,
+                evidence,
+                allowed=allowed,
+                avoid_unseen=avoid_unseen,
+                implausible_below=implausible_below,
+            )
+        return tables.infer_action(
+            evidence,
+            allowed=allowed,
+            avoid_unseen=avoid_unseen,
+            implausible_below=implausible_below,
+        )
+
+    def infer_parameter(
+        self,
+        parameter: str,
+        evidence: Mapping[str, object],
+        *,
+        mixture: bool = False,
+        implausible_below: float = IMPLAUSIBLE_BELOW,
+    ) -> ParameterPosterior:
+        """:func:`inference.infer_parameter`, the parameter posterior, answered from the
+        compiled query where no other parameter acts on the parameter's continuous
+        features and the evidence gives exactly what that query reads (an affected
+        feature, the action, the features' discrete parents and continuous inputs, all
+        initial states); by the traced model otherwise (an unknown initial state, an
+        observed end feature the parameter does not act on, an invalid evidence)."""
+        query = self.parameter_query(parameter)
+        if query is not None and isinstance(evidence, Mapping) and query.serves(set(evidence)):
+            return query.infer_parameter(
+                evidence, mixture=mixture, implausible_below=implausible_below
+            )
+        return infer_parameter(
+            self.net,
+            self.params,
+            parameter,
+            evidence,
+            mixture=mixture,
+            implausible_below=implausible_below,
+        )
+
+
+#: The building blocks' former names here -> the module that holds them now.
+_MOVED = {
+    "compile_discrete": "inference.queries.action",
+    "CompiledNetwork": "inference.queries.action",
+    "ANSWERS_BUDGET": "inference.queries.action",
+    "ANSWERS_CHUNK": "inference.queries.action",
+    "compile_parameter_query": "inference.queries.parameter",
+    "CompiledJointParameterQuery": "inference.queries.parameter",
+    "CompiledParameterQuery": "inference.queries.parameter_tables",
+}
+
+
+def __getattr__(name: str):
+    if name in _MOVED:
+        warnings.warn(
+            f"inference.queries.compiled.{name} is deprecated: ask inference.compile(net, "
+            f"params) (the building block lives in {_MOVED[name]})",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return getattr(importlib.import_module(_MOVED[name]), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

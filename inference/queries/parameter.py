@@ -20,6 +20,7 @@ Users reach the compiled query through :func:`inference.compile` (its
 from __future__ import annotations
 
 import itertools
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 
@@ -230,7 +231,28 @@ class CompiledJointParameterQuery:
     parameter: Parameter
     log_cluster: torch.Tensor  # (A, C)
 
-    def infer(
+    def serves(self, sites: set[str]) -> bool:
+        """Whether evidence on ``sites`` gets the traced query's answer here: an affected
+        feature observed, with the observed ones' discrete parents and continuous inputs
+        besides the parameter, and every other site the action or an initial state (an
+        observed end site whose own plausibility the traced query would weigh is left to
+        it)."""
+        m = self.net.mixture(self.parameter.name)
+        observed = {s for s in m.affected if s in sites}
+        needed = {
+            q
+            for s in observed
+            for q in (*self.net.cpd(s).parents, *self.net.cpd(s).inputs)
+            if q not in (m.cluster.site, m.value.site)
+        }
+        return (
+            bool(observed)
+            and needed <= sites
+            and sites - observed
+            <= {ACTION} | {s.name for s in self.net.sites if s.role == "initial"}
+        )
+
+    def infer_parameter(
         self,
         evidence: Mapping[str, object],
         *,
@@ -273,7 +295,9 @@ class CompiledJointParameterQuery:
         if n == 0:  # a placeholder row whose action uses the parameter
             placeholder = placeholder_row(enc).without(ACTION)
             placeholder |= net.encode_indices({ACTION: [net.action_index(p.actions[0])]})
-            return no_rows(self.infer(placeholder, mixture=mixture, implausible_below=below))
+            return no_rows(
+                self.infer_parameter(placeholder, mixture=mixture, implausible_below=below)
+            )
         clusters = torch.arange(p.n_clusters)  # (C,), broadcast against rows (n, 1)
         action = enc[ACTION][:, None]
         log_cluster = self.log_cluster[enc[ACTION]]  # (n, C)
@@ -344,6 +368,16 @@ class CompiledJointParameterQuery:
             probs, best, mean, cov, unseen, outside_range(p, mean), mix, implausible
         )
 
+    def infer(self, evidence: Mapping[str, object], **kwargs) -> ParameterPosterior:
+        """Deprecated: :meth:`infer_parameter` (reached through :func:`inference.compile`)."""
+        warnings.warn(
+            "the compiled query's infer is now infer_parameter; use "
+            "inference.compile(net, params).infer_parameter(parameter, evidence)",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return self.infer_parameter(evidence, **kwargs)
+
 
 def _depending_on(net: EffectNetwork, sites: set[str]) -> set[str]:
     """The end sites with one of ``sites`` among their ancestors (not ``sites`` themselves)."""
@@ -353,6 +387,14 @@ def _depending_on(net: EffectNetwork, sites: set[str]) -> set[str]:
             if any(q in sites or q in out for q in net.cpd(spec.name).parents):
                 out.add(spec.name)
     return out
+
+
+def shared_features(net: EffectNetwork, parameter: str) -> list[str]:
+    """The continuous features ``parameter`` acts on that another parameter acts on too:
+    where there are any, :func:`compile_parameter_query` refuses (the traced
+    :func:`infer_parameter` answers)."""
+    m = net.mixture(parameter)
+    return [s for s in m.continuous if net.acting_on(s) != (m,)]
 
 
 def compile_parameter_query(
@@ -366,7 +408,7 @@ def compile_parameter_query(
     :func:`inference.infer_parameter`)."""
     check_params(net, params)
     m = net.mixture(parameter)
-    shared = [s for s in m.continuous if net.acting_on(s) != (m,)]
+    shared = shared_features(net, parameter)
     if shared:
         raise ValueError(
             f"the compiled query serves a parameter whose continuous features no other "

@@ -9,6 +9,7 @@ traced :func:`inference.queries.parameter.infer_parameter`.
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
@@ -71,7 +72,21 @@ class CompiledParameterQuery:
     # The one-row tables (:meth:`_one_row`), built on the first single query.
     _one: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
-    def infer(
+    def serves(self, sites: set[str]) -> bool:
+        """Whether evidence on ``sites`` gets the traced query's answer here: the affected
+        feature observed, with its discrete parents and its continuous inputs besides the
+        parameter, and every other site the action or an initial state (an observed end
+        site whose own plausibility the traced query would weigh is left to it)."""
+        y_site = end_site(self.parameter.features[0])
+        needed = {*self.parents[:-1], *self.inputs[:-1]}
+        return (
+            y_site in sites
+            and needed <= sites
+            and sites - {y_site}
+            <= {ACTION} | {s.name for s in self.net.sites if s.role == "initial"}
+        )
+
+    def infer_parameter(
         self,
         evidence: Mapping[str, object],
         *,
@@ -160,6 +175,16 @@ class CompiledParameterQuery:
         return ParameterPosterior(
             probs, best, mean, cov, unseen, outside_range(p, mean), mix, implausible
         )
+
+    def infer(self, evidence: Mapping[str, object], **kwargs) -> ParameterPosterior:
+        """Deprecated: :meth:`infer_parameter` (reached through :func:`inference.compile`)."""
+        warnings.warn(
+            "the compiled query's infer is now infer_parameter; use "
+            "inference.compile(net, params).infer_parameter(parameter, evidence)",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return self.infer_parameter(evidence, **kwargs)
 
     def _one_tables(self) -> dict | None:
         """Per action, the numpy views :meth:`_one_row` reads (``None``: no one-row path,
