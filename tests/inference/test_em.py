@@ -11,7 +11,6 @@ from hypothesis import strategies as st
 import inference
 from inference import (
     ConvergenceWarning,
-    enumerate_model,
     fit,
     fit_em,
     fit_gradient,
@@ -19,6 +18,7 @@ from inference import (
     predict,
 )
 from inference.fitting.em import em_step, mixture_log_likelihood, responsibilities
+from inference.queries.enumeration import enumerate_model
 from models import Continuous, Discrete, EffectNetwork, Parameter
 from models.declaration import DTYPE
 from models.params import load, save

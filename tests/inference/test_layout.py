@@ -75,3 +75,56 @@ def test_the_package_face_keeps_its_functions():
     """``inference.fit`` and ``inference.simulate`` are the functions, not modules."""
     assert callable(inference.fit) and inference.fit.__module__ == "inference.fitting.fit"
     assert inference.simulate.__module__ == "inference.queries.simulate"
+
+
+def test_every_name_of_the_face_resolves_without_a_warning():
+    import warnings
+
+    assert len(inference.__all__) == len(set(inference.__all__))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for name in inference.__all__:
+            assert getattr(inference, name) is not None, name
+    assert (
+        callable(inference.compile) and inference.compile.__module__ == "inference.queries.compiled"
+    )
+
+
+def test_the_face_exports_what_the_readme_and_the_guide_teach():
+    """Every name imported from ``inference`` in the README and the guide, and every
+    ``inference.<name>`` they write that is not a module, is on the face."""
+    import re
+    from pathlib import Path
+
+    root = Path(inference.__file__).parents[1]
+    text = (root / "README.md").read_text() + (root / "docs" / "guide.md").read_text()
+    imported = set()
+    lists = re.findall(r"from inference import \(([^)]*)\)", text)
+    lists += re.findall(r"from inference import ([\w, ]+)$", text, re.M)
+    for names in lists:
+        imported |= {n.strip() for n in names.split(",") if n.strip()}
+    written = set(re.findall(r"\binference\.(\w+)\b(?!\.)", text))
+    submodules = {p.stem for p in PACKAGE.iterdir() if p.suffix == ".py" or p.is_dir()}
+    taught = imported | (written - submodules)
+    assert {"compile", "fit", "predict", "simulate"} <= taught  # the parse found them
+    assert taught <= set(inference.__all__), taught - set(inference.__all__)
+
+
+#: Lower-level names the face used to export -> where they live.
+DEPRECATED_AT_THE_FACE = {
+    "Enumerated": "inference.queries.enumeration",
+    "enumerate_model": "inference.queries.enumeration",
+    "Statistics": "inference.fitting.statistics",
+}
+
+
+@pytest.mark.parametrize("name", sorted(DEPRECATED_AT_THE_FACE))
+def test_lower_level_names_at_the_face_warn_and_resolve(name):
+    import importlib
+
+    assert name not in inference.__all__
+    with pytest.warns(DeprecationWarning, match=DEPRECATED_AT_THE_FACE[name]):
+        old = getattr(inference, name)
+    assert old is getattr(importlib.import_module(DEPRECATED_AT_THE_FACE[name]), name)
+    with pytest.raises(AttributeError, match="no attribute 'infer_everything'"):
+        inference.infer_everything  # noqa: B018
