@@ -1,4 +1,4 @@
-"""Inverse-query speed on a can-sized discrete network, beside pgmpy and a raw torch gather.
+"""Action-query speed on a can-sized discrete network, beside pgmpy and a raw torch gather.
 
 Network: ``config`` (42 states, initial and end sites), ``count`` (11 states, end site
 only), ``action`` (195 states); tables fitted on 74,000 random rows. Query: the posterior
@@ -250,7 +250,7 @@ def main(args: argparse.Namespace) -> dict[str, float]:
     print(
         f"machine: {platform.machine()}, {platform.processor() or 'cpu'}, torch {torch.__version__}, threads {torch.get_num_threads()}"
     )
-    print(f"network: config 42 x action 195 -> end count 11; {n} inverse queries\n")
+    print(f"network: config 42 x action 195 -> end count 11; {n} action queries\n")
     print(f"{'what':<44}{'measured':>14}{'goal':>16}")
     rows_out = [
         ("fit, 74,000 rows (ms)", figures["fit_74000_rows_ms"], 5.0),

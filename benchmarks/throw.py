@@ -1,15 +1,15 @@
-"""Speed of the throw network: fitting on 29,000 throws, and the inverse query.
+"""Speed of the throw network: fitting on 29,000 throws, and the parameter posterior.
 
     python benchmarks/throw.py                  # 16 x 16 clusters (the example's choice)
     python benchmarks/throw.py --bins 12 --threads 2 --profile
 
-Times :func:`inference.fit` on the training rows, and the inverse query (hit -> target:
+Times :func:`inference.fit` on the training rows, and the parameter posterior (hit -> target:
 cluster posterior by enumeration, best cluster, Gaussian conditioning) batched over the
 test hits and one hit at a time, both through the traced Pyro model
 (:func:`inference.infer_parameter`) and through its compiled tables
 (:func:`inference.compile`, the same numbers, tested equal). Each
 figure is the median over ``--repeats`` runs of ``time.perf_counter`` after one warm-up.
-Goals: fit under 50 ms; batched inverse at most 5 us per
+Goals: fit under 50 ms; the batched posterior at most 5 us per
 query; one query at most 100 us. ``--profile`` prints where a query's time goes, stage by stage.
 Also timed, without a goal: the inverse model (:func:`inference.parameter_for_effect`),
 batched over ``--effect-rows`` hits, on the grid clusters and on the same clusters made
@@ -101,7 +101,7 @@ def measure_effect_adaptive(net, targets, hits, rows, repeats: int) -> dict[str,
     return {"effect_adaptive": seconds / n, "effect_adaptive_peer": peer / n}
 
 
-#: Stages of one inverse query, as (file suffix, function) in the profile.
+#: Stages of one parameter posterior query, as (file suffix, function) in the profile.
 STAGES = (
     ("inference/queries/parameter.py", "infer_parameter", "the whole query"),
     ("models/params.py", "check_params", "checking the parameters' shapes"),
@@ -140,8 +140,8 @@ def report(label: str, seconds: dict[str, float]) -> None:
     print(label)
     for key, unit, scale, what in (
         ("fit", "ms", 1e3, "fit, all training rows"),
-        ("batched", "us", 1e6, "inverse query, batched, per query"),
-        ("single", "us", 1e6, "inverse query, one at a time"),
+        ("batched", "us", 1e6, "parameter posterior, batched, per query"),
+        ("single", "us", 1e6, "parameter posterior, one at a time"),
     ):
         ok = "met" if seconds[key] <= GOALS_S[key] else "missed"
         print(
@@ -191,8 +191,8 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
             f"compiled query (inference.compile(net, params).infer_parameter), built in {1e3 * compiled['compile']:.1f} ms:"
         )
         for key, what in (
-            ("batched", "inverse query, batched, per query"),
-            ("single", "inverse query, one at a time"),
+            ("batched", "parameter posterior, batched, per query"),
+            ("single", "parameter posterior, one at a time"),
         ):
             ok = "met" if compiled[key] <= GOALS_S[key] else "missed"
             print(

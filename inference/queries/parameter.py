@@ -234,16 +234,17 @@ class CompiledJointParameterQuery:
     def serves(self, sites: set[str]) -> bool:
         """Whether evidence on ``sites`` gets the traced query's answer here: an affected
         feature observed, with the observed ones' discrete parents and continuous inputs
-        besides the parameter, and every other site the action or an initial state (an
-        observed end site whose own plausibility the traced query would weigh is left to
-        it)."""
+        besides the parameter (the action may be left out, as for
+        :meth:`CompiledParameterQuery.serves`), and every other site an initial state (an
+        observed end site outside the affected ones, whose own plausibility the traced
+        query would weigh, is left to it)."""
         m = self.net.mixture(self.parameter.name)
         observed = {s for s in m.affected if s in sites}
         needed = {
             q
             for s in observed
             for q in (*self.net.cpd(s).parents, *self.net.cpd(s).inputs)
-            if q not in (m.cluster.site, m.value.site)
+            if q not in (m.cluster.site, m.value.site, ACTION)
         }
         return (
             bool(observed)

@@ -75,10 +75,12 @@ class CompiledParameterQuery:
     def serves(self, sites: set[str]) -> bool:
         """Whether evidence on ``sites`` gets the traced query's answer here: the affected
         feature observed, with its discrete parents and its continuous inputs besides the
-        parameter, and every other site the action or an initial state (an observed end
-        site whose own plausibility the traced query would weigh is left to it)."""
+        parameter (the action may be left out: the query fills it in where one action uses
+        the parameter, and refuses as the traced one does otherwise), and every other site
+        an initial state (an observed end site, whose own plausibility the traced query
+        would weigh, is left to it)."""
         y_site = end_site(self.parameter.features[0])
-        needed = {*self.parents[:-1], *self.inputs[:-1]}
+        needed = {*self.parents[:-1], *self.inputs[:-1]} - {ACTION}
         return (
             y_site in sites
             and needed <= sites

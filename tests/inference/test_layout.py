@@ -128,3 +128,33 @@ def test_lower_level_names_at_the_face_warn_and_resolve(name):
     assert old is getattr(importlib.import_module(DEPRECATED_AT_THE_FACE[name]), name)
     with pytest.raises(AttributeError, match="no attribute 'infer_everything'"):
         inference.infer_everything  # noqa: B018
+
+
+QUERIES = PACKAGE / "queries"
+
+
+@pytest.mark.parametrize("module", sorted(p.name for p in QUERIES.glob("*.py")))
+def test_every_query_module_is_one_room_of_at_most_600_lines(module):
+    assert len((QUERIES / module).read_text().splitlines()) <= 600
+
+
+def test_no_query_module_imports_another_modules_private_names():
+    offenders = []
+    for path in sorted(QUERIES.glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("inference"):
+                private = [a.name for a in node.names if a.name.startswith("_")]
+                offenders += [f"{path.name}: {node.module}.{name}" for name in private]
+    assert offenders == []
+
+
+def test_each_question_keeps_its_traced_and_compiled_answers_side_by_side():
+    """The action query beside its discrete tables, the parameter posterior beside its
+    compiled query; the package face offers the questions and the compiled surface."""
+    from inference.queries import action, parameter
+
+    assert {"infer_action", "CompiledNetwork", "compile_discrete"} <= set(vars(action))
+    assert {"infer_parameter", "compile_parameter_query"} <= set(vars(parameter))
+    import inference.queries as queries
+
+    assert set(queries.__all__) >= {"compile", "infer_action", "infer_parameter", "predict"}

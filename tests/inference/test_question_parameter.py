@@ -9,7 +9,7 @@ import torch
 
 import inference
 from inference import infer_parameter
-from models import Partial
+from models import Continuous, EffectNetwork, Parameter, Partial
 from models.declaration import DTYPE
 from tests.helpers import random_params
 from tests.inference.questions import TracedCalls, assert_same_answer
@@ -46,8 +46,25 @@ def throws(n, seed=0, ends=("end.land", "end.roll")):
     return evidence | {s: 2 * torch.randn(n, sizes[s], generator=g, dtype=DTYPE) for s in ends}
 
 
+# One action uses the parameter: the queries fill it in when the evidence leaves it out.
+GOING = EffectNetwork(
+    (Continuous("y", 2, initial=False),),
+    ("go", "stay"),
+    (Parameter("p", (0.0,), (1.0,), (4,), ("go",), "y"),),
+)
+GOING_PARAMS = random_params(GOING, 8, unseen=0.3)
+GOES = torch.randn(7, 2, generator=torch.Generator().manual_seed(8), dtype=DTYPE)
+
 # (network, parameters, parameter, evidence)
 CASES = {
+    "the action left out": (GOING, GOING_PARAMS, "p", {"end.y": GOES}),
+    "the action left out, one row": (GOING, GOING_PARAMS, "p", {"end.y": GOES[0]}),
+    "the action left out, two features": (
+        THROWING,
+        THROWING_PARAMS,
+        "aim",
+        {k: v for k, v in throws(5, 2).items() if k != "action"},
+    ),
     "one feature": (NET, PARAMS, "force", pushes(10)),
     "one feature, one row": (NET, PARAMS, "force", pushes(1, 1)),
     "one feature, far from the data": (

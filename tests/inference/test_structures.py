@@ -792,7 +792,7 @@ def test_predict_integrates_the_unknown_height_by_hand():
 @pytest.mark.filterwarnings("ignore::inference.queries.plausibility.OutsideTrainingData")
 def test_slide_with_per_row_masks_answers_alike_in_batches_and_forms():
     """10,000 rows with their own masks of the 2-D position: the compiled and traced
-    inverse queries agree to 1e-12, and a row alone gets its row's answer from both and
+    parameter posteriors agree to 1e-12, and a row alone gets its row's answer from both and
     from infer_action."""
     net, params = slide_world()
     n = 10_000
