@@ -318,7 +318,9 @@ class CompiledNetwork:
         below = check_threshold(implausible_below)
         enc = self.net.encode(evidence)
         if ACTION in enc:
-            raise ValueError("evidence names the action; infer_action infers it")
+            raise ValueError(
+                "evidence names the action; infer_action infers it (use predict or imitation_check)"
+            )
         if not len(enc):
             raise ValueError("evidence is empty: give at least the initial state")
         n = enc.n_rows
