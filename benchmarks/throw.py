@@ -1,15 +1,15 @@
-"""Speed of the throw network: fitting on 29,000 throws, and the inverse query.
+"""Speed of the throw network: fitting on 29,000 throws, and the parameter posterior.
 
     python benchmarks/throw.py                  # 16 x 16 clusters (the example's choice)
     python benchmarks/throw.py --bins 12 --threads 2 --profile
 
-Times :func:`inference.fit` on the training rows, and the inverse query (hit -> target:
+Times :func:`inference.fit` on the training rows, and the parameter posterior (hit -> target:
 cluster posterior by enumeration, best cluster, Gaussian conditioning) batched over the
 test hits and one hit at a time, both through the traced Pyro model
 (:func:`inference.infer_parameter`) and through its compiled tables
-(:func:`inference.queries.compiled.compile_parameter_query`, the same numbers, tested equal). Each
+(:func:`inference.compile`, the same numbers, tested equal). Each
 figure is the median over ``--repeats`` runs of ``time.perf_counter`` after one warm-up.
-Goals: fit under 50 ms; batched inverse at most 5 us per
+Goals: fit under 50 ms; the batched posterior at most 5 us per
 query; one query at most 100 us. ``--profile`` prints where a query's time goes, stage by stage.
 Also timed, without a goal: the inverse model (:func:`inference.parameter_for_effect`),
 batched over ``--effect-rows`` hits, on the grid clusters and on the same clusters made
@@ -30,9 +30,9 @@ import pyro
 import torch
 from timing import median_seconds  # benchmarks/timing.py, beside this script
 
+import inference
 from experiments.adaptive_throw import adaptive_throw_network
 from inference import fit, fit_em, infer_parameter, parameter_for_effect
-from inference.queries.compiled import compile_parameter_query
 from models.throw_network import TARGET, throw_data, throw_network
 from sim2d.throw import sample_targets, throw
 
@@ -68,14 +68,16 @@ def measure(net, data, hits, repeats: int, singles: int) -> dict[str, float]:
 def measure_compiled(net, data, hits, repeats: int, singles: int) -> dict[str, float]:
     """Seconds for the compiled query: build it once (as "fit"), then query it."""
     params = fit(net, data).params
-    compile_s = median_seconds(lambda: compile_parameter_query(net, params, TARGET), repeats)
-    query = compile_parameter_query(net, params, TARGET)
-    batched_s = median_seconds(lambda: query.infer({"end.hit": hits}), repeats)
+    compile_s = median_seconds(
+        lambda: inference.compile(net, params).parameter_query(TARGET), repeats
+    )
+    compiled = inference.compile(net, params)
+    batched_s = median_seconds(lambda: compiled.infer_parameter(TARGET, {"end.hit": hits}), repeats)
     one = [{"end.hit": hits[i : i + 1]} for i in range(min(singles, len(hits)))]
 
     def single_queries():
         for evidence in one:
-            query.infer(evidence)
+            compiled.infer_parameter(TARGET, evidence)
 
     single_s = median_seconds(single_queries, repeats) / len(one)
     return {"compile": compile_s, "batched": batched_s / len(hits), "single": single_s}
@@ -89,7 +91,7 @@ def measure_effect_adaptive(net, targets, hits, rows, repeats: int) -> dict[str,
     params = fit_em(adaptive, throw_data(adaptive, targets, hits), steps=5).params
     n = len(rows["end.hit"])
     seconds = median_seconds(lambda: parameter_for_effect(adaptive, params, TARGET, rows), repeats)
-    with mock.patch("inference.queries._candidate_scores", return_value=None):
+    with mock.patch("inference.queries.inverse._candidate_scores", return_value=None):
         peer = median_seconds(lambda: parameter_for_effect(adaptive, params, TARGET, rows), 1)
     print(
         f"inverse model on the same clusters made adaptive (5 EM steps), per query: "
@@ -99,17 +101,17 @@ def measure_effect_adaptive(net, targets, hits, rows, repeats: int) -> dict[str,
     return {"effect_adaptive": seconds / n, "effect_adaptive_peer": peer / n}
 
 
-#: Stages of one inverse query, as (file suffix, function) in the profile.
+#: Stages of one parameter posterior query, as (file suffix, function) in the profile.
 STAGES = (
-    ("inference/queries.py", "infer_parameter", "the whole query"),
+    ("inference/queries/parameter.py", "infer_parameter", "the whole query"),
     ("models/params.py", "check_params", "checking the parameters' shapes"),
     ("models/declaration.py", "encode", "validating and encoding the evidence"),
-    ("inference/enumeration.py", "enumerate_model", "tracing the model, summing log-probs"),
+    ("inference/queries/enumeration.py", "enumerate_model", "tracing the model, summing log-probs"),
     ("models/model.py", "effect_model", "  running the Pyro model under trace+enum"),
     ("torch/distributions/distribution.py", "__init__", "  building distributions (+checks)"),
     ("pyro/poutine/trace_struct.py", "compute_log_prob", "  log-probabilities"),
-    ("inference/enumeration.py", "marginal", "cluster posterior from the log-weights"),
-    ("inference/queries.py", "_condition_on_cluster", "Gaussian conditioning, best cluster"),
+    ("inference/queries/enumeration.py", "marginal", "cluster posterior from the log-weights"),
+    ("models/cpds/mixture.py", "posterior", "Gaussian conditioning, best cluster"),
 )
 
 
@@ -138,8 +140,8 @@ def report(label: str, seconds: dict[str, float]) -> None:
     print(label)
     for key, unit, scale, what in (
         ("fit", "ms", 1e3, "fit, all training rows"),
-        ("batched", "us", 1e6, "inverse query, batched, per query"),
-        ("single", "us", 1e6, "inverse query, one at a time"),
+        ("batched", "us", 1e6, "parameter posterior, batched, per query"),
+        ("single", "us", 1e6, "parameter posterior, one at a time"),
     ):
         ok = "met" if seconds[key] <= GOALS_S[key] else "missed"
         print(
@@ -186,11 +188,11 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
         report("traced Pyro model (inference.infer_parameter):", seconds)
         compiled = measure_compiled(net, data, test, args.repeats, args.singles)
         print(
-            f"compiled query (inference.queries.compiled.compile_parameter_query), built in {1e3 * compiled['compile']:.1f} ms:"
+            f"compiled query (inference.compile(net, params).infer_parameter), built in {1e3 * compiled['compile']:.1f} ms:"
         )
         for key, what in (
-            ("batched", "inverse query, batched, per query"),
-            ("single", "inverse query, one at a time"),
+            ("batched", "parameter posterior, batched, per query"),
+            ("single", "parameter posterior, one at a time"),
         ):
             ok = "met" if compiled[key] <= GOALS_S[key] else "missed"
             print(

@@ -1,38 +1,60 @@
-"""Fitting (maximum likelihood) and exact queries on effect networks."""
+"""Fitting (maximum likelihood) and exact queries on effect networks: the names the
+README and the guide teach.
 
+Fitting (:mod:`inference.fitting`): :func:`fit`, :func:`fit_gradient`, :func:`fit_em`,
+:func:`fit_pooled` (with :func:`grid_kernel`), :func:`fit_statistics` and
+:func:`params_from_statistics`; :func:`simulate` draws rows in ``fit``'s format.
+Questions (:mod:`inference.queries`): :func:`predict`, :func:`imitation_check`,
+:func:`infer_action`, :func:`infer_parameter` (the parameter posterior),
+:func:`parameter_for_effect` (the inverse model), and :func:`compile`, whose methods of
+the same names answer from compiled tables where they can. Active exploration
+(:mod:`inference.design`): :func:`explore`.
+
+Lower-level names live in their modules (:mod:`inference.queries.enumeration`,
+:mod:`inference.fitting.statistics`, ...); the ones this face used to export still
+resolve here for one release, with a ``DeprecationWarning``.
+"""
+
+import importlib
+import warnings
+
+from inference.design.active import explore
 from inference.fitting.em import EMResult, fit_em
 from inference.fitting.fit import ConvergenceWarning, FitResult, fit, fit_gradient, fit_statistics
 from inference.fitting.pooling import fit_pooled, grid_kernel
-from inference.fitting.statistics import Statistics, params_from_statistics
+from inference.fitting.statistics import params_from_statistics
 from inference.queries import (
     ActionPosterior,
+    CompiledQueries,
     GaussianMixture,
     ImitationCheck,
     ParameterForEffect,
     ParameterPosterior,
     Prediction,
+    compile,
     imitation_check,
     infer_action,
     infer_parameter,
     parameter_for_effect,
     predict,
 )
-from inference.queries.enumeration import Enumerated, enumerate_model
+from inference.queries.plausibility import OutsideTrainingData
 from inference.queries.simulate import simulate
 
 __all__ = [
     "ActionPosterior",
+    "CompiledQueries",
     "ConvergenceWarning",
     "EMResult",
-    "Enumerated",
     "FitResult",
     "GaussianMixture",
     "ImitationCheck",
+    "OutsideTrainingData",
     "ParameterForEffect",
     "ParameterPosterior",
-    "Statistics",
     "Prediction",
-    "enumerate_model",
+    "compile",
+    "explore",
     "fit",
     "fit_em",
     "fit_gradient",
@@ -47,3 +69,22 @@ __all__ = [
     "predict",
     "simulate",
 ]
+
+#: Lower-level names this face used to export -> the module that holds them.
+DEPRECATED = {
+    "Enumerated": "inference.queries.enumeration",
+    "enumerate_model": "inference.queries.enumeration",
+    "Statistics": "inference.fitting.statistics",
+}
+
+
+def __getattr__(name: str):
+    if name in DEPRECATED:
+        warnings.warn(
+            f"inference.{name} is deprecated at the package face: import it from "
+            f"{DEPRECATED[name]}",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return getattr(importlib.import_module(DEPRECATED[name]), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

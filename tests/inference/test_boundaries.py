@@ -18,6 +18,7 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+import inference
 from inference import (
     fit,
     imitation_check,
@@ -30,7 +31,6 @@ from inference import (
 from inference.fitting.em import fit_em
 from inference.fitting.fit import fit_statistics
 from inference.fitting.statistics import Counts
-from inference.queries.compiled import compile_parameter_query
 from models import Continuous, Discrete, EffectNetwork, Parameter, load, random_params, save
 from models.params import initial_params
 
@@ -469,8 +469,10 @@ QUERIES = {
     "parameter_for_effect": lambda net, params, ev: parameter_for_effect(
         net, params, "force", ev | {"action": ["push"], "end.pos": [[0.1]]}
     ),
-    "compiled": lambda net, params, ev: compile_parameter_query(net, params, "force").infer(
-        ev | {"action": "push", "end.pos": [0.1]}
+    "compiled": lambda net, params, ev: (
+        inference.compile(net, params)
+        .parameter_query("force")
+        .infer_parameter(ev | {"action": "push", "end.pos": [0.1]})
     ),
 }
 

@@ -10,8 +10,9 @@ import torch
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
+import inference
 from inference import infer_action
-from inference.queries.compiled import compile_discrete
+from inference.queries.action import compile_discrete
 from models import Continuous, EffectNetwork
 from tests.helpers import discrete_network, random_params
 
@@ -27,7 +28,7 @@ from tests.helpers import discrete_network, random_params
 def test_compiled_equals_traced(cards, n_actions, seed, zero_n, data):
     net = discrete_network(cards, n_actions)
     params = random_params(net, seed, unseen=zero_n)
-    compiled = compile_discrete(net, params)
+    compiled = inference.compile(net, params).action_tables
     g = torch.Generator().manual_seed(seed)
     ev = {}
     for i, k in enumerate(cards):
@@ -54,11 +55,10 @@ def test_compile_refuses_continuous_networks():
 
 def test_compiled_parameter_query_equals_traced():
     from inference import infer_parameter
-    from inference.queries.compiled import compile_parameter_query
     from tests.inference.test_queries_mixed import NET
 
     params = random_params(NET, 21, unseen=0.2)
-    query = compile_parameter_query(NET, params, "force")
+    query = inference.compile(NET, params).parameter_query("force")
     g = torch.Generator().manual_seed(1)
     n = 40
     ev = {
@@ -68,7 +68,7 @@ def test_compiled_parameter_query_equals_traced():
         "end.pos": 3 * torch.randn(n, 2, generator=g, dtype=torch.float64),
     }
     ev = NET.encode_indices(ev)
-    a = query.infer(ev)
+    a = query.infer_parameter(ev)
     b = infer_parameter(NET, params, "force", ev)
     torch.testing.assert_close(a.cluster_probs, b.cluster_probs, atol=1e-9, rtol=0)
     assert torch.equal(a.best_cluster, b.best_cluster)
@@ -79,7 +79,6 @@ def test_compiled_parameter_query_equals_traced():
 
 def test_compiled_parameter_query_with_one_shared_configuration():
     from inference import infer_parameter
-    from inference.queries.compiled import compile_parameter_query
     from tests.inference.test_queries_mixed import NET
 
     params = random_params(NET, 4)
@@ -92,7 +91,7 @@ def test_compiled_parameter_query_with_one_shared_configuration():
         "end.pos": 3 * torch.randn(n, 2, generator=g, dtype=torch.float64),
     }
     ev = NET.encode_indices(ev)
-    a = compile_parameter_query(NET, params, "force").infer(ev)
+    a = inference.compile(NET, params).parameter_query("force").infer_parameter(ev)
     b = infer_parameter(NET, params, "force", ev)
     torch.testing.assert_close(a.cluster_probs, b.cluster_probs, atol=1e-9, rtol=0)
     torch.testing.assert_close(a.mean, b.mean)
@@ -114,11 +113,11 @@ def test_answers_per_configuration_equal_the_answers_per_row(seed, zero_n, data)
         }
     )
     allowed = data.draw(st.sampled_from([None, torch.tensor([False, True, True, False])]))
-    fast = compile_discrete(net, params)
+    fast = inference.compile(net, params).action_tables
     a = fast.infer_action(ev, allowed=allowed)
     [(pattern, plan)] = fast.plans.items()
     assert plan.answers is not None
-    slow = compile_discrete(net, params)
+    slow = inference.compile(net, params).action_tables
     slow.plans[pattern] = dataclasses.replace(plan, answers=None)
     b = slow.infer_action(ev, allowed=allowed)
     for name in ("probs", "log_evidence", "unseen"):
@@ -143,10 +142,10 @@ def test_answers_with_latent_initial_sites_equal_the_answers_per_row(
     observed configuration (the others summed out, in chunks of any size) are those
     computed row by row, and the traced model's: posterior, evidence, unseen mass, best
     action (with and without allowed actions and the unseen rule) and the flag."""
-    import inference.queries.compiled as compiled_module
+    import inference.queries.action as action_module
 
-    chunk = compiled_module.ANSWERS_CHUNK if chunk is None else chunk  # 40: small chunks
-    with mock.patch.object(compiled_module, "ANSWERS_CHUNK", chunk):
+    chunk = action_module.ANSWERS_CHUNK if chunk is None else chunk  # 40: small chunks
+    with mock.patch.object(action_module, "ANSWERS_CHUNK", chunk):
         _latent_answers_case(seed, zero_n, given_sites, data)
 
 
@@ -160,12 +159,12 @@ def _latent_answers_case(seed, zero_n, given_sites, data):
     )
     allowed = data.draw(st.sampled_from([None, torch.tensor([False, True, True, False])]))
     avoid = data.draw(st.booleans())
-    fast = compile_discrete(net, params)
+    fast = inference.compile(net, params).action_tables
     a = fast.infer_action(ev, allowed=allowed, avoid_unseen=avoid)
     [(pattern, plan)] = [(p, q) for p, q in fast.plans.items() if p == frozenset(given_sites)]
     assert plan.answers is not None and len(plan.latent) > 1
     assert (plan.answers.unseen_mass is None) == (plan.unseen is None)
-    slow = compile_discrete(net, params)
+    slow = inference.compile(net, params).action_tables
     slow.plans[pattern] = dataclasses.replace(fast.plan(pattern), answers=None)
     b = slow.infer_action(ev, allowed=allowed, avoid_unseen=avoid)
     traced = infer_action(net, params, ev, allowed=allowed, avoid_unseen=avoid)
@@ -200,7 +199,7 @@ def test_one_row_action_queries_are_the_batched_rows(seed, zero_n, below):
             "end.f1": torch.randint(0, 2, (12,), generator=g),
         }
     )
-    compiled = compile_discrete(net, params)
+    compiled = inference.compile(net, params).action_tables
     batched = compiled.infer_action(ev, implausible_below=below)
     traced = infer_action(net, params, ev, implausible_below=below)
     [plan] = compiled.plans.values()
@@ -233,13 +232,13 @@ def assert_same_answer(a, b):
 def test_compiled_query_of_a_parameter_on_two_continuous_features(seed, which):
     """One aim acting on end.land (2-D) and end.roll: their joint Gaussian per cluster."""
     from inference import infer_parameter
-    from inference.queries.compiled import CompiledJointParameterQuery, compile_parameter_query
+    from inference.queries.parameter import CompiledJointParameterQuery
     from models import Partial
     from tests.inference.test_parameter_effects import throwing
 
     net, _ = throwing()
     params = random_params(net, seed, unseen=0.3)
-    query = compile_parameter_query(net, params, "aim")
+    query = inference.compile(net, params).parameter_query("aim")
     assert isinstance(query, CompiledJointParameterQuery)
     g = torch.Generator().manual_seed(seed)
     n = 12
@@ -258,14 +257,13 @@ def test_compiled_query_of_a_parameter_on_two_continuous_features(seed, which):
         ev["end.land"] = Partial(land, observed=torch.rand(n, 2, generator=g) < 0.5)
     for mixture in (False, True):
         assert_same_answer(
-            query.infer(ev, mixture=mixture),
+            query.infer_parameter(ev, mixture=mixture),
             infer_parameter(net, params, "aim", ev, mixture=mixture),
         )
 
 
 def test_compiled_query_of_a_parameter_on_a_continuous_and_a_discrete_feature():
     from inference import infer_parameter
-    from inference.queries.compiled import compile_parameter_query
     from models import Continuous, Discrete, Parameter
 
     force = Parameter("force", 0.0, 6.0, 3, ("push",), ("pos", "upright"))
@@ -279,7 +277,7 @@ def test_compiled_query_of_a_parameter_on_a_continuous_and_a_discrete_feature():
         },
     )
     params = random_params(net, 2, unseen=0.3)
-    query = compile_parameter_query(net, params, "force")
+    query = inference.compile(net, params).parameter_query("force")
     g = torch.Generator().manual_seed(0)
     n = 10
     ev = {
@@ -291,17 +289,17 @@ def test_compiled_query_of_a_parameter_on_a_continuous_and_a_discrete_feature():
     upright = {"end.upright": torch.rand(n, generator=g) < 0.5}
     for extra in (pos | upright, pos, upright):
         assert_same_answer(
-            query.infer(ev | extra, mixture=True),
+            query.infer_parameter(ev | extra, mixture=True),
             infer_parameter(net, params, "force", ev | extra, mixture=True),
         )
-    empty = query.infer({k: v[:0] for k, v in (ev | pos).items()})
+    empty = query.infer_parameter({k: v[:0] for k, v in (ev | pos).items()})
     assert empty.mean.shape == (0, 1) and empty.cluster_probs.shape == (0, 3)
     with pytest.raises(ValueError, match=r"discrete parents \['initial.upright'\]"):
-        query.infer({k: v for k, v in (ev | upright).items() if k != "initial.upright"})
+        query.infer_parameter({k: v for k, v in (ev | upright).items() if k != "initial.upright"})
 
 
 def test_compiled_query_refuses_a_feature_shared_by_two_parameters():
-    from inference.queries.compiled import compile_parameter_query
+    from inference.queries.parameter import compile_parameter_query
     from tests.inference.test_parameter_effects import sliding
 
     net, params = sliding()
@@ -313,20 +311,20 @@ def test_compiled_query_without_other_inputs_answers_as_the_traced_model():
     """A feature whose only continuous input is the parameter (the throw's hit): every
     cluster's mean is fixed; the same answers as the traced model."""
     from inference import infer_parameter
-    from inference.queries.compiled import compile_parameter_query
     from models import Continuous, Parameter
 
     target = Parameter("target", (0.0, 0.0), (1.0, 2.0), (3, 4), ("throw", "lob"), "hit")
     net = EffectNetwork((Continuous("hit", 2, initial=False),), ("throw", "lob"), (target,))
     params = random_params(net, 3, unseen=0.2)
-    query = compile_parameter_query(net, params, "target")
+    query = inference.compile(net, params).parameter_query("target")
     assert query.offset.shape == (2, 12, 2) and query.w_x.shape[-1] == 0
     g = torch.Generator().manual_seed(0)
     hits = 3 * torch.randn(20, 2, generator=g, dtype=torch.float64)
     for actions in (["throw"] * 20, ["throw", "lob"] * 10):
         ev = {"end.hit": hits, "action": actions}
         assert_same_answer(
-            query.infer(ev, mixture=True), infer_parameter(net, params, "target", ev, mixture=True)
+            query.infer_parameter(ev, mixture=True),
+            infer_parameter(net, params, "target", ev, mixture=True),
         )
 
 
@@ -352,16 +350,15 @@ def test_one_row_queries_answer_as_the_batched_query_and_the_traced_model(
     batched query's answers and the traced model's, flags and mixture included, for
     every way of giving one row."""
     from inference import infer_parameter
-    from inference.queries.compiled import compile_parameter_query
 
     net = _one_row_network(dim)
     params = random_params(net, seed, unseen=0.3)
-    query = compile_parameter_query(net, params, "target")
+    query = inference.compile(net, params).parameter_query("target")
     g = torch.Generator().manual_seed(seed)
     hits = scale * torch.randn(8, dim, generator=g, dtype=torch.float64)
     actions = ["throw", "lob"] * 4
     assert query._one_row({"end.hit": hits[0], "action": "lob"}, mixture, 0.01) is not None
-    batched = query.infer({"end.hit": hits, "action": actions}, mixture=mixture)
+    batched = query.infer_parameter({"end.hit": hits, "action": actions}, mixture=mixture)
     traced = infer_parameter(net, params, "target", {"end.hit": hits, "action": actions})
     assert traced.implausible.any() or scale < 30  # far hits are flagged
     for i in range(len(hits)):
@@ -372,7 +369,7 @@ def test_one_row_queries_answer_as_the_batched_query_and_the_traced_model(
             {"end.hit": hits[i].tolist(), "action": actions[i]},
         ]
         for ev in forms:
-            one = query.infer(ev, mixture=mixture)
+            one = query.infer_parameter(ev, mixture=mixture)
             assert one.cluster_probs.shape == (1, batched.cluster_probs.shape[1])
             assert one.best_cluster.dtype == torch.long and one.implausible.dtype == torch.bool
             assert one.outside.dtype == torch.bool and one.unseen.dtype == torch.float64
@@ -402,21 +399,20 @@ def test_one_row_queries_answer_as_the_batched_query_and_the_traced_model(
 def test_one_row_query_with_an_impossible_cluster_and_the_default_action():
     """A cluster the action never takes is left out of the closest-cluster distance; with
     one action using the parameter, the action may be left out of the evidence."""
-    from inference.queries.compiled import compile_parameter_query
     from models import Parameter
 
     target = Parameter("target", (0.0, 0.0), (1.0, 2.0), (3, 4), ("throw",), "hit")
     net = EffectNetwork((Continuous("hit", 2, initial=False),), ("throw", "lob"), (target,))
     params = random_params(net, 5, unseen=0.2)
-    query = compile_parameter_query(net, params, "target")
+    query = inference.compile(net, params).parameter_query("target")
     log_cluster = query.log_cluster.clone()
     log_cluster[0, :6] = -torch.inf  # "throw" never takes the first six clusters
     query = dataclasses.replace(query, log_cluster=log_cluster)
     hits = torch.tensor([[0.1, 0.2], [0.9, 1.9], [40.0, -3.0]], dtype=torch.float64)
-    batched = query.infer({"end.hit": hits})
+    batched = query.infer_parameter({"end.hit": hits})
     assert (batched.cluster_probs[:, :6] == 0).all()
     for i in range(len(hits)):
-        one = query.infer({"end.hit": hits[i]})
+        one = query.infer_parameter({"end.hit": hits[i]})
         torch.testing.assert_close(one.cluster_probs, batched.cluster_probs[i : i + 1])
         assert torch.equal(one.best_cluster, batched.best_cluster[i : i + 1])
         assert torch.equal(one.implausible, batched.implausible[i : i + 1])
@@ -424,24 +420,25 @@ def test_one_row_query_with_an_impossible_cluster_and_the_default_action():
 
 
 def test_one_row_query_reports_bad_evidence_as_before():
-    from inference.queries.compiled import compile_parameter_query
     from models import Partial
 
     net = _one_row_network()
     params = random_params(net, 1)
-    query = compile_parameter_query(net, params, "target")
+    query = inference.compile(net, params).parameter_query("target")
     hit = torch.tensor([[0.3, 0.4]], dtype=torch.float64)
     with pytest.raises(ValueError, match="action"):
-        query.infer({"end.hit": hit})  # two actions use it: which one?
+        query.infer_parameter({"end.hit": hit})  # two actions use it: which one?
     with pytest.raises(ValueError, match="not one of its states"):
-        query.infer({"end.hit": hit, "action": "jump"})
+        query.infer_parameter({"end.hit": hit, "action": "jump"})
     with pytest.raises(ValueError, match="NaN or inf"):
-        query.infer({"end.hit": [[0.3, float("nan")]], "action": "throw"})
+        query.infer_parameter({"end.hit": [[0.3, float("nan")]], "action": "throw"})
     with pytest.raises(ValueError, match="shape"):
-        query.infer({"end.hit": [0.3, 0.4, 0.5], "action": "throw"})
+        query.infer_parameter({"end.hit": [0.3, 0.4, 0.5], "action": "throw"})
     with pytest.raises(ValueError, match="does not exist"):
-        query.infer({"end.hit": hit, "action": "throw", "end.miss": [1]})
-    partial = query.infer({"end.hit": Partial([[0.3, 0.0]], [[True, False]]), "action": "lob"})
+        query.infer_parameter({"end.hit": hit, "action": "throw", "end.miss": [1]})
+    partial = query.infer_parameter(
+        {"end.hit": Partial([[0.3, 0.0]], [[True, False]]), "action": "lob"}
+    )
     assert partial.cluster_probs.shape == (1, 12)
 
 
@@ -507,7 +504,6 @@ def test_compiled_parameter_query_keeps_every_digit_with_a_small_fitted_noise(la
     query's cluster posterior agrees with the traced model's to 1e-12, batched and one
     row at a time, picks the same best cluster, and matches a 50-digit oracle."""
     from inference import fit, fit_em, infer_parameter
-    from inference.queries.compiled import compile_parameter_query
     from models.throw_network import throw_data, throw_network
 
     net = throw_network((8, 8))
@@ -520,16 +516,16 @@ def test_compiled_parameter_query_keeps_every_digit_with_a_small_fitted_noise(la
         params = fit(net, rows).params
     else:
         params = fit_em(net, rows, steps=30).params
-    query = compile_parameter_query(net, params, "target")
+    query = inference.compile(net, params).parameter_query("target")
     assert float(query.whiten.abs().amax()) > 100  # precisions 1e4-1e5
     _, asked = _throw_like(400, 1, noise)
     asked = torch.from_numpy(asked)
-    compiled = query.infer({"end.hit": asked})
+    compiled = query.infer_parameter({"end.hit": asked})
     traced = infer_parameter(net, params, "target", {"end.hit": asked})
     torch.testing.assert_close(compiled.cluster_probs, traced.cluster_probs, atol=1e-12, rtol=0)
     assert torch.equal(compiled.best_cluster, traced.best_cluster)
     for i in range(0, 400, 20):
-        one = query.infer({"end.hit": asked[i]})
+        one = query.infer_parameter({"end.hit": asked[i]})
         torch.testing.assert_close(
             one.cluster_probs[0], traced.cluster_probs[i], atol=1e-12, rtol=0
         )
@@ -543,7 +539,6 @@ def test_compiled_parameter_query_refuses_a_hit_with_no_probability_in_float64()
     its density underflows under every cluster; the compiled query, batched and one row,
     refuses the row by name as the traced one does, instead of answering NaN."""
     from inference import infer_parameter
-    from inference.queries.compiled import compile_parameter_query
     from models.params import NetworkParams
 
     net = _one_row_network()
@@ -553,17 +548,17 @@ def test_compiled_parameter_query_refuses_a_hit_with_no_probability_in_float64()
         for site in ("end.hit", "param.target")
     }
     params = NetworkParams(params.cpds | narrow, params.pseudo_count)
-    query = compile_parameter_query(net, params, "target")
+    query = inference.compile(net, params).parameter_query("target")
     hits = torch.tensor([[0.5, 1.0], [1e150, 0.0]], dtype=torch.float64)
     ev = {"end.hit": hits, "action": ["throw", "throw"]}
     for call in (
-        lambda: query.infer(ev),
-        lambda: query.infer({"end.hit": hits[1], "action": "throw"}),
+        lambda: query.infer_parameter(ev),
+        lambda: query.infer_parameter({"end.hit": hits[1], "action": "throw"}),
         lambda: infer_parameter(net, params, "target", ev),
     ):
         with pytest.raises(ValueError, match=r"row \d has probability 0 under every"):
             call()
-    ordinary = query.infer({"end.hit": hits[:1], "action": ["throw"]})
+    ordinary = query.infer_parameter({"end.hit": hits[:1], "action": ["throw"]})
     assert abs(float(ordinary.cluster_probs.sum()) - 1) < 1e-12
 
 
@@ -581,11 +576,59 @@ def test_one_row_query_refuses_complex_and_huge_hits_as_encode_does(hit, match):
     general path names the site), never reading 5j as 0 or answering beyond the limit."""
     import warnings
 
-    from inference.queries.compiled import compile_parameter_query
-
     net = _one_row_network()
-    query = compile_parameter_query(net, random_params(net, 1), "target")
+    query = inference.compile(net, random_params(net, 1)).parameter_query("target")
     with warnings.catch_warnings():
         warnings.simplefilter("error")
         with pytest.raises(ValueError, match=match):
-            query.infer({"end.hit": hit, "action": "throw"})
+            query.infer_parameter({"end.hit": hit, "action": "throw"})
+
+
+#: The compiled building blocks' former names in inference.queries.compiled -> their home.
+FORMER_NAMES = {
+    "compile_discrete": "inference.queries.action",
+    "CompiledNetwork": "inference.queries.action",
+    "ANSWERS_BUDGET": "inference.queries.action",
+    "ANSWERS_CHUNK": "inference.queries.action",
+    "compile_parameter_query": "inference.queries.parameter",
+    "CompiledJointParameterQuery": "inference.queries.parameter",
+    "CompiledParameterQuery": "inference.queries.parameter_tables",
+}
+
+
+@pytest.mark.parametrize("name", sorted(FORMER_NAMES))
+def test_the_building_blocks_former_names_warn_and_resolve(name):
+    import importlib
+
+    import inference.queries.compiled as compiled
+
+    with pytest.warns(DeprecationWarning, match=f"{name} is deprecated: ask inference.compile"):
+        old = getattr(compiled, name)
+    assert old is getattr(importlib.import_module(FORMER_NAMES[name]), name)
+    with pytest.raises(AttributeError, match="no attribute 'compile_everything'"):
+        compiled.compile_everything  # noqa: B018
+
+
+@pytest.mark.parametrize("parameter", ["force", "aim"])
+def test_the_compiled_parameter_querys_infer_warns_and_answers_as_infer_parameter(parameter):
+    """``infer`` (the former name, on both compiled parameter queries) still answers,
+    with a DeprecationWarning, what ``infer_parameter`` answers."""
+    from tests.inference.test_parameter_effects import throwing
+    from tests.inference.test_queries_mixed import NET
+
+    net = NET if parameter == "force" else throwing()[0]
+    params = random_params(net, 3, unseen=0.2)
+    g = torch.Generator().manual_seed(3)
+    ev = {"action": ["tap" if parameter == "force" else "throw"] * 5}
+    for site in net.sites:
+        if site.role == "initial" or site.name in ("end.pos", "end.land"):
+            shape = (5,) if site.discrete else (5, site.size)
+            draw = torch.randint(0, 2, shape, generator=g) if site.discrete else torch.randn(*shape)
+            ev[site.name] = draw.to(torch.float64) if not site.discrete else draw
+    ev = net.encode_indices({k: v for k, v in ev.items() if k != "action"}) | net.encode(
+        {"action": ev["action"]}
+    )
+    query = inference.compile(net, params).parameter_query(parameter)
+    with pytest.warns(DeprecationWarning, match="infer is now infer_parameter"):
+        old = query.infer(ev, mixture=True)
+    assert_same_answer(old, query.infer_parameter(ev, mixture=True))

@@ -443,15 +443,15 @@ EVIDENCE_PATTERNS = [
 def test_discrete_queries_equal_pgmpy_variable_elimination(pattern):
     from pgmpy.inference import VariableElimination
 
+    import inference
     from inference import fit, infer_action, predict
-    from inference.queries.compiled import compile_discrete
 
     net = door_world(None, handle=False)
     params = fit(net, door_rows(400, seed=7, handle=False)).params
     ve = VariableElimination(pgmpy_network(net, params))
     rows = door_rows(6, seed=8, handle=False)
     posterior = infer_action(net, params, {s: rows[s] for s in pattern})
-    compiled = compile_discrete(net, params)
+    compiled = inference.compile(net, params).action_tables
     tables = compiled.infer_action({s: rows[s] for s in pattern})
     for i in range(6):
         evidence = {s: int(index_of(s, rows[s][i : i + 1])[0]) for s in pattern}

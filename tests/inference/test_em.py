@@ -8,8 +8,8 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+import inference
 from inference import (
-    enumerate_model,
     fit,
     fit_em,
     fit_gradient,
@@ -17,7 +17,7 @@ from inference import (
     predict,
 )
 from inference.fitting.em import em_step, mixture_log_likelihood, responsibilities
-from inference.queries.compiled import compile_parameter_query
+from inference.queries.enumeration import enumerate_model
 from models import Continuous, Discrete, EffectNetwork, Parameter
 from models.declaration import DTYPE
 from models.params import load, save
@@ -231,7 +231,9 @@ def test_inverse_and_forward_queries_equal_brute_force():
     params = fit_em(net, curved_rows(net, 500, 2), steps=20).params
     ys = torch.tensor([-0.8, 0.0, 0.4, 0.9], dtype=DTYPE)
     answer = infer_parameter(net, params, "p", {"end.y": ys[:, None]})
-    compiled = compile_parameter_query(net, params, "p").infer({"end.y": ys[:, None]})
+    compiled = (
+        inference.compile(net, params).parameter_query("p").infer_parameter({"end.y": ys[:, None]})
+    )
     for i, y in enumerate(ys):
         probs, best, mean = brute_force(params, y)
         assert torch.allclose(answer.cluster_probs[i], probs, atol=1e-6)

@@ -17,8 +17,8 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+import inference
 from inference import fit, imitation_check, infer_action, predict
-from inference.queries.compiled import compile_discrete
 from models import Continuous, Discrete, EffectNetwork, Parameter, random_params
 
 STATE_KINDS = {
@@ -134,7 +134,7 @@ def test_discrete_queries_are_right_or_refused(net, seed, data):
         if query == "infer_action":
             return infer_action(net, params, evidence, allowed=allowed, avoid_unseen=False)
         if query == "compiled":
-            compiled = compile_discrete(net, params)
+            compiled = inference.compile(net, params).action_tables
             return compiled.infer_action(evidence, allowed=allowed, avoid_unseen=False)
         return imitation_check(net, params, evidence)
 

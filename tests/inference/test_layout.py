@@ -77,9 +77,8 @@ def test_the_package_face_keeps_its_functions():
     assert inference.simulate.__module__ == "inference.queries.simulate"
 
 
-#: Folders whose modules may still import another module's private name. The queries
-#: are being split into one module per question; remove the entry when that is done.
-PRIVATE_IMPORTS_ALLOWED = {PACKAGE / "queries"}
+#: Folders whose modules may still import another module's private name: none.
+PRIVATE_IMPORTS_ALLOWED: set[Path] = set()
 
 
 def private_imports(tree: ast.AST) -> list[str]:
@@ -132,3 +131,86 @@ def test_fitting_and_design_rooms_stay_small(folder):
     """One concept per module: none above 600 lines."""
     sizes = {p.name: len(p.read_text().splitlines()) for p in (PACKAGE / folder).glob("*.py")}
     assert sizes and max(sizes.values()) <= 600, sizes
+
+
+def test_every_name_of_the_face_resolves_without_a_warning():
+    import warnings
+
+    assert len(inference.__all__) == len(set(inference.__all__))
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for name in inference.__all__:
+            assert getattr(inference, name) is not None, name
+    assert (
+        callable(inference.compile) and inference.compile.__module__ == "inference.queries.compiled"
+    )
+
+
+def test_the_face_exports_what_the_readme_and_the_guide_teach():
+    """Every name imported from ``inference`` in the README and the guide, and every
+    ``inference.<name>`` they write that is not a module, is on the face."""
+    import re
+    from pathlib import Path
+
+    root = Path(inference.__file__).parents[1]
+    text = (root / "README.md").read_text() + (root / "docs" / "guide.md").read_text()
+    imported = set()
+    lists = re.findall(r"from inference import \(([^)]*)\)", text)
+    lists += re.findall(r"from inference import ([\w, ]+)$", text, re.M)
+    for names in lists:
+        imported |= {n.strip() for n in names.split(",") if n.strip()}
+    written = set(re.findall(r"\binference\.(\w+)\b(?!\.)", text))
+    submodules = {p.stem for p in PACKAGE.iterdir() if p.suffix == ".py" or p.is_dir()}
+    taught = imported | (written - submodules)
+    assert {"compile", "fit", "predict", "simulate"} <= taught  # the parse found them
+    assert taught <= set(inference.__all__), taught - set(inference.__all__)
+
+
+#: Lower-level names the face used to export -> where they live.
+DEPRECATED_AT_THE_FACE = {
+    "Enumerated": "inference.queries.enumeration",
+    "enumerate_model": "inference.queries.enumeration",
+    "Statistics": "inference.fitting.statistics",
+}
+
+
+@pytest.mark.parametrize("name", sorted(DEPRECATED_AT_THE_FACE))
+def test_lower_level_names_at_the_face_warn_and_resolve(name):
+    import importlib
+
+    assert name not in inference.__all__
+    with pytest.warns(DeprecationWarning, match=DEPRECATED_AT_THE_FACE[name]):
+        old = getattr(inference, name)
+    assert old is getattr(importlib.import_module(DEPRECATED_AT_THE_FACE[name]), name)
+    with pytest.raises(AttributeError, match="no attribute 'infer_everything'"):
+        inference.infer_everything  # noqa: B018
+
+
+QUERIES = PACKAGE / "queries"
+
+
+@pytest.mark.parametrize("module", sorted(p.name for p in QUERIES.glob("*.py")))
+def test_every_query_module_is_one_room_of_at_most_600_lines(module):
+    assert len((QUERIES / module).read_text().splitlines()) <= 600
+
+
+def test_no_query_module_imports_another_modules_private_names():
+    offenders = []
+    for path in sorted(QUERIES.glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("inference"):
+                private = [a.name for a in node.names if a.name.startswith("_")]
+                offenders += [f"{path.name}: {node.module}.{name}" for name in private]
+    assert offenders == []
+
+
+def test_each_question_keeps_its_traced_and_compiled_answers_side_by_side():
+    """The action query beside its discrete tables, the parameter posterior beside its
+    compiled query; the package face offers the questions and the compiled surface."""
+    from inference.queries import action, parameter
+
+    assert {"infer_action", "CompiledNetwork", "compile_discrete"} <= set(vars(action))
+    assert {"infer_parameter", "compile_parameter_query"} <= set(vars(parameter))
+    import inference.queries as queries
+
+    assert set(queries.__all__) >= {"compile", "infer_action", "infer_parameter", "predict"}

@@ -31,6 +31,7 @@ from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 from mpmath import mp, mpf
 
+import inference
 from inference import (
     imitation_check,
     infer_action,
@@ -38,7 +39,6 @@ from inference import (
     parameter_for_effect,
     predict,
 )
-from inference.queries.compiled import compile_parameter_query
 from inference.queries.plausibility import IMPLAUSIBLE_BELOW
 from models import Continuous, Discrete, EffectNetwork, Parameter, random_params
 from models.cpds.linear_gaussian import LinearGaussianParams
@@ -564,10 +564,10 @@ def check_infer_parameter_against_the_oracle(case):
     sums_to_one(got.mixture.weights)
     # the compiled query: the same answer, or a ValueError naming what it does not serve
     try:
-        compiled = compile_parameter_query(net, params, "force")
+        compiled = inference.compile(net, params).parameter_query("force")
     except ValueError:
         return
-    fast = compiled.infer(encode(net, ev))
+    fast = compiled.infer_parameter(encode(net, ev))
     sums_to_one(fast.cluster_probs)
     assert np.abs(fast.cluster_probs[0].numpy() - want).max() <= PROB_TOL
 

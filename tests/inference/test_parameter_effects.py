@@ -12,7 +12,7 @@ import pytest
 import torch
 
 from inference import fit, imitation_check, infer_action, infer_parameter, predict, simulate
-from inference.queries.compiled import compile_parameter_query
+from inference.queries.parameter import compile_parameter_query
 from models import Continuous, Discrete, EffectNetwork, Parameter, load, random_params, save
 
 ACTIONS = ("push", "wait")

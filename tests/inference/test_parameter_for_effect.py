@@ -465,7 +465,7 @@ CASES = {
 def test_closed_form_scores_equal_the_models_own(case, monkeypatch):
     """The candidates' scores in closed form (the mixture's terms, shifted by one model
     evaluation per row) equal the model's log p(value, evidence) at every candidate."""
-    import inference.queries as queries
+    import inference.queries.inverse as queries
 
     net, params, p, evidence = CASES[case]()
     m = net.mixture(p)
@@ -492,12 +492,13 @@ def test_closed_form_scores_equal_the_models_own(case, monkeypatch):
 
 
 def test_a_discrete_effect_of_the_cluster_is_scored_by_the_model():
-    import inference.queries as queries
+    import inference.queries.inverse as queries
+    from inference.queries.batching import prepare
 
     net, params, p, evidence = _discrete_effect_case()
     answer = parameter_for_effect(net, params, p, evidence)
     m = net.mixture(p)
-    enc = queries._prepare(net, params, evidence)
+    enc = prepare(net, params, evidence)
     children = [net.cpd("end.pos")]
     every = torch.arange(m.parameter.n_clusters).expand(enc.n_rows, -1)
     whitened = m.whitened(params, children, enc, every)

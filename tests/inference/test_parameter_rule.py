@@ -113,7 +113,7 @@ def test_nan_parameter_is_unknown_row_by_row():
         one = predict(PUSH, params, START | {"action": ["push"], "param.force": [[force]]})
         torch.testing.assert_close(mix.mean[row], one.continuous["pos"].mean[0])
         torch.testing.assert_close(mix.cov[row], one.continuous["pos"].cov[0])
-    # the inverse and the imitation check read NaN the same way
+    # the action query and the imitation check read NaN the same way
     ev = {"initial.contact": ["no"] * 2, "initial.pos": [[0.2]] * 2, "end.pos": [[0.7]] * 2}
     both = infer_action(PUSH, params, ev | {"param.force": [[float("nan")], [5.0]]})
     torch.testing.assert_close(

@@ -17,8 +17,8 @@ from hypothesis import strategies as st
 from scipy import stats
 from torch.distributions import MultivariateNormal
 
+import inference
 from inference import fit, imitation_check, infer_action, infer_parameter, predict, simulate
-from inference.queries.compiled import compile_parameter_query
 from inference.queries.plausibility import plausibility
 from models import Continuous, Discrete, EffectNetwork, Parameter, Partial
 from models.declaration import DTYPE
@@ -178,7 +178,9 @@ def test_parameter_posterior_from_the_observed_dimensions():
             )
         lik = torch.tensor(lik, dtype=DTYPE)
         torch.testing.assert_close(got.cluster_probs[i], lik / lik.sum())
-    compiled = compile_parameter_query(NET, params, "force").infer(ev, mixture=True)
+    compiled = (
+        inference.compile(NET, params).parameter_query("force").infer_parameter(ev, mixture=True)
+    )
     for field in (
         "cluster_probs",
         "best_cluster",

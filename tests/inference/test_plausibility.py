@@ -9,8 +9,8 @@ import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+import inference
 from inference import fit, imitation_check, infer_action, infer_parameter, predict
-from inference.queries.compiled import compile_discrete, compile_parameter_query
 from inference.queries.plausibility import IMPLAUSIBLE_BELOW, plausibility
 from models import Continuous, Discrete, EffectNetwork, Parameter
 from models.declaration import DTYPE
@@ -190,7 +190,7 @@ def test_far_out_evidence_is_flagged_by_every_query():
 def test_compiled_action_query_flags_what_the_traced_one_flags(cards, n_actions, seed, data):
     net = discrete_network(cards, n_actions)
     params = random_params(net, seed, unseen=0.3)
-    compiled = compile_discrete(net, params)
+    compiled = inference.compile(net, params).action_tables
     g = torch.Generator().manual_seed(seed)
     ev = {}
     for i, k in enumerate(cards):
@@ -211,7 +211,7 @@ def test_compiled_action_query_flags_what_the_traced_one_flags(cards, n_actions,
 
 def test_compiled_parameter_query_flags_what_the_traced_one_flags():
     params = random_params(NET, 21)
-    query = compile_parameter_query(NET, params, "force")
+    query = inference.compile(NET, params).parameter_query("force")
     g = torch.Generator().manual_seed(1)
     n = 40
     ev = {
@@ -220,7 +220,7 @@ def test_compiled_parameter_query_flags_what_the_traced_one_flags():
         "action": ["tap", "push"] * (n // 2),
         "end.pos": torch.randn(n, 2, generator=g, dtype=DTYPE) * torch.logspace(0, 3, n)[:, None],
     }
-    a = query.infer(ev)
+    a = query.infer_parameter(ev)
     b = infer_parameter(NET, params, "force", ev)
     assert torch.equal(a.implausible, b.implausible)
     assert 0 < int(a.implausible.sum()) < n
@@ -268,7 +268,9 @@ def test_an_initial_state_far_outside_the_training_data_is_flagged_by_name():
         "infer_action": lambda: infer_action(net, params, rows | ends),
         "imitation_check": lambda: imitation_check(net, params, push | ends),
         "infer_parameter": lambda: infer_parameter(net, params, "force", push | ends),
-        "compiled": lambda: compile_parameter_query(net, params, "force").infer(push | ends),
+        "compiled": lambda: (
+            inference.compile(net, params).parameter_query("force").infer_parameter(push | ends)
+        ),
     }
     for name, query in queries.items():
         with pytest.warns(

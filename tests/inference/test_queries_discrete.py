@@ -163,7 +163,7 @@ def test_unseen_configuration_is_reported():
 
 
 def test_ties_go_to_the_lowest_index_whatever_the_rounding():
-    from inference.queries import first_best
+    from inference.queries.batching import first_best
 
     score = torch.tensor(
         [[0.2, 0.4, 0.4 * (1 + 1e-12), 0.1], [0.5, 0.5 * (1 - 1e-12), 0.0, 0.0]], dtype=DTYPE
@@ -173,12 +173,12 @@ def test_ties_go_to_the_lowest_index_whatever_the_rounding():
 
 
 def test_allowed_actions_by_name_and_mask():
-    from inference.queries.compiled import compile_discrete
+    import inference
 
     net = discrete_network([2], 3)
     params = random_params(net, 4)
     ev = {"initial.f0": [1, 0]}
-    compiled = compile_discrete(net, params)
+    compiled = inference.compile(net, params).action_tables
     for run in (
         lambda **k: infer_action(net, params, ev, **k),
         lambda **k: compiled.infer_action(ev, **k),
@@ -198,8 +198,8 @@ def test_allowed_actions_by_name_and_mask():
 
 
 def test_empty_batches_give_empty_results():
+    import inference
     from inference import infer_parameter
-    from inference.queries.compiled import compile_discrete, compile_parameter_query
     from tests.inference.test_queries_mixed import NET
 
     net = discrete_network([2, 3], 4)
@@ -207,7 +207,7 @@ def test_empty_batches_give_empty_results():
     none = {"initial.f0": [], "initial.f1": []}
     post = infer_action(net, params, none | {"end.f1": []})
     assert post.probs.shape == (0, 4) and post.best.shape == (0,) and post.best_names == ()
-    assert compile_discrete(net, params).infer_action(none).probs.shape == (0, 4)
+    assert inference.compile(net, params).action_tables.infer_action(none).probs.shape == (0, 4)
     pred = predict(net, params, none | {"action": []})
     assert pred.discrete["f0"].shape == (0, 2) and pred.discrete["f1"].shape == (0, 3)
     assert pred.unseen.shape == (0,)
@@ -220,7 +220,7 @@ def test_empty_batches_give_empty_results():
     par = infer_parameter(NET, mixed, "force", ev)
     assert par.mean.shape == (0, 1) and par.cov.shape == (0, 1, 1)
     assert par.cluster_probs.shape == (0, 3)
-    par = compile_parameter_query(NET, mixed, "force").infer(ev)
+    par = inference.compile(NET, mixed).parameter_query("force").infer_parameter(ev)
     assert par.mean.shape == (0, 1)
     pred = predict(NET, mixed, ev | {"param.force": torch.zeros(0, 1)})
     assert pred.discrete["visible"].shape == (0, 2)

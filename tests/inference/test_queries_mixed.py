@@ -172,7 +172,7 @@ def test_joint_surprise_of_discrete_and_continuous_end_features():
 
 
 def test_full_parameter_posterior_is_the_integral_over_the_force():
-    from inference.queries.compiled import compile_parameter_query
+    import inference
 
     params = random_params(NET, 6)
     vis0, action = 1, 2  # push
@@ -206,7 +206,12 @@ def test_full_parameter_posterior_is_the_integral_over_the_force():
     torch.testing.assert_close(mix.weights, got.cluster_probs)
     best = int(got.best_cluster[0])
     torch.testing.assert_close(mix.means[0, best], got.mean[0])  # the paper's answer inside
-    compiled = compile_parameter_query(NET, params, "force").infer(ev, mixture=True).mixture
+    compiled = (
+        inference.compile(NET, params)
+        .parameter_query("force")
+        .infer_parameter(ev, mixture=True)
+        .mixture
+    )
     torch.testing.assert_close(compiled.means, mix.means)
     torch.testing.assert_close(compiled.covs, mix.covs)
     assert infer_parameter(NET, params, "force", ev).mixture is None  # the paper's default

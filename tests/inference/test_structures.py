@@ -20,6 +20,7 @@ import torch
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+import inference
 from inference import (
     fit,
     fit_em,
@@ -30,7 +31,8 @@ from inference import (
     predict,
     simulate,
 )
-from inference.queries.compiled import compile_discrete, compile_parameter_query
+from inference.queries.action import compile_discrete
+from inference.queries.parameter import compile_parameter_query
 from models import Continuous, Discrete, EffectNetwork, Parameter, Partial, random_params
 
 ACTIONS = ("push", "lift", "wait")
@@ -356,7 +358,9 @@ def test_a_parameter_on_two_features_one_in_part_traced_compiled_and_by_hand():
         "end.xy": Partial(np.where(mask[:, :2], xy, np.nan), observed=mask[:, :2]),
     }
     traced = infer_parameter(net, params, "speed", ev, mixture=True)
-    compiled = compile_parameter_query(net, params, "speed").infer(ev, mixture=True)
+    compiled = (
+        inference.compile(net, params).parameter_query("speed").infer_parameter(ev, mixture=True)
+    )
     for key, value in fields_of(traced).items():
         if key.endswith("implausible"):
             continue
@@ -503,9 +507,11 @@ def test_shelf_and_slide_at_every_magnitude(values, on, end_on):
         "end.xy": Partial([[v[3], np.nan]], observed=[True, False]),
         "end.spin": [[v[4]]],
     }
-    compiled = compile_parameter_query(slide, slide_params, "speed")
+    compiled = inference.compile(slide, slide_params).parameter_query("speed")
     queries["slide infer_action"] = lambda: infer_action(slide, slide_params, slide_ev).probs
-    queries["slide compiled"] = lambda: compiled.infer(slide_ev | {"action": ["hit"]}).cluster_probs
+    queries["slide compiled"] = lambda: (
+        compiled.infer_parameter(slide_ev | {"action": ["hit"]}).cluster_probs
+    )
     queries["slide traced"] = lambda: (
         infer_parameter(slide, slide_params, "speed", slide_ev | {"action": ["hit"]}).cluster_probs
     )
@@ -665,8 +671,8 @@ def test_compiled_parameter_query_one_row_in_every_form_equals_its_row_in_10000(
     params = fit(net, simulate(net, random_params(net, seed=6), 3000, seed=6)).params
     rows = simulate(net, params, 10_000, seed=7)
     y = np.asarray(rows["end.pos"])
-    query = compile_parameter_query(net, params, "force")
-    batch = query.infer({"end.pos": y, "action": ["throw"] * 10_000}, mixture=True)
+    query = inference.compile(net, params).parameter_query("force")
+    batch = query.infer_parameter({"end.pos": y, "action": ["throw"] * 10_000}, mixture=True)
     traced = infer_parameter(
         net,
         params,
@@ -683,10 +689,12 @@ def test_compiled_parameter_query_one_row_in_every_form_equals_its_row_in_10000(
         torch.testing.assert_close(fields_of(batch)[key][:50], value, rtol=0, atol=1e-12, msg=key)
     for i in (0, 17, 9_999):
         for form in (y[i], y[i : i + 1], list(y[i]), torch.tensor(y[i])):
-            one = fields_of(query.infer({"end.pos": form, "action": "throw"}, mixture=True))
+            one = fields_of(
+                query.infer_parameter({"end.pos": form, "action": "throw"}, mixture=True)
+            )
             for key, value in fields_of(batch).items():
                 torch.testing.assert_close(one[key], value[i : i + 1], rtol=0, atol=1e-12, msg=key)
-    empty = fields_of(query.infer({"end.pos": y[:0], "action": []}, mixture=True))
+    empty = fields_of(query.infer_parameter({"end.pos": y[:0], "action": []}, mixture=True))
     for key, value in fields_of(batch).items():
         assert empty[key].shape == (0, *value.shape[1:]), key
 
@@ -701,7 +709,9 @@ def test_adaptive_compiled_equals_traced_from_ordinary_values_to_the_limit():
         "action": ["push"] * values.size,
     }
     traced = fields_of(infer_parameter(net, params, "force", ev, mixture=True))
-    compiled = fields_of(compile_parameter_query(net, params, "force").infer(ev, mixture=True))
+    compiled = fields_of(
+        inference.compile(net, params).parameter_query("force").infer_parameter(ev, mixture=True)
+    )
     assert traced.keys() == compiled.keys()
     for key, value in traced.items():
         torch.testing.assert_close(compiled[key], value, rtol=0, atol=1e-12, msg=key)
@@ -782,7 +792,7 @@ def test_predict_integrates_the_unknown_height_by_hand():
 @pytest.mark.filterwarnings("ignore::inference.queries.plausibility.OutsideTrainingData")
 def test_slide_with_per_row_masks_answers_alike_in_batches_and_forms():
     """10,000 rows with their own masks of the 2-D position: the compiled and traced
-    inverse queries agree to 1e-12, and a row alone gets its row's answer from both and
+    parameter posteriors agree to 1e-12, and a row alone gets its row's answer from both and
     from infer_action."""
     net, params = slide_world()
     n = 10_000
@@ -794,9 +804,9 @@ def test_slide_with_per_row_masks_answers_alike_in_batches_and_forms():
         k: np.asarray(rows[k]) for k in ("initial.lit", "initial.xy", "initial.spin", "end.spin")
     }
     ev = given | {"action": np.where(action == "wait", "hit", action)}
-    query = compile_parameter_query(net, params, "speed")
+    query = inference.compile(net, params).parameter_query("speed")
     queries = {
-        "compiled": lambda e, m: query.infer(
+        "compiled": lambda e, m: query.infer_parameter(
             e | {"end.xy": Partial(xy[m], observed=mask[m])}, mixture=True
         ),
         "traced": lambda e, m: infer_parameter(

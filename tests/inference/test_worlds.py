@@ -33,6 +33,7 @@ from mpmath import mp, mpf
 from scipy.optimize import brentq
 from scipy.stats import chi2, norm
 
+import inference
 from inference import (
     fit,
     imitation_check,
@@ -42,7 +43,6 @@ from inference import (
     predict,
     simulate,
 )
-from inference.queries.compiled import compile_parameter_query
 from models import Continuous, Discrete, EffectNetwork, Parameter, Partial, load, save, to_pgmpy
 from models.evidence import MAX_MAGNITUDE
 
@@ -803,12 +803,14 @@ def test_compiled_parameter_query_equals_the_traced_one():
         "end.position": [[0.17, 0.13], [0.09, -0.41], [0.31, 0.302]],
     }
     traced = infer_parameter(net, params, "force", ev, mixture=True)
-    compiled = compile_parameter_query(net, params, "force").infer(ev, mixture=True)
+    compiled = (
+        inference.compile(net, params).parameter_query("force").infer_parameter(ev, mixture=True)
+    )
     np.testing.assert_allclose(compiled.cluster_probs, traced.cluster_probs, atol=1e-12)
     np.testing.assert_allclose(compiled.mean, traced.mean, atol=1e-10)
     np.testing.assert_allclose(compiled.mixture.mean, traced.mixture.mean, atol=1e-10)
     one = {k: v[:1] for k, v in ev.items()}
-    single = compile_parameter_query(net, params, "force").infer(one)
+    single = inference.compile(net, params).parameter_query("force").infer_parameter(one)
     np.testing.assert_allclose(single.cluster_probs[0], traced.cluster_probs[0], atol=1e-12)
 
 

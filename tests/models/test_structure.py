@@ -15,8 +15,8 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pyro.infer.inspect import get_dependencies
 
+import inference
 from inference import fit, infer_action, predict, simulate
-from inference.queries.compiled import compile_discrete
 from inference.queries.plausibility import OutsideTrainingData
 from models import (
     Continuous,
@@ -176,7 +176,7 @@ def test_queries_equal_the_enumerated_joint(net, seed, data):
     truth = conditional(net, params, evidence, "action")
     posterior = infer_action(net, params, enc)
     torch.testing.assert_close(posterior.probs[0], truth)
-    compiled = compile_discrete(net, params).infer_action(enc)
+    compiled = inference.compile(net, params).infer_action(enc)
     torch.testing.assert_close(compiled.probs[0], truth)
     given_action = evidence | {"action": 1}
     enc = net.encode_indices({s: [v] for s, v in given_action.items()})

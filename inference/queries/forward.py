@@ -1,0 +1,214 @@
+"""Forward questions: what an action does, and whether an observed outcome fits it.
+
+* :func:`predict` -- the end-state distribution given the initial state and an action
+  (and its parameter). Discrete end features: probabilities. Continuous ones: a Gaussian
+  mixture over whatever discrete sites stay unknown (one component when the action and
+  the parameter are given).
+* :func:`imitation_check` -- the log-likelihood of an observed end state under the
+  executed action, and a surprise score: the predictive probability of an outcome
+  strictly more likely than the one observed, over the joint of all observed end
+  features (exact for discrete end states and where one Gaussian predicts the continuous
+  ones; a deterministic quadrature where a mixture does: :mod:`inference.queries.surprise`).
+  Near 1: the action did not do what it usually does.
+
+Both are answered from the traced model only (:func:`inference.compile`'s methods of the
+same names call them).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+
+import torch
+
+from inference.queries.batching import (
+    no_rows,
+    placeholder_row,
+    prepare,
+    unseen_indicator,
+)
+from inference.queries.enumeration import (
+    Enumerated,
+    conditional_log_evidence,
+    over_row_chunks,
+)
+from inference.queries.plausibility import (
+    IMPLAUSIBLE_BELOW,
+    check_threshold,
+    plausibility,
+)
+from inference.queries.results import (
+    GaussianMixture,
+    ImitationCheck,
+    Prediction,
+)
+from inference.queries.surprise import QUADRATURE_POINTS, continuous_surprise
+from models.declaration import (
+    ACTION,
+    EffectNetwork,
+    end_site,
+)
+from models.evidence import Evidence, is_partial
+from models.gaussian import (
+    condition_on_observed,
+)
+from models.params import NetworkParams
+
+
+def predict(
+    net: EffectNetwork,
+    params: NetworkParams,
+    evidence: Mapping[str, object],
+    *,
+    implausible_below: float = IMPLAUSIBLE_BELOW,
+) -> Prediction:
+    """End-state distribution of every end feature not in ``evidence``.
+
+    ``implausible`` flags rows whose observed end features (if any are given) have a
+    probability below ``implausible_below`` (:mod:`inference.queries.plausibility`).
+    """
+    below = check_threshold(implausible_below)
+    enc = prepare(net, params, evidence)
+    if enc.n_rows == 0:
+        return no_rows(predict(net, params, placeholder_row(enc), implausible_below=below))
+    targets = [
+        f.name
+        for f in net.features
+        if end_site(f.name) not in enc or is_partial(enc[end_site(f.name)])
+    ]
+    for m in net.mixtures:  # see effect_model: each is given those sampled before it
+        partly = [s for s in m.continuous if s in enc and is_partial(enc[s])]
+        theta = enc.get(m.value.site)
+        if len(partly) > 1 and (theta is None or bool(torch.isnan(theta).any())):
+            raise ValueError(
+                f"predict: {partly} are observed in part and share the parameter "
+                f"{m.parameter.name!r}, whose value is not given; predict one at a time "
+                "(the other observed in full or left out), or give the parameter"
+            )
+    discrete, continuous = {}, {}
+    unseen_sites = [end_site(f) for f in targets]
+    for f in targets:
+        site = end_site(f)
+        if net.site(site).discrete:
+            discrete[f] = over_row_chunks(
+                net, params, enc, {site}, lambda e, *_, s=site: e.marginal(s)
+            )
+        else:
+            continuous[f] = _mixture(net, params, enc, site)
+
+    def unseen(e, *_):
+        post = e.posterior()
+        return (
+            (post * unseen_indicator(net, params, e, unseen_sites))
+            .reshape(-1, post.shape[-1])
+            .sum(0)
+        )
+
+    states = {f: net.feature(f).states for f in discrete}
+    # the unseen flag reads the targets' parents: latent end parents must be traced
+    end_parents = {q for s in unseen_sites for q in net.cpd(s).parents if net.site(q).role == "end"}
+    unseen_mass = over_row_chunks(net, params, enc, end_parents, unseen).clamp(0, 1)
+    flag = plausibility(net, params, enc).implausible(below)
+    return Prediction(discrete, continuous, unseen_mass, states, flag)
+
+
+def _mixture(net, params, enc, site) -> GaussianMixture:
+    """The site's mixture over the enumerated sites; a partly observed site's components
+    are conditioned on its observed dimensions (which hold their value, variance 0)."""
+    partial = site in enc
+
+    def fn(e: Enumerated, chunk: Evidence, _):
+        post = e.posterior()  # (E..., n)
+        d_fn = e.trace.nodes[site]["fn"]
+        n = post.shape[-1]
+        shape = post.shape
+        loc = d_fn.loc.expand(*shape, d_fn.loc.shape[-1])
+        cov = d_fn.covariance_matrix.expand(*shape, *d_fn.covariance_matrix.shape[-2:])
+        if partial:
+            loc, cov = condition_on_observed(chunk[site], loc, cov)
+        w = post.reshape(-1, n).T
+        return (
+            w,
+            loc.reshape(-1, n, loc.shape[-1]).transpose(0, 1),
+            cov.reshape(-1, n, *cov.shape[-2:]).transpose(0, 1),
+        )
+
+    w, m, c = over_row_chunks(net, params, enc, set(), fn, trace_only=set() if partial else {site})
+    keep = w.sum(0) > 0  # drop components no row can reach
+    return GaussianMixture(w[:, keep], m[:, keep], c[:, keep])
+
+
+def imitation_check(
+    net: EffectNetwork,
+    params: NetworkParams,
+    evidence: Mapping[str, object],
+    *,
+    n_samples: int = QUADRATURE_POINTS,
+    seed: int = 0,
+    implausible_below: float = IMPLAUSIBLE_BELOW,
+) -> ImitationCheck:
+    """How surprising is each observed end state under the executed action?
+
+    The fields are defined in :class:`~inference.queries.results.ImitationCheck`. Discrete end states are summed
+    exactly; with a continuous end feature observed, the surprise is exact where each
+    discrete outcome has one Gaussian component (the action and the parameter given, say)
+    and a deterministic quadrature where it has several (an unknown parameter's clusters):
+    ``n_samples`` points per component (directions times radii), ``seed`` fixing the
+    quasi-random directions beyond two continuous dimensions (:mod:`inference.queries.surprise`).
+    The same row gets the same answer in any batch. ``implausible`` flags rows whose
+    observed end state has a probability below ``implausible_below`` given the executed
+    action (:mod:`inference.queries.plausibility`).
+    """
+    below = check_threshold(implausible_below)
+    enc = prepare(net, params, evidence)
+    if ACTION not in enc:
+        raise ValueError(
+            "imitation_check needs the executed action in the evidence (site 'action')"
+        )
+    observed = [end_site(f.name) for f in net.features if end_site(f.name) in enc]
+    if not observed:
+        raise ValueError(
+            "imitation_check needs at least one observed end state (sites 'end.<feature>')"
+        )
+    if not isinstance(n_samples, int) or n_samples < 1:
+        raise ValueError(f"n_samples must be a positive int, got {n_samples!r}")
+    if enc.n_rows == 0:
+        return no_rows(
+            imitation_check(
+                net, params, placeholder_row(enc), n_samples=1, seed=seed, implausible_below=below
+            )
+        )
+    prior = enc.without(*observed)
+    log_joint = over_row_chunks(net, params, enc, set(), lambda e, *_: e.log_evidence)
+    log_prior = over_row_chunks(net, params, prior, set(), lambda e, *_: e.log_evidence)
+    log_lik = conditional_log_evidence(net, params, enc, prior, log_joint, log_prior)
+    if all(net.site(s).discrete for s in observed):
+        surprise = _discrete_surprise(net, params, prior, observed, log_lik)
+    else:
+        surprise = continuous_surprise(net, params, enc, observed, n_points=n_samples, seed=seed)
+
+    def unseen(e, *_):
+        post = e.posterior(strict=False)  # an impossible outcome rests on no configuration
+        return (
+            (post * unseen_indicator(net, params, e, observed)).reshape(-1, post.shape[-1]).sum(0)
+        )
+
+    flag = plausibility(net, params, enc, log_evidence=log_joint, log_prior=log_prior)
+    flag = flag.implausible(below)
+    unseen_mass = over_row_chunks(net, params, enc, set(), unseen).clamp(0, 1)
+    return ImitationCheck(log_lik, surprise, unseen_mass, flag)
+
+
+def _discrete_surprise(net, params, prior, observed, log_lik) -> torch.Tensor:
+    """P(outcome strictly more likely than the observed one), by enumerating outcomes."""
+
+    def fn(e: Enumerated, *_):
+        w = e.log_weight - e.log_norm  # joint over outcomes and latents, (E..., n)
+        outcome_dims = [w.dim() + e.dims[s] for s in observed]
+        latent_dims = [d for d in range(w.dim() - 1) if d not in outcome_dims]
+        joint = w.logsumexp(latent_dims, keepdim=True) if latent_dims else w
+        return joint.reshape(-1, w.shape[-1]).T  # (n, outcomes)
+
+    joint = over_row_chunks(net, params, prior, set(observed), fn)
+    more_likely = joint > log_lik[:, None] + 1e-9
+    return (joint.exp() * more_likely).sum(-1).clamp(0, 1)

@@ -1,0 +1,96 @@
+"""Which action was executed: the traced query and the compiled one
+(``inference.compile(net, params).infer_action``) on the same cases, equal answers."""
+
+import pytest
+import torch
+
+import inference
+from inference import infer_action
+from models.declaration import DTYPE
+from tests.helpers import discrete_network, random_params
+from tests.inference.questions import TracedCalls, assert_same_answer
+from tests.inference.test_queries_mixed import NET
+
+DISCRETE = discrete_network([3, 2], 4)
+PARAMS = random_params(DISCRETE, 4, unseen=0.3)  # some configurations never seen
+
+
+def rows(sites, n, seed=0):
+    g = torch.Generator().manual_seed(seed)
+    sizes = {s: DISCRETE.site(s).size for s in sites}
+    return DISCRETE.encode_indices(
+        {s: torch.randint(0, k, (n,), generator=g) for s, k in sizes.items()}
+    )
+
+
+EVERY_SITE = ("initial.f0", "initial.f1", "end.f0", "end.f1")
+CASES = {
+    "initial and end observed": (rows(EVERY_SITE, 9), {}),
+    "initial state unknown": (rows(("initial.f0", "end.f0", "end.f1"), 9, 1), {}),
+    "end state in part": (rows(("initial.f0", "initial.f1", "end.f1"), 9, 2), {}),
+    "no end state": (rows(("initial.f0", "initial.f1"), 5, 3), {}),
+    "one row": (rows(EVERY_SITE, 1, 4), {}),
+    "one row, labels": ({"initial.f0": [2], "initial.f1": [0], "end.f0": [1]}, {}),
+    "allowed by name": (rows(EVERY_SITE, 9, 5), {"allowed": ["a1", "a3"]}),
+    "allowed per row": (
+        rows(("initial.f0", "end.f1"), 4, 6),
+        {
+            "allowed": torch.tensor(
+                [[True, False, True, False]] * 2 + [[False, True, True, True]] * 2
+            )
+        },
+    ),
+    "unseen actions not avoided": (rows(EVERY_SITE, 9, 7), {"avoid_unseen": False}),
+    "a strict threshold": (rows(EVERY_SITE, 9, 8), {"implausible_below": 0.2}),
+    "empty batch": (rows(EVERY_SITE, 0), {}),
+    "empty batch, initial state unknown": (rows(("end.f0",), 0), {}),
+}
+
+
+@pytest.mark.parametrize("case", sorted(CASES))
+def test_compiled_equals_traced(case, monkeypatch):
+    evidence, options = CASES[case]
+    traced_calls = TracedCalls(monkeypatch, "infer_action")
+    compiled = inference.compile(DISCRETE, PARAMS).infer_action(evidence, **options)
+    assert traced_calls.calls == 0  # answered from the tables
+    assert_same_answer(compiled, infer_action(DISCRETE, PARAMS, evidence, **options))
+
+
+def test_the_cases_reach_unseen_configurations_and_the_implausible_flag():
+    """The cases are not all easy: some answer rests on an unseen configuration, and the
+    strict threshold flags some row and passes another."""
+    evidence, options = CASES["a strict threshold"]
+    answer = infer_action(DISCRETE, PARAMS, evidence, **options)
+    assert 0 < int(answer.implausible.sum()) < len(answer.implausible)
+    evidence, _ = CASES["initial and end observed"]
+    assert bool((infer_action(DISCRETE, PARAMS, evidence).unseen > 0.5).any())
+
+
+@pytest.mark.parametrize("n", [3, 0])
+def test_a_continuous_network_falls_back_to_the_traced_query(n, monkeypatch):
+    params = random_params(NET, 2)
+    evidence = {
+        "initial.visible": [True, False, True][:n],
+        "initial.pos": torch.tensor([[0.1, 0.2], [0.0, -0.3], [1.0, 0.5]], dtype=DTYPE)[:n],
+        "end.pos": torch.tensor([[0.4, 0.2], [0.0, 0.1], [2.0, 0.4]], dtype=DTYPE)[:n],
+    }
+    traced_calls = TracedCalls(monkeypatch, "infer_action")
+    compiled = inference.compile(NET, params)
+    assert compiled.action_tables is None
+    answer = compiled.infer_action(evidence, allowed=["tap", "push"])
+    assert traced_calls.calls == 1
+    assert_same_answer(answer, infer_action(NET, params, evidence, allowed=["tap", "push"]))
+
+
+def test_the_tables_refuse_what_the_traced_query_refuses_in_the_same_words():
+    compiled = inference.compile(DISCRETE, PARAMS)
+    for evidence, match in (
+        ({"initial.f0": [0], "action": ["a1"]}, "infers it \\(use predict or imitation_check\\)"),
+        ({}, "evidence is empty"),
+        ({"initial.f0": [5]}, "'initial.f0': value 5 is not one of its states"),
+    ):
+        with pytest.raises(ValueError, match=match) as traced:
+            infer_action(DISCRETE, PARAMS, evidence)
+        with pytest.raises(ValueError, match=match) as tables:
+            compiled.infer_action(evidence)
+        assert str(tables.value) == str(traced.value)
