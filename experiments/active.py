@@ -73,9 +73,9 @@ from experiments.config import (
 )
 from experiments.physics_bounds import BOUND_SEED, held_out_best
 from experiments.registry import Experiment
+from inference import compile as compile_queries
 from inference import fit, fit_pooled, grid_kernel
 from inference.design.active import explore, with_pool_prior
-from inference.queries.compiled import compile_discrete
 from models.can_network import can_network, can_rows, config_index
 from sim2d import field_throws, geometry
 from sim2d.can_dataset import generate_dataset, load_dataset
@@ -289,7 +289,7 @@ def _model(net, rows, pool, throwable, pooling=None) -> CanModel:
     else:
         params = fit_pooled(net, rows, pooling[0], strength=pooling[1]).params
     params = with_pool_prior(net, params, pool)
-    return CanModel(ANGLE, net, params, compile_discrete(net, params), throwable)
+    return CanModel(ANGLE, net, params, compile_queries(net, params), throwable)
 
 
 def _scores(net, rows, pool, throwable, pooling, cases, replays, configs) -> dict:

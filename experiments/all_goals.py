@@ -57,11 +57,10 @@ from experiments.physics_bounds import (
 )
 from experiments.registry import Experiment
 from experiments.throwing import MAX_BINS, fit_throws, get_data
+from inference import compile as compile_queries
 from inference import fit, predict
-from inference.queries.compiled import compile_parameter_query
 from inference.queries.planning import exact_plan, paper_planner
 from models.can_network import can_network, can_rows
-from models.throw_network import TARGET
 from sim2d import geometry
 from sim2d.combined import CAN_BAND, TABLE_TOP_Z, exact_throws, play_policy, play_throw
 from sim2d.configurations import stable_configurations
@@ -254,7 +253,7 @@ def train_robot(n_throws: int, bins: int, seed: int, noise: ReleaseNoise | None)
     rng = np.random.default_rng(seed)
     targets, hits = get_data(n_throws, rng, noise)
     net, params, _ = fit_throws((bins, bins), targets, hits)
-    return Robot(compile_parameter_query(net, params, TARGET), net, params, noise, rng)
+    return Robot(compile_queries(net, params), net, params, noise, rng)
 
 
 def can_model(states: list[int], heights: np.ndarray, outcomes: dict[int, np.ndarray]):

@@ -21,8 +21,8 @@ import numpy as np
 import torch
 
 from experiments.config import check_choice, check_executor
-from inference import fit, predict
-from inference.queries.compiled import CompiledNetwork, compile_discrete
+from inference import CompiledQueries, fit, predict
+from inference import compile as compile_queries
 from models import EffectNetwork, NetworkParams
 from models.can_network import can_network, can_rows
 from sim2d import field_throws, geometry
@@ -144,7 +144,7 @@ class CanModel:
     angle: int
     net: EffectNetwork
     params: NetworkParams
-    compiled: CompiledNetwork
+    compiled: CompiledQueries
     throwable: torch.Tensor  # (195,) bool: fields the ball can reach at this angle
 
     def best_fields(self, start: np.ndarray, desired_count: np.ndarray) -> np.ndarray:
@@ -189,4 +189,4 @@ def fit_can_network(data: CanDataset, angle: int) -> CanModel:
     throwable = torch.tensor(
         [field_throws.is_throwable(f, angle) for f in range(geometry.N_FIELDS)]
     )
-    return CanModel(angle, net, params, compile_discrete(net, params), throwable)
+    return CanModel(angle, net, params, compile_queries(net, params), throwable)

@@ -43,8 +43,8 @@ from experiments.config import (
 )
 from experiments.registry import Experiment
 from experiments.throwing import MAX_BINS, fit_throws, get_data
+from inference import compile as compile_queries
 from inference import predict
-from inference.queries.compiled import compile_parameter_query
 from inference.queries.planning import exact_plan, paper_planner
 from models.throw_network import TARGET
 from sim2d import geometry, materials
@@ -141,14 +141,14 @@ TABLES = {"top_three": "Table II", "near_flank": "Table III", "far_flank": "Tabl
 class Robot:
     """The throw side: the learned inverse (hit -> aim) and the kinematics that throw."""
 
-    query: object  # CompiledParameterQuery of the throw network
+    queries: object  # the throw network's compiled queries (inference.compile)
     net: object
     params: object
     noise: ReleaseNoise | None
     rng: np.random.Generator
 
     def aim(self, hits: np.ndarray) -> np.ndarray:
-        aims = self.query.infer({"end.hit": torch.as_tensor(hits)}).mean.numpy()
+        aims = self.queries.infer_parameter(TARGET, {"end.hit": torch.as_tensor(hits)}).mean.numpy()
         return np.clip(aims, TARGET_AREA.low, TARGET_AREA.high)
 
     def hit_distribution(self, aims: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -224,7 +224,7 @@ def build_world(config: CombinedConfig, data) -> tuple[World, dict]:
     noise = ReleaseNoise() if config.noise else None
     targets, hits = get_data(config.n_throws, rng, noise)
     net, params, _ = fit_throws((config.bins, config.bins), targets, hits)
-    robot = Robot(compile_parameter_query(net, params, TARGET), net, params, noise, rng)
+    robot = Robot(compile_queries(net, params), net, params, noise, rng)
     # the robot's impact direction at the pyramid, throwing at every field height
     probe = np.linspace(0.05, geometry.PYRAMID_HEIGHT, 12) + config.table_z
     v = throw(robot.aim(np.stack([np.zeros_like(probe), probe], -1))).velocity_at_plane

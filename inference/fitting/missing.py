@@ -4,7 +4,7 @@ Missing discrete values (:func:`fit_missing`, what :func:`inference.fit` runs wh
 ``masks`` leave gaps) are discrete latent variables, as adaptive clusters are
 (:mod:`inference.fitting.em`), so EM serves them alike. The E-step is exact: the
 Pyro model, traced under enumeration with the masked values latent
-(:func:`inference.enumerate_model`), gives each row's joint posterior over its missing
+(:func:`inference.queries.enumeration.enumerate_model`), gives each row's joint posterior over its missing
 values and its log-likelihood with them summed out. Each row then stands for one
 completed row per assignment of its missing values, weighted by that assignment's
 posterior, and the M-step is the closed form on the weighted statistics of the completed

@@ -9,8 +9,8 @@ from experiments import active as ex
 from experiments.can_tossing import PROTOCOLS, RULES, table_one_cases
 from experiments.cans import CanModel, can_dataset, fit_can_network
 from experiments.config import ConfigError
+from inference import compile as compile_queries
 from inference import fit_pooled, grid_kernel
-from inference.queries.compiled import compile_discrete
 from models.can_network import config_index
 from sim2d import geometry
 
@@ -137,7 +137,7 @@ def test_the_pooled_score_is_table_one_on_the_pooled_fit(tiny_run, tiny_data_dir
     kernel = grid_kernel((geometry.N_ROWS, geometry.N_COLUMNS), config.pool_sigma)
     params = fit_pooled(net, rows, kernel, strength=config.pool_strength).params
     throwable = fit_can_network(data, 0).throwable
-    model = CanModel(0, net, params, compile_discrete(net, params), throwable)
+    model = CanModel(0, net, params, compile_queries(net, params), throwable)
     replays, configs = ex.replay_counts(config)
     cases = {p: table_one_cases(data, p) for p in PROTOCOLS}
     got = ex.table_one_on_replays(model, cases, replays, configs)
