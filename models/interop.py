@@ -232,6 +232,7 @@ def write_bif(path: str | Path, net: EffectNetwork, params: NetworkParams) -> Pa
         label's of the same site), or if two site names differ only in case (the
         reader folds case).
     """
+    _pgmpy()
     from pgmpy.readwrite import BIFWriter
 
     exported = to_pgmpy(net, params)
@@ -325,8 +326,8 @@ def _pgmpy():
         from pgmpy.models import DiscreteBayesianNetwork
     except ImportError as exc:
         raise ImportError(
-            "models.interop needs pgmpy >= 1.0, a development dependency of effect-networks: "
-            "install it with `pip install pgmpy` (or `pip install -e '.[dev]'`)"
+            "models.interop needs pgmpy >= 1.0, the `interop` extra of effect-networks: "
+            "install it with `pip install 'effect-networks[interop]'` (or `pip install pgmpy`)"
         ) from exc
     return DiscreteBayesianNetwork, TabularCPD
 

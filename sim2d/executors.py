@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import concurrent.futures
 import contextlib
+import importlib
 import os
 import re
 import socket
@@ -121,9 +122,7 @@ class RayExecutor:
     """``submit(fn, *args)`` as a Ray task; returns its ``ObjectRef.future()``."""
 
     def __init__(self) -> None:
-        import ray
-
-        self._ray = ray
+        self._ray = _optional("ray", "Ray")
         self._remote: dict = {}
 
     def submit(self, fn, *args) -> concurrent.futures.Future:
@@ -150,7 +149,8 @@ def open_executor(spec: str | None = None) -> Iterator:
         finally:
             pool.shutdown(wait=True, cancel_futures=True)
     elif kind in ("dask-local", "dask"):
-        from distributed import Client, LocalCluster
+        distributed = _optional("distributed", "Dask")
+        Client, LocalCluster = distributed.Client, distributed.LocalCluster
 
         with contextlib.ExitStack() as stack:
             if kind == "dask-local":
@@ -178,8 +178,7 @@ def open_executor(spec: str | None = None) -> Iterator:
                     ) from None
             yield client.get_executor(pure=False)
     else:
-        import ray
-
+        ray = _optional("ray", "Ray")
         started = not ray.is_initialized()
         if started:
             ray.init(address=os.environ.get("RAY_ADDRESS"), log_to_driver=False)
@@ -196,3 +195,14 @@ def as_finished(futures) -> Iterator:
     if all(isinstance(f, concurrent.futures.Future) for f in futures):
         return concurrent.futures.as_completed(futures)
     return iter(futures)
+
+
+def _optional(module: str, name: str):
+    """``module`` imported, or an ImportError naming the extra that installs it."""
+    try:
+        return importlib.import_module(module)
+    except ImportError as error:
+        raise ImportError(
+            f"this executor needs {name} ({module}), the `cluster` extra of effect-networks: "
+            "install it with `pip install 'effect-networks[cluster]'`"
+        ) from error

@@ -22,3 +22,60 @@ def test_wheel_installs_and_runs_the_readme_snippet():
     )
     assert done.returncode == 0, done.stdout + done.stderr
     assert "installs and runs README's first snippet" in done.stdout
+
+
+def project() -> dict:
+    import tomllib
+
+    return tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+
+
+def requirement_names(requirements) -> set[str]:
+    import re
+
+    return {re.split(r"[\[<>=!~; ]", r, maxsplit=1)[0].lower() for r in requirements}
+
+
+def test_extras_by_purpose_and_dev_installs_them_all():
+    extras = project()["optional-dependencies"]
+    assert requirement_names(extras["interop"]) == {"pgmpy"}
+    assert requirement_names(extras["cluster"]) == {"dask", "ray"}
+    dev = requirement_names(extras["dev"])
+    assert {"pytest", "hypothesis", "ruff"} <= dev
+    assert requirement_names(extras["interop"]) | requirement_names(extras["cluster"]) <= dev
+    # the setup script installs the dev extra, so the two README commands get everything
+    assert '".[dev]"' in (ROOT / "bin" / "setup-venv").read_text()
+
+
+def test_a_missing_pgmpy_names_the_interop_extra(monkeypatch):
+    from models import interop
+
+    monkeypatch.setitem(sys.modules, "pgmpy", None)  # import pgmpy now raises ImportError
+    monkeypatch.setitem(sys.modules, "pgmpy.models", None)
+    monkeypatch.setitem(sys.modules, "pgmpy.factors.discrete", None)
+    monkeypatch.setitem(sys.modules, "pgmpy.readwrite", None)
+    with pytest.raises(ImportError, match=r"effect-networks\[interop\]"):
+        interop.read_bif("nowhere.bif", n=1)
+    with pytest.raises(ImportError, match=r"effect-networks\[interop\]"):
+        interop.write_bif("nowhere.bif", None, None)
+
+
+@pytest.mark.parametrize(("spec", "module"), [("dask-local:1", "distributed"), ("ray", "ray")])
+def test_a_missing_cluster_library_names_the_cluster_extra(monkeypatch, spec, module):
+    from sim2d.executors import open_executor
+
+    monkeypatch.setitem(sys.modules, module, None)
+    with pytest.raises(ImportError, match=r"effect-networks\[cluster\]"):
+        with open_executor(spec):
+            pass
+
+
+def test_license_citation_and_changelog():
+    assert (ROOT / "LICENSE").read_text().startswith("MIT License")
+    assert project()["license"] == {"text": "MIT"}
+    citation = (ROOT / "CITATION.cff").read_text()
+    assert citation.startswith("cff-version: 1.2.0")
+    assert "Learning the Consequences of Actions" in citation  # the paper it implements
+    assert "\nversion:" not in citation  # the version lives in pyproject.toml only
+    changelog = (ROOT / "CHANGELOG.md").read_text()
+    assert f"## {project()['version']}" in changelog
