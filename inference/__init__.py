@@ -8,7 +8,8 @@ Questions (:mod:`inference.queries`): :func:`predict`, :func:`imitation_check`,
 :func:`infer_action`, :func:`infer_parameter` (the parameter posterior),
 :func:`parameter_for_effect` (the inverse model), and :func:`compile`, whose methods of
 the same names answer from compiled tables where they can. Active exploration
-(:mod:`inference.design`): :func:`explore`.
+(:mod:`inference.design`): :func:`explore`. Pictures of a network and its fitted
+numbers (matplotlib, drawn into the caller's axes): the module :mod:`inference.plots`.
 
 Lower-level names live in their modules (:mod:`inference.queries.enumeration`,
 :mod:`inference.fitting.statistics`, ...); the ones this face used to export still
@@ -18,6 +19,7 @@ resolve here for one release, with a ``DeprecationWarning``.
 import importlib
 import warnings
 
+from inference import plots as plots  # the module only: its names stay off the face
 from inference.design.active import explore
 from inference.fitting.em import EMResult, fit_em
 from inference.fitting.fit import ConvergenceWarning, FitResult, fit, fit_gradient, fit_statistics

@@ -1,0 +1,515 @@
+"""Pictures of a network and its fitted numbers, drawn into the caller's axes.
+
+Each function takes ``ax=None`` (a new figure is made when it is ``None``) and returns the
+:class:`matplotlib.axes.Axes` it drew on, so pictures compose into the caller's own
+figures; nothing is shown or saved here. matplotlib is imported when a function runs,
+so importing this module costs nothing.
+
+* :func:`plot_network` -- the graph of a declaration (matplotlib only, no graphviz):
+  initial sites on the left, the action and each parameter's cluster and value in the
+  middle, end sites on the right; discrete sites in square boxes, continuous ones in
+  round boxes, one arrow per parent link.
+* :func:`plot_table` -- a table site's probabilities as a heat map, one row per parent
+  configuration and one column per state, both by their labels.
+* :func:`plot_clusters` -- a parameter's clusters as their Gaussians: ellipses over the
+  value (two dimensions of it) or over the value and an affected feature, intervals for
+  a one-dimensional value, over the training rows when given.
+* :func:`plot_action_posterior` -- an :class:`~inference.queries.ActionPosterior` row as
+  bars by action name.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Mapping, Sequence
+
+import numpy as np
+import torch
+
+from models.declaration import ACTION, EffectNetwork
+from models.params import NetworkParams
+
+#: Column of each role in :func:`plot_network` (end sites with end parents move right).
+_COLUMN = {"initial": 0.0, "action": 1.0, "cluster": 1.0, "param": 1.0, "end": 2.0}
+
+
+def _axes(ax):
+    if ax is None:
+        import matplotlib.pyplot as plt
+
+        _, ax = plt.subplots()
+    return ax
+
+
+def _check_site(net: EffectNetwork, site: str) -> None:
+    if site not in {s.name for s in net.sites}:
+        raise ValueError(
+            f"site {site!r} does not exist in this network; its sites are "
+            f"{[s.name for s in net.sites]}"
+        )
+
+
+def site_parents(net: EffectNetwork, site: str) -> tuple[str, ...]:
+    """Every parent of ``site``: its discrete parents, then its continuous inputs."""
+    cpd = net.cpd(site)
+    return cpd.parents + cpd.inputs
+
+
+def state_labels(net: EffectNetwork, site: str) -> tuple:
+    """The labels of a discrete site's states: a feature's states, the action names, or
+    a cluster's numbers ``0 .. C-1``."""
+    spec = net.site(site)
+    if not spec.discrete:
+        raise ValueError(f"site {site!r} is continuous; it has no state labels")
+    if spec.role == "action":
+        return net.actions
+    if spec.role == "cluster":
+        return tuple(range(spec.size))
+    return net.feature(spec.feature).states
+
+
+# ------------------------------------------------------------------------------ the graph
+def _positions(net: EffectNetwork) -> dict[str, tuple[float, float]]:
+    """Where each site sits: a column per role, end sites shifted right by their depth
+    among end sites, each column's sites spread evenly from the top."""
+    column: dict[str, float] = {}
+    for spec in net.sites:  # parents before children
+        x = _COLUMN[spec.role]
+        if spec.role == "end":
+            ends = [column[p] for p in site_parents(net, spec.name) if net.site(p).role == "end"]
+            x = max([x, *(c + 1.0 for c in ends)])
+        column[spec.name] = x
+    where = {}
+    for x in sorted(set(column.values())):
+        names = [s for s, c in column.items() if c == x]
+        for i, name in enumerate(names):
+            where[name] = (x, -(i - (len(names) - 1) / 2))
+    return where
+
+
+def plot_network(net: EffectNetwork, ax=None):
+    """Draw the network's graph: its sites and one arrow per parent link.
+
+    Parameters
+    ----------
+    net : EffectNetwork
+        The declaration to draw (its fitted numbers play no part).
+    ax : matplotlib.axes.Axes, optional
+        Where to draw; a new figure when ``None``.
+
+    Returns
+    -------
+    matplotlib.axes.Axes
+        The axes, with one text per site (its name; discrete sites in square boxes,
+        continuous ones in round boxes) and one
+        :class:`~matplotlib.patches.FancyArrowPatch` per parent link, whose ``gid`` is
+        ``"<parent>-><site>"``.
+    """
+    from matplotlib.patches import FancyArrowPatch
+
+    ax = _axes(ax)
+    where = _positions(net)
+    boxes = {}
+    for spec in net.sites:
+        style = "square,pad=0.4" if spec.discrete else "round,pad=0.4"
+        colour = "#dbe8f5" if spec.discrete else "#f5e6d3"
+        boxes[spec.name] = ax.text(
+            *where[spec.name],
+            spec.name,
+            ha="center",
+            va="center",
+            fontsize=9,
+            bbox={"boxstyle": style, "facecolor": colour, "edgecolor": "0.3"},
+            zorder=3,
+        )
+    for spec in net.sites:
+        for parent in site_parents(net, spec.name):
+            (x0, y0), (x1, y1) = where[parent], where[spec.name]
+            bend = 0.3 if x0 == x1 else 0.0  # a link within a column curves past the others
+            ax.add_patch(
+                FancyArrowPatch(
+                    (x0, y0),
+                    (x1, y1),
+                    arrowstyle="-|>",
+                    mutation_scale=10,
+                    connectionstyle=f"arc3,rad={bend}",
+                    patchA=boxes[parent].get_bbox_patch(),
+                    patchB=boxes[spec.name].get_bbox_patch(),
+                    color="0.35",
+                    linewidth=0.8,
+                    zorder=2,
+                    gid=f"{parent}->{spec.name}",
+                )
+            )
+    xs = [x for x, _ in where.values()]
+    ys = [y for _, y in where.values()]
+    ax.set_xlim(min(xs) - 0.6, max(xs) + 0.6)
+    ax.set_ylim(min(ys) - 0.8, max(ys) + 0.8)
+    ax.set_axis_off()
+    return ax
+
+
+# ------------------------------------------------------------------------------ a table
+def plot_table(net: EffectNetwork, params: NetworkParams, site: str, ax=None, *, annotate=None):
+    """Draw a table site's probabilities as a heat map.
+
+    Parameters
+    ----------
+    net : EffectNetwork
+        The declaration ``params`` were fitted for.
+    params : NetworkParams
+        Fitted numbers; ``params[site]`` must be a
+        :class:`~models.cpds.table.TableParams`.
+    site : str
+        A discrete site whose kind is ``"table"`` (a cluster's table too).
+    ax : matplotlib.axes.Axes, optional
+        Where to draw; a new figure when ``None``.
+    annotate : bool, optional
+        Write each probability in its cell; by default when the table has at most 120
+        cells.
+
+    Returns
+    -------
+    matplotlib.axes.Axes
+        Rows: the parents' configurations (row-major, labelled by their states, the
+        y-axis named by the parent sites), columns: the site's states. Each row sums to 1.
+
+    Raises
+    ------
+    ValueError
+        If ``site`` is not a site of ``net`` or not a table site.
+    """
+    _check_site(net, site)
+    cpd = net.cpd(site)
+    if not cpd.tabular:
+        tables = [s.name for s in net.sites if net.cpd(s.name).tabular]
+        raise ValueError(
+            f"site {site!r} has kind {cpd.name!r}, not a table; plot_table draws the table "
+            f"sites {tables}"
+        )
+    probs = np.asarray(params[site].probs.detach().cpu(), dtype=float).reshape(-1, cpd.size)
+    rows = [
+        ", ".join(map(str, config))
+        for config in itertools.product(*(state_labels(net, p) for p in cpd.parents))
+    ]
+    ax = _axes(ax)
+    image = ax.imshow(probs, vmin=0.0, vmax=1.0, cmap="viridis", aspect="auto")
+    ax.figure.colorbar(image, ax=ax, label="probability")
+    ax.set_xticks(range(cpd.size), [str(s) for s in state_labels(net, site)])
+    ax.set_yticks(range(len(rows)), rows if cpd.parents else ["(no parents)"])
+    ax.set_xlabel(site)
+    ax.set_ylabel(", ".join(cpd.parents))
+    if annotate if annotate is not None else probs.size <= 120:
+        for (i, j), p in np.ndenumerate(probs):
+            colour = "black" if p > 0.5 else "white"
+            ax.text(j, i, f"{p:.2f}", ha="center", va="center", fontsize=7, color=colour)
+    return ax
+
+
+# ------------------------------------------------------------------------------ clusters
+def _ellipse(mean, cov, sigma: float, **style):
+    """The ``sigma``-contour of a 2-D Gaussian as an Ellipse patch."""
+    from matplotlib.patches import Ellipse
+
+    values, vectors = np.linalg.eigh(np.asarray(cov, dtype=float))
+    angle = math.degrees(math.atan2(vectors[1, -1], vectors[0, -1]))
+    width, height = 2 * sigma * np.sqrt(np.clip(values[::-1], 0.0, None))
+    return Ellipse(tuple(mean), width, height, angle=angle, **style)
+
+
+def _column(data: Mapping, site: str, dim: int) -> np.ndarray:
+    if site not in data:
+        raise ValueError(f"data has no {site!r}; it gives {sorted(data)}")
+    value = data[site]
+    if isinstance(value, torch.Tensor):
+        value = value.detach().cpu()
+    return np.asarray(value, dtype=float).reshape(len(value), -1)[:, dim]
+
+
+def _joint(net, params, m, feature: str, given: Mapping, dims: tuple[int, int]):
+    """Per cluster, the joint Gaussian of the value's dimension ``dims[0]`` and the
+    feature's dimension ``dims[1]``, the feature's other parents fixed at ``given``:
+    ``theta ~ N(m_c, S_c)``, ``y = W_x x + W_p theta + b + e``, so the cross covariance
+    is ``W_p S_c`` and ``y``'s covariance ``R + W_p S_c W_p^T``."""
+    site = f"end.{feature}"
+    if net.acting_on(site) != (m,):
+        raise ValueError(
+            f"feature {feature!r}: several parameters act on it "
+            f"({[a.parameter.name for a in net.acting_on(site)]}); its joint with one of "
+            "them depends on the others"
+        )
+    child = net.cpd(site)
+    actions = [a for a in m.parameter.actions]
+    given = dict(given)
+    given.setdefault(ACTION, actions[0])
+    if given[ACTION] not in actions:
+        raise ValueError(
+            f"given action {given[ACTION]!r} does not use parameter {m.parameter.name!r}; "
+            f"its actions are {actions}"
+        )
+    others = child.parents[:-1] + child.inputs[:-1]
+    unknown = [s for s in given if s not in others]
+    if unknown:
+        raise ValueError(
+            f"given names {unknown}, which are not parents of {site!r}; its parents other "
+            f"than the parameter's sites are {list(others)}"
+        )
+    needed = [p for p in others if p not in given]
+    if needed:
+        raise ValueError(
+            f"feature {feature!r} also depends on {needed}; give their values in `given` "
+            "(labels for discrete sites, numbers for continuous ones)"
+        )
+    index = []
+    for p in child.parents[:-1]:
+        labels = state_labels(net, p)
+        if given[p] not in labels:
+            raise ValueError(f"given {p!r} = {given[p]!r} is not one of its states {labels}")
+        index.append(labels.index(given[p]))
+    cpd, prior = params[site], params[m.value.site]
+    x = []
+    for s in child.inputs[:-1]:
+        value = torch.as_tensor(given[s], dtype=cpd.weight.dtype).reshape(-1)
+        if value.shape[0] != net.site(s).size:
+            raise ValueError(
+                f"given {s!r} has {value.shape[0]} numbers; the site has dimension "
+                f"{net.site(s).size}"
+            )
+        x.append(value)
+    k = m.parameter.dim
+    i, j = dims
+    out = []
+    for c in range(m.parameter.n_clusters):
+        at = (*index, c)
+        weight, bias, noise = cpd.weight[at], cpd.bias[at], cpd.covariance[at]
+        w_x, w_p = weight[:, : weight.shape[-1] - k], weight[:, weight.shape[-1] - k :]
+        mean_theta, cov_theta = prior.bias[c], prior.covariance[c]
+        mean_y = bias + w_p @ mean_theta + (w_x @ torch.cat(x) if x else 0.0)
+        cov_y = noise + w_p @ cov_theta @ w_p.mT
+        cross = (w_p @ cov_theta)[j, i]
+        mean = [float(mean_theta[i]), float(mean_y[j])]
+        cov = [[float(cov_theta[i, i]), float(cross)], [float(cross), float(cov_y[j, j])]]
+        out.append((mean, cov))
+    return out, given[ACTION]
+
+
+def plot_clusters(
+    net: EffectNetwork,
+    params: NetworkParams,
+    parameter: str,
+    data: Mapping[str, object] | None = None,
+    ax=None,
+    *,
+    feature: str | None = None,
+    given: Mapping[str, object] | None = None,
+    dims: tuple[int, int] | None = None,
+    sigmas: Sequence[float] = (1.0, 2.0),
+):
+    """Draw a parameter's clusters: each cluster's Gaussian over the parameter's value.
+
+    Without ``feature``: over the value itself, one ellipse per cluster and sigma over the
+    value's dimensions ``dims`` (a value of two or more dimensions), or one interval
+    ``mean +- sigma * sd`` per cluster and sigma, a row per cluster (a one-dimensional
+    value). With ``feature``: over the value's dimension ``dims[0]`` and the affected
+    continuous feature's dimension ``dims[1]``, the joint of the cluster's Gaussian and
+    the feature's linear Gaussian, one ellipse per cluster and sigma. Under the grid
+    layout the cells' edges are drawn too (lines whose ``gid`` is ``"cell edge"``); a
+    cluster no training row reached is dashed.
+
+    Parameters
+    ----------
+    net : EffectNetwork
+        The declaration ``params`` were fitted for.
+    params : NetworkParams
+        Fitted numbers (:func:`inference.fit` or, for the adaptive layout,
+        :func:`inference.fit_em`).
+    parameter : str
+        The parameter's name (not its site's).
+    data : mapping, optional
+        Rows by site name as :func:`inference.fit` reads them (:func:`inference.simulate`
+        draws such rows): ``param.<parameter>`` ``(n, d)``, NaN where the action does not
+        use it, and with ``feature`` also ``end.<feature>``; drawn as points (rows with a
+        NaN value left out; with ``feature``, the rows whose action and discrete parents
+        are the ones given; their continuous parents are drawn as they are).
+    ax : matplotlib.axes.Axes, optional
+        Where to draw; a new figure when ``None``.
+    feature : str, optional
+        A continuous feature the parameter acts on (alone).
+    given : mapping, optional
+        With ``feature``: the feature's other parents' values (labels for discrete sites,
+        numbers for continuous ones); ``action`` defaults to the first action using the
+        parameter.
+    dims : (int, int), optional
+        The dimensions drawn (see above); ``(0, 1)`` by default, ``(0, 0)`` with
+        ``feature``.
+    sigmas : sequence of float
+        The contours drawn, in standard deviations.
+
+    Returns
+    -------
+    matplotlib.axes.Axes
+        The axes, with ``n_clusters * len(sigmas)`` patches: Ellipses in two dimensions,
+        Rectangles for the intervals of a one-dimensional value.
+
+    Raises
+    ------
+    ValueError
+        Naming the parameter, feature, site or dimension that is not known, a feature the
+        parameter does not act on alone, or a parent of the feature left out of ``given``.
+    """
+    from matplotlib.patches import Rectangle
+
+    m = net.mixture(parameter)
+    p = m.parameter
+    prior = params[m.value.site]
+    unseen = np.asarray(prior.n.detach().cpu()) == 0
+    edges = [np.linspace(lo, hi, b + 1) for lo, hi, b in zip(p.low, p.high, p.bins, strict=True)]
+    ax = _axes(ax)
+    colours = [f"C{c % 10}" for c in range(p.n_clusters)]
+
+    def style(c, sigma):
+        return {
+            "facecolor": "none",
+            "edgecolor": colours[c],
+            "linestyle": "--" if unseen[c] else "-",
+            "linewidth": 1.5 / sigma,
+        }
+
+    if feature is not None:
+        if f"end.{feature}" not in m.continuous:
+            raise ValueError(
+                f"feature {feature!r}: parameter {parameter!r} acts on the continuous "
+                f"sites {list(m.continuous)} only"
+            )
+        dims = (0, 0) if dims is None else dims
+        _check_dims(parameter, dims, (p.dim, net.site(f"end.{feature}").size), feature)
+        gaussians, action = _joint(net, params, m, feature, given or {}, dims)
+        if data is not None:
+            rows = np.ones(len(data[m.value.site]), dtype=bool)
+            for site, label in [*(given or {}).items(), (ACTION, action)]:
+                if site in data and net.site(site).discrete:
+                    rows &= np.asarray(data[site], dtype=object) == label
+            theta = _column(data, m.value.site, dims[0])[rows]
+            y = _column(data, f"end.{feature}", dims[1])[rows]
+            ax.scatter(theta, y, s=6, c="0.5", alpha=0.5, linewidths=0)
+        for c, (mean, cov) in enumerate(gaussians):
+            for sigma in sigmas:
+                ax.add_patch(_ellipse(mean, cov, sigma, **style(c, sigma)))
+            ax.text(*mean, str(c), color=colours[c], ha="center", va="center", fontsize=8)
+        if not p.adaptive:
+            for edge in edges[dims[0]]:
+                ax.axvline(edge, color="0.85", linewidth=0.6, zorder=0, gid="cell edge")
+        ax.set_xlabel(f"{m.value.site}[{dims[0]}]")
+        ax.set_ylabel(f"end.{feature}[{dims[1]}]")
+        ax.set_title(f"{m.cluster.site} given action = {action}", fontsize=9)
+        ax.autoscale_view()
+        return ax
+    if given is not None:
+        raise ValueError("given names the affected feature's parents; pass it with feature=")
+    means = np.asarray(prior.bias.detach().cpu(), dtype=float)
+    covs = np.asarray(prior.covariance.detach().cpu(), dtype=float)
+    if p.dim == 1:
+        sd = np.sqrt(covs[:, 0, 0])
+        for c in range(p.n_clusters):
+            for sigma in sigmas:
+                ax.add_patch(
+                    Rectangle(
+                        (means[c, 0] - sigma * sd[c], c - 0.3),
+                        2 * sigma * sd[c],
+                        0.6,
+                        **style(c, sigma),
+                    )
+                )
+            ax.plot(means[c, 0], c, "o", color=colours[c], markersize=4)
+        if data is not None:
+            theta = _column(data, m.value.site, 0)
+            theta = theta[~np.isnan(theta)]
+            ax.plot(theta, np.full_like(theta, -1.0), "|", color="0.4", alpha=0.5)
+        ticks = [str(c) for c in range(p.n_clusters)]
+        if data is not None:
+            ticks = ["rows", *ticks]
+        ax.set_yticks(range(p.n_clusters - len(ticks), p.n_clusters), ticks)
+        ax.set_ylabel(m.cluster.site)
+        ax.set_xlabel(m.value.site)
+        if not p.adaptive:
+            for edge in edges[0]:
+                ax.axvline(edge, color="0.85", linewidth=0.6, zorder=0, gid="cell edge")
+        ax.autoscale_view()
+        return ax
+    dims = (0, 1) if dims is None else dims
+    _check_dims(parameter, dims, (p.dim, p.dim), None)
+    i, j = dims
+    if data is not None:
+        theta_i, theta_j = (_column(data, m.value.site, d) for d in dims)
+        ax.scatter(theta_i, theta_j, s=6, c="0.5", alpha=0.5, linewidths=0)
+    for c in range(p.n_clusters):
+        mean, cov = means[c, [i, j]], covs[c][np.ix_([i, j], [i, j])]
+        for sigma in sigmas:
+            ax.add_patch(_ellipse(mean, cov, sigma, **style(c, sigma)))
+        ax.text(*mean, str(c), color=colours[c], ha="center", va="center", fontsize=8)
+    if not p.adaptive:
+        for edge in edges[i]:
+            ax.axvline(edge, color="0.85", linewidth=0.6, zorder=0, gid="cell edge")
+        for edge in edges[j]:
+            ax.axhline(edge, color="0.85", linewidth=0.6, zorder=0, gid="cell edge")
+    ax.set_xlabel(f"{m.value.site}[{i}]")
+    ax.set_ylabel(f"{m.value.site}[{j}]")
+    ax.autoscale_view()
+    return ax
+
+
+def _check_dims(parameter: str, dims, sizes: tuple[int, int], feature: str | None) -> None:
+    names = (f"parameter {parameter!r}", f"feature {feature!r}" if feature else None)
+    if len(dims) != 2:
+        raise ValueError(f"dims must be two dimensions, got {dims!r}")
+    for d, size, name in zip(dims, sizes, (names[0], names[1] or names[0]), strict=True):
+        if not 0 <= d < size:
+            raise ValueError(f"dims {tuple(dims)}: {name} has dimensions 0..{size - 1}")
+    if feature is None and dims[0] == dims[1]:
+        raise ValueError(f"dims {tuple(dims)}: name two different dimensions of {names[0]}")
+
+
+# ------------------------------------------------------------------------------ actions
+def plot_action_posterior(posterior, ax=None, actions: Sequence[str] | None = None, row: int = 0):
+    """Draw one row of an action posterior as bars, one per action.
+
+    Parameters
+    ----------
+    posterior : ActionPosterior
+        What :func:`inference.infer_action` (or its compiled method) returned.
+    ax : matplotlib.axes.Axes, optional
+        Where to draw; a new figure when ``None``.
+    actions : sequence of str, optional
+        The actions to draw, in this order; all of them by default.
+    row : int
+        The evidence row to draw.
+
+    Returns
+    -------
+    matplotlib.axes.Axes
+        One bar per action, its height the action's posterior probability; the row's
+        best action drawn darker.
+
+    Raises
+    ------
+    ValueError
+        If ``row`` or an action is not in the posterior.
+    """
+    names = tuple(posterior.actions)
+    n = posterior.probs.shape[0]
+    if not -n <= row < n:
+        raise ValueError(f"row {row} is not a row of this posterior, which has {n} rows")
+    chosen = names if actions is None else tuple(actions)
+    unknown = [a for a in chosen if a not in names]
+    if unknown:
+        raise ValueError(f"unknown actions {unknown}; the posterior's actions are {list(names)}")
+    probs = posterior.probs[row].detach().cpu().double().numpy()
+    heights = [float(probs[names.index(a)]) for a in chosen]
+    best = posterior.best_names[row]
+    ax = _axes(ax)
+    ax.bar(range(len(chosen)), heights, color=["C0" if a == best else "#9ecae1" for a in chosen])
+    ax.set_xticks(range(len(chosen)), list(chosen))
+    ax.set_ylim(0.0, 1.0)
+    ax.set_ylabel("P(action | evidence)")
+    return ax
