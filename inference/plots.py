@@ -72,19 +72,27 @@ def state_labels(net: EffectNetwork, site: str) -> tuple:
 # ------------------------------------------------------------------------------ the graph
 def _positions(net: EffectNetwork) -> dict[str, tuple[float, float]]:
     """Where each site sits: a column per role, end sites shifted right by their depth
-    among end sites, each column's sites spread evenly from the top."""
+    among end sites; the middle column (the action, the parameters' sites) above the
+    rows of the initial and end sites."""
     column: dict[str, float] = {}
     for spec in net.sites:  # parents before children
         x = _COLUMN[spec.role]
         if spec.role == "end":
             ends = [column[p] for p in site_parents(net, spec.name) if net.site(p).role == "end"]
-            x = max([x, *(c + 1.0 for c in ends)])
+            x = max([x, *(c + 0.8 for c in ends)])
         column[spec.name] = x
     where = {}
     for x in sorted(set(column.values())):
         names = [s for s, c in column.items() if c == x]
         for i, name in enumerate(names):
-            where[name] = (x, -(i - (len(names) - 1) / 2))
+            # the middle column stands above the others, so that no link from an initial
+            # to an end site passes through the action's or a parameter's box
+            # (a staircase down to the left: the links leaving a box run down to the
+            # right, clear of the boxes below it)
+            if x == _COLUMN["action"]:
+                where[name] = (2 * x - 0.3 * i, len(names) - i)
+            else:
+                where[name] = (2 * x, -i)
     return where
 
 
@@ -126,7 +134,8 @@ def plot_network(net: EffectNetwork, ax=None):
     for spec in net.sites:
         for parent in site_parents(net, spec.name):
             (x0, y0), (x1, y1) = where[parent], where[spec.name]
-            bend = 0.3 if x0 == x1 else 0.0  # a link within a column curves past the others
+            # a link past boxes of its own column curves around them
+            bend = 0.4 if abs(y1 - y0) > 1 and abs(x1 - x0) < 1 else 0.0
             ax.add_patch(
                 FancyArrowPatch(
                     (x0, y0),
@@ -138,13 +147,13 @@ def plot_network(net: EffectNetwork, ax=None):
                     patchB=boxes[spec.name].get_bbox_patch(),
                     color="0.35",
                     linewidth=0.8,
-                    zorder=2,
+                    zorder=4,  # after the boxes, which place themselves as they are drawn
                     gid=f"{parent}->{spec.name}",
                 )
             )
     xs = [x for x, _ in where.values()]
     ys = [y for _, y in where.values()]
-    ax.set_xlim(min(xs) - 0.6, max(xs) + 0.6)
+    ax.set_xlim(min(xs) - 0.9, max(xs) + 0.9)
     ax.set_ylim(min(ys) - 0.8, max(ys) + 0.8)
     ax.set_axis_off()
     return ax
@@ -279,7 +288,7 @@ def _joint(net, params, m, feature: str, given: Mapping, dims: tuple[int, int]):
         x.append(value)
     k = m.parameter.dim
     i, j = dims
-    out = []
+    out, slopes = [], []
     for c in range(m.parameter.n_clusters):
         at = (*index, c)
         weight, bias, noise = cpd.weight[at], cpd.bias[at], cpd.covariance[at]
@@ -291,7 +300,43 @@ def _joint(net, params, m, feature: str, given: Mapping, dims: tuple[int, int]):
         mean = [float(mean_theta[i]), float(mean_y[j])]
         cov = [[float(cov_theta[i, i]), float(cross)], [float(cross), float(cov_y[j, j])]]
         out.append((mean, cov))
-    return out, given[ACTION]
+        slopes.append(np.asarray(w_x[j], dtype=float))
+    x_given = np.asarray(torch.cat(x), dtype=float) if x else np.zeros(0)
+    return out, given[ACTION], np.stack(slopes), x_given
+
+
+def _feature_rows(net, params, m, feature, data, given, dims, slopes, x_given):
+    """The rows of ``data`` whose action and discrete parents are the ``given`` ones:
+    the value's dimension ``dims[0]`` and the feature's ``dims[1]``, the latter moved to
+    the given continuous inputs along the fitted slope of the row's cluster,
+    ``y + W_x (x_given - x)`` (the row's cluster: from ``data``, else the value's cell
+    under the grid layout, else the cluster most probable for the value)."""
+    site = f"end.{feature}"
+    rows = np.ones(len(data[m.value.site]), dtype=bool)
+    for s, label in given.items():
+        if s in data and net.site(s).discrete:
+            rows &= np.asarray(data[s], dtype=object) == label
+    theta = _column(data, m.value.site, dims[0])[rows]
+    y = _column(data, site, dims[1])[rows]
+    if not x_given.size:
+        return theta, y
+    inputs = net.cpd(site).inputs[:-1]
+    x = np.concatenate(
+        [np.stack([_column(data, s, d) for d in range(net.site(s).size)], 1) for s in inputs], 1
+    )[rows]
+    value = np.stack([_column(data, m.value.site, d) for d in range(m.parameter.dim)], 1)[rows]
+    if m.cluster.site in data:
+        cluster = np.asarray(data[m.cluster.site], dtype=int)[rows]
+    elif not m.parameter.adaptive:
+        cluster = m.parameter.cluster_of(torch.as_tensor(value)).numpy()
+    else:
+        prior = params[m.value.site]
+        a = net.actions.index(given[ACTION])
+        density = torch.distributions.MultivariateNormal(prior.bias, scale_tril=prior.scale_tril)
+        logs = density.log_prob(torch.as_tensor(value)[:, None, :])
+        logs = logs + params[m.cluster.site].probs[a].clamp_min(1e-300).log()
+        cluster = logs.argmax(-1).numpy()
+    return theta, y + np.einsum("nq,nq->n", slopes[cluster], x_given - x)
 
 
 def plot_clusters(
@@ -384,14 +429,19 @@ def plot_clusters(
             )
         dims = (0, 0) if dims is None else dims
         _check_dims(parameter, dims, (p.dim, net.site(f"end.{feature}").size), feature)
-        gaussians, action = _joint(net, params, m, feature, given or {}, dims)
+        gaussians, action, slopes, x_given = _joint(net, params, m, feature, given or {}, dims)
         if data is not None:
-            rows = np.ones(len(data[m.value.site]), dtype=bool)
-            for site, label in [*(given or {}).items(), (ACTION, action)]:
-                if site in data and net.site(site).discrete:
-                    rows &= np.asarray(data[site], dtype=object) == label
-            theta = _column(data, m.value.site, dims[0])[rows]
-            y = _column(data, f"end.{feature}", dims[1])[rows]
+            theta, y = _feature_rows(
+                net,
+                params,
+                m,
+                feature,
+                data,
+                dict(given or {}, action=action),
+                dims,
+                slopes,
+                x_given,
+            )
             ax.scatter(theta, y, s=6, c="0.5", alpha=0.5, linewidths=0)
         for c, (mean, cov) in enumerate(gaussians):
             for sigma in sigmas:

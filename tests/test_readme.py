@@ -65,6 +65,7 @@ def test_readme_snippets_run(tmp_path, monkeypatch):
     no_parameter, _, clusters = namespace["rms"].values()
     assert clusters < no_parameter and namespace["same"]
     assert os.path.exists("tap/tap_and_remove.png")
+    assert os.path.getsize("pictures.png") > 0  # the guide's plots
 
 
 def assert_loss_is_exact(namespace):

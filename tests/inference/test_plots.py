@@ -220,8 +220,9 @@ def test_two_dimensional_clusters_are_ellipses_of_their_cells_covariance(tmp_pat
         np.testing.assert_allclose(
             ellipse_covariance(e, 1.0), np.cov(inside.T, bias=True), rtol=1e-6, atol=1e-12
         )
-        np.testing.assert_allclose(ellipse_covariance(ellipses[2 * c + 1], 2.0),
-                                   ellipse_covariance(e, 1.0), rtol=1e-9)  # fmt: skip
+        np.testing.assert_allclose(
+            ellipse_covariance(ellipses[2 * c + 1], 2.0), ellipse_covariance(e, 1.0), rtol=1e-9
+        )
     assert ax.collections[0].get_offsets().shape[0] == len(target)
     swapped = rendered(plot_clusters(net, params, "target", dims=(1, 0)), tmp_path)
     assert swapped.get_xlabel() == "param.target[1]"
@@ -274,6 +275,38 @@ def test_the_joint_draws_the_rows_of_the_given_action_and_states(tmp_path):
     assert ax.get_xlabel() == "param.force[0]" and ax.get_ylabel() == "end.pos[0]"
 
 
+@pytest.mark.parametrize("layout", ["grid", "adaptive"])
+def test_the_rows_move_to_the_given_inputs_along_the_fitted_slope(layout, tmp_path):
+    """Rows made by hand, ``pos' = 2 pos + 0.5 force + noise``: drawn for an initial
+    position of 0.5, each row sits where its force would have left a can from 0.5."""
+    net = tap_net(layout, parents={"end.visible": ("initial.visible", "action")})
+    g = np.random.default_rng(0)
+    n = 600
+    action = g.choice(net.actions, n)
+    visible = g.random(n) < 0.5
+    pos = g.uniform(-1.0, 1.0, (n, 1))
+    force = np.where(action[:, None] == "tap", g.uniform(0.0, 9.0, (n, 1)), np.nan)
+    end = 2 * pos + 0.5 * np.nan_to_num(force) + g.normal(0.0, 0.01, (n, 1))
+    rows = {
+        "initial.visible": visible,
+        "initial.pos": pos,
+        "action": action,
+        "param.force": force,
+        "end.visible": visible,
+        "end.pos": end,
+    }
+    params = (fit(net, rows) if layout == "grid" else fit_em(net, rows, steps=10)).params
+    given = {"initial.visible": True, "initial.pos": [0.5]}
+    ax = plot_clusters(net, params, "force", rows, feature="pos", given=given)
+    rendered(ax, tmp_path)
+    points = ax.collections[0].get_offsets()
+    chosen = (action == "tap") & visible
+    assert points.shape[0] == chosen.sum() > 100
+    np.testing.assert_allclose(points[:, 0], force[chosen, 0])
+    np.testing.assert_allclose(points[:, 1], 2 * 0.5 + 0.5 * force[chosen, 0], atol=0.06)
+    assert np.abs(points[:, 1] - end[chosen, 0]).max() > 0.5  # they did move
+
+
 def test_clusters_refuse_what_they_cannot_draw():
     net = tap_net()
     params = random_params(net, 0)
@@ -288,14 +321,25 @@ def test_clusters_refuse_what_they_cannot_draw():
             net, params, "force", feature="pos", given={"initial.pos": [0.0], "end.visible": True}
         )
     with pytest.raises(ValueError, match="'initial.visible' = 3 is not one of its states"):
-        plot_clusters(net, params, "force", feature="pos",
-                      given={"initial.visible": 3, "initial.pos": [0.0]})  # fmt: skip
+        plot_clusters(
+            net, params, "force", feature="pos", given={"initial.visible": 3, "initial.pos": [0.0]}
+        )
     with pytest.raises(ValueError, match="'initial.pos' has 2 numbers"):
-        plot_clusters(net, params, "force", feature="pos",
-                      given={"initial.visible": True, "initial.pos": [0.0, 1.0]})  # fmt: skip
+        plot_clusters(
+            net,
+            params,
+            "force",
+            feature="pos",
+            given={"initial.visible": True, "initial.pos": [0.0, 1.0]},
+        )
     with pytest.raises(ValueError, match="action 'remove' does not use parameter 'force'"):
-        plot_clusters(net, params, "force", feature="pos",
-                      given={"action": "remove", "initial.visible": True, "initial.pos": [0.0]})  # fmt: skip
+        plot_clusters(
+            net,
+            params,
+            "force",
+            feature="pos",
+            given={"action": "remove", "initial.visible": True, "initial.pos": [0.0]},
+        )
     with pytest.raises(ValueError, match=r"dims \(0, 1\): feature 'pos' has dimensions 0..0"):
         plot_clusters(net, params, "force", feature="pos", dims=(0, 1))
     place = place_net()
