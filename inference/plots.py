@@ -28,7 +28,7 @@ import numpy as np
 import torch
 
 from models.declaration import ACTION, EffectNetwork
-from models.params import NetworkParams
+from models.params import NetworkParams, check_params
 
 #: Column of each role in :func:`plot_network` (end sites with end parents move right).
 _COLUMN = {"initial": 0.0, "action": 1.0, "cluster": 1.0, "param": 1.0, "end": 2.0}
@@ -85,10 +85,9 @@ def _positions(net: EffectNetwork) -> dict[str, tuple[float, float]]:
     for x in sorted(set(column.values())):
         names = [s for s, c in column.items() if c == x]
         for i, name in enumerate(names):
-            # the middle column stands above the others, so that no link from an initial
-            # to an end site passes through the action's or a parameter's box
-            # (a staircase down to the left: the links leaving a box run down to the
-            # right, clear of the boxes below it)
+            # The middle column stands above the others, so that no link from an initial
+            # to an end site passes through its boxes, as a staircase down to the left,
+            # so that the links leaving a box run down to the right clear of those below.
             if x == _COLUMN["action"]:
                 where[name] = (2 * x - 0.3 * i, len(names) - i)
             else:
@@ -187,8 +186,10 @@ def plot_table(net: EffectNetwork, params: NetworkParams, site: str, ax=None, *,
     Raises
     ------
     ValueError
-        If ``site`` is not a site of ``net`` or not a table site.
+        If ``site`` is not a site of ``net`` or not a table site, or ``params`` do not
+        fit ``net`` (:func:`models.params.check_params`).
     """
+    check_params(net, params)
     _check_site(net, site)
     cpd = net.cpd(site)
     if not cpd.tabular:
@@ -270,12 +271,7 @@ def _joint(net, params, m, feature: str, given: Mapping, dims: tuple[int, int]):
             f"feature {feature!r} also depends on {needed}; give their values in `given` "
             "(labels for discrete sites, numbers for continuous ones)"
         )
-    index = []
-    for p in child.parents[:-1]:
-        labels = state_labels(net, p)
-        if given[p] not in labels:
-            raise ValueError(f"given {p!r} = {given[p]!r} is not one of its states {labels}")
-        index.append(labels.index(given[p]))
+    index = {p: int(net.encode({p: [given[p]]})[p][0]) for p in child.parents[:-1]}
     cpd, prior = params[site], params[m.value.site]
     x = []
     for s in child.inputs[:-1]:
@@ -290,7 +286,7 @@ def _joint(net, params, m, feature: str, given: Mapping, dims: tuple[int, int]):
     i, j = dims
     out, slopes = [], []
     for c in range(m.parameter.n_clusters):
-        at = (*index, c)
+        at = (*index.values(), c)
         weight, bias, noise = cpd.weight[at], cpd.bias[at], cpd.covariance[at]
         w_x, w_p = weight[:, : weight.shape[-1] - k], weight[:, weight.shape[-1] - k :]
         mean_theta, cov_theta = prior.bias[c], prior.covariance[c]
@@ -302,20 +298,20 @@ def _joint(net, params, m, feature: str, given: Mapping, dims: tuple[int, int]):
         out.append((mean, cov))
         slopes.append(np.asarray(w_x[j], dtype=float))
     x_given = np.asarray(torch.cat(x), dtype=float) if x else np.zeros(0)
-    return out, given[ACTION], np.stack(slopes), x_given
+    return out, index, np.stack(slopes), x_given
 
 
-def _feature_rows(net, params, m, feature, data, given, dims, slopes, x_given):
-    """The rows of ``data`` whose action and discrete parents are the ``given`` ones:
+def _feature_rows(net, params, m, feature, data, index, dims, slopes, x_given):
+    """The rows of ``data`` whose action and discrete parents have the states ``index``:
     the value's dimension ``dims[0]`` and the feature's ``dims[1]``, the latter moved to
     the given continuous inputs along the fitted slope of the row's cluster,
     ``y + W_x (x_given - x)`` (the row's cluster: from ``data``, else the value's cell
     under the grid layout, else the cluster most probable for the value)."""
     site = f"end.{feature}"
-    rows = np.ones(len(data[m.value.site]), dtype=bool)
-    for s, label in given.items():
-        if s in data and net.site(s).discrete:
-            rows &= np.asarray(data[s], dtype=object) == label
+    rows = np.ones(len(_column(data, m.value.site, 0)), dtype=bool)
+    for s, state in index.items():
+        if s in data:
+            rows &= net.encode({s: data[s]})[s].numpy() == state
     theta = _column(data, m.value.site, dims[0])[rows]
     y = _column(data, site, dims[1])[rows]
     if not x_given.size:
@@ -331,7 +327,7 @@ def _feature_rows(net, params, m, feature, data, given, dims, slopes, x_given):
         cluster = m.parameter.cluster_of(torch.as_tensor(value)).numpy()
     else:
         prior = params[m.value.site]
-        a = net.actions.index(given[ACTION])
+        a = index[ACTION]
         density = torch.distributions.MultivariateNormal(prior.bias, scale_tril=prior.scale_tril)
         logs = density.log_prob(torch.as_tensor(value)[:, None, :])
         logs = logs + params[m.cluster.site].probs[a].clamp_min(1e-300).log()
@@ -375,8 +371,10 @@ def plot_clusters(
         Rows by site name as :func:`inference.fit` reads them (:func:`inference.simulate`
         draws such rows): ``param.<parameter>`` ``(n, d)``, NaN where the action does not
         use it, and with ``feature`` also ``end.<feature>``; drawn as points (rows with a
-        NaN value left out; with ``feature``, the rows whose action and discrete parents
-        are the ones given; their continuous parents are drawn as they are).
+        NaN value left out). With ``feature``: the rows whose action and discrete parents
+        are the ones given, each moved to the given continuous parents along its
+        cluster's fitted slope (``y + W_x (x_given - x)``), so that they scatter as the
+        ellipses' Gaussians do.
     ax : matplotlib.axes.Axes, optional
         Where to draw; a new figure when ``None``.
     feature : str, optional
@@ -401,111 +399,98 @@ def plot_clusters(
     ------
     ValueError
         Naming the parameter, feature, site or dimension that is not known, a feature the
-        parameter does not act on alone, or a parent of the feature left out of ``given``.
+        parameter does not act on alone, or a parent of the feature left out of ``given``;
+        or if ``params`` do not fit ``net`` (:func:`models.params.check_params`).
     """
-    from matplotlib.patches import Rectangle
-
+    check_params(net, params)
     m = net.mixture(parameter)
     p = m.parameter
     prior = params[m.value.site]
-    unseen = np.asarray(prior.n.detach().cpu()) == 0
+    means = np.asarray(prior.bias.detach().cpu(), dtype=float)
+    covs = np.asarray(prior.covariance.detach().cpu(), dtype=float)
+    dashed = np.asarray(prior.n.detach().cpu()) == 0  # clusters no training row reached
     edges = [np.linspace(lo, hi, b + 1) for lo, hi, b in zip(p.low, p.high, p.bins, strict=True)]
-    ax = _axes(ax)
-    colours = [f"C{c % 10}" for c in range(p.n_clusters)]
-
-    def style(c, sigma):
-        return {
-            "facecolor": "none",
-            "edgecolor": colours[c],
-            "linestyle": "--" if unseen[c] else "-",
-            "linewidth": 1.5 / sigma,
-        }
-
-    if feature is not None:
-        if f"end.{feature}" not in m.continuous:
+    if feature is None and given is not None:
+        raise ValueError("given names the parents of an affected feature; pass it with feature=")
+    if feature is None and p.dim == 1:
+        ax = _intervals(_axes(ax), m, means[:, 0], np.sqrt(covs[:, 0, 0]), data, sigmas, dashed)
+        cells = (edges[0], ())
+    elif feature is None:
+        dims = (0, 1) if dims is None else dims
+        _check_dims(parameter, dims, (p.dim, p.dim), None)
+        i, j = dims
+        gaussians = [(means[c, [i, j]], covs[c][np.ix_([i, j], [i, j])]) for c in range(len(means))]
+        points = None if data is None else [_column(data, m.value.site, d) for d in dims]
+        ax = _ellipses(_axes(ax), gaussians, points, sigmas, dashed)
+        ax.set_xlabel(f"{m.value.site}[{i}]")
+        ax.set_ylabel(f"{m.value.site}[{j}]")
+        cells = (edges[i], edges[j])
+    else:
+        site = f"end.{feature}"
+        if site not in m.continuous:
             raise ValueError(
                 f"feature {feature!r}: parameter {parameter!r} acts on the continuous "
                 f"sites {list(m.continuous)} only"
             )
         dims = (0, 0) if dims is None else dims
-        _check_dims(parameter, dims, (p.dim, net.site(f"end.{feature}").size), feature)
-        gaussians, action, slopes, x_given = _joint(net, params, m, feature, given or {}, dims)
+        _check_dims(parameter, dims, (p.dim, net.site(site).size), feature)
+        gaussians, index, slopes, x_given = _joint(net, params, m, feature, given or {}, dims)
+        points = None
         if data is not None:
-            theta, y = _feature_rows(
-                net,
-                params,
-                m,
-                feature,
-                data,
-                dict(given or {}, action=action),
-                dims,
-                slopes,
-                x_given,
-            )
-            ax.scatter(theta, y, s=6, c="0.5", alpha=0.5, linewidths=0)
-        for c, (mean, cov) in enumerate(gaussians):
-            for sigma in sigmas:
-                ax.add_patch(_ellipse(mean, cov, sigma, **style(c, sigma)))
-            ax.text(*mean, str(c), color=colours[c], ha="center", va="center", fontsize=8)
-        if not p.adaptive:
-            for edge in edges[dims[0]]:
-                ax.axvline(edge, color="0.85", linewidth=0.6, zorder=0, gid="cell edge")
+            points = _feature_rows(net, params, m, feature, data, index, dims, slopes, x_given)
+        ax = _ellipses(_axes(ax), gaussians, points, sigmas, dashed)
         ax.set_xlabel(f"{m.value.site}[{dims[0]}]")
-        ax.set_ylabel(f"end.{feature}[{dims[1]}]")
-        ax.set_title(f"{m.cluster.site} given action = {action}", fontsize=9)
-        ax.autoscale_view()
-        return ax
-    if given is not None:
-        raise ValueError("given names the affected feature's parents; pass it with feature=")
-    means = np.asarray(prior.bias.detach().cpu(), dtype=float)
-    covs = np.asarray(prior.covariance.detach().cpu(), dtype=float)
-    if p.dim == 1:
-        sd = np.sqrt(covs[:, 0, 0])
-        for c in range(p.n_clusters):
-            for sigma in sigmas:
-                ax.add_patch(
-                    Rectangle(
-                        (means[c, 0] - sigma * sd[c], c - 0.3),
-                        2 * sigma * sd[c],
-                        0.6,
-                        **style(c, sigma),
-                    )
-                )
-            ax.plot(means[c, 0], c, "o", color=colours[c], markersize=4)
-        if data is not None:
-            theta = _column(data, m.value.site, 0)
-            theta = theta[~np.isnan(theta)]
-            ax.plot(theta, np.full_like(theta, -1.0), "|", color="0.4", alpha=0.5)
-        ticks = [str(c) for c in range(p.n_clusters)]
-        if data is not None:
-            ticks = ["rows", *ticks]
-        ax.set_yticks(range(p.n_clusters - len(ticks), p.n_clusters), ticks)
-        ax.set_ylabel(m.cluster.site)
-        ax.set_xlabel(m.value.site)
-        if not p.adaptive:
-            for edge in edges[0]:
-                ax.axvline(edge, color="0.85", linewidth=0.6, zorder=0, gid="cell edge")
-        ax.autoscale_view()
-        return ax
-    dims = (0, 1) if dims is None else dims
-    _check_dims(parameter, dims, (p.dim, p.dim), None)
-    i, j = dims
-    if data is not None:
-        theta_i, theta_j = (_column(data, m.value.site, d) for d in dims)
-        ax.scatter(theta_i, theta_j, s=6, c="0.5", alpha=0.5, linewidths=0)
-    for c in range(p.n_clusters):
-        mean, cov = means[c, [i, j]], covs[c][np.ix_([i, j], [i, j])]
-        for sigma in sigmas:
-            ax.add_patch(_ellipse(mean, cov, sigma, **style(c, sigma)))
-        ax.text(*mean, str(c), color=colours[c], ha="center", va="center", fontsize=8)
+        ax.set_ylabel(f"{site}[{dims[1]}]")
+        ax.set_title(f"{m.cluster.site} given action = {net.actions[index[ACTION]]}", fontsize=9)
+        cells = (edges[dims[0]], ())
     if not p.adaptive:
-        for edge in edges[i]:
+        for edge in cells[0]:
             ax.axvline(edge, color="0.85", linewidth=0.6, zorder=0, gid="cell edge")
-        for edge in edges[j]:
+        for edge in cells[1]:
             ax.axhline(edge, color="0.85", linewidth=0.6, zorder=0, gid="cell edge")
-    ax.set_xlabel(f"{m.value.site}[{i}]")
-    ax.set_ylabel(f"{m.value.site}[{j}]")
     ax.autoscale_view()
+    return ax
+
+
+def _style(c: int, sigma: float, dashed: np.ndarray) -> dict:
+    return {
+        "facecolor": "none",
+        "edgecolor": f"C{c % 10}",
+        "linestyle": "--" if dashed[c] else "-",
+        "linewidth": 1.5 / sigma,
+    }
+
+
+def _ellipses(ax, gaussians, points, sigmas, dashed):
+    """One ellipse per 2-D Gaussian and sigma, numbered, over ``points`` (x, y) if any."""
+    if points is not None:
+        ax.scatter(*points, s=6, c="0.5", alpha=0.5, linewidths=0)
+    for c, (mean, cov) in enumerate(gaussians):
+        for sigma in sigmas:
+            ax.add_patch(_ellipse(mean, cov, sigma, **_style(c, sigma, dashed)))
+        ax.text(*mean, str(c), color=f"C{c % 10}", ha="center", va="center", fontsize=8)
+    return ax
+
+
+def _intervals(ax, m, means, sds, data, sigmas, dashed):
+    """One interval ``mean +- sigma * sd`` per cluster and sigma, a row per cluster, the
+    rows' values as a rug in a row below."""
+    from matplotlib.patches import Rectangle
+
+    for c, (mean, sd) in enumerate(zip(means, sds, strict=True)):
+        for sigma in sigmas:
+            corner = (mean - sigma * sd, c - 0.3)
+            ax.add_patch(Rectangle(corner, 2 * sigma * sd, 0.6, **_style(c, sigma, dashed)))
+        ax.plot(mean, c, "o", color=f"C{c % 10}", markersize=4)
+    ticks = [str(c) for c in range(len(means))]
+    if data is not None:
+        theta = _column(data, m.value.site, 0)
+        theta = theta[~np.isnan(theta)]
+        ax.plot(theta, np.full_like(theta, -1.0), "|", color="0.4", alpha=0.5)
+        ticks = ["rows", *ticks]
+    ax.set_yticks(range(len(means) - len(ticks), len(means)), ticks)
+    ax.set_ylabel(m.cluster.site)
+    ax.set_xlabel(m.value.site)
     return ax
 
 

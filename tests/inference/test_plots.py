@@ -119,6 +119,32 @@ def test_end_sites_with_end_parents_sit_to_the_right_of_them(tmp_path):
     assert x["initial.a"] < x["action"] < x["end.a"] < x["end.b"]
 
 
+def test_every_arrow_stops_at_the_edge_of_its_boxes_on_the_first_draw(tmp_path):
+    """No arrow (its head included) reaches into the box of its parent or its child. A
+    box takes its place as it is drawn and an arrow is cut by its boxes when it is drawn,
+    so the arrows must come after the boxes: drawn before them, on a figure's first draw
+    they ran to the boxes' centres and their heads lay hidden under the child's box."""
+    net = tap_net()
+    ax = plot_network(net)
+    ax.figure.savefig(tmp_path / "graph.png")  # one draw, no layout pass before it
+    renderer = ax.figure.canvas.get_renderer()
+    boxes = {t.get_text(): t.get_bbox_patch().get_window_extent(renderer) for t in ax.texts}
+    for arrow in (p for p in ax.patches if isinstance(p, FancyArrowPatch)):
+        points = ax.transData.transform(arrow.get_path().vertices)
+        for site in arrow.get_gid().split("->"):
+            box = boxes[site]
+            inside = (
+                (box.x0 + 1 < points[:, 0])
+                & (points[:, 0] < box.x1 - 1)
+                & (box.y0 + 1 < points[:, 1])
+                & (points[:, 1] < box.y1 - 1)
+            )
+            assert not inside.any(), (arrow.get_gid(), site)
+    arrows = [p.get_zorder() for p in ax.patches if isinstance(p, FancyArrowPatch)]
+    assert min(arrows) > max(t.get_zorder() for t in ax.texts)
+    plt.close(ax.figure)
+
+
 # ------------------------------------------------------------------------------ a table
 def test_a_table_is_drawn_by_its_labels(tmp_path):
     net = tap_net(parents={"end.visible": ("initial.visible", "action")})
@@ -320,7 +346,7 @@ def test_clusters_refuse_what_they_cannot_draw():
         plot_clusters(
             net, params, "force", feature="pos", given={"initial.pos": [0.0], "end.visible": True}
         )
-    with pytest.raises(ValueError, match="'initial.visible' = 3 is not one of its states"):
+    with pytest.raises(ValueError, match="'initial.visible': value 3 is not one of its states"):
         plot_clusters(
             net, params, "force", feature="pos", given={"initial.visible": 3, "initial.pos": [0.0]}
         )
