@@ -301,10 +301,13 @@ def test_the_joint_draws_the_rows_of_the_given_action_and_states(tmp_path):
     assert ax.get_xlabel() == "param.force[0]" and ax.get_ylabel() == "end.pos[0]"
 
 
-@pytest.mark.parametrize("layout", ["grid", "adaptive"])
-def test_the_rows_move_to_the_given_inputs_along_the_fitted_slope(layout, tmp_path):
+@pytest.mark.parametrize(
+    ("layout", "clusters"), [("grid", False), ("grid", True), ("adaptive", False)]
+)
+def test_the_rows_move_to_the_given_inputs_along_the_fitted_slope(layout, clusters, tmp_path):
     """Rows made by hand, ``pos' = 2 pos + 0.5 force + noise``: drawn for an initial
-    position of 0.5, each row sits where its force would have left a can from 0.5."""
+    position of 0.5, each row sits where its force would have left a can from 0.5 (each
+    row's cluster read from the rows where they give it)."""
     net = tap_net(layout, parents={"end.visible": ("initial.visible", "action")})
     g = np.random.default_rng(0)
     n = 600
@@ -321,6 +324,10 @@ def test_the_rows_move_to_the_given_inputs_along_the_fitted_slope(layout, tmp_pa
         "end.visible": visible,
         "end.pos": end,
     }
+    if clusters:
+        rows["cluster.force"] = net.mixture("force").cells(
+            torch.as_tensor(force), torch.as_tensor((action == "tap").astype(int))
+        )
     params = (fit(net, rows) if layout == "grid" else fit_em(net, rows, steps=10)).params
     given = {"initial.visible": True, "initial.pos": [0.5]}
     ax = plot_clusters(net, params, "force", rows, feature="pos", given=given)
@@ -390,6 +397,10 @@ def test_action_bars_are_the_posterior(tmp_path):
         heights = [bar.get_height() for bar in ax.patches if isinstance(bar, Rectangle)]
         np.testing.assert_allclose(heights, posterior.probs[row].numpy())
         assert sum(heights) == pytest.approx(1.0)
+    compiled = inference.compile(net, params).infer_action(evidence)
+    ax = rendered(plot_action_posterior(compiled, row=1), tmp_path)
+    heights = [bar.get_height() for bar in ax.patches if isinstance(bar, Rectangle)]
+    np.testing.assert_allclose(heights, posterior.probs[1].numpy(), atol=1e-12)
     ax = rendered(plot_action_posterior(posterior, actions=["tap", "remove"]), tmp_path)
     assert [t.get_text() for t in ax.get_xticklabels()] == ["tap", "remove"]
     heights = [bar.get_height() for bar in ax.patches if isinstance(bar, Rectangle)]
