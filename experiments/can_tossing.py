@@ -45,12 +45,7 @@ import torch
 from tqdm.auto import tqdm
 
 from experiments.cans import CanDataSettings, CanModel, can_dataset, fit_can_network
-from experiments.config import (
-    Result,
-    check_choice,
-    check_float,
-    check_int,
-)
+from experiments.config import Result, check_choice, check_float, check_int
 from experiments.evaluation import (
     ACCURACY_BINS,
     accuracy_histogram,
@@ -63,6 +58,7 @@ from experiments.registry import Experiment
 from inference import imitation_check
 from models.can_network import config_index, n_cans
 from sim2d import field_throws, geometry, materials
+from sim2d.clock import simulation
 from sim2d.executors import open_executor
 
 __all__ = [
@@ -218,6 +214,7 @@ def ball_ends(start, positions, velocities) -> np.ndarray:
     )
 
 
+@simulation
 def _in_chunks(task, columns, extra, desc: str, progress: bool, executor) -> np.ndarray:
     """``task(*columns, *extra)`` over the rows of ``columns``, in chunks of ``CHUNK`` rows on
     ``executor`` (None: here, row by row); the results in row order, the same on every

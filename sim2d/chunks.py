@@ -44,6 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sim2d.clock import simulation
 from sim2d.executors import as_finished, open_executor
 
 __all__ = [
@@ -327,6 +328,7 @@ def _problem(file: Path, key: str, check, k: int) -> str | None:
     return None if problem is None else f"{file} {problem}"
 
 
+@simulation
 def run_chunks(
     folder,
     protocol: dict,

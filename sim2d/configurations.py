@@ -32,6 +32,7 @@ from pathlib import Path
 
 from sim2d import geometry, materials, world
 from sim2d.chunks import write_text
+from sim2d.clock import simulation
 from sim2d.executors import open_executor
 
 __all__ = [
@@ -75,6 +76,7 @@ def fully_supported(mask: int) -> bool:
     return True
 
 
+@simulation
 def settles(mask: int, *, stepping: materials.Stepping = materials.STEPPING) -> bool:
     """Simulate one configuration for ``SETTLE_TIME``: does no can move more than 1 cm?
 
@@ -127,6 +129,7 @@ def _compute(executor=None) -> tuple[int, ...]:
     return tuple(mask for mask, ok in zip(masks, flags, strict=True) if ok)
 
 
+@simulation
 def stable_configurations(
     *, cache: bool = True, path: str | os.PathLike | None = None, executor=None
 ) -> tuple[int, ...]:
