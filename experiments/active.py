@@ -17,7 +17,7 @@ the network fitted on every throw.
 * **Scoring on held-out replays.** Table I's cases (:func:`experiments.can_tossing.
   table_one_cases`, both protocols, from the full data set so that every curve point
   answers the same cases) get their best field from the learned network exactly as
-  Table I does (:func:`experiments.can_tossing.choose`, both tie-break rules). The field
+  Table I does (:func:`experiments.cans.choose`, both tie-break rules). The field
   is scored on ``repeats`` fresh throws of (start, field) that no network was fitted on
   (the physics bound's replays, :mod:`experiments.physics_bounds`, seed
   ``BOUND_SEED``): the case's success is the fraction of replays that reach the desired

@@ -44,13 +44,12 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from experiments.cans import CanDataSettings, CanModel, can_dataset, fit_can_network
+from experiments.cans import CanDataSettings, CanModel, can_dataset, choose, fit_can_network
 from experiments.config import Result, check_choice, check_float, check_int
 from experiments.evaluation import (
     ACCURACY_BINS,
     accuracy_histogram,
     aim_pooled,
-    aim_robust_best,
     roc_auc,
     tail_surprise,
 )
@@ -166,18 +165,6 @@ def table_one_cases(data, mode: str = "counts") -> tuple[np.ndarray, np.ndarray]
     desired = np.r_[desired, unchanged].astype(np.int64)
     order = np.lexsort((desired, start))
     return start[order], desired[order]
-
-
-def choose(model: CanModel, evidence: dict, rule: str) -> np.ndarray:
-    """Best field per row for ``evidence``: the query's argmax or the aim-robust one."""
-    post = model.compiled.infer_action(evidence, allowed=model.throwable)
-    if rule == "index":
-        return post.best.numpy()
-    allowed = model.throwable.expand_as(post.probs) & (post.unseen < 0.5)
-    allowed = torch.where(allowed.any(-1, keepdim=True), allowed, model.throwable)
-    return aim_robust_best(
-        post.probs, (geometry.N_ROWS, geometry.N_COLUMNS), allowed=allowed
-    ).numpy()
 
 
 def start_evidence(model: CanModel, start: np.ndarray) -> dict:
