@@ -130,13 +130,38 @@ def fit_pooled(
 
 def _pooled(counts, off, strength, alpha, axis) -> TableParams:
     """The pooled table of ``counts`` ``(..., A, K)`` (action axis moved next to last),
-    returned with the action axis back at ``axis``."""
-    k = counts.shape[-1]
+    returned with the action axis back at ``axis``.
+
+    A configuration of the other parents that no row reached (most of them, in a large
+    table) has no counts and no neighbours' counts: its rows are computed once and
+    copied (element by element the same operations, so the same bits)."""
+    k, n_actions = counts.shape[-1], counts.shape[-2]
     neighbours = torch.einsum("ab,...bk->...ak", off, counts)
+    groups = counts.reshape(-1, n_actions, k)
+    played = groups.sum((1, 2)) > 0
+    some = torch.cat([played.nonzero()[:, 0], (~played).nonzero()[:1, 0]])  # + one unplayed
+    probs_of, n_of = _pooled_rows(
+        groups[some], neighbours.reshape(-1, n_actions, k)[some], strength, alpha
+    )
+    probs = torch.empty_like(groups)
+    n = torch.empty(groups.shape[:2], dtype=groups.dtype)
+    if not bool(played.all()):
+        probs[~played] = probs_of[-1]
+        n[~played] = n_of[-1]
+    probs[played] = probs_of[: int(played.sum())]
+    n[played] = n_of[: int(played.sum())]
+    probs, n = probs.reshape(counts.shape), n.reshape(counts.shape[:-1])
+    return TableParams(probs.movedim(-2, axis), n.movedim(-1, axis))
+
+
+def _pooled_rows(counts, neighbours, strength, alpha) -> tuple[torch.Tensor, torch.Tensor]:
+    """The pooled rows ``(g, A, K)`` and their evidence counts ``(g, A)`` of ``counts``
+    given the neighbours' weighted counts."""
+    k = counts.shape[-1]
     weight = neighbours.sum(-1, keepdim=True)
     m = torch.where(weight > 0, neighbours / weight.clamp_min(1e-300), 0.0)
     w = strength * weight.clamp(max=1.0)
     n = counts.sum(-1, keepdim=True)
     total = n + k * alpha + w
     probs = torch.where(total > 0, (counts + alpha + w * m) / total.clamp_min(1e-300), 1.0 / k)
-    return TableParams(probs.movedim(-2, axis), (n + w)[..., 0].movedim(-1, axis))
+    return probs, (n + w)[..., 0]
