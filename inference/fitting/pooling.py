@@ -36,7 +36,6 @@ import torch
 from inference.fitting.fit import fit_statistics
 from inference.fitting.result import FitResult
 from inference.fitting.rows import check_settings
-from inference.fitting.statistics import params_from_statistics
 from models.cpds.table import TableCPD, TableParams
 from models.declaration import ACTION, EffectNetwork
 from models.evidence import DTYPE
@@ -113,14 +112,19 @@ def fit_pooled(
             f"sites {list(stats.gradient)} have no closed-form fit; fit_pooled needs every "
             "CPD in closed form (tables and linear Gaussians)"
         )
-    cpds = params_from_statistics(net, stats, pseudo_count, min_variance)
     off = kernel.clone()
     off.fill_diagonal_(0.0)
+    cpds = {}
     for spec in net.sites:
         cpd = net.cpd(spec.name)
-        if spec.role != "end" or not isinstance(cpd, TableCPD) or ACTION not in cpd.parents:
-            continue
-        if cpd.pinned is not None:
+        pooled = (
+            spec.role == "end"
+            and isinstance(cpd, TableCPD)
+            and ACTION in cpd.parents
+            and cpd.pinned is None
+        )
+        if not pooled:  # the plain fit's CPD
+            cpds[spec.name] = cpd.m_step(stats.sites[spec.name], pseudo_count, min_variance)
             continue
         axis = cpd.parents.index(ACTION)
         counts = stats.sites[spec.name].counts.to(DTYPE).movedim(axis, -2)  # (..., A, K)
