@@ -68,7 +68,6 @@ from sim2d.chunks import (
     run_chunks,
     save_npz,
 )
-from sim2d.clock import simulation
 from sim2d.configurations import SETTLE_TIME, STABLE_TOLERANCE, stable_configurations
 from sim2d.executors import parse_spec
 from sim2d.field_throws import aim_offset, aim_seed, is_throwable, launch_state, outcome_of
@@ -229,7 +228,6 @@ def _check_args(configs, angles, repeats, jitter, chunk_size):
     return configs, angles, repeats, float(jitter), chunk_size
 
 
-@simulation
 def generate_dataset(
     path,
     *,

@@ -44,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sim2d.clock import simulation
+from sim2d.clock import simulating
 from sim2d.executors import as_finished, open_executor
 
 __all__ = [
@@ -328,7 +328,6 @@ def _problem(file: Path, key: str, check, k: int) -> str | None:
     return None if problem is None else f"{file} {problem}"
 
 
-@simulation
 def run_chunks(
     folder,
     protocol: dict,
@@ -412,6 +411,8 @@ def run_chunks(
             stack.callback(bar.close)
         futures: dict = {}
         try:
+            if todo:  # the chunks' simulations, here or on workers
+                stack.enter_context(simulating())
             futures = {executor.submit(fn, *chunk_args[k]): k for k in todo}
             for future in as_finished(futures):
                 k = futures[future]

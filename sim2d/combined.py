@@ -24,7 +24,6 @@ import numpy as np
 
 from sim2d import geometry, materials
 from sim2d.chunks import locked, read_npz, run_chunks
-from sim2d.clock import simulation
 from sim2d.configurations import stable_configurations
 from sim2d.field_throws import aim_offset, launch_state, play_ball
 from sim2d.throw import ReleaseNoise, exact_target_for_hit, is_reachable_hit, throw
@@ -126,7 +125,6 @@ def play_throw(
     return settle(outcome.end_config, stable)
 
 
-@simulation
 def exact_throws(step: float = 0.002, *, table_z: float = TABLE_TOP_Z):
     """The robot's noise-free throws at every reachable height of the pyramid's face.
 
@@ -188,7 +186,6 @@ def throws_from(
     return {"heights": heights, "next_states": next_states}
 
 
-@simulation
 def reachable_throws(
     folder,
     start: int,

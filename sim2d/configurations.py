@@ -32,7 +32,7 @@ from pathlib import Path
 
 from sim2d import geometry, materials, world
 from sim2d.chunks import write_text
-from sim2d.clock import simulation
+from sim2d.clock import simulating, simulation
 from sim2d.executors import open_executor
 
 __all__ = [
@@ -119,8 +119,9 @@ def _compute(executor=None) -> tuple[int, ...]:
         with contextlib.ExitStack() as stack:
             if isinstance(executor, str):
                 executor = stack.enter_context(open_executor(executor))
-            futures = [executor.submit(settle_flags, batch) for batch in batches]
-            flags = [flag for future in futures for flag in future.result()]
+            with simulating():  # the workers settle the configurations
+                futures = [executor.submit(settle_flags, batch) for batch in batches]
+                flags = [flag for future in futures for flag in future.result()]
     if len(flags) != len(masks) or not all(isinstance(f, bool) for f in flags):
         raise RuntimeError(
             f"the executor returned {len(flags)} results of types "
@@ -129,7 +130,6 @@ def _compute(executor=None) -> tuple[int, ...]:
     return tuple(mask for mask, ok in zip(masks, flags, strict=True) if ok)
 
 
-@simulation
 def stable_configurations(
     *, cache: bool = True, path: str | os.PathLike | None = None, executor=None
 ) -> tuple[int, ...]:
