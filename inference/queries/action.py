@@ -547,8 +547,9 @@ def compile_discrete(net: EffectNetwork, params: NetworkParams) -> CompiledNetwo
     factors = {}
     for name in sites:
         lp = trace.nodes[name]["log_prob"].squeeze(-1)  # drop the rows plate (size 1)
-        # contiguous: an enumerated table's log_prob may be a strided view of its table
-        factors[name] = lp.reshape(*[1] * (rank - lp.dim()), *lp.shape).contiguous()
+        # an enumerated table's log_prob may be a strided view of its log table: kept as
+        # a view (no copy of a large table that a pattern may never read)
+        factors[name] = lp.reshape(*[1] * (rank - lp.dim()), *lp.shape)
     seen = {}
     for spec in net.sites:
         if spec.role != "end":
