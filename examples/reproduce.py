@@ -58,14 +58,12 @@ def steps(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
 
 class StepRun(NamedTuple):
     """One step's run: ``code`` its exit status, ``stopped`` the signal that stopped us
-    (or None), ``measure`` what it measured about itself (:mod:`experiments.steps`; None
-    where it wrote nothing) and ``peak_bytes`` the peak resident memory of the largest of
-    its process and the processes it waited for (``wait4``'s ``ru_maxrss``)."""
+    (or None), and ``measure`` what it measured about itself as it exited (its simulation
+    time and peak memory: :mod:`experiments.steps`; None where it wrote nothing)."""
 
     code: int
     stopped: signal.Signals | None
     measure: StepMeasure | None
-    peak_bytes: int
 
 
 def run_step(command: list[str]) -> StepRun:
@@ -94,14 +92,12 @@ def run_step(command: list[str]) -> StepRun:
             children.append(child)
             if signal.SIGTERM in stopped:  # it came while the step was starting
                 child.send_signal(signal.SIGTERM)
-            _, status, usage = os.wait4(child.pid, 0)
-            child.returncode = code = os.waitstatus_to_exitcode(status)
+            code = child.wait()
         finally:
             for s, handler in previous.items():
                 signal.signal(s, handler)
         measure = read_step_record(record)
-    peak = usage.ru_maxrss * (1 if sys.platform == "darwin" else 1024)
-    return StepRun(code, stopped[0] if stopped else None, measure, int(peak))
+    return StepRun(code, stopped[0] if stopped else None, measure)
 
 
 def main(args: argparse.Namespace) -> int:
@@ -118,8 +114,9 @@ def main(args: argparse.Namespace) -> int:
         run = run_step([sys.executable, str(HERE / f"{name}.py"), *argv])
         times[name] = time.perf_counter() - start
         code, stopped = run.code, run.stopped
-        simulation[name] = run.measure.simulation_seconds if run.measure else float("nan")
-        peak[name] = max(run.peak_bytes, run.measure.largest_bytes if run.measure else 0)
+        if run.measure is not None:
+            simulation[name] = run.measure.simulation_seconds
+            peak[name] = run.measure.largest_bytes
         if stopped is not None:
             print(
                 f"stopped by {stopped.name} during {name}; run it again to resume",

@@ -5,7 +5,8 @@ memory.
 variable ``STEP_RECORD_ENV``; the step's script (:func:`experiments.config.run_script`)
 writes its :class:`StepMeasure` there as it exits: the wall time it spent simulating
 (:func:`sim2d.clock.simulation_seconds`) and the peak resident memory of its own process
-and of the largest process it started and waited for (``getrusage``'s ``ru_maxrss``).
+(:func:`own_peak_bytes`) and of the largest process it started and waited for
+(``getrusage``'s ``ru_maxrss`` of its children: its workers).
 """
 
 from __future__ import annotations
@@ -53,12 +54,24 @@ def max_rss_bytes(who: int) -> int:
     return int(peak if sys.platform == "darwin" else peak * 1024)
 
 
+def own_peak_bytes() -> int:
+    """This process's peak resident memory: ``VmHWM`` of ``/proc/self/status`` where there
+    is one (Linux), else ``ru_maxrss``. (On Linux ``ru_maxrss`` also keeps the peak of the
+    process that started this one, up to the moment it started the program: a step
+    started by a large process would seem as large.)"""
+    try:
+        for line in Path("/proc/self/status").read_text().splitlines():
+            if line.startswith("VmHWM:"):
+                return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return max_rss_bytes(resource.RUSAGE_SELF)
+
+
 def measure() -> StepMeasure:
     """This process's measures so far."""
     return StepMeasure(
-        simulation_seconds(),
-        max_rss_bytes(resource.RUSAGE_SELF),
-        max_rss_bytes(resource.RUSAGE_CHILDREN),
+        simulation_seconds(), own_peak_bytes(), max_rss_bytes(resource.RUSAGE_CHILDREN)
     )
 
 

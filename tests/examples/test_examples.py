@@ -355,8 +355,12 @@ def test_reproduce_measures_a_step_s_simulation_time_and_peak_memory():
     run = load_example("reproduce").run_step([sys.executable, "-c", ALLOCATES_AND_SIMULATES])
     wall = time.perf_counter() - start
     assert run.code == 0 and run.stopped is None
-    assert run.peak_bytes >= 400e6
     assert run.measure.peak_bytes >= 400e6
-    assert 0.4 <= run.measure.simulation_seconds < min(0.6, wall - 0.2)
+    assert 0.4 <= run.measure.simulation_seconds <= wall - 0.2
+    # the same step without the array: its own peak, not that of the process that
+    # started it (this test's, which may well exceed 400 MB)
+    small = ALLOCATES_AND_SIMULATES.replace("50_000_000", "1")
+    run = load_example("reproduce").run_step([sys.executable, "-c", small])
+    assert run.measure.peak_bytes < 300e6 and run.measure.children_peak_bytes == 0
     idle = load_example("reproduce").run_step([sys.executable, "-c", "import sys"])
-    assert idle.measure is None and idle.peak_bytes < 400e6  # no script, no record
+    assert idle.code == 0 and idle.measure is None  # no script, no record
