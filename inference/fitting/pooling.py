@@ -72,6 +72,7 @@ def fit_pooled(
     pseudo_count: float = 0.01,
     min_variance: float = 1e-6,
     progress: bool = False,
+    sites: Iterable[str] | None = None,
 ) -> FitResult:
     """Fit ``net`` like :func:`inference.fit`, with the end sites' table rows given a prior
     from the plays of similar actions (see the module).
@@ -87,6 +88,9 @@ def fit_pooled(
         Pseudo-plays of the neighbours' distribution in a row's prior (>= 0).
     pseudo_count, min_variance, progress
         As in :func:`inference.fit`.
+    sites
+        The end sites whose tables are pooled (default: every end table with the action
+        among its parents); the others get the plain fit's.
     """
     check_settings(pseudo_count=pseudo_count, min_variance=min_variance)
     if (
@@ -96,6 +100,20 @@ def fit_pooled(
         or strength < 0
     ):
         raise ValueError(f"strength must be a finite number >= 0, got {strength!r}")
+    poolable = [
+        spec.name
+        for spec in net.sites
+        if spec.role == "end"
+        and isinstance(net.cpd(spec.name), TableCPD)
+        and ACTION in net.cpd(spec.name).parents
+        and net.cpd(spec.name).pinned is None
+    ]
+    chosen = set(poolable) if sites is None else {sites} if isinstance(sites, str) else set(sites)
+    if not chosen <= set(poolable):
+        raise ValueError(
+            f"sites {sorted(chosen - set(poolable))} cannot be pooled; the end tables with "
+            f"the action among their parents are {poolable}"
+        )
     n_actions = len(net.actions)
     kernel = torch.as_tensor(kernel, dtype=DTYPE)
     if kernel.shape != (n_actions, n_actions):
@@ -117,13 +135,7 @@ def fit_pooled(
     cpds = {}
     for spec in net.sites:
         cpd = net.cpd(spec.name)
-        pooled = (
-            spec.role == "end"
-            and isinstance(cpd, TableCPD)
-            and ACTION in cpd.parents
-            and cpd.pinned is None
-        )
-        if not pooled:  # the plain fit's CPD
+        if spec.name not in chosen:  # the plain fit's CPD
             cpds[spec.name] = cpd.m_step(stats.sites[spec.name], pseudo_count, min_variance)
             continue
         axis = cpd.parents.index(ACTION)

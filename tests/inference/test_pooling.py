@@ -203,3 +203,25 @@ def test_unplayed_configurations_are_computed_once_with_the_same_bits(
     assert torch.equal(table.probs, probs) and torch.equal(table.n, n)
     reached = int((counts.sum((-2, -1)) > 0).sum())
     assert computed == [reached + (reached < 24)]  # the reached ones and one other
+
+
+def test_only_the_named_sites_are_pooled():
+    """``sites`` names the end tables that are pooled; every other CPD is the plain fit's,
+    bit for bit, and the pooled one is the one pooled with every site."""
+    net = discrete_network([3, 2], 6)
+    g = torch.Generator().manual_seed(3)
+    rows = net.encode_indices(
+        {s.name: torch.randint(0, s.size, (40,), generator=g) for s in net.sites}
+    )
+    kernel = grid_kernel((2, 3), 1.0)
+    every = fit_pooled(net, rows, kernel).params
+    plain = fit(net, rows).params
+    one = fit_pooled(net, rows, kernel, sites=["end.f0"]).params
+    assert torch.equal(one["end.f0"].probs, every["end.f0"].probs)
+    assert torch.equal(one["end.f1"].probs, plain["end.f1"].probs)
+    assert not torch.equal(every["end.f1"].probs, plain["end.f1"].probs)
+    assert torch.equal(
+        fit_pooled(net, rows, kernel, sites="end.f0").params["end.f1"].probs, plain["end.f1"].probs
+    )
+    with pytest.raises(ValueError, match=r"\['initial.f0'\] cannot be pooled"):
+        fit_pooled(net, rows, kernel, sites=["end.f0", "initial.f0"])
