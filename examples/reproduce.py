@@ -8,10 +8,12 @@ clusters and active throw targets, can tossing (§IV-A, Table I), the combined s
 on every goal the physics reaches (:mod:`experiments.all_goals`) and Table I learned from
 a fraction of the throws by active exploration (:mod:`experiments.active`). The can data
 set is generated once under ``--data-dir`` (resumable; default: the cache folder, see
-docs/data.md) and reused. Then writes ``run.json`` (scale,
-commit, date, machine, each step's wall time) and ``summary.md`` (the paper's numbers
-beside ours and the bounds: :mod:`experiments.summary`); a full-scale run of every step
-also refreshes the results block of README.md.
+docs/data.md) and reused. Each step runs as its own process and is measured: its wall
+time, the part of it spent simulating, and the peak resident memory of its largest
+process. Then writes ``run.json`` (scale, commit, date, machine, those measures per
+step) and ``summary.md`` (the paper's numbers beside ours and the bounds, and the steps'
+measures beside their goals: :mod:`experiments.summary`); a full-scale run of every
+step also refreshes the results block of README.md.
 
     ./reproduce              # full scale
     ./reproduce --quick      # a first look in a few minutes
@@ -22,14 +24,18 @@ from __future__ import annotations
 
 import argparse
 import contextlib
+import os
 import signal
 import subprocess
 import sys
+import tempfile
 import time
 from pathlib import Path
+from typing import NamedTuple
 
 from experiments.config import check_executor, config_or_exit, run_script
 from experiments.registry import experiments
+from experiments.steps import STEP_RECORD_ENV, StepMeasure, read_step_record
 from experiments.summary import refresh_readme, run_record, summary_markdown
 
 HERE = Path(__file__).resolve().parent
@@ -50,8 +56,18 @@ def steps(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
     return result
 
 
-def run_step(command: list[str]) -> tuple[int, signal.Signals | None]:
-    """Run one step as a child process: its exit status, and the signal that stopped us.
+class StepRun(NamedTuple):
+    """One step's run: ``code`` its exit status, ``stopped`` the signal that stopped us
+    (or None), and ``measure`` what it measured about itself as it exited (its simulation
+    time and peak memory: :mod:`experiments.steps`; None where it wrote nothing)."""
+
+    code: int
+    stopped: signal.Signals | None
+    measure: StepMeasure | None
+
+
+def run_step(command: list[str]) -> StepRun:
+    """Run one step as a child process and measure it.
 
     SIGTERM (``kill``, the end of a batch job) is passed on to the step, which saves the
     chunks it finished and releases the data set's lock; Ctrl-C reaches the step from
@@ -69,29 +85,38 @@ def run_step(command: list[str]) -> tuple[int, signal.Signals | None]:
                     child.send_signal(signum)
 
     previous = {s: signal.signal(s, stop) for s in (signal.SIGTERM, signal.SIGINT)}
-    try:
-        child = subprocess.Popen(command)
-        children.append(child)
-        if signal.SIGTERM in stopped:  # it came while the step was starting
-            child.send_signal(signal.SIGTERM)
-        code = child.wait()
-    finally:
-        for s, handler in previous.items():
-            signal.signal(s, handler)
-    return code, (stopped[0] if stopped else None)
+    with tempfile.TemporaryDirectory() as folder:
+        record = Path(folder) / "step.json"
+        try:
+            child = subprocess.Popen(command, env=os.environ | {STEP_RECORD_ENV: str(record)})
+            children.append(child)
+            if signal.SIGTERM in stopped:  # it came while the step was starting
+                child.send_signal(signal.SIGTERM)
+            code = child.wait()
+        finally:
+            for s, handler in previous.items():
+                signal.signal(s, handler)
+        measure = read_step_record(record)
+    return StepRun(code, stopped[0] if stopped else None, measure)
 
 
 def main(args: argparse.Namespace) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     times: dict[str, float] = {}
+    simulation: dict[str, float] = {}
+    peak: dict[str, int] = {}
     for name, argv in steps(args):
         if args.only and name not in args.only:
             continue
         print(f"\n=== {name} {' '.join(argv)}", flush=True)
         start = time.perf_counter()
-        code, stopped = run_step([sys.executable, str(HERE / f"{name}.py"), *argv])
+        run = run_step([sys.executable, str(HERE / f"{name}.py"), *argv])
         times[name] = time.perf_counter() - start
+        code, stopped = run.code, run.stopped
+        if run.measure is not None:
+            simulation[name] = run.measure.simulation_seconds
+            peak[name] = run.measure.largest_bytes
         if stopped is not None:
             print(
                 f"stopped by {stopped.name} during {name}; run it again to resume",
@@ -101,7 +126,7 @@ def main(args: argparse.Namespace) -> int:
         if code != 0:
             print(f"{name} failed with exit code {code}", file=sys.stderr)
             return code
-    run_record("quick" if args.quick else "full", times).save(out)
+    run_record("quick" if args.quick else "full", times, simulation, peak).save(out)
     text = summary_markdown(out)
     (out / "summary.md").write_text(text)
     print("\n" + text)

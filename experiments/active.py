@@ -17,7 +17,7 @@ the network fitted on every throw.
 * **Scoring on held-out replays.** Table I's cases (:func:`experiments.can_tossing.
   table_one_cases`, both protocols, from the full data set so that every curve point
   answers the same cases) get their best field from the learned network exactly as
-  Table I does (:func:`experiments.can_tossing.choose`, both tie-break rules). The field
+  Table I does (:func:`experiments.cans.choose`, both tie-break rules). The field
   is scored on ``repeats`` fresh throws of (start, field) that no network was fitted on
   (the physics bound's replays, :mod:`experiments.physics_bounds`, seed
   ``BOUND_SEED``): the case's success is the fraction of replays that reach the desired
@@ -283,11 +283,14 @@ def cases_seen(rows, cases) -> float:
 def _model(net, rows, pool, throwable, pooling=None) -> CanModel:
     """The can model fitted on ``rows``: plainly, or pooled with ``pooling = (kernel,
     strength)``; the start and field priors are the pool's (design-free:
-    :func:`inference.design.active.with_pool_prior`)."""
+    :func:`inference.design.active.with_pool_prior`). Pooled, only the end count's table
+    is pooled: the one Table I's query reads (the end configuration's, 24.5 million
+    values at full scale, is the plain fit's and read by no score)."""
     if pooling is None:
         params = fit(net, rows).params
     else:
-        params = fit_pooled(net, rows, pooling[0], strength=pooling[1]).params
+        kernel, strength = pooling
+        params = fit_pooled(net, rows, kernel, strength=strength, sites=("end.count",)).params
     params = with_pool_prior(net, params, pool)
     return CanModel(ANGLE, net, params, compile_queries(net, params), throwable)
 

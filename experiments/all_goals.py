@@ -62,6 +62,7 @@ from inference import fit, predict
 from inference.queries.planning import exact_plan, paper_planner
 from models.can_network import can_network, can_rows
 from sim2d import geometry
+from sim2d.clock import simulating
 from sim2d.combined import CAN_BAND, TABLE_TOP_Z, exact_throws, play_policy, play_throw
 from sim2d.configurations import stable_configurations
 from sim2d.executors import open_executor
@@ -387,7 +388,8 @@ def run_table(config: AllGoalsConfig, table_z: float, robot: Robot, executor) ->
     results = []
     bar = _bar(len(futures), f"goals (table {table_z} m)", config.progress)
     for g, (exact_f, paper_f) in futures.items():
-        episodes, paper = exact_f.result(), paper_f.result()
+        with simulating():  # the workers play the episodes
+            episodes, paper = exact_f.result(), paper_f.result()
         bar.update(1)
         results.append(
             rows[g]

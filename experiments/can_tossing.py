@@ -44,18 +44,12 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
-from experiments.cans import CanDataSettings, CanModel, can_dataset, fit_can_network
-from experiments.config import (
-    Result,
-    check_choice,
-    check_float,
-    check_int,
-)
+from experiments.cans import CanDataSettings, CanModel, can_dataset, choose, fit_can_network
+from experiments.config import Result, check_choice, check_float, check_int
 from experiments.evaluation import (
     ACCURACY_BINS,
     accuracy_histogram,
     aim_pooled,
-    aim_robust_best,
     roc_auc,
     tail_surprise,
 )
@@ -63,6 +57,7 @@ from experiments.registry import Experiment
 from inference import imitation_check
 from models.can_network import config_index, n_cans
 from sim2d import field_throws, geometry, materials
+from sim2d.clock import simulation
 from sim2d.executors import open_executor
 
 __all__ = [
@@ -172,18 +167,6 @@ def table_one_cases(data, mode: str = "counts") -> tuple[np.ndarray, np.ndarray]
     return start[order], desired[order]
 
 
-def choose(model: CanModel, evidence: dict, rule: str) -> np.ndarray:
-    """Best field per row for ``evidence``: the query's argmax or the aim-robust one."""
-    post = model.compiled.infer_action(evidence, allowed=model.throwable)
-    if rule == "index":
-        return post.best.numpy()
-    allowed = model.throwable.expand_as(post.probs) & (post.unseen < 0.5)
-    allowed = torch.where(allowed.any(-1, keepdim=True), allowed, model.throwable)
-    return aim_robust_best(
-        post.probs, (geometry.N_ROWS, geometry.N_COLUMNS), allowed=allowed
-    ).numpy()
-
-
 def start_evidence(model: CanModel, start: np.ndarray) -> dict:
     """Query evidence of the start configurations ``(n,)`` masks: configuration and count."""
     return {
@@ -218,6 +201,7 @@ def ball_ends(start, positions, velocities) -> np.ndarray:
     )
 
 
+@simulation
 def _in_chunks(task, columns, extra, desc: str, progress: bool, executor) -> np.ndarray:
     """``task(*columns, *extra)`` over the rows of ``columns``, in chunks of ``CHUNK`` rows on
     ``executor`` (None: here, row by row); the results in row order, the same on every

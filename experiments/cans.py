@@ -21,6 +21,7 @@ import numpy as np
 import torch
 
 from experiments.config import check_choice, check_executor
+from experiments.evaluation import aim_robust_best
 from inference import CompiledQueries, fit, predict
 from inference import compile as compile_queries
 from models import EffectNetwork, NetworkParams
@@ -35,6 +36,7 @@ __all__ = [
     "CanModel",
     "SimulationSettings",
     "can_dataset",
+    "choose",
     "default_data_dir",
     "fit_can_network",
     "start_configurations",
@@ -190,3 +192,29 @@ def fit_can_network(data: CanDataset, angle: int) -> CanModel:
         [field_throws.is_throwable(f, angle) for f in range(geometry.N_FIELDS)]
     )
     return CanModel(angle, net, params, compile_queries(net, params), throwable)
+
+
+def choose(model: CanModel, evidence: dict, rule: str) -> np.ndarray:
+    """Best field per row for ``evidence``: the query's argmax or the aim-robust one. Rows
+    of equal evidence (many of Table I's cases share a start and a desired count) are
+    answered once."""
+    enc = model.net.encode(evidence)
+    if enc.n_rows == 0:
+        return _choose(model, enc, rule)
+    keys = torch.stack([enc[s] for s in enc], 1)
+    _, group = torch.unique(keys, dim=0, return_inverse=True)
+    first = torch.full((int(group.max()) + 1,), len(group)).scatter_reduce(
+        0, group, torch.arange(len(group)), "amin"
+    )
+    return _choose(model, enc.rows(first), rule)[group.numpy()]
+
+
+def _choose(model: CanModel, evidence, rule: str) -> np.ndarray:
+    post = model.compiled.infer_action(evidence, allowed=model.throwable)
+    if rule == "index":
+        return post.best.numpy()
+    allowed = model.throwable.expand_as(post.probs) & (post.unseen < 0.5)
+    allowed = torch.where(allowed.any(-1, keepdim=True), allowed, model.throwable)
+    return aim_robust_best(
+        post.probs, (geometry.N_ROWS, geometry.N_COLUMNS), allowed=allowed
+    ).numpy()

@@ -28,6 +28,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, ClassVar, TypeVar
 
+from experiments.steps import write_step_record
 from sim2d.chunks import write_failure, write_text
 from sim2d.executors import ExecutorUnavailable, parse_spec
 
@@ -131,8 +132,16 @@ def run_script(main: Callable[[argparse.Namespace], object], args: argparse.Name
     traceback: a write that failed (a full disk, a read-only or forbidden folder; status
     1), an executor that cannot be reached (2), an interrupt (Ctrl-C, or SIGTERM while a
     data set is generated; 130). A data set being generated keeps its finished chunks,
-    so running the script again resumes it.
+    so running the script again resumes it. Run as a step of ``./reproduce``, it writes its
+    simulation time and peak memory as it exits (:mod:`experiments.steps`).
     """
+    try:
+        _run(main, args)
+    finally:
+        write_step_record()
+
+
+def _run(main: Callable[[argparse.Namespace], object], args: argparse.Namespace):
     prog = Path(sys.argv[0]).name
     try:
         result = main(args)

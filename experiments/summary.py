@@ -2,9 +2,11 @@
 
 ``./reproduce`` writes each experiment's ``<name>.json`` into its results folder and a
 record of the run itself (:class:`RunRecord`, ``run.json``: scale, commit, date, machine,
-each step's wall time and the total). :func:`summary_markdown` reads them back and
-states, beside the paper's figures, ours and the physics' own bound (the best action
-found by simulation, :mod:`experiments.physics_bounds`); :func:`refresh_readme` puts
+each step's wall time, simulation time and peak memory, and the total).
+:func:`summary_markdown` reads them back and states, beside the paper's figures, ours
+and the physics' own bound (the best action found by simulation,
+:mod:`experiments.physics_bounds`), and each step's measures beside the main job's goals
+(:func:`step_table`); :func:`refresh_readme` puts
 that text between the markers ``<!-- results:begin -->`` and ``<!-- results:end -->`` of
 README.md.
 
@@ -16,11 +18,13 @@ The table is the concatenation of each saved result's own rows
 from __future__ import annotations
 
 import datetime
+import json
+import math
 import os
 import platform
 import subprocess
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 
 from experiments.config import Result
@@ -42,11 +46,21 @@ BEGIN, END = "<!-- results:begin -->", "<!-- results:end -->"
 RUN_FILE = "run.json"
 
 
+#: The main job's goals: the share of its wall time that is not simulation (learning,
+#: evaluation, start-up) at most this, and every process's peak memory below this.
+REST_GOAL = 0.10
+MEMORY_GOAL_BYTES = 2 * 10**9
+
+
 @dataclass
 class RunRecord(Result):
     """One run of the main job: ``scale``, ``commit`` (short hash, ``+`` when the work tree
     had uncommitted changes), ``date`` (UTC, ISO 8601), ``machine`` (words),
-    ``step_seconds`` (wall time per step run, in order) and ``total_seconds``."""
+    ``step_seconds`` (wall time per step run, in order), ``total_seconds``,
+    ``simulation_seconds`` (per step, the wall time spent simulating:
+    :mod:`sim2d.clock`) and ``peak_bytes`` (per step, the peak resident memory of its
+    largest process: :mod:`experiments.steps`). A record written before the last two
+    were measured loads with them empty."""
 
     scale: str
     commit: str
@@ -54,6 +68,19 @@ class RunRecord(Result):
     machine: str
     step_seconds: dict[str, float]
     total_seconds: float
+    simulation_seconds: dict[str, float] = field(default_factory=dict)
+    peak_bytes: dict[str, int] = field(default_factory=dict)
+
+    @classmethod
+    def from_json(cls, text: str) -> RunRecord:
+        try:
+            data = json.loads(text)
+        except (ValueError, RecursionError):
+            data = None
+        if isinstance(data, dict):  # the measures came later: absent in older records
+            data = {"simulation_seconds": {}, "peak_bytes": {}} | data
+            text = json.dumps(data)
+        return super().from_json(text)
 
     def save(self, out) -> Path:
         path = Path(out) / RUN_FILE
@@ -103,7 +130,13 @@ def machine_description() -> str:
     return ", ".join(parts)
 
 
-def run_record(scale: str, step_seconds: Mapping[str, float], root=None) -> RunRecord:
+def run_record(
+    scale: str,
+    step_seconds: Mapping[str, float],
+    simulation_seconds: Mapping[str, float] | None = None,
+    peak_bytes: Mapping[str, int] | None = None,
+    root=None,
+) -> RunRecord:
     """The record of a run that just ended, in the git work tree ``root`` (default: this
     package's repository)."""
     root = Path(root) if root is not None else Path(__file__).resolve().parents[1]
@@ -117,6 +150,8 @@ def run_record(scale: str, step_seconds: Mapping[str, float], root=None) -> RunR
         machine=machine_description(),
         step_seconds={k: float(v) for k, v in step_seconds.items()},
         total_seconds=float(sum(step_seconds.values())),
+        simulation_seconds={k: float(v) for k, v in (simulation_seconds or {}).items()},
+        peak_bytes={k: int(v) for k, v in (peak_bytes or {}).items()},
     )
 
 
@@ -152,10 +187,44 @@ def summary_markdown(folder) -> str:
     for result in results.values():
         lines += result.summary_rows(results)
     if run is not None:
-        lines += ["", "| step | wall time (s) |", "|---|---:|"]
-        lines += [f"| {name} | {s:.1f} |" for name, s in run.step_seconds.items()]
-        lines.append(f"| total | {run.total_seconds:.1f} |")
+        lines += ["", *step_table(run)]
     return "\n".join(lines) + "\n"
+
+
+def step_table(run: RunRecord) -> list[str]:
+    """Per step: wall time, the part spent simulating, the rest, and the peak memory of
+    its largest process; then the total and the goals beside the measured figures."""
+    lines = [
+        "| step | wall time (s) | simulation (s) | rest (s) | peak memory (MB) |",
+        "|---|---:|---:|---:|---:|",
+    ]
+
+    def row(name: str, wall: float, sim: float | None, peak: int | None) -> str:
+        sim_text = "-" if sim is None or math.isnan(sim) else f"{sim:.1f}"
+        rest_text = "-" if sim is None or math.isnan(sim) else f"{wall - sim:.1f}"
+        peak_text = "-" if peak is None else f"{peak / 1e6:,.0f}"
+        return f"| {name} | {wall:.1f} | {sim_text} | {rest_text} | {peak_text} |"
+
+    for name, wall in run.step_seconds.items():
+        lines.append(row(name, wall, run.simulation_seconds.get(name), run.peak_bytes.get(name)))
+    known = [s for s in run.simulation_seconds.values() if not math.isnan(s)]
+    measured = len(known) == len(run.step_seconds) and bool(known)
+    simulated = sum(known) if measured else None
+    largest = max(run.peak_bytes.values()) if run.peak_bytes else None
+    lines.append(row("total", run.total_seconds, simulated, largest))
+    if simulated is None or largest is None:
+        return lines
+    rest = 1 - simulated / run.total_seconds if run.total_seconds > 0 else 0.0
+    heaviest = max(run.peak_bytes, key=run.peak_bytes.get)
+    lines += [
+        "",
+        f"Goals: the rest (learning, evaluation, start-up) at most "
+        f"{100 * REST_GOAL:.0f} % of the total: {100 * rest:.1f} % "
+        f"({'met' if rest <= REST_GOAL else 'not met'}); the largest process under "
+        f"{MEMORY_GOAL_BYTES / 1e9:.0f} GB: {largest / 1e9:.2f} GB, {heaviest} "
+        f"({'met' if largest < MEMORY_GOAL_BYTES else 'not met'}).",
+    ]
+    return lines
 
 
 def write_summary(folder) -> Path:

@@ -44,6 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
+from sim2d.clock import simulating
 from sim2d.executors import as_finished, open_executor
 
 __all__ = [
@@ -410,6 +411,8 @@ def run_chunks(
             stack.callback(bar.close)
         futures: dict = {}
         try:
+            if todo:  # the chunks' simulations, here or on workers
+                stack.enter_context(simulating())
             futures = {executor.submit(fn, *chunk_args[k]): k for k in todo}
             for future in as_finished(futures):
                 k = futures[future]

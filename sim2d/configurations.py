@@ -32,6 +32,7 @@ from pathlib import Path
 
 from sim2d import geometry, materials, world
 from sim2d.chunks import write_text
+from sim2d.clock import simulating, simulation
 from sim2d.executors import open_executor
 
 __all__ = [
@@ -75,6 +76,7 @@ def fully_supported(mask: int) -> bool:
     return True
 
 
+@simulation
 def settles(mask: int, *, stepping: materials.Stepping = materials.STEPPING) -> bool:
     """Simulate one configuration for ``SETTLE_TIME``: does no can move more than 1 cm?
 
@@ -117,8 +119,9 @@ def _compute(executor=None) -> tuple[int, ...]:
         with contextlib.ExitStack() as stack:
             if isinstance(executor, str):
                 executor = stack.enter_context(open_executor(executor))
-            futures = [executor.submit(settle_flags, batch) for batch in batches]
-            flags = [flag for future in futures for flag in future.result()]
+            with simulating():  # the workers settle the configurations
+                futures = [executor.submit(settle_flags, batch) for batch in batches]
+                flags = [flag for future in futures for flag in future.result()]
     if len(flags) != len(masks) or not all(isinstance(f, bool) for f in flags):
         raise RuntimeError(
             f"the executor returned {len(flags)} results of types "

@@ -61,6 +61,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from sim2d.clock import simulation
 from sim2d.materials import GRAVITY
 
 __all__ = [
@@ -231,6 +232,7 @@ def sample_targets(n: int, rng: np.random.Generator | int) -> np.ndarray:
     return rng.uniform(TARGET_AREA.low, TARGET_AREA.high, size=(int(n), 2))
 
 
+@simulation
 def throw(
     targets: np.ndarray,
     *,

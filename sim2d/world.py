@@ -47,6 +47,7 @@ import pymunk
 from pymunk._chipmunk import lib as _cp
 
 from sim2d import materials as m
+from sim2d.clock import simulation
 from sim2d.geometry import (
     CAN_HEIGHT,
     CAN_WIDTH,
@@ -277,6 +278,7 @@ def _binding_api(space: pymunk.Space):
     )
 
 
+@simulation
 def run_ball(
     config: int,
     position,

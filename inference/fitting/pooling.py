@@ -36,7 +36,6 @@ import torch
 from inference.fitting.fit import fit_statistics
 from inference.fitting.result import FitResult
 from inference.fitting.rows import check_settings
-from inference.fitting.statistics import params_from_statistics
 from models.cpds.table import TableCPD, TableParams
 from models.declaration import ACTION, EffectNetwork
 from models.evidence import DTYPE
@@ -73,6 +72,7 @@ def fit_pooled(
     pseudo_count: float = 0.01,
     min_variance: float = 1e-6,
     progress: bool = False,
+    sites: Iterable[str] | None = None,
 ) -> FitResult:
     """Fit ``net`` like :func:`inference.fit`, with the end sites' table rows given a prior
     from the plays of similar actions (see the module).
@@ -88,6 +88,9 @@ def fit_pooled(
         Pseudo-plays of the neighbours' distribution in a row's prior (>= 0).
     pseudo_count, min_variance, progress
         As in :func:`inference.fit`.
+    sites
+        The end sites whose tables are pooled (default: every end table with the action
+        among its parents); the others get the plain fit's.
     """
     check_settings(pseudo_count=pseudo_count, min_variance=min_variance)
     if (
@@ -97,6 +100,20 @@ def fit_pooled(
         or strength < 0
     ):
         raise ValueError(f"strength must be a finite number >= 0, got {strength!r}")
+    poolable = [
+        spec.name
+        for spec in net.sites
+        if spec.role == "end"
+        and isinstance(net.cpd(spec.name), TableCPD)
+        and ACTION in net.cpd(spec.name).parents
+        and net.cpd(spec.name).pinned is None
+    ]
+    chosen = set(poolable) if sites is None else {sites} if isinstance(sites, str) else set(sites)
+    if not chosen <= set(poolable):
+        raise ValueError(
+            f"sites {sorted(chosen - set(poolable))} cannot be pooled; the end tables with "
+            f"the action among their parents are {poolable}"
+        )
     n_actions = len(net.actions)
     kernel = torch.as_tensor(kernel, dtype=DTYPE)
     if kernel.shape != (n_actions, n_actions):
@@ -113,14 +130,13 @@ def fit_pooled(
             f"sites {list(stats.gradient)} have no closed-form fit; fit_pooled needs every "
             "CPD in closed form (tables and linear Gaussians)"
         )
-    cpds = params_from_statistics(net, stats, pseudo_count, min_variance)
     off = kernel.clone()
     off.fill_diagonal_(0.0)
+    cpds = {}
     for spec in net.sites:
         cpd = net.cpd(spec.name)
-        if spec.role != "end" or not isinstance(cpd, TableCPD) or ACTION not in cpd.parents:
-            continue
-        if cpd.pinned is not None:
+        if spec.name not in chosen:  # the plain fit's CPD
+            cpds[spec.name] = cpd.m_step(stats.sites[spec.name], pseudo_count, min_variance)
             continue
         axis = cpd.parents.index(ACTION)
         counts = stats.sites[spec.name].counts.to(DTYPE).movedim(axis, -2)  # (..., A, K)
@@ -130,13 +146,38 @@ def fit_pooled(
 
 def _pooled(counts, off, strength, alpha, axis) -> TableParams:
     """The pooled table of ``counts`` ``(..., A, K)`` (action axis moved next to last),
-    returned with the action axis back at ``axis``."""
-    k = counts.shape[-1]
+    returned with the action axis back at ``axis``.
+
+    A configuration of the other parents that no row reached (most of them, in a large
+    table) has no counts and no neighbours' counts: its rows are computed once and
+    copied (element by element the same operations, so the same bits)."""
+    k, n_actions = counts.shape[-1], counts.shape[-2]
     neighbours = torch.einsum("ab,...bk->...ak", off, counts)
+    groups = counts.reshape(-1, n_actions, k)
+    played = groups.sum((1, 2)) > 0
+    some = torch.cat([played.nonzero()[:, 0], (~played).nonzero()[:1, 0]])  # + one unplayed
+    probs_of, n_of = _pooled_rows(
+        groups[some], neighbours.reshape(-1, n_actions, k)[some], strength, alpha
+    )
+    probs = torch.empty_like(groups)
+    n = torch.empty(groups.shape[:2], dtype=groups.dtype)
+    if not bool(played.all()):
+        probs[~played] = probs_of[-1]
+        n[~played] = n_of[-1]
+    probs[played] = probs_of[: int(played.sum())]
+    n[played] = n_of[: int(played.sum())]
+    probs, n = probs.reshape(counts.shape), n.reshape(counts.shape[:-1])
+    return TableParams(probs.movedim(-2, axis), n.movedim(-1, axis))
+
+
+def _pooled_rows(counts, neighbours, strength, alpha) -> tuple[torch.Tensor, torch.Tensor]:
+    """The pooled rows ``(g, A, K)`` and their evidence counts ``(g, A)`` of ``counts``
+    given the neighbours' weighted counts."""
+    k = counts.shape[-1]
     weight = neighbours.sum(-1, keepdim=True)
     m = torch.where(weight > 0, neighbours / weight.clamp_min(1e-300), 0.0)
     w = strength * weight.clamp(max=1.0)
     n = counts.sum(-1, keepdim=True)
     total = n + k * alpha + w
     probs = torch.where(total > 0, (counts + alpha + w * m) / total.clamp_min(1e-300), 1.0 / k)
-    return TableParams(probs.movedim(-2, axis), (n + w)[..., 0].movedim(-1, axis))
+    return probs, (n + w)[..., 0]

@@ -219,6 +219,60 @@ ANSWERS_BUDGET = 1 << 22
 ANSWERS_CHUNK = 1 << 22
 
 
+# A pattern whose summed table would hold more elements than this (with an end site
+# observed) keeps its factors instead, summed per queried row (:class:`_RowSums`).
+PLAN_BUDGET = 1 << 24
+
+
+class _RowSums:
+    """A plan's table ``(observed sizes..., latent sizes...)`` that is never built:
+    indexed at the observed states of ``n`` rows it returns the rows' part, ``(n, latent
+    sizes...)``, combining the factors' parts in their order exactly as the whole table
+    combines them (the same additions, or logical ors, element by element: the same
+    bits)."""
+
+    def __init__(self, parts: list[torch.Tensor], shape: tuple[int, ...], k: int, add: bool):
+        self.parts, self.shape, self.k, self.add = parts, torch.Size(shape), k, add
+
+    def __getitem__(self, index: tuple[torch.Tensor, ...]) -> torch.Tensor:
+        n = index[0].shape[0]
+        out = torch.zeros((), dtype=DTYPE) if self.add else None
+        for part in self.parts:
+            at = tuple(i if part.shape[a] > 1 else torch.zeros_like(i) for a, i in enumerate(index))
+            rows = part[at]
+            out = rows if out is None else (out + rows if self.add else out | rows)
+        out = out.expand(n, *self.shape[self.k :])
+        return out if self.add else out.to(DTYPE)
+
+
+def _lazy_plan(net, order, observed, kept, misses) -> _Plan | None:
+    """The plan of ``observed`` with its table and unseen indicator as :class:`_RowSums`,
+    where the table would exceed ``PLAN_BUDGET`` elements; None where it would not."""
+    sizes = [net.site(s).size for s in order]
+    shape = torch.broadcast_shapes(*(t.shape for t in kept))
+    shape = [sizes[a] if s == ACTION else shape[a] for a, s in enumerate(order)]
+    obs_axes = [a for a, s in enumerate(order) if s in observed]
+    latent_axes = [
+        a for a, s in enumerate(order) if s not in observed and (shape[a] > 1 or s == ACTION)
+    ]
+    drop = [a for a in range(len(order)) if a not in obs_axes and a not in latent_axes]
+    full = [sizes[a] if a in obs_axes else shape[a] for a in obs_axes + latent_axes]
+    if math.prod(full) <= PLAN_BUDGET:
+        return None
+    k = len(obs_axes)
+
+    def moved(table: torch.Tensor) -> torch.Tensor:  # observed axes, latent axes
+        table = table.permute(*obs_axes, *latent_axes, *drop)
+        return table.reshape(table.shape[: k + len(latent_axes)])
+
+    table = _RowSums([moved(t) for t in kept], tuple(full), k, add=True)
+    unseen = None
+    if misses and any(bool(m.any()) for m in misses):
+        unseen = _RowSums([moved(m) for m in misses], tuple(full), k, add=False)
+    latent = tuple(order[a] for a in latent_axes)
+    return _Plan(tuple(order[a] for a in obs_axes), latent, table, unseen)
+
+
 @dataclass(frozen=True)
 class CompiledNetwork:
     """Log factor tables of an all-discrete network.
@@ -246,20 +300,25 @@ class CompiledNetwork:
         return self.plans[observed]
 
     def _build_plan(self, observed: frozenset) -> _Plan:
-        total = torch.zeros((), dtype=DTYPE)
-        unseen = None
+        kept, misses = [], []
         needed = self.net.end_sites_needed(observed)
         for site, table in self.factors.items():
             role = self.net.site(site).role
             if role == "end" and site not in needed:
                 continue  # no observed site depends on it: it sums to one
-            if role == "end" and site not in observed:  # a latent parent of an observed one
-                total = total + table
-                continue
+            kept.append(table)
+            if role == "end" and site in observed:
+                misses.append(~self.seen[site])
+        if any(self.net.site(s).role == "end" for s in observed):
+            lazy = _lazy_plan(self.net, self.order, observed, kept, misses)
+            if lazy is not None:
+                return lazy
+        total = torch.zeros((), dtype=DTYPE)
+        for table in kept:
             total = total + table
-            if role == "end":
-                miss = ~self.seen[site]
-                unseen = miss if unseen is None else unseen | miss
+        unseen = None
+        for miss in misses:
+            unseen = miss if unseen is None else unseen | miss
         total = total.expand(
             *[
                 self.net.site(s).size if s == ACTION else total.shape[a]
@@ -488,8 +547,9 @@ def compile_discrete(net: EffectNetwork, params: NetworkParams) -> CompiledNetwo
     factors = {}
     for name in sites:
         lp = trace.nodes[name]["log_prob"].squeeze(-1)  # drop the rows plate (size 1)
-        # contiguous: an enumerated table's log_prob may be a strided view of its table
-        factors[name] = lp.reshape(*[1] * (rank - lp.dim()), *lp.shape).contiguous()
+        # an enumerated table's log_prob may be a strided view of its log table: kept as
+        # a view (no copy of a large table that a pattern may never read)
+        factors[name] = lp.reshape(*[1] * (rank - lp.dim()), *lp.shape)
     seen = {}
     for spec in net.sites:
         if spec.role != "end":

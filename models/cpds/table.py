@@ -14,7 +14,6 @@ from dataclasses import dataclass, field
 import pyro.distributions as dist
 import torch
 from pyro.ops.indexing import Vindex
-from torch.distributions.utils import probs_to_logits
 from torch.utils.weak import WeakIdKeyDictionary
 
 from models.cpds.base import CPD
@@ -124,7 +123,7 @@ class TableCPD(CPD):
         if kept is not None and kept[0] is probs and kept[1] == probs._version:
             logs = kept[2]
         else:
-            logs = self.pin_logs(probs_to_logits(probs / probs.sum(-1, keepdim=True)))
+            logs = self.pin_logs(_logits(probs))
             if not probs.requires_grad:
                 object.__setattr__(params, "_logs", (probs, probs._version, logs))
         if cache is not None:
@@ -149,6 +148,15 @@ class TableCPD(CPD):
 
     def bound(self, free: dict[str, torch.Tensor], params: TableParams) -> TableParams:
         return TableParams(self.pin(free["logits"].softmax(-1)), params.n)
+
+
+def _logits(probs: torch.Tensor) -> torch.Tensor:
+    """``probs_to_logits`` of the normalised ``probs`` (clamped to ``[eps, 1 - eps]``,
+    then log) in one new tensor: the same values, without a temporary per step (a large
+    table's log is taken once per fit)."""
+    eps = torch.finfo(probs.dtype).eps
+    logs = probs / probs.sum(-1, keepdim=True)
+    return logs.clamp_(min=eps, max=1 - eps).log_()
 
 
 class GatheredCategorical(dist.TorchDistribution):

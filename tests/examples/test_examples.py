@@ -236,7 +236,7 @@ def test_sigterm_to_reproduce_stops_its_running_step(tmp_path):
     step = [sys.executable, "-c", HOLDS_THE_LOCK, str(data), str(started)]
     driver = (
         "import sys; from tests.helpers import load_example; "
-        f"code, stopped = load_example('reproduce').run_step({step!r}); "
+        f"run = load_example('reproduce').run_step({step!r}); code, stopped = run[:2]; "
         "sys.exit(128 + stopped if stopped else code)"
     )
     proc = subprocess.Popen([sys.executable, "-c", driver], cwd=ROOT, preexec_fn=_default_signals)
@@ -326,3 +326,41 @@ def test_every_option_takes_junk_with_a_usage_error_or_a_value(name, capsys):
             except SystemExit as refused:
                 err = capsys.readouterr().err
                 assert refused.code == 2 and "error: " in err and "Traceback" not in err, argv
+
+
+ALLOCATES_AND_SIMULATES = """
+import argparse, time
+import numpy as np
+from experiments.config import run_script
+from sim2d.clock import simulating
+
+def main(args):
+    block = np.ones(50_000_000)  # 400 MB, every page touched
+    with simulating():
+        time.sleep(0.3)
+        with simulating():  # nested: counted once
+            time.sleep(0.1)
+    time.sleep(0.2)  # not simulation
+    return int(block[0]) - 1
+
+run_script(main, argparse.Namespace())
+"""
+
+
+def test_reproduce_measures_a_step_s_simulation_time_and_peak_memory():
+    """A step that allocates 400 MB and sleeps 0.4 s inside the simulation clock (0.2 s
+    outside it): reproduce reads at least that peak and that simulation time, and less
+    than the whole wall time as simulation."""
+    start = time.perf_counter()
+    run = load_example("reproduce").run_step([sys.executable, "-c", ALLOCATES_AND_SIMULATES])
+    wall = time.perf_counter() - start
+    assert run.code == 0 and run.stopped is None
+    assert run.measure.peak_bytes >= 400e6
+    assert 0.4 <= run.measure.simulation_seconds <= wall - 0.2
+    # the same step without the array: its own peak, not that of the process that
+    # started it (this test's, which may well exceed 400 MB)
+    small = ALLOCATES_AND_SIMULATES.replace("50_000_000", "1")
+    run = load_example("reproduce").run_step([sys.executable, "-c", small])
+    assert run.measure.peak_bytes < 300e6 and run.measure.children_peak_bytes == 0
+    idle = load_example("reproduce").run_step([sys.executable, "-c", "import sys"])
+    assert idle.code == 0 and idle.measure is None  # no script, no record

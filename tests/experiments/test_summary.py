@@ -127,7 +127,8 @@ def test_summary_from_fake_results(tmp_path):
     assert "0.952 / n/a" in text  # a missing AUC is said so
     top = next(line for line in text.splitlines() if "Table II" in line)
     assert "20.00 % (paper planner); 90.0 % (exact planner) | 50.0 % held out" in top
-    assert "| throwing | 6.2 |" in text and "| total | 106.2 |" in text
+    assert "| throwing | 6.2 | - | - | - |" in text and "| total | 106.2 | - | - | - |" in text
+    assert "Goals:" not in text  # a record without the measures states none
     assert summary.write_summary(tmp_path).read_text() == text
 
 
@@ -355,3 +356,38 @@ def test_a_result_file_of_another_shape_is_named(tmp_path):
     (tmp_path / "throwing.json").write_text(json.dumps({"rms_y_m": 0.1}))
     with pytest.raises(ValueError, match=r"throwing\.json: not a ThrowingResult: the JSON lacks"):
         summary.summary_markdown(tmp_path)
+
+
+def test_step_table_states_simulation_rest_and_peak_beside_the_goals(tmp_path):
+    record = summary.run_record(
+        "quick",
+        {"throwing": 10.0, "active": 30.0},
+        {"throwing": 9.5, "active": 2.0},
+        {"throwing": 300_000_000, "active": 2_500_000_000},
+    )
+    record.save(tmp_path)
+    text = summary.summary_markdown(tmp_path)
+    assert "| throwing | 10.0 | 9.5 | 0.5 | 300 |" in text
+    assert "| active | 30.0 | 2.0 | 28.0 | 2,500 |" in text
+    assert "| total | 40.0 | 11.5 | 28.5 | 2,500 |" in text
+    # rest 28.5 / 40 = 71.2 %; the largest process 2.5 GB, in active
+    assert "at most 10 % of the total: 71.2 % (not met)" in text
+    assert "under 2 GB: 2.50 GB, active (not met)" in text
+    record = summary.run_record("quick", {"a": 10.0}, {"a": 9.5}, {"a": 10**9})
+    record.save(tmp_path)
+    text = summary.summary_markdown(tmp_path)
+    assert "5.0 % (met)" in text and "1.00 GB, a (met)" in text
+
+
+def test_a_run_record_without_the_measures_loads_with_them_empty(tmp_path):
+    old = {
+        "scale": "full",
+        "commit": "abc",
+        "date": "d",
+        "machine": "m",
+        "step_seconds": {"a": 1.0},
+        "total_seconds": 1.0,
+    }
+    (tmp_path / "run.json").write_text(json.dumps(old))
+    record = summary.RunRecord.load(tmp_path / "run.json")
+    assert record.simulation_seconds == {} and record.peak_bytes == {}

@@ -2,6 +2,7 @@
 pooling is off, and the exact queries on its tables against brute-force enumeration."""
 
 import itertools
+from unittest import mock
 
 import numpy as np
 import pytest
@@ -10,6 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from inference import fit, fit_pooled, grid_kernel, infer_action
+from inference.fitting import pooling
 from tests.helpers import brute_joint, discrete_network
 
 NET = discrete_network([3, 2], 4)  # features f0 (3 states), f1 (2), four actions
@@ -155,3 +157,71 @@ def test_bad_input_is_refused(call, match):
     enc, _ = random_rows(0, 10)
     with pytest.raises(ValueError, match=match):
         call(enc)
+
+
+def _pooled_whole(counts, off, strength, alpha):
+    """The pooled table computed on the whole table at once (every parent configuration,
+    played or not): the formula of the module, written out."""
+    k = counts.shape[-1]
+    neighbours = torch.einsum("ab,...bk->...ak", off, counts)
+    weight = neighbours.sum(-1, keepdim=True)
+    m = torch.where(weight > 0, neighbours / weight.clamp_min(1e-300), 0.0)
+    w = strength * weight.clamp(max=1.0)
+    n = counts.sum(-1, keepdim=True)
+    total = n + k * alpha + w
+    probs = torch.where(total > 0, (counts + alpha + w * m) / total.clamp_min(1e-300), 1.0 / k)
+    return probs, (n + w)[..., 0]
+
+
+@settings(max_examples=25, deadline=None)
+@given(
+    seed=st.integers(0, 10_000),
+    played=st.sampled_from([0.0, 0.1, 0.5, 1.0]),
+    alpha=st.sampled_from([0.0, 0.01, 1.0]),
+    strength=st.sampled_from([0.0, 0.5, 3.0]),
+)
+def test_unplayed_configurations_are_computed_once_with_the_same_bits(
+    seed, played, alpha, strength
+):
+    """Parent configurations that no row reached share one computed row: the table is
+    bit for bit the table computed everywhere."""
+    g = torch.Generator().manual_seed(seed)
+    counts = torch.randint(0, 3, (4, 6, 9, 5), generator=g).to(torch.float64)
+    counts *= torch.rand(4, 6, generator=g)[..., None, None] < played  # unplayed groups
+    off = grid_kernel((3, 3), 0.8)
+    off.fill_diagonal_(0.0)
+    probs, n = _pooled_whole(counts, off, strength, alpha)
+    computed = []
+    rows = pooling._pooled_rows
+
+    def counting(c, *args):
+        computed.append(c.shape[0])
+        return rows(c, *args)
+
+    with mock.patch.object(pooling, "_pooled_rows", counting):
+        table = pooling._pooled(counts, off, strength, alpha, axis=2)
+    assert torch.equal(table.probs, probs) and torch.equal(table.n, n)
+    reached = int((counts.sum((-2, -1)) > 0).sum())
+    assert computed == [reached + (reached < 24)]  # the reached ones and one other
+
+
+def test_only_the_named_sites_are_pooled():
+    """``sites`` names the end tables that are pooled; every other CPD is the plain fit's,
+    bit for bit, and the pooled one is the one pooled with every site."""
+    net = discrete_network([3, 2], 6)
+    g = torch.Generator().manual_seed(3)
+    rows = net.encode_indices(
+        {s.name: torch.randint(0, s.size, (40,), generator=g) for s in net.sites}
+    )
+    kernel = grid_kernel((2, 3), 1.0)
+    every = fit_pooled(net, rows, kernel).params
+    plain = fit(net, rows).params
+    one = fit_pooled(net, rows, kernel, sites=["end.f0"]).params
+    assert torch.equal(one["end.f0"].probs, every["end.f0"].probs)
+    assert torch.equal(one["end.f1"].probs, plain["end.f1"].probs)
+    assert not torch.equal(every["end.f1"].probs, plain["end.f1"].probs)
+    assert torch.equal(
+        fit_pooled(net, rows, kernel, sites="end.f0").params["end.f1"].probs, plain["end.f1"].probs
+    )
+    with pytest.raises(ValueError, match=r"\['initial.f0'\] cannot be pooled"):
+        fit_pooled(net, rows, kernel, sites=["end.f0", "initial.f0"])

@@ -94,3 +94,49 @@ def test_the_tables_refuse_what_the_traced_query_refuses_in_the_same_words():
         with pytest.raises(ValueError, match=match) as tables:
             compiled.infer_action(evidence)
         assert str(tables.value) == str(traced.value)
+
+
+@pytest.mark.parametrize("name", sorted(CASES))
+def test_patterns_summed_per_row_answer_bit_for_bit_as_the_summed_table(name, monkeypatch):
+    """With the plan budget at 0 every pattern with an observed end site keeps its factors
+    and sums them per queried row: the same bits as the table summed once."""
+    from inference.queries import action
+
+    evidence, kwargs = CASES[name]
+    whole = inference.compile(DISCRETE, PARAMS).infer_action(evidence, **kwargs)
+    monkeypatch.setattr(action, "PLAN_BUDGET", 0)
+    per_row = inference.compile(DISCRETE, PARAMS)
+    rows_ = per_row.infer_action(evidence, **kwargs)
+    for field in ("probs", "best", "log_evidence", "unseen", "implausible"):
+        assert torch.equal(getattr(rows_, field), getattr(whole, field)), field
+    if any(s.startswith("end.") for s in DISCRETE.encode(evidence)):
+        assert all(
+            isinstance(p.log_table, action._RowSums)
+            for p in per_row.action_tables.plans.values()
+            if any(s.startswith("end.") for s in p.observed)
+        )
+
+
+def test_a_pattern_whose_table_exceeds_the_budget_is_never_built():
+    """Every site observed but the action on two 30-state features and 50 actions: the
+    summed table would hold 30**4 * 50 = 40.5 million values (324 MB); the plan holds no
+    tensor above the budget and answers as the traced query."""
+    from inference.queries import action
+
+    net = discrete_network([30, 30], 50)
+    params = random_params(net, 7, unseen=0.3)
+    g = torch.Generator().manual_seed(0)
+    ev = net.encode_indices(
+        {s.name: torch.randint(0, 30, (5,), generator=g) for s in net.sites if s.name != "action"}
+    )
+    compiled = inference.compile(net, params)
+    fast = compiled.infer_action(ev)
+    slow = infer_action(net, params, ev)
+    torch.testing.assert_close(fast.probs, slow.probs, atol=1e-12, rtol=0)
+    torch.testing.assert_close(fast.log_evidence, slow.log_evidence, atol=1e-9, rtol=0)
+    torch.testing.assert_close(fast.unseen, slow.unseen, atol=1e-12, rtol=0)
+    assert torch.equal(fast.best, slow.best)
+    for plan in compiled.action_tables.plans.values():
+        for table in (plan.log_table, plan.unseen):
+            tensors = table.parts if isinstance(table, action._RowSums) else [table]
+            assert all(t is None or t.numel() <= action.PLAN_BUDGET for t in tensors)

@@ -63,3 +63,20 @@ def test_gathered_categorical_is_the_categorical_of_the_gathered_rows():
     assert lazy.sample((7,)).shape == (7, 3, 1, 6)
     with pytest.raises(ValueError, match=r"state index outside 0..4"):
         lazy.log_prob(torch.tensor([5]))
+
+
+@settings(max_examples=30, deadline=None)
+@given(seed=st.integers(0, 10_000), zeros=st.sampled_from([0.0, 0.3, 1.0]))
+def test_the_log_table_is_torch_s_logits_of_the_normalised_table(seed, zeros):
+    """Bit for bit ``probs_to_logits(probs / probs.sum(-1))``, zeros and unnormalised rows
+    included, computed without a temporary per step."""
+    from torch.distributions.utils import probs_to_logits
+
+    from models.cpds.table import _logits
+
+    g = torch.Generator().manual_seed(seed)
+    probs = torch.rand(3, 4, 5, generator=g, dtype=torch.float64) * 3
+    probs[torch.rand(3, 4, 5, generator=g) < zeros] = 0.0
+    probs[..., 0] += 1e-300  # no row entirely zero
+    expected = probs_to_logits(probs / probs.sum(-1, keepdim=True))
+    assert torch.equal(_logits(probs), expected)
