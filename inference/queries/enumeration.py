@@ -4,7 +4,10 @@ The model is traced once under ``poutine.enum`` with the evidence as observation
 latent discrete site gets an enumeration dim (-2, -3, ... to the left of the rows plate)
 and every site's ``log_prob`` broadcasts over the dims of the sites it depends on.
 Adding the log-probabilities gives the joint log-weight of all enumerated values per row;
-``logsumexp`` over dims gives evidence and marginals. Unobserved end sites that are not
+``logsumexp`` over dims gives evidence and marginals. A small joint is summed so, as one
+tensor; a larger one whose structure splits (sparse parents) is summed by elimination,
+one site at a time (:mod:`inference.queries.elimination`), and never built unless a
+query reads it. Unobserved end sites that are not
 asked for, and that no observed or asked-for end site depends on, are left out: summing
 them out contributes exactly 1.
 Unobserved parameters never appear as latent sites: the model integrates them out in
@@ -83,6 +86,11 @@ class Enumerated:
             return self.factors[0]
         return _full(_dense_sum(list(self.factors)), self.dims, self.n_rows)
 
+    @cached_property
+    def _sums(self) -> dict[frozenset[str], torch.Tensor]:
+        """The contractions :meth:`log_sum` has taken (without ``extra``), by ``keep``."""
+        return {}
+
     @property
     def log_offset(self) -> torch.Tensor | float:
         """``(n,)`` the offsets' sum (``0.0`` without any)."""
@@ -91,8 +99,12 @@ class Enumerated:
     @cached_property  # a sum over the whole joint, which queries ask for more than once
     def log_norm(self) -> torch.Tensor:
         """``(n,)`` ``log sum exp(log_weight)`` over the configurations of each row."""
-        if self.contracted:
-            return self.log_sum().reshape(-1).expand(self.n_rows)
+        if self.contracted:  # from a sum over one site already taken, where there is one
+            done = [w for keep, w in self._sums.items() if len(keep) == 1]
+            w = done[0] if done else self.log_sum()
+            others = [d for d in range(w.dim() - 1) if w.shape[d] > 1]
+            w = w.logsumexp(others) if others else w
+            return w.reshape(-1).expand(self.n_rows)
         w = self.log_weight
         if w.dim() == 1:
             return w
@@ -111,12 +123,19 @@ class Enumerated:
         broadcastable to it) over every enumerated site but ``keep``: a tensor of the
         joint's rank, ``(..., n)``, whose dims of ``keep`` keep their size and the others
         are 1. By contraction where the factors are several."""
+        keep = frozenset(keep)
+        extra = list(extra)
+        if not extra and keep in self._sums:
+            return self._sums[keep]
         keep_dims = {self.dims[s] for s in keep}
         factors = [*self.factors, *extra]
         depth = max([-d for d in self.dims.values()], default=1)
         if self.contracted:
             eliminate = [d for d in self.dims.values() if d not in keep_dims]
-            return _full(contract(factors, eliminate), {}, 0, depth)
+            total = _full(contract(factors, eliminate), {}, 0, depth)
+            if not extra:  # asked again by marginals, sums and masses of one query
+                self._sums[keep] = total
+            return total
         w = _dense_sum(factors) if len(factors) > 1 else factors[0]
         w = _full(w, {}, 0, depth)
         others = [w.dim() + d for d in self.dims.values() if d not in keep_dims]
