@@ -20,6 +20,13 @@ Imitation check with a continuous end feature (``--imitation-rows``, default 10,
 form; goal: 10,000 rows under 0.5 s), and README's tap network with the force unknown (a
 mixture of 8 clusters per row: the quadrature), each row's surprise deterministic.
 
+Scaling with the number of features (``--scaling-only`` skips the rest, ``--no-scaling``
+leaves it out): k = 8 ... 32 binary features, each end feature's parents its own initial
+value and the action (``parents=``), the initial state latent and the end state observed;
+``infer_action`` on one query and on a batch of 1,000, beside pgmpy's VariableElimination
+on the same network and rows (its answers checked equal). Goals: batched, at least 10x
+below pgmpy per query at every k; one query alone at or below pgmpy.
+
 Pyro's ``Predictive`` on README's tap network (``--predictive-only`` skips the rest): 100
 draws of 5 rows, one model run per draw (the default) beside one vectorised run
 (``parallel=True``, README's form).
@@ -28,6 +35,7 @@ draws of 5 rows, one model run per draw (the default) beside one vectorised run
 from __future__ import annotations
 
 import argparse
+import functools
 import platform
 import time
 
@@ -139,6 +147,75 @@ def patterns(args: argparse.Namespace) -> list[tuple[str, float, float, float, f
     return out
 
 
+SCALING_K = (8, 12, 16, 20, 24, 32)
+
+
+def sparse_network(k: int) -> EffectNetwork:
+    """``k`` binary features, each end feature's parents its own initial value and the
+    action."""
+    return EffectNetwork(
+        tuple(Discrete(f"f{i}", (0, 1)) for i in range(k)),
+        ("push", "lift", "wait"),
+        parents={f"end.f{i}": (f"initial.f{i}", "action") for i in range(k)},
+    )
+
+
+def scaling(batch: int, pgmpy_queries: int) -> list[tuple[int, float, float, float, float]]:
+    """Per k: (k, ours us/query batched, ours us for one query, pgmpy us/query, largest
+    difference from pgmpy)."""
+    from pgmpy.inference import VariableElimination
+
+    from models.interop import to_pgmpy
+
+    out = []
+    for k in SCALING_K:
+        net = sparse_network(k)
+        params = random_params(net, k)
+        g = torch.Generator().manual_seed(k)
+        ends = {f"end.f{i}": torch.randint(0, 2, (batch,), generator=g) for i in range(k)}
+        evidence = net.encode_indices(ends)
+        one = evidence.rows(slice(0, 1))
+        run = functools.partial(infer_action, net, params)
+        batched_us = median_seconds(lambda run=run, ev=evidence: run(ev), 3) / batch
+        single_us = median_seconds(lambda run=run, ev=one: run(ev), 20)
+        ve = VariableElimination(to_pgmpy(net, params).model)
+        m = min(batch, pgmpy_queries)
+        labels = [{s: int(v[i]) for s, v in ends.items()} for i in range(m)]
+        ve.query(["action"], evidence=labels[0], show_progress=False)  # a warm-up call
+        t0 = time.perf_counter()
+        results = [ve.query(["action"], evidence=e, show_progress=False) for e in labels]
+        pgmpy_us = (time.perf_counter() - t0) / m
+        theirs = torch.tensor(np.stack([r.values for r in results]), dtype=DTYPE)
+        ours = infer_action(net, params, evidence.rows(slice(0, m))).probs
+        diff = float((ours - theirs).abs().max())
+        out.append((k, batched_us * 1e6, single_us * 1e6, pgmpy_us * 1e6, diff))
+    return out
+
+
+def _print_scaling(batch: int, pgmpy_queries: int) -> dict[str, float]:
+    print(
+        f"\nscaling: k binary features, sparse parents (own initial value, action), initial "
+        f"state latent, end state observed; infer_action, us per query; batch of {batch}, "
+        f"pgmpy on {pgmpy_queries} of its rows"
+    )
+    print(
+        f"{'k':>3}{'ours batched':>14}{'ours one':>10}{'pgmpy':>10}{'pgmpy/batched':>15}"
+        f"{'pgmpy/one':>11}{'max diff':>10}  verdict (batched >= 10x, one <= pgmpy)"
+    )
+    figures = {}
+    for k, batched, one, theirs, diff in scaling(batch, pgmpy_queries):
+        verdict = f"{'met' if theirs >= 10 * batched else 'missed'}, "
+        verdict += "met" if one <= theirs else "missed"
+        print(
+            f"{k:>3}{batched:>14.2f}{one:>10.0f}{theirs:>10.0f}{theirs / batched:>14.0f}x"
+            f"{theirs / one:>10.2f}x{diff:>10.1e}  {verdict}"
+        )
+        assert diff <= 1e-12, f"k = {k}: ours and pgmpy differ by {diff:.1e}"
+        figures |= {f"scaling_{k}_batched_us": batched, f"scaling_{k}_one_us": one}
+        figures |= {f"scaling_{k}_pgmpy_us": theirs, f"scaling_{k}_max_diff": diff}
+    return figures
+
+
 def imitation(rows: int) -> dict[str, float]:
     """Seconds of ``imitation_check`` on ``rows`` rows: one Gaussian, and a mixture."""
     rng = np.random.default_rng(0)
@@ -182,6 +259,8 @@ def main(args: argparse.Namespace) -> dict[str, float]:
         return _print_imitation(args.imitation_rows)
     if args.predictive_only:
         return _print_predictive()
+    if args.scaling_only:
+        return _print_scaling(args.scaling_batch, args.scaling_pgmpy_queries)
     net = network()
     rows = random_rows(net, 74_000, 0)
     fit_s = median_seconds(lambda: fit(net, rows), 7)
@@ -304,6 +383,8 @@ def main(args: argparse.Namespace) -> dict[str, float]:
     if args.imitation_rows:
         figures |= _print_imitation(args.imitation_rows)
     figures |= _print_predictive()
+    if not args.no_scaling:
+        figures |= _print_scaling(args.scaling_batch, args.scaling_pgmpy_queries)
     return figures
 
 
@@ -375,6 +456,12 @@ def parse_args(argv=None) -> argparse.Namespace:
     )
     parser.add_argument("--imitation-only", action="store_true", help="time imitation_check alone")
     parser.add_argument("--predictive-only", action="store_true", help="time Predictive alone")
+    parser.add_argument("--scaling-only", action="store_true", help="the scaling table alone")
+    parser.add_argument("--no-scaling", action="store_true", help="leave the scaling table out")
+    parser.add_argument("--scaling-batch", type=int, default=1000, help="rows of the batch")
+    parser.add_argument(
+        "--scaling-pgmpy-queries", type=int, default=50, help="pgmpy queries timed per k"
+    )
     return parser.parse_args(argv)
 
 

@@ -179,7 +179,7 @@ def _completed_rows(net, params, enc, masks, allowed=None) -> tuple[Evidence, to
             agree = allowed[:, chunk].reshape(len(net.actions), *([1] * (-dim - 2)), -1)
             log_weight = enumerated.log_weight.masked_fill(~agree, -torch.inf)
             enumerated = Enumerated(
-                log_weight, enumerated.dims, enumerated.trace, enumerated.offsets
+                (log_weight,), enumerated.dims, enumerated.trace, enumerated.offsets
             )
         posterior = enumerated.posterior()  # (E_k, ..., E_1, n)
         log_lik += float(enumerated.log_evidence.sum())

@@ -36,6 +36,7 @@ from inference.queries.batching import (
     placeholder_row,
     prepare,
     unseen_indicator,
+    unseen_mass,
 )
 from inference.queries.enumeration import (
     Enumerated,
@@ -105,6 +106,13 @@ def infer_action(
     observed_end = [end_site(f.name) for f in net.features if end_site(f.name) in enc]
 
     def fn(e: Enumerated, *_):
+        if e.contracted:  # by contraction: the joint is never built
+            probs = e.marginal(ACTION)
+            if not observed_end:
+                return probs, torch.zeros_like(probs), e.log_evidence
+            unseen = unseen_mass(net, params, e, observed_end, (ACTION,)).expand_as(probs)
+            # an action of posterior probability 0 (in float64) rests on nothing: 0
+            return probs, torch.where(probs > 0, unseen, 0.0), e.log_evidence
         post = e.posterior()
         dim = e.dims[ACTION]
         others = [d for d in range(post.dim() - 1) if d != post.dim() + dim]
@@ -122,7 +130,7 @@ def infer_action(
         per_action = joint.sum(others).T if others else joint.T
         return probs, per_action / probs.clamp_min(1e-300), e.log_evidence
 
-    probs, unseen, log_evidence = over_row_chunks(net, params, enc, set(), fn)
+    probs, unseen, log_evidence = over_row_chunks(net, params, enc, set(), fn, contracted=True)
     unseen = unseen.clamp(0, 1)
     score = probs.clone()
     if allowed is not None:

@@ -115,13 +115,49 @@ def unseen_indicator(
     net: EffectNetwork, params: NetworkParams, e: Enumerated, sites: list[str]
 ) -> torch.Tensor:
     """Joint-posterior-weighted indicator that any of ``sites`` sits on an unseen configuration."""
-    values = {name: s["value"] for name, s in e.trace.nodes.items() if s["type"] == "sample"}
     flag = torch.zeros((), dtype=torch.bool)
+    for one in unseen_flags(net, params, e, sites):
+        flag = flag | one
+    return flag.to(DTYPE)
+
+
+def unseen_flags(
+    net: EffectNetwork, params: NetworkParams, e: Enumerated, sites: list[str]
+) -> list[torch.Tensor]:
+    """Per site of ``sites``, a bool tensor over its parents' enumerated dims: whether the
+    configuration is unseen."""
+    values = {name: s["value"] for name, s in e.trace.nodes.items() if s["type"] == "sample"}
+    flags = []
     for site in sites:
         cpd = net.cpd(site)
         index = [values[s] for s in cpd.parents]
-        flag = flag | ~Vindex(cpd.seen(params[site]))[tuple(index)]
-    return flag.to(DTYPE)
+        flags.append(~Vindex(cpd.seen(params[site]))[tuple(index)])
+    return flags
+
+
+def unseen_mass(
+    net: EffectNetwork,
+    params: NetworkParams,
+    e: Enumerated,
+    sites: list[str],
+    keep: tuple[str, ...] = (),
+) -> torch.Tensor:
+    """Posterior probability that any of ``sites`` sits on an unseen configuration, by
+    contraction: one minus that of every one seen, whose factors (0 or ``-inf`` per
+    site) join the contraction. Over the rows, or given each state of the one site in
+    ``keep`` (``(n, K)``; 0 where that state is impossible). ``-inf`` weight rows: 0."""
+    flags = unseen_flags(net, params, e, sites)
+    log_all = e.log_sum(keep)
+    if any(bool(f.any()) for f in flags):
+        seen = [torch.where(f, -torch.inf, 0.0).to(DTYPE) for f in flags]
+        log_seen = e.log_sum(keep, seen)
+        possible = log_all > -torch.inf
+        p_seen = (log_seen - torch.where(possible, log_all, 0.0)).exp()
+        mass = torch.where(possible, 1.0 - p_seen, 0.0).clamp(0, 1)
+    else:
+        mass = torch.zeros_like(log_all)
+    mass = mass.expand(*mass.shape[:-1], e.n_rows).reshape(-1, e.n_rows).T
+    return mass if keep else mass[:, 0]
 
 
 def parameter_placeholder(m, enc: Evidence) -> Evidence:

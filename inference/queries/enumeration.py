@@ -4,7 +4,10 @@ The model is traced once under ``poutine.enum`` with the evidence as observation
 latent discrete site gets an enumeration dim (-2, -3, ... to the left of the rows plate)
 and every site's ``log_prob`` broadcasts over the dims of the sites it depends on.
 Adding the log-probabilities gives the joint log-weight of all enumerated values per row;
-``logsumexp`` over dims gives evidence and marginals. Unobserved end sites that are not
+``logsumexp`` over dims gives evidence and marginals. A small joint is summed so, as one
+tensor; a larger one whose structure splits (sparse parents) is summed by elimination,
+one site at a time (:mod:`inference.queries.elimination`), and never built unless a
+query reads it. Unobserved end sites that are not
 asked for, and that no observed or asked-for end site depends on, are left out: summing
 them out contributes exactly 1.
 Unobserved parameters never appear as latent sites: the model integrates them out in
@@ -14,13 +17,21 @@ closed form. Nothing here samples.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 
 import torch
 from pyro import poutine
 
+from inference.queries.elimination import (
+    contract,
+    contract_size,
+    dense_enough,
+    max_config,
+    sample,
+    value_at,
+)
 from models.declaration import EffectNetwork
 from models.evidence import Evidence
 from models.model import effect_model
@@ -29,25 +40,56 @@ from models.params import NetworkParams
 
 @dataclass(frozen=True)
 class Enumerated:
-    """A traced model with its joint log-weight over the enumerated sites.
+    """A traced model with its factors over the enumerated sites.
 
-    ``log_weight`` has shape ``(E_k, ..., E_1, n)``: one dim per enumerated site (its
-    number of states, or 1 where no kept factor depends on it) then the rows.
-    ``dims[site]`` is the (negative) dim of an enumerated site.
+    ``factors`` are log-factors, each broadcastable to ``(E_k, ..., E_1, n)``: one dim per
+    enumerated site (its number of states, or 1 where the factor does not depend on it)
+    then the rows. ``dims[site]`` is the (negative) dim of an enumerated site. One factor
+    is the joint itself (a small joint is summed once, as a dense tensor); several are
+    summed by contraction (:mod:`inference.queries.elimination`), one site at a time in
+    an order that keeps every intermediate small, so that sums and marginals never build
+    the joint where the structure allows less.
 
     The joint is held in log space per row: ``log_weight + log_offset`` is the log-joint,
     where ``offsets`` ``{name: (n,)}`` hold the parts that are the same for every
     configuration of a row (a continuous initial state's density, each unbounded
-    factor's largest value, and under ``""`` the sum's), so that ``log_weight`` keeps the
+    factor's largest value, and under ``""`` the sum's), so that the factors keep the
     differences between configurations to float64's precision at any magnitude of the
-    evidence, and every distribution normalised from it sums to one. Kept per site, they
-    cancel exactly between two evidence sets that share a site (:func:`log_ratio`).
+    evidence, and every distribution normalised from them sums to one. Kept per site,
+    they cancel exactly between two evidence sets that share a site (:func:`log_ratio`).
     """
 
-    log_weight: torch.Tensor
+    factors: tuple[torch.Tensor, ...]
     dims: dict[str, int]
     trace: poutine.Trace
     offsets: dict[str, torch.Tensor] = field(default_factory=dict)
+    rows: int | None = None  # the rows, where no factor spans them all
+
+    @property
+    def contracted(self) -> bool:
+        """Whether sums run by contraction of several factors (else over the one joint)."""
+        return len(self.factors) > 1
+
+    @cached_property
+    def n_rows(self) -> int:
+        """The rows ``n``."""
+        if self.rows is not None:
+            return self.rows
+        return max(f.shape[-1] if f.dim() else 1 for f in self.factors)
+
+    @cached_property
+    def log_weight(self) -> torch.Tensor:
+        """``(E_k, ..., E_1, n)`` the joint log-weight, the factors summed (built here,
+        once, when several factors are held: as large as the product of the sites'
+        sizes; sums and marginals do not need it)."""
+        if not self.contracted:
+            return self.factors[0]
+        return _full(_dense_sum(list(self.factors)), self.dims, self.n_rows)
+
+    @cached_property
+    def _sums(self) -> dict[frozenset[str], torch.Tensor]:
+        """The contractions :meth:`log_sum` has taken (without ``extra``), by ``keep``."""
+        return {}
 
     @property
     def log_offset(self) -> torch.Tensor | float:
@@ -57,6 +99,12 @@ class Enumerated:
     @cached_property  # a sum over the whole joint, which queries ask for more than once
     def log_norm(self) -> torch.Tensor:
         """``(n,)`` ``log sum exp(log_weight)`` over the configurations of each row."""
+        if self.contracted:  # from a sum over one site already taken, where there is one
+            done = [w for keep, w in self._sums.items() if len(keep) == 1]
+            w = done[0] if done else self.log_sum()
+            others = [d for d in range(w.dim() - 1) if w.shape[d] > 1]
+            w = w.logsumexp(others) if others else w
+            return w.reshape(-1).expand(self.n_rows)
         w = self.log_weight
         if w.dim() == 1:
             return w
@@ -70,20 +118,71 @@ class Enumerated:
         """``(n,)`` log-probability of the evidence (kept sites), all latents summed out."""
         return self.log_norm + self.log_offset
 
+    def log_sum(self, keep: Iterable[str] = (), extra: Iterable[torch.Tensor] = ()) -> torch.Tensor:
+        """``log sum exp`` of the joint (with the log-factors ``extra`` added, each
+        broadcastable to it) over every enumerated site but ``keep``: a tensor of the
+        joint's rank, ``(..., n)``, whose dims of ``keep`` keep their size and the others
+        are 1. By contraction where the factors are several."""
+        keep = frozenset(keep)
+        extra = list(extra)
+        if not extra and keep in self._sums:
+            return self._sums[keep]
+        keep_dims = {self.dims[s] for s in keep}
+        factors = [*self.factors, *extra]
+        depth = max([-d for d in self.dims.values()], default=1)
+        if self.contracted:
+            eliminate = [d for d in self.dims.values() if d not in keep_dims]
+            total = _full(contract(factors, eliminate), {}, 0, depth)
+            if not extra:  # asked again by marginals, sums and masses of one query
+                self._sums[keep] = total
+            return total
+        w = _dense_sum(factors) if len(factors) > 1 else factors[0]
+        w = _full(w, {}, 0, depth)
+        others = [w.dim() + d for d in self.dims.values() if d not in keep_dims]
+        others = [d for d in others if d >= 0 and w.shape[d] > 1]
+        return w.logsumexp(others, keepdim=True) if others else w
+
     def marginal(self, site: str) -> torch.Tensor:
         """``(n, K)`` exact posterior of an enumerated site given the evidence."""
         dim = self.dims[site]
-        w = self.log_weight
-        if w.shape[dim] == 1:  # no kept factor depends on the site: its prior alone
-            w = w + torch.zeros(_states(self.trace, site), *([1] * (-dim - 1)), dtype=w.dtype)
-        others = [d for d in range(w.dim() - 1) if d != w.dim() + dim]
-        m = w.logsumexp(others) if others else w
+        if self.contracted:
+            m = self.log_sum({site})
+            m = m.reshape(m.shape[dim], -1)
+            m = m.expand(m.shape[0], self.n_rows)
+        else:
+            w = self.log_weight
+            others = [d for d in range(w.dim() - 1) if d != w.dim() + dim]
+            m = w.logsumexp(others) if others else w
+        if m.shape[0] == 1:  # no kept factor depends on the site: its prior alone
+            m = m + torch.zeros(_states(self.trace, site), 1, dtype=m.dtype)
         norm = m.logsumexp(0, keepdim=True)
-        self._check_possible(norm[0])
+        self.check_possible(norm[0])
         return (m - norm).exp().T
 
+    def joint(self, sites: Sequence[str]) -> torch.Tensor:
+        """``(n, K_1 * ... * K_m)`` the posterior over the joint states of ``sites`` (the
+        first varying slowest), every other site summed out."""
+        w = self.log_sum(sites)
+        keep = [w.dim() + self.dims[s] for s in sites]
+        shape = list(w.shape)
+        for s, d in zip(sites, keep, strict=True):
+            shape[d] = _states(self.trace, s)  # a site no factor spans: its states alike
+        shape[-1] = self.n_rows
+        w = w.expand(shape)
+        others = [d for d in range(w.dim() - 1) if d not in keep]
+        w = w.permute(w.dim() - 1, *keep, *others).reshape(w.shape[-1], -1)
+        return (w - w.logsumexp(-1, keepdim=True)).exp()
+
+    def sample(self) -> dict[str, torch.Tensor]:
+        """One joint draw per row of the enumerated sites some factor depends on, from
+        their exact posterior, by contraction (torch's global generator)."""
+        self.check_possible(self.log_norm)
+        drawn = sample(list(self.factors), list(self.dims.values()), self.n_rows)
+        return {site: drawn[d] for site, d in self.dims.items() if d in drawn}
+
     def posterior(self, *, strict: bool = True) -> torch.Tensor:
-        """Normalised joint weight, same shape as ``log_weight``.
+        """Normalised joint weight, same shape as ``log_weight`` (which this builds: as
+        large as the product of the sites' sizes).
 
         A row whose evidence has probability 0 has no posterior: ``ValueError``, or with
         ``strict=False`` a weight of 0 everywhere in that row (for sums over the
@@ -97,7 +196,7 @@ class Enumerated:
         rows_first = w.movedim(-1, 0)
         if "log_norm" in self.__dict__ or w.dim() == 1 or not rows_first.is_contiguous():
             if strict:
-                self._check_possible(self.log_norm)
+                self.check_possible(self.log_norm)
             norm = self.log_norm
             return (w - torch.where(norm > -torch.inf, norm, 0.0)).exp()
         flat = rows_first.reshape(w.shape[-1], -1)
@@ -107,11 +206,11 @@ class Enumerated:
         total = post.sum(1, keepdim=True)
         self.__dict__["log_norm"] = (total.log() + top).squeeze(1)
         if strict:
-            self._check_possible(self.log_norm)
+            self.check_possible(self.log_norm)
         total = torch.where(total > 0, total, 1.0)  # an impossible row stays 0
         return post.div_(total).reshape(rows_first.shape).movedim(0, -1)
 
-    def _check_possible(self, log_norm: torch.Tensor) -> None:
+    def check_possible(self, log_norm: torch.Tensor) -> None:
         """Refuse a row whose evidence has probability 0 under every configuration: no
         posterior exists (in float64, a density also underflows to 0 where the value lies
         beyond about 1e154 of the component's standard deviations)."""
@@ -216,6 +315,8 @@ def enumerate_model(
     offsets: dict[str, torch.Tensor] = {}  # (n,) each: see Enumerated
     for name, lp in unbounded.items():
         offsets[name] = _row_max(lp).reshape(-1).expand(n)
+    if not dense_enough([*bounded, *unbounded.values()]):
+        return _contracted(bounded, unbounded, offsets, dims, trace, n)
     total = _centred_sum(bounded, unbounded, offsets, dims, n)
     top = _row_max(total)
     if unbounded and bool((top.abs() > _CENTRED).any()):
@@ -229,7 +330,22 @@ def enumerate_model(
     if bool((top.abs() > _CENTRED).any()):  # the factors' optima still disagree by far
         total = total - top
         offsets[""] = top.reshape(-1)
-    return Enumerated(total, dims, trace, offsets)
+    return Enumerated((total,), dims, trace, offsets)
+
+
+def _contracted(bounded, unbounded, offsets, dims, trace, n) -> Enumerated:
+    """The factors kept apart, each unbounded one less its offset. Where the row's most
+    probable configuration (by max-product contraction) lies far from 0, each unbounded
+    factor is centred at its value there instead, as the dense sum is."""
+    factors = bounded + [lp - offsets[name] for name, lp in unbounded.items()]
+    if unbounded:
+        top, best = max_config(factors, list(dims.values()), n)
+        if bool((top.abs() > _CENTRED).any()):
+            for name, lp in unbounded.items():
+                at_best = value_at(lp, best, n)
+                offsets[name] = torch.where(torch.isfinite(at_best), at_best, offsets[name])
+            factors = bounded + [lp - offsets[name] for name, lp in unbounded.items()]
+    return Enumerated(tuple(factors), dims, trace, offsets, n)
 
 
 def _centred_sum(
@@ -242,6 +358,11 @@ def _centred_sum(
     """The factors' sum, ``(E_k, ..., E_1, n)``, each unbounded one less its ``(n,)``
     offset."""
     factors = bounded + [lp - offsets[name] for name, lp in unbounded.items()]
+    return _full(_dense_sum(factors), dims, n)
+
+
+def _dense_sum(factors: list[torch.Tensor]) -> torch.Tensor:
+    """The log-factors' broadcast sum (a fresh tensor: the factors stay as they are)."""
     # the largest factors first: their sum is one plain pass in their own memory order
     # (rows outermost for gathered tables), and the small ones broadcast onto it once
     factors = sorted(factors, key=lambda lp: -lp.numel())
@@ -254,8 +375,18 @@ def _centred_sum(
         # a new tensor once (the trace's own log_prob stays as it is), then in place:
         # every fresh joint-sized tensor costs page faults
         total = total.add_(lp) if i > 0 and fits else total + lp
-    depth = max([-d for d in dims.values()], default=1)
-    total = total.expand(*total.shape[:-1], n) if total.shape[-1] != n else total
+    return total
+
+
+def _full(
+    total: torch.Tensor, dims: Mapping[str, int], n: int, depth: int | None = None
+) -> torch.Tensor:
+    """``total`` with its rows expanded to ``n`` (where ``n``) and dims of size 1 in
+    front up to the enumeration's depth."""
+    if depth is None:
+        depth = max([-d for d in dims.values()], default=1)
+    if n and (total.dim() == 0 or total.shape[-1] != n):
+        total = total.expand(*total.shape[:-1], n) if total.dim() else total.expand(n)
     while total.dim() < depth:
         total = total.unsqueeze(0)
     return total
@@ -290,7 +421,9 @@ def conditional_log_evidence(
         return ratio
     rows = far.nonzero().squeeze(-1)
     joint, part = evidence.rows(rows), given.rows(rows)
-    size = max(enumeration_size(net, joint), enumeration_size(net, part))
+    size = max(
+        enumeration_size(net, joint, contracted=True), enumeration_size(net, part, contracted=True)
+    )
     exact = [
         log_ratio(
             enumerate_model(net, params, joint.rows(s)), enumerate_model(net, params, part.rows(s))
@@ -329,12 +462,16 @@ def over_row_chunks(
     keep: Iterable[str],
     fn,
     trace_only: Iterable[str] = (),
+    *,
+    contracted: bool = False,
 ):
     """``fn(enumerated, chunk, rows)`` over row chunks of encoded ``evidence`` (``chunk``
     its rows ``rows``, a slice; ``enumerated`` the model summed on them with ``keep`` and
     ``trace_only`` as :func:`enumerate_model` takes them), the results concatenated along
-    the rows (a tuple element by element)."""
-    size = enumeration_size(net, evidence, keep)
+    the rows (a tuple element by element). ``contracted``: ``fn`` reads sums and
+    marginals only, never the joint (``log_weight``, ``posterior``), so chunks are sized
+    by the contraction's largest intermediate (:func:`enumeration_size`)."""
+    size = enumeration_size(net, evidence, keep, contracted=contracted)
     outs = []
     for rows in row_chunks(evidence.n_rows, size):
         chunk = evidence.rows(rows)
@@ -361,12 +498,27 @@ def row_chunks(n: int, enum_size: int, budget: int | None = None) -> list[slice]
     return [slice(i, min(n, i + step)) for i in range(0, n, step)] or [slice(0, 0)]
 
 
-def enumeration_size(net: EffectNetwork, evidence: Evidence, keep: Iterable[str] = ()) -> int:
-    """Upper bound on the product of enumerated site sizes for this evidence."""
+def enumeration_size(
+    net: EffectNetwork, evidence: Evidence, keep: Iterable[str] = (), *, contracted: bool = False
+) -> int:
+    """Upper bound on the configurations per row that one sum over the enumerated sites
+    builds for this evidence: the product of the sites' sizes (the joint), or with
+    ``contracted`` (the query sums by :meth:`Enumerated.log_sum` and marginals, never
+    reading the joint) the largest intermediate of the contraction, from the declared
+    parents (the joint's where parameters' clusters take part), or the kept sites'
+    joint where larger."""
     ends = net.end_sites_needed({*evidence, *keep})
-    latent = [
-        s.size
+    latent = {
+        s.name: s.size
         for s in net.sites
         if s.discrete and s.name not in evidence and (s.role != "end" or s.name in ends)
-    ]
-    return math.prod(latent)
+    }
+    if not contracted or net.mixtures:
+        return math.prod(latent.values())
+    scopes = tuple(
+        frozenset((q, latent[q]) for q in (s.name, *net.cpd(s.name).parents) if q in latent)
+        for s in net.sites
+        if s.role != "end" or s.name in ends
+    )
+    kept = math.prod(latent[s] for s in keep if s in latent)  # a joint over kept sites
+    return max(contract_size(scopes), kept)

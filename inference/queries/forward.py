@@ -26,6 +26,7 @@ from inference.queries.batching import (
     placeholder_row,
     prepare,
     unseen_indicator,
+    unseen_mass,
 )
 from inference.queries.enumeration import (
     Enumerated,
@@ -91,12 +92,15 @@ def predict(
         site = end_site(f)
         if net.site(site).discrete:
             discrete[f] = over_row_chunks(
-                net, params, enc, {site}, lambda e, *_, s=site: e.marginal(s)
+                net, params, enc, {site}, lambda e, *_, s=site: e.marginal(s), contracted=True
             )
         else:
             continuous[f] = _mixture(net, params, enc, site)
 
     def unseen(e, *_):
+        if e.contracted:
+            e.check_possible(e.log_norm)
+            return unseen_mass(net, params, e, unseen_sites)
         post = e.posterior()
         return (
             (post * unseen_indicator(net, params, e, unseen_sites))
@@ -107,9 +111,9 @@ def predict(
     states = {f: net.feature(f).states for f in discrete}
     # the unseen flag reads the targets' parents: latent end parents must be traced
     end_parents = {q for s in unseen_sites for q in net.cpd(s).parents if net.site(q).role == "end"}
-    unseen_mass = over_row_chunks(net, params, enc, end_parents, unseen).clamp(0, 1)
+    mass = over_row_chunks(net, params, enc, end_parents, unseen, contracted=True).clamp(0, 1)
     flag = plausibility(net, params, enc).implausible(below)
-    return Prediction(discrete, continuous, unseen_mass, states, flag)
+    return Prediction(discrete, continuous, mass, states, flag)
 
 
 def _mixture(net, params, enc, site) -> GaussianMixture:
@@ -179,8 +183,12 @@ def imitation_check(
             )
         )
     prior = enc.without(*observed)
-    log_joint = over_row_chunks(net, params, enc, set(), lambda e, *_: e.log_evidence)
-    log_prior = over_row_chunks(net, params, prior, set(), lambda e, *_: e.log_evidence)
+    log_joint = over_row_chunks(
+        net, params, enc, set(), lambda e, *_: e.log_evidence, contracted=True
+    )
+    log_prior = over_row_chunks(
+        net, params, prior, set(), lambda e, *_: e.log_evidence, contracted=True
+    )
     log_lik = conditional_log_evidence(net, params, enc, prior, log_joint, log_prior)
     if all(net.site(s).discrete for s in observed):
         surprise = _discrete_surprise(net, params, prior, observed, log_lik)
@@ -188,6 +196,8 @@ def imitation_check(
         surprise = continuous_surprise(net, params, enc, observed, n_points=n_samples, seed=seed)
 
     def unseen(e, *_):
+        if e.contracted:  # an impossible outcome rests on no configuration: 0
+            return unseen_mass(net, params, e, observed)
         post = e.posterior(strict=False)  # an impossible outcome rests on no configuration
         return (
             (post * unseen_indicator(net, params, e, observed)).reshape(-1, post.shape[-1]).sum(0)
@@ -195,20 +205,23 @@ def imitation_check(
 
     flag = plausibility(net, params, enc, log_evidence=log_joint, log_prior=log_prior)
     flag = flag.implausible(below)
-    unseen_mass = over_row_chunks(net, params, enc, set(), unseen).clamp(0, 1)
-    return ImitationCheck(log_lik, surprise, unseen_mass, flag)
+    mass = over_row_chunks(net, params, enc, set(), unseen, contracted=True).clamp(0, 1)
+    return ImitationCheck(log_lik, surprise, mass, flag)
 
 
 def _discrete_surprise(net, params, prior, observed, log_lik) -> torch.Tensor:
     """P(outcome strictly more likely than the observed one), by enumerating outcomes."""
 
     def fn(e: Enumerated, *_):
+        if e.contracted:  # the outcomes' joint, the latents summed out by contraction
+            joint = e.log_sum(observed) - e.log_norm
+            return joint.reshape(-1, joint.shape[-1]).T
         w = e.log_weight - e.log_norm  # joint over outcomes and latents, (E..., n)
         outcome_dims = [w.dim() + e.dims[s] for s in observed]
         latent_dims = [d for d in range(w.dim() - 1) if d not in outcome_dims]
         joint = w.logsumexp(latent_dims, keepdim=True) if latent_dims else w
         return joint.reshape(-1, w.shape[-1]).T  # (n, outcomes)
 
-    joint = over_row_chunks(net, params, prior, set(observed), fn)
+    joint = over_row_chunks(net, params, prior, set(observed), fn, contracted=True)
     more_likely = joint > log_lik[:, None] + 1e-9
     return (joint.exp() * more_likely).sum(-1).clamp(0, 1)

@@ -34,6 +34,7 @@ from inference.queries.batching import (
     placeholder_row,
     prepare,
     unseen_indicator,
+    unseen_mass,
 )
 from inference.queries.enumeration import (
     Enumerated,
@@ -146,17 +147,10 @@ def _over_latent_parents(net, params, m, enc, children, latent, mixture) -> Para
     p = m.parameter
     sites = [*latent, m.cluster.site]
 
-    def joint(e: Enumerated, *_):
-        w = e.log_weight
-        keep = [w.dim() + e.dims[s] for s in sites]
-        others = [d for d in range(w.dim() - 1) if d not in keep]
-        w = w.logsumexp(others, keepdim=True) if others else w
-        w = w.permute(w.dim() - 1, *keep, *others).reshape(w.shape[-1], -1)
-        return (w - w.logsumexp(-1, keepdim=True)).exp()
-
     sizes = [net.site(s).size for s in latent]
     n, c = enc.n_rows, p.n_clusters
-    weights = over_row_chunks(net, params, enc, set(), joint).reshape(n, -1, c)  # (n, S, C)
+    weights = over_row_chunks(net, params, enc, set(), lambda e, *_: e.joint(sites))
+    weights = weights.reshape(n, -1, c)  # (n, S, C)
     probs = weights.sum(1)
     best = probs.argmax(-1)
     every = torch.arange(c).expand(n, -1)
@@ -194,6 +188,9 @@ def _parameter_from_cluster(net, params, m, enc, observed, mixture) -> Parameter
     Gaussian."""
 
     def fn(e: Enumerated, *_):
+        if e.contracted:
+            e.check_possible(e.log_norm)
+            return e.marginal(m.cluster.site), unseen_mass(net, params, e, observed)
         post = e.posterior()
         unseen = (post * unseen_indicator(net, params, e, observed)).reshape(-1, post.shape[-1])
         return e.marginal(m.cluster.site), unseen.sum(0)

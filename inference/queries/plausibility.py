@@ -33,6 +33,7 @@ from dataclasses import dataclass, field
 
 import torch
 
+from inference.queries.elimination import maximum
 from inference.queries.enumeration import (
     conditional_log_evidence,
     over_row_chunks,
@@ -109,11 +110,15 @@ def plausibility(
     if discrete:
         if log_evidence is None or continuous:
             given = evidence.without(*continuous)
-            log_evidence = over_row_chunks(net, params, given, (), lambda e, *_: e.log_evidence)
+            log_evidence = over_row_chunks(
+                net, params, given, (), lambda e, *_: e.log_evidence, contracted=True
+            )
         prior = evidence.without(*ends)
         if log_prior is None:
             log_prior = (  # nothing observed: probability 1
-                over_row_chunks(net, params, prior, (), lambda e, *_: e.log_evidence)
+                over_row_chunks(
+                    net, params, prior, (), lambda e, *_: e.log_evidence, contracted=True
+                )
                 if len(prior)
                 else torch.zeros(evidence.n_rows, dtype=DTYPE)
             )
@@ -178,6 +183,11 @@ def _closest_distance(net, params, evidence, sites) -> tuple[torch.Tensor, torch
     dof = sum(observed_dims(evidence[s]).sum(-1) for s in sites).to(DTYPE)
 
     def fn(e, *_):
+        if e.contracted:  # the largest of -d2 over the possible configurations
+            d2 = [-mahalanobis(e.trace.nodes[s]["fn"], e.trace.nodes[s]["value"]) for s in sites]
+            possible = [torch.where(torch.isfinite(f), 0.0, -torch.inf) for f in e.factors]
+            top = maximum([*d2, *possible], list(e.dims.values()))
+            return -top.reshape(-1).expand(e.n_rows)
         d2 = torch.zeros((), dtype=DTYPE)
         for s in sites:
             node = e.trace.nodes[s]
@@ -186,4 +196,4 @@ def _closest_distance(net, params, evidence, sites) -> tuple[torch.Tensor, torch
         d2 = torch.where(torch.isfinite(w), d2.expand_as(w), torch.inf)
         return d2.reshape(-1, w.shape[-1]).min(0).values
 
-    return over_row_chunks(net, params, evidence, (), fn), dof
+    return over_row_chunks(net, params, evidence, (), fn, contracted=True), dof

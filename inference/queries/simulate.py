@@ -123,6 +123,8 @@ def _unobserved_draw(fn, y: torch.Tensor) -> torch.Tensor:
 
 def _posterior_draw(e) -> dict[str, torch.Tensor]:
     """One joint draw per row of the enumerated sites, from their exact posterior."""
+    if e.contracted:
+        return e.sample()
     post = e.posterior()  # (E..., n)
     n = post.shape[-1]
     flat = post.reshape(-1, n).T.clamp_min(0)  # (n, M)

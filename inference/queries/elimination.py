@@ -1,0 +1,161 @@
+"""Variable elimination over log-factors laid out as the enumerated model lays them out.
+
+Every factor is a tensor broadcastable to ``(E_k, ..., E_1, n)``: one dim per enumerated
+site (negative, left of the rows), of size 1 where the factor does not depend on the
+site. Summing the sites out one at a time, each time adding only the factors that depend
+on the site, is exact (the sum distributes over the factors that do not) and costs the
+size of the largest such sum instead of the joint's. The order is chosen greedily, the
+site whose sum is smallest first (min-size), and cached per structure.
+"""
+
+from __future__ import annotations
+
+import math
+from functools import lru_cache
+
+import torch
+
+#: Configurations per row up to which a joint is summed as one dense tensor: below it the
+#: one vectorised pass costs less than the contraction's steps.
+DENSE_CONFIGURATIONS = 1 << 12
+#: ... or up to this many times the contraction's largest intermediate (a structure that
+#: elimination cannot split, as the default one where every end site has every parent).
+DENSE_RATIO = 4
+
+
+def scope(factor: torch.Tensor) -> frozenset[tuple[int, int]]:
+    """The ``(dim, size)`` of each enumerated dim (left of the rows) the factor spans."""
+    shape = factor.shape
+    return frozenset((d - len(shape), k) for d, k in enumerate(shape[:-1]) if k > 1)
+
+
+def dense_enough(factors: list[torch.Tensor]) -> bool:
+    """Whether the factors' joint is small enough, or the contraction no cheaper, to sum
+    it as one dense tensor."""
+    scopes = tuple(scope(f) for f in factors)
+    sizes = dict(s for sc in scopes for s in sc)
+    joint = math.prod(sizes.values())
+    if joint <= DENSE_CONFIGURATIONS:
+        return True
+    return joint <= DENSE_RATIO * plan(scopes, frozenset(sizes))[1]
+
+
+@lru_cache(maxsize=256)
+def plan(
+    scopes: tuple[frozenset[tuple[int, int]], ...], eliminate: frozenset[int]
+) -> tuple[tuple[int, ...], int]:
+    """A greedy elimination order of the dims ``eliminate`` for factors of these scopes,
+    and the largest intermediate it builds (configurations per row)."""
+    live = [{d for d, _ in sc} for sc in scopes]
+    sizes = {d: k for sc in scopes for d, k in sc}
+    todo = set(eliminate) & set(sizes)
+    order, largest = [], 1
+
+    def cost(d: int, live: list[set[int]]) -> int:
+        union = set().union(*(s for s in live if d in s))
+        return math.prod(sizes[e] for e in union)
+
+    while todo:
+        d = min(sorted(todo), key=lambda d: cost(d, live))
+        largest = max(largest, cost(d, live))
+        union = set().union(*(s for s in live if d in s))
+        live = [s for s in live if d not in s] + [union - {d}]
+        todo.remove(d)
+        order.append(d)
+    return tuple(order), largest
+
+
+def contract_size(scopes: tuple[frozenset[tuple[int, int]], ...]) -> int:
+    """Configurations per row of the largest tensor that summing every dim builds: the
+    joint's where it is summed dense."""
+    sizes = dict(s for sc in scopes for s in sc)
+    joint = math.prod(sizes.values())
+    if joint <= DENSE_CONFIGURATIONS:
+        return joint
+    largest = plan(scopes, frozenset(sizes))[1]
+    return joint if joint <= DENSE_RATIO * largest else largest
+
+
+def _eliminate(factors, eliminate, reduce):
+    """Sum (``reduce``) the dims ``eliminate`` out of the factors, one at a time; returns
+    the remaining factors and, per step, the dim and the summed tensor."""
+    factors = list(factors)
+    scopes = tuple(scope(f) for f in factors)
+    order, _ = plan(scopes, frozenset(eliminate))
+    spans = [{d for d, _ in sc} for sc in scopes]
+    steps = []
+    for d in order:
+        involved = [f for f, s in zip(factors, spans, strict=True) if d in s]
+        union = set().union(*(s for s in spans if d in s))
+        rest = [(f, s) for f, s in zip(factors, spans, strict=True) if d not in s]
+        out = reduce(_sum(involved), d)
+        steps.append((d, out))
+        factors = [f for f, _ in rest] + [out[0] if isinstance(out, tuple) else out]
+        spans = [s for _, s in rest] + [union - {d}]
+    return factors, steps
+
+
+def _sum(factors: list[torch.Tensor]) -> torch.Tensor:
+    total = factors[0]
+    for f in factors[1:]:
+        total = total + f
+    return total
+
+
+def contract(factors: list[torch.Tensor], eliminate: list[int]) -> torch.Tensor:
+    """``log sum exp`` over the dims ``eliminate`` of the factors' sum, by elimination:
+    a tensor whose other dims keep their size and whose eliminated dims are 1."""
+    left, _ = _eliminate(factors, eliminate, lambda t, d: t.logsumexp(d, keepdim=True))
+    return _sum(left)
+
+
+def maximum(factors: list[torch.Tensor], eliminate: list[int]) -> torch.Tensor:
+    """The largest value over the dims ``eliminate`` of the factors' sum, by elimination
+    (max-product), laid out as :func:`contract`'s answer."""
+    left, _ = _eliminate(factors, eliminate, lambda t, d: t.amax(d, keepdim=True))
+    return _sum(left)
+
+
+def sample(factors: list[torch.Tensor], eliminate: list[int], n: int) -> dict[int, torch.Tensor]:
+    """One joint draw per row of the dims ``eliminate`` from the distribution
+    ``exp(sum of the factors)`` (normalised per row): the dims summed out in order, then
+    each drawn, last summed first, given those drawn before it (``{dim: (n,) index}``;
+    torch's global generator). Every row must have a possible configuration."""
+    left, steps = _eliminate(factors, eliminate, lambda t, d: (t.logsumexp(d, keepdim=True), t))
+    drawn: dict[int, torch.Tensor] = {}
+    for d, (_, total) in reversed(steps):
+        logits = torch.stack(
+            [value_at(total.narrow(d, j, 1), drawn, n) for j in range(total.shape[d])], -1
+        )
+        probs = (logits - logits.logsumexp(-1, keepdim=True)).exp()
+        drawn[d] = torch.multinomial(probs, 1).squeeze(-1)
+    return drawn
+
+
+def max_config(
+    factors: list[torch.Tensor], eliminate: list[int], n: int
+) -> tuple[torch.Tensor, dict[int, torch.Tensor]]:
+    """Per row, the largest value of the factors' sum over the dims ``eliminate`` (every
+    enumerated dim) and a configuration reaching it (max-product elimination, then the
+    argmaxes traced back): ``(top (n,), {dim: (n,) index})``."""
+
+    left, steps = _eliminate(factors, eliminate, lambda t, d: t.max(d, keepdim=True))
+    top = _sum(left).reshape(-1).expand(n)
+    best: dict[int, torch.Tensor] = {}
+    for d, (_, arg) in reversed(steps):
+        best[d] = value_at(arg, best, n)
+    return top, best
+
+
+def value_at(t: torch.Tensor, best: dict[int, torch.Tensor], n: int) -> torch.Tensor:
+    """``(n,)`` per row, ``t`` at the configuration ``best`` (a dim ``t`` spans with size
+    1, or one ``best`` lacks, is read at 0)."""
+    zeros = torch.zeros(n, dtype=torch.long)
+    index = []
+    for i, k in enumerate(t.shape):
+        d = i - t.dim()
+        if d == -1:
+            index.append(torch.arange(n) if k > 1 else zeros)
+        else:
+            index.append(best[d] if k > 1 else zeros)
+    return t[tuple(index)] if index else t.expand(n)
