@@ -447,6 +447,41 @@ def test_infer_action_is_the_oracle_where_the_largest_factors_tie():
     assert close_log(float(got.log_evidence[0]), oracle.log_evidence(ev))
 
 
+@settings(CASE_SETTINGS, max_examples=30)
+@given(
+    seed=st.integers(0, 2**16),
+    start=values(EVIDENCE_MAGNITUDE),
+    moved=st.floats(-2.0, 2.0, allow_nan=False),
+)
+@precise
+def test_infer_action_is_the_oracle_where_the_end_is_the_start_moved(seed, start, moved):
+    """A position that each action moves by its own few units (weight 1 on the start):
+    the end's mean ``start + b_a`` near the observed end at any magnitude of the start,
+    where the actions differ only in the mean's last digits and their noise. The
+    oracle: ``p(action) N(end; start + b, s^2)`` per action, normalised, in exact
+    arithmetic."""
+    net = EffectNetwork((Discrete("f0", (0, 1)), Continuous("pos", 1)), ("a0", "a1", "a2"), ())
+    params = random_params(net, seed)
+    cpds = dict(params.cpds)
+    cpds["end.pos"] = replace(cpds["end.pos"], weight=torch.ones_like(cpds["end.pos"].weight))
+    params = NetworkParams(cpds, params.pseudo_count)
+    end = start + moved  # float64, as given
+    lg = params["end.pos"]
+    logs = []
+    for a in range(3):
+        var = mpf(float(lg.covariance[0, a, 0, 0]))
+        mean = mpf(start) + mpf(float(lg.bias[0, a, 0]))
+        log_prior = mp.log(mpf(float(params["action"].probs[a])))
+        logs.append(log_prior - (mpf(end) - mean) ** 2 / (2 * var) - mp.log(var) / 2)
+    total = log_sum_exp(logs)
+    want = np.array([float(mp.exp(x - total)) for x in logs])
+    got = infer_action(
+        net, params, encode(net, {"initial.f0": 0, "initial.pos": start, "end.pos": end})
+    )
+    sums_to_one(got.probs)
+    assert np.abs(got.probs[0].numpy() - want).max() <= 1e-12, (got.probs, want)
+
+
 @CASE_SETTINGS
 @given(cases(), st.data())
 @precise
