@@ -132,6 +132,13 @@ class LinearGaussianCPD(CPD):
     def distribution(
         self, params: LinearGaussianParams, index, x, cache
     ) -> dist.MultivariateNormal:
+        return self.gaussian(params, index, x)
+
+    def gaussian(
+        self, params: LinearGaussianParams, index, x: torch.Tensor | None
+    ) -> dist.MultivariateNormal:
+        """The site's Gaussian given the parents, its mean kept as a pair
+        (:class:`PairMeanNormal`) where the plain sum may round off against the noise."""
         index = _rows_collapsed(index) if index else index
         loc, tril = self._bias_tril(params, index)
         if x is None:
@@ -295,6 +302,16 @@ class PairMeanNormal(dist.MultivariateNormal):
         half_log_det = self._unbroadcasted_scale_tril.diagonal(dim1=-2, dim2=-1).log().sum(-1)
         k = self._event_shape[0]
         return -0.5 * (k * math.log(2 * math.pi) + mahalanobis(self, value)) - half_log_det
+
+
+def gaussian_of(
+    loc: torch.Tensor, scale_tril: torch.Tensor, loc_low: torch.Tensor | None = None
+) -> dist.MultivariateNormal:
+    """``N(loc, scale_tril scale_tril^T)``, a :class:`PairMeanNormal` where the mean's
+    rest ``loc_low`` is given."""
+    if loc_low is None:
+        return dist.MultivariateNormal(loc, scale_tril=scale_tril)
+    return PairMeanNormal(loc, scale_tril, loc_low)
 
 
 def floor_variance(cov: torch.Tensor, min_variance: float) -> torch.Tensor:

@@ -30,7 +30,7 @@ Gaussian) and every rule that ties them together:
   ``y = W_x x + W_p theta + b + e``, ``y ~ N(W_x x + W_p m_c + b, R + W_p S_c W_p^T)``
   (:meth:`marginal`), and ``theta`` given ``y`` is the linear-Gaussian posterior
   (:meth:`condition`); :meth:`query_tables` precomputes both for the compiled query.
-  Several parameters on one feature add their terms (:func:`affected_loc_tril`); a
+  Several parameters on one feature add their terms (:func:`affected_gaussian`); a
   value acting on several continuous features is conditioned on each observed one in
   turn (:meth:`update`, :meth:`posterior`).
 """
@@ -41,11 +41,12 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
+import pyro.distributions as dist
 import torch
 from pyro.ops.indexing import Vindex
 
 from models.cpds.base import concat_inputs
-from models.cpds.linear_gaussian import LinearGaussianCPD, LinearGaussianParams
+from models.cpds.linear_gaussian import LinearGaussianCPD, LinearGaussianParams, gaussian_of
 from models.cpds.table import TableCPD
 from models.dtype import DTYPE
 from models.features import Parameter
@@ -160,26 +161,46 @@ class ParameterMixture:
         action: torch.Tensor,
         known: torch.Tensor,
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """The affected feature's mean and Cholesky factor: given the parameter where it is
-        ``known`` (bool rows), integrated out where not. ``inputs``: the child's
-        continuous parents' values, the parameter last."""
+        """The affected feature's mean and Cholesky factor (:meth:`child_gaussian`'s)."""
+        fn = self.child_gaussian(params, child, index, inputs, action, known)
+        return fn.loc, fn.scale_tril
+
+    def child_gaussian(
+        self,
+        params: Mapping,
+        child: LinearGaussianCPD,
+        index: list[torch.Tensor],
+        inputs: list[torch.Tensor],
+        action: torch.Tensor,
+        known: torch.Tensor,
+    ) -> dist.MultivariateNormal:
+        """The affected feature's Gaussian: given the parameter where it is ``known``
+        (bool rows), integrated out where not. ``inputs``: the child's continuous
+        parents' values, the parameter last. Its mean is a pair where the plain sum may
+        round off (:meth:`LinearGaussianCPD.gaussian`)."""
         everywhere = bool(known.all())
         nowhere = not bool(known.any())
         inputs = list(inputs)
         if not nowhere:  # the parameter known in some rows: condition on it there
             uses = self.in_use(action)
             inputs[-1] = torch.where(uses[..., None], inputs[-1].nan_to_num(), 0.0)
-            loc, tril = child.loc_tril(params[child.site], index, concat_inputs(inputs))
+            fn = child.gaussian(params[child.site], index, concat_inputs(inputs))
         if not everywhere:
-            m_loc, m_tril = child.loc_tril(
-                self.marginal(params, child), index, concat_inputs(inputs[:-1])
-            )
+            m_fn = child.gaussian(self.marginal(params, child), index, concat_inputs(inputs[:-1]))
             if nowhere:
-                loc, tril = m_loc, m_tril
-            else:
-                loc = torch.where(known[..., None], loc, m_loc)
-                tril = torch.where(known[..., None, None], tril, m_tril)
-        return loc, tril
+                return m_fn
+            lows = [getattr(f, "loc_low", None) for f in (fn, m_fn)]
+            low = None
+            if any(x is not None for x in lows):
+                low = torch.where(
+                    known[..., None], *(torch.zeros(()) if x is None else x for x in lows)
+                )
+            return gaussian_of(
+                torch.where(known[..., None], fn.loc, m_fn.loc),
+                torch.where(known[..., None, None], fn.scale_tril, m_fn.scale_tril),
+                low,
+            )
+        return fn
 
     def condition(
         self,
@@ -275,17 +296,26 @@ class ParameterMixture:
     def shared_loc_tril(
         self, params, child, index, inputs, action, known, belief
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Like :meth:`child_loc_tril` for a value acting on several continuous sites:
+        """The mean and Cholesky factor of :meth:`shared_gaussian`."""
+        fn = self.shared_gaussian(params, child, index, inputs, action, known, belief)
+        return fn.loc, fn.scale_tril
+
+    def shared_gaussian(
+        self, params, child, index, inputs, action, known, belief
+    ) -> dist.MultivariateNormal:
+        """Like :meth:`child_gaussian` for a value acting on several continuous sites:
         where unknown, integrated out under ``belief`` (the value's Gaussian given the
         cluster and the affected sites observed so far; ``None``: the cluster's own)."""
         if belief is None:
-            return self.child_loc_tril(params, child, index, inputs, action, known)
-        offset, tril, w_p = self._split(params, child, index, inputs, action)
+            return self.child_gaussian(params, child, index, inputs, action, known)
+        _, tril, w_p = self._split(params, child, index, inputs, action)
         theta = inputs[-1].nan_to_num()
         mean = torch.where(known[..., None], theta, belief[0])
-        loc = offset + (w_p @ mean.unsqueeze(-1)).squeeze(-1)
+        used = torch.where(self.in_use(action)[..., None], mean, 0.0)
+        fn = child.gaussian(params[child.site], index, concat_inputs([*inputs[:-1], used]))
         spread = (~known).to(w_p.dtype)[..., None, None] * (w_p @ belief[1] @ w_p.mT)
-        return loc, torch.linalg.cholesky(tril @ tril.mT + spread)
+        cov = tril @ tril.mT + spread
+        return gaussian_of(fn.loc, torch.linalg.cholesky(cov), getattr(fn, "loc_low", None))
 
     def update(
         self, params, child, index, inputs, action, y, belief
@@ -436,7 +466,7 @@ class ParameterMixture:
         return LinearGaussianParams(value.weight, mean, tril, value.n)
 
 
-def affected_loc_tril(
+def affected_gaussian(
     acting: tuple[ParameterMixture, ...],
     params: Mapping,
     child: LinearGaussianCPD,
@@ -444,26 +474,25 @@ def affected_loc_tril(
     inputs: list[torch.Tensor],
     action: torch.Tensor,
     known: Mapping[str, torch.Tensor],
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """A continuous feature's mean and Cholesky factor given the parameters ``acting`` on
-    it (their values its last inputs, their clusters its last parents, in this order):
-    each value counts where it is ``known`` (rows, by parameter name) and is integrated
-    out where not: ``y ~ N(b + W_x x + sum_j W_j mu_j, R + sum_j W_j S_j W_j^T)`` over
-    the unknown ``j`` (independent given their clusters)."""
+) -> dist.MultivariateNormal:
+    """A continuous feature's Gaussian given the parameters ``acting`` on it (their
+    values its last inputs, their clusters its last parents, in this order): each value
+    counts where it is ``known`` (rows, by parameter name) and is integrated out where
+    not: ``y ~ N(b + W_x x + sum_j W_j mu_j, R + sum_j W_j S_j W_j^T)`` over the unknown
+    ``j`` (independent given their clusters). Its mean is a pair where the plain sum may
+    round off (:meth:`LinearGaussianCPD.gaussian`)."""
     if len(acting) == 1:
         m = acting[0]
-        return m.child_loc_tril(params, child, index, inputs, action, known[m.parameter.name])
+        return m.child_gaussian(params, child, index, inputs, action, known[m.parameter.name])
     cpd = params[child.site]
-    loc, tril = child.loc_tril(cpd, index, None)
     weight = Vindex(cpd.weight)[(*index, slice(None), slice(None))]
+    _, tril = child.loc_tril(cpd, index, None)
     cov = tril @ tril.mT
     q_other = weight.shape[-1] - sum(m.parameter.dim for m in acting)
-    x = concat_inputs(inputs[: len(inputs) - len(acting)])
-    if x is not None:
-        loc = loc + (weight[..., :q_other] @ x.unsqueeze(-1)).squeeze(-1)
     start = q_other
     clusters = index[len(index) - len(acting) :]
     thetas = inputs[len(inputs) - len(acting) :]
+    values = []  # each value where known, its cluster's mean where not, 0 where unused
     for m, c, theta in zip(acting, clusters, thetas, strict=True):
         k = m.parameter.dim
         w = weight[..., start : start + k]
@@ -471,10 +500,11 @@ def affected_loc_tril(
         given, uses = known[m.parameter.name], m.in_use(action)
         prior = params[m.value.site]
         value = torch.where(given[..., None], theta.nan_to_num(), Vindex(prior.bias)[c, :])
-        value = torch.where(uses[..., None], value, 0.0)
-        loc = loc + (w @ value.unsqueeze(-1)).squeeze(-1)
+        values.append(torch.where(uses[..., None], value, 0.0))
         hidden = uses & ~given
         if bool(hidden.any()):
             spread = w @ Vindex(prior.covariance)[c, :, :] @ w.mT
             cov = cov + hidden[..., None, None] * spread
-    return loc, torch.linalg.cholesky(cov)
+    x = concat_inputs(list(inputs[: len(inputs) - len(acting)]) + values)
+    fn = child.gaussian(cpd, index, x)
+    return gaussian_of(fn.loc, torch.linalg.cholesky(cov), getattr(fn, "loc_low", None))

@@ -482,6 +482,31 @@ def test_infer_action_is_the_oracle_where_the_end_is_the_start_moved(seed, start
     assert np.abs(got.probs[0].numpy() - want).max() <= 1e-12, (got.probs, want)
 
 
+@settings(CASE_SETTINGS, max_examples=30)
+@given(cases(inverse=True), st.data())
+@precise
+def test_infer_action_is_the_oracle_where_the_force_moves_the_start(case, data):
+    """The parameter moves the position from its start (weight 1 on the start): the
+    end's mean ``start + W force + b`` near the observed end at any magnitude of the
+    start, the force given or integrated out."""
+    net, params, ev = case
+    cpds = dict(params.cpds)
+    lg = cpds["end.pos"]
+    start_column = net.cpd("end.pos").inputs.index("initial.pos")
+    weight = lg.weight.clone()
+    weight[..., start_column] = 1.0
+    cpds["end.pos"] = replace(lg, weight=weight)
+    params = NetworkParams(cpds, params.pseudo_count)
+    moved = data.draw(st.floats(-3.0, 3.0, allow_nan=False), label="moved")
+    ev["end.pos"] = ev["initial.pos"] + moved
+    if data.draw(st.booleans(), label="force given"):
+        ev["param.force"] = data.draw(st.floats(0.0, 3.0, allow_nan=False), label="force")
+    got = infer_action(net, params, encode(net, ev))
+    sums_to_one(got.probs)
+    want = Oracle(net, params).posterior(ev, "action")
+    assert np.abs(got.probs[0].numpy() - want).max() <= 1e-12, (got.probs, want)
+
+
 @CASE_SETTINGS
 @given(cases(), st.data())
 @precise
