@@ -67,6 +67,27 @@ def affine_pair(
     return torch.where(exact, s, hi), torch.where(exact, e, 0.0)
 
 
+#: The plain mean's rounding, relative to the smallest noise scale, above which a mean
+#: ``W x + b`` is kept as a pair: below it a residual's error moves a log-density by
+#: less than ``|z| 2^-40`` (``z`` the standardised residual).
+MEAN_ROUNDING = 2.0**-40
+
+
+def sum_rounds_off(
+    largest_weight: float, largest_bias: float, x: torch.Tensor, noise_scale: float
+) -> bool:
+    """Whether ``W x + b`` summed in float64 may be off by more than ``MEAN_ROUNDING``
+    times ``noise_scale`` (the smallest noise scale it is compared with): its rounding
+    bound ``(p + 1) 2^-52 (p max|W| max|x| + max|b|)`` from the largest entries (``x``
+    ``(..., p)``; cheap: never the joint's shape). NaN inputs count as rounding off (the
+    pair keeps them NaN)."""
+    p = x.shape[-1]
+    if not p or not x.numel():
+        return False
+    bound = (p + 1) * 2.0**-52 * (p * largest_weight * float(x.abs().max()) + largest_bias)
+    return not bound <= MEAN_ROUNDING * noise_scale
+
+
 def linear_gaussian_marginal(
     mean: torch.Tensor,
     cov: torch.Tensor,
@@ -150,15 +171,21 @@ def condition_on_observed(
     return torch.where(seen, y.nan_to_num(), mean), torch.where(both, 0.0, post)
 
 
+def residual_of(fn, value: torch.Tensor) -> torch.Tensor:
+    """``value - mean`` of the Gaussian ``fn``, batch-shaped; a mean held as a pair
+    (``fn.loc_low``, :func:`affine_pair`) subtracted in its order, ``(value - loc) -
+    loc_low``."""
+    diff = value - fn.loc
+    low = getattr(fn, "loc_low", None)
+    return diff if low is None else diff - low
+
+
 def mahalanobis(fn, value: torch.Tensor) -> torch.Tensor:
     """Squared Mahalanobis distance of ``value`` under the Gaussian ``fn`` (a distribution
     with ``loc`` and ``scale_tril``), batch-shaped; a value with NaN dimensions (partial
     evidence) is measured in its observed dimensions' marginal. A mean held as a pair
     (``fn.loc_low``, :func:`affine_pair`) gives the residual ``(value - loc) - loc_low``."""
-    diff = value - fn.loc
-    low = getattr(fn, "loc_low", None)  # a mean held as a pair (affine_pair)
-    if low is not None:
-        diff = diff - low
+    diff = residual_of(fn, value)
     tril = fn.scale_tril
     if bool(torch.isnan(value).any()):  # the observed dimensions' marginal
         value, loc, cov, _ = mask_unobserved(value, fn.loc, tril @ tril.mT)

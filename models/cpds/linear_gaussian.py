@@ -24,7 +24,7 @@ from pyro.ops.indexing import Vindex
 from models.cpds.base import CPD
 from models.deprecation import renamed
 from models.dtype import DTYPE
-from models.gaussian import affine_pair, mahalanobis
+from models.gaussian import affine_pair, mahalanobis, sum_rounds_off
 
 #: The name of :class:`LinearGaussianParams` before the rename, for one release.
 __getattr__ = renamed(__name__, {"LinearGaussian": "LinearGaussianParams"})
@@ -254,23 +254,11 @@ class LinearGaussianCPD(CPD):
         )
 
 
-#: The plain mean's rounding, relative to the smallest noise scale, above which the mean
-#: is kept as a pair: below it a residual's error moves a log-density by less than
-#: ``|z| 2^-40`` (``z`` the standardised residual).
-MEAN_ROUNDING = 2.0**-40
-
-
 def _mean_rounds_off(params: LinearGaussianParams, x: torch.Tensor) -> bool:
-    """Whether ``W x + b`` summed in float64 may be off by more than ``MEAN_ROUNDING``
-    times the smallest noise scale of any configuration: its rounding bound
-    ``(p + 1) 2^-52 (p max|W| max|x| + max|b|)`` from the largest entries (cheap: the
-    parameters and the rows' inputs, never the joint's shape)."""
-    p = x.shape[-1]
-    if not p or not x.numel():
-        return False
+    """Whether ``W x + b`` may round off against the smallest noise scale of any
+    configuration (:func:`models.gaussian.sum_rounds_off`)."""
     weight, bias, smallest = params.extremes
-    bound = (p + 1) * 2.0**-52 * (p * weight * float(x.abs().max()) + bias)
-    return not bound <= MEAN_ROUNDING * smallest  # NaN inputs: the pair keeps them NaN
+    return sum_rounds_off(weight, bias, x, smallest)
 
 
 class PairMeanNormal(dist.MultivariateNormal):

@@ -50,7 +50,7 @@ from models.cpds.linear_gaussian import LinearGaussianCPD, LinearGaussianParams,
 from models.cpds.table import TableCPD
 from models.dtype import DTYPE
 from models.features import Parameter
-from models.gaussian import condition_linear_gaussian, mask_unobserved
+from models.gaussian import condition_linear_gaussian, mask_unobserved, residual_of
 
 
 @dataclass(frozen=True)
@@ -152,19 +152,6 @@ class ParameterMixture:
         cov = cpd.covariance + w_p @ prior.covariance @ w_p.mT
         return LinearGaussianParams(w_x, offset, torch.linalg.cholesky(cov), cpd.n)
 
-    def child_loc_tril(
-        self,
-        params: Mapping,
-        child: LinearGaussianCPD,
-        index: list[torch.Tensor],
-        inputs: list[torch.Tensor],
-        action: torch.Tensor,
-        known: torch.Tensor,
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """The affected feature's mean and Cholesky factor (:meth:`child_gaussian`'s)."""
-        fn = self.child_gaussian(params, child, index, inputs, action, known)
-        return fn.loc, fn.scale_tril
-
     def child_gaussian(
         self,
         params: Mapping,
@@ -221,7 +208,7 @@ class ParameterMixture:
         w_p, offset, noise, y = self.linear_terms(params, child, values, cluster, acting)
         if prior is None:
             prior = self.belief(params, cluster)
-        return condition_linear_gaussian(*prior, w_p, offset, noise, y)
+        return _conditioned(prior, w_p, offset, noise, y)
 
     def linear_terms(
         self,
@@ -230,12 +217,14 @@ class ParameterMixture:
         values: Mapping[str, torch.Tensor],
         cluster: torch.Tensor,
         acting: tuple[ParameterMixture, ...] = (),
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """The child as a linear function of the value, per row and cluster (arguments as
         for :meth:`condition`): ``y = offset + W_p theta + e``, ``e ~ N(0, noise)``, with
         the other inputs' and the other parameters' terms in ``offset`` and ``noise``.
         Returns ``(W_p, offset, noise, y)``, ``y`` the child's observed value broadcast
-        like the others."""
+        like the others and ``offset`` a Gaussian whose mean is the offset, a pair where
+        the plain sum may round off (:meth:`LinearGaussianCPD.gaussian`; its residual
+        :func:`models.gaussian.residual_of`)."""
         extra = cluster.dim() - 1  # trailing dims the row-wise values must broadcast over
 
         def rows(t: torch.Tensor) -> torch.Tensor:
@@ -248,13 +237,16 @@ class ParameterMixture:
         q_other = weight.shape[-1] - sum(m.parameter.dim for m in others)
         start = q_other
         noise = cpd.covariance[index]
-        offset = cpd.bias[index]
+        inputs = [values[s] for s in child.inputs[: len(child.inputs) - len(others)]]
+        # the offset's inputs in the weight's column order, this value's columns 0
+        columns = [rows(torch.cat(inputs, -1))] if inputs else []
         for m in others:
             k = m.parameter.dim
             w = weight[..., start : start + k]
             start += k
             if m is self:
                 w_p = w
+                columns.append(torch.zeros(k, dtype=weight.dtype))
                 continue
             theta = values.get(m.value.site)
             c = rows(values[m.cluster.site])
@@ -264,14 +256,11 @@ class ParameterMixture:
                 value = torch.where(given[..., None], rows(theta.nan_to_num()), value)
                 hidden = ~given
             uses = rows(m.in_use(values[m.action]))
-            offset = offset + (w @ torch.where(uses[..., None], value, 0.0)[..., None]).squeeze(-1)
+            columns.append(torch.where(uses[..., None], value, 0.0))
             spread = w @ params[m.value.site].covariance[c] @ w.mT
             hidden = uses if hidden is None else uses & hidden
             noise = noise + hidden[..., None, None] * spread
-        w_x = weight[..., :q_other]
-        inputs = [values[s] for s in child.inputs[: len(child.inputs) - len(others)]]
-        if inputs:
-            offset = offset + (w_x @ rows(torch.cat(inputs, -1))[..., None]).squeeze(-1)
+        offset = child.gaussian(cpd, list(index), concat_inputs(columns))
         return w_p, offset, noise, rows(values[child.site])
 
     def belief(self, params: Mapping, cluster: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -280,25 +269,16 @@ class ParameterMixture:
         return Vindex(prior.bias)[cluster, :], Vindex(prior.covariance)[cluster, :, :]
 
     def _split(self, params, child, index, inputs, action):
-        """The child's offset ``b + W_x x`` and its weights on the value (zero for
-        actions not using it), gathered at the parents."""
+        """The child's Gaussian without the value (its mean the offset ``b + W_x x``, a
+        pair where it may round off) and its weights on the value (zero for actions not
+        using it), gathered at the parents."""
         cpd = params[child.site]
         k = self.parameter.dim
-        offset, tril = child.loc_tril(cpd, index, None)
+        zero = torch.zeros(k, dtype=cpd.weight.dtype)
+        offset = child.gaussian(cpd, index, concat_inputs([*inputs[:-1], zero]))
         weight = Vindex(cpd.weight)[(*index, slice(None), slice(None))]
-        q = weight.shape[-1]
-        x = concat_inputs(inputs[:-1])
-        if x is not None:
-            offset = offset + (weight[..., : q - k] @ x.unsqueeze(-1)).squeeze(-1)
         uses = self.in_use(action).to(weight.dtype)[..., None, None]
-        return offset, tril, weight[..., q - k :] * uses
-
-    def shared_loc_tril(
-        self, params, child, index, inputs, action, known, belief
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """The mean and Cholesky factor of :meth:`shared_gaussian`."""
-        fn = self.shared_gaussian(params, child, index, inputs, action, known, belief)
-        return fn.loc, fn.scale_tril
+        return offset, weight[..., weight.shape[-1] - k :] * uses
 
     def shared_gaussian(
         self, params, child, index, inputs, action, known, belief
@@ -308,7 +288,8 @@ class ParameterMixture:
         cluster and the affected sites observed so far; ``None``: the cluster's own)."""
         if belief is None:
             return self.child_gaussian(params, child, index, inputs, action, known)
-        _, tril, w_p = self._split(params, child, index, inputs, action)
+        offset, w_p = self._split(params, child, index, inputs, action)
+        tril = offset.scale_tril
         theta = inputs[-1].nan_to_num()
         mean = torch.where(known[..., None], theta, belief[0])
         used = torch.where(self.in_use(action)[..., None], mean, 0.0)
@@ -324,8 +305,8 @@ class ParameterMixture:
         discrete parent) conditioned on the child's observed value ``y``."""
         if belief is None:
             belief = self.belief(params, index[-1])
-        offset, tril, w_p = self._split(params, child, index, inputs, action)
-        return condition_linear_gaussian(*belief, w_p, offset, tril @ tril.mT, y)
+        offset, w_p = self._split(params, child, index, inputs, action)
+        return _conditioned(belief, w_p, offset, offset.covariance_matrix, y)
 
     def posterior(
         self,
@@ -361,12 +342,15 @@ class ParameterMixture:
         slopes, targets, log_norm = [], [], 0.0
         for child in children:
             w_p, offset, noise, y = self.linear_terms(params, child, values, cluster, acting)
-            if bool(torch.isnan(y).any()):  # partial evidence: its observed dims only
-                y, offset, noise, seen = mask_unobserved(y, offset, noise)
+            residual = residual_of(offset, y)
+            if bool(torch.isnan(residual).any()):  # partial evidence: its observed dims only
+                residual, _, noise, seen = mask_unobserved(
+                    residual, torch.zeros_like(residual), noise
+                )
                 w_p = torch.where(seen[..., None], w_p, 0.0)
             tril = torch.linalg.cholesky(noise)
             slopes.append(torch.linalg.solve_triangular(tril, w_p, upper=False))
-            r = torch.linalg.solve_triangular(tril, (y - offset)[..., None], upper=False)
+            r = torch.linalg.solve_triangular(tril, residual[..., None], upper=False)
             targets.append(r[..., 0])
             d = tril.shape[-1]
             log_det = tril.diagonal(dim1=-2, dim2=-1).log().sum(-1)
@@ -464,6 +448,16 @@ class ParameterMixture:
         mean = p.cluster_centres() + offset * width
         tril = torch.diag_embed((width / 8).expand(p.n_clusters, p.dim))
         return LinearGaussianParams(value.weight, mean, tril, value.n)
+
+
+def _conditioned(belief, w_p, offset: dist.MultivariateNormal, noise, y):
+    """:func:`models.gaussian.condition_linear_gaussian` of ``belief`` on ``y = offset +
+    W_p theta + e`` with the offset ``offset``'s mean: where that is a pair, on the exact
+    residual ``y - offset`` (and a zero offset)."""
+    if getattr(offset, "loc_low", None) is None:
+        return condition_linear_gaussian(*belief, w_p, offset.loc, noise, y)
+    residual = residual_of(offset, y)
+    return condition_linear_gaussian(*belief, w_p, torch.zeros_like(residual), noise, residual)
 
 
 def affected_gaussian(

@@ -482,6 +482,22 @@ def test_infer_action_is_the_oracle_where_the_end_is_the_start_moved(seed, start
     assert np.abs(got.probs[0].numpy() - want).max() <= 1e-12, (got.probs, want)
 
 
+def start_moved(net: EffectNetwork, params: NetworkParams, ev: dict, moved: float):
+    """The case with the end position its start moved (``end.pos``'s weight on
+    ``initial.pos`` 1) and observed ``moved`` from the start: the end's mean near the
+    observed end at any magnitude of the start."""
+    cpds = dict(params.cpds)
+    lg = cpds["end.pos"]
+    weight = lg.weight.clone()
+    weight[..., net.cpd("end.pos").inputs.index("initial.pos")] = 1.0
+    cpds["end.pos"] = replace(lg, weight=weight)
+    return (
+        net,
+        NetworkParams(cpds, params.pseudo_count),
+        ev | {"end.pos": ev["initial.pos"] + moved},
+    )
+
+
 @settings(CASE_SETTINGS, max_examples=30)
 @given(cases(inverse=True), st.data())
 @precise
@@ -489,16 +505,7 @@ def test_infer_action_is_the_oracle_where_the_force_moves_the_start(case, data):
     """The parameter moves the position from its start (weight 1 on the start): the
     end's mean ``start + W force + b`` near the observed end at any magnitude of the
     start, the force given or integrated out."""
-    net, params, ev = case
-    cpds = dict(params.cpds)
-    lg = cpds["end.pos"]
-    start_column = net.cpd("end.pos").inputs.index("initial.pos")
-    weight = lg.weight.clone()
-    weight[..., start_column] = 1.0
-    cpds["end.pos"] = replace(lg, weight=weight)
-    params = NetworkParams(cpds, params.pseudo_count)
-    moved = data.draw(st.floats(-3.0, 3.0, allow_nan=False), label="moved")
-    ev["end.pos"] = ev["initial.pos"] + moved
+    net, params, ev = start_moved(*case, data.draw(st.floats(-3.0, 3.0), label="moved"))
     if data.draw(st.booleans(), label="force given"):
         ev["param.force"] = data.draw(st.floats(0.0, 3.0, allow_nan=False), label="force")
     got = infer_action(net, params, encode(net, ev))
@@ -668,6 +675,15 @@ def test_infer_parameter_is_the_oracle(case):
     """On a third of the cases the other oracle tests draw, to keep the default suite
     fast; the slow test below draws the full number."""
     check_infer_parameter_against_the_oracle(case)
+
+
+@settings(CASE_SETTINGS, max_examples=20)
+@given(inverse_cases(), st.floats(-3.0, 3.0))
+@precise
+def test_infer_parameter_is_the_oracle_where_the_force_moves_the_start(case, moved):
+    """Traced and compiled, the cluster posterior and the value's moments where the end
+    is the start moved (:func:`start_moved`), at any magnitude of the start."""
+    check_infer_parameter_against_the_oracle(start_moved(*case, moved))
 
 
 @pytest.mark.slow
