@@ -71,7 +71,8 @@ class CompiledParameterQuery:
     seen: torch.Tensor  # (P...) bool
     # for the initial states' plausibility (inference.queries.plausibility.initial_tails)
     params: NetworkParams | None = field(default=None, repr=False, compare=False)
-    # The one-row tables (:meth:`_one_row`), built on the first single query.
+    # Built on first use: the one-row tables (:meth:`_one_row`), the largest entries
+    # :meth:`_rounds_off` reads.
     _one: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def serves(self, sites: set[str]) -> bool:
@@ -337,10 +338,11 @@ class CompiledParameterQuery:
         """Whether the mean ``offset + w_x x`` may round off against the marginal's
         smallest noise scale (:func:`models.gaussian.sum_rounds_off`; that scale at least
         ``1 / |whiten|``, the largest Frobenius norm of the inverse factors)."""
-        largest_inverse = float(self.whiten.square().sum((-2, -1)).max().sqrt())
-        return sum_rounds_off(
-            float(self.w_x.abs().max()), float(self.offset.abs().max()), x, 1 / largest_inverse
-        )
+        if "extremes" not in self._one:  # the tables' part, once
+            largest_inverse = self.whiten.square().sum((-2, -1)).max().sqrt()
+            parts = [self.w_x.abs().max(), self.offset.abs().max(), 1 / largest_inverse]
+            self._one["extremes"] = torch.stack(parts).tolist()
+        return sum_rounds_off(*self._one["extremes"][:2], x, self._one["extremes"][2])
 
     def _infer_partial(self, enc, y, index, loc, low, mixture, below) -> ParameterPosterior:
         """The query for ``y`` observed in some dimensions (NaN in the others): each

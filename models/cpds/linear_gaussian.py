@@ -9,6 +9,10 @@ pseudo-rows of the pooled statistics of its site, so an unseen one is the pooled
 and a rarely seen one is shrunk towards it; a covariance's eigenvalues are floored at
 ``min_variance``, so a configuration with fewer rows than dimensions stays positive
 definite and one with more keeps its estimate.
+
+A mean ``W x + b`` whose plain float64 sum may round off against the noise (inputs far
+from the origin) is kept as a pair of float64 numbers (:class:`PairMeanNormal`,
+:func:`models.gaussian.affine_pair`): a value near it keeps its residual's digits.
 """
 
 from __future__ import annotations

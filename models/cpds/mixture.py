@@ -180,7 +180,8 @@ class ParameterMixture:
             low = None
             if any(x is not None for x in lows):
                 low = torch.where(
-                    known[..., None], *(torch.zeros(()) if x is None else x for x in lows)
+                    known[..., None],
+                    *(torch.zeros((), dtype=DTYPE) if x is None else x for x in lows),
                 )
             return gaussian_of(
                 torch.where(known[..., None], fn.loc, m_fn.loc),
@@ -217,7 +218,7 @@ class ParameterMixture:
         values: Mapping[str, torch.Tensor],
         cluster: torch.Tensor,
         acting: tuple[ParameterMixture, ...] = (),
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    ) -> tuple[torch.Tensor, dist.MultivariateNormal, torch.Tensor, torch.Tensor]:
         """The child as a linear function of the value, per row and cluster (arguments as
         for :meth:`condition`): ``y = offset + W_p theta + e``, ``e ~ N(0, noise)``, with
         the other inputs' and the other parameters' terms in ``offset`` and ``noise``.
