@@ -9,6 +9,12 @@ A ``y`` with NaN in some dimensions is observed in the others only
 (:func:`mask_unobserved`): the marginal of the observed dimensions, its rows and
 columns of the covariance, is what conditions.
 
+A mean ``W x + b`` near a large observed ``y`` (a position far from the origin, moved a
+little) rounds to float64's spacing at its size, which may not be small against the
+noise's scale; :func:`affine_pair` keeps it as two float64 numbers whose sum is the mean to
+about twice float64's precision (error-free products and sums), so that the residual
+``(y - hi) - lo`` keeps its digits.
+
 All functions broadcast over leading batch dims.
 """
 
@@ -17,6 +23,69 @@ from __future__ import annotations
 import math
 
 import torch
+
+
+def two_sum(a: torch.Tensor, b: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(s, e)``: ``s`` the float64 sum ``a + b``, ``e`` its rounding error, so that
+    ``s + e == a + b`` exactly wherever ``a + b`` is finite (Knuth's TwoSum, no branch)."""
+    s = a + b
+    v = s - a
+    return s, (a - (s - v)) + (b - v)
+
+
+#: Dekker's splitting constant for float64: ``2^27 + 1``.
+_SPLITTER = 134217729.0
+
+
+def two_product(a: torch.Tensor, b: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(p, e)``: ``p`` the float64 product ``a * b``, ``e`` its rounding error, so that
+    ``p + e == a * b`` exactly (Dekker's product of split halves, no fused multiply-add),
+    for factors below about 1e300 and products above about 1e-290 in magnitude."""
+    p = a * b
+    ca, cb = _SPLITTER * a, _SPLITTER * b
+    a_hi, b_hi = ca - (ca - a), cb - (cb - b)
+    a_lo, b_lo = a - a_hi, b - b_hi
+    return p, ((a_hi * b_hi - p) + a_hi * b_lo + a_lo * b_hi) + a_lo * b_lo
+
+
+def affine_pair(
+    weight: torch.Tensor, x: torch.Tensor, bias: torch.Tensor
+) -> tuple[torch.Tensor, torch.Tensor]:
+    """``W x + b`` (``weight`` ``(..., d, p)``, ``x`` ``(..., p)``, ``bias`` ``(..., d)``) as
+    ``(hi, lo)``: ``hi`` its float64 rounding, ``lo`` the rest, together within about
+    ``p * 2^-104`` of the sum of the terms' magnitudes (the products and sums error-free,
+    their errors summed once: Ogita, Rump and Oishi's Dot2). Where a term is not finite
+    (or a factor beyond two_product's range) ``lo`` is 0 and ``hi`` the plain sum."""
+    products, errors = two_product(weight, x.unsqueeze(-2))  # (..., d, p)
+    hi = bias.expand(torch.broadcast_shapes(bias.shape, products.shape[:-1]))
+    lo = torch.zeros_like(hi)
+    for j in range(products.shape[-1]):
+        hi, e = two_sum(hi, products[..., j])
+        lo = lo + (e + errors[..., j])
+    exact = torch.isfinite(lo)
+    s, e = two_sum(hi, torch.where(exact, lo, 0.0))
+    return torch.where(exact, s, hi), torch.where(exact, e, 0.0)
+
+
+#: The plain mean's rounding, relative to the smallest noise scale, above which a mean
+#: ``W x + b`` is kept as a pair: below it a residual's error moves a log-density by
+#: less than ``|z| 2^-40`` (``z`` the standardised residual).
+MEAN_ROUNDING = 2.0**-40
+
+
+def sum_rounds_off(
+    largest_weight: float, largest_bias: float, x: torch.Tensor, noise_scale: float
+) -> bool:
+    """Whether ``W x + b`` summed in float64 may be off by more than ``MEAN_ROUNDING``
+    times ``noise_scale`` (the smallest noise scale it is compared with): its rounding
+    bound ``(p + 1) 2^-52 (p max|W| max|x| + max|b|)`` from the largest entries (``x``
+    ``(..., p)``; cheap: never the joint's shape). NaN inputs count as rounding off (the
+    pair keeps them NaN)."""
+    p = x.shape[-1]
+    if not p or not x.numel():
+        return False
+    bound = (p + 1) * 2.0**-52 * (p * largest_weight * float(x.abs().max()) + largest_bias)
+    return not bound <= MEAN_ROUNDING * noise_scale
 
 
 def linear_gaussian_marginal(
@@ -102,11 +171,21 @@ def condition_on_observed(
     return torch.where(seen, y.nan_to_num(), mean), torch.where(both, 0.0, post)
 
 
+def residual_of(fn, value: torch.Tensor) -> torch.Tensor:
+    """``value - mean`` of the Gaussian ``fn``, batch-shaped; a mean held as a pair
+    (``fn.loc_low``, :func:`affine_pair`) subtracted in its order, ``(value - loc) -
+    loc_low``."""
+    diff = value - fn.loc
+    low = getattr(fn, "loc_low", None)
+    return diff if low is None else diff - low
+
+
 def mahalanobis(fn, value: torch.Tensor) -> torch.Tensor:
     """Squared Mahalanobis distance of ``value`` under the Gaussian ``fn`` (a distribution
     with ``loc`` and ``scale_tril``), batch-shaped; a value with NaN dimensions (partial
-    evidence) is measured in its observed dimensions' marginal."""
-    diff = value - fn.loc
+    evidence) is measured in its observed dimensions' marginal. A mean held as a pair
+    (``fn.loc_low``, :func:`affine_pair`) gives the residual ``(value - loc) - loc_low``."""
+    diff = residual_of(fn, value)
     tril = fn.scale_tril
     if bool(torch.isnan(value).any()):  # the observed dimensions' marginal
         value, loc, cov, _ = mask_unobserved(value, fn.loc, tril @ tril.mT)

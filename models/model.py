@@ -75,7 +75,7 @@ import torch
 from pyro import poutine
 
 from models.cpds import ParameterMixture, concat_inputs
-from models.cpds.mixture import affected_loc_tril
+from models.cpds.mixture import affected_gaussian
 from models.declaration import EffectNetwork
 from models.dtype import DTYPE
 from models.evidence import Evidence, is_partial
@@ -165,10 +165,7 @@ def effect_model(
             inputs = [values[s] for s in cpd.inputs]
             if site in acting:
                 action = values[acting[site][0].action]
-                loc, tril = affected_loc_tril(
-                    acting[site], params, cpd, index, inputs, action, known
-                )
-                fn = dist.MultivariateNormal(loc, scale_tril=tril)
+                fn = affected_gaussian(acting[site], params, cpd, index, inputs, action, known)
             else:
                 fn = cpd.distribution(params[site], index, concat_inputs(inputs), cache)
             if spec.discrete:
@@ -186,8 +183,7 @@ def effect_model(
                 inputs = [values[s] for s in cpd.inputs]
                 action = values[m.action]
                 args = (params, cpd, index, inputs, action)
-                loc, tril = m.shared_loc_tril(*args, known[m.parameter.name], belief)
-                fn = dist.MultivariateNormal(loc, scale_tril=tril)
+                fn = m.shared_gaussian(*args, known[m.parameter.name], belief)
                 values[site] = _observe(site, fn, data.get(site), collapse)
                 if site in data:
                     belief = m.update(*args, values[site], belief)

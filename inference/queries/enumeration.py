@@ -312,6 +312,11 @@ def enumerate_model(
     # the actions not using a parameter and far in its tail for the others), each one's
     # value at the row's most probable configuration, where the sum is then near 0 and
     # the configurations near it keep their differences to float64's precision.
+    # The most probable configuration is known only to the rounding of the sum it is read
+    # from: configurations whose large factors are equal and whose small ones differ tie
+    # there, and centring on the wrong one of them turns its small factors into large
+    # differences that round. So centre again on the argmax of the centred sum, whose
+    # rounding is float64's precision of what the last one hid, until it stays.
     offsets: dict[str, torch.Tensor] = {}  # (n,) each: see Enumerated
     for name, lp in unbounded.items():
         offsets[name] = _row_max(lp).reshape(-1).expand(n)
@@ -319,8 +324,14 @@ def enumerate_model(
         return _contracted(bounded, unbounded, offsets, dims, trace, n)
     total = _centred_sum(bounded, unbounded, offsets, dims, n)
     top = _row_max(total)
-    if unbounded and bool((top.abs() > _CENTRED).any()):
-        best = total.reshape(-1, n).argmax(0)  # (n,) each row's most probable configuration
+    best = None
+    for _ in range(_RECENTRINGS):
+        if not unbounded or not bool((top.abs() > _CENTRED).any()):
+            break
+        argmax = total.reshape(-1, n).argmax(0)  # (n,) each row's most probable configuration
+        if best is not None and bool((argmax == best).all()):
+            break
+        best = argmax
         for name, lp in unbounded.items():
             at_best = lp.expand(total.shape).reshape(-1, n).gather(0, best[None])[0]
             # a row where nothing is possible keeps its maximum
@@ -435,6 +446,10 @@ def conditional_log_evidence(
 
 #: Largest row maximum of a joint left uncentred: its rounding, 1e3 * 2^-52, is below 1e-12.
 _CENTRED = 1e3
+
+#: Most centrings on a configuration: each tells apart what the last one's rounding, 2^-52
+#: of its sum, hid; twenty take float64's largest numbers to below ``_CENTRED``.
+_RECENTRINGS = 24
 
 
 def _unbounded(net: EffectNetwork, name: str) -> bool:

@@ -65,6 +65,7 @@ from models.evidence import is_partial
 from models.gaussian import (
     mask_unobserved,
     partial_log_density,
+    residual_of,
 )
 from models.params import NetworkParams, check_params
 
@@ -216,7 +217,7 @@ class CompiledJointParameterQuery:
     The observed continuous features it acts on are jointly Gaussian given its cluster
     (its unknown value couples them); their joint density is taken in the model's own
     order, each feature given the value's Gaussian conditioned on those before it
-    (:meth:`models.cpds.ParameterMixture.shared_loc_tril` and ``update``, the rules the
+    (:meth:`models.cpds.ParameterMixture.shared_gaussian` and ``update``, the rules the
     model samples with), batched over rows and clusters; the observed discrete features
     it acts on add their kind's log-probability per cluster. Same results as
     :func:`inference.infer_parameter` for evidence of the initial state, the action, the
@@ -319,12 +320,15 @@ class CompiledJointParameterQuery:
             index = [clusters if q == m.cluster.site else enc[q][:, None] for q in cpd.parents]
             x = [enc[q][:, None, :] for q in cpd.inputs if q != m.value.site] + [unknown]
             args = (params, cpd, index, x, action)
-            loc, tril = m.shared_loc_tril(*args, known, belief)
+            fn = m.shared_gaussian(*args, known, belief)
             y = enc[site][:, None, :]
-            log_lik = log_lik + partial_log_density(y, loc, tril)
-            y_, loc_, cov_, seen = mask_unobserved(y, loc, tril @ tril.mT)
+            # the residual first (exact where the mean is a pair), NaN where y is
+            resid = residual_of(fn, y)
+            zero, tril = torch.zeros_like(resid), fn.scale_tril
+            log_lik = log_lik + partial_log_density(resid, zero, tril)
+            resid_, _, cov_, seen = mask_unobserved(resid, zero, tril @ tril.mT)
             z = torch.linalg.solve_triangular(
-                torch.linalg.cholesky(cov_), (y_ - loc_)[..., None], upper=False
+                torch.linalg.cholesky(cov_), resid_[..., None], upper=False
             )
             d2 = d2 + z.square().sum((-2, -1))
             dof = dof + seen[:, 0].sum(-1)

@@ -36,8 +36,10 @@ from models.declaration import (
 )
 from models.evidence import MAX_MAGNITUDE, Evidence, is_partial
 from models.gaussian import (
+    affine_pair,
     chi_square_tail,
     mask_unobserved,
+    sum_rounds_off,
 )
 from models.params import NetworkParams
 
@@ -69,7 +71,8 @@ class CompiledParameterQuery:
     seen: torch.Tensor  # (P...) bool
     # for the initial states' plausibility (inference.queries.plausibility.initial_tails)
     params: NetworkParams | None = field(default=None, repr=False, compare=False)
-    # The one-row tables (:meth:`_one_row`), built on the first single query.
+    # Built on first use: the one-row tables (:meth:`_one_row`), the largest entries
+    # :meth:`_rounds_off` reads.
     _one: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def serves(self, sites: set[str]) -> bool:
@@ -129,18 +132,22 @@ class CompiledParameterQuery:
         shared = n > 0 and all(bool((i == i[0]).all()) for i in index)
         gather = tuple(i[:1] for i in index) if shared else index
         loc = self.offset[gather]  # (n or 1, C, d)
+        low = None  # the mean's rest, where it is held as a pair
         others = [enc[s] for s in self.inputs[:-1]]
         x = torch.cat(others, -1) if others else None
-        if x is not None:
+        if x is not None and self._rounds_off(x):
+            # a mean near a large observed value: its residual keeps its digits
+            loc, low = affine_pair(self.w_x[gather], x[:, None, :], loc)
+        elif x is not None:
             loc = loc + (self.w_x[gather] @ x[:, None, :, None]).squeeze(-1)
         if is_partial(y):
-            return self._infer_partial(enc, y, index, loc, mixture, below)
+            return self._infer_partial(enc, y, index, loc, low, mixture, below)
         # log N(y; loc, L L^T) = log_norm - |L^-1 (y - loc)|^2 / 2, with L^-1 and log_norm
         # precomputed from the model's own marginal Cholesky factor L. The residual is
         # taken first and then whitened: a sum of squares without cancellation, where an
         # expanded form y'Ay - 2b'y + c with A ~ 1 / noise loses as many digits as A has.
         whiten = self.whiten[gather][0] if shared else self.whiten[index]  # (C or n, C, d, d)
-        d2 = _whitened_distance(y, loc, whiten)  # (n, C) squared Mahalanobis distances
+        d2 = _whitened_distance(y, loc, whiten, low)  # (n, C) squared Mahalanobis distances
         log_cluster = self.log_cluster[enc[ACTION][:1] if shared else enc[ACTION]]
         impossible = ~torch.isfinite(log_cluster)  # (1 or n, C)
         if bool(impossible.any()):
@@ -162,11 +169,15 @@ class CompiledParameterQuery:
         rows = torch.arange(n)
         full = (*index, best)
         resid = y - loc.expand(n, *loc.shape[1:])[rows, best]
+        if low is not None:
+            resid = resid - low.expand(n, *low.shape[1:])[rows, best]
         mean = self.prior_mean[best] + (self.gain[full] @ resid[..., None]).squeeze(-1)
         unseen = (~self.seen[full]).to(DTYPE)
         mix = None
         if mixture:  # every cluster's conditional Gaussian, from the same tables
             resid_all = y[:, None, :] - loc  # (n, C, d)
+            if low is not None:
+                resid_all = resid_all - low
             gain = self.gain[gather] if shared else self.gain[index]  # (n or 1, C, k, d)
             means = self.prior_mean + (gain @ resid_all[..., None]).squeeze(-1)
             covs = (self.post_cov[gather] if shared else self.post_cov[index]).expand(
@@ -323,7 +334,17 @@ class CompiledParameterQuery:
             torch.from_numpy(np.array([tail < below])),
         )
 
-    def _infer_partial(self, enc, y, index, loc, mixture, below) -> ParameterPosterior:
+    def _rounds_off(self, x: torch.Tensor) -> bool:
+        """Whether the mean ``offset + w_x x`` may round off against the marginal's
+        smallest noise scale (:func:`models.gaussian.sum_rounds_off`; that scale at least
+        ``1 / |whiten|``, the largest Frobenius norm of the inverse factors)."""
+        if "extremes" not in self._one:  # the tables' part, once
+            largest_inverse = self.whiten.square().sum((-2, -1)).max().sqrt()
+            parts = [self.w_x.abs().max(), self.offset.abs().max(), 1 / largest_inverse]
+            self._one["extremes"] = torch.stack(parts).tolist()
+        return sum_rounds_off(*self._one["extremes"][:2], x, self._one["extremes"][2])
+
+    def _infer_partial(self, enc, y, index, loc, low, mixture, below) -> ParameterPosterior:
         """The query for ``y`` observed in some dimensions (NaN in the others): each
         cluster's marginal and conditioning restricted to the observed dimensions. The
         tables hold them for all dimensions; the marginal covariance ``L L^T``, the
@@ -339,7 +360,10 @@ class CompiledParameterQuery:
         prior_cov = self.post_cov[index] + gain @ cross.mT
         y_, loc_, cov_, seen = mask_unobserved(y[:, None, :], loc, marginal)
         chol = torch.linalg.cholesky(cov_)
-        resid = (y_ - loc_)[..., None]
+        resid = y_ - loc_
+        if low is not None:
+            resid = resid - torch.where(seen, low, 0.0)
+        resid = resid[..., None]
         d2 = torch.linalg.solve_triangular(chol, resid, upper=False).square().sum((-2, -1))
         dof = seen[:, 0].sum(-1).to(DTYPE)  # (n,)
         log_det = chol.diagonal(dim1=-2, dim2=-1).log().sum(-1)
@@ -382,13 +406,18 @@ def refuse_impossible(log_post: torch.Tensor) -> None:
         )
 
 
-def _whitened_distance(y: torch.Tensor, loc: torch.Tensor, whiten: torch.Tensor) -> torch.Tensor:
-    """``(n, C)`` ``|whiten (y - loc)|^2`` for ``y`` ``(n, d)``, ``loc`` ``(n or 1, C, d)`` and
-    lower triangular ``whiten`` ``(n or C, ..., d, d)``: the residual first, then whitened,
-    one dimension at a time on ``(n, C)`` tensors (a sum of squares without cancellation,
-    and no ``(n, C, d)`` temporaries)."""
+def _whitened_distance(
+    y: torch.Tensor, loc: torch.Tensor, whiten: torch.Tensor, low: torch.Tensor | None = None
+) -> torch.Tensor:
+    """``(n, C)`` ``|whiten (y - loc - low)|^2`` for ``y`` ``(n, d)``, ``loc`` (and the mean's
+    rest ``low``, where it is a pair) ``(n or 1, C, d)`` and lower triangular ``whiten``
+    ``(n or C, ..., d, d)``: the residual first, then whitened, one dimension at a time
+    on ``(n, C)`` tensors (a sum of squares without cancellation, and no ``(n, C, d)``
+    temporaries)."""
     d = y.shape[-1]
     diff = [y[:, j, None] - loc[..., j] for j in range(d)]  # (n, C) each
+    if low is not None:
+        diff = [r - low[..., j] for j, r in enumerate(diff)]
     d2 = None
     for i in range(d):
         z = diff[0] * whiten[..., i, 0]

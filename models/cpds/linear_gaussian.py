@@ -9,12 +9,17 @@ pseudo-rows of the pooled statistics of its site, so an unseen one is the pooled
 and a rarely seen one is shrunk towards it; a covariance's eigenvalues are floored at
 ``min_variance``, so a configuration with fewer rows than dimensions stays positive
 definite and one with more keeps its estimate.
+
+A mean ``W x + b`` whose plain float64 sum may round off against the noise (inputs far
+from the origin) is kept as a pair of float64 numbers (:class:`PairMeanNormal`,
+:func:`models.gaussian.affine_pair`): a value near it keeps its residual's digits.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field, fields
+from functools import cached_property
 
 import pyro.distributions as dist
 import torch
@@ -23,6 +28,7 @@ from pyro.ops.indexing import Vindex
 from models.cpds.base import CPD
 from models.deprecation import renamed
 from models.dtype import DTYPE
+from models.gaussian import affine_pair, mahalanobis, sum_rounds_off
 
 #: The name of :class:`LinearGaussianParams` before the rename, for one release.
 __getattr__ = renamed(__name__, {"LinearGaussian": "LinearGaussianParams"})
@@ -44,6 +50,16 @@ class LinearGaussianParams:
     @property
     def covariance(self) -> torch.Tensor:
         return self.scale_tril @ self.scale_tril.mT
+
+    @cached_property  # read by every traced density of continuous inputs: computed once
+    def extremes(self) -> tuple[float, float, float]:
+        """The largest ``|weight|`` and ``|bias|``, and the smallest noise scale (the
+        square root of the smallest eigenvalue of any configuration's covariance)."""
+        if not self.bias.numel():
+            return 0.0, 0.0, math.inf
+        smallest = torch.linalg.eigvalsh(self.covariance).min().clamp_min(0.0).sqrt()
+        weight = self.weight.abs().max() if self.weight.numel() else torch.zeros(())
+        return tuple(torch.stack([weight, self.bias.abs().max(), smallest]).tolist())
 
 
 @dataclass(frozen=True)
@@ -111,22 +127,45 @@ class LinearGaussianCPD(CPD):
         self, params: LinearGaussianParams, index, x: torch.Tensor | None
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """The mean ``(..., d)`` and Cholesky factor ``(..., d, d)`` given the parents."""
-        if not index:
-            loc, tril = params.bias, params.scale_tril
-        else:
-            index = _rows_collapsed(index)
-            loc = Vindex(params.bias)[(*index, slice(None))]
-            tril = Vindex(params.scale_tril)[(*index, slice(None), slice(None))]
+        index = _rows_collapsed(index) if index else index
+        loc, tril = self._bias_tril(params, index)
         if x is not None:
-            weight = Vindex(params.weight)[(*index, slice(None), slice(None))]
-            loc = loc + (weight @ x.unsqueeze(-1)).squeeze(-1)
+            loc = loc + (self._weight(params, index) @ x.unsqueeze(-1)).squeeze(-1)
         return loc, tril
 
     def distribution(
         self, params: LinearGaussianParams, index, x, cache
     ) -> dist.MultivariateNormal:
-        loc, tril = self.loc_tril(params, index, x)
-        return dist.MultivariateNormal(loc, scale_tril=tril)
+        return self.gaussian(params, index, x)
+
+    def gaussian(
+        self, params: LinearGaussianParams, index, x: torch.Tensor | None
+    ) -> dist.MultivariateNormal:
+        """The site's Gaussian given the parents, its mean kept as a pair
+        (:class:`PairMeanNormal`) where the plain sum may round off against the noise."""
+        index = _rows_collapsed(index) if index else index
+        loc, tril = self._bias_tril(params, index)
+        if x is None:
+            return dist.MultivariateNormal(loc, scale_tril=tril)
+        weight = self._weight(params, index)
+        if _mean_rounds_off(params, x):
+            # the mean as a pair: a value near a large mean keeps its residual's digits
+            loc, low = affine_pair(weight, x, loc)
+            return PairMeanNormal(loc, tril, low)
+        return dist.MultivariateNormal(
+            loc + (weight @ x.unsqueeze(-1)).squeeze(-1), scale_tril=tril
+        )
+
+    @staticmethod
+    def _bias_tril(params: LinearGaussianParams, index) -> tuple[torch.Tensor, torch.Tensor]:
+        if not index:
+            return params.bias, params.scale_tril
+        loc = Vindex(params.bias)[(*index, slice(None))]
+        return loc, Vindex(params.scale_tril)[(*index, slice(None), slice(None))]
+
+    @staticmethod
+    def _weight(params: LinearGaussianParams, index) -> torch.Tensor:
+        return Vindex(params.weight)[(*index, slice(None), slice(None))]
 
     def statistics(
         self, index: torch.Tensor, x: torch.Tensor | None, y: torch.Tensor, weights=None
@@ -217,6 +256,54 @@ class LinearGaussianCPD(CPD):
         return LinearGaussianParams(
             free["weight"], free["bias"], _LOWER_CHOLESKY(free["tril"]), params.n
         )
+
+
+def _mean_rounds_off(params: LinearGaussianParams, x: torch.Tensor) -> bool:
+    """Whether ``W x + b`` may round off against the smallest noise scale of any
+    configuration (:func:`models.gaussian.sum_rounds_off`)."""
+    weight, bias, smallest = params.extremes
+    return sum_rounds_off(weight, bias, x, smallest)
+
+
+class PairMeanNormal(dist.MultivariateNormal):
+    """``N(loc + loc_low, scale_tril scale_tril^T)``: a Gaussian whose mean is held as two
+    float64 numbers (:func:`models.gaussian.affine_pair`), ``loc`` its rounding and
+    ``loc_low`` the rest. Its density reads the residual as ``(value - loc) - loc_low``,
+    exact where the value is near the mean at any magnitude of both; everything else
+    (sampling, moments, ``loc``) is the plain Gaussian's at ``loc``."""
+
+    def __init__(
+        self,
+        loc: torch.Tensor,
+        scale_tril: torch.Tensor,
+        loc_low: torch.Tensor,
+        validate_args: bool | None = None,
+    ):
+        super().__init__(loc, scale_tril=scale_tril, validate_args=validate_args)
+        self.loc_low = loc_low.expand(self.loc.shape)
+
+    def expand(self, batch_shape, _instance=None) -> PairMeanNormal:
+        new = self._get_checked_instance(PairMeanNormal, _instance)
+        new = super().expand(batch_shape, _instance=new)
+        new.loc_low = self.loc_low.expand(new.loc.shape)
+        return new
+
+    def log_prob(self, value: torch.Tensor) -> torch.Tensor:
+        if self._validate_args:
+            self._validate_sample(value)
+        half_log_det = self._unbroadcasted_scale_tril.diagonal(dim1=-2, dim2=-1).log().sum(-1)
+        k = self._event_shape[0]
+        return -0.5 * (k * math.log(2 * math.pi) + mahalanobis(self, value)) - half_log_det
+
+
+def gaussian_of(
+    loc: torch.Tensor, scale_tril: torch.Tensor, loc_low: torch.Tensor | None = None
+) -> dist.MultivariateNormal:
+    """``N(loc, scale_tril scale_tril^T)``, a :class:`PairMeanNormal` where the mean's
+    rest ``loc_low`` is given."""
+    if loc_low is None:
+        return dist.MultivariateNormal(loc, scale_tril=scale_tril)
+    return PairMeanNormal(loc, scale_tril, loc_low)
 
 
 def floor_variance(cov: torch.Tensor, min_variance: float) -> torch.Tensor:

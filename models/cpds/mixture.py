@@ -30,7 +30,7 @@ Gaussian) and every rule that ties them together:
   ``y = W_x x + W_p theta + b + e``, ``y ~ N(W_x x + W_p m_c + b, R + W_p S_c W_p^T)``
   (:meth:`marginal`), and ``theta`` given ``y`` is the linear-Gaussian posterior
   (:meth:`condition`); :meth:`query_tables` precomputes both for the compiled query.
-  Several parameters on one feature add their terms (:func:`affected_loc_tril`); a
+  Several parameters on one feature add their terms (:func:`affected_gaussian`); a
   value acting on several continuous features is conditioned on each observed one in
   turn (:meth:`update`, :meth:`posterior`).
 """
@@ -41,15 +41,16 @@ import math
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
+import pyro.distributions as dist
 import torch
 from pyro.ops.indexing import Vindex
 
 from models.cpds.base import concat_inputs
-from models.cpds.linear_gaussian import LinearGaussianCPD, LinearGaussianParams
+from models.cpds.linear_gaussian import LinearGaussianCPD, LinearGaussianParams, gaussian_of
 from models.cpds.table import TableCPD
 from models.dtype import DTYPE
 from models.features import Parameter
-from models.gaussian import condition_linear_gaussian, mask_unobserved
+from models.gaussian import condition_linear_gaussian, mask_unobserved, residual_of
 
 
 @dataclass(frozen=True)
@@ -151,7 +152,7 @@ class ParameterMixture:
         cov = cpd.covariance + w_p @ prior.covariance @ w_p.mT
         return LinearGaussianParams(w_x, offset, torch.linalg.cholesky(cov), cpd.n)
 
-    def child_loc_tril(
+    def child_gaussian(
         self,
         params: Mapping,
         child: LinearGaussianCPD,
@@ -159,27 +160,35 @@ class ParameterMixture:
         inputs: list[torch.Tensor],
         action: torch.Tensor,
         known: torch.Tensor,
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """The affected feature's mean and Cholesky factor: given the parameter where it is
-        ``known`` (bool rows), integrated out where not. ``inputs``: the child's
-        continuous parents' values, the parameter last."""
+    ) -> dist.MultivariateNormal:
+        """The affected feature's Gaussian: given the parameter where it is ``known``
+        (bool rows), integrated out where not. ``inputs``: the child's continuous
+        parents' values, the parameter last. Its mean is a pair where the plain sum may
+        round off (:meth:`LinearGaussianCPD.gaussian`)."""
         everywhere = bool(known.all())
         nowhere = not bool(known.any())
         inputs = list(inputs)
         if not nowhere:  # the parameter known in some rows: condition on it there
             uses = self.in_use(action)
             inputs[-1] = torch.where(uses[..., None], inputs[-1].nan_to_num(), 0.0)
-            loc, tril = child.loc_tril(params[child.site], index, concat_inputs(inputs))
+            fn = child.gaussian(params[child.site], index, concat_inputs(inputs))
         if not everywhere:
-            m_loc, m_tril = child.loc_tril(
-                self.marginal(params, child), index, concat_inputs(inputs[:-1])
-            )
+            m_fn = child.gaussian(self.marginal(params, child), index, concat_inputs(inputs[:-1]))
             if nowhere:
-                loc, tril = m_loc, m_tril
-            else:
-                loc = torch.where(known[..., None], loc, m_loc)
-                tril = torch.where(known[..., None, None], tril, m_tril)
-        return loc, tril
+                return m_fn
+            lows = [getattr(f, "loc_low", None) for f in (fn, m_fn)]
+            low = None
+            if any(x is not None for x in lows):
+                low = torch.where(
+                    known[..., None],
+                    *(torch.zeros((), dtype=DTYPE) if x is None else x for x in lows),
+                )
+            return gaussian_of(
+                torch.where(known[..., None], fn.loc, m_fn.loc),
+                torch.where(known[..., None, None], fn.scale_tril, m_fn.scale_tril),
+                low,
+            )
+        return fn
 
     def condition(
         self,
@@ -200,7 +209,7 @@ class ParameterMixture:
         w_p, offset, noise, y = self.linear_terms(params, child, values, cluster, acting)
         if prior is None:
             prior = self.belief(params, cluster)
-        return condition_linear_gaussian(*prior, w_p, offset, noise, y)
+        return _conditioned(prior, w_p, offset, noise, y)
 
     def linear_terms(
         self,
@@ -209,12 +218,14 @@ class ParameterMixture:
         values: Mapping[str, torch.Tensor],
         cluster: torch.Tensor,
         acting: tuple[ParameterMixture, ...] = (),
-    ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
+    ) -> tuple[torch.Tensor, dist.MultivariateNormal, torch.Tensor, torch.Tensor]:
         """The child as a linear function of the value, per row and cluster (arguments as
         for :meth:`condition`): ``y = offset + W_p theta + e``, ``e ~ N(0, noise)``, with
         the other inputs' and the other parameters' terms in ``offset`` and ``noise``.
         Returns ``(W_p, offset, noise, y)``, ``y`` the child's observed value broadcast
-        like the others."""
+        like the others and ``offset`` a Gaussian whose mean is the offset, a pair where
+        the plain sum may round off (:meth:`LinearGaussianCPD.gaussian`; its residual
+        :func:`models.gaussian.residual_of`)."""
         extra = cluster.dim() - 1  # trailing dims the row-wise values must broadcast over
 
         def rows(t: torch.Tensor) -> torch.Tensor:
@@ -227,13 +238,16 @@ class ParameterMixture:
         q_other = weight.shape[-1] - sum(m.parameter.dim for m in others)
         start = q_other
         noise = cpd.covariance[index]
-        offset = cpd.bias[index]
+        inputs = [values[s] for s in child.inputs[: len(child.inputs) - len(others)]]
+        # the offset's inputs in the weight's column order, this value's columns 0
+        columns = [rows(torch.cat(inputs, -1))] if inputs else []
         for m in others:
             k = m.parameter.dim
             w = weight[..., start : start + k]
             start += k
             if m is self:
                 w_p = w
+                columns.append(torch.zeros(k, dtype=weight.dtype))
                 continue
             theta = values.get(m.value.site)
             c = rows(values[m.cluster.site])
@@ -243,14 +257,11 @@ class ParameterMixture:
                 value = torch.where(given[..., None], rows(theta.nan_to_num()), value)
                 hidden = ~given
             uses = rows(m.in_use(values[m.action]))
-            offset = offset + (w @ torch.where(uses[..., None], value, 0.0)[..., None]).squeeze(-1)
+            columns.append(torch.where(uses[..., None], value, 0.0))
             spread = w @ params[m.value.site].covariance[c] @ w.mT
             hidden = uses if hidden is None else uses & hidden
             noise = noise + hidden[..., None, None] * spread
-        w_x = weight[..., :q_other]
-        inputs = [values[s] for s in child.inputs[: len(child.inputs) - len(others)]]
-        if inputs:
-            offset = offset + (w_x @ rows(torch.cat(inputs, -1))[..., None]).squeeze(-1)
+        offset = child.gaussian(cpd, list(index), concat_inputs(columns))
         return w_p, offset, noise, rows(values[child.site])
 
     def belief(self, params: Mapping, cluster: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -259,33 +270,34 @@ class ParameterMixture:
         return Vindex(prior.bias)[cluster, :], Vindex(prior.covariance)[cluster, :, :]
 
     def _split(self, params, child, index, inputs, action):
-        """The child's offset ``b + W_x x`` and its weights on the value (zero for
-        actions not using it), gathered at the parents."""
+        """The child's Gaussian without the value (its mean the offset ``b + W_x x``, a
+        pair where it may round off) and its weights on the value (zero for actions not
+        using it), gathered at the parents."""
         cpd = params[child.site]
         k = self.parameter.dim
-        offset, tril = child.loc_tril(cpd, index, None)
+        zero = torch.zeros(k, dtype=cpd.weight.dtype)
+        offset = child.gaussian(cpd, index, concat_inputs([*inputs[:-1], zero]))
         weight = Vindex(cpd.weight)[(*index, slice(None), slice(None))]
-        q = weight.shape[-1]
-        x = concat_inputs(inputs[:-1])
-        if x is not None:
-            offset = offset + (weight[..., : q - k] @ x.unsqueeze(-1)).squeeze(-1)
         uses = self.in_use(action).to(weight.dtype)[..., None, None]
-        return offset, tril, weight[..., q - k :] * uses
+        return offset, weight[..., weight.shape[-1] - k :] * uses
 
-    def shared_loc_tril(
+    def shared_gaussian(
         self, params, child, index, inputs, action, known, belief
-    ) -> tuple[torch.Tensor, torch.Tensor]:
-        """Like :meth:`child_loc_tril` for a value acting on several continuous sites:
+    ) -> dist.MultivariateNormal:
+        """Like :meth:`child_gaussian` for a value acting on several continuous sites:
         where unknown, integrated out under ``belief`` (the value's Gaussian given the
         cluster and the affected sites observed so far; ``None``: the cluster's own)."""
         if belief is None:
-            return self.child_loc_tril(params, child, index, inputs, action, known)
-        offset, tril, w_p = self._split(params, child, index, inputs, action)
+            return self.child_gaussian(params, child, index, inputs, action, known)
+        offset, w_p = self._split(params, child, index, inputs, action)
+        tril = offset.scale_tril
         theta = inputs[-1].nan_to_num()
         mean = torch.where(known[..., None], theta, belief[0])
-        loc = offset + (w_p @ mean.unsqueeze(-1)).squeeze(-1)
+        used = torch.where(self.in_use(action)[..., None], mean, 0.0)
+        fn = child.gaussian(params[child.site], index, concat_inputs([*inputs[:-1], used]))
         spread = (~known).to(w_p.dtype)[..., None, None] * (w_p @ belief[1] @ w_p.mT)
-        return loc, torch.linalg.cholesky(tril @ tril.mT + spread)
+        cov = tril @ tril.mT + spread
+        return gaussian_of(fn.loc, torch.linalg.cholesky(cov), getattr(fn, "loc_low", None))
 
     def update(
         self, params, child, index, inputs, action, y, belief
@@ -294,8 +306,8 @@ class ParameterMixture:
         discrete parent) conditioned on the child's observed value ``y``."""
         if belief is None:
             belief = self.belief(params, index[-1])
-        offset, tril, w_p = self._split(params, child, index, inputs, action)
-        return condition_linear_gaussian(*belief, w_p, offset, tril @ tril.mT, y)
+        offset, w_p = self._split(params, child, index, inputs, action)
+        return _conditioned(belief, w_p, offset, offset.covariance_matrix, y)
 
     def posterior(
         self,
@@ -331,12 +343,15 @@ class ParameterMixture:
         slopes, targets, log_norm = [], [], 0.0
         for child in children:
             w_p, offset, noise, y = self.linear_terms(params, child, values, cluster, acting)
-            if bool(torch.isnan(y).any()):  # partial evidence: its observed dims only
-                y, offset, noise, seen = mask_unobserved(y, offset, noise)
+            residual = residual_of(offset, y)
+            if bool(torch.isnan(residual).any()):  # partial evidence: its observed dims only
+                residual, _, noise, seen = mask_unobserved(
+                    residual, torch.zeros_like(residual), noise
+                )
                 w_p = torch.where(seen[..., None], w_p, 0.0)
             tril = torch.linalg.cholesky(noise)
             slopes.append(torch.linalg.solve_triangular(tril, w_p, upper=False))
-            r = torch.linalg.solve_triangular(tril, (y - offset)[..., None], upper=False)
+            r = torch.linalg.solve_triangular(tril, residual[..., None], upper=False)
             targets.append(r[..., 0])
             d = tril.shape[-1]
             log_det = tril.diagonal(dim1=-2, dim2=-1).log().sum(-1)
@@ -436,7 +451,17 @@ class ParameterMixture:
         return LinearGaussianParams(value.weight, mean, tril, value.n)
 
 
-def affected_loc_tril(
+def _conditioned(belief, w_p, offset: dist.MultivariateNormal, noise, y):
+    """:func:`models.gaussian.condition_linear_gaussian` of ``belief`` on ``y = offset +
+    W_p theta + e`` with the offset ``offset``'s mean: where that is a pair, on the exact
+    residual ``y - offset`` (and a zero offset)."""
+    if getattr(offset, "loc_low", None) is None:
+        return condition_linear_gaussian(*belief, w_p, offset.loc, noise, y)
+    residual = residual_of(offset, y)
+    return condition_linear_gaussian(*belief, w_p, torch.zeros_like(residual), noise, residual)
+
+
+def affected_gaussian(
     acting: tuple[ParameterMixture, ...],
     params: Mapping,
     child: LinearGaussianCPD,
@@ -444,26 +469,25 @@ def affected_loc_tril(
     inputs: list[torch.Tensor],
     action: torch.Tensor,
     known: Mapping[str, torch.Tensor],
-) -> tuple[torch.Tensor, torch.Tensor]:
-    """A continuous feature's mean and Cholesky factor given the parameters ``acting`` on
-    it (their values its last inputs, their clusters its last parents, in this order):
-    each value counts where it is ``known`` (rows, by parameter name) and is integrated
-    out where not: ``y ~ N(b + W_x x + sum_j W_j mu_j, R + sum_j W_j S_j W_j^T)`` over
-    the unknown ``j`` (independent given their clusters)."""
+) -> dist.MultivariateNormal:
+    """A continuous feature's Gaussian given the parameters ``acting`` on it (their
+    values its last inputs, their clusters its last parents, in this order): each value
+    counts where it is ``known`` (rows, by parameter name) and is integrated out where
+    not: ``y ~ N(b + W_x x + sum_j W_j mu_j, R + sum_j W_j S_j W_j^T)`` over the unknown
+    ``j`` (independent given their clusters). Its mean is a pair where the plain sum may
+    round off (:meth:`LinearGaussianCPD.gaussian`)."""
     if len(acting) == 1:
         m = acting[0]
-        return m.child_loc_tril(params, child, index, inputs, action, known[m.parameter.name])
+        return m.child_gaussian(params, child, index, inputs, action, known[m.parameter.name])
     cpd = params[child.site]
-    loc, tril = child.loc_tril(cpd, index, None)
     weight = Vindex(cpd.weight)[(*index, slice(None), slice(None))]
+    _, tril = child.loc_tril(cpd, index, None)
     cov = tril @ tril.mT
     q_other = weight.shape[-1] - sum(m.parameter.dim for m in acting)
-    x = concat_inputs(inputs[: len(inputs) - len(acting)])
-    if x is not None:
-        loc = loc + (weight[..., :q_other] @ x.unsqueeze(-1)).squeeze(-1)
     start = q_other
     clusters = index[len(index) - len(acting) :]
     thetas = inputs[len(inputs) - len(acting) :]
+    values = []  # each value where known, its cluster's mean where not, 0 where unused
     for m, c, theta in zip(acting, clusters, thetas, strict=True):
         k = m.parameter.dim
         w = weight[..., start : start + k]
@@ -471,10 +495,11 @@ def affected_loc_tril(
         given, uses = known[m.parameter.name], m.in_use(action)
         prior = params[m.value.site]
         value = torch.where(given[..., None], theta.nan_to_num(), Vindex(prior.bias)[c, :])
-        value = torch.where(uses[..., None], value, 0.0)
-        loc = loc + (w @ value.unsqueeze(-1)).squeeze(-1)
+        values.append(torch.where(uses[..., None], value, 0.0))
         hidden = uses & ~given
         if bool(hidden.any()):
             spread = w @ Vindex(prior.covariance)[c, :, :] @ w.mT
             cov = cov + hidden[..., None, None] * spread
-    return loc, torch.linalg.cholesky(cov)
+    x = concat_inputs(list(inputs[: len(inputs) - len(acting)]) + values)
+    fn = child.gaussian(cpd, index, x)
+    return gaussian_of(fn.loc, torch.linalg.cholesky(cov), getattr(fn, "loc_low", None))

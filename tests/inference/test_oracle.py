@@ -418,6 +418,102 @@ def test_infer_action_is_the_oracle(case, data):
         assert abs(float(got.unseen[0, a]) - mass) <= 1e-6, (a, got.unseen, mass)
 
 
+@precise
+def test_infer_action_is_the_oracle_where_the_largest_factors_tie():
+    """Two actions share the value's density far in its tail (the same cluster, about
+    -2.5e27) and differ in a softmax of the initial position (1.25e11) by about 1.4e11
+    in the configurations they reach least: the configurations the posterior weighs
+    tie in the largest factors, and a joint centred on the wrong one of them rounds the
+    small factors away."""
+    net = EffectNetwork(
+        (Discrete("f0", (0, 1)), Discrete("f1", ("no", "yes")), Continuous("pos", 1)),
+        ("a0", "a1", "a2"),
+        (Parameter("force", 0.0, 2.0, 2, ("a0", "a1"), ("pos", "f0")),),
+    )
+    params = spilled(net, random_params(net, 1), 1.0)
+    ev = {
+        "initial.f0": 1,
+        "initial.pos": 125185387942.0,
+        "end.f0": 0,
+        "param.force": 8796093022210.0,
+        "cluster.force": 1,
+    }
+    oracle = Oracle(net, params)
+    got = infer_action(net, params, encode(net, ev))
+    sums_to_one(got.probs)
+    want = oracle.posterior(ev, "action")
+    assert 0.1 < want[1] < 0.9  # the posterior is not a certainty: the case tests digits
+    assert np.abs(got.probs[0].numpy() - want).max() <= 1e-12, (got.probs, want)
+    assert close_log(float(got.log_evidence[0]), oracle.log_evidence(ev))
+
+
+@settings(CASE_SETTINGS, max_examples=30)
+@given(
+    seed=st.integers(0, 2**16),
+    start=values(EVIDENCE_MAGNITUDE),
+    moved=st.floats(-2.0, 2.0, allow_nan=False),
+)
+@precise
+def test_infer_action_is_the_oracle_where_the_end_is_the_start_moved(seed, start, moved):
+    """A position that each action moves by its own few units (weight 1 on the start):
+    the end's mean ``start + b_a`` near the observed end at any magnitude of the start,
+    where the actions differ only in the mean's last digits and their noise. The
+    oracle: ``p(action) N(end; start + b, s^2)`` per action, normalised, in exact
+    arithmetic."""
+    net = EffectNetwork((Discrete("f0", (0, 1)), Continuous("pos", 1)), ("a0", "a1", "a2"), ())
+    params = random_params(net, seed)
+    cpds = dict(params.cpds)
+    cpds["end.pos"] = replace(cpds["end.pos"], weight=torch.ones_like(cpds["end.pos"].weight))
+    params = NetworkParams(cpds, params.pseudo_count)
+    end = start + moved  # float64, as given
+    lg = params["end.pos"]
+    logs = []
+    for a in range(3):
+        var = mpf(float(lg.covariance[0, a, 0, 0]))
+        mean = mpf(start) + mpf(float(lg.bias[0, a, 0]))
+        log_prior = mp.log(mpf(float(params["action"].probs[a])))
+        logs.append(log_prior - (mpf(end) - mean) ** 2 / (2 * var) - mp.log(var) / 2)
+    total = log_sum_exp(logs)
+    want = np.array([float(mp.exp(x - total)) for x in logs])
+    got = infer_action(
+        net, params, encode(net, {"initial.f0": 0, "initial.pos": start, "end.pos": end})
+    )
+    sums_to_one(got.probs)
+    assert np.abs(got.probs[0].numpy() - want).max() <= 1e-12, (got.probs, want)
+
+
+def start_moved(net: EffectNetwork, params: NetworkParams, ev: dict, moved: float):
+    """The case with the end position its start moved (``end.pos``'s weight on
+    ``initial.pos`` 1) and observed ``moved`` from the start: the end's mean near the
+    observed end at any magnitude of the start."""
+    cpds = dict(params.cpds)
+    lg = cpds["end.pos"]
+    weight = lg.weight.clone()
+    weight[..., net.cpd("end.pos").inputs.index("initial.pos")] = 1.0
+    cpds["end.pos"] = replace(lg, weight=weight)
+    return (
+        net,
+        NetworkParams(cpds, params.pseudo_count),
+        ev | {"end.pos": ev["initial.pos"] + moved},
+    )
+
+
+@settings(CASE_SETTINGS, max_examples=30)
+@given(cases(inverse=True), st.data())
+@precise
+def test_infer_action_is_the_oracle_where_the_force_moves_the_start(case, data):
+    """The parameter moves the position from its start (weight 1 on the start): the
+    end's mean ``start + W force + b`` near the observed end at any magnitude of the
+    start, the force given or integrated out."""
+    net, params, ev = start_moved(*case, data.draw(st.floats(-3.0, 3.0), label="moved"))
+    if data.draw(st.booleans(), label="force given"):
+        ev["param.force"] = data.draw(st.floats(0.0, 3.0, allow_nan=False), label="force")
+    got = infer_action(net, params, encode(net, ev))
+    sums_to_one(got.probs)
+    want = Oracle(net, params).posterior(ev, "action")
+    assert np.abs(got.probs[0].numpy() - want).max() <= 1e-12, (got.probs, want)
+
+
 @CASE_SETTINGS
 @given(cases(), st.data())
 @precise
@@ -579,6 +675,15 @@ def test_infer_parameter_is_the_oracle(case):
     """On a third of the cases the other oracle tests draw, to keep the default suite
     fast; the slow test below draws the full number."""
     check_infer_parameter_against_the_oracle(case)
+
+
+@settings(CASE_SETTINGS, max_examples=20)
+@given(inverse_cases(), st.floats(-3.0, 3.0))
+@precise
+def test_infer_parameter_is_the_oracle_where_the_force_moves_the_start(case, moved):
+    """Traced and compiled, the cluster posterior and the value's moments where the end
+    is the start moved (:func:`start_moved`), at any magnitude of the start."""
+    check_infer_parameter_against_the_oracle(start_moved(*case, moved))
 
 
 @pytest.mark.slow
