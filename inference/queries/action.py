@@ -50,6 +50,7 @@ from inference.queries.plausibility import (
 from inference.queries.results import (
     ActionPosterior,
 )
+from models.cpds.table import broadcast_shapes
 from models.declaration import (
     ACTION,
     DTYPE,
@@ -123,7 +124,7 @@ def infer_action(
         flag = unseen_indicator(net, params, e, observed_end) if observed_end else torch.zeros(())
         if not bool(flag.any()):
             return probs, torch.zeros_like(probs), e.log_evidence
-        if others and torch.broadcast_shapes(post.shape, flag.shape) == post.shape:
+        if others and broadcast_shapes(post.shape, flag.shape) == post.shape:
             joint = post.mul_(flag)  # post is this call's own and probs a sum of it
         else:
             joint = (post * flag).expand_as(post)

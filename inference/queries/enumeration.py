@@ -32,6 +32,7 @@ from inference.queries.elimination import (
     sample,
     value_at,
 )
+from models.cpds.table import broadcast_shapes
 from models.declaration import EffectNetwork
 from models.evidence import Evidence
 from models.model import effect_model
@@ -369,7 +370,7 @@ def _dense_sum(factors: list[torch.Tensor]) -> torch.Tensor:
     total = factors[0]
     for i, lp in enumerate(factors[1:]):
         fits = (
-            torch.broadcast_shapes(total.shape, lp.shape) == total.shape
+            broadcast_shapes(total.shape, lp.shape) == total.shape
             and torch.result_type(total, lp) == total.dtype
         )
         # a new tensor once (the trace's own log_prob stays as it is), then in place:
