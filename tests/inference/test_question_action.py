@@ -140,3 +140,36 @@ def test_a_pattern_whose_table_exceeds_the_budget_is_never_built():
         for table in (plan.log_table, plan.unseen):
             tensors = table.parts if isinstance(table, action._RowSums) else [table]
             assert all(t is None or t.numel() <= action.PLAN_BUDGET for t in tensors)
+
+
+@pytest.mark.parametrize("k", [8, 16, 40])
+def test_sparse_networks_compiled_by_elimination_equal_traced_and_closed_form(k, monkeypatch):
+    """``k`` binary features whose end values depend on their own initial value and the
+    action, the initial state unknown: the compiled tables answer as the traced query
+    and the closed form (to 1e-12), one row or many, and above a few features never
+    build a table over the joint of the initial state (2^40 values at k = 40)."""
+    from inference.queries.factored import FactoredPlan
+    from tests.inference.test_elimination import closed_form, sparse_network
+
+    net = sparse_network(k)
+    params = random_params(net, 3, unseen=0.2)
+    observed = k - 2  # two end features unobserved: summed out
+    y = torch.randint(0, 2, (6, observed), generator=torch.Generator().manual_seed(k))
+    evidence = net.encode_indices({f"end.f{i}": y[:, i] for i in range(observed)})
+    post, unseen, _, _ = closed_form(params, k, y, observed)
+    compiled = inference.compile(net, params)
+    traced_calls = TracedCalls(monkeypatch, "infer_action")
+    for rows_ in (slice(0, 6), slice(2, 3)):
+        for options in ({}, {"allowed": ["lift", "wait"]}, {"implausible_below": 1e-3 ** (k / 8)}):
+            fast = compiled.infer_action(evidence.rows(rows_), **options)
+            assert_same_answer(fast, infer_action(net, params, evidence.rows(rows_), **options))
+            torch.testing.assert_close(fast.probs, post[rows_], atol=1e-12, rtol=0)
+            torch.testing.assert_close(fast.unseen, unseen[rows_], atol=1e-12, rtol=0)
+            if "implausible_below" in options and rows_.stop == 6:  # some flagged, not all
+                assert 0 < int(fast.implausible.sum()) < 6
+    assert traced_calls.calls == 0
+    assert bool((unseen > 0.01).any())  # the unseen configurations take part
+    plans = compiled.action_tables.plans.values()
+    if k >= 16:
+        assert plans and all(isinstance(p, FactoredPlan) for p in plans)
+        assert all(t.table.numel() <= 64 for p in plans for t in p.parts)
