@@ -241,7 +241,7 @@ def gather(table: torch.Tensor, index: tuple[torch.Tensor, ...]) -> torch.Tensor
     rows: list[int] = []
     for axis, i in enumerate(index):
         size = table.shape[axis]
-        big = [d for d in range(-i.dim(), 0) if i.shape[d] != 1]
+        big = [d - i.dim() for d, k in enumerate(i.shape) if k != 1]
         if (
             i.dim() == 1
             and len(shape) >= 1
@@ -301,6 +301,8 @@ def _rows_first(table: torch.Tensor, rows: tuple[int, ...], kept: tuple[int, ...
 
 def _is_range(i: torch.Tensor) -> bool:
     flat = i.reshape(-1)
+    if flat.shape[0] <= 64:  # an enumerated site's states: Python's compare is cheaper
+        return flat.tolist() == list(range(flat.shape[0]))
     return bool((flat == torch.arange(flat.shape[0])).all())
 
 

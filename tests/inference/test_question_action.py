@@ -173,3 +173,22 @@ def test_sparse_networks_compiled_by_elimination_equal_traced_and_closed_form(k,
     if k >= 16:
         assert plans and all(isinstance(p, FactoredPlan) for p in plans)
         assert all(t.table.numel() <= 64 for p in plans for t in p.parts)
+
+
+def test_a_query_skips_pyro_s_per_site_checks_and_leaves_validation_as_it_was(monkeypatch):
+    """The evidence's encoding and the parameters' check validate a query's inputs once;
+    Pyro's checks of every traced site's log-probability would repeat them per call.
+    The global validation setting is left as it was."""
+    import pyro
+    from pyro.poutine import trace_struct
+
+    checked = []
+    monkeypatch.setattr(trace_struct, "warn_if_nan", lambda *a, **k: checked.append(a))
+    evidence, _ = CASES["initial state unknown"]
+    with pyro.validation_enabled(True):
+        answer = infer_action(DISCRETE, PARAMS, evidence)
+        assert pyro.poutine.util.is_validation_enabled()
+        trace = pyro.poutine.trace(lambda: pyro.sample("x", pyro.distributions.Normal(0, 1)))
+        trace.get_trace().compute_log_prob()  # validation still on outside the query
+    assert len(checked) == 1
+    assert bool(torch.isfinite(answer.log_evidence).all())
