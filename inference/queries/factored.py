@@ -21,6 +21,11 @@ from inference.queries.elimination import contract, contract_size
 from models.declaration import ACTION
 from models.evidence import Evidence
 
+#: A pattern whose summed table (observed configurations times the latent joint) holds
+#: at most this many values keeps that table: its answers are then computed once per
+#: observed configuration and a query reads them.
+SUMMED_TABLE = 1 << 22
+
 
 @dataclass(frozen=True)
 class _Part:
@@ -79,10 +84,11 @@ class FactoredPlan:
         kept: list[torch.Tensor],
         misses: list[torch.Tensor],
     ) -> FactoredPlan | None:
-        """The plan of ``observed`` by elimination, where the latent sites' joint is
-        larger than the elimination's steps by far (the rule
-        :func:`~inference.queries.elimination.contract_size` applies); ``None`` where it
-        is small or does not split, and one summed table serves better."""
+        """The plan of ``observed`` by elimination, where the summed table would exceed
+        ``SUMMED_TABLE`` values and the latent sites' joint is larger than the
+        elimination's steps by far (the rule
+        :func:`~inference.queries.elimination.contract_size` applies); ``None`` where the
+        table is small or the joint does not split, and one summed table serves better."""
         spanned = {s for t in kept for a, s in enumerate(order) if t.shape[a] > 1}
         latent = tuple(s for s in order if s not in observed and (s in spanned or s == ACTION))
         dim = {s: i - len(latent) - 1 for i, s in enumerate(latent)}  # rows last
@@ -93,7 +99,8 @@ class FactoredPlan:
             for t in kept
         )
         joint = math.prod(sizes[s] for s in latent)
-        if contract_size(scopes) >= joint:
+        table = joint * math.prod(sizes[s] for s in spanned if s in observed)
+        if table <= SUMMED_TABLE or contract_size(scopes) >= joint:
             return None
         parts = tuple(_part(t, order, observed, latent) for t in kept)
         unseen = None

@@ -169,10 +169,10 @@ def test_sparse_networks_compiled_by_elimination_equal_traced_and_closed_form(k,
                 assert 0 < int(fast.implausible.sum()) < 6
     assert traced_calls.calls == 0
     assert bool((unseen > 0.01).any())  # the unseen configurations take part
-    plans = compiled.action_tables.plans.values()
+    plan = compiled.action_tables.plans[frozenset(evidence)]
     if k >= 16:
-        assert plans and all(isinstance(p, FactoredPlan) for p in plans)
-        assert all(t.table.numel() <= 64 for p in plans for t in p.parts)
+        assert isinstance(plan, FactoredPlan)
+        assert all(t.table.numel() <= 64 for t in plan.parts)
 
 
 def test_a_query_skips_pyro_s_per_site_checks_and_leaves_validation_as_it_was(monkeypatch):
@@ -192,3 +192,27 @@ def test_a_query_skips_pyro_s_per_site_checks_and_leaves_validation_as_it_was(mo
         trace.get_trace().compute_log_prob()  # validation still on outside the query
     assert len(checked) == 1
     assert bool(torch.isfinite(answer.log_evidence).all())
+
+
+@pytest.mark.parametrize("n", [1, 9])
+def test_a_table_pattern_whose_prior_is_summed_by_elimination(n, monkeypatch):
+    """With the thresholds at 0, the end state's pattern (each end feature depends on
+    every initial one: its joint does not split) keeps its summed table and answers,
+    while the prior of the implausible flag (the initial features and the action,
+    independent) is summed per row by elimination: the same answers as traced."""
+    from inference.queries import elimination, factored
+
+    monkeypatch.setattr(factored, "SUMMED_TABLE", 0)
+    monkeypatch.setattr(elimination, "DENSE_CONFIGURATIONS", 0)
+    params = random_params(DISCRETE, 4)  # every configuration seen: one row is read whole
+    evidence = rows(("end.f0", "end.f1"), n, 9)
+    compiled = inference.compile(DISCRETE, params)
+    flags = []
+    for below in (0.01, 0.2):
+        fast = compiled.infer_action(evidence, implausible_below=below)
+        assert_same_answer(fast, infer_action(DISCRETE, params, evidence, implausible_below=below))
+        flags += fast.implausible.tolist()
+    assert any(flags) and not all(flags)
+    plans = compiled.action_tables.plans
+    assert plans[frozenset(evidence)].answers is not None
+    assert isinstance(plans[frozenset()], factored.FactoredPlan)
