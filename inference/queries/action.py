@@ -289,7 +289,10 @@ class CompiledNetwork:
 
     ``factors[site]`` has one axis per enumerated site, in ``order`` (size 1 where the
     factor does not depend on that site). Per evidence pattern (which sites are
-    observed) the kept factors are summed once into a single table, cached in ``plans``.
+    observed) the kept factors are summed once into a single table, cached in ``plans``;
+    where that table would be large and the latent sites' joint splits (sparse
+    parents), the pattern keeps its factors and sums each row by elimination instead
+    (:class:`~inference.queries.factored.FactoredPlan`).
     """
 
     net: EffectNetwork
