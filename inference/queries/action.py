@@ -42,6 +42,7 @@ from inference.queries.enumeration import (
     Enumerated,
     over_row_chunks,
 )
+from inference.queries.factored import FactoredPlan
 from inference.queries.plausibility import (
     IMPLAUSIBLE_BELOW,
     check_threshold,
@@ -50,6 +51,7 @@ from inference.queries.plausibility import (
 from inference.queries.results import (
     ActionPosterior,
 )
+from models.cpds.table import broadcast_shapes
 from models.declaration import (
     ACTION,
     DTYPE,
@@ -123,7 +125,7 @@ def infer_action(
         flag = unseen_indicator(net, params, e, observed_end) if observed_end else torch.zeros(())
         if not bool(flag.any()):
             return probs, torch.zeros_like(probs), e.log_evidence
-        if others and torch.broadcast_shapes(post.shape, flag.shape) == post.shape:
+        if others and broadcast_shapes(post.shape, flag.shape) == post.shape:
             joint = post.mul_(flag)  # post is this call's own and probs a sum of it
         else:
             joint = (post * flag).expand_as(post)
@@ -287,7 +289,10 @@ class CompiledNetwork:
 
     ``factors[site]`` has one axis per enumerated site, in ``order`` (size 1 where the
     factor does not depend on that site). Per evidence pattern (which sites are
-    observed) the kept factors are summed once into a single table, cached in ``plans``.
+    observed) the kept factors are summed once into a single table, cached in ``plans``;
+    where that table would be large and the latent sites' joint splits (sparse
+    parents), the pattern keeps its factors and sums each row by elimination instead
+    (:class:`~inference.queries.factored.FactoredPlan`).
     """
 
     net: EffectNetwork
@@ -317,6 +322,11 @@ class CompiledNetwork:
             kept.append(table)
             if role == "end" and site in observed:
                 misses.append(~self.seen[site])
+        factored = FactoredPlan.of(
+            self.order, {s: self.net.site(s).size for s in self.order}, observed, kept, misses
+        )
+        if factored is not None:
+            return factored
         if any(self.net.site(s).role == "end" for s in observed):
             lazy = _lazy_plan(self.net, self.order, observed, kept, misses)
             if lazy is not None:
@@ -407,7 +417,9 @@ class CompiledNetwork:
         index = tuple(enc[s] for s in plan.observed)
         a = plan.latent.index(ACTION) + 1
         top = None
-        if plan.answers is not None:  # gather the answers computed for the whole table
+        if isinstance(plan, FactoredPlan):  # summed per row by elimination
+            probs, log_evidence, factored_unseen = plan.answer(enc)
+        elif plan.answers is not None:  # gather the answers computed for the whole table
             row = _Answers.row(index, plan.log_table.shape[: len(plan.observed)])
             probs = plan.answers.probs.index_select(0, row)
             top = None if plan.answers.top is None else plan.answers.top[row]
@@ -430,6 +442,8 @@ class CompiledNetwork:
                 probs = (log_marginal - log_evidence[:, None]).exp()
         if plan.unseen is None:
             unseen_mass = torch.zeros_like(probs)
+        elif isinstance(plan, FactoredPlan):
+            unseen_mass = factored_unseen
         elif plan.answers is not None and plan.answers.unseen_mass is not None:
             unseen_mass = plan.answers.unseen_mass.index_select(0, row)
         else:
@@ -495,7 +509,9 @@ class CompiledNetwork:
             if len(given) == len(enc):
                 self.surprises[pattern] = None  # no end site observed: never implausible
             else:
-                self._evidence_below(enc, log_evidence, below)  # builds priors[given]
+                flag = self._evidence_below(enc, log_evidence, below)  # builds priors[given]
+                if given not in self.priors:  # a prior summed per row (FactoredPlan)
+                    return flag
                 prior = self.priors[given]  # axes: the observed non-end sites, in order
                 shape = [
                     size if s in given else 1
@@ -520,6 +536,10 @@ class CompiledNetwork:
             return torch.zeros(enc.n_rows, dtype=torch.bool)
         if given not in self.priors:
             plan = self.plans.get(given) or self._build_plan(given)
+            if isinstance(plan, FactoredPlan):  # the prior summed per row by elimination
+                self.plans[given] = plan
+                log_prior = plan.log_evidence(enc)
+                return torch.as_tensor(log_evidence - log_prior < math.log(below)).reshape(-1)
             table = plan.log_table
             k = len(plan.observed)
             self.priors[given] = table.reshape(*table.shape[:k], -1).logsumexp(-1)

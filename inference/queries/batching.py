@@ -17,11 +17,11 @@ from dataclasses import fields, is_dataclass, replace
 
 import numpy as np
 import torch
-from pyro.ops.indexing import Vindex
 
 from inference.queries.enumeration import (
     Enumerated,
 )
+from models.cpds.table import gather
 from models.declaration import (
     ACTION,
     DTYPE,
@@ -131,7 +131,7 @@ def unseen_flags(
     for site in sites:
         cpd = net.cpd(site)
         index = [values[s] for s in cpd.parents]
-        flags.append(~Vindex(cpd.seen(params[site]))[tuple(index)])
+        flags.append(~gather(cpd.seen(params[site]), tuple(index)))
     return flags
 
 

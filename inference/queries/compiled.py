@@ -139,8 +139,9 @@ class CompiledQueries:
         implausible_below: float = IMPLAUSIBLE_BELOW,
     ) -> ActionPosterior:
         """:func:`inference.infer_action`, answered from the discrete factor tables where
-        every site is discrete (any evidence, unknown initial states included), by the
-        traced model otherwise."""
+        every site is discrete (any evidence, unknown initial states included; where the
+        unknown sites are many and their joint splits, by elimination over the tables,
+        row by row), by the traced model otherwise."""
         tables = self.action_tables
         if tables is None:
             return infer_action(

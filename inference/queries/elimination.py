@@ -76,23 +76,43 @@ def contract_size(scopes: tuple[frozenset[tuple[int, int]], ...]) -> int:
     return joint if joint <= DENSE_RATIO * largest else largest
 
 
-def _eliminate(factors, eliminate, reduce):
-    """Sum (``reduce``) the dims ``eliminate`` out of the factors, one at a time; returns
-    the remaining factors and, per step, the dim and the summed tensor."""
-    factors = list(factors)
-    scopes = tuple(scope(f) for f in factors)
-    order, _ = plan(scopes, frozenset(eliminate))
-    spans = [{d for d, _ in sc} for sc in scopes]
+@lru_cache(maxsize=256)
+def schedule(
+    scopes: tuple[frozenset[tuple[int, int]], ...], eliminate: frozenset[int]
+) -> tuple[tuple[tuple[int, tuple[int, ...]], ...], tuple[int, ...]]:
+    """The steps of summing the dims ``eliminate`` out of factors of these scopes, in
+    :func:`plan`'s order: per step the dim and the slots of the factors it sums (the
+    factors are slots ``0 .. F-1``; each step's answer takes the next slot), and the
+    slots left at the end. Cached per structure, so that a query repeats no planning."""
+    order, _ = plan(scopes, eliminate)
+    spans = {i: {d for d, _ in sc} for i, sc in enumerate(scopes)}
     steps = []
     for d in order:
-        involved = [f for f, s in zip(factors, spans, strict=True) if d in s]
-        union = set().union(*(s for s in spans if d in s))
-        rest = [(f, s) for f, s in zip(factors, spans, strict=True) if d not in s]
-        out = reduce(_sum(involved), d)
-        steps.append((d, out))
-        factors = [f for f, _ in rest] + [out[0] if isinstance(out, tuple) else out]
-        spans = [s for _, s in rest] + [union - {d}]
-    return factors, steps
+        involved = tuple(i for i in sorted(spans) if d in spans[i])
+        union = set().union(*(spans.pop(i) for i in involved))
+        spans[len(scopes) + len(steps)] = union - {d}
+        steps.append((d, involved))
+    return tuple(steps), tuple(sorted(spans))
+
+
+def _eliminate(factors, eliminate, reduce, scopes=None):
+    """Sum (``reduce``) the dims ``eliminate`` out of the factors, one at a time; returns
+    the remaining factors and, per step, the dim and the summed tensor. ``scopes``: the
+    factors' (:func:`scope` of each), where the caller knows them."""
+    slots = list(factors)
+    if scopes is None:
+        scopes = tuple(scope(f) for f in slots)
+    steps, left = schedule(scopes, frozenset(eliminate))
+    done = []
+    for d, involved in steps:
+        out = reduce(_sum([slots[i] for i in involved]), d)
+        done.append((d, out))
+        slots.append(out[0] if isinstance(out, tuple) else out)
+    return [slots[i] for i in left], done
+
+
+def _logsumexp(t: torch.Tensor, d: int) -> torch.Tensor:
+    return t.logsumexp(d, keepdim=True)
 
 
 def _sum(factors: list[torch.Tensor]) -> torch.Tensor:
@@ -102,10 +122,15 @@ def _sum(factors: list[torch.Tensor]) -> torch.Tensor:
     return total
 
 
-def contract(factors: list[torch.Tensor], eliminate: list[int]) -> torch.Tensor:
+def contract(
+    factors: list[torch.Tensor],
+    eliminate: list[int],
+    scopes: tuple[frozenset[tuple[int, int]], ...] | None = None,
+) -> torch.Tensor:
     """``log sum exp`` over the dims ``eliminate`` of the factors' sum, by elimination:
-    a tensor whose other dims keep their size and whose eliminated dims are 1."""
-    left, _ = _eliminate(factors, eliminate, lambda t, d: t.logsumexp(d, keepdim=True))
+    a tensor whose other dims keep their size and whose eliminated dims are 1.
+    ``scopes``: each factor's :func:`scope`, where the caller has them."""
+    left, _ = _eliminate(factors, eliminate, _logsumexp, scopes)
     return _sum(left)
 
 

@@ -21,6 +21,7 @@ from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 
+import pyro
 import torch
 from pyro import poutine
 
@@ -32,6 +33,7 @@ from inference.queries.elimination import (
     sample,
     value_at,
 )
+from models.cpds.table import broadcast_shapes
 from models.declaration import EffectNetwork
 from models.evidence import Evidence
 from models.model import effect_model
@@ -281,15 +283,18 @@ def enumerate_model(
         raise ValueError(
             f"queries need the initial state of continuous features; missing {missing_initial}"
         )
-    trace = poutine.trace(poutine.enum(effect_model, first_available_dim=-2)).get_trace(
-        net,
-        params,
-        evidence,
-        end_sites=set(evidence) | keep | trace_only,
-        collapse=True,
-        masks=masks,
-    )
-    trace.compute_log_prob()
+    # Pyro's checks of every site's value and log-probability repeat, per call, what the
+    # evidence's encoding and the parameters' check have settled once
+    with pyro.validation_enabled(False):
+        trace = poutine.trace(poutine.enum(effect_model, first_available_dim=-2)).get_trace(
+            net,
+            params,
+            evidence,
+            end_sites=set(evidence) | keep | trace_only,
+            collapse=True,
+            masks=masks,
+        )
+        trace.compute_log_prob()
     bounded: list[torch.Tensor] = []  # tables and factors: 0, -inf or a probability's log
     unbounded: dict[str, torch.Tensor] = {}  # densities and softmaxes, as traced
     dims: dict[str, int] = {}
@@ -380,7 +385,7 @@ def _dense_sum(factors: list[torch.Tensor]) -> torch.Tensor:
     total = factors[0]
     for i, lp in enumerate(factors[1:]):
         fits = (
-            torch.broadcast_shapes(total.shape, lp.shape) == total.shape
+            broadcast_shapes(total.shape, lp.shape) == total.shape
             and torch.result_type(total, lp) == total.dtype
         )
         # a new tensor once (the trace's own log_prob stays as it is), then in place:

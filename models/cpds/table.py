@@ -177,7 +177,7 @@ class GatheredCategorical(dist.TorchDistribution):
     def __init__(self, logs: torch.Tensor, index: tuple, batch_shape=None, validate_args=None):
         self.logs, self.index = logs, index
         if batch_shape is None:
-            batch_shape = torch.broadcast_shapes(*(i.shape for i in index))
+            batch_shape = broadcast_shapes(*(i.shape for i in index))
         super().__init__(torch.Size(batch_shape), torch.Size(), validate_args=False)
 
     @property
@@ -203,7 +203,7 @@ class GatheredCategorical(dist.TorchDistribution):
             raise ValueError(f"a state index outside 0..{k - 1}: {value.unique().tolist()}")
         index = (*self.index, value)
         lp = gather(self.logs, index)
-        return lp.expand(torch.broadcast_shapes(lp.shape, self.batch_shape))
+        return lp.expand(broadcast_shapes(lp.shape, self.batch_shape))
 
     def sample(self, sample_shape: tuple[int, ...] = ()) -> torch.Tensor:
         return dist.Categorical(logits=self.logits).sample(torch.Size(sample_shape))
@@ -212,6 +212,19 @@ class GatheredCategorical(dist.TorchDistribution):
         k = self.logs.shape[-1]
         values = torch.arange(k).reshape((k,) + (1,) * len(self.batch_shape))
         return values.expand((k, *self.batch_shape)) if expand else values
+
+
+def broadcast_shapes(*shapes: tuple[int, ...]) -> torch.Size:
+    """``torch.broadcast_shapes`` of concrete shapes, in plain Python: torch's own checks
+    symbolic sizes too and costs tens of microseconds, paid per site of every trace."""
+    out = [1] * max((len(s) for s in shapes), default=0)
+    for shape in shapes:
+        for i, k in enumerate(shape, len(out) - len(shape)):
+            if k != 1:
+                if out[i] not in (1, k):
+                    raise RuntimeError(f"shapes {list(shapes)} do not broadcast")
+                out[i] = k
+    return torch.Size(out)
 
 
 def gather(table: torch.Tensor, index: tuple[torch.Tensor, ...]) -> torch.Tensor:
@@ -223,12 +236,12 @@ def gather(table: torch.Tensor, index: tuple[torch.Tensor, ...]) -> torch.Tensor
     ``index_select`` (a copy of the answer's size, no broadcast index arithmetic);
     any other index goes through :class:`pyro.ops.indexing.Vindex`.
     """
-    shape = torch.broadcast_shapes(*(i.shape for i in index))
+    shape = broadcast_shapes(*(i.shape for i in index))
     whole: dict[int, int] = {}  # axis -> its (negative) dim in the answer
     rows: list[int] = []
     for axis, i in enumerate(index):
         size = table.shape[axis]
-        big = [d for d in range(-i.dim(), 0) if i.shape[d] != 1]
+        big = [d - i.dim() for d, k in enumerate(i.shape) if k != 1]
         if (
             i.dim() == 1
             and len(shape) >= 1
@@ -288,6 +301,8 @@ def _rows_first(table: torch.Tensor, rows: tuple[int, ...], kept: tuple[int, ...
 
 def _is_range(i: torch.Tensor) -> bool:
     flat = i.reshape(-1)
+    if flat.shape[0] <= 64:  # an enumerated site's states: Python's compare is cheaper
+        return flat.tolist() == list(range(flat.shape[0]))
     return bool((flat == torch.arange(flat.shape[0])).all())
 
 

@@ -140,3 +140,79 @@ def test_a_pattern_whose_table_exceeds_the_budget_is_never_built():
         for table in (plan.log_table, plan.unseen):
             tensors = table.parts if isinstance(table, action._RowSums) else [table]
             assert all(t is None or t.numel() <= action.PLAN_BUDGET for t in tensors)
+
+
+@pytest.mark.parametrize("k", [8, 16, 40])
+def test_sparse_networks_compiled_by_elimination_equal_traced_and_closed_form(k, monkeypatch):
+    """``k`` binary features whose end values depend on their own initial value and the
+    action, the initial state unknown: the compiled tables answer as the traced query
+    and the closed form (to 1e-12), one row or many, and above a few features never
+    build a table over the joint of the initial state (2^40 values at k = 40)."""
+    from inference.queries.factored import FactoredPlan
+    from tests.inference.test_elimination import closed_form, sparse_network
+
+    net = sparse_network(k)
+    params = random_params(net, 3, unseen=0.2)
+    observed = k - 2  # two end features unobserved: summed out
+    y = torch.randint(0, 2, (6, observed), generator=torch.Generator().manual_seed(k))
+    evidence = net.encode_indices({f"end.f{i}": y[:, i] for i in range(observed)})
+    post, unseen, _, _ = closed_form(params, k, y, observed)
+    compiled = inference.compile(net, params)
+    traced_calls = TracedCalls(monkeypatch, "infer_action")
+    for rows_ in (slice(0, 6), slice(2, 3)):
+        for options in ({}, {"allowed": ["lift", "wait"]}, {"implausible_below": 1e-3 ** (k / 8)}):
+            fast = compiled.infer_action(evidence.rows(rows_), **options)
+            assert_same_answer(fast, infer_action(net, params, evidence.rows(rows_), **options))
+            torch.testing.assert_close(fast.probs, post[rows_], atol=1e-12, rtol=0)
+            torch.testing.assert_close(fast.unseen, unseen[rows_], atol=1e-12, rtol=0)
+            if "implausible_below" in options and rows_.stop == 6:  # some flagged, not all
+                assert 0 < int(fast.implausible.sum()) < 6
+    assert traced_calls.calls == 0
+    assert bool((unseen > 0.01).any())  # the unseen configurations take part
+    plan = compiled.action_tables.plans[frozenset(evidence)]
+    if k >= 16:
+        assert isinstance(plan, FactoredPlan)
+        assert all(t.table.numel() <= 64 for t in plan.parts)
+
+
+def test_a_query_skips_pyro_s_per_site_checks_and_leaves_validation_as_it_was(monkeypatch):
+    """The evidence's encoding and the parameters' check validate a query's inputs once;
+    Pyro's checks of every traced site's log-probability would repeat them per call.
+    The global validation setting is left as it was."""
+    import pyro
+    from pyro.poutine import trace_struct
+
+    checked = []
+    monkeypatch.setattr(trace_struct, "warn_if_nan", lambda *a, **k: checked.append(a))
+    evidence, _ = CASES["initial state unknown"]
+    with pyro.validation_enabled(True):
+        answer = infer_action(DISCRETE, PARAMS, evidence)
+        assert pyro.poutine.util.is_validation_enabled()
+        trace = pyro.poutine.trace(lambda: pyro.sample("x", pyro.distributions.Normal(0, 1)))
+        trace.get_trace().compute_log_prob()  # validation still on outside the query
+    assert len(checked) == 1
+    assert bool(torch.isfinite(answer.log_evidence).all())
+
+
+@pytest.mark.parametrize("n", [1, 9])
+def test_a_table_pattern_whose_prior_is_summed_by_elimination(n, monkeypatch):
+    """With the thresholds at 0, the end state's pattern (each end feature depends on
+    every initial one: its joint does not split) keeps its summed table and answers,
+    while the prior of the implausible flag (the initial features and the action,
+    independent) is summed per row by elimination: the same answers as traced."""
+    from inference.queries import elimination, factored
+
+    monkeypatch.setattr(factored, "SUMMED_TABLE", 0)
+    monkeypatch.setattr(elimination, "DENSE_CONFIGURATIONS", 0)
+    params = random_params(DISCRETE, 4)  # every configuration seen: one row is read whole
+    evidence = rows(("end.f0", "end.f1"), n, 9)
+    compiled = inference.compile(DISCRETE, params)
+    flags = []
+    for below in (0.01, 0.2):
+        fast = compiled.infer_action(evidence, implausible_below=below)
+        assert_same_answer(fast, infer_action(DISCRETE, params, evidence, implausible_below=below))
+        flags += fast.implausible.tolist()
+    assert any(flags) and not all(flags)
+    plans = compiled.action_tables.plans
+    assert plans[frozenset(evidence)].answers is not None
+    assert isinstance(plans[frozenset()], factored.FactoredPlan)

@@ -7,7 +7,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pyro.ops.indexing import Vindex
 
-from models.cpds.table import GatheredCategorical, gather
+from models.cpds.table import GatheredCategorical, broadcast_shapes, gather
 
 
 @st.composite
@@ -80,3 +80,16 @@ def test_the_log_table_is_torch_s_logits_of_the_normalised_table(seed, zeros):
     probs[..., 0] += 1e-300  # no row entirely zero
     expected = probs_to_logits(probs / probs.sum(-1, keepdim=True))
     assert torch.equal(_logits(probs), expected)
+
+
+@settings(max_examples=200, deadline=None)
+@given(st.lists(st.lists(st.integers(0, 3), max_size=4), min_size=1, max_size=4))
+def test_broadcast_shapes_is_torch_s(shapes):
+    """The plain-Python broadcast agrees with torch's, refusals included."""
+    try:
+        expected = torch.broadcast_shapes(*shapes)
+    except RuntimeError:
+        with pytest.raises(RuntimeError):
+            broadcast_shapes(*shapes)
+        return
+    assert broadcast_shapes(*shapes) == expected
