@@ -7,20 +7,20 @@ ones keep their report beside them (``*_report``). The scripts in ``examples/`` 
 :func:`.cli.main`, which parses a command line into the settings, runs the experiment
 and saves the result.
 
-=====================  ==============================================================
-:mod:`.tap_and_remove`  §III: remove and tap, with and without a parameter site
-:mod:`.throwing`        §IV-B: the throw network's inverse, re-thrown
-:mod:`.can_tossing`     §IV-A: Table I under both protocols, emulation, imitation
-:mod:`.combined`        §IV-C: both networks chained, Tables II-IV, both planners
-:mod:`.physics_bounds`  the best any model could do, found by simulation
-:mod:`.all_goals`       beyond the paper: every reachable goal, beside its bound
-:mod:`.active`          beyond the paper: Table I from a fraction of the throws
-:mod:`.pictures`        figures of the can world and of the robot's throw
-:mod:`.cans`            the can data set at a scale and the can network on it
-:mod:`.config`          checks of settings, and the results' base (JSON, report, files)
-:mod:`.registry`        every experiment's declaration (``EXPERIMENTS`` in its module)
-:mod:`.cli`             an experiment's command line, derived from its settings
-:mod:`.evaluation`      scoring: Table I's bins, ROC, aim-robust choice, aim pooling
-:mod:`.summary`         the results table from the saved results, for README.md
-=====================  ==============================================================
+========================  ==============================================================
+:mod:`.tap_and_remove`    §III: remove and tap, with and without a parameter site
+:mod:`.throwing`          §IV-B: the throw network's inverse, re-thrown
+:mod:`.can_tossing`       §IV-A: Table I under both protocols, emulation, imitation
+:mod:`.combined`          §IV-C: both networks chained, Tables II-IV, both planners
+:mod:`.physics_bounds`    the best any model could do, found by simulation
+:mod:`.all_goals`         beyond the paper: every reachable goal, beside its bound
+:mod:`.active`            beyond the paper: Table I from a fraction of the throws
+:mod:`.pictures`          figures of the can world and of the robot's throw
+:mod:`.cans`              the can data set at a scale and the can network on it
+:mod:`.config`            checks of settings, and the results' base (JSON, report, files)
+:mod:`.registry`          every experiment's declaration (``EXPERIMENTS`` in its module)
+:mod:`.cli`               an experiment's command line, derived from its settings
+:mod:`.evaluation`        scoring: Table I's bins, ROC, aim-robust choice, aim pooling
+:mod:`.summary`           the results table from the saved results, for README.md
+========================  ==============================================================
 """

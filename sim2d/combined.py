@@ -31,7 +31,7 @@ from sim2d.throw import ReleaseNoise, exact_target_for_hit, is_reachable_hit, th
 #: m, the table top above the robot's floor: a standard table. The pyramid then spans
 #: 0.75-1.39 m, inside the throw's reachable hits (0.35-1.63 m near y = 0).
 TABLE_TOP_Z = 0.75
-#: m, the largest |y| of a hit at which the ball still meets a can (half a can + ball radius)
+#: m, the largest ``|y|`` of a hit at which the ball still meets a can (half a can + ball radius)
 CAN_BAND = geometry.CAN_WIDTH / 2 + materials.BALL_RADIUS
 
 
@@ -271,6 +271,9 @@ def play_policy(
 ) -> dict[str, np.ndarray]:
     """Play a state-to-action table from ``start`` ``episodes`` times; an executor task.
 
+    An episode ends at the goal, when a goal can is lost, when the policy stops, or after
+    ``H`` throws. Every throw gets its own seeds from ``SeedSequence([seed, episode])``.
+
     Parameters
     ----------
     policy : (H + 1, S) int
@@ -281,9 +284,6 @@ def play_policy(
     aims : (A, 2) float
         The robot's aim ``[y, z]`` for each action (thrown with :func:`sim2d.throw.throw`,
         with ``noise`` if given).
-
-    An episode ends at the goal, when a goal can is lost, when the policy stops, or after
-    ``H`` throws. Every throw gets its own seeds from ``SeedSequence([seed, episode])``.
 
     Returns
     -------

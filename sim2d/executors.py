@@ -6,14 +6,14 @@ an ``executor``: either an object with ``submit(fn, *args)`` returning a future 
 ``result()`` (nothing else is used), or one of these specifications, opened and closed
 by :func:`open_executor`:
 
-==================  ================================================================
-``process:N``       N worker processes on this machine (``concurrent.futures``); the
-                    workers end when the process that started them ends
-``dask-local:N``    a Dask ``LocalCluster`` of N single-threaded worker processes
+====================  ================================================================
+``process:N``         N worker processes on this machine (``concurrent.futures``); the
+                      workers end when the process that started them ends
+``dask-local:N``      a Dask ``LocalCluster`` of N single-threaded worker processes
 ``dask://HOST:PORT``  the Dask scheduler at HOST:PORT (any cluster: ``dask scheduler``
-                    plus ``dask worker tcp://HOST:PORT`` on each machine)
-``ray``             Ray: the cluster named by ``RAY_ADDRESS`` if set, else a local one
-==================  ================================================================
+                      plus ``dask worker tcp://HOST:PORT`` on each machine)
+``ray``               Ray: the cluster named by ``RAY_ADDRESS`` if set, else a local one
+====================  ================================================================
 
 An executor that cannot be opened raises :class:`ExecutorUnavailable` naming the
 specification (a Dask scheduler that does not answer within ``DASK_CONNECT_TIMEOUT``

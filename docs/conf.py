@@ -1,0 +1,245 @@
+"""Sphinx configuration: the site is built from docs/ by ``bin/build-docs``, offline and
+strict (a warning or a broken cross-reference fails the build)."""
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+DOCS = Path(__file__).resolve().parent
+ROOT = DOCS.parent
+sys.path.insert(0, str(ROOT))
+
+project = "effect-networks"
+author = "The effect-networks authors"
+copyright = "The effect-networks authors"  # noqa: A001
+
+extensions = [
+    "myst_parser",
+    "sphinx.ext.autodoc",
+    "sphinx.ext.autosummary",
+    "sphinx.ext.napoleon",
+    "sphinx.ext.mathjax",
+    "sphinx.ext.viewcode",
+]
+
+source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
+exclude_patterns = ["_build"]
+root_doc = "index"
+
+myst_enable_extensions = ["dollarmath"]
+myst_heading_anchors = 3
+
+autodoc_member_order = "bysource"
+autodoc_default_options = {"members": True, "show-inheritance": False}
+# The signatures would name the classes by the module that defines them, which the
+# reference documents under its public face; the numpy docstrings' Parameters sections
+# carry the types.
+autodoc_typehints = "none"
+autosummary_generate = False
+
+napoleon_google_docstring = False
+napoleon_numpy_docstring = True
+napoleon_use_rtype = False
+# an Attributes section reads like a Parameters one: its types stay text too
+napoleon_custom_sections = [("Attributes", "params_style")]
+# types stay text ("(n, 2) float, optional"), not cross-references
+napoleon_use_param = False
+napoleon_use_keyword = False
+
+# third-party types only; every name of this project's must resolve
+nitpick_ignore_regex = [
+    (r"py:.*", r"(torch|pyro|numpy|np|matplotlib|pgmpy|dask|ray|pymunk)(\..*)?"),
+]
+
+html_theme = "alabaster"
+html_title = "effect-networks"
+html_static_path: list[str] = []
+
+
+# -- the API reference: one page per module, generated here ---------------------------
+PACKAGES = ("models", "inference", "experiments", "sim2d")
+# the faces whose names README and the guides import; a name is documented once, under
+# the first face here that exports it (its defining module's name still resolves: autodoc
+# records it as the canonical name)
+FACES = ("models", "inference", "inference.fitting", "inference.queries")
+# old import paths kept for one release: they forward with a DeprecationWarning
+DEPRECATED = {
+    f"inference.{name}"
+    for name in (
+        "active", "active_gaussian", "compiled", "em", "enumeration", "evaluation",
+        "planning", "plausibility", "pooling", "statistics", "surprise",
+    )
+}
+GROUPS = {
+    "models": "declaring a network, its parameters and distributions",
+    "inference": "fitting, exact questions, active exploration, pictures",
+    "experiments": "the paper's experiments as a library",
+    "sim2d": "the simulated can world and the robot's throw",
+}
+
+
+def _modules() -> list[str]:
+    import importlib
+    import pkgutil
+
+    names = []
+    for package in PACKAGES:
+        module = importlib.import_module(package)
+        names.append(package)
+        for info in pkgutil.walk_packages(module.__path__, package + "."):
+            if info.name not in DEPRECATED and not info.name.rsplit(".", 1)[-1].startswith("_"):
+                names.append(info.name)
+    return sorted(names)
+
+
+def _public(module) -> dict[str, object]:
+    """The names autodoc documents for ``module`` (its ``__all__``, else what it defines)."""
+    if hasattr(module, "__all__"):
+        return {name: getattr(module, name) for name in module.__all__}
+    return {
+        name: value
+        for name, value in vars(module).items()
+        if not name.startswith("_") and getattr(value, "__module__", None) == module.__name__
+    }
+
+
+#: id of an object documented under a face -> (the face, its documented name)
+HOME: dict[int, tuple[str, str]] = {}
+
+
+def _write_api_pages() -> None:
+    import importlib
+
+    modules = _modules()
+    for face in FACES:
+        for member, value in _public(importlib.import_module(face)).items():
+            HOME.setdefault(id(value), (face, f"{face}.{member}"))
+    out = DOCS / "api"
+    out.mkdir(exist_ok=True)
+    for name in modules:
+        module = importlib.import_module(name)
+        skip = sorted(
+            member
+            for member, value in _public(module).items()
+            if HOME.get(id(value), (name,))[0] != name and callable(value)
+        )
+        title = f"``{name}``"
+        lines = [title, "=" * len(title), "", f".. automodule:: {name}"]
+        if skip:
+            lines.append(f"   :exclude-members: {', '.join(skip)}")
+        text = "\n".join(lines) + "\n"
+        page = out / f"{name}.rst"
+        if not page.exists() or page.read_text() != text:
+            page.write_text(text)
+    index = ["API reference", "=============", ""]
+    index += [
+        "Every module, one page each. The names README and the guides import are documented",
+        "under the face that exports them (:mod:`models`, :mod:`inference`,",
+        ":mod:`inference.fitting`, :mod:`inference.queries`); the module that defines one",
+        "links to it there.",
+        "",
+    ]
+    for package in PACKAGES:
+        heading = f"``{package}``: {GROUPS[package]}"
+        index += [heading, "-" * len(heading), "", ".. toctree::", "   :maxdepth: 1", ""]
+        index += [f"   {m}" for m in modules if m == package or m.startswith(package + ".")]
+        index.append("")
+    text = "\n".join(index)
+    if not (out / "index.rst").exists() or (out / "index.rst").read_text() != text:
+        (out / "index.rst").write_text(text)
+
+
+_write_api_pages()
+
+
+def _tutorial_figure(app) -> None:
+    """Run the plots tutorial at a small scale so that its page shows the figure it makes."""
+    out = DOCS / "_generated" / "plots.png"
+    out.parent.mkdir(exist_ok=True)
+    env = dict(os.environ, PYTHONPATH=str(ROOT), MPLBACKEND="Agg")
+    subprocess.run(
+        [sys.executable, str(DOCS / "tutorials" / "plots.py"), "--rows", "400", "--out", str(out)],
+        check=True,
+        cwd=ROOT,
+        env=env,
+        stdout=subprocess.DEVNULL,
+    )
+
+
+def _lookup(target: str):
+    """The object a dotted name imports to, or None."""
+    import importlib
+
+    parts = target.split(".")
+    for cut in range(len(parts), 0, -1):
+        try:
+            value = importlib.import_module(".".join(parts[:cut]))
+        except ImportError:
+            continue
+        try:
+            for part in parts[cut:]:
+                value = getattr(value, part)
+        except AttributeError:
+            return None
+        return value
+    return None
+
+
+def _face_name(target: str) -> str | None:
+    """``target`` (a defining module's path, or a package's re-export) spelled by the face
+    that documents it: ``inference.queries.forward.predict`` -> ``inference.predict``."""
+    parts = target.split(".")
+    for cut in range(len(parts), 1, -1):
+        value = _lookup(".".join(parts[:cut]))
+        if value is not None and id(value) in HOME:
+            name = ".".join([HOME[id(value)][1], *parts[cut:]])
+            return name if name != target else None
+    return None
+
+
+_PROSE: dict[str, list[str]] = {}
+
+
+def _keep_prose(app, what, name, obj, options, lines):
+    """A constant's ``#:`` comment is prose: napoleon would read a colon in its first line
+    as "type: description" and make the words before it a cross-reference. Its lines are
+    kept before napoleon runs (priority 400) and put back after it (priority 600)."""
+    if what in ("data", "attribute"):
+        _PROSE[name] = list(lines)
+
+
+def _restore_prose(app, what, name, obj, options, lines):
+    if what in ("data", "attribute") and name in _PROSE:
+        lines[:] = _PROSE.pop(name)
+
+
+def _short_name(app, env, node, contnode):
+    """Resolve a name by the face that documents it, or a short Python name (``fit``, ``EffectNetwork.encode``) that names exactly one
+    documented object, as a reference written ``~.name`` would; an ambiguous or unknown
+    name stays unresolved, and the strict build fails on it."""
+    if node.get("refdomain") != "py" or node.get("refspecific"):
+        return None
+    domain = env.get_domain("py")
+    target = _face_name(node["reftarget"]) or node["reftarget"]
+    node["refspecific"] = True
+    try:
+        return domain.resolve_xref(
+            env, node["refdoc"], app.builder, node["reftype"], target, node, contnode
+        )
+    finally:
+        node["refspecific"] = False
+
+
+def _readme_links(app, docname, source):
+    """The guides link README as ``../README.md`` (right on a repository's web page); in the
+    site README is the page ``readme``, which includes it."""
+    source[0] = source[0].replace("](../README.md", "](readme.md")
+
+
+def setup(app):
+    app.connect("source-read", _readme_links)
+    app.connect("builder-inited", _tutorial_figure)
+    app.connect("missing-reference", _short_name)
+    app.connect("autodoc-process-docstring", _keep_prose, priority=400)
+    app.connect("autodoc-process-docstring", _restore_prose, priority=600)
