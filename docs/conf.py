@@ -50,6 +50,8 @@ napoleon_use_keyword = False
 # third-party types only; every name of this project's must resolve
 nitpick_ignore_regex = [
     (r"py:.*", r"(torch|pyro|numpy|np|matplotlib|pgmpy|dask|ray|pymunk)(\..*)?"),
+    # the standard library's (no intersphinx: the build is offline)
+    (r"py:class", r"(collections\.abc|pathlib|typing)\..*"),
 ]
 
 html_theme = "alabaster"
@@ -94,8 +96,9 @@ def _modules() -> list[str]:
 
 
 def _public(module) -> dict[str, object]:
-    """The names autodoc documents for ``module`` (its ``__all__``, else what it defines)."""
-    if hasattr(module, "__all__"):
+    """The names autodoc documents for ``module``: a face's ``__all__``, else what the
+    module defines (its helpers too, which other docstrings name)."""
+    if module.__name__ in FACES:
         return {name: getattr(module, name) for name in module.__all__}
     return {
         name: value
@@ -126,6 +129,8 @@ def _write_api_pages() -> None:
         )
         title = f"``{name}``"
         lines = [title, "=" * len(title), "", f".. automodule:: {name}"]
+        if name not in FACES:
+            lines.append("   :ignore-module-all:")
         if skip:
             lines.append(f"   :exclude-members: {', '.join(skip)}")
         text = "\n".join(lines) + "\n"
@@ -205,13 +210,27 @@ def _keep_prose(app, what, name, obj, options, lines):
     """A constant's ``#:`` comment is prose: napoleon would read a colon in its first line
     as "type: description" and make the words before it a cross-reference. Its lines are
     kept before napoleon runs (priority 400) and put back after it (priority 600)."""
-    if what in ("data", "attribute"):
+    if what in ("data", "attribute", "property"):
         _PROSE[name] = list(lines)
 
 
 def _restore_prose(app, what, name, obj, options, lines):
-    if what in ("data", "attribute") and name in _PROSE:
+    if what in ("data", "attribute", "property") and name in _PROSE:
         lines[:] = _PROSE.pop(name)
+
+
+def _foreign_docstring(app, what, name, obj, options, lines):
+    """A method that overrides torch's or pyro's without a docstring of its own would show
+    theirs (written for their site); it shows none."""
+    if what != "method" or getattr(obj, "__doc__", "") is not None:
+        return
+    owner = _lookup(name.rsplit(".", 1)[0])
+    for cls in getattr(owner, "__mro__", ())[1:]:
+        method = vars(cls).get(name.rsplit(".", 1)[1])
+        if method is not None and getattr(method, "__doc__", None):
+            if not cls.__module__.startswith(PACKAGES):
+                lines[:] = []
+            return
 
 
 def _short_name(app, env, node, contnode):
@@ -243,3 +262,4 @@ def setup(app):
     app.connect("missing-reference", _short_name)
     app.connect("autodoc-process-docstring", _keep_prose, priority=400)
     app.connect("autodoc-process-docstring", _restore_prose, priority=600)
+    app.connect("autodoc-process-docstring", _foreign_docstring, priority=300)

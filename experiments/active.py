@@ -6,17 +6,17 @@ throws to make (:func:`inference.design.active.explore`) and the learning curve 
 exact fraction against the number of throws used is measured for each strategy, beside
 the network fitted on every throw.
 
-* **Pool and oracle.** The pool is the 0° throwable throws :func:`experiments.cans.
-  fit_can_network` fits on: one candidate per recorded throw, so each (configuration,
-  field) pair is listed once per recorded repeat and can be played at most that often.
+* **Pool and oracle.** The pool is the 0° throwable throws
+  :func:`experiments.cans.fit_can_network` fits on: one candidate per recorded throw,
+  so each (configuration, field) pair is listed once per recorded repeat and can be played at most that often.
   Playing candidate ``i`` returns the end configuration and count that recorded throw
   reached. The oracle is fair: every recorded throw is an independent draw of the world
   (its own seeded aim jitter), the learner sees only the throws it asks for, and the
   full-data network is fitted on exactly the same throws, so the curves and the
   full-data figure share one source and no simulation noise between them.
-* **Scoring on held-out replays.** Table I's cases (:func:`experiments.can_tossing.
-  table_one_cases`, both protocols, from the full data set so that every curve point
-  answers the same cases) get their best field from the learned network exactly as
+* **Scoring on held-out replays.** Table I's cases
+  (:func:`experiments.can_tossing.table_one_cases`, both protocols, from the full data
+  set so that every curve point answers the same cases) get their best field from the learned network exactly as
   Table I does (:func:`experiments.cans.choose`, both tie-break rules). The field
   is scored on ``repeats`` fresh throws of (start, field) that no network was fitted on
   (the physics bound's replays, :mod:`experiments.physics_bounds`, seed
@@ -28,9 +28,9 @@ the network fitted on every throw.
   (:func:`inference.fit`, scored with both tie-break rules) and with each row's prior
   pooled from the neighbouring fields' throws (:func:`inference.fit_pooled`, kernel
   width ``pool_sigma`` fields, ``pool_strength`` pseudo-throws; score ``pooled``). Either
-  way the start and field priors are the pool's (:func:`inference.design.active.
-  with_pool_prior`), not the learner's play frequencies, which would otherwise steer the
-  choice towards often-played fields. The full data is fitted the same two ways, and the
+  way the start and field priors are the pool's
+  (:func:`inference.design.active.with_pool_prior`), not the learner's play
+  frequencies, which would otherwise steer the choice towards often-played fields. The full data is fitted the same two ways, and the
   goal is measured against its best score.
 * **Strategies.** ``eig`` (plain Dirichlet information gain with the fit's pseudo-count
   as prior), ``eig_shared`` (the same with a prior shared by a start configuration's

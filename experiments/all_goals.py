@@ -342,7 +342,7 @@ def impact_angle(robot: Robot, heights: np.ndarray, table_z: float) -> float:
 
 
 def run_table(config: AllGoalsConfig, table_z: float, robot: Robot, executor) -> dict:
-    """One table height's entry of :attr:`AllGoalsResult.tables`."""
+    """One table height's entry of ``AllGoalsResult.tables``."""
     started = time.perf_counter()
     states = sorted(stable_configurations())
     full = geometry.FULL_PYRAMID

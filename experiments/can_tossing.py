@@ -74,8 +74,10 @@ __all__ = [
     "table_one_cases",
 ]
 
-PROTOCOLS = ("counts", "actions")  # Table I's cases, see table_one_cases
-RULES = ("index", "aim")  # tie-breaks among fields of equal posterior
+#: Table I's cases, see :func:`table_one_cases`
+PROTOCOLS = ("counts", "actions")
+#: tie-breaks among fields of equal posterior
+RULES = ("index", "aim")
 #: The largest imitation aim error, m per axis: half the pyramid's height. Beyond it most
 #: perturbed throws miss the cans altogether and the ROC would measure only that.
 MAX_AIM_ERROR = geometry.PYRAMID_HEIGHT / 2

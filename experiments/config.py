@@ -212,6 +212,7 @@ class Result:
         return {f.name: getattr(self, f.name) for f in fields(self)}
 
     def to_json(self) -> str:
+        """The fields as one JSON object (what :meth:`from_json` reads back)."""
         return json.dumps(self.to_dict(), indent=1) + "\n"
 
     @classmethod

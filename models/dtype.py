@@ -9,7 +9,8 @@ from __future__ import annotations
 
 import torch
 
-DTYPE = torch.float64  # every continuous value and every probability is float64
+#: every continuous value and every probability is float64
+DTYPE = torch.float64
 
 #: Largest magnitude of a continuous value, for training and queries alike: its square,
 #: summed over 10^7 rows, stays finite in float64.

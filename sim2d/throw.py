@@ -93,6 +93,7 @@ SHOULDER.setflags(write=False)
 #: Upper-arm and forearm lengths, metres (chosen: adult proportions). At release the
 #: shoulder-to-hand distance is 0.30-0.35 m, well inside their reach of 0.6 m.
 UPPER_ARM_LENGTH = 0.3
+#: metres, the forearm as long as the upper arm
 FOREARM_LENGTH = 0.3
 
 #: x of the release point, metres (paper §IV-B: "released 30cm in front of the robot").

@@ -11,7 +11,7 @@ table row fitted on counts ``c`` is ``(c + alpha) / (n + K alpha)``: the posteri
 the row's probabilities ``theta`` under a ``Dirichlet(alpha, ..., alpha)`` prior. Every
 row (a configuration of an end site's discrete parents) has its own independent
 posterior ``Dirichlet(c + alpha)``; one more row's outcome adds one to one count. So the
-update is closed form, and :attr:`ExplorationResult.params` is exactly what
+update is closed form, and ``ExplorationResult.params`` is exactly what
 :func:`inference.fit` gives on the chosen rows with the same pseudo-count.
 
 Strategies (``STRATEGIES``), each scoring a candidate by the end-site rows it would
@@ -370,9 +370,9 @@ def with_pool_prior(
 
     Tables fitted on the rows :func:`explore` chose (or on any designed experiment) learn
     the chooser's frequencies as ``p(action)`` and ``p(initial state)``: a design that
-    played one action ten times more often than another makes :func:`inference.
-    infer_action` prefer it ten to one where both cause the effect alike. The pool says
-    which (initial state, action) pairs exist without playing any, so its frequencies are
+    played one action ten times more often than another makes
+    :func:`inference.infer_action` prefer it ten to one where both cause the effect
+    alike. The pool says which (initial state, action) pairs exist without playing any, so its frequencies are
     the design-free prior. Works on ``params`` of any fit (:func:`inference.fit`,
     :func:`inference.fit_pooled`, ``explore``'s own) whose initial and action sites are
     tables.

@@ -32,7 +32,8 @@ from models.declaration import (
 from models.evidence import Evidence
 from models.params import NetworkParams, check_params
 
-TIE_TOLERANCE = 1e-9  # relative: scores this close to the maximum count as tied
+#: relative: scores this close to the maximum count as tied
+TIE_TOLERANCE = 1e-9
 
 
 def first_best(score: torch.Tensor, top: torch.Tensor | None = None) -> torch.Tensor:
@@ -44,6 +45,8 @@ def first_best(score: torch.Tensor, top: torch.Tensor | None = None) -> torch.Te
 
 
 def prepare(net: EffectNetwork, params: NetworkParams, evidence: Mapping[str, object]) -> Evidence:
+    """``evidence`` encoded by ``net`` after ``params`` are checked against it; a
+    ``ValueError`` for evidence with no rows."""
     check_params(net, params)
     enc = net.encode(evidence)
     if not len(enc):

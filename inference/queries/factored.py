@@ -64,7 +64,7 @@ def _part(table: torch.Tensor, order: tuple[str, ...], observed, latent) -> _Par
 
 @dataclass(frozen=True)
 class FactoredPlan:
-    """A pattern's kept factors, each laid out by :class:`_Part`, over the latent sites
+    """A pattern's kept factors, each laid out by ``_Part``, over the latent sites
     ``latent`` (the action among them). ``unseen`` holds, where some configuration of
     an observed end site's parents was never seen in training, that site's indicator of
     a seen configuration as a log-factor (0 or ``-inf``)."""

@@ -371,7 +371,7 @@ class CompiledJointParameterQuery:
         )
 
     def infer(self, evidence: Mapping[str, object], **kwargs) -> ParameterPosterior:
-        """Deprecated: :meth:`infer_parameter` (reached through :func:`inference.compile`)."""
+        """Deprecated: :meth:`CompiledQueries.infer_parameter` (reached through :func:`inference.compile`)."""
         warnings.warn(
             "the compiled query's infer is now infer_parameter; use "
             "inference.compile(net, params).infer_parameter(parameter, evidence)",

@@ -28,11 +28,11 @@ Gaussian) and every rule that ties them together:
   (:func:`inference.fit_em`).
 * **An unknown value is integrated out in closed form**: for ``theta ~ N(m_c, S_c)`` and
   ``y = W_x x + W_p theta + b + e``, ``y ~ N(W_x x + W_p m_c + b, R + W_p S_c W_p^T)``
-  (:meth:`marginal`), and ``theta`` given ``y`` is the linear-Gaussian posterior
+  (:meth:`ParameterMixture.marginal`), and ``theta`` given ``y`` is the linear-Gaussian posterior
   (:meth:`condition`); :meth:`query_tables` precomputes both for the compiled query.
   Several parameters on one feature add their terms (:func:`affected_gaussian`); a
   value acting on several continuous features is conditioned on each observed one in
-  turn (:meth:`update`, :meth:`posterior`).
+  turn (:meth:`ParameterMixture.update`, :meth:`ParameterMixture.posterior`).
 """
 
 from __future__ import annotations

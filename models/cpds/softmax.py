@@ -2,7 +2,7 @@
 
 ``logits = weight[P...] @ x + bias[P...]``. There is no closed form: ``m_step`` gives
 a start (the counts' log-frequencies with zero slopes), and :meth:`SoftmaxCPD.maximise`
-finds the optimum of the penalised log-likelihood
+finds the optimum of the penalised log-likelihood::
 
     sum_i w_i log softmax(W[g_i] x_i + b[g_i])[y_i]  -  l2 / 2 |W|^2
 
