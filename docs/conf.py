@@ -69,8 +69,17 @@ FACES = ("models", "inference", "inference.fitting", "inference.queries")
 DEPRECATED = {
     f"inference.{name}"
     for name in (
-        "active", "active_gaussian", "compiled", "em", "enumeration", "evaluation",
-        "planning", "plausibility", "pooling", "statistics", "surprise",
+        "active",
+        "active_gaussian",
+        "compiled",
+        "em",
+        "enumeration",
+        "evaluation",
+        "planning",
+        "plausibility",
+        "pooling",
+        "statistics",
+        "surprise",
     )
 }
 GROUPS = {
