@@ -17,7 +17,6 @@ copyright = "The effect-networks authors"  # noqa: A001
 extensions = [
     "myst_parser",
     "sphinx.ext.autodoc",
-    "sphinx.ext.autosummary",
     "sphinx.ext.napoleon",
     "sphinx.ext.mathjax",
     "sphinx.ext.viewcode",
@@ -36,7 +35,6 @@ autodoc_default_options = {"members": True, "show-inheritance": False}
 # reference documents under its public face; the numpy docstrings' Parameters sections
 # carry the types.
 autodoc_typehints = "none"
-autosummary_generate = False
 
 napoleon_google_docstring = False
 napoleon_numpy_docstring = True
@@ -129,6 +127,8 @@ def _write_api_pages() -> None:
             HOME.setdefault(id(value), (face, f"{face}.{member}"))
     out = DOCS / "api"
     out.mkdir(exist_ok=True)
+    for stale in set(out.glob("*.rst")) - {out / f"{m}.rst" for m in [*modules, "index"]}:
+        stale.unlink()  # a module renamed or removed since the last build
     for name in modules:
         module = importlib.import_module(name)
         skip = sorted(
