@@ -20,7 +20,6 @@ Users reach the compiled query through :func:`inference.compile` (its
 from __future__ import annotations
 
 import itertools
-import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 
@@ -40,7 +39,11 @@ from inference.queries.enumeration import (
     Enumerated,
     over_row_chunks,
 )
-from inference.queries.parameter_tables import CompiledParameterQuery, refuse_impossible
+from inference.queries.parameter_tables import (
+    CompiledParameterQuery,
+    InferRenamed,
+    refuse_impossible,
+)
 from inference.queries.plausibility import (
     IMPLAUSIBLE_BELOW,
     check_threshold,
@@ -211,7 +214,7 @@ def _parameter_from_cluster(net, params, m, enc, observed, mixture) -> Parameter
 
 
 @dataclass(frozen=True)
-class CompiledJointParameterQuery:
+class CompiledJointParameterQuery(InferRenamed):
     """The parameter posterior of a parameter acting on several features, without tracing.
 
     The observed continuous features it acts on are jointly Gaussian given its cluster
@@ -369,16 +372,6 @@ class CompiledJointParameterQuery:
         return ParameterPosterior(
             probs, best, mean, cov, unseen, outside_range(p, mean), mix, implausible
         )
-
-    def infer(self, evidence: Mapping[str, object], **kwargs) -> ParameterPosterior:
-        """Deprecated: :meth:`CompiledQueries.infer_parameter` (reached through :func:`inference.compile`)."""
-        warnings.warn(
-            "the compiled query's infer is now infer_parameter; use "
-            "inference.compile(net, params).infer_parameter(parameter, evidence)",
-            DeprecationWarning,
-            stacklevel=2,
-        )
-        return self.infer_parameter(evidence, **kwargs)
 
 
 def _depending_on(net: EffectNetwork, sites: set[str]) -> set[str]:

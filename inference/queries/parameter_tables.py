@@ -44,8 +44,22 @@ from models.gaussian import (
 from models.params import NetworkParams
 
 
+class InferRenamed:
+    """The compiled parameter queries' former ``infer``, kept for one release."""
+
+    def infer(self, evidence: Mapping[str, object], **kwargs) -> ParameterPosterior:
+        """Deprecated: ``infer_parameter`` (reached through :func:`inference.compile`)."""
+        warnings.warn(
+            "the compiled query's infer is now infer_parameter; use "
+            "inference.compile(net, params).infer_parameter(parameter, evidence)",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return self.infer_parameter(evidence, **kwargs)
+
+
 @dataclass(frozen=True)
-class CompiledParameterQuery:
+class CompiledParameterQuery(InferRenamed):
     """The parameter posterior with its Gaussian tables precomputed.
 
     Built by :meth:`models.cpds.ParameterMixture.query_tables` from the marginal of the
@@ -188,16 +202,6 @@ class CompiledParameterQuery:
         return ParameterPosterior(
             probs, best, mean, cov, unseen, outside_range(p, mean), mix, implausible
         )
-
-    def infer(self, evidence: Mapping[str, object], **kwargs) -> ParameterPosterior:
-        """Deprecated: :meth:`infer_parameter` (reached through :func:`inference.compile`)."""
-        warnings.warn(
-            "the compiled query's infer is now infer_parameter; use "
-            "inference.compile(net, params).infer_parameter(parameter, evidence)",
-            DeprecationWarning,
-            stacklevel=2,
-        )
-        return self.infer_parameter(evidence, **kwargs)
 
     def _one_tables(self) -> dict | None:
         """Per action, the numpy views :meth:`_one_row` reads (``None``: no one-row path,
