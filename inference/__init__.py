@@ -16,9 +16,6 @@ Lower-level names live in their modules (:mod:`inference.queries.enumeration`,
 resolve here for one release, with a ``DeprecationWarning``.
 """
 
-import importlib
-import warnings
-
 from inference import plots as plots  # the module only: its names stay off the face
 from inference.design.active import explore
 from inference.fitting.em import EMResult, fit_em
@@ -42,6 +39,7 @@ from inference.queries import (
 )
 from inference.queries.plausibility import OutsideTrainingData
 from inference.queries.simulate import simulate
+from models.deprecation import moved
 
 __all__ = [
     "ActionPosterior",
@@ -80,13 +78,8 @@ DEPRECATED = {
 }
 
 
-def __getattr__(name: str):
-    if name in DEPRECATED:
-        warnings.warn(
-            f"inference.{name} is deprecated at the package face: import it from "
-            f"{DEPRECATED[name]}",
-            DeprecationWarning,
-            stacklevel=2,
-        )
-        return getattr(importlib.import_module(DEPRECATED[name]), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = moved(
+    __name__,
+    DEPRECATED,
+    "inference.{name} is deprecated at the package face: import it from {home}",
+)

@@ -1,8 +1,10 @@
 """Old names kept for one release: a module's ``__getattr__`` that answers an old name
-with the object of its new name and a ``DeprecationWarning``."""
+with the object of its new name (:func:`renamed`) or a name from the module that holds it
+now (:func:`moved`), and a ``DeprecationWarning``."""
 
 from __future__ import annotations
 
+import importlib
 import sys
 import warnings
 from collections.abc import Callable, Mapping
@@ -29,5 +31,20 @@ def renamed(
             stacklevel=2,
         )
         return getattr(sys.modules[module], new)
+
+    return __getattr__
+
+
+def moved(module: str, homes: Mapping[str, str], message: str) -> Callable[[str], object]:
+    """A ``__getattr__`` for ``module`` (its ``__name__``) that answers each name of
+    ``homes`` (``{name: the module that holds it now}``) from that module, warning with
+    ``message`` formatted with ``name`` and ``home``."""
+
+    def __getattr__(name: str) -> object:
+        home = homes.get(name)
+        if home is None:
+            raise AttributeError(f"module {module!r} has no attribute {name!r}")
+        warnings.warn(message.format(name=name, home=home), DeprecationWarning, stacklevel=2)
+        return getattr(importlib.import_module(home), name)
 
     return __getattr__

@@ -20,8 +20,6 @@ The building blocks' former names here (``compile_discrete``, ``compile_paramete
 
 from __future__ import annotations
 
-import importlib
-import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
@@ -44,6 +42,7 @@ from inference.queries.results import (
 )
 from inference.queries.surprise import QUADRATURE_POINTS
 from models.declaration import EffectNetwork
+from models.deprecation import moved
 from models.params import NetworkParams, check_params
 
 if TYPE_CHECKING:  # the building blocks' names stay deprecated at runtime (see __getattr__)
@@ -200,13 +199,9 @@ _MOVED = {
 }
 
 
-def __getattr__(name: str):
-    if name in _MOVED:
-        warnings.warn(
-            f"inference.queries.compiled.{name} is deprecated: ask inference.compile(net, "
-            f"params) (the building block lives in {_MOVED[name]})",
-            DeprecationWarning,
-            stacklevel=2,
-        )
-        return getattr(importlib.import_module(_MOVED[name]), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+__getattr__ = moved(
+    __name__,
+    _MOVED,
+    "inference.queries.compiled.{name} is deprecated: ask inference.compile(net, params) "
+    "(the building block lives in {home})",
+)
