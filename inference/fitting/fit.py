@@ -68,6 +68,7 @@ from inference.fitting.statistics import (
 )
 from models.declaration import ACTION, EffectNetwork
 from models.evidence import Evidence
+from models.frames import as_data
 from models.model import effect_model
 from models.params import NetworkParams, check_params, initial_params
 
@@ -98,7 +99,8 @@ def fit(
     Parameters
     ----------
     data
-        Training rows by site name (see :meth:`EffectNetwork.encode`); every site of the
+        Training rows by site name (see :meth:`EffectNetwork.encode`), or a pandas
+        ``DataFrame`` with a column per site (:mod:`models.frames`); every site of the
         network must be present. ``param.p`` holds NaN in rows whose action does not use
         ``p``. Or an iterable of such row chunks (a generator, say), read once: each
         chunk's sufficient statistics are computed and summed
@@ -127,6 +129,7 @@ def fit(
         pseudo_count=pseudo_count, min_variance=min_variance, steps=steps, lr=lr, l2=l2, tol=tol
     )
     refuse_adaptive(net, "fit")
+    data = as_data(net, data)
     if not isinstance(data, Mapping):
         if isinstance(data, str | bytes) or not isinstance(data, Iterable):
             raise ValueError(
@@ -246,6 +249,7 @@ def fit_statistics(
     refuse_adaptive(net, "fit_statistics")
     total, empty = None, 0
     for chunk in tqdm(chunks, desc="fit (chunks)", unit="chunk", disable=not progress):
+        chunk = as_data(net, chunk)  # a chunk may be a DataFrame
         if not isinstance(chunk, Mapping):
             raise ValueError(
                 f"data must be a mapping of rows or an iterable of such chunks; got a "

@@ -43,6 +43,7 @@ from inference.queries.results import (
 from inference.queries.surprise import QUADRATURE_POINTS
 from models.declaration import EffectNetwork
 from models.deprecation import moved
+from models.frames import as_data
 from models.params import NetworkParams, check_params
 
 if TYPE_CHECKING:  # the building blocks' names stay deprecated at runtime (see __getattr__)
@@ -173,6 +174,7 @@ class CompiledQueries:
         initial states); by the traced model otherwise (an unknown initial state, an
         observed end feature the parameter does not act on, an invalid evidence)."""
         query = self.parameter_query(parameter)
+        evidence = as_data(self.net, evidence)  # a frame reaches the compiled query too
         if query is not None and isinstance(evidence, Mapping) and query.serves(set(evidence)):
             return query.infer_parameter(
                 evidence, mixture=mixture, implausible_below=implausible_below
