@@ -30,9 +30,9 @@ Every column must belong to the network (an unknown column is an error unless
 ``extra="ignore"``), and a vector feature needs every dimension's column.
 :func:`to_frame` writes rows back with the same convention (1-d values as one bare
 column), so ``from_frame(net, to_frame(net, rows))`` gives the rows again, and so does a
-trip through CSV (``frame.to_csv(path, index=False)``, then
-``pd.read_csv(path, float_precision="round_trip")``: pandas' default float parser may
-change the last digit).
+trip through CSV (``frame.to_csv(path, index=False)``, then ``pd.read_csv(path)``; with
+pandas before 3.0 pass ``float_precision="round_trip"``, whose default float parser may
+change a number's last digit).
 
 pandas is optional (the ``data`` extra): this module imports without it, and only the
 functions that build or read a frame need it.
