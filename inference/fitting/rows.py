@@ -240,7 +240,7 @@ def mask_values(site: str, mask: object) -> torch.Tensor:
             raise ValueError(
                 f"masks[{site!r}] must hold bools (False where missing), got dtype {mask.dtype}"
             )
-        mask = torch.from_numpy(mask)
+        mask = torch.tensor(mask)  # a copy: a pandas column's array is read-only
     if mask.dim() > 1:
         raise ValueError(
             f"masks[{site!r}] must be one bool per row, shape (n,), got shape {tuple(mask.shape)}"
