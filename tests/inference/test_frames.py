@@ -14,6 +14,8 @@ import torch
 from inference import (
     compile,
     fit,
+    fit_em,
+    fit_pooled,
     fit_statistics,
     imitation_check,
     infer_action,
@@ -95,6 +97,23 @@ def test_frame_chunks_sum_to_the_statistics_of_the_whole():
     for a, b in zip(tensors(whole), tensors(got), strict=True):
         torch.testing.assert_close(a, b, rtol=1e-12, atol=1e-12)
     assert fit_statistics(DISCRETE, [frame]).rows == 200
+
+
+def test_the_pooled_and_em_fits_take_a_frame():
+    rows = simulate(DISCRETE, random_params(DISCRETE, seed=1), 200, seed=2)
+    kernel = torch.ones(2, 2)
+    a = fit_pooled(DISCRETE, rows, kernel).params
+    b = fit_pooled(DISCRETE, to_frame(DISCRETE, rows), kernel).params
+    assert all(torch.equal(x, y) for x, y in zip(tensors(a), tensors(b), strict=True))
+    net = EffectNetwork(
+        (Discrete("visible", (0, 1)), Continuous("pos", 1, initial=False)),
+        ("remove", "tap"),
+        (Parameter("force", (0.0,), (10.0,), (2,), ("tap",), "pos", layout="adaptive"),),
+    )
+    rows = simulate(net, random_params(net, seed=3), 100, seed=4)
+    rows = {k: v for k, v in rows.items() if k != "cluster.force"}  # latent: EM fills it
+    a, b = fit_em(net, rows, steps=3), fit_em(net, to_frame(net, rows), steps=3)
+    assert all(torch.equal(x, y) for x, y in zip(tensors(a.params), tensors(b.params), strict=True))
 
 
 def test_fit_names_a_site_the_frame_lacks(fitted):

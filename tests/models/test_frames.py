@@ -270,6 +270,24 @@ def test_the_data_extra_holds_pandas_and_dev_installs_it():
     assert any(r.startswith("pandas") for r in extras["dev"])
 
 
+def test_without_pandas_a_frame_call_names_the_extra(monkeypatch):
+    from inference.queries.results import ImitationCheck
+
+    monkeypatch.setitem(sys.modules, "pandas", None)  # import pandas now raises ImportError
+    check = ImitationCheck(torch.zeros(1), torch.zeros(1), torch.zeros(1))
+    calls = [
+        lambda: to_frame(NET, {"action": ["tap"]}),
+        lambda: from_frame(NET, {"action": ["tap"]}),
+        check.to_frame,
+    ]
+    for call in calls:
+        with pytest.raises(ImportError, match=r"effect-networks\[data\]"):
+            call()
+    assert not is_frame({"action": ["tap"]})
+    assert as_data(NET, {"action": ["tap"]}) == {"action": ["tap"]}  # mappings need no pandas
+
+
+@pytest.mark.slow
 def test_without_pandas_the_toolkit_imports_and_a_frame_call_names_the_extra():
     code = (
         "import sys; sys.modules['pandas'] = None\n"
