@@ -42,6 +42,7 @@ from __future__ import annotations
 
 import re
 import sys
+from collections import Counter
 from collections.abc import Hashable, Mapping
 from typing import Any, Literal
 
@@ -176,8 +177,7 @@ def from_frame(
         raise ValueError(f"expected a pandas DataFrame, got {type(frame).__name__}")
     if extra not in ("raise", "ignore"):
         raise ValueError(f"extra must be 'raise' or 'ignore', got {extra!r}")
-    names = [str(c) for c in frame.columns]
-    repeated = sorted({c for c in names if names.count(c) > 1})
+    repeated = sorted(c for c, k in Counter(map(str, frame.columns)).items() if k > 1)
     if repeated:
         raise ValueError(f"columns {repeated} appear more than once")
     sites = {s.name: s for s in net.sites}
@@ -193,8 +193,8 @@ def from_frame(
     if unknown and extra == "raise":
         raise ValueError(
             f"columns {unknown} name no site of the network; its sites are {list(sites)} "
-            "(a vector's dimensions as site[0], site[1], ...). Pass extra='ignore' to leave "
-            "such columns out"
+            "(a vector's dimensions as site[0], site[1], ...). Leave them out: select the "
+            "site columns, or convert with models.from_frame(net, frame, extra='ignore')"
         )
     out: dict[str, object] = {}
     for name, spec in sites.items():  # the network's order
