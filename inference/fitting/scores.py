@@ -63,7 +63,7 @@ import torch
 
 from inference.fitting.em import fit_em
 from inference.fitting.fit import fit
-from inference.fitting.missing import _actions_allowed
+from inference.fitting.missing import actions_allowed
 from inference.fitting.rows import ignore_missing, mask_values, row_masks, training_rows
 from inference.queries.enumeration import (
     Enumerated,
@@ -386,7 +386,7 @@ def _per_row(
     net: EffectNetwork, params: NetworkParams, enc: Evidence, gaps: dict[str, torch.Tensor]
 ) -> torch.Tensor:
     """``(n,)`` every row's log-evidence, its missing values summed out, in row chunks."""
-    allowed = _actions_allowed(net, enc, gaps)  # (A, n), or None
+    allowed = actions_allowed(net, enc, gaps)  # (A, n), or None
     # masked sites are enumerated: sized as if absent
     size = enumeration_size(net, enc.without(*gaps), contracted=allowed is None)
     out = []
