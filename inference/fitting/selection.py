@@ -21,6 +21,7 @@ from inference.fitting.em import fit_em
 from inference.fitting.fit import fit
 from inference.fitting.scores import cross_validate, log_likelihood, n_parameters
 from models.declaration import LAYOUTS, EffectNetwork, cluster_site
+from models.evidence import Evidence
 
 __all__ = ["ClusterScore", "ClusterSelection", "SCORES", "select_clusters"]
 
@@ -153,6 +154,11 @@ def select_clusters(
     candidates = list(candidates)
     if not candidates:
         raise ValueError("candidates is empty; give at least one cluster count")
+    if isinstance(data, Evidence):
+        raise ValueError(
+            "data is Evidence, encoded for one network; each candidate is another network: "
+            "give the rows by site as labels and numbers"
+        )
     if name is not None and cluster_site(name) in data:
         raise ValueError(
             f"data gives {cluster_site(name)!r}, whose meaning changes with bins: leave it "

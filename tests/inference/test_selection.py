@@ -88,5 +88,42 @@ def test_refusals_name_the_argument():
         select_clusters(net, rows, [0])
     with pytest.raises(ValueError, match="candidates is empty"):
         select_clusters(net, rows, [])
+    with pytest.raises(ValueError, match="data is Evidence, encoded for one network"):
+        select_clusters(net, net.encode(rows), [2])
     with pytest.raises(ValueError, match="data gives 'cluster.force'"):
         select_clusters(net, rows | {"cluster.force": [0] * 20}, [2])
+
+
+def load_benchmark():
+    import importlib.util
+    import sys
+    from pathlib import Path
+
+    folder = Path(__file__).resolve().parents[2] / "benchmarks"
+    spec = importlib.util.spec_from_file_location(
+        "benchmark_select_clusters", folder / "select_clusters.py"
+    )
+    module = importlib.util.module_from_spec(spec)
+    sys.path.insert(0, str(folder))  # the benchmarks import their neighbours
+    try:
+        spec.loader.exec_module(module)
+    finally:
+        sys.path.remove(str(folder))
+    return module
+
+
+def test_the_throw_benchmark_runs_small():
+    bench = load_benchmark()
+    result = bench.compare(400, [1, 3], folds=2, seed=1)
+    assert [row["bins"] for row in result["table"]] == [1, 3]
+    assert result["heldout_choice"] in (1, 3) and result["best_range"]
+    assert "| 3 |" in bench.report(result, 400, True)
+
+
+@pytest.mark.slow
+def test_on_noisy_throws_the_chosen_grid_re_throws_near_the_best():
+    """29,000 throws with release noise (the throwing experiment's size): both scores
+    choose a grid whose validation re-throw RMS is within 5 % of the best grid's."""
+    result = load_benchmark().compare(29_000, [4, 6, 8, 10, 12, 14, 16, 20], seed=0)
+    assert result["heldout_choice"] in result["best_range"]
+    assert result["bic_choice"] in result["best_range"]
