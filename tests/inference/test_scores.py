@@ -362,3 +362,18 @@ def test_rows_fit_refuses_are_refused():
     other = dataclasses.replace(net.parameters[0], bins=(4,))
     with pytest.raises(ValueError):
         log_likelihood(EffectNetwork(net.features, net.actions, (other,)), params, rows)
+
+
+def test_the_scores_page_runs():
+    """Every Python snippet of docs/scores.md, in order."""
+    import re
+    from pathlib import Path
+
+    page = Path(__file__).resolve().parents[2] / "docs" / "scores.md"
+    namespace: dict = {}
+    for code in re.findall(r"^```python\n(.*?)^```", page.read_text(), re.S | re.M):
+        exec(compile(code, str(page), "exec"), namespace)  # noqa: S102
+    assert namespace["ll"].per_row.shape == (500,)
+    assert namespace["ll_gaps"].total > namespace["ll"].total  # a value summed out
+    assert namespace["cv"].per_fold.shape == (5,)
+    assert namespace["choice"].chosen in namespace["choice"].candidates
