@@ -159,16 +159,17 @@ def select_clusters(
             "data is Evidence, encoded for one network; each candidate is another network: "
             "give the rows by site as labels and numbers"
         )
-    if name is not None and cluster_site(name) in data:
-        raise ValueError(
-            f"data gives {cluster_site(name)!r}, whose meaning changes with bins: leave it "
-            "out (each row's cluster is then its value's cell, or latent when adaptive)"
-        )
     scored = []
     for bins in candidates:
         for layout in layouts:
             net = make(bins, layout)
             p = next(q for q in net.parameters if name is None or q.name == name)
+            if cluster_site(p.name) in data:
+                raise ValueError(
+                    f"data gives {cluster_site(p.name)!r}, whose meaning changes with bins: "
+                    "leave it out (each row's cluster is then its value's cell, or latent "
+                    "when adaptive)"
+                )
             if score == "heldout":
                 ll = cross_validate(net, data, folds, seed, **fit_kwargs).total
                 scored.append(ClusterScore(p.bins, layout, p.n_clusters, n_parameters(net), ll))

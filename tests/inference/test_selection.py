@@ -92,6 +92,10 @@ def test_refusals_name_the_argument():
         select_clusters(net, net.encode(rows), [2])
     with pytest.raises(ValueError, match="data gives 'cluster.force'"):
         select_clusters(net, rows | {"cluster.force": [0] * 20}, [2])
+    with pytest.raises(ValueError, match="data gives 'cluster.force'"):
+        select_clusters(
+            lambda b, layout: step_network(b), rows | {"cluster.force": [0] * 20}, [(2,)]
+        )
 
 
 def load_benchmark():
