@@ -4,6 +4,9 @@ README and the guide teach.
 Fitting (:mod:`inference.fitting`): :func:`fit`, :func:`fit_gradient`, :func:`fit_em`,
 :func:`fit_pooled` (with :func:`grid_kernel`), :func:`fit_statistics` and
 :func:`params_from_statistics`; :func:`simulate` draws rows in ``fit``'s format.
+Scores (:mod:`inference.fitting.scores`): :func:`log_likelihood`, :func:`bic`,
+:func:`aic`, :func:`cross_validate`, and :func:`select_clusters`, which chooses a
+parameter's clusters by them.
 Questions (:mod:`inference.queries`): :func:`predict`, :func:`imitation_check`,
 :func:`infer_action`, :func:`infer_parameter` (the parameter posterior),
 :func:`parameter_for_effect` (the inverse model), and :func:`compile`, whose methods of
@@ -21,6 +24,16 @@ from inference.design.active import explore
 from inference.fitting.em import EMResult, fit_em
 from inference.fitting.fit import ConvergenceWarning, FitResult, fit, fit_gradient, fit_statistics
 from inference.fitting.pooling import fit_pooled, grid_kernel
+from inference.fitting.scores import (
+    CrossValidation,
+    LogLikelihood,
+    aic,
+    bic,
+    cross_validate,
+    log_likelihood,
+    n_parameters,
+)
+from inference.fitting.selection import ClusterSelection, select_clusters
 from inference.fitting.statistics import params_from_statistics
 from inference.queries import (
     ActionPosterior,
@@ -43,17 +56,23 @@ from models.deprecation import moved
 
 __all__ = [
     "ActionPosterior",
+    "ClusterSelection",
     "CompiledQueries",
     "ConvergenceWarning",
+    "CrossValidation",
     "EMResult",
     "FitResult",
     "GaussianMixture",
     "ImitationCheck",
+    "LogLikelihood",
     "OutsideTrainingData",
     "ParameterForEffect",
     "ParameterPosterior",
     "Prediction",
+    "aic",
+    "bic",
     "compile",
+    "cross_validate",
     "explore",
     "fit",
     "fit_em",
@@ -64,9 +83,12 @@ __all__ = [
     "imitation_check",
     "infer_action",
     "infer_parameter",
+    "log_likelihood",
+    "n_parameters",
     "parameter_for_effect",
     "params_from_statistics",
     "predict",
+    "select_clusters",
     "simulate",
 ]
 

@@ -18,18 +18,37 @@ from inference.fitting.fit import (
     fit_statistics,
 )
 from inference.fitting.pooling import fit_pooled, grid_kernel
+from inference.fitting.scores import (
+    CrossValidation,
+    LogLikelihood,
+    aic,
+    bic,
+    cross_validate,
+    log_likelihood,
+    n_parameters,
+)
+from inference.fitting.selection import ClusterSelection, select_clusters
 from inference.fitting.statistics import Statistics, params_from_statistics
 
 __all__ = [
+    "ClusterSelection",
     "ConvergenceWarning",
+    "CrossValidation",
     "EMResult",
     "FitResult",
+    "LogLikelihood",
     "Statistics",
+    "aic",
+    "bic",
+    "cross_validate",
     "fit",
     "fit_em",
     "fit_gradient",
     "fit_pooled",
     "fit_statistics",
     "grid_kernel",
+    "log_likelihood",
+    "n_parameters",
     "params_from_statistics",
+    "select_clusters",
 ]

@@ -47,7 +47,7 @@ from models.declaration import ACTION, EffectNetwork
 from models.evidence import DTYPE, Evidence
 from models.params import NetworkParams, check_params
 
-__all__ = ["fit_missing", "missing_log_likelihood"]
+__all__ = ["actions_allowed", "fit_missing", "missing_log_likelihood"]
 
 
 def fit_missing(
@@ -80,7 +80,7 @@ def fit_missing(
     """
     check_settings(pseudo_count=pseudo_count, min_variance=min_variance, steps=steps, tol=tol)
     masks = missing_masks(net, masks, enc.n_rows)
-    allowed = _actions_allowed(net, enc, masks)
+    allowed = actions_allowed(net, enc, masks)
     n = enc.n_rows
     params = init
     expanded, weights, log_lik = _completed_rows(net, params, enc, masks, allowed)
@@ -125,10 +125,10 @@ def missing_log_likelihood(
     unknown = None if unknown is None else ~mask_values(ACTION, unknown)
     enc = training_rows(net, ignore_missing(net, data, masks), unknown)
     masks = missing_masks(net, masks, enc.n_rows)
-    return _completed_rows(net, params, enc, masks, _actions_allowed(net, enc, masks))[2]
+    return _completed_rows(net, params, enc, masks, actions_allowed(net, enc, masks))[2]
 
 
-def _actions_allowed(net: EffectNetwork, enc: Evidence, masks) -> torch.Tensor | None:
+def actions_allowed(net: EffectNetwork, enc: Evidence, masks) -> torch.Tensor | None:
     """``(A, n)`` bool, where the action is missing in a network with parameters: the
     actions that agree with the row's parameter values. A training row gives a
     parameter's value exactly when its action uses the parameter (:func:`inference.fit`
@@ -157,7 +157,7 @@ def _actions_allowed(net: EffectNetwork, enc: Evidence, masks) -> torch.Tensor |
 def _completed_rows(net, params, enc, masks, allowed=None) -> tuple[Evidence, torch.Tensor, float]:
     """The E-step: every row once per assignment of its missing values that has posterior
     weight, with that weight, and the summed log-likelihood (missing values summed out).
-    ``allowed`` (:func:`_actions_allowed`) restricts a missing action; the parameters'
+    ``allowed`` (:func:`actions_allowed`) restricts a missing action; the parameters'
     clusters then follow each assignment's action (the cell of the value, or cell 0).
     Rows go through the model in chunks whose joint posterior stays below
     :data:`inference.queries.enumeration.CHUNK_ELEMENTS`."""
