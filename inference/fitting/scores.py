@@ -74,6 +74,7 @@ from inference.queries.enumeration import (
 from models.declaration import ACTION, EffectNetwork
 from models.dtype import DTYPE
 from models.evidence import Evidence
+from models.frames import as_data
 from models.params import NetworkParams, check_params
 
 __all__ = [
@@ -144,7 +145,7 @@ def log_likelihood(
     net, params
         The declaration and its fitted parameters.
     data
-        Rows as :func:`inference.fit` takes them: every site given (labels for discrete
+        Rows as :func:`inference.fit` takes them (a mapping or a ``DataFrame``): every site given (labels for discrete
         values, ``(n, d)`` numbers for continuous ones, ``param.p`` NaN where the action
         does not use ``p``); ``cluster.p`` optional.
     masks
@@ -270,7 +271,7 @@ def cross_validate(
     net
         The declaration.
     data
-        Rows as :func:`inference.fit` takes them (one mapping).
+        Rows as :func:`inference.fit` takes them (one mapping or ``DataFrame``).
     folds
         Parts, ``2 <= folds <= n``.
     seed
@@ -291,9 +292,11 @@ def cross_validate(
     ValueError
         For ``folds`` or ``seed`` out of range, or what the fit refuses.
     """
+    data = as_data(net, data)
     if not isinstance(data, Mapping):
         raise ValueError(
-            f"data must be one mapping of rows by site (the folds are cut from it), got "
+            f"data must be one mapping or DataFrame of rows by site (the folds are cut "
+            f"from it), got "
             f"{type(data).__name__}"
         )
     n = net.encode(data).n_rows
@@ -364,8 +367,11 @@ def _scored_rows(
     """The rows encoded and checked as :func:`inference.fit` checks them, each
     parameter's cluster left to the model where the rows do not give it, and the masks
     that leave gaps."""
+    data = as_data(net, data)
     if not isinstance(data, Mapping):
-        raise ValueError(f"data must be a mapping of rows by site, got {type(data).__name__}")
+        raise ValueError(
+            f"data must be a mapping or a DataFrame of rows by site, got {type(data).__name__}"
+        )
     if masks is not None and not isinstance(masks, Mapping):
         raise ValueError(
             f"masks must map discrete site names to (n,) bool masks, got {type(masks).__name__}"

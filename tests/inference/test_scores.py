@@ -413,3 +413,30 @@ def test_random_discrete_networks_with_gaps_sum_the_joint(cards, n_actions, seed
     ]
     got = log_likelihood(net, params, rows, masks=masks).per_row.numpy()
     np.testing.assert_allclose(got, expected, rtol=1e-10, atol=1e-12)
+
+
+def test_scores_take_a_frame_as_they_take_its_mapping():
+    from models import to_frame
+
+    net = EffectNetwork(
+        features=(Discrete("v", (False, True)), Continuous("p", 1)), actions=("a", "b")
+    )
+    rng = np.random.default_rng(0)
+    n = 300
+    act = rng.choice(net.actions, n)
+    v = rng.random(n) < 0.5
+    p = rng.normal(size=(n, 1))
+    data = {
+        "initial.v": v,
+        "initial.p": p,
+        "action": act,
+        "end.v": v ^ (act == "a"),
+        "end.p": p + (act == "b")[:, None] + rng.normal(0.0, 0.1, (n, 1)),
+    }
+    params = fit(net, data).params
+    rows = simulate(net, params, 200, seed=1)
+    frame = to_frame(net, rows)
+    assert log_likelihood(net, params, frame).total == log_likelihood(net, params, rows).total
+    held_frame = cross_validate(net, frame, folds=3).per_row
+    held_rows = cross_validate(net, rows, folds=3).per_row
+    assert torch.equal(held_frame, held_rows)
