@@ -31,6 +31,7 @@ Nothing here knows what the outputs, actions or states mean.
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass
 
@@ -48,8 +49,10 @@ __all__ = [
 ]
 
 NONE = "none"
-#: Gauss-Legendre nodes per piece of the 2-D rectangle quadrature (three pieces a box).
-QUADRATURE_NODES = 64
+#: Gauss-Legendre nodes per piece of the 2-D rectangle quadrature (up to 15 pieces a box).
+QUADRATURE_NODES = 20
+#: The quadrature's range of the standardised first dimension: 2 Phi(-9) < 3e-19 outside.
+Z_CUT = 9.0
 #: Monte Carlo draws per row of the upper mixture.
 SAMPLES = 100_000
 
@@ -273,13 +276,13 @@ def link_probabilities(
     * exactly, as products of per-dimension normal CDF differences, when those
       dimensions are one, or when the component's covariance restricted to them is
       diagonal (``method="exact"``);
-    * in two correlated dimensions, by conditioning: ``P = integral over u in
-      [Phi(a1), Phi(b1)] of P(a2 <= x2 < b2 | x1 = q(u)) du`` (``q`` the first
-      dimension's quantile function), Gauss-Legendre with ``nodes`` nodes on each of
-      three pieces split where the conditional mean crosses ``a2`` and ``b2``
-      (``method="quadrature"``): deterministic, absolute error below ``1e-10`` per box
-      for correlations up to 0.99 at the default ``nodes`` (tested against
-      ``scipy.integrate.dblquad``);
+    * in two correlated dimensions, by conditioning on the first: ``P = integral of
+      phi(z) P(a2 <= x2 < b2 | z) dz`` over the box's standardised first side, cut to
+      ``|z| <= 9``, Gauss-Legendre with ``nodes`` nodes on each of up to 15 pieces split
+      where the conditional mean of ``x2`` crosses ``a2`` and ``b2``
+      (``method="quadrature"``): deterministic; absolute error below ``1e-10`` per box
+      at the default ``nodes`` for correlations up to 0.99999 (tested against the
+      bivariate orthant probabilities' closed form and ``scipy.integrate.dblquad``);
     * otherwise by Monte Carlo as for a :class:`FunctionLink`.
 
     A :class:`FunctionLink` is estimated from ``samples`` seeded draws per row
@@ -385,31 +388,41 @@ def _boxes_exact(link: BoxPartition, mixture: GaussianMixture, dims) -> LinkProb
 def _boxes_quadrature(
     link: BoxPartition, mixture: GaussianMixture, dims, nodes: int
 ) -> LinkProbabilities:
-    """2-D rectangles under correlated components, by conditioning on the first dimension."""
+    """2-D rectangles under correlated components, by conditioning on the first dimension.
+
+    ``P = integral over z in [a1, b1] of phi(z) P(a2 <= x2 < b2 | z) dz`` (``z`` the first
+    dimension standardised), the range cut to ``|z| <= Z_CUT``; the integrand is smooth
+    but steps (over a width ``w = sqrt(1 - rho^2) / |rho|``) where the conditional mean
+    of ``x2`` crosses ``a2`` or ``b2``, so the range is split there and at ``w``, ``4 w``
+    and ``16 w`` either side, and each piece gets ``nodes`` Gauss-Legendre nodes.
+    """
     i, j = dims.tolist()
     mu1, mu2 = mixture.means[..., i, None], mixture.means[..., j, None]  # (U, M, 1)
     s1 = mixture.covs[..., i, i, None].sqrt()
     s2 = mixture.covs[..., j, j, None].sqrt()
     rho = mixture.covs[..., i, j, None] / (s1 * s2)
-    a1, b1 = (link.low[:, i] - mu1) / s1, (link.high[:, i] - mu1) / s1  # (U, M, K)
+    lo = ((link.low[:, i] - mu1) / s1).clamp(-Z_CUT, Z_CUT)  # (U, M, K)
+    hi = ((link.high[:, i] - mu1) / s1).clamp(-Z_CUT, Z_CUT)
     a2, b2 = link.low[:, j], link.high[:, j]
-    # where the conditional mean of x2 crosses a2 or b2: the integrand's steps
-    lo, hi = torch.special.ndtr(a1), torch.special.ndtr(b1)
-    cross = torch.stack([(a2 - mu2) / (rho * s2), (b2 - mu2) / (rho * s2)], -1)
-    cross = torch.special.ndtr(cross.nan_to_num(0.0)).sort(-1).values
-    edges = torch.cat([lo[..., None], cross.clamp(lo[..., None], hi[..., None]), hi[..., None]], -1)
+    slope = rho * s2  # the conditional mean's change per unit z
+    sd = (s2 * (1 - rho * rho).clamp_min(0.0).sqrt()).clamp_min(1e-300)
+    cross = torch.stack([(a2 - mu2) / slope, (b2 - mu2) / slope], -1).nan_to_num(0.0)
+    width = (sd / slope.abs())[..., None, None]
+    steps = torch.tensor([-16.0, -4.0, -1.0, 0.0, 1.0, 4.0, 16.0], dtype=torch.float64)
+    cuts = (cross[..., None] + width * steps).flatten(-2).nan_to_num(0.0)
+    edges = torch.cat([lo[..., None], cuts.clamp(lo[..., None], hi[..., None]), hi[..., None]], -1)
+    edges = edges.sort(-1).values  # (U, M, K, P + 1)
     x, w = np.polynomial.legendre.leggauss(nodes)
     x, w = torch.as_tensor(x), torch.as_tensor(w)
-    start, width = edges[..., :-1, None], (edges[..., 1:] - edges[..., :-1])[..., None]
-    u = (start + width * (x + 1) / 2).clamp(0.0, 1.0)  # (U, M, K, 3, nodes)
-    z = torch.special.ndtri(u)
-    cond_mean = mu2[..., None, None] + (rho * s2)[..., None, None] * z
-    cond_sd = (s2 * (1 - rho * rho).clamp_min(0).sqrt())[..., None, None].clamp_min(1e-300)
-    inner = torch.special.ndtr((b2[:, None, None] - cond_mean) / cond_sd) - torch.special.ndtr(
-        (a2[:, None, None] - cond_mean) / cond_sd
+    start, length = edges[..., :-1, None], (edges[..., 1:] - edges[..., :-1])[..., None]
+    z = start + length * (x + 1) / 2  # (U, M, K, P, nodes)
+    mean2 = mu2[..., None, None] + slope[..., None, None] * z
+    sd = sd[..., None, None]
+    inner = torch.special.ndtr((b2[:, None, None] - mean2) / sd) - torch.special.ndtr(
+        (a2[:, None, None] - mean2) / sd
     )
-    inner = inner.nan_to_num(0.0)  # a piece of width 0 may put a node at u = 0 or 1
-    per_component = (inner * w * width / 2).sum((-1, -2))  # (U, M, K)
+    density = torch.exp(-0.5 * z * z) / math.sqrt(2 * math.pi)
+    per_component = (density * inner * w * length / 2).sum((-1, -2))  # (U, M, K)
     per_box = (mixture.weights[..., None] * per_component).sum(1)
     return _to_actions(link, per_box, "quadrature")
 
