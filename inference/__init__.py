@@ -7,7 +7,8 @@ Fitting (:mod:`inference.fitting`): :func:`fit`, :func:`fit_gradient`, :func:`fi
 Questions (:mod:`inference.queries`): :func:`predict`, :func:`imitation_check`,
 :func:`infer_action`, :func:`infer_parameter` (the parameter posterior),
 :func:`parameter_for_effect` (the inverse model), and :func:`compile`, whose methods of
-the same names answer from compiled tables where they can. Active exploration
+the same names answer from compiled tables where they can; :func:`link_probabilities`
+and :func:`chain` read one network's continuous output as another's actions. Active exploration
 (:mod:`inference.design`): :func:`explore`. Pictures of a network and its fitted
 numbers (matplotlib, drawn into the caller's axes): the module :mod:`inference.plots`.
 
@@ -24,16 +25,21 @@ from inference.fitting.pooling import fit_pooled, grid_kernel
 from inference.fitting.statistics import params_from_statistics
 from inference.queries import (
     ActionPosterior,
+    BoxPartition,
     CompiledQueries,
+    FunctionLink,
     GaussianMixture,
     ImitationCheck,
+    LinkProbabilities,
     ParameterForEffect,
     ParameterPosterior,
     Prediction,
+    chain,
     compile,
     imitation_check,
     infer_action,
     infer_parameter,
+    link_probabilities,
     parameter_for_effect,
     predict,
 )
@@ -43,16 +49,20 @@ from models.deprecation import moved
 
 __all__ = [
     "ActionPosterior",
+    "BoxPartition",
     "CompiledQueries",
     "ConvergenceWarning",
     "EMResult",
     "FitResult",
+    "FunctionLink",
     "GaussianMixture",
     "ImitationCheck",
+    "LinkProbabilities",
     "OutsideTrainingData",
     "ParameterForEffect",
     "ParameterPosterior",
     "Prediction",
+    "chain",
     "compile",
     "explore",
     "fit",
@@ -64,6 +74,7 @@ __all__ = [
     "imitation_check",
     "infer_action",
     "infer_parameter",
+    "link_probabilities",
     "parameter_for_effect",
     "params_from_statistics",
     "predict",

@@ -151,7 +151,8 @@ class FunctionLink:
     ----------
     function : callable
         ``(N, d)`` float64 numpy array of output values -> ``N`` labels, each a lower
-        action or ``none``.
+        action or ``none``: a sequence, or (read fastest) a 1-D numpy array of str or
+        int labels.
     actions : tuple
         The lower actions in the order of the lower transitions' action axis.
     dim : int
@@ -169,19 +170,27 @@ class FunctionLink:
         """``(N,)`` index into ``actions`` of each point's label, ``len(actions)`` for none."""
         column = {label: i for i, label in enumerate(self.actions)}
         column[self.none] = len(self.actions)
-        labels = list(self.function(np.asarray(points, dtype=np.float64)))
+        labels = self.function(np.asarray(points, dtype=np.float64))
         if len(labels) != len(points):
             raise ValueError(
                 f"FunctionLink: the function gave {len(labels)} labels for {len(points)} "
                 "points; expected one label per point"
             )
-        unknown = {label for label in labels if label not in column}
+        if isinstance(labels, np.ndarray) and labels.ndim == 1 and labels.dtype.kind in "biuU":
+            # a numpy array of labels: one lookup per distinct label
+            distinct, inverse = np.unique(labels, return_inverse=True)
+        else:
+            distinct, inverse = list(dict.fromkeys(labels)), None
+        unknown = [label for label in distinct if _item(label) not in column]
         if unknown:
             raise ValueError(
-                f"FunctionLink: labels {sorted(map(repr, unknown))[:5]} are neither lower "
+                f"FunctionLink: labels {[_item(u) for u in unknown][:5]} are neither lower "
                 f"actions nor none ({self.none!r}); actions are {list(self.actions)[:10]}"
             )
-        return torch.tensor([column[label] for label in labels], dtype=torch.long)
+        if inverse is None:
+            return torch.tensor([column[label] for label in labels], dtype=torch.long)
+        lookup = np.array([column[_item(label)] for label in distinct], dtype=np.int64)
+        return torch.as_tensor(lookup[inverse.reshape(-1)])
 
 
 @dataclass(frozen=True)
@@ -459,6 +468,11 @@ def _monte_carlo(link, mixture: GaussianMixture, samples: int, seed: int) -> Lin
 
 
 # --- checks ------------------------------------------------------------------------------
+
+
+def _item(label):
+    """A numpy scalar label as the Python value the link's actions hold."""
+    return label.item() if isinstance(label, np.generic) else label
 
 
 def _check_mixture(mixture: GaussianMixture, dim: int) -> None:

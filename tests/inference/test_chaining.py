@@ -213,6 +213,36 @@ def test_correlated_boxes_in_three_dimensions_fall_back_to_monte_carlo():
         assert abs(got.prob(label).item() - want) <= 4 * math.sqrt(want * (1 - want) / samples)
 
 
+@pytest.mark.parametrize("as_array", [False, True])
+def test_function_link_reads_labels_as_a_list_or_an_array(as_array):
+    """Integer actions with a string none label, returned either way, count alike."""
+
+    def sign(points):
+        labels = [0 if x < 0 else 1 if x < 1 else "none" for x in points[:, 0]]
+        return np.array(labels, dtype=object) if as_array else labels
+
+    link = FunctionLink(sign, (0, 1), dim=1)
+    got = link_probabilities(link, mixture([[1.0]], [[[0.0]]], [[[[1.0]]]]), samples=4000)
+    want = [stats.norm.cdf(0.0), stats.norm.cdf(1.0) - stats.norm.cdf(0.0)]
+    assert (got.probs[0] - torch.tensor(want)).abs().max() <= 4 * math.sqrt(0.25 / 4000)
+    strings = FunctionLink(lambda p: np.where(p[:, 0] < 0, "a", "b"), ("a", "b"), dim=1)
+    index = strings.label_index(torch.tensor([[-1.0], [2.0], [-3.0]]))
+    assert index.tolist() == [0, 1, 0]
+
+
+def test_the_documentation_page_runs():
+    """docs/chaining.md's code, run as written; its figures as the page states them."""
+    import re
+    from pathlib import Path
+
+    page = Path(__file__).parents[2] / "docs" / "chaining.md"
+    namespace = {}
+    for block in re.findall(r"```python\n(.*?)```", page.read_text(), re.S):
+        exec(block, namespace)  # noqa: S102
+    assert namespace["link"].method == "exact" and namespace["sampled"].method == "monte carlo"
+    assert 6.0 <= namespace["best"] <= 9.0 and namespace["success"] > 0.98
+
+
 def test_function_link_rejects_unknown_labels():
     link = FunctionLink(lambda x: ["left"] * len(x), ("a", "b"), dim=1)
     with pytest.raises(ValueError, match="'left'"):
