@@ -10,7 +10,8 @@ parameter's clusters by them.
 Questions (:mod:`inference.queries`): :func:`predict`, :func:`imitation_check`,
 :func:`infer_action`, :func:`infer_parameter` (the parameter posterior),
 :func:`parameter_for_effect` (the inverse model), and :func:`compile`, whose methods of
-the same names answer from compiled tables where they can. Active exploration
+the same names answer from compiled tables where they can; :func:`link_probabilities`
+and :func:`chain` read one network's continuous output as another's actions. Active exploration
 (:mod:`inference.design`): :func:`explore`. Pictures of a network and its fitted
 numbers (matplotlib, drawn into the caller's axes): the module :mod:`inference.plots`.
 
@@ -37,16 +38,21 @@ from inference.fitting.selection import ClusterSelection, select_clusters
 from inference.fitting.statistics import params_from_statistics
 from inference.queries import (
     ActionPosterior,
+    BoxPartition,
     CompiledQueries,
+    FunctionLink,
     GaussianMixture,
     ImitationCheck,
+    LinkProbabilities,
     ParameterForEffect,
     ParameterPosterior,
     Prediction,
+    chain,
     compile,
     imitation_check,
     infer_action,
     infer_parameter,
+    link_probabilities,
     parameter_for_effect,
     predict,
 )
@@ -56,14 +62,17 @@ from models.deprecation import moved
 
 __all__ = [
     "ActionPosterior",
+    "BoxPartition",
     "ClusterSelection",
     "CompiledQueries",
     "ConvergenceWarning",
     "CrossValidation",
     "EMResult",
     "FitResult",
+    "FunctionLink",
     "GaussianMixture",
     "ImitationCheck",
+    "LinkProbabilities",
     "LogLikelihood",
     "OutsideTrainingData",
     "ParameterForEffect",
@@ -71,6 +80,7 @@ __all__ = [
     "Prediction",
     "aic",
     "bic",
+    "chain",
     "compile",
     "cross_validate",
     "explore",
@@ -83,6 +93,7 @@ __all__ = [
     "imitation_check",
     "infer_action",
     "infer_parameter",
+    "link_probabilities",
     "log_likelihood",
     "n_parameters",
     "parameter_for_effect",

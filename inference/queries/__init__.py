@@ -14,6 +14,9 @@ its compiled answer (tables read once off the same model) side by side.
   the value under which a desired effect is most likely.
 * :mod:`~inference.queries.compiled` -- :func:`~inference.queries.compiled.compile`: one
   object whose methods answer these questions, from the compiled tables where they can.
+* :mod:`~inference.queries.chaining` -- :func:`link_probabilities` and :func:`chain`:
+  one network's continuous output read as another's actions, and the chained transitions
+  a planner plans over.
 
 Beside them: :mod:`~inference.queries.results` (the result types),
 :mod:`~inference.queries.batching` (evidence checks and row handling),
@@ -33,6 +36,13 @@ for that row. Empty evidence rows (``n = 0``) give empty results of the right sh
 """
 
 from inference.queries.action import infer_action
+from inference.queries.chaining import (
+    BoxPartition,
+    FunctionLink,
+    LinkProbabilities,
+    chain,
+    link_probabilities,
+)
 from inference.queries.compiled import CompiledQueries, compile
 from inference.queries.forward import imitation_check, predict
 from inference.queries.inverse import parameter_for_effect
@@ -48,16 +58,21 @@ from inference.queries.results import (
 
 __all__ = [
     "ActionPosterior",
+    "BoxPartition",
     "CompiledQueries",
+    "FunctionLink",
     "GaussianMixture",
     "ImitationCheck",
+    "LinkProbabilities",
     "ParameterForEffect",
     "ParameterPosterior",
     "Prediction",
+    "chain",
     "compile",
     "imitation_check",
     "infer_action",
     "infer_parameter",
+    "link_probabilities",
     "parameter_for_effect",
     "predict",
 ]
