@@ -32,9 +32,11 @@ def test_states_are_the_product_of_the_state_features_in_feature_order():
     assert list(space) == expected
     for i, s in enumerate(expected):
         assert space.index_of(s) == i
-        assert space.index_of(dict(zip(space.names, s))) == i
-        assert space.labels(i) == dict(zip(space.names, s))
-        assert [f.states[k] for f, k in zip(space.features, space.index[i].tolist())] == list(s)
+        assert space.index_of(dict(zip(space.names, s, strict=True))) == i
+        assert space.labels(i) == dict(zip(space.names, s, strict=True))
+        assert [
+            f.states[k] for f, k in zip(space.features, space.index[i].tolist(), strict=True)
+        ] == list(s)
 
 
 def test_a_subset_keeps_its_order_and_refuses_states_outside_it():
