@@ -1,0 +1,200 @@
+"""Joint transitions against a brute force over the traced model's full joint.
+
+The oracle traces :func:`models.model.effect_model` with every discrete site observed,
+one row per configuration (initial states, action, cluster, end states, end-only
+features), and sums the rows' joint probabilities by hand: it shares no code with the
+tables, gathers and eliminations :func:`inference.queries.transitions.transitions` runs.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+import torch
+from pyro import poutine
+
+from inference import fit
+from inference.queries.states import StateSpace
+from inference.queries.transitions import model_tables, transitions
+from models import Continuous, Discrete, EffectNetwork, Parameter
+from models.model import effect_model
+
+DOOR = ("shut", "open")
+LOCK = ("off", "on")
+NOISE = (0, 1, 2)
+
+
+def rich_net() -> EffectNetwork:
+    """Two state features, the lock's end depending on the door's end and an end-only
+    ``noise`` (both latent in a step), a parameter acting on the door (discrete) and a
+    continuous feature, and a continuous initial feature the door's softmax reads."""
+    return EffectNetwork(
+        features=(
+            Discrete("door", DOOR),
+            Discrete("lock", LOCK),
+            Continuous("x", 1),
+            Discrete("noise", NOISE, initial=False),
+        ),
+        actions=("push", "unlock", "wait"),
+        parameters=(
+            Parameter("force", low=0.0, high=1.0, bins=3, actions=("push",), affects=("door", "x")),
+        ),
+        parents={"end.lock": ("initial.lock", "action", "end.door", "end.noise")},
+    )
+
+
+def rich_rows(net: EffectNetwork, n: int, seed: int) -> dict[str, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    a = rng.choice(net.actions, n)
+    door = rng.choice(DOOR, n)
+    force = np.where(a[:, None] == "push", rng.uniform(0, 1, (n, 1)), np.nan)
+    opened = (a == "push") & (rng.random(n) < np.nan_to_num(force[:, 0]))
+    end_door = np.where(opened, "open", door)
+    noise = rng.choice(NOISE, n)
+    lock = rng.choice(LOCK, n)
+    flips = (end_door == "open") ^ (noise == 2)
+    return {
+        "initial.door": door,
+        "initial.lock": lock,
+        "initial.x": rng.normal(size=(n, 1)),
+        "action": a,
+        "param.force": force,
+        "end.door": end_door,
+        "end.lock": np.where(flips, np.where(lock == "on", "off", "on"), lock),
+        "end.x": rng.normal(size=(n, 1)),
+        "end.noise": noise,
+    }
+
+
+def brute_force(net, params, given, clusters: bool):
+    """``(probs (S, A, S), unseen (S, A))`` over the product state space, by one trace of
+    the model per configuration of every discrete site (observed)."""
+    space = StateSpace.of(net)
+    discrete = [s for s in net.sites if s.discrete]
+    sizes = [s.size for s in discrete]
+    configs = torch.tensor(list(itertools.product(*(range(k) for k in sizes))))
+    n = len(configs)
+    data = {s.name: configs[:, i] for i, s in enumerate(discrete)}
+    for f, v in given.items():
+        data[f"initial.{f}"] = torch.tensor(v, dtype=torch.float64).expand(n, -1)
+    enc = net.encode_indices(data)
+    trace = poutine.trace(effect_model).get_trace(net, params, enc, collapse=True)
+    trace.compute_log_prob()
+    log_joint = torch.zeros(n, dtype=torch.float64)
+    for name, node in trace.nodes.items():
+        if node["type"] == "sample" and name != "rows":
+            if net.site(name).role in ("end", "cluster", "param"):
+                if name.startswith("cluster.") and clusters:
+                    continue  # the cluster is chosen, not drawn
+                log_joint = log_joint + node["log_prob"].expand(n)
+    unseen = torch.zeros(n, dtype=torch.bool)
+    for s in net.sites:
+        if s.role == "end" and s.discrete:
+            cpd = net.cpd(s.name)
+            seen = cpd.seen(params[s.name])
+            unseen |= ~seen[tuple(data[q] for q in cpd.parents)]
+    names = [s.name for s in discrete]
+    col = {q: names.index(q) for q in names}
+    feats = space.names
+    s_of = lambda prefix: [  # noqa: E731
+        space.index_of(tuple(net.feature(f).states[int(c[col[f"{prefix}.{f}"]])] for f in feats))
+        for c in configs
+    ]
+    s0, s1 = torch.tensor(s_of("initial")), torch.tensor(s_of("end"))
+    action = configs[:, col["action"]]
+    if clusters:
+        m = net.mixtures[0]
+        c = configs[:, col[m.cluster.site]]
+        offered = []
+        for a in range(len(net.actions)):
+            offered += [(a, k) for k in range(m.parameter.n_clusters)] if m.uses[a] else [(a, 0)]
+        pairs = [(int(x), int(y)) for x, y in zip(action, c, strict=True)]
+        possible = torch.tensor([p in offered for p in pairs])  # unused parameter: cell 0
+        a_of = torch.tensor([offered.index(p) if p in offered else 0 for p in pairs])
+        log_joint = torch.where(possible, log_joint, -torch.inf)
+    else:
+        a_of = action
+    w = log_joint.exp()
+    s, a = len(space), int(a_of.max()) + 1
+    probs = torch.zeros(s, a, s, dtype=torch.float64).index_put_((s0, a_of, s1), w, accumulate=True)
+    bad = torch.zeros(s, a, dtype=torch.float64).index_put_((s0, a_of), w * unseen, accumulate=True)
+    total = probs.sum(-1, keepdim=True)
+    return probs / total, bad / total[..., 0]
+
+
+@pytest.fixture(scope="module")
+def fitted():
+    net = rich_net()
+    return net, fit(net, rich_rows(net, 400, 0)).params
+
+
+@pytest.mark.parametrize("mode", ["integrate", "clusters"])
+def test_transitions_equal_the_brute_force_joint(fitted, mode):
+    net, params = fitted
+    given = {"x": [0.3]}
+    t = transitions(net, params, given=given, parameter_values=mode)
+    probs, unseen = brute_force(net, params, given, mode == "clusters")
+    assert t.probs.shape == probs.shape
+    torch.testing.assert_close(t.probs, probs, rtol=1e-9, atol=1e-12)
+    torch.testing.assert_close(t.unseen, unseen, rtol=1e-9, atol=1e-12)
+    torch.testing.assert_close(t.outside, torch.zeros_like(t.outside), rtol=0, atol=1e-12)
+    if mode == "clusters":
+        assert t.actions == ("push[force=0]", "push[force=1]", "push[force=2]", "unlock", "wait")
+        assert t.choices[1]["cluster.force"] == 1 and len(t.choices[1]["param.force"]) == 1
+
+
+def test_the_joint_is_not_the_product_of_the_marginals(fitted):
+    """The lock's end reads the door's end: a product of marginals would be wrong."""
+    net, params = fitted
+    t = transitions(net, params, given={"x": [0.3]})
+    p = t.probs.reshape(4, 3, 2, 2)  # next state = (door, lock)
+    product = p.sum(-1, keepdim=True) * p.sum(-2, keepdim=True)
+    assert (p - product).abs().max() > 1e-3
+
+
+def test_unseen_pairs_are_reported_and_a_subset_reports_its_outside_mass():
+    net = EffectNetwork(
+        features=(Discrete("door", DOOR), Discrete("lock", LOCK)), actions=("push", "wait")
+    )
+    rows = {
+        "initial.door": ["shut"] * 6,
+        "initial.lock": ["off"] * 6,
+        "action": ["push"] * 3 + ["wait"] * 3,
+        "end.door": ["open"] * 3 + ["shut"] * 3,
+        "end.lock": ["off"] * 6,
+    }
+    params = fit(net, rows).params
+    t = transitions(net, params)
+    start = t.space.index_of(("shut", "off"))
+    assert t.unseen[start].tolist() == [0.0, 0.0]
+    others = [i for i in range(4) if i != start]
+    assert bool((t.unseen[others] == 1).all())
+    assert t.prob(("shut", "off"), "push", ("open", "off")) > 0.9
+    sub = transitions(net, params, states=[("shut", "off"), ("open", "off")])
+    assert sub.probs.shape == (2, 2, 2)
+    full = t.probs[:, :, [start, t.space.index_of(("open", "off"))]][[start, 2]]
+    torch.testing.assert_close(sub.probs, full)
+    torch.testing.assert_close(sub.outside, 1 - full.sum(-1))
+    assert sub.next_states(("shut", "off"), "push")  # labels, most likely first
+    assert "2 states" in repr(sub)
+
+
+def test_a_continuous_initial_feature_must_be_given(fitted):
+    net, params = fitted
+    with pytest.raises(ValueError, match="'x'"):
+        transitions(net, params)
+    with pytest.raises(ValueError, match="given\\['x'\\]"):
+        transitions(net, params, given={"x": [0.1, 0.2]})
+    with pytest.raises(ValueError, match="parameter_values"):
+        transitions(net, params, given={"x": [0.0]}, parameter_values="mean")
+
+
+def test_the_door_changes_with_the_given_context(fitted):
+    net, params = fitted
+    a = transitions(net, params, given={"x": [-2.0]})
+    b = transitions(net, params, given={"x": [2.0]})
+    assert not torch.allclose(a.probs, b.probs)
+    tables = model_tables(net, params, {"x": [2.0]})
+    torch.testing.assert_close(transitions(net, params, tables=tables).probs, b.probs)
