@@ -30,7 +30,7 @@ a next state that the state space leaves out (``states=`` a subset).
 from __future__ import annotations
 
 from collections.abc import Collection, Iterable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import torch
 from pyro import poutine
@@ -220,6 +220,7 @@ def transitions(
     actions: Iterable[str] | None = None,
     parameter_values: str = "integrate",
     given: Mapping[str, object] | None = None,
+    normalise: bool = False,
     tables: ModelTables | None = None,
 ) -> Transitions:
     """``P(next state | state, action)`` for every state and action, exactly.
@@ -243,6 +244,12 @@ def transitions(
     given
         A value for each continuous initial feature, ``{feature: (d,) values}``: the
         step's context (``ValueError`` naming a feature left out).
+    normalise
+        Divide each ``(state, action)`` row by its mass inside the state space: the next
+        state conditioned on being one of ``states`` (``outside`` still reports the mass
+        left out). Useful where ``states`` lists the states that can occur and the model
+        gives the others some probability: in the can world, a configuration paired with
+        a count that is not its own.
     tables
         :func:`model_tables` already traced for ``given`` (:func:`inference.compile`'s
         ``transitions`` keeps them).
@@ -284,7 +291,12 @@ def transitions(
             f"{s} states x {a} actions x {s} next states is more than {MAX_ENTRIES} "
             "numbers: pass states= (the states that occur) or actions="
         )
-    return _transitions(net, space, offered, tables, parameter_values == "clusters")
+    out = _transitions(net, space, offered, tables)
+    if not normalise:
+        return out
+    inside = out.probs.sum(-1, keepdim=True)
+    probs = torch.where(inside > 0, out.probs / torch.where(inside > 0, inside, 1.0), 0.0)
+    return replace(out, probs=probs)
 
 
 def _actions(net: EffectNetwork, actions: Iterable[str] | None) -> list[int]:
@@ -345,7 +357,7 @@ def _product(ranges: list[range]) -> list[tuple[int, ...]]:
     return out
 
 
-def _transitions(net, space: StateSpace, offered: _Offered, tables: ModelTables, clusters: bool):
+def _transitions(net, space: StateSpace, offered: _Offered, tables: ModelTables) -> Transitions:
     s, a = len(space), len(offered.labels)
     features = {f.name: j for j, f in enumerate(space.features)}
     index: dict[str, torch.Tensor] = {}  # fixed site -> index broadcastable to (S, A, S')
