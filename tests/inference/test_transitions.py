@@ -13,12 +13,14 @@ import itertools
 import numpy as np
 import pytest
 import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from pyro import poutine
 
 from inference import fit
 from inference.queries.states import StateSpace
 from inference.queries.transitions import model_tables, transitions
-from models import Continuous, Discrete, EffectNetwork, Parameter
+from models import Continuous, Discrete, EffectNetwork, Parameter, random_params
 from models.model import effect_model
 
 DOOR = ("shut", "open")
@@ -198,3 +200,79 @@ def test_the_door_changes_with_the_given_context(fitted):
     assert not torch.allclose(a.probs, b.probs)
     tables = model_tables(net, params, {"x": [2.0]})
     torch.testing.assert_close(transitions(net, params, tables=tables).probs, b.probs)
+
+
+@st.composite
+def small_networks(draw):
+    """One or two state features, maybe an end-only feature and a parameter acting on
+    the first, maybe end -> end parents; random tables, some configurations unseen."""
+    features = [Discrete("f", ("a", "b", "c")[: draw(st.integers(2, 3))])]
+    parents = {}
+    if draw(st.booleans()):
+        features.append(Discrete("g", ("x", "y")))
+        if draw(st.booleans()):
+            parents["end.g"] = ("initial.g", "action", "end.f")
+    if draw(st.booleans()):
+        features.append(Discrete("h", ("lo", "hi"), initial=False))
+        parents["end.f"] = ("initial.f", "action", "end.h")
+    parameters = ()
+    if draw(st.booleans()):
+        parameters = (Parameter("p", low=0.0, high=1.0, bins=2, actions=("a1",), affects="f"),)
+    net = EffectNetwork(
+        features=tuple(features), actions=("a0", "a1"), parameters=parameters, parents=parents
+    )
+    seed = draw(st.integers(0, 2**16))
+    return (
+        net,
+        random_params(net, seed, unseen=0.3),
+        draw(st.sampled_from(["integrate", "clusters"])),
+    )
+
+
+@settings(max_examples=10, deadline=None)
+@given(small_networks())
+def test_transitions_of_drawn_networks_equal_the_brute_force(drawn):
+    net, params, mode = drawn
+    if mode == "clusters" and not net.mixtures:
+        mode = "integrate"
+    t = transitions(net, params, parameter_values=mode)
+    probs, unseen = brute_force(net, params, {}, mode == "clusters")
+    torch.testing.assert_close(t.probs, probs, rtol=1e-9, atol=1e-12)
+    torch.testing.assert_close(t.unseen, unseen, rtol=1e-9, atol=1e-12)
+    torch.testing.assert_close(t.probs.sum(-1), torch.ones_like(t.outside))
+
+
+def test_transitions_equal_pgmpy_variable_elimination():
+    """An all-discrete network with an end -> end parent and an end-only feature, beside
+    pgmpy's VariableElimination on the same tables (no Pyro model involved)."""
+    pytest.importorskip("pgmpy")
+    from pgmpy.inference import VariableElimination
+
+    from models.interop import to_pgmpy
+
+    net = EffectNetwork(
+        features=(
+            Discrete("door", DOOR),
+            Discrete("lock", LOCK),
+            Discrete("noise", NOISE, initial=False),
+        ),
+        actions=("push", "unlock", "wait"),
+        parents={
+            "end.lock": ("initial.lock", "action", "end.door", "end.noise"),
+            "end.door": ("initial.door", "action", "end.noise"),
+        },
+    )
+    params = random_params(net, 7)
+    t = transitions(net, params)
+    ve = VariableElimination(to_pgmpy(net, params).model)
+    sites = ["initial.door", "initial.lock", "action", "end.door", "end.lock"]
+    joint = ve.query(sites, show_progress=False)  # one query: the joint of the five
+    for s, state in enumerate(t.space.states):
+        for a, action in enumerate(t.actions):
+            given = {"initial.door": state[0], "initial.lock": state[1], "action": action}
+            cells = [
+                joint.get_value(**given, **{"end.door": door, "end.lock": lock})
+                for door, lock in t.space.states
+            ]
+            expected = torch.tensor(cells, dtype=torch.float64) / sum(cells)
+            torch.testing.assert_close(t.probs[s, a], expected, rtol=1e-9, atol=1e-12)
