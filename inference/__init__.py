@@ -6,8 +6,10 @@ Fitting (:mod:`inference.fitting`): :func:`fit`, :func:`fit_gradient`, :func:`fi
 :func:`params_from_statistics`; :func:`simulate` draws rows in ``fit``'s format.
 Questions (:mod:`inference.queries`): :func:`predict`, :func:`imitation_check`,
 :func:`infer_action`, :func:`infer_parameter` (the parameter posterior),
-:func:`parameter_for_effect` (the inverse model), and :func:`compile`, whose methods of
-the same names answer from compiled tables where they can. Active exploration
+:func:`parameter_for_effect` (the inverse model), :func:`predict_joint` (the end features' joint),
+:func:`transitions` (``P(next state | state, action)`` over a network's states) and
+:func:`plan` (the policy that reaches a goal within a horizon), and :func:`compile`, whose
+methods of the same names answer from compiled tables where they can. Active exploration
 (:mod:`inference.design`): :func:`explore`. Pictures of a network and its fitted
 numbers (matplotlib, drawn into the caller's axes): the module :mod:`inference.plots`.
 
@@ -27,15 +29,22 @@ from inference.queries import (
     CompiledQueries,
     GaussianMixture,
     ImitationCheck,
+    JointPrediction,
     ParameterForEffect,
     ParameterPosterior,
+    Plan,
     Prediction,
+    StateSpace,
+    Transitions,
     compile,
     imitation_check,
     infer_action,
     infer_parameter,
     parameter_for_effect,
+    plan,
     predict,
+    predict_joint,
+    transitions,
 )
 from inference.queries.plausibility import OutsideTrainingData
 from inference.queries.simulate import simulate
@@ -49,10 +58,14 @@ __all__ = [
     "FitResult",
     "GaussianMixture",
     "ImitationCheck",
+    "JointPrediction",
     "OutsideTrainingData",
     "ParameterForEffect",
     "ParameterPosterior",
+    "Plan",
     "Prediction",
+    "StateSpace",
+    "Transitions",
     "compile",
     "explore",
     "fit",
@@ -66,8 +79,11 @@ __all__ = [
     "infer_parameter",
     "parameter_for_effect",
     "params_from_statistics",
+    "plan",
     "predict",
+    "predict_joint",
     "simulate",
+    "transitions",
 ]
 
 #: Lower-level names this face used to export -> the module that holds them.

@@ -371,9 +371,12 @@ def _transitions(net, space: StateSpace, offered: _Offered, tables: ModelTables)
     if missing:
         raise ValueError(f"the tables hold no {missing}: trace them with these end sites")
     latent = [q for q in tables.order if q not in index]
+    needed = net.end_sites_needed([end_site(f) for f in features])
     step, prior = [], []
     for site, table in tables.factors.items():
         role = net.site(site).role
+        if role == "end" and site not in needed:
+            continue  # no end state feature depends on it: it sums to one
         if role == "initial":
             prior.append(_read(table, tables.order, index, latent, (s, 1, 1)))
         elif role == "end" or (role == "cluster" and site not in offered.clusters):
@@ -383,7 +386,7 @@ def _transitions(net, space: StateSpace, offered: _Offered, tables: ModelTables)
     seen = [
         torch.where(_read(u, tables.order, index, latent, (s, a, s)), -torch.inf, 0.0).to(DTYPE)
         for site, u in tables.unseen.items()
-        if bool(u.any())
+        if site in needed and bool(u.any())
     ]
     probs = log_t.exp()
     total = probs.sum(-1)

@@ -276,3 +276,20 @@ def test_transitions_equal_pgmpy_variable_elimination():
             ]
             expected = torch.tensor(cells, dtype=torch.float64) / sum(cells)
             torch.testing.assert_close(t.probs[s, a], expected, rtol=1e-9, atol=1e-12)
+
+
+def test_the_compiled_transitions_and_plan_keep_their_tables(fitted):
+    import inference
+
+    net, params = fitted
+    compiled = inference.compile(net, params)
+    direct = transitions(net, params, given={"x": [0.3]}, parameter_values="clusters")
+    first = compiled.transitions(given={"x": [0.3]}, parameter_values="clusters")
+    torch.testing.assert_close(first.probs, direct.probs)
+    torch.testing.assert_close(first.unseen, direct.unseen)
+    again = compiled.transitions(given={"x": [0.3]}, states=[("open", "on"), ("shut", "off")])
+    assert again.probs.shape == (2, 3, 2)
+    assert sum(1 for k in compiled._built if k[0] == "tables") == 1
+    p = compiled.plan(("shut", "off"), {"door": "open"}, 2, given={"x": [0.3]})
+    q = inference.plan(net, params, ("shut", "off"), {"door": "open"}, 2, given={"x": [0.3]})
+    assert p.success == pytest.approx(q.success, abs=1e-12) and p.path == q.path
