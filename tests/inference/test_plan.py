@@ -244,3 +244,71 @@ def test_avoid_unseen_keeps_to_configurations_seen_in_training():
     assert loose.action(("closed",)) == "kick"
     careful = plan(net, params, ("closed",), {"door": "open"}, 1, avoid_unseen=True)
     assert careful.action(("closed",)) == "push"
+
+
+def test_the_planning_page_runs_and_says_what_its_comments_say():
+    """docs/planning.md's snippets run in order; their numbers are what the page says."""
+    import re
+    from pathlib import Path
+
+    page = Path(__file__).resolve().parents[2] / "docs" / "planning.md"
+    namespace: dict = {}
+    for code in re.findall(r"^```python\n(.*?)^```", page.read_text(), re.S | re.M):
+        exec(compile(code, str(page), "exec"), namespace)  # noqa: S102
+    assert namespace["opens"] == pytest.approx(0.8, abs=0.01)
+    assert list(namespace["after_push"])[:2] == [("open", "unlocked"), ("closed", "unlocked")]
+    assert namespace["chance"] == pytest.approx(
+        0.9 * 0.8 + 0.9 * 0.2 * 0.8 + 0.1 * 0.9 * 0.8, abs=0.01
+    )
+    assert namespace["first"] == "unlock"
+    assert namespace["path"] == (
+        ("closed", "locked"),
+        "unlock",
+        ("closed", "unlocked"),
+        "push",
+        ("open", "unlocked"),
+    )
+    assert namespace["no_key"].success < 0.9  # without unlock only an unlocked start opens
+    assert len(namespace["space"]) == 4
+
+
+def test_planning_on_the_readme_network():
+    """The quick start's network (visible, position; look, remove, tap with a force on the
+    position): its one state feature is visible, the position is the given context."""
+    import numpy as np
+
+    from models import Continuous, Parameter
+
+    net = EffectNetwork(
+        features=(Discrete("visible", (False, True)), Continuous("position", 1)),
+        actions=("look", "remove", "tap"),
+        parameters=(
+            Parameter("force", low=0.0, high=20.0, bins=8, actions=("tap",), affects="position"),
+        ),
+    )
+    rng = np.random.default_rng(0)
+    n = 2000
+    action = rng.choice(net.actions, n)
+    visible = rng.random(n) < 0.7
+    position = rng.uniform(-1.0, 1.0, (n, 1))
+    force = np.where(action[:, None] == "tap", rng.uniform(0.0, 20.0, (n, 1)), np.nan)
+    data = {
+        "initial.visible": visible,
+        "initial.position": position,
+        "action": action,
+        "param.force": force,
+        "end.visible": visible & (action != "remove"),
+        "end.position": position + 0.02 * np.nan_to_num(force) + rng.normal(0.0, 0.01, (n, 1)),
+    }
+    params = fit(net, data).params
+    at = {"position": [0.0]}
+    steps = transitions(net, params, given=at)
+    assert steps.prob((True,), "remove", (False,)) > 0.99
+    route = plan(net, params, {"visible": True}, {"visible": False}, 2, given=at)
+    assert route.action((True,)) == "remove" and route.success > 0.99
+    assert route.path == ((True,), "remove", (False,))
+    per_cluster = transitions(net, params, given=at, parameter_values="clusters")
+    assert (
+        per_cluster.actions[:3] == ("look", "remove", "tap[force=0]")
+        and len(per_cluster.actions) == 10
+    )
