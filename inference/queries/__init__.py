@@ -16,7 +16,7 @@ its compiled answer (tables read once off the same model) side by side.
   features (not only each one's marginal).
 * :mod:`~inference.queries.transitions` -- :func:`transitions`: ``P(next state | state,
   action)`` over a network's states (:mod:`~inference.queries.states`), from its tables.
-* :mod:`~inference.queries.planner` -- :func:`plan`: the policy that reaches a goal
+* :mod:`~inference.queries.planner` -- :func:`~inference.queries.planner.plan`: the policy that reaches a goal
   within a horizon with the highest probability, by exact dynamic programming.
 * :mod:`~inference.queries.compiled` -- :func:`~inference.queries.compiled.compile`: one
   object whose methods answer these questions, from the compiled tables where they can.

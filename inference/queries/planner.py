@@ -1,7 +1,7 @@
 """Plan with any network: the actions that reach a goal within a horizon, over the
 network's own states.
 
-:func:`plan` builds the network's joint transitions
+:func:`~inference.queries.planner.plan` builds the network's joint transitions
 (:func:`~inference.queries.transitions.transitions`) and runs finite-horizon dynamic
 programming on them (:func:`~inference.queries.planning.exact_plan`): with ``h`` actions
 left, each state takes the action that maximises the probability of reaching the goal
@@ -178,7 +178,7 @@ def plan_on(
     *,
     avoid_unseen: bool = False,
 ) -> Plan:
-    """:func:`plan` on transitions already built (``model``); the same arguments."""
+    """:func:`~inference.queries.planner.plan` on transitions already built (``model``); the same arguments."""
     if not isinstance(horizon, int) or isinstance(horizon, bool) or horizon < 1:
         raise ValueError(f"horizon must be an int >= 1, got {horizon!r}")
     space = model.space
