@@ -187,6 +187,13 @@ def test_the_door_world_against_a_hand_written_dynamic_programme(door, horizon):
         assert result.action(("open", "locked")) is None
 
 
+def test_a_start_in_the_goal_has_succeeded(door):
+    net, params = door
+    result = plan(net, params, ("open", "locked"), {"door": "open"}, 2)
+    assert result.success == 1.0 and result.path == (("open", "locked"),)
+    assert result.path_probability == 1.0
+
+
 def test_a_partial_start_weighs_the_states_it_allows_by_the_initial_tables(door):
     net, params = door
     result = plan(net, params, {"door": "closed"}, {"door": "open"}, 2)

@@ -180,6 +180,9 @@ def test_unseen_pairs_are_reported_and_a_subset_reports_its_outside_mass():
     torch.testing.assert_close(sub.probs, full)
     torch.testing.assert_close(sub.outside, 1 - full.sum(-1))
     assert sub.next_states(("shut", "off"), "push")  # labels, most likely first
+    within = transitions(net, params, states=[("shut", "off"), ("open", "off")], normalise=True)
+    torch.testing.assert_close(within.probs, full / full.sum(-1, keepdim=True))
+    torch.testing.assert_close(within.outside, sub.outside)
     assert "2 states" in repr(sub)
 
 
