@@ -383,18 +383,24 @@ def _transitions(net, space: StateSpace, offered: _Offered, tables: ModelTables)
             step.append(_read(table, tables.order, index, latent, (s, a, s)))
     eliminate = [i - len(latent) - 1 for i in range(len(latent))]
     log_t = _sum(step, eliminate, (s, a, s))
-    seen = [
-        torch.where(_read(u, tables.order, index, latent, (s, a, s)), -torch.inf, 0.0).to(DTYPE)
+    misses = [
+        _read(u, tables.order, index, latent, (s, a, s))
         for site, u in tables.unseen.items()
         if site in needed and bool(u.any())
     ]
     probs = log_t.exp()
     total = probs.sum(-1)
-    if seen:
-        p_seen = _sum(step + seen, eliminate, (s, a, s)).exp().sum(-1)
-        unseen = torch.where(total > 0, 1 - p_seen / torch.where(total > 0, total, 1.0), 0.0)
-    else:
-        unseen = torch.zeros(s, a, dtype=DTYPE)
+    if not misses:
+        p_unseen = torch.zeros(s, a, dtype=DTYPE)
+    elif not latent:  # every configuration is a next state: weigh the unseen ones
+        missed = misses[0]
+        for m in misses[1:]:
+            missed = missed | m
+        p_unseen = (probs * missed.reshape(*missed.shape[:3])).sum(-1)
+    else:  # the seen configurations' mass, the latent sites summed out with it
+        seen = [torch.where(m, -torch.inf, 0.0).to(DTYPE) for m in misses]
+        p_unseen = total - _sum(step + seen, eliminate, (s, a, s)).exp().sum(-1)
+    unseen = torch.where(total > 0, p_unseen / torch.where(total > 0, total, 1.0), 0.0)
     log_prior = _sum(prior, [], (s, 1, 1)) if prior else torch.zeros(s, 1, 1, dtype=DTYPE)
     return Transitions(
         space,
