@@ -29,6 +29,7 @@ a next state that the state space leaves out (``states=`` a subset).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Collection, Iterable, Mapping
 from dataclasses import dataclass, field, replace
 
@@ -45,8 +46,9 @@ from models.params import NetworkParams, check_params
 #: ``parameter_values=`` choices: integrate an unknown parameter out, or offer an
 #: action using it once per cluster.
 PARAMETER_VALUES = ("integrate", "clusters")
-#: The most numbers a transition tensor ``S * A * S'`` may hold (float64: 2 GiB).
-MAX_ENTRIES = 1 << 28
+#: The most numbers one table read at every ``(state, action, next state)`` may hold, the
+#: latent sites it spans included (float64: 1 GiB).
+MAX_ENTRIES = 1 << 27
 
 
 @dataclass(frozen=True)
@@ -277,26 +279,43 @@ def transitions(
         raise ValueError(
             f"parameter_values must be one of {PARAMETER_VALUES}, got {parameter_values!r}"
         )
+    check_params(net, params)
     space = states if isinstance(states, StateSpace) else StateSpace.of(net, states)
     names = _actions(net, actions)
+    offered = _offered(net, params, names, parameter_values)
+    _check_size(net, space, offered)
     if tables is None:
         ends = [end_site(f.name) for f in space.features]
         tables = model_tables(net, params, given, ends)
     elif given is not None:
         raise ValueError("give either tables= (traced with their given values) or given=")
-    offered = _offered(net, params, names, parameter_values)
-    s, a = len(space), len(offered.labels)
-    if s * a * s > MAX_ENTRIES:
-        raise ValueError(
-            f"{s} states x {a} actions x {s} next states is more than {MAX_ENTRIES} "
-            "numbers: pass states= (the states that occur) or actions="
-        )
     out = _transitions(net, space, offered, tables)
     if not normalise:
         return out
     inside = out.probs.sum(-1, keepdim=True)
     probs = torch.where(inside > 0, out.probs / torch.where(inside > 0, inside, 1.0), 0.0)
     return replace(out, probs=probs)
+
+
+def _check_size(net: EffectNetwork, space: StateSpace, offered: _Offered) -> None:
+    """Refuse a question whose tables, read at every ``(state, action, next state)`` with
+    the latent sites they span, would hold more than :data:`MAX_ENTRIES` numbers."""
+    s, a = len(space), len(offered.labels)
+    fixed = {initial_site(f.name) for f in space.features} | {ACTION, *offered.clusters}
+    fixed |= {end_site(f.name) for f in space.features}
+    needed = net.end_sites_needed([end_site(f.name) for f in space.features])
+    scopes = [(q, *net.cpd(q).parents) for q in needed]
+    scopes += [(m.cluster.site,) for m in net.mixtures if m.cluster.site not in fixed]
+    widest = max(
+        math.prod(net.site(q).size for q in scope if q not in fixed and net.site(q).discrete)
+        for scope in scopes
+    )
+    if s * a * s * widest > MAX_ENTRIES:
+        raise ValueError(
+            f"{s} states x {a} actions x {s} next states (x {widest} latent configurations) "
+            f"is more than {MAX_ENTRIES} numbers: pass states= (the states that occur) or "
+            "actions="
+        )
 
 
 def _actions(net: EffectNetwork, actions: Iterable[str] | None) -> list[int]:

@@ -296,3 +296,15 @@ def test_the_compiled_transitions_and_plan_keep_their_tables(fitted):
     p = compiled.plan(("shut", "off"), {"door": "open"}, 2, given={"x": [0.3]})
     q = inference.plan(net, params, ("shut", "off"), {"door": "open"}, 2, given={"x": [0.3]})
     assert p.success == pytest.approx(q.success, abs=1e-12) and p.path == q.path
+
+
+def test_a_state_space_too_large_to_hold_is_refused_with_advice():
+    many = tuple(range(60))
+    net = EffectNetwork(  # 3,600 states x 20 actions x 3,600 next states
+        features=(Discrete("a", many), Discrete("b", many)),
+        actions=tuple(f"act{i}" for i in range(20)),
+    )
+    with pytest.raises(ValueError, match="pass states="):
+        transitions(net, random_params(net, 0))
+    few = transitions(net, random_params(net, 0), states=[(0, 0), (1, 2)])
+    assert few.probs.shape == (2, 20, 2)
