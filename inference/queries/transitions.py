@@ -106,7 +106,7 @@ def model_tables(
         if net.site(n).role == "end":
             cpd = net.cpd(n)
             seen = gather(cpd.seen(params[n]), tuple(values[q] for q in cpd.parents))
-            unseen[n] = laid_out(~seen.reshape(*seen.shape, *[1] * (seen.dim() == 0)))
+            unseen[n] = laid_out(~seen.reshape(seen.shape or (1,)))  # (1,): no parents
     return ModelTables(order, factors, unseen)
 
 

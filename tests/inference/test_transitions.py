@@ -213,8 +213,9 @@ def small_networks(draw):
     parents = {}
     if draw(st.booleans()):
         features.append(Discrete("g", ("x", "y")))
-        if draw(st.booleans()):
-            parents["end.g"] = ("initial.g", "action", "end.f")
+        g_parents = draw(st.sampled_from([None, ("initial.g", "action", "end.f"), ()]))
+        if g_parents is not None:  # an end -> end parent, or none at all
+            parents["end.g"] = g_parents
     if draw(st.booleans()):
         features.append(Discrete("h", ("lo", "hi"), initial=False))
         parents["end.f"] = ("initial.f", "action", "end.h")
