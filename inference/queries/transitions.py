@@ -37,6 +37,7 @@ import torch
 from pyro import poutine
 
 from inference.queries.elimination import contract
+from inference.queries.plausibility import IMPLAUSIBLE_BELOW, initial_tails, outside_training
 from inference.queries.states import StateLike, StateSpace
 from models.cpds.table import gather
 from models.declaration import ACTION, DTYPE, Continuous, EffectNetwork, end_site, initial_site
@@ -77,13 +78,17 @@ def model_tables(
     ``given``: a value for each continuous initial feature (``{feature: (d,) values}``);
     ``end_sites``: the end sites to keep, with those they depend on (default: every
     discrete end site). Unknown parameter values are integrated out in closed form
-    (the model's collapsed form), unobserved continuous end sites left out.
+    (the model's collapsed form), unobserved continuous end sites left out. A value of
+    ``given`` far outside the training data warns
+    (:class:`~inference.queries.plausibility.OutsideTrainingData`).
     """
     check_params(net, params)
     data = _given(net, given)
     if end_sites is None:
         end_sites = [s.name for s in net.sites if s.role == "end" and s.discrete]
     enc = net.encode(data) if data else None
+    if enc is not None:  # a context far from the training data warns, as a query's does
+        outside_training(initial_tails(net, params, enc), IMPLAUSIBLE_BELOW)
     model = poutine.enum(effect_model, first_available_dim=-2)
     trace = poutine.trace(model).get_trace(
         net, params, enc, n_rows=None if enc else 1, end_sites=list(end_sites), collapse=True

@@ -197,7 +197,11 @@ def test_a_continuous_initial_feature_must_be_given(fitted):
 
 
 def test_the_door_changes_with_the_given_context(fitted):
+    from inference import OutsideTrainingData
+
     net, params = fitted
+    with pytest.warns(OutsideTrainingData, match="initial.x"):
+        transitions(net, params, given={"x": [40.0]})
     a = transitions(net, params, given={"x": [-2.0]})
     b = transitions(net, params, given={"x": [2.0]})
     assert not torch.allclose(a.probs, b.probs)
