@@ -193,6 +193,7 @@ def plan_on(
     exact = exact_plan(model.probs, goal_mask, horizon, allowed=mask)
     policy = exact.policy.clone()
     policy[:, goal_mask] = -1
+    policy[:, ~mask.any(-1)] = -1  # no allowed action: none is taken
     success = float(start_dist @ exact.value[horizon])
     path, p = _most_likely_path(model.probs, policy, goal_mask, start_dist, horizon)
     labelled = tuple(

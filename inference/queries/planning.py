@@ -155,8 +155,7 @@ def paper_planner(
 @dataclass(frozen=True)
 class ExactPlan:
     """``value[h, s]``: the best probability of reaching the goal from state ``s`` with ``h``
-    actions left; ``policy[h, s]``: the action achieving it (``h >= 1``; ``-1`` where no
-    action is allowed)."""
+    actions left; ``policy[h, s]``: the action achieving it (``h >= 1``)."""
 
     value: torch.Tensor  # (H + 1, S)
     policy: torch.Tensor  # (H + 1, S) long; row 0 unused (-1)
@@ -188,7 +187,6 @@ def exact_plan(
         if allowed is not None:
             q = q.masked_fill(~allowed, -1.0)
         value[h], policy[h] = q.max(-1)
-        policy[h, value[h] < 0] = -1  # no allowed action: none is taken
         value[h, goal] = 1.0
         value[h] = value[h].clamp_min(0.0)
     return ExactPlan(value, policy)

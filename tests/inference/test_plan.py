@@ -214,6 +214,11 @@ def test_allowed_restricts_the_actions(door):
     mask = torch.tensor([True, False, False])
     only = plan(net, params, ("closed", "unlocked"), {"door": "open"}, 2, allowed=mask)
     assert only.success < 0.01 and set(only.to_dict().values()) == {"unlock"}
+    per_state = torch.ones(4, 3, dtype=torch.bool)
+    per_state[0] = False  # ('closed', 'locked') may do nothing
+    stuck = plan(net, params, ("closed", "locked"), {"door": "open"}, 2, allowed=per_state)
+    assert stuck.action(("closed", "locked")) is None and stuck.success == 0.0
+    assert stuck.path == ()
     with pytest.raises(ValueError, match="unknown action 'kick'"):
         plan(net, params, ("closed", "locked"), {"door": "open"}, 2, allowed=["kick"])
     with pytest.raises(ValueError, match="horizon"):
