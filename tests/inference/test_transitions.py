@@ -301,6 +301,10 @@ def test_the_compiled_transitions_and_plan_keep_their_tables(fitted):
     p = compiled.plan(("shut", "off"), {"door": "open"}, 2, given={"x": [0.3]})
     q = inference.plan(net, params, ("shut", "off"), {"door": "open"}, 2, given={"x": [0.3]})
     assert p.success == pytest.approx(q.success, abs=1e-12) and p.path == q.path
+    sub = [("shut", "off"), ("open", "off")]
+    r = compiled.plan(sub[0], {"door": "open"}, 1, states=sub, normalise=True, given={"x": [0.3]})
+    within = transitions(net, params, states=sub, normalise=True, given={"x": [0.3]})
+    assert r.success == pytest.approx(float(within.probs[0, :, 1].max()), abs=1e-12)
 
 
 def test_a_state_space_too_large_to_hold_is_refused_with_advice():
