@@ -224,10 +224,13 @@ class CompiledQueries:
         states=None,
         parameter_values: str = "integrate",
         given: Mapping[str, object] | None = None,
+        normalise: bool = False,
         avoid_unseen: bool = False,
     ) -> Plan:
         """:func:`inference.plan` on :meth:`transitions` (the kept tables)."""
-        model = self.transitions(states=states, parameter_values=parameter_values, given=given)
+        model = self.transitions(
+            states=states, parameter_values=parameter_values, given=given, normalise=normalise
+        )
         return plan_on(model, start, goal, horizon, allowed, avoid_unseen=avoid_unseen)
 
 

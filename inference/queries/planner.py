@@ -115,6 +115,7 @@ def plan(
     states: Iterable[StateLike] | None = None,
     parameter_values: str = "integrate",
     given: Mapping[str, object] | None = None,
+    normalise: bool = False,
     avoid_unseen: bool = False,
 ) -> Plan:
     """The policy maximising the probability of reaching ``goal`` within ``horizon``
@@ -138,11 +139,12 @@ def plan(
     allowed
         The actions the plan may take: action labels, or an ``(A,)`` or ``(S, A)`` bool
         mask over the transitions' actions.
-    states, parameter_values, given
+    states, parameter_values, given, normalise
         As :func:`~inference.queries.transitions.transitions` takes them: the states to
         plan over, how an action's parameter is chosen (``"integrate"``: drawn from the
         action's clusters; ``"clusters"``: one action per cluster, which the plan
-        chooses), the continuous initial features' values.
+        chooses), the continuous initial features' values, whether the next state is
+        conditioned on being one of ``states`` (otherwise a step leaving them fails).
     avoid_unseen
         Never take an action whose step rests mostly (``unseen > 0.5``) on configurations
         no training row reached, unless a state has no other.
@@ -165,7 +167,14 @@ def plan(
     >>> p.path[1::2], p.success > 0.9
     (('unlock', 'push'), True)
     """
-    model = transitions(net, params, states=states, parameter_values=parameter_values, given=given)
+    model = transitions(
+        net,
+        params,
+        states=states,
+        parameter_values=parameter_values,
+        given=given,
+        normalise=normalise,
+    )
     return plan_on(model, start, goal, horizon, allowed, avoid_unseen=avoid_unseen)
 
 
