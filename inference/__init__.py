@@ -9,9 +9,12 @@ Scores (:mod:`inference.fitting.scores`): :func:`log_likelihood`, :func:`bic`,
 parameter's clusters by them.
 Questions (:mod:`inference.queries`): :func:`predict`, :func:`imitation_check`,
 :func:`infer_action`, :func:`infer_parameter` (the parameter posterior),
-:func:`parameter_for_effect` (the inverse model), and :func:`compile`, whose methods of
-the same names answer from compiled tables where they can; :func:`link_probabilities`
-and :func:`chain` read one network's continuous output as another's actions. Active exploration
+:func:`parameter_for_effect` (the inverse model), :func:`predict_joint` (the end
+features' joint), :func:`transitions` (``P(next state | state, action)`` over a
+network's states) and :func:`plan` (the policy that reaches a goal within a horizon),
+and :func:`compile`, whose methods of the same names answer from compiled tables where
+they can; :func:`link_probabilities` and :func:`chain` read one network's continuous
+output as another's actions. Active exploration
 (:mod:`inference.design`): :func:`explore`. Pictures of a network and its fitted
 numbers (matplotlib, drawn into the caller's axes): the module :mod:`inference.plots`.
 
@@ -43,10 +46,14 @@ from inference.queries import (
     FunctionLink,
     GaussianMixture,
     ImitationCheck,
+    JointPrediction,
     LinkProbabilities,
     ParameterForEffect,
     ParameterPosterior,
+    Plan,
     Prediction,
+    StateSpace,
+    Transitions,
     chain,
     compile,
     imitation_check,
@@ -54,7 +61,10 @@ from inference.queries import (
     infer_parameter,
     link_probabilities,
     parameter_for_effect,
+    plan,
     predict,
+    predict_joint,
+    transitions,
 )
 from inference.queries.plausibility import OutsideTrainingData
 from inference.queries.simulate import simulate
@@ -72,12 +82,16 @@ __all__ = [
     "FunctionLink",
     "GaussianMixture",
     "ImitationCheck",
+    "JointPrediction",
     "LinkProbabilities",
     "LogLikelihood",
     "OutsideTrainingData",
     "ParameterForEffect",
     "ParameterPosterior",
+    "Plan",
     "Prediction",
+    "StateSpace",
+    "Transitions",
     "aic",
     "bic",
     "chain",
@@ -98,9 +112,12 @@ __all__ = [
     "n_parameters",
     "parameter_for_effect",
     "params_from_statistics",
+    "plan",
     "predict",
+    "predict_joint",
     "select_clusters",
     "simulate",
+    "transitions",
 ]
 
 #: Lower-level names this face used to export -> the module that holds them.

@@ -12,6 +12,12 @@ its compiled answer (tables read once off the same model) side by side.
   continuous features no other parameter acts on.
 * :mod:`~inference.queries.inverse` -- :func:`parameter_for_effect`: the inverse model,
   the value under which a desired effect is most likely.
+* :mod:`~inference.queries.joint` -- :func:`predict_joint`: the joint of the discrete end
+  features (not only each one's marginal).
+* :mod:`~inference.queries.transitions` -- :func:`transitions`: ``P(next state | state,
+  action)`` over a network's states (:mod:`~inference.queries.states`), from its tables.
+* :mod:`~inference.queries.planner` -- :func:`~inference.queries.planner.plan`: the policy that reaches a goal
+  within a horizon with the highest probability, by exact dynamic programming.
 * :mod:`~inference.queries.compiled` -- :func:`~inference.queries.compiled.compile`: one
   object whose methods answer these questions, from the compiled tables where they can.
 * :mod:`~inference.queries.chaining` -- :func:`link_probabilities` and :func:`chain`:
@@ -46,7 +52,9 @@ from inference.queries.chaining import (
 from inference.queries.compiled import CompiledQueries, compile
 from inference.queries.forward import imitation_check, predict
 from inference.queries.inverse import parameter_for_effect
+from inference.queries.joint import JointPrediction, predict_joint
 from inference.queries.parameter import infer_parameter
+from inference.queries.planner import Plan, plan
 from inference.queries.results import (
     ActionPosterior,
     GaussianMixture,
@@ -55,6 +63,8 @@ from inference.queries.results import (
     ParameterPosterior,
     Prediction,
 )
+from inference.queries.states import StateSpace
+from inference.queries.transitions import Transitions, transitions
 
 __all__ = [
     "ActionPosterior",
@@ -63,10 +73,14 @@ __all__ = [
     "FunctionLink",
     "GaussianMixture",
     "ImitationCheck",
+    "JointPrediction",
     "LinkProbabilities",
     "ParameterForEffect",
     "ParameterPosterior",
+    "Plan",
     "Prediction",
+    "StateSpace",
+    "Transitions",
     "chain",
     "compile",
     "imitation_check",
@@ -74,5 +88,8 @@ __all__ = [
     "infer_parameter",
     "link_probabilities",
     "parameter_for_effect",
+    "plan",
     "predict",
+    "predict_joint",
+    "transitions",
 ]
