@@ -1,0 +1,237 @@
+"""A demonstration read: what each of its states shows, per time, as the network's
+state space and arrays.
+
+:func:`explain <inference.queries.explain.explain>` reads its ``states`` here.
+:class:`StateSpace` numbers the configurations of a network's state (its discrete
+features with both an initial and an end node); :class:`Demonstrations` holds, per
+demonstration and time, the states consistent with what that time shows, the
+continuous values and the discrete outcomes, and groups the steps that observe the same
+(:meth:`Demonstrations.step_keys`), so that a step table is read off the model once per
+distinct observation.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from models.declaration import Continuous, Discrete, EffectNetwork
+from models.sites import end_site, initial_site
+
+
+@dataclass(frozen=True)
+class StateSpace:
+    """The network's state: its discrete features with an initial and an end node, and
+    every configuration of them, numbered in mixed radix (the last feature fastest)."""
+
+    features: tuple[Discrete, ...]
+
+    @staticmethod
+    def of(net: EffectNetwork) -> StateSpace:
+        """The state space of ``net``."""
+        return StateSpace(tuple(f for f in net.features if isinstance(f, Discrete) and f.initial))
+
+    @property
+    def size(self) -> int:
+        """``S``: the number of configurations (1 for a network without state features)."""
+        return math.prod(f.cardinality for f in self.features)
+
+    def digits(self) -> list[torch.Tensor]:
+        """Per feature ``(S,)`` its state index in each configuration."""
+        out, stride = [], self.size
+        for f in self.features:
+            stride //= f.cardinality
+            out.append(torch.arange(self.size) // stride % f.cardinality)
+        return out
+
+    def labels(self) -> tuple[tuple, ...]:
+        """Each configuration's labels, one per feature, by configuration index."""
+        digits = self.digits()
+        return tuple(
+            tuple(f.states[int(d[s])] for f, d in zip(self.features, digits, strict=True))
+            for s in range(self.size)
+        )
+
+
+@dataclass(frozen=True)
+class Demonstrations:
+    """A batch read: ``allowed`` ``(n, T + 1, S)`` the states consistent with what each
+    time shows; ``continuous[f]`` ``(n, T + 1, d)`` (NaN: not observed);
+    ``outcomes[f]`` ``(n, T + 1)`` state indices of discrete outcome features (-1: not
+    observed)."""
+
+    allowed: torch.Tensor
+    continuous: dict[str, np.ndarray]
+    outcomes: dict[str, np.ndarray]
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """``(n, T)``."""
+        return self.allowed.shape[0], self.allowed.shape[1] - 1
+
+    @staticmethod
+    def read(net: EffectNetwork, space: StateSpace, states) -> Demonstrations:
+        batch = _as_batch(net, states)
+        lengths = {np.shape(v)[:2] for v in batch.values() if v is not None}
+        if not isinstance(states, Mapping):
+            lengths.add((1, len(states)))
+        if len(lengths) != 1:
+            raise ValueError(
+                "states: every feature needs the same (n, T + 1) leading shape, got "
+                f"{ {f: np.shape(v)[:2] for f, v in batch.items()} }"
+            )
+        n, times = lengths.pop()
+        if times < 2:
+            raise ValueError(f"states: a demonstration needs at least 2 states, got {times}")
+        allowed = torch.ones(n, times, space.size, dtype=torch.bool)
+        continuous, outcomes = {}, {}
+        for f in net.features:
+            value = batch.get(f.name)
+            if isinstance(f, Discrete):
+                index = _discrete_indices(net, f, value, (n, times))
+                if not f.initial:
+                    _unobserved_first(f, index[:, 0] >= 0)
+                    outcomes[f.name] = index
+            else:
+                x = _continuous_values(f, value, (n, times))
+                if f.initial:
+                    if np.isnan(x).any():
+                        raise ValueError(
+                            f"states[{f.name!r}]: a continuous feature with an initial node must "
+                            "be observed at every time (NaN found)"
+                        )
+                else:
+                    _unobserved_first(f, ~np.isnan(x[:, 0]).all(-1))
+                continuous[f.name] = x
+        for f, digit in zip(space.features, space.digits(), strict=True):
+            index = torch.from_numpy(_discrete_indices(net, f, batch.get(f.name), (n, times)))
+            allowed &= (index[..., None] < 0) | (index[..., None] == digit)
+        return Demonstrations(allowed, continuous, outcomes)
+
+    def step_keys(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(n, T)`` the index of each step's observation among the distinct ones, and
+        the distinct ones ``(K, m)``: each step's continuous values at its start and end
+        and its outcomes (-1 / NaN: not observed). Steps that observe the same get one
+        step table."""
+        n, steps = self.shape
+        columns = []
+        for x in self.continuous.values():
+            columns += [x[:, :-1].reshape(n * steps, -1), x[:, 1:].reshape(n * steps, -1)]
+        for index in self.outcomes.values():
+            outcome = index[:, 1:].reshape(n * steps, 1)
+            columns.append(np.where(outcome < 0, np.nan, outcome.astype(np.float64)))
+        if not columns:
+            return np.zeros((n, steps), dtype=np.int64), np.zeros((1, 0))
+        rows = np.concatenate(columns, 1)
+        rows = np.where(np.isnan(rows), np.inf, rows)  # np.unique tells NaNs apart: one marker
+        keys, inverse = np.unique(rows, axis=0, return_inverse=True)
+        keys = np.where(np.isinf(keys), np.nan, keys)
+        return inverse.reshape(n, steps), keys
+
+
+def _as_batch(net: EffectNetwork, states) -> dict[str, object]:
+    names = {f.name for f in net.features}
+    if isinstance(states, Mapping):
+        batch = dict(states)
+    elif isinstance(states, Sequence) and not isinstance(states, str | bytes):
+        if not all(isinstance(s, Mapping) for s in states):
+            raise ValueError(
+                "states: a demonstration is a sequence of mappings feature -> value, or a "
+                "batch is one mapping feature -> (n, T + 1) array"
+            )
+        seen = {k for s in states for k in s}
+        batch = {}
+        for name in seen & names:
+            f = net.feature(name)
+            if isinstance(f, Discrete):
+                batch[name] = np.array([[s.get(name) for s in states]], dtype=object)
+            else:
+                batch[name] = np.array(
+                    [[np.full(f.dim, np.nan) if s.get(name) is None else s[name] for s in states]],
+                    dtype=np.float64,
+                )
+        batch |= {k: None for k in seen - names}  # reported below
+    else:
+        raise ValueError(
+            f"states must be a sequence of mappings or a mapping of arrays, got {type(states).__name__}"
+        )
+    unknown = sorted(set(batch) - names)
+    if unknown:
+        raise ValueError(f"states name unknown features {unknown}; features: {sorted(names)}")
+    return batch
+
+
+def _discrete_indices(net: EffectNetwork, f: Discrete, value, shape) -> np.ndarray:
+    """``shape`` state indices of ``value`` (labels, ``None`` for unobserved), -1 where
+    unobserved (everywhere for ``None``); labels are read as the network reads them."""
+    index = np.full(shape, -1, dtype=np.int64)
+    if value is None:
+        return index
+    labels = np.asarray(value)
+    if labels.shape != shape:
+        raise ValueError(f"states[{f.name!r}]: expected shape {shape}, got {labels.shape}")
+    observed = np.ones(shape, dtype=bool)
+    if labels.dtype == object:
+        observed = ~np.frompyfunc(_missing, 1, 1)(labels).astype(bool)
+        labels = np.array(labels[observed].tolist())  # typed where the labels agree
+    site = initial_site(f.name) if f.initial else end_site(f.name)
+    if labels.size:
+        try:
+            index[observed] = net.encode({site: labels.reshape(-1)})[site].numpy()
+        except ValueError as error:
+            raise ValueError(f"states[{f.name!r}]: {error}") from None
+    return index
+
+
+def _missing(v) -> bool:
+    return v is None or isinstance(v, float) and math.isnan(v)
+
+
+def _continuous_values(f: Continuous, value, shape: tuple[int, int]) -> np.ndarray:
+    if value is None:
+        if f.initial:
+            raise ValueError(
+                f"states: continuous feature {f.name!r} is missing; a demonstration observes "
+                "its continuous features with an initial node at every time"
+            )
+        return np.full((*shape, f.dim), np.nan)
+    x = np.asarray(value, dtype=np.float64)
+    if x.shape == shape and f.dim == 1:
+        x = x[..., None]
+    if x.shape != (*shape, f.dim):
+        raise ValueError(f"states[{f.name!r}]: expected shape {(*shape, f.dim)}, got {x.shape}")
+    partly = np.isnan(x).any(-1) & ~np.isnan(x).all(-1)
+    if partly.any():
+        raise ValueError(
+            f"states[{f.name!r}]: a value is observed in some dimensions only; give all or none"
+        )
+    if np.isinf(x).any():
+        raise ValueError(f"states[{f.name!r}]: values must be finite, got inf")
+    return x
+
+
+def _unobserved_first(f, observed: np.ndarray) -> None:
+    if observed.any():
+        raise ValueError(
+            f"states[{f.name!r}]: an outcome feature (initial=False) exists after a step only; "
+            "state 0 must leave it unobserved (None / NaN)"
+        )
+
+
+def key_columns(net: EffectNetwork, demo: Demonstrations) -> dict[str, slice]:
+    """Where each site's value lies in a step key (:meth:`Demonstrations.step_keys`)."""
+    out, at = {}, 0
+    for name, x in demo.continuous.items():
+        d = x.shape[-1]
+        if net.feature(name).initial:
+            out[initial_site(name)] = slice(at, at + d)
+        out[end_site(name)] = slice(at + d, at + 2 * d)
+        at += 2 * d
+    for name in demo.outcomes:
+        out[end_site(name)] = slice(at, at + 1)
+        at += 1
+    return out

@@ -1,0 +1,402 @@
+"""A demonstration read as the actions that produced it: :func:`explain`.
+
+A demonstration of ``T`` steps is ``T + 1`` observed scene states; step ``t`` starts in
+state ``t`` and ends in state ``t + 1``, so one step's end is the next step's start. The
+network's *state* is its discrete features that have both an initial and an end node;
+the parts of it a demonstration does not observe are latent, and they carry over from
+one step to the next. That is a hidden Markov model::
+
+    H_0 ──a_0──> H_1 ──a_1──> H_2  ...  ──a_{T-1}──> H_T      H_t: the discrete state
+     │            │            │                      │
+    x_0          x_1          x_2                    x_T      x_t: what state t shows
+
+whose hidden variable at time ``t`` is the discrete state ``H_t`` (its observed features
+restrict it), whose start is the network's own initial distribution given what state 0
+shows, and whose step ``t`` is the action drawn from a prior (uniform unless given) and
+the network's ``p(H_{t+1}, x_{t+1} | H_t, x_t, a_t)``: the end state given the initial
+one, the action and the continuous features observed at both ends. Everything else the
+network holds is summed or integrated out inside a step, exactly, by the model itself
+(:mod:`inference.queries.enumeration`): an action parameter is not observed in a
+demonstration, so each parameterised action counts as the mixture of its parameter's
+clusters (the parameter integrated out in closed form); outcome features
+(``initial=False``) that a state does not show are summed out.
+
+Each step's table ``log p(H_{t+1}, x_{t+1} | H_t, x_t, a)`` over (start state, action,
+end state) is read off the traced model once per distinct observation of the step (one
+table for a whole batch of an all-discrete network's demonstrations), and the sums over
+paths run in log space over the batch: forward-backward for the posterior over each
+step's action and the demonstration's log-likelihood, Viterbi for the most probable
+action sequence and state path, jointly. With every state fully observed the latent
+part is empty and each step is :func:`~inference.queries.action.infer_action`'s
+question, asked with the same action prior.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, replace
+
+import numpy as np
+import torch
+
+from inference.queries.demonstration import Demonstrations, StateSpace, key_columns
+from inference.queries.enumeration import conditional_log_evidence, over_row_chunks
+from inference.queries.plausibility import (
+    IMPLAUSIBLE_BELOW,
+    OutsideTrainingData,
+    check_threshold,
+    plausibility,
+)
+from models.cpds import TableParams
+from models.declaration import ACTION, DTYPE, EffectNetwork
+from models.evidence import Evidence
+from models.params import NetworkParams, check_params
+from models.sites import end_site, initial_site
+
+#: Largest step table (states x actions x states) :func:`explain` builds.
+MAX_STEP_TABLE = 1 << 22
+#: Elements of the per-demonstration tensors one pass over the batch holds at once.
+CHUNK_ELEMENTS = 1 << 22
+
+
+@dataclass(frozen=True)
+class Explanation:
+    """What :func:`explain` answers for ``n`` demonstrations of ``T`` steps each.
+
+    ``probs`` ``(n, T, A)``: the posterior over each step's action given the whole
+    demonstration (forward-backward). ``best`` ``(n, T)``: the actions of the most
+    probable action sequence and state path, taken jointly (Viterbi); ``best_names``
+    the same as names. ``path`` ``(n, T + 1)``: that path's states, indices into
+    ``states`` (labels of ``features``, in declaration order). ``state_probs``
+    ``(n, T + 1, S)``: the posterior over each time's state. ``log_likelihood`` ``(n,)``:
+    ``log p(x_1, ..., x_T | x_0)``, the demonstration's probability (a density where it
+    observes continuous features) given its first state, actions and latent parts summed
+    out. ``implausible`` ``(n, T)`` bool: the step's observed end state has (almost) no
+    probability under the model given everything observed before it
+    (:func:`explain`'s notes).
+    """
+
+    probs: torch.Tensor
+    best: torch.Tensor
+    best_names: tuple[tuple[str, ...], ...]
+    path: torch.Tensor
+    state_probs: torch.Tensor
+    log_likelihood: torch.Tensor
+    implausible: torch.Tensor
+    actions: tuple[str, ...]
+    features: tuple[str, ...]
+    states: tuple[tuple, ...]
+
+    def prob(self, action: str) -> torch.Tensor:
+        """``(n, T)`` posterior probability of the action named ``action`` at each step."""
+        if action not in self.actions:
+            raise ValueError(f"unknown action {action!r}; actions are {list(self.actions)}")
+        return self.probs[..., self.actions.index(action)]
+
+    def path_labels(self, i: int = 0) -> list[dict[str, object]]:
+        """Demonstration ``i``'s most probable state path: one mapping feature -> label
+        per time, ``T + 1`` of them."""
+        return [
+            dict(zip(self.features, self.states[s], strict=True)) for s in self.path[i].tolist()
+        ]
+
+
+def explain(
+    net: EffectNetwork,
+    params: NetworkParams,
+    states: Sequence[Mapping[str, object]] | Mapping[str, object],
+    *,
+    prior: Mapping[str, float] | Sequence[float] | None = None,
+    implausible_below: float = IMPLAUSIBLE_BELOW,
+) -> Explanation:
+    """The actions that produced a demonstration: per-step posterior, most probable
+    sequence, log-likelihood.
+
+    Parameters
+    ----------
+    net, params
+        The network and its fitted parameters.
+    states
+        One demonstration: a sequence of ``T + 1`` mappings feature -> value, the scene
+        at each time (labels for discrete features, numbers for continuous ones). Or a
+        batch of ``n`` demonstrations as one mapping feature -> array: ``(n, T + 1)``
+        labels for a discrete feature, ``(n, T + 1, d)`` (or ``(n, T + 1)`` for
+        ``d = 1``) numbers for a continuous one. A discrete value that is ``None`` (or a
+        feature left out) is not observed at that time; the state's unobserved parts are
+        latent. Continuous features with an initial node are observed at every time. An
+        outcome feature (``initial=False``) exists after a step only: its value at time
+        ``t + 1`` is step ``t``'s outcome, ``None``/NaN where not observed; at time 0 it
+        must be unobserved.
+    prior
+        The actions' prior at every step: a mapping action -> probability or an ``(A,)``
+        sequence; default uniform. It replaces the network's fitted action table.
+    implausible_below
+        A step is ``implausible`` where the probability of its observed discrete end
+        features, given everything observed up to its start, or the chi-square tail of
+        its observed continuous end features under the closest component the whole
+        demonstration leaves possible (:mod:`inference.queries.plausibility`), is below
+        this; or where a continuous initial value lies outside the training data
+        (warned as :class:`~inference.queries.plausibility.OutsideTrainingData`). With
+        every state fully observed these are the numbers
+        :func:`~inference.queries.action.infer_action` flags a step by.
+
+    Returns
+    -------
+    Explanation
+
+    Notes
+    -----
+    An action parameter is never observed in a demonstration: each parameterised action
+    is the mixture over its parameter's clusters that the network fitted, the value
+    integrated out. The most probable sequence is the joint maximum over actions and
+    latent states (Viterbi), which can differ from the per-step argmax of ``probs``.
+    """
+    check_params(net, params)
+    below = check_threshold(implausible_below)
+    space = StateSpace.of(net)
+    demo = Demonstrations.read(net, space, states)
+    params = with_action_prior(net, params, prior)
+    a = len(net.actions)
+    if space.size**2 * a > MAX_STEP_TABLE:
+        raise ValueError(
+            f"the network's state has {space.size} configurations and {a} actions: a step "
+            f"table of {space.size**2 * a} entries exceeds {MAX_STEP_TABLE}; explain needs "
+            "fewer discrete state features or states"
+        )
+    key, keys = demo.step_keys()
+    tables = _step_tables(net, params, space, demo, key, keys)
+    return _over_paths(net, space, demo, key, tables, below)
+
+
+def with_action_prior(
+    net: EffectNetwork, params: NetworkParams, prior: Mapping[str, float] | Sequence[float] | None
+) -> NetworkParams:
+    """``params`` with the action table replaced by ``prior`` (uniform for ``None``)."""
+    a = len(net.actions)
+    if prior is None:
+        probs = torch.full((a,), 1.0 / a, dtype=DTYPE)
+    elif isinstance(prior, Mapping):
+        unknown = set(prior) - set(net.actions)
+        if unknown:
+            raise ValueError(
+                f"prior names unknown actions {sorted(unknown)}; actions: {net.actions}"
+            )
+        probs = torch.tensor([float(prior.get(x, 0.0)) for x in net.actions], dtype=DTYPE)
+    else:
+        probs = torch.as_tensor(np.asarray(prior, dtype=np.float64))
+        if probs.shape != (a,):
+            raise ValueError(
+                f"prior must have one probability per action ({a}), got shape {tuple(probs.shape)}"
+            )
+    if (
+        not bool(torch.isfinite(probs).all())
+        or bool((probs < 0).any())
+        or not math.isclose(float(probs.sum()), 1.0, abs_tol=1e-9)
+    ):
+        raise ValueError(f"prior must be non-negative and sum to 1, got {probs.tolist()}")
+    table = params[ACTION]
+    cpds = dict(params.cpds)
+    cpds[ACTION] = TableParams(probs.to(table.probs.dtype), table.n)
+    return replace(params, cpds=cpds)
+
+
+@dataclass(frozen=True)
+class _StepTables:
+    """Per distinct step observation ``k``: ``log_step`` ``(K, S, A, S)`` the step's
+    ``log p(a) + log p(end state and observations | start state and observations, a)``;
+    ``log_discrete`` the same without the continuous end observations (the discrete
+    plausibility's numerator); ``log_start`` ``(K, S)`` the initial distribution's
+    ``log p(start state, start observations)``; ``tail`` ``(K, S, S)`` and ``initial``
+    ``{site: (K, S)}`` the plausibility tails; ``-inf`` / 1 where never needed."""
+
+    log_step: torch.Tensor
+    log_discrete: torch.Tensor
+    log_start: torch.Tensor
+    tail: torch.Tensor
+    initial: dict[str, torch.Tensor]
+
+
+def _log_evidence(net: EffectNetwork, params: NetworkParams, enc: Evidence) -> torch.Tensor:
+    return over_row_chunks(net, params, enc, (), lambda e, *_: e.log_evidence, contracted=True)
+
+
+def _step_tables(net, params, space, demo, key, keys) -> _StepTables:
+    """The step tables, from the traced model, for the (start, end) state pairs some
+    step of each distinct observation allows."""
+    s, a, k = space.size, len(net.actions), len(keys)
+    pairs = demo.allowed[:, :-1, :, None] & demo.allowed[:, 1:, None, :]
+    need = torch.zeros(k, s * s, dtype=DTYPE)
+    need.index_add_(0, torch.from_numpy(key.reshape(-1)), pairs.reshape(-1, s * s).to(DTYPE))
+    triples = (need > 0).reshape(k, s, s).nonzero()  # (k, start, end) rows
+    log_step = torch.full((k, s, a, s), -torch.inf, dtype=DTYPE)
+    log_discrete = log_step.clone()
+    log_start = torch.full((k, s), -torch.inf, dtype=DTYPE)
+    tail = torch.ones(k, s, s, dtype=DTYPE)
+    initial: dict[str, torch.Tensor] = {}
+    columns = key_columns(net, demo)
+    observed = ~np.isnan(keys) if keys.size else np.zeros((k, 0), dtype=bool)
+    # one evidence pattern per set of observed outcomes
+    patterns = {}
+    for row, (kk, _, _) in enumerate(triples.tolist()):
+        patterns.setdefault(tuple(observed[kk]), []).append(row)
+    digits = space.digits()
+    for rows in patterns.values():
+        t = triples[rows]
+        ev = _pair_evidence(net, space, digits, keys, columns, t)
+        n_rows = len(rows)
+        with_action = {site: v.repeat_interleave(a, 0) for site, v in ev.items()}
+        with_action[ACTION] = torch.arange(a).repeat(n_rows)
+        enc = net.encode_indices(with_action)
+        ends = [x for x in enc if x.startswith("end.")]
+        given = enc.without(ACTION, *ends)
+        starts, where = torch.unique(t[:, :2], dim=0, return_inverse=True)
+        first = torch.zeros(len(starts), dtype=torch.long)
+        first[where.flip(0)] = torch.arange(n_rows - 1, -1, -1)
+        start_enc = given.rows(first * a)
+        log_given_start = _log_evidence(net, params, start_enc)
+        log_start[starts[:, 0], starts[:, 1]] = log_given_start
+        log_given = log_given_start[where].repeat_interleave(a)
+        log_joint = _log_evidence(net, params, enc)
+        values = conditional_log_evidence(net, params, enc, given, log_joint, log_given)
+        log_step[t[:, 0], t[:, 1], :, t[:, 2]] = values.reshape(n_rows, a)
+        continuous_ends = [x for x in ends if not net.site(x).discrete]
+        if continuous_ends:
+            discrete = enc.without(*continuous_ends)
+            log_joint = _log_evidence(net, params, discrete)
+            values = conditional_log_evidence(net, params, discrete, given, log_joint, log_given)
+        log_discrete[t[:, 0], t[:, 1], :, t[:, 2]] = values.reshape(n_rows, a)
+        if any(not x.discrete for x in net.sites if x.role in ("initial", "end")):
+            told = plausibility(net, params, net.encode_indices(ev))
+            tail[t[:, 0], t[:, 1], t[:, 2]] = told.tail
+            for site, value in told.initial.items():
+                initial.setdefault(site, torch.ones(k, s, dtype=DTYPE))
+                initial[site][t[:, 0], t[:, 1]] = value
+    return _StepTables(log_step, log_discrete, log_start, tail, initial)
+
+
+def _pair_evidence(net, space, digits, keys, columns, triples) -> dict[str, torch.Tensor]:
+    """Evidence by site (indices, numbers) for rows ``(key, start state, end state)``:
+    the start and end states and the key's observations, its unobserved outcomes left
+    out (the rows share one pattern)."""
+    k, start, end = triples[:, 0], triples[:, 1], triples[:, 2]
+    ev: dict[str, torch.Tensor] = {}
+    for f, digit in zip(space.features, digits, strict=True):
+        ev[initial_site(f.name)] = digit[start]
+        ev[end_site(f.name)] = digit[end]
+    for site, cols in columns.items():
+        value = torch.from_numpy(keys[k.numpy(), cols])
+        if bool(torch.isnan(value).any()):
+            continue  # an outcome this pattern does not observe
+        if net.site(site).discrete:
+            ev[site] = value[:, 0].long()
+        else:
+            ev[site] = value
+    return ev
+
+
+def _over_paths(net, space, demo, key, tables: _StepTables, below: float) -> Explanation:
+    """Forward-backward and Viterbi over the batch, in chunks of demonstrations."""
+    n, steps = demo.shape
+    s, a = space.size, len(net.actions)
+    size = max(1, CHUNK_ELEMENTS // (s * a * s))
+    parts = [
+        _chunk(tables, demo.allowed[i : i + size], torch.from_numpy(key[i : i + size]), below)
+        for i in range(0, n, size)
+    ] or [_chunk(tables, demo.allowed, torch.from_numpy(key), below)]
+    probs, best, path, state_probs, log_likelihood, flags = (
+        torch.cat(x, 0) for x in zip(*[p[:6] for p in parts], strict=True)
+    )
+    initial = {site: torch.cat([p[6][site] for p in parts], 0) for site in parts[0][6]}
+    implausible = flags | _outside(initial, (n, steps), below)
+    names = tuple(tuple(net.actions[i] for i in row) for row in best.tolist())
+    return Explanation(
+        probs,
+        best,
+        names,
+        path,
+        state_probs,
+        log_likelihood,
+        implausible,
+        net.actions,
+        tuple(f.name for f in space.features),
+        space.labels(),
+    )
+
+
+def _chunk(tables: _StepTables, allowed: torch.Tensor, key: torch.Tensor, below: float):
+    """One chunk of demonstrations: ``allowed`` ``(n, T + 1, S)``, ``key`` ``(n, T)``."""
+    n, steps = key.shape
+    mask = torch.where(allowed, 0.0, -torch.inf).to(DTYPE)  # (n, T + 1, S)
+    start = tables.log_start[key[:, 0]] + mask[:, 0]
+    alpha = [start - start.logsumexp(-1, keepdim=True)]  # the start given state 0
+    step = [tables.log_step[key[:, t]] + mask[:, t + 1, None, None, :] for t in range(steps)]
+    summed = [x.logsumexp(2) for x in step]  # (n, S, S): the action summed out
+    for t in range(steps):
+        alpha.append((alpha[t][:, :, None] + summed[t]).logsumexp(1))
+    log_likelihood = alpha[-1].logsumexp(-1)
+    beta = [torch.zeros_like(start)]
+    for t in reversed(range(steps)):
+        beta.insert(0, (summed[t] + beta[0][:, None, :]).logsumexp(2))
+    z = log_likelihood[:, None]
+    state_probs = torch.stack([(x + y - z).exp() for x, y in zip(alpha, beta, strict=True)], 1)
+    probs = torch.stack(
+        [
+            (alpha[t][:, :, None, None] + step[t] + beta[t + 1][:, None, None, :])
+            .logsumexp((1, 3))
+            .sub(z)
+            .exp()
+            for t in range(steps)
+        ],
+        1,
+    )
+    # Viterbi over (state, action) jointly: the action maximised inside each step
+    delta, back, acts = alpha[0], [], []
+    for t in range(steps):
+        top, act = step[t].max(2)  # (n, S, S)
+        score = delta[:, :, None] + top
+        delta, arg = score.max(1)
+        back.append(arg)
+        acts.append(act)
+    path = torch.empty(n, steps + 1, dtype=torch.long)
+    best = torch.empty(n, steps, dtype=torch.long)
+    path[:, -1] = delta.argmax(-1)
+    rows = torch.arange(n)
+    for t in reversed(range(steps)):
+        path[:, t] = back[t][rows, path[:, t + 1]]
+        best[:, t] = acts[t][rows, path[:, t], path[:, t + 1]]
+    # implausible: discrete ends given all before the step; continuous ends' tail at the
+    # closest possible pair; the initial tails at the closest possible start
+    flags, initial = [], {}
+    for t in range(steps):
+        filtered = alpha[t] - alpha[t].logsumexp(-1, keepdim=True)
+        discrete = tables.log_discrete[key[:, t]] + mask[:, t + 1, None, None, :]
+        p_discrete = (filtered[:, :, None] + discrete.logsumexp(2)).logsumexp((1, 2)).exp()
+        possible = torch.isfinite(alpha[t][:, :, None] + summed[t] + beta[t + 1][:, None, :])
+        tail = torch.where(possible, tables.tail[key[:, t]], 0.0).amax((1, 2))
+        flags.append((p_discrete < below) | (tail < below))
+        starts = possible.any(2)
+        for site, value in tables.initial.items():
+            initial.setdefault(site, []).append(torch.where(starts, value[key[:, t]], 0.0).amax(1))
+    initial = {site: torch.stack(v, 1) for site, v in initial.items()}
+    return probs, best, path, state_probs, log_likelihood, torch.stack(flags, 1), initial
+
+
+def _outside(initial: dict[str, torch.Tensor], shape, below: float) -> torch.Tensor:
+    """``shape`` ``(n, T)`` bool: a step's continuous initial state lies outside the
+    training data (warned, naming the site, the first demonstration and its step)."""
+    flag = torch.zeros(shape, dtype=torch.bool)
+    for site, tail in initial.items():
+        outside = tail < below
+        if bool(outside.any()):
+            i, t = (int(x) for x in outside.nonzero()[0])
+            warnings.warn(
+                f"{site}: {int(outside.sum())} step(s), the first demonstration {i} step {t}, "
+                f"lie far outside the training data (tail below {below:g}); their answers "
+                "extrapolate",
+                OutsideTrainingData,
+                stacklevel=3,
+            )
+        flag |= outside
+    return flag
