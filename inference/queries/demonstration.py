@@ -14,12 +14,15 @@ from __future__ import annotations
 
 import math
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
 
-from models.declaration import Continuous, Discrete, EffectNetwork
+from inference.queries.simulate import simulate
+from models.cpds import TableParams
+from models.declaration import ACTION, DTYPE, Continuous, Discrete, EffectNetwork
+from models.params import NetworkParams
 from models.sites import end_site, initial_site
 
 
@@ -88,11 +91,11 @@ class Demonstrations:
         if times < 2:
             raise ValueError(f"states: a demonstration needs at least 2 states, got {times}")
         allowed = torch.ones(n, times, space.size, dtype=torch.bool)
-        continuous, outcomes = {}, {}
+        continuous, outcomes, indices = {}, {}, {}
         for f in net.features:
             value = batch.get(f.name)
             if isinstance(f, Discrete):
-                index = _discrete_indices(net, f, value, (n, times))
+                index = indices[f.name] = _discrete_indices(net, f, value, (n, times))
                 if not f.initial:
                     _unobserved_first(f, index[:, 0] >= 0)
                     outcomes[f.name] = index
@@ -108,9 +111,21 @@ class Demonstrations:
                     _unobserved_first(f, ~np.isnan(x[:, 0]).all(-1))
                 continuous[f.name] = x
         for f, digit in zip(space.features, space.digits(), strict=True):
-            index = torch.from_numpy(_discrete_indices(net, f, batch.get(f.name), (n, times)))
+            index = torch.from_numpy(indices[f.name])
             allowed &= (index[..., None] < 0) | (index[..., None] == digit)
         return Demonstrations(allowed, continuous, outcomes)
+
+    def split(self, size: int) -> list[Demonstrations]:
+        """The batch in parts of ``size`` demonstrations (the last may be shorter)."""
+        n = self.shape[0]
+        return [
+            Demonstrations(
+                self.allowed[i : i + size],
+                {f: x[i : i + size] for f, x in self.continuous.items()},
+                {f: x[i : i + size] for f, x in self.outcomes.items()},
+            )
+            for i in range(0, n, size)
+        ]
 
     def step_keys(self) -> tuple[np.ndarray, np.ndarray]:
         """``(n, T)`` the index of each step's observation among the distinct ones, and
@@ -176,8 +191,10 @@ def _discrete_indices(net: EffectNetwork, f: Discrete, value, shape) -> np.ndarr
         raise ValueError(f"states[{f.name!r}]: expected shape {shape}, got {labels.shape}")
     observed = np.ones(shape, dtype=bool)
     if labels.dtype == object:
-        observed = ~np.frompyfunc(_missing, 1, 1)(labels).astype(bool)
-        labels = np.array(labels[observed].tolist())  # typed where the labels agree
+        observed = labels != None  # noqa: E711 (elementwise)
+        if not observed.all():
+            labels = labels[observed]
+        labels = np.array(labels.reshape(-1).tolist())  # typed where the labels agree
     site = initial_site(f.name) if f.initial else end_site(f.name)
     if labels.size:
         try:
@@ -185,10 +202,6 @@ def _discrete_indices(net: EffectNetwork, f: Discrete, value, shape) -> np.ndarr
         except ValueError as error:
             raise ValueError(f"states[{f.name!r}]: {error}") from None
     return index
-
-
-def _missing(v) -> bool:
-    return v is None or isinstance(v, float) and math.isnan(v)
 
 
 def _continuous_values(f: Continuous, value, shape: tuple[int, int]) -> np.ndarray:
@@ -235,3 +248,96 @@ def key_columns(net: EffectNetwork, demo: Demonstrations) -> dict[str, slice]:
         out[end_site(name)] = slice(at, at + 1)
         at += 1
     return out
+
+
+def with_action_prior(
+    net: EffectNetwork, params: NetworkParams, prior: Mapping[str, float] | Sequence[float] | None
+) -> NetworkParams:
+    """``params`` with the action table replaced by ``prior``: a mapping action ->
+    probability, an ``(A,)`` sequence, or ``None`` for uniform."""
+    a = len(net.actions)
+    if prior is None:
+        probs = torch.full((a,), 1.0 / a, dtype=DTYPE)
+    elif isinstance(prior, Mapping):
+        unknown = set(prior) - set(net.actions)
+        if unknown:
+            raise ValueError(
+                f"prior names unknown actions {sorted(unknown)}; actions: {net.actions}"
+            )
+        probs = torch.tensor([float(prior.get(x, 0.0)) for x in net.actions], dtype=DTYPE)
+    else:
+        probs = torch.as_tensor(np.asarray(prior, dtype=np.float64))
+        if probs.shape != (a,):
+            raise ValueError(
+                f"prior must have one probability per action ({a}), got shape {tuple(probs.shape)}"
+            )
+    if (
+        not bool(torch.isfinite(probs).all())
+        or bool((probs < 0).any())
+        or not math.isclose(float(probs.sum()), 1.0, abs_tol=1e-9)
+    ):
+        raise ValueError(f"prior must be non-negative and sum to 1, got {probs.tolist()}")
+    table = params[ACTION]
+    cpds = dict(params.cpds)
+    cpds[ACTION] = TableParams(probs.to(table.probs.dtype), table.n)
+    return replace(params, cpds=cpds)
+
+
+def simulate_demonstrations(
+    net: EffectNetwork,
+    params: NetworkParams,
+    n: int,
+    steps: int,
+    *,
+    prior: Mapping[str, float] | Sequence[float] | None = None,
+    seed: int = 0,
+) -> tuple[dict[str, np.ndarray], np.ndarray]:
+    """Draw ``n`` demonstrations of ``steps`` steps from the model: the first state from
+    the network's initial distribution, each step's action from ``prior`` (uniform for
+    ``None``), its parameter from the action's clusters, and each end state from the
+    model given the step's start, which is the previous step's end.
+
+    Returns
+    -------
+    states : dict
+        :func:`~inference.queries.explain.explain`'s batch form, every value observed:
+        per discrete feature ``(n, steps + 1)`` labels (an outcome feature ``None`` at
+        time 0), per continuous feature ``(n, steps + 1, d)`` numbers (an outcome
+        feature NaN at time 0).
+    actions : numpy.ndarray
+        ``(n, steps)`` the action names drawn.
+    """
+    if not isinstance(steps, int) or steps < 1:
+        raise ValueError(f"steps must be a positive int, got {steps!r}")
+    params = with_action_prior(net, params, prior)
+    rows = simulate(net, params, n, seed=seed)
+    times: dict[str, list] = {f.name: [] for f in net.features}
+    for f in net.features:
+        if f.initial:
+            times[f.name].append(_column(rows[initial_site(f.name)], f))
+        else:
+            times[f.name].append(
+                np.full(n, None, dtype=object)
+                if isinstance(f, Discrete)
+                else np.full((n, f.dim), np.nan)
+            )
+    actions = []
+    for t in range(steps):
+        if t:
+            start = {
+                initial_site(f.name): rows[end_site(f.name)] for f in net.features if f.initial
+            }
+            rows = simulate(net, params, n, start, seed=seed + t)
+        actions.append(np.asarray(rows[ACTION], dtype=object))
+        for f in net.features:
+            times[f.name].append(_column(rows[end_site(f.name)], f))
+    states = {name: np.stack(values, 1) for name, values in times.items()}
+    return states, np.stack(actions, 1)
+
+
+def _column(value, f) -> np.ndarray:
+    if isinstance(f, Discrete):
+        out = np.empty(len(value), dtype=object)
+        out[:] = list(value)
+        return out
+    return np.asarray(value, dtype=np.float64).reshape(-1, f.dim)

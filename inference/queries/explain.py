@@ -33,23 +33,27 @@ question, asked with the same action prior.
 
 from __future__ import annotations
 
-import math
 import warnings
 from collections.abc import Mapping, Sequence
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 
-from inference.queries.demonstration import Demonstrations, StateSpace, key_columns
+from inference.queries.demonstration import (
+    Demonstrations,
+    StateSpace,
+    key_columns,
+    with_action_prior,
+)
 from inference.queries.enumeration import conditional_log_evidence, over_row_chunks
+from inference.queries.paths import LogTables, log_matvec, max_matvec
 from inference.queries.plausibility import (
     IMPLAUSIBLE_BELOW,
     OutsideTrainingData,
     check_threshold,
     plausibility,
 )
-from models.cpds import TableParams
 from models.declaration import ACTION, DTYPE, EffectNetwork
 from models.evidence import Evidence
 from models.params import NetworkParams, check_params
@@ -57,6 +61,8 @@ from models.sites import end_site, initial_site
 
 #: Largest step table (states x actions x states) :func:`explain` builds.
 MAX_STEP_TABLE = 1 << 22
+#: Elements of the step tables held at once (distinct steps x states x actions x states).
+TABLE_ELEMENTS = 1 << 24
 #: Elements of the per-demonstration tensors one pass over the batch holds at once.
 CHUNK_ELEMENTS = 1 << 22
 
@@ -165,41 +171,35 @@ def explain(
             f"table of {space.size**2 * a} entries exceeds {MAX_STEP_TABLE}; explain needs "
             "fewer discrete state features or states"
         )
+    n, steps = demo.shape
+    per_key = space.size**2 * a
     key, keys = demo.step_keys()
-    tables = _step_tables(net, params, space, demo, key, keys)
-    return _over_paths(net, space, demo, key, tables, below)
-
-
-def with_action_prior(
-    net: EffectNetwork, params: NetworkParams, prior: Mapping[str, float] | Sequence[float] | None
-) -> NetworkParams:
-    """``params`` with the action table replaced by ``prior`` (uniform for ``None``)."""
-    a = len(net.actions)
-    if prior is None:
-        probs = torch.full((a,), 1.0 / a, dtype=DTYPE)
-    elif isinstance(prior, Mapping):
-        unknown = set(prior) - set(net.actions)
-        if unknown:
-            raise ValueError(
-                f"prior names unknown actions {sorted(unknown)}; actions: {net.actions}"
-            )
-        probs = torch.tensor([float(prior.get(x, 0.0)) for x in net.actions], dtype=DTYPE)
-    else:
-        probs = torch.as_tensor(np.asarray(prior, dtype=np.float64))
-        if probs.shape != (a,):
-            raise ValueError(
-                f"prior must have one probability per action ({a}), got shape {tuple(probs.shape)}"
-            )
-    if (
-        not bool(torch.isfinite(probs).all())
-        or bool((probs < 0).any())
-        or not math.isclose(float(probs.sum()), 1.0, abs_tol=1e-9)
-    ):
-        raise ValueError(f"prior must be non-negative and sum to 1, got {probs.tolist()}")
-    table = params[ACTION]
-    cpds = dict(params.cpds)
-    cpds[ACTION] = TableParams(probs.to(table.probs.dtype), table.n)
-    return replace(params, cpds=cpds)
+    if len(keys) * per_key <= TABLE_ELEMENTS:
+        parts = [(demo, key, keys)]
+    else:  # many distinct steps (continuous values): the tables part by part
+        size = max(1, TABLE_ELEMENTS // (steps * per_key))
+        parts = [(d, *d.step_keys()) for d in demo.split(size)]
+    answers = [
+        _over_paths(part, key, _step_tables(net, params, space, part, key, keys), below)
+        for part, key, keys in parts
+    ]
+    fields = zip(*[x[:6] for x in answers], strict=True)
+    probs, best, path, state_probs, log_likelihood, flags = (torch.cat(x, 0) for x in fields)
+    initial = {site: torch.cat([x[6][site] for x in answers], 0) for site in answers[0][6]}
+    implausible = flags | _outside(initial, (n, steps), below)
+    names = tuple(tuple(net.actions[i] for i in row) for row in best.tolist())
+    return Explanation(
+        probs,
+        best,
+        names,
+        path,
+        state_probs,
+        log_likelihood,
+        implausible,
+        net.actions,
+        tuple(f.name for f in space.features),
+        space.labels(),
+    )
 
 
 @dataclass(frozen=True)
@@ -296,90 +296,104 @@ def _pair_evidence(net, space, digits, keys, columns, triples) -> dict[str, torc
     return ev
 
 
-def _over_paths(net, space, demo, key, tables: _StepTables, below: float) -> Explanation:
-    """Forward-backward and Viterbi over the batch, in chunks of demonstrations."""
+def _over_paths(demo: Demonstrations, key: np.ndarray, tables: _StepTables, below: float):
+    """Forward-backward and Viterbi over a batch, in chunks of demonstrations."""
     n, steps = demo.shape
-    s, a = space.size, len(net.actions)
-    size = max(1, CHUNK_ELEMENTS // (s * a * s))
+    k, s, a, _ = tables.log_step.shape
+    summed = tables.log_step.logsumexp(2)  # (K, S, S): the action summed out
+    top, act = tables.log_step.max(2)  # the action maximised (Viterbi)
+    shared = _Shared(
+        LogTables(summed),
+        LogTables(summed.transpose(1, 2)),
+        LogTables(tables.log_step.permute(0, 1, 3, 2).reshape(k, s * s, a)),
+        LogTables(tables.log_discrete.logsumexp(2)),
+        top,
+        act,
+    )
+    size = max(1, CHUNK_ELEMENTS // (s * s * steps))
     parts = [
-        _chunk(tables, demo.allowed[i : i + size], torch.from_numpy(key[i : i + size]), below)
+        _chunk(
+            tables, shared, demo.allowed[i : i + size], torch.from_numpy(key[i : i + size]), below
+        )
         for i in range(0, n, size)
-    ] or [_chunk(tables, demo.allowed, torch.from_numpy(key), below)]
-    probs, best, path, state_probs, log_likelihood, flags = (
-        torch.cat(x, 0) for x in zip(*[p[:6] for p in parts], strict=True)
-    )
+    ]
+    out = [torch.cat(x, 0) for x in zip(*[p[:6] for p in parts], strict=True)]
     initial = {site: torch.cat([p[6][site] for p in parts], 0) for site in parts[0][6]}
-    implausible = flags | _outside(initial, (n, steps), below)
-    names = tuple(tuple(net.actions[i] for i in row) for row in best.tolist())
-    return Explanation(
-        probs,
-        best,
-        names,
-        path,
-        state_probs,
-        log_likelihood,
-        implausible,
-        net.actions,
-        tuple(f.name for f in space.features),
-        space.labels(),
-    )
+    return (*out, initial)
 
 
-def _chunk(tables: _StepTables, allowed: torch.Tensor, key: torch.Tensor, below: float):
+@dataclass(frozen=True)
+class _Shared:
+    """A batch's step tables in the forms the passes read: the action summed out
+    (``forward``; ``backward`` transposed), pairs of states by action (``pairs``
+    ``(K, S * S, A)``), the discrete plausibility's with the action summed out
+    (``discrete``), and the action maximised (``top``, ``act`` ``(K, S, S)``)."""
+
+    forward: LogTables
+    backward: LogTables
+    pairs: LogTables
+    discrete: LogTables
+    top: torch.Tensor
+    act: torch.Tensor
+
+
+def _chunk(tables: _StepTables, shared: _Shared, allowed, key, below: float):
     """One chunk of demonstrations: ``allowed`` ``(n, T + 1, S)``, ``key`` ``(n, T)``."""
     n, steps = key.shape
+    s = allowed.shape[-1]
     mask = torch.where(allowed, 0.0, -torch.inf).to(DTYPE)  # (n, T + 1, S)
     start = tables.log_start[key[:, 0]] + mask[:, 0]
     alpha = [start - start.logsumexp(-1, keepdim=True)]  # the start given state 0
-    step = [tables.log_step[key[:, t]] + mask[:, t + 1, None, None, :] for t in range(steps)]
-    summed = [x.logsumexp(2) for x in step]  # (n, S, S): the action summed out
     for t in range(steps):
-        alpha.append((alpha[t][:, :, None] + summed[t]).logsumexp(1))
+        forward = log_matvec(alpha[t], shared.forward, key[:, t], allowed[:, t + 1])
+        alpha.append(forward + mask[:, t + 1])
     log_likelihood = alpha[-1].logsumexp(-1)
-    beta = [torch.zeros_like(start)]
+    beta = [torch.zeros_like(start)]  # beta[t] + mask[t]: the evidence after time t
     for t in reversed(range(steps)):
-        beta.insert(0, (summed[t] + beta[0][:, None, :]).logsumexp(2))
+        beta.insert(
+            0, log_matvec(beta[0] + mask[:, t + 1], shared.backward, key[:, t], allowed[:, t])
+        )
+    ahead = [b + m for b, m in zip(beta, mask.unbind(1), strict=True)]
     z = log_likelihood[:, None]
     state_probs = torch.stack([(x + y - z).exp() for x, y in zip(alpha, beta, strict=True)], 1)
-    probs = torch.stack(
-        [
-            (alpha[t][:, :, None, None] + step[t] + beta[t + 1][:, None, None, :])
-            .logsumexp((1, 3))
-            .sub(z)
-            .exp()
-            for t in range(steps)
-        ],
-        1,
-    )
-    # Viterbi over (state, action) jointly: the action maximised inside each step
-    delta, back, acts = alpha[0], [], []
+    probs = []
     for t in range(steps):
-        top, act = step[t].max(2)  # (n, S, S)
-        score = delta[:, :, None] + top
-        delta, arg = score.max(1)
+        pair = (alpha[t][:, :, None] + ahead[t + 1][:, None, :]).reshape(n, s * s)
+        probs.append((log_matvec(pair, shared.pairs, key[:, t], total=True) - z).exp())
+    # Viterbi over (state, action) jointly: the action maximised inside each step
+    delta, back = alpha[0], []
+    for t in range(steps):
+        delta, arg = max_matvec(delta, shared.top, key[:, t])
+        delta = delta + mask[:, t + 1]
         back.append(arg)
-        acts.append(act)
     path = torch.empty(n, steps + 1, dtype=torch.long)
     best = torch.empty(n, steps, dtype=torch.long)
     path[:, -1] = delta.argmax(-1)
-    rows = torch.arange(n)
     for t in reversed(range(steps)):
-        path[:, t] = back[t][rows, path[:, t + 1]]
-        best[:, t] = acts[t][rows, path[:, t], path[:, t + 1]]
-    # implausible: discrete ends given all before the step; continuous ends' tail at the
-    # closest possible pair; the initial tails at the closest possible start
+        path[:, t] = back[t].gather(1, path[:, t + 1, None]).squeeze(1)
+        best[:, t] = shared.act[key[:, t], path[:, t], path[:, t + 1]]
+    # implausible: the discrete ends given all before the step; the continuous ends'
+    # tail at the closest possible pair of states; the initial tails at the closest
+    # possible start
     flags, initial = [], {}
+    continuous = bool(tables.initial) or bool((tables.tail < 1).any())
     for t in range(steps):
         filtered = alpha[t] - alpha[t].logsumexp(-1, keepdim=True)
-        discrete = tables.log_discrete[key[:, t]] + mask[:, t + 1, None, None, :]
-        p_discrete = (filtered[:, :, None] + discrete.logsumexp(2)).logsumexp((1, 2)).exp()
-        possible = torch.isfinite(alpha[t][:, :, None] + summed[t] + beta[t + 1][:, None, :])
-        tail = torch.where(possible, tables.tail[key[:, t]], 0.0).amax((1, 2))
-        flags.append((p_discrete < below) | (tail < below))
-        starts = possible.any(2)
-        for site, value in tables.initial.items():
-            initial.setdefault(site, []).append(torch.where(starts, value[key[:, t]], 0.0).amax(1))
+        ends = log_matvec(filtered, shared.discrete, key[:, t], allowed[:, t + 1])
+        flag = (ends + mask[:, t + 1]).logsumexp(-1).exp() < below
+        if continuous:
+            possible = torch.isfinite(
+                alpha[t][:, :, None] + shared.forward.log[key[:, t]] + ahead[t + 1][:, None, :]
+            )
+            tail = torch.where(possible, tables.tail[key[:, t]], 0.0).amax((1, 2))
+            flag |= tail < below
+            starts = possible.any(2)
+            for site, value in tables.initial.items():
+                at = torch.where(starts, value[key[:, t]], 0.0).amax(1)
+                initial.setdefault(site, []).append(at)
+        flags.append(flag)
     initial = {site: torch.stack(v, 1) for site, v in initial.items()}
+    probs = torch.stack(probs, 1)
     return probs, best, path, state_probs, log_likelihood, torch.stack(flags, 1), initial
 
 
