@@ -187,7 +187,7 @@ def explain(
     probs, best, path, state_probs, log_likelihood, flags = (torch.cat(x, 0) for x in fields)
     initial = {site: torch.cat([x[6][site] for x in answers], 0) for site in answers[0][6]}
     implausible = flags | _outside(initial, (n, steps), below)
-    names = tuple(tuple(net.actions[i] for i in row) for row in best.tolist())
+    names = tuple(map(tuple, np.array(net.actions, dtype=object)[best.numpy()].tolist()))
     return Explanation(
         probs,
         best,

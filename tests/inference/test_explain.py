@@ -20,6 +20,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from inference import fit, infer_action
+from inference.queries.demonstration import simulate_demonstrations
 from inference.queries.enumeration import over_row_chunks
 from inference.queries.explain import Explanation, explain
 from models import Discrete, EffectNetwork, random_params
@@ -338,3 +339,46 @@ def test_errors_name_what_is_wrong():
         explain(net, params, [{}, {}], prior=[0.5, 0.5, 0.5])
     with pytest.raises(ValueError, match="'position' is missing"):
         explain(README_NET, random_params(README_NET, 0), [{"visible": True}, {}])
+
+
+@pytest.mark.filterwarnings("ignore::inference.OutsideTrainingData")
+def test_parts_and_chunks_answer_as_one_batch(monkeypatch):
+    """Step tables built part by part and paths summed chunk by chunk: the same answers."""
+    import inference.queries.explain as module
+
+    net, params = README_NET, random_params(README_NET, 6)
+    states, _ = simulate_demonstrations(net, params, 7, 3, seed=2)
+    states["visible"][:, 1] = None
+    whole = explain(net, params, states)
+    monkeypatch.setattr(module, "TABLE_ELEMENTS", 4 * 3 * 4 * 2)  # two demonstrations a part
+    monkeypatch.setattr(module, "CHUNK_ELEMENTS", 4 * 3)  # one demonstration a chunk
+    parts = explain(net, params, states)
+    assert torch.allclose(whole.probs, parts.probs, atol=1e-12)
+    assert torch.allclose(whole.log_likelihood, parts.log_likelihood, atol=1e-12)
+    assert whole.best_names == parts.best_names
+    assert torch.equal(whole.implausible, parts.implausible)
+
+
+def test_simulated_demonstrations_are_read_back():
+    """A world whose actions each have their own certain effect: every drawn action
+    sequence is the most probable one, with posterior near 1."""
+    net = EffectNetwork(
+        features=(Discrete("door", ("shut", "open")), Discrete("light", ("off", "on"))),
+        actions=("open", "close", "flip"),
+    )
+    rows = {"initial.door": [], "initial.light": [], "action": [], "end.door": [], "end.light": []}
+    for door, light, action in itertools.product(("shut", "open"), ("off", "on"), net.actions):
+        end_door = {"open": "open", "close": "shut"}.get(action, door)
+        end_light = {"off": "on", "on": "off"}[light] if action == "flip" else light
+        for site, v in zip(rows, (door, light, action, end_door, end_light), strict=True):
+            rows[site] += [v] * 30
+    params = fit(net, rows).params
+    states, actions = simulate_demonstrations(net, params, 40, 4, seed=3)
+    assert states["door"].shape == (40, 5) and actions.shape == (40, 4)
+    result = explain(net, params, states)
+    # opening an open door and closing a shut one change nothing: both explain it
+    same = np.array(result.best_names) == actions
+    idle = (states["door"][:, :-1] == states["door"][:, 1:]) & (actions != "flip")
+    assert (same | idle).all()
+    assert same[~idle].all()
+    assert float(result.probs.max(-1).values[torch.from_numpy(~idle)].min()) > 0.9
