@@ -6,8 +6,9 @@ Fitting (:mod:`inference.fitting`): :func:`fit`, :func:`fit_gradient`, :func:`fi
 :func:`params_from_statistics`; :func:`simulate` draws rows in ``fit``'s format.
 Questions (:mod:`inference.queries`): :func:`predict`, :func:`imitation_check`,
 :func:`infer_action`, :func:`infer_parameter` (the parameter posterior),
-:func:`parameter_for_effect` (the inverse model), and :func:`compile`, whose methods of
-the same names answer from compiled tables where they can. Active exploration
+:func:`parameter_for_effect` (the inverse model), :func:`explain` (a demonstration
+read as the actions that produced it), and :func:`compile`, whose methods of the same
+names answer from compiled tables where they can. Active exploration
 (:mod:`inference.design`): :func:`explore`. Pictures of a network and its fitted
 numbers (matplotlib, drawn into the caller's axes): the module :mod:`inference.plots`.
 
@@ -25,12 +26,14 @@ from inference.fitting.statistics import params_from_statistics
 from inference.queries import (
     ActionPosterior,
     CompiledQueries,
+    Explanation,
     GaussianMixture,
     ImitationCheck,
     ParameterForEffect,
     ParameterPosterior,
     Prediction,
     compile,
+    explain,
     imitation_check,
     infer_action,
     infer_parameter,
@@ -46,6 +49,7 @@ __all__ = [
     "CompiledQueries",
     "ConvergenceWarning",
     "EMResult",
+    "Explanation",
     "FitResult",
     "GaussianMixture",
     "ImitationCheck",
@@ -54,6 +58,7 @@ __all__ = [
     "ParameterPosterior",
     "Prediction",
     "compile",
+    "explain",
     "explore",
     "fit",
     "fit_em",
