@@ -382,3 +382,26 @@ def test_simulated_demonstrations_are_read_back():
     assert (same | idle).all()
     assert same[~idle].all()
     assert float(result.probs.max(-1).values[torch.from_numpy(~idle)].min()) > 0.9
+
+
+@pytest.mark.filterwarnings("ignore::inference.OutsideTrainingData")
+def test_the_demonstrations_page_runs_and_says_what_its_comments_say():
+    """docs/demonstrations.md continues README's quick start: both run, in order."""
+    import re
+    from pathlib import Path
+
+    import matplotlib
+
+    matplotlib.use("Agg")
+    root = Path(__file__).resolve().parents[2]
+    block = re.compile(r"^```python\n(.*?)^```", re.S | re.M)
+    namespace: dict = {}
+    exec(block.findall((root / "README.md").read_text())[0], namespace)  # noqa: S102
+    for code in block.findall((root / "docs" / "demonstrations.md").read_text()):
+        exec(code, namespace)  # noqa: S102
+    assert namespace["steps"] == (("tap", "remove"),)
+    tapped = namespace["tapped"][0].tolist()
+    assert tapped[0] > 0.99 and tapped[1] < 0.01
+    assert namespace["both"].best_names == (("tap", "remove"), ("look", "tap"))
+    assert tuple(namespace["both"].state_probs.shape) == (2, 3, 2)
+    assert 0.5 < namespace["share"] <= 1
