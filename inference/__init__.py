@@ -26,20 +26,19 @@ from inference.fitting.statistics import params_from_statistics
 from inference.queries import (
     ActionPosterior,
     CompiledQueries,
-    Explanation,
     GaussianMixture,
     ImitationCheck,
     ParameterForEffect,
     ParameterPosterior,
     Prediction,
     compile,
-    explain,
     imitation_check,
     infer_action,
     infer_parameter,
     parameter_for_effect,
     predict,
 )
+from inference.queries.explain import Explanation, explain
 from inference.queries.plausibility import OutsideTrainingData
 from inference.queries.simulate import simulate
 from models.deprecation import moved

@@ -12,8 +12,9 @@ its compiled answer (tables read once off the same model) side by side.
   continuous features no other parameter acts on.
 * :mod:`~inference.queries.inverse` -- :func:`parameter_for_effect`: the inverse model,
   the value under which a desired effect is most likely.
-* :mod:`~inference.queries.explain` -- :func:`explain`: a demonstration (a sequence of
-  observed states) read as the actions that produced it.
+* :mod:`~inference.queries.explain` -- :func:`inference.explain`: a demonstration (a
+  sequence of observed states) read as the actions that produced it (exported on the
+  :mod:`inference` face only, so that the module keeps its name here).
 * :mod:`~inference.queries.compiled` -- :func:`~inference.queries.compiled.compile`: one
   object whose methods answer these questions, from the compiled tables where they can.
 
@@ -36,7 +37,6 @@ for that row. Empty evidence rows (``n = 0``) give empty results of the right sh
 
 from inference.queries.action import infer_action
 from inference.queries.compiled import CompiledQueries, compile
-from inference.queries.explain import Explanation, explain
 from inference.queries.forward import imitation_check, predict
 from inference.queries.inverse import parameter_for_effect
 from inference.queries.parameter import infer_parameter
@@ -52,14 +52,12 @@ from inference.queries.results import (
 __all__ = [
     "ActionPosterior",
     "CompiledQueries",
-    "Explanation",
     "GaussianMixture",
     "ImitationCheck",
     "ParameterForEffect",
     "ParameterPosterior",
     "Prediction",
     "compile",
-    "explain",
     "imitation_check",
     "infer_action",
     "infer_parameter",

@@ -172,6 +172,8 @@ def explain(
             "fewer discrete state features or states"
         )
     n, steps = demo.shape
+    if n == 0:
+        return _no_demonstrations(net, space, steps)
     per_key = space.size**2 * a
     key, keys = demo.step_keys()
     if len(keys) * per_key <= TABLE_ELEMENTS:
@@ -273,6 +275,11 @@ def _step_tables(net, params, space, demo, key, keys) -> _StepTables:
             for site, value in told.initial.items():
                 initial.setdefault(site, torch.ones(k, s, dtype=DTYPE))
                 initial[site][t[:, 0], t[:, 1]] = value
+    # the model keeps a zero probability finite (its tables' logs are clamped): an action
+    # the prior rules out is ruled out exactly
+    impossible = params[ACTION].probs == 0
+    log_step[:, :, impossible] = -torch.inf
+    log_discrete[:, :, impossible] = -torch.inf
     return _StepTables(log_step, log_discrete, log_start, tail, initial)
 
 
@@ -395,6 +402,23 @@ def _chunk(tables: _StepTables, shared: _Shared, allowed, key, below: float):
     initial = {site: torch.stack(v, 1) for site, v in initial.items()}
     probs = torch.stack(probs, 1)
     return probs, best, path, state_probs, log_likelihood, torch.stack(flags, 1), initial
+
+
+def _no_demonstrations(net: EffectNetwork, space: StateSpace, steps: int) -> Explanation:
+    """The answer to a batch of no demonstrations: every field with its shape, ``n = 0``."""
+    a, s = len(net.actions), space.size
+    return Explanation(
+        torch.zeros(0, steps, a, dtype=DTYPE),
+        torch.zeros(0, steps, dtype=torch.long),
+        (),
+        torch.zeros(0, steps + 1, dtype=torch.long),
+        torch.zeros(0, steps + 1, s, dtype=DTYPE),
+        torch.zeros(0, dtype=DTYPE),
+        torch.zeros(0, steps, dtype=torch.bool),
+        net.actions,
+        tuple(f.name for f in space.features),
+        space.labels(),
+    )
 
 
 def _outside(initial: dict[str, torch.Tensor], shape, below: float) -> torch.Tensor:

@@ -85,7 +85,7 @@ def brute_force(net, params, demo, prior=None):
                 v = {f"initial.{f.name}": i for f, i in zip(state, states[t], strict=True)}
                 v |= {f"end.{f.name}": i for f, i in zip(state, states[t + 1], strict=True)}
                 v["action"] = act
-                step = math.log(prior[act])
+                step = np.log(prior[act])
                 step += sum(log_table(net, params, f"end.{f.name}", v) for f in state)
                 seen = [f for f in outcome if demo[t + 1].get(f.name) is not None]
                 for f in seen:
@@ -168,9 +168,15 @@ def test_a_given_prior_replaces_the_uniform_one():
     ]
     prior = [0.7, 0.1, 0.2]
     result = explain(
-        OUTCOME_NET, params, demo, prior=dict(zip(OUTCOME_NET.actions, prior, strict=False))
+        OUTCOME_NET, params, demo, prior=dict(zip(OUTCOME_NET.actions, prior, strict=True))
     )
     check_against(OUTCOME_NET, params, demo, result, prior)
+    # an action of prior 0 is ruled out exactly (the model's own tables keep it at eps)
+    without = [0.5, 0.0, 0.5]
+    result = explain(OUTCOME_NET, params, demo, prior=without)
+    with np.errstate(divide="ignore"):
+        check_against(OUTCOME_NET, params, demo, result, without)
+    assert not result.prob("flip").any()
 
 
 def test_fully_observed_states_are_per_step_emulation():
@@ -405,3 +411,10 @@ def test_the_demonstrations_page_runs_and_says_what_its_comments_say():
     assert namespace["both"].best_names == (("tap", "remove"), ("look", "tap"))
     assert tuple(namespace["both"].state_probs.shape) == (2, 3, 2)
     assert 0.5 < namespace["share"] <= 1
+
+
+def test_no_demonstrations_give_empty_answers():
+    net, params = OUTCOME_NET, random_params(OUTCOME_NET, 0)
+    result = explain(net, params, {"door": np.empty((0, 4), dtype=object)})
+    assert tuple(result.probs.shape) == (0, 3, 3) and result.best_names == ()
+    assert tuple(result.state_probs.shape) == (0, 4, 6)
