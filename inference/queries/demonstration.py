@@ -12,6 +12,7 @@ distinct observation.
 
 from __future__ import annotations
 
+import itertools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
@@ -29,35 +30,27 @@ from models.sites import end_site, initial_site
 @dataclass(frozen=True)
 class StateSpace:
     """The network's state: its discrete features with an initial and an end node, and
-    every configuration of them, numbered in mixed radix (the last feature fastest)."""
+    every combination of their states (the last feature fastest). ``states``: each
+    state's labels, one per feature; ``index`` ``(S, F)``: each state's state index per
+    feature. A network without such a feature has one state, ``()``."""
 
     features: tuple[Discrete, ...]
+    states: tuple[tuple, ...]
+    index: torch.Tensor
 
-    @staticmethod
-    def of(net: EffectNetwork) -> StateSpace:
+    @classmethod
+    def of(cls, net: EffectNetwork) -> StateSpace:
         """The state space of ``net``."""
-        return StateSpace(tuple(f for f in net.features if isinstance(f, Discrete) and f.initial))
-
-    @property
-    def size(self) -> int:
-        """``S``: the number of configurations (1 for a network without state features)."""
-        return math.prod(f.cardinality for f in self.features)
-
-    def digits(self) -> list[torch.Tensor]:
-        """Per feature ``(S,)`` its state index in each configuration."""
-        out, stride = [], self.size
-        for f in self.features:
-            stride //= f.cardinality
-            out.append(torch.arange(self.size) // stride % f.cardinality)
-        return out
-
-    def labels(self) -> tuple[tuple, ...]:
-        """Each configuration's labels, one per feature, by configuration index."""
-        digits = self.digits()
-        return tuple(
-            tuple(f.states[int(d[s])] for f, d in zip(self.features, digits, strict=True))
-            for s in range(self.size)
+        features = tuple(f for f in net.features if isinstance(f, Discrete) and f.initial)
+        index = list(itertools.product(*(range(f.cardinality) for f in features)))
+        states = tuple(
+            tuple(f.states[i] for f, i in zip(features, ix, strict=True)) for ix in index
         )
+        tensor = torch.tensor(index, dtype=torch.long).reshape(len(index), len(features))
+        return cls(features, states, tensor)
+
+    def __len__(self) -> int:
+        return len(self.states)
 
 
 @dataclass(frozen=True)
@@ -90,7 +83,7 @@ class Demonstrations:
         n, times = lengths.pop()
         if times < 2:
             raise ValueError(f"states: a demonstration needs at least 2 states, got {times}")
-        allowed = torch.ones(n, times, space.size, dtype=torch.bool)
+        allowed = torch.ones(n, times, len(space), dtype=torch.bool)
         continuous, outcomes, indices = {}, {}, {}
         for f in net.features:
             value = batch.get(f.name)
@@ -110,7 +103,7 @@ class Demonstrations:
                 else:
                     _unobserved_first(f, ~np.isnan(x[:, 0]).all(-1))
                 continuous[f.name] = x
-        for f, digit in zip(space.features, space.digits(), strict=True):
+        for f, digit in zip(space.features, space.index.T, strict=True):
             index = torch.from_numpy(indices[f.name])
             allowed &= (index[..., None] < 0) | (index[..., None] == digit)
         return Demonstrations(allowed, continuous, outcomes)

@@ -165,16 +165,16 @@ def explain(
     demo = Demonstrations.read(net, space, states)
     params = with_action_prior(net, params, prior)
     a = len(net.actions)
-    if space.size**2 * a > MAX_STEP_TABLE:
+    if len(space) ** 2 * a > MAX_STEP_TABLE:
         raise ValueError(
-            f"the network's state has {space.size} configurations and {a} actions: a step "
-            f"table of {space.size**2 * a} entries exceeds {MAX_STEP_TABLE}; explain needs "
+            f"the network's state has {len(space)} configurations and {a} actions: a step "
+            f"table of {len(space) ** 2 * a} entries exceeds {MAX_STEP_TABLE}; explain needs "
             "fewer discrete state features or states"
         )
     n, steps = demo.shape
     if n == 0:
         return _no_demonstrations(net, space, steps)
-    per_key = space.size**2 * a
+    per_key = len(space) ** 2 * a
     key, keys = demo.step_keys()
     if len(keys) * per_key <= TABLE_ELEMENTS:
         parts = [(demo, key, keys)]
@@ -200,7 +200,7 @@ def explain(
         implausible,
         net.actions,
         tuple(f.name for f in space.features),
-        space.labels(),
+        space.states,
     )
 
 
@@ -227,7 +227,7 @@ def _log_evidence(net: EffectNetwork, params: NetworkParams, enc: Evidence) -> t
 def _step_tables(net, params, space, demo, key, keys) -> _StepTables:
     """The step tables, from the traced model, for the (start, end) state pairs some
     step of each distinct observation allows."""
-    s, a, k = space.size, len(net.actions), len(keys)
+    s, a, k = len(space), len(net.actions), len(keys)
     pairs = demo.allowed[:, :-1, :, None] & demo.allowed[:, 1:, None, :]
     need = torch.zeros(k, s * s, dtype=DTYPE)
     need.index_add_(0, torch.from_numpy(key.reshape(-1)), pairs.reshape(-1, s * s).to(DTYPE))
@@ -243,7 +243,7 @@ def _step_tables(net, params, space, demo, key, keys) -> _StepTables:
     patterns = {}
     for row, (kk, _, _) in enumerate(triples.tolist()):
         patterns.setdefault(tuple(observed[kk]), []).append(row)
-    digits = space.digits()
+    digits = space.index.T
     for rows in patterns.values():
         t = triples[rows]
         ev = _pair_evidence(net, space, digits, keys, columns, t)
@@ -406,7 +406,7 @@ def _chunk(tables: _StepTables, shared: _Shared, allowed, key, below: float):
 
 def _no_demonstrations(net: EffectNetwork, space: StateSpace, steps: int) -> Explanation:
     """The answer to a batch of no demonstrations: every field with its shape, ``n = 0``."""
-    a, s = len(net.actions), space.size
+    a, s = len(net.actions), len(space)
     return Explanation(
         torch.zeros(0, steps, a, dtype=DTYPE),
         torch.zeros(0, steps, dtype=torch.long),
@@ -417,7 +417,7 @@ def _no_demonstrations(net: EffectNetwork, space: StateSpace, steps: int) -> Exp
         torch.zeros(0, steps, dtype=torch.bool),
         net.actions,
         tuple(f.name for f in space.features),
-        space.labels(),
+        space.states,
     )
 
 
