@@ -23,7 +23,7 @@ from inference import fit, infer_action
 from inference.queries.demonstration import simulate_demonstrations
 from inference.queries.enumeration import over_row_chunks
 from inference.queries.explain import Explanation, explain
-from models import Discrete, EffectNetwork, random_params
+from models import Continuous, Discrete, EffectNetwork, random_params
 from models.cpds import TableParams
 from models.declaration import DTYPE
 from tests.inference.test_queries_mixed import README_NET
@@ -418,3 +418,45 @@ def test_no_demonstrations_give_empty_answers():
     result = explain(net, params, {"door": np.empty((0, 4), dtype=object)})
     assert tuple(result.probs.shape) == (0, 3, 3) and result.best_names == ()
     assert tuple(result.state_probs.shape) == (0, 4, 6)
+
+
+@pytest.mark.filterwarnings("ignore::inference.OutsideTrainingData")
+def test_a_continuous_outcome_seen_at_some_steps_matches_brute_force():
+    """An outcome feature (initial=False) observed after the first step, not after the
+    second, and the door latent in between: every path and sequence enumerated, each
+    step's probability read off the traced model with its start and end given."""
+    net = EffectNetwork(
+        features=(Discrete("door", ("shut", "open")), Continuous("sound", 1, initial=False)),
+        actions=("knock", "push", "wait"),
+    )
+    params = uniform_prior(net, random_params(net, 4))
+    demo = [
+        {"door": "shut"},
+        {"door": None, "sound": [0.3]},
+        {"door": "open", "sound": None},
+    ]
+    result = explain(net, params, demo)
+    paths = {}
+    for middle in net.feature("door").states:
+        doors = ("shut", middle, "open")
+        for actions in itertools.product(net.actions, repeat=2):
+            total = 0.0
+            for t in range(2):
+                given = {"initial.door": [doors[t]]}
+                full = given | {"action": [actions[t]], "end.door": [doors[t + 1]]}
+                if demo[t + 1].get("sound") is not None:
+                    full["end.sound"] = [demo[t + 1]["sound"]]
+                total += float(step_log_prob(net, params, net.encode(full)))
+                total -= float(step_log_prob(net, params, net.encode(given)))
+            paths[(actions, middle)] = total
+    log_likelihood = np.logaddexp.reduce(list(paths.values()))
+    assert float(result.log_likelihood[0]) == pytest.approx(log_likelihood, abs=1e-9)
+    for t in range(2):
+        for i, name in enumerate(net.actions):
+            want = sum(
+                math.exp(lp - log_likelihood) for (acts, _), lp in paths.items() if acts[t] == name
+            )
+            assert float(result.probs[0, t, i]) == pytest.approx(want, abs=1e-9)
+    (actions, middle), _ = max(paths.items(), key=lambda kv: kv[1])
+    assert result.best_names[0] == actions
+    assert result.path_labels(0)[1] == {"door": middle}
