@@ -30,27 +30,58 @@ from models.sites import end_site, initial_site
 @dataclass(frozen=True)
 class StateSpace:
     """The network's state: its discrete features with an initial and an end node, and
-    every combination of their states (the last feature fastest). ``states``: each
-    state's labels, one per feature; ``index`` ``(S, F)``: each state's state index per
-    feature. A network without such a feature has one state, ``()``."""
+    every combination of their states (the last feature fastest), or the combinations
+    named. ``states``: each state's labels, one per feature; ``index`` ``(S, F)``: each
+    state's state index per feature. A network without such a feature has one state,
+    ``()``."""
 
     features: tuple[Discrete, ...]
     states: tuple[tuple, ...]
     index: torch.Tensor
 
     @classmethod
-    def of(cls, net: EffectNetwork) -> StateSpace:
-        """The state space of ``net``."""
+    def of(cls, net: EffectNetwork, states: Sequence | None = None) -> StateSpace:
+        """The state space of ``net``: every combination, or only ``states`` (label
+        tuples in feature order, or mappings feature -> label naming every state
+        feature), in their order."""
         features = tuple(f for f in net.features if isinstance(f, Discrete) and f.initial)
-        index = list(itertools.product(*(range(f.cardinality) for f in features)))
-        states = tuple(
+        if states is None:
+            index = list(itertools.product(*(range(f.cardinality) for f in features)))
+        else:
+            index = [_state_indices(features, i, state) for i, state in enumerate(states)]
+            if not index or len(set(index)) != len(index):
+                raise ValueError(
+                    f"state_space must name at least one state, each once; got {len(index)} "
+                    f"states, {len(index) - len(set(index))} repeated"
+                )
+        labels = tuple(
             tuple(f.states[i] for f, i in zip(features, ix, strict=True)) for ix in index
         )
         tensor = torch.tensor(index, dtype=torch.long).reshape(len(index), len(features))
-        return cls(features, states, tensor)
+        return cls(features, labels, tensor)
 
     def __len__(self) -> int:
         return len(self.states)
+
+
+def _state_indices(features: tuple[Discrete, ...], i: int, state) -> tuple[int, ...]:
+    names = [f.name for f in features]
+    if isinstance(state, Mapping):
+        if set(state) != set(names):
+            raise ValueError(f"state_space[{i}] = {state!r} must name every state feature {names}")
+        state = tuple(state[name] for name in names)
+    if isinstance(state, str | bytes) or len(state) != len(features):
+        raise ValueError(
+            f"state_space[{i}] = {state!r}: a state is one label per state feature {names}"
+        )
+    out = []
+    for f, label in zip(features, state, strict=True):
+        if label not in f.states:
+            raise ValueError(
+                f"state_space[{i}]: {label!r} is not a state of {f.name!r}: {f.states}"
+            )
+        out.append(f.states.index(label))
+    return tuple(out)
 
 
 @dataclass(frozen=True)
@@ -106,6 +137,14 @@ class Demonstrations:
         for f, digit in zip(space.features, space.index.T, strict=True):
             index = torch.from_numpy(indices[f.name])
             allowed &= (index[..., None] < 0) | (index[..., None] == digit)
+        empty = ~allowed.any(-1)
+        if bool(empty.any()):
+            i, t = (int(x) for x in empty.nonzero()[0])
+            shown = {f.name: f.states[indices[f.name][i, t]] for f in space.features}
+            raise ValueError(
+                f"states: demonstration {i} at time {t} shows {shown}, which no state of "
+                f"the state space ({len(space)} states) matches"
+            )
         return Demonstrations(allowed, continuous, outcomes)
 
     def split(self, size: int) -> list[Demonstrations]:

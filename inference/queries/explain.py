@@ -115,6 +115,7 @@ def explain(
     states: Sequence[Mapping[str, object]] | Mapping[str, object],
     *,
     prior: Mapping[str, float] | Sequence[float] | None = None,
+    state_space: Sequence | None = None,
     implausible_below: float = IMPLAUSIBLE_BELOW,
 ) -> Explanation:
     """The actions that produced a demonstration: per-step posterior, most probable
@@ -138,6 +139,12 @@ def explain(
     prior
         The actions' prior at every step: a mapping action -> probability or an ``(A,)``
         sequence; default uniform. It replaces the network's fitted action table.
+    state_space
+        The states a demonstration may pass through: label tuples (one label per
+        discrete feature with an initial node, in declaration order) or mappings feature
+        -> label; default every combination. Naming the states that occur (the can
+        world's possible configurations, each with its count) keeps the step tables to
+        their size; the others then have probability 0.
     implausible_below
         A step is ``implausible`` where the probability of its observed discrete end
         features, given everything observed up to its start, or the chi-square tail of
@@ -161,7 +168,7 @@ def explain(
     """
     check_params(net, params)
     below = check_threshold(implausible_below)
-    space = StateSpace.of(net)
+    space = StateSpace.of(net, state_space)
     demo = Demonstrations.read(net, space, states)
     params = with_action_prior(net, params, prior)
     a = len(net.actions)

@@ -24,6 +24,7 @@ from inference.queries.demonstration import simulate_demonstrations
 from inference.queries.enumeration import over_row_chunks
 from inference.queries.explain import Explanation, explain
 from models import Continuous, Discrete, EffectNetwork, random_params
+from models.can_network import can_network
 from models.cpds import TableParams
 from models.declaration import DTYPE
 from tests.inference.test_queries_mixed import README_NET
@@ -58,7 +59,7 @@ def log_table(net, params, site: str, values: dict) -> float:
     return math.log(float(params[site].probs[index]))
 
 
-def brute_force(net, params, demo, prior=None):
+def brute_force(net, params, demo, prior=None, space=None):
     """Every path's log-joint for an all-discrete demonstration (a list of mappings
     feature -> label or None): ``{(actions, states): log p}`` with ``states`` the full
     discrete states (outcomes summed out where not observed), given state 0's
@@ -71,7 +72,14 @@ def brute_force(net, params, demo, prior=None):
     def options(f, value):
         return range(f.cardinality) if value is None else [f.states.index(value)]
 
-    per_time = [list(itertools.product(*[options(f, x.get(f.name)) for f in state])) for x in demo]
+    per_time = [
+        [
+            s
+            for s in itertools.product(*[options(f, x.get(f.name)) for f in state])
+            if space is None or s in space
+        ]
+        for x in demo
+    ]
     start = {}
     for s in per_time[0]:
         v = {f"initial.{f.name}": i for f, i in zip(state, s, strict=True)}
@@ -96,8 +104,8 @@ def brute_force(net, params, demo, prior=None):
     return paths
 
 
-def check_against(net, params, demo, result: Explanation, prior=None):
-    paths = brute_force(net, params, demo, prior)
+def check_against(net, params, demo, result: Explanation, prior=None, space=None):
+    paths = brute_force(net, params, demo, prior, space)
     logs = np.array(list(paths.values()))
     log_likelihood = np.logaddexp.reduce(logs)
     assert float(result.log_likelihood[0]) == pytest.approx(log_likelihood, abs=1e-9)
@@ -460,3 +468,25 @@ def test_a_continuous_outcome_seen_at_some_steps_matches_brute_force():
     (actions, middle), _ = max(paths.items(), key=lambda kv: kv[1])
     assert result.best_names[0] == actions
     assert result.path_labels(0)[1] == {"door": middle}
+
+
+def test_a_named_state_space_matches_brute_force_over_it():
+    """The can network with four configurations, each with its count: 4 states instead of
+    the product's 44, the others never entered."""
+    net = can_network([0, 1, 3, 7], n_fields=3)
+    params = random_params(net, 9)
+    space = [(c, bin(c).count("1")) for c in (0, 1, 3, 7)]
+    demo = [
+        {"config": 7, "count": 3},
+        {"config": None, "count": None},
+        {"config": None, "count": 1},
+        {"config": 0, "count": 0},
+    ]
+    result = explain(net, params, demo, state_space=space)
+    assert result.states == tuple(space)
+    index = [tuple(f.states.index(x) for f, x in zip(net.features, s, strict=True)) for s in space]
+    check_against(net, params, demo, result, space=index)
+    with pytest.raises(ValueError, match="time 1 shows .*no state of the state space"):
+        explain(net, params, [demo[0], {"config": 1, "count": 2}], state_space=space)
+    with pytest.raises(ValueError, match="state_space\\[1\\]: 5 is not a state of 'config'"):
+        explain(net, params, demo, state_space=[(0, 0), (5, 2)])
