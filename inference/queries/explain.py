@@ -235,9 +235,16 @@ def _step_tables(net, params, space, demo, key, keys) -> _StepTables:
     """The step tables, from the traced model, for the (start, end) state pairs some
     step of each distinct observation allows."""
     s, a, k = len(space), len(net.actions), len(keys)
-    pairs = demo.allowed[:, :-1, :, None] & demo.allowed[:, 1:, None, :]
+    # the (start, end) pairs some step of each distinct observation allows, summed over
+    # the steps in chunks (a batch's pairs at once would be (n, T, S, S))
+    before = demo.allowed[:, :-1].reshape(-1, s)
+    after = demo.allowed[:, 1:].reshape(-1, s)
+    flat = torch.from_numpy(key.reshape(-1))
     need = torch.zeros(k, s * s, dtype=DTYPE)
-    need.index_add_(0, torch.from_numpy(key.reshape(-1)), pairs.reshape(-1, s * s).to(DTYPE))
+    step = max(1, CHUNK_ELEMENTS // (s * s))
+    for i in range(0, len(flat), step):
+        pairs = before[i : i + step, :, None] & after[i : i + step, None, :]
+        need.index_add_(0, flat[i : i + step], pairs.reshape(-1, s * s).to(DTYPE))
     triples = (need > 0).reshape(k, s, s).nonzero()  # (k, start, end) rows
     log_step = torch.full((k, s, a, s), -torch.inf, dtype=DTYPE)
     log_discrete = log_step.clone()
@@ -261,9 +268,9 @@ def _step_tables(net, params, space, demo, key, keys) -> _StepTables:
         ends = [x for x in enc if x.startswith("end.")]
         given = enc.without(ACTION, *ends)
         starts, where = torch.unique(t[:, :2], dim=0, return_inverse=True)
-        first = torch.zeros(len(starts), dtype=torch.long)
-        first[where.flip(0)] = torch.arange(n_rows - 1, -1, -1)
-        start_enc = given.rows(first * a)
+        one = torch.zeros(len(starts), dtype=torch.long)
+        one[where] = torch.arange(n_rows)  # a row of each start (any: they read alike)
+        start_enc = given.rows(one * a)
         log_given_start = _log_evidence(net, params, start_enc)
         log_start[starts[:, 0], starts[:, 1]] = log_given_start
         log_given = log_given_start[where].repeat_interleave(a)
