@@ -102,6 +102,9 @@ class Demonstrations:
 
     @staticmethod
     def read(net: EffectNetwork, space: StateSpace, states) -> Demonstrations:
+        """Read ``states`` (:func:`~inference.queries.explain.explain`'s one demonstration
+        or batch) against ``space``; a ``ValueError`` names the feature, the value and
+        what was expected."""
         batch = _as_batch(net, states)
         lengths = {np.shape(v)[:2] for v in batch.values() if v is not None}
         if not isinstance(states, Mapping):
