@@ -27,6 +27,7 @@ from models import Continuous, Discrete, EffectNetwork, random_params
 from models.can_network import can_network
 from models.cpds import TableParams
 from models.declaration import DTYPE
+from tests.helpers import discrete_network
 from tests.inference.test_queries_mixed import README_NET
 
 #: a world of two state features and a discrete outcome that depends on the door's end
@@ -137,10 +138,13 @@ def _indices(net, labels):
     return [tuple(f.states.index(x) for f, x in zip(state, s, strict=True)) for s in labels]
 
 
-@settings(max_examples=30, deadline=None)
+@settings(max_examples=40, deadline=None)
 @given(seed=st.integers(0, 10_000), data=st.data())
 def test_matches_brute_force_on_partly_observed_demonstrations(seed, data):
-    net = data.draw(st.sampled_from([OUTCOME_NET, PLAIN_NET]))
+    drawn = discrete_network(
+        data.draw(st.lists(st.integers(2, 3), min_size=1, max_size=2)), data.draw(st.integers(1, 3))
+    )
+    net = data.draw(st.sampled_from([OUTCOME_NET, PLAIN_NET, drawn]))
     params = random_params(net, seed)
     steps = data.draw(st.integers(1, 3))
     demo = []
