@@ -11,10 +11,11 @@ Questions (:mod:`inference.queries`): :func:`predict`, :func:`imitation_check`,
 :func:`infer_action`, :func:`infer_parameter` (the parameter posterior),
 :func:`parameter_for_effect` (the inverse model), :func:`predict_joint` (the end
 features' joint), :func:`transitions` (``P(next state | state, action)`` over a
-network's states) and :func:`plan` (the policy that reaches a goal within a horizon),
-and :func:`compile`, whose methods of the same names answer from compiled tables where
-they can; :func:`link_probabilities` and :func:`chain` read one network's continuous
-output as another's actions. Active exploration
+network's states), :func:`plan` (the policy that reaches a goal within a horizon),
+:func:`explain` (a demonstration read as the actions that produced it), and
+:func:`compile`, whose methods of the same names answer from compiled tables where they
+can; :func:`link_probabilities` and :func:`chain` read one network's continuous output
+as another's actions. Active exploration
 (:mod:`inference.design`): :func:`explore`. Pictures of a network and its fitted
 numbers (matplotlib, drawn into the caller's axes): the module :mod:`inference.plots`.
 
@@ -66,6 +67,7 @@ from inference.queries import (
     predict_joint,
     transitions,
 )
+from inference.queries.explain import Explanation, explain
 from inference.queries.plausibility import OutsideTrainingData
 from inference.queries.simulate import simulate
 from models.deprecation import moved
@@ -78,6 +80,7 @@ __all__ = [
     "ConvergenceWarning",
     "CrossValidation",
     "EMResult",
+    "Explanation",
     "FitResult",
     "FunctionLink",
     "GaussianMixture",
@@ -97,6 +100,7 @@ __all__ = [
     "chain",
     "compile",
     "cross_validate",
+    "explain",
     "explore",
     "fit",
     "fit_em",

@@ -18,6 +18,9 @@ its compiled answer (tables read once off the same model) side by side.
   action)`` over a network's states (:mod:`~inference.queries.states`), from its tables.
 * :mod:`~inference.queries.planner` -- :func:`~inference.queries.planner.plan`: the policy that reaches a goal
   within a horizon with the highest probability, by exact dynamic programming.
+* :mod:`~inference.queries.explain` -- :func:`inference.explain`: a demonstration (a
+  sequence of observed states) read as the actions that produced it (exported on the
+  :mod:`inference` face only, so that the module keeps its name here).
 * :mod:`~inference.queries.compiled` -- :func:`~inference.queries.compiled.compile`: one
   object whose methods answer these questions, from the compiled tables where they can.
 * :mod:`~inference.queries.chaining` -- :func:`link_probabilities` and :func:`chain`:
