@@ -2,8 +2,9 @@
 state space and arrays.
 
 :func:`explain <inference.queries.explain.explain>` reads its ``states`` here.
-:class:`StateSpace` numbers the configurations of a network's state (its discrete
-features with both an initial and an end node); :class:`Demonstrations` holds, per
+:class:`~inference.queries.states.StateSpace` numbers the configurations of a
+network's state (its discrete features with both an initial and an end node);
+:class:`Demonstrations` holds, per
 demonstration and time, the states consistent with what that time shows, the
 continuous values and the discrete outcomes, and groups the steps that observe the same
 (:meth:`Demonstrations.step_keys`), so that a step table is read off the model once per
@@ -12,7 +13,6 @@ distinct observation.
 
 from __future__ import annotations
 
-import itertools
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, replace
@@ -21,67 +21,11 @@ import numpy as np
 import torch
 
 from inference.queries.simulate import simulate
+from inference.queries.states import StateSpace
 from models.cpds import TableParams
 from models.declaration import ACTION, DTYPE, Continuous, Discrete, EffectNetwork
 from models.params import NetworkParams
 from models.sites import end_site, initial_site
-
-
-@dataclass(frozen=True)
-class StateSpace:
-    """The network's state: its discrete features with an initial and an end node, and
-    every combination of their states (the last feature fastest), or the combinations
-    named. ``states``: each state's labels, one per feature; ``index`` ``(S, F)``: each
-    state's state index per feature. A network without such a feature has one state,
-    ``()``."""
-
-    features: tuple[Discrete, ...]
-    states: tuple[tuple, ...]
-    index: torch.Tensor
-
-    @classmethod
-    def of(cls, net: EffectNetwork, states: Sequence | None = None) -> StateSpace:
-        """The state space of ``net``: every combination, or only ``states`` (label
-        tuples in feature order, or mappings feature -> label naming every state
-        feature), in their order."""
-        features = tuple(f for f in net.features if isinstance(f, Discrete) and f.initial)
-        if states is None:
-            index = list(itertools.product(*(range(f.cardinality) for f in features)))
-        else:
-            index = [_state_indices(features, i, state) for i, state in enumerate(states)]
-            if not index or len(set(index)) != len(index):
-                raise ValueError(
-                    f"state_space must name at least one state, each once; got {len(index)} "
-                    f"states, {len(index) - len(set(index))} repeated"
-                )
-        labels = tuple(
-            tuple(f.states[i] for f, i in zip(features, ix, strict=True)) for ix in index
-        )
-        tensor = torch.tensor(index, dtype=torch.long).reshape(len(index), len(features))
-        return cls(features, labels, tensor)
-
-    def __len__(self) -> int:
-        return len(self.states)
-
-
-def _state_indices(features: tuple[Discrete, ...], i: int, state) -> tuple[int, ...]:
-    names = [f.name for f in features]
-    if isinstance(state, Mapping):
-        if set(state) != set(names):
-            raise ValueError(f"state_space[{i}] = {state!r} must name every state feature {names}")
-        state = tuple(state[name] for name in names)
-    if isinstance(state, str | bytes) or len(state) != len(features):
-        raise ValueError(
-            f"state_space[{i}] = {state!r}: a state is one label per state feature {names}"
-        )
-    out = []
-    for f, label in zip(features, state, strict=True):
-        if label not in f.states:
-            raise ValueError(
-                f"state_space[{i}]: {label!r} is not a state of {f.name!r}: {f.states}"
-            )
-        out.append(f.states.index(label))
-    return tuple(out)
 
 
 @dataclass(frozen=True)

@@ -40,12 +40,7 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from inference.queries.demonstration import (
-    Demonstrations,
-    StateSpace,
-    key_columns,
-    with_action_prior,
-)
+from inference.queries.demonstration import Demonstrations, key_columns, with_action_prior
 from inference.queries.enumeration import conditional_log_evidence, over_row_chunks
 from inference.queries.paths import LogTables, log_matvec, max_matvec
 from inference.queries.plausibility import (
@@ -54,6 +49,7 @@ from inference.queries.plausibility import (
     check_threshold,
     plausibility,
 )
+from inference.queries.states import StateSpace
 from models.declaration import ACTION, DTYPE, EffectNetwork
 from models.evidence import Evidence
 from models.params import NetworkParams, check_params
@@ -168,7 +164,7 @@ def explain(
     """
     check_params(net, params)
     below = check_threshold(implausible_below)
-    space = StateSpace.of(net, state_space)
+    space = StateSpace.of(net, state_space, stateless=True)
     demo = Demonstrations.read(net, space, states)
     params = with_action_prior(net, params, prior)
     a = len(net.actions)

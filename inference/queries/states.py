@@ -71,19 +71,32 @@ class StateSpace:
     _position: dict[State, int] = field(repr=False, compare=False)
 
     @classmethod
-    def of(cls, net: EffectNetwork, states: Iterable[StateLike] | None = None) -> StateSpace:
+    def of(
+        cls,
+        net: EffectNetwork,
+        states: Iterable[StateLike] | None = None,
+        *,
+        stateless: bool = False,
+    ) -> StateSpace:
         """The state space of ``net``: every combination of its state features' states
         (the last feature fastest), or only ``states`` (label tuples in feature order or
         ``{feature: label}`` mappings, each naming every state feature), in their order.
 
+        ``stateless=True`` gives a network without a state feature its one state ``()``
+        (a demonstration of such a network is still a sequence of actions); without it
+        such a network is refused, since there is nothing to plan over.
+
         Raises
         ------
         ValueError
-            The network has no state feature; a state names an unknown feature or label,
+            The network has no state feature (and not ``stateless``); a state names an
+            unknown feature or label,
             misses a feature, or is repeated; the product exceeds :data:`MAX_STATES`
             (then pass ``states=``).
         """
         features = state_features(net)
+        if not features and stateless and states is None:
+            return cls((), ((),), torch.zeros(1, 0, dtype=torch.long), {(): 0})
         if not features:
             raise ValueError(
                 "the network has no state: no discrete feature with an initial node "
