@@ -49,15 +49,14 @@ import torch
 from pyro.infer import TraceEnum_ELBO
 from tqdm.auto import tqdm
 
+from inference.fitting.gaussian_gaps import continuous_gaps
 from inference.fitting.missing import fit_missing
 from inference.fitting.result import ConvergenceWarning, FitResult
 from inference.fitting.rows import (
     check_settings,
-    ignore_missing,
-    mask_values,
-    missing_masks,
     refuse_adaptive,
     row_masks,
+    rows_with_gaps,
     training_rows,
 )
 from inference.fitting.statistics import (
@@ -66,7 +65,7 @@ from inference.fitting.statistics import (
     params_from_statistics,
     statistics,
 )
-from models.declaration import ACTION, EffectNetwork
+from models.declaration import EffectNetwork
 from models.evidence import Evidence
 from models.model import effect_model
 from models.params import NetworkParams, check_params, initial_params
@@ -144,31 +143,22 @@ def fit(
             )
         cpds = params_from_statistics(net, stats, pseudo_count, min_variance)
         return FitResult(NetworkParams(cpds, pseudo_count, net))
-    if masks is not None and not isinstance(masks, Mapping):
-        raise ValueError(
-            f"masks must map discrete site names to (n,) bool masks, got {type(masks).__name__}"
-        )
-    if masks:
-        missing_masks(net, masks, None)  # what EM cannot fill, before the rows' checks
-        data = ignore_missing(net, data, masks)
-    action_mask = (masks or {}).get(ACTION)
-    unknown_action = None
-    if action_mask is not None:
-        unknown_action = ~mask_values(ACTION, action_mask)
-    enc = training_rows(net, data, unknown_action)
-    masks = row_masks(net, masks, enc.n_rows)
+    enc, masks = rows_with_gaps(net, data, masks)
     gaps = {site: m for site, m in masks.items() if not bool(m.all())}
     complete = torch.ones(enc.n_rows, dtype=torch.bool)
     for m in gaps.values():
         complete &= m
+    for x in continuous_gaps(net, enc).values():
+        complete &= ~x.any(-1)
     if not complete.any():
         raise ValueError(
             "every row misses some value; at least one complete row is needed to start"
         )
-    rows = enc if not gaps else enc.rows(complete)  # no copy of the rows when none misses
+    whole = bool(complete.all())
+    rows = enc if whole else enc.rows(complete)  # no copy of the rows when none misses
     cpds = params_from_statistics(net, statistics(net, rows), pseudo_count, min_variance)
     params = NetworkParams(cpds, pseudo_count, net)
-    if gaps:
+    if not whole:
         return fit_missing(
             net,
             enc,
