@@ -253,11 +253,22 @@ def _completed_gaussian(net, params, enc, masks, allowed) -> Completed:
         completed = enc.rows(chunk).rows(row) | net.encode_indices(values)
         if allowed is not None:
             completed = _with_cells(net, completed)
-        mean, cov = joint_gaussian(net, params, completed)
-        value = torch.cat([completed[s] for s in layout], -1)
+        # the Gaussian part once per row and configuration of the continuous sites'
+        # discrete parents (the completions of other sites share it)
+        key = row.clone()
+        for site in dims:
+            if any(site in net.cpd(c).parents for c in layout):
+                key = key * net.site(site).size + completed[site]
+        key, inverse = torch.unique(key, return_inverse=True)
+        first = torch.zeros(len(key), dtype=torch.long).scatter_(
+            0, inverse, torch.arange(len(inverse))
+        )
+        distinct = completed.rows(first)
+        mean, cov = joint_gaussian(net, params, distinct)
+        value = torch.cat([distinct[s] for s in layout], -1)
         log_density, post_mean, post_cov = condition(mean, cov, value)
         joint = torch.full_like(flat, -torch.inf)
-        joint[assignment, row] = flat[assignment, row] + log_density
+        joint[assignment, row] = flat[assignment, row] + log_density[inverse]
         log_norm = joint.logsumexp(0)  # (n,)
         if not bool((log_norm > -torch.inf).all()):
             bad = int((log_norm == -torch.inf).nonzero()[0])
@@ -268,13 +279,21 @@ def _completed_gaussian(net, params, enc, masks, allowed) -> Completed:
         log_lik += float((log_norm + enumerated.log_offset).sum())
         w = (joint[assignment, row] - log_norm[row]).exp()
         keep = w > 0
-        means = {s: post_mean[keep][:, own] for s, own in layout.items()}
-        parts.append(completed.rows(keep) | means)
+        means = post_mean[inverse[keep]]
+        parts.append(completed.rows(keep) | {s: means[:, own] for s, own in layout.items()})
         weights.append(w[keep])
-        covs.append(post_cov[keep])
-    rows = _joined(net, parts)
-    w = torch.cat(weights)
-    return Completed(rows, w, log_lik, covariance_moments(net, rows, torch.cat(covs), w))
+        # the conditional covariances' sums: per distinct Gaussian that misses a value,
+        # its completions' weights summed
+        gapped = torch.isnan(value).any(-1)
+        summed = torch.zeros(len(key), dtype=DTYPE).index_add_(0, inverse, w)
+        covs.append((distinct.rows(gapped), post_cov[gapped], summed[gapped]))
+    moments = covariance_moments(
+        net,
+        _joined(net, [c[0] for c in covs]),
+        torch.cat([c[1] for c in covs]),
+        torch.cat([c[2] for c in covs]),
+    )
+    return Completed(_joined(net, parts), torch.cat(weights), log_lik, moments)
 
 
 def _restrict_actions(net, enumerated: Enumerated, allowed: torch.Tensor) -> Enumerated:

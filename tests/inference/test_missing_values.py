@@ -107,7 +107,9 @@ def _e_step(p, s0, act, s1, v):
             filled = v[rows].copy()
             c_full = np.zeros((4, 4))
             if m.any():
-                gain = cov[np.ix_(m, o)] @ np.linalg.inv(s_oo) if o.any() else np.zeros((m.sum(), 0))
+                gain = (
+                    cov[np.ix_(m, o)] @ np.linalg.inv(s_oo) if o.any() else np.zeros((m.sum(), 0))
+                )
                 filled[:, m] = mu[m] + r @ gain.T
                 c_full[np.ix_(m, m)] = cov[np.ix_(m, m)] - gain @ cov[np.ix_(o, m)]
             mean[rows, s, a] = filled
