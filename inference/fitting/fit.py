@@ -151,8 +151,11 @@ def fit(
     for x in continuous_gaps(net, enc).values():
         complete &= ~x.any(-1)
     if not complete.any():
+        counts = {s: int((~m).sum()) for s, m in gaps.items()}
+        counts |= {s: int(x.any(-1).sum()) for s, x in continuous_gaps(net, enc).items()}
         raise ValueError(
-            "every row misses some value; at least one complete row is needed to start"
+            f"every row misses some value (rows missing a value, by site: {counts}); at "
+            "least one complete row is needed to start"
         )
     whole = bool(complete.all())
     rows = enc if whole else enc.rows(complete)  # no copy of the rows when none misses
