@@ -8,9 +8,10 @@ defines:
   covariance, cluster Gaussians are sample means and covariances. Softmax CPDs (a discrete
   child of continuous parents) have no closed form: each parent configuration is a
   multinomial logistic regression, solved by Newton's method
-  (:meth:`models.cpds.SoftmaxCPD.maximise`). When some rows miss a discrete value
-  (``masks``), EM with exact E-steps maximises the marginal likelihood, the missing
-  values summed out (:func:`inference.fitting.missing.fit_missing`).
+  (:meth:`models.cpds.SoftmaxCPD.maximise`). When some rows miss a value (None or NaN
+  for a discrete label, NaN for a continuous value or some of its dimensions, or
+  ``masks``), EM with exact E-steps maximises the marginal likelihood, the missing
+  values summed and integrated out (:func:`inference.fitting.missing.fit_missing`).
 * :func:`fit_gradient` -- ``TraceEnum_ELBO`` with an empty guide, minimised by L-BFGS
   (Adam with gaps) on tensors local to the call (Pyro's global parameter store is left
   alone): with no latent continuous sites, the ELBO *is* the (marginal) log-likelihood.
@@ -99,7 +100,10 @@ def fit(
     data
         Training rows by site name (see :meth:`EffectNetwork.encode`); every site of the
         network must be present. ``param.p`` holds NaN in rows whose action does not use
-        ``p``. Or an iterable of such row chunks (a generator, say), read once: each
+        ``p`` (a missing value of a parameter the action uses is refused). A missing
+        value is None or NaN for a discrete label (an object or float array), NaN for a
+        continuous initial or end value or some of its dimensions (or
+        :class:`models.evidence.Partial`); then the fit is EM (see ``masks``). Or an iterable of such row chunks (a generator, say), read once: each
         chunk's sufficient statistics are computed and summed
         (:mod:`inference.fitting.statistics`), so the rows never need to be in memory together.
         Chunks serve networks whose CPDs all have a closed form, without ``masks``.
@@ -111,10 +115,12 @@ def fit(
         in its slope. Pass 0 when every configuration has rows enough.
     masks
         ``(n,)`` bool per discrete site, False where the row's value is missing (the
-        row's value there is ignored). With gaps the fit is EM (see
-        :func:`inference.fitting.missing.fit_missing`), started from the closed form on the rows
-        that miss nothing; ``FitResult.losses`` is its per-row negative log-likelihood
-        (missing values summed out) at the start and after each step, never rising.
+        row's value there is ignored), another way to mark missing labels. With gaps
+        the fit is EM (see :func:`inference.fitting.missing.fit_missing`), started from
+        the closed form on the rows that miss nothing; ``FitResult.losses`` is its
+        per-row negative log-likelihood (missing values summed out) at the start and
+        after each step, never rising, and ``FitResult.log_likelihoods`` the summed
+        log-likelihood.
     steps, lr, l2, tol, progress
         ``steps``: the most Newton iterations of a softmax fit, or EM steps with gaps.
         ``l2``: the precision of the softmax slopes' Gaussian prior. ``tol``: EM has

@@ -1,18 +1,37 @@
-"""Expectation-maximisation over missing discrete values.
+"""Expectation-maximisation over missing values.
 
-Missing discrete values (:func:`fit_missing`, what :func:`inference.fit` runs when
-``masks`` leave gaps) are discrete latent variables, as adaptive clusters are
-(:mod:`inference.fitting.em`), so EM serves them alike. The E-step is exact: the
-Pyro model, traced under enumeration with the masked values latent
-(:func:`inference.queries.enumeration.enumerate_model`), gives each row's joint posterior over its missing
-values and its log-likelihood with them summed out. Each row then stands for one
-completed row per assignment of its missing values, weighted by that assignment's
-posterior, and the M-step is the closed form on the weighted statistics of the completed
-rows (:func:`inference.fitting.statistics.statistics` with ``weights``) -- exactly the expected
-sufficient statistics -- and, for a CPD without a closed form (softmax), its own
-weighted maximisation (Newton's method from the current parameters). Continuous values
-are never missing, so the pooled statistics behind the pseudo-count policy do not change
-between steps.
+Missing values (:func:`fit_missing`, what :func:`inference.fit` runs when some training
+row misses a value) are latent variables, as adaptive clusters are
+(:mod:`inference.fitting.em`), so EM serves them alike, with exact E-steps:
+
+* **Discrete values** (None or NaN in the rows, or False in ``masks``): the Pyro model,
+  traced under enumeration with them latent
+  (:func:`inference.queries.enumeration.enumerate_model`), gives each row's joint
+  posterior over its missing values and its log-likelihood with them summed out. Each
+  row then stands for one completed row per assignment of its missing values, weighted
+  by that assignment's posterior.
+* **Continuous values** (NaN, whole or in some dimensions, at a continuous initial or
+  end site): given an assignment of the discrete values, the row's continuous sites are
+  jointly Gaussian (:mod:`inference.fitting.gaussian_gaps`). The model, traced with
+  their factors left out, gives each assignment's discrete factors; the joint Gaussian
+  gives the density of the observed dimensions (the missing ones integrated out) and the
+  missing ones' conditional mean and covariance. Each completed row holds the
+  conditional means, and the conditional covariances join the sums of the linear
+  Gaussians: ``E[v v^T] = E[v] E[v]^T + Cov[v]``.
+
+The M-step is the closed form on the weighted statistics of the completed rows
+(:func:`inference.fitting.statistics.statistics` with ``weights``, plus the covariance
+sums) -- exactly the expected sufficient statistics -- and, for a CPD without a closed
+form (softmax), its own weighted maximisation (Newton's method from the current
+parameters). The log-likelihood never falls from step to step; with a pseudo-count the
+pooled pseudo-rows move with the completed rows, so a step that would lower the
+likelihood is not taken and the fit ends there.
+
+What has no closed form is refused by name: a discrete site (a softmax) whose
+continuous parent misses a value, a continuous site of a kind other than the linear
+Gaussian, and a missing value of a parameter that the row's action uses (``param.p``
+NaN means that the action does not use ``p``; where the action is given and uses it, the
+row is refused; where the action itself is missing, see below).
 
 A missing action in a network with parameters: a training row gives a parameter's value
 exactly when its action uses the parameter (:func:`inference.fit` refuses a row that
@@ -65,11 +84,11 @@ def fit_missing(
     tol: float = 1e-6,
     progress: bool = False,
 ) -> FitResult:
-    """Maximum likelihood with missing discrete values, by EM with exact E-steps.
+    """Maximum likelihood with missing values, by EM with exact E-steps.
 
-    ``enc``: complete, checked rows (:func:`inference.fit`'s), whatever they hold where a
-    value is missing; ``masks``: ``(n,)`` bool per discrete site, False where the row's
-    value is missing; ``init``: the start (``fit`` gives the closed form on the complete
+    ``enc``: checked rows (:func:`inference.fitting.rows.rows_with_gaps`), NaN where a
+    continuous initial or end value is missing, any state where a discrete one is;
+    ``masks``: ``(n,)`` bool per discrete site, False where the row's value is missing; ``init``: the start (``fit`` gives the closed form on the complete
     rows). At most ``steps`` EM steps; the fit has converged when a step lowers the
     per-row loss by less than ``tol`` (relative). ``l2``: the softmax slopes' prior.
 
@@ -78,7 +97,9 @@ def fit_missing(
     see the module) and the softmax prior included, at the start and after each step. EM cannot raise
     it (with ``pseudo_count = 0``; a pseudo-count's prior can ask for a hair more near the
     optimum): a step that would is not taken, and the fit ends there as converged, so the
-    curve never rises.
+    curve never rises. ``FitResult.log_likelihoods``: the summed log-likelihood at the
+    same points. A :class:`ConvergenceWarning` names the sites with missing values when
+    ``steps`` run out first.
     """
     check_settings(pseudo_count=pseudo_count, min_variance=min_variance, steps=steps, tol=tol)
     masks = missing_masks(net, masks, enc.n_rows)

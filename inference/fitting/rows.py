@@ -6,9 +6,10 @@ are written once here:
 
 * settings (:func:`check_settings`): finite Python numbers, ``steps`` a positive int;
 * rows (:func:`training_rows`): every site given, a parameter's value present exactly
-  where the row's action uses it, no partly observed continuous value, nothing whose
-  square would overflow; each parameter's cluster added where the rows do not give it
-  (its value's equidistant cell);
+  where the row's action uses it, nothing whose square would overflow; each parameter's
+  cluster added where the rows do not give it (its value's equidistant cell);
+* missing values (:func:`split_missing`, :func:`rows_with_gaps`): None or NaN for a
+  discrete label, NaN for a continuous initial or end value or some of its dimensions;
 * masks (:func:`mask_values`, :func:`row_masks`, :func:`missing_masks`): one bool per
   row of a discrete site, False where the value is missing;
 * the layout (:func:`refuse_adaptive`): the closed form files each row under its value's
