@@ -376,3 +376,12 @@ def test_a_missing_value_of_a_parameter_its_action_uses_is_refused():
     force[used] = torch.nan
     with pytest.raises(ValueError, match=rf"'param.force': row {used} .*uses the parameter"):
         fit(net, net.encode_indices(rows | {"param.force": force}))
+
+
+def test_the_guide_example_runs():
+    # docs/missing.md's example, as written there
+    from pathlib import Path
+
+    page = (Path(__file__).parents[2] / "docs" / "missing.md").read_text()
+    code = page.split("```python\n")[1].split("```")[0]
+    exec(compile(code, "docs/missing.md", "exec"), {})
