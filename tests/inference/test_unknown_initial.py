@@ -64,7 +64,7 @@ def test_infer_action_integrates_the_unknown_initial_value_out():
     for row, shape in enumerate((0, 1)):
         joint = np.array(
             [
-                prior[a] * quad(lambda x, a=a: density(x, shape, a, end_x[row], end_y[row]))
+                prior[a] * quad(lambda x, a=a, s=shape, r=row: density(x, s, a, end_x[r], end_y[r]))
                 for a in range(2)
             ]
         )
@@ -118,3 +118,17 @@ def test_known_initial_values_give_the_same_answers_as_before():
     )
     np.testing.assert_allclose(probs, joint / joint.sum(), atol=1e-12)
     assert torch.isfinite(torch.as_tensor(probs)).all()
+
+
+def test_queries_that_read_each_density_alone_still_need_the_initial_state():
+    # simulate given an end state would draw x from its prior, ignoring that state;
+    # imitation_check's surprise reads each observed feature's own density
+    from inference import imitation_check, simulate
+
+    ev = {"initial.shape": ["box"], "end.x": [[0.1]]}
+    with pytest.raises(ValueError, match=r"simulate .*\['initial.x'\]"):
+        simulate(NET, PARAMS, 1, ev)
+    with pytest.raises(
+        ValueError, match=r"imitation_check needs the initial state of \['initial.x'\]"
+    ):
+        imitation_check(NET, PARAMS, ev | {"action": ["push"]})
