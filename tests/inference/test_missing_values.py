@@ -383,5 +383,6 @@ def test_the_guide_example_runs():
     from pathlib import Path
 
     page = (Path(__file__).parents[2] / "docs" / "missing.md").read_text()
-    code = page.split("```python\n")[1].split("```")[0]
-    exec(compile(code, "docs/missing.md", "exec"), {})
+    blocks = [b.split("```")[0] for b in page.split("```python\n")[1:]]
+    assert len(blocks) == 2
+    exec(compile("\n".join(blocks), "docs/missing.md", "exec"), {})
