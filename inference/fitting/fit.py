@@ -51,7 +51,7 @@ from pyro.infer import TraceEnum_ELBO
 from tqdm.auto import tqdm
 
 from inference.fitting.gaussian_gaps import continuous_gaps
-from inference.fitting.missing import fit_missing
+from inference.fitting.missing import available_case_start, fit_missing
 from inference.fitting.result import ConvergenceWarning, FitResult
 from inference.fitting.rows import (
     check_settings,
@@ -117,7 +117,7 @@ def fit(
         ``(n,)`` bool per discrete site, False where the row's value is missing (the
         row's value there is ignored), another way to mark missing labels. With gaps
         the fit is EM (see :func:`inference.fitting.missing.fit_missing`), started from
-        the closed form on the rows that miss nothing; ``FitResult.losses`` is its
+        each CPD's closed form on the rows that give its site and parents; ``FitResult.losses`` is its
         per-row negative log-likelihood (missing values summed out) at the start and
         after each step, never rising, and ``FitResult.log_likelihoods`` the summed
         log-likelihood.
@@ -151,28 +151,12 @@ def fit(
         return FitResult(NetworkParams(cpds, pseudo_count, net))
     enc, masks = rows_with_gaps(net, data, masks)
     gaps = {site: m for site, m in masks.items() if not bool(m.all())}
-    complete = torch.ones(enc.n_rows, dtype=torch.bool)
-    for m in gaps.values():
-        complete &= m
-    for x in continuous_gaps(net, enc).values():
-        complete &= ~x.any(-1)
-    if not complete.any():
-        counts = {s: int((~m).sum()) for s, m in gaps.items()}
-        counts |= {s: int(x.any(-1).sum()) for s, x in continuous_gaps(net, enc).items()}
-        raise ValueError(
-            f"every row misses some value (rows missing a value, by site: {counts}); at "
-            "least one complete row is needed to start"
-        )
-    whole = bool(complete.all())
-    rows = enc if whole else enc.rows(complete)  # no copy of the rows when none misses
-    cpds = params_from_statistics(net, statistics(net, rows), pseudo_count, min_variance)
-    params = NetworkParams(cpds, pseudo_count, net)
-    if not whole:
+    if gaps or continuous_gaps(net, enc):
         return fit_missing(
             net,
             enc,
             gaps,
-            init=params,
+            init=available_case_start(net, enc, gaps, pseudo_count, min_variance),
             pseudo_count=pseudo_count,
             min_variance=min_variance,
             l2=l2,
@@ -180,6 +164,8 @@ def fit(
             tol=tol,
             progress=progress,
         )
+    cpds = params_from_statistics(net, statistics(net, enc), pseudo_count, min_variance)
+    params = NetworkParams(cpds, pseudo_count, net)
     return _fit_open_forms(net, enc, params, steps=steps, lr=lr, l2=l2, tol=tol, progress=progress)
 
 

@@ -62,13 +62,18 @@ from inference.fitting.gaussian_gaps import (
 )
 from inference.fitting.result import ConvergenceWarning, FitResult
 from inference.fitting.rows import check_settings, missing_masks, rows_with_gaps
-from inference.fitting.statistics import maximise_site, params_from_statistics, statistics
+from inference.fitting.statistics import (
+    Statistics,
+    maximise_site,
+    params_from_statistics,
+    statistics,
+)
 from inference.queries.enumeration import Enumerated, enumerate_model, row_chunks
 from models.declaration import ACTION, EffectNetwork
 from models.evidence import DTYPE, Evidence
 from models.params import NetworkParams, check_params
 
-__all__ = ["fit_missing", "missing_log_likelihood"]
+__all__ = ["available_case_start", "fit_missing", "missing_log_likelihood"]
 
 
 def fit_missing(
@@ -138,6 +143,57 @@ def fit_missing(
             stacklevel=3,
         )
     return FitResult(params, tuple(curve), converged, tuple(log_liks))
+
+
+def available_case_start(
+    net: EffectNetwork,
+    enc: Evidence,
+    masks: Mapping[str, torch.Tensor],
+    pseudo_count: float,
+    min_variance: float,
+) -> NetworkParams:
+    """EM's start: each CPD's closed form on the rows that give its site and every
+    parent (available cases), so that a start exists wherever each CPD has such rows,
+    even when no row gives every value.
+
+    Raises
+    ------
+    ValueError
+        Naming a site that no row gives together with all its parents.
+    """
+    given = {s: m for s, m in masks.items()}
+    for site, x in continuous_gaps(net, enc).items():
+        given[site] = ~x.any(-1)
+    everything = torch.ones(enc.n_rows, dtype=torch.bool)
+    for m in given.values():
+        everything &= m
+    if bool(everything.all()):
+        return NetworkParams(
+            params_from_statistics(net, statistics(net, enc), pseudo_count, min_variance),
+            pseudo_count,
+            net,
+        )
+    # another site's missing values stand in as 0 there: only each site's own sums are kept
+    enc = enc | {s: x.nan_to_num() for s, x in enc.items() if x.is_floating_point()}
+    sites, by_rows = {}, {}
+    for spec in net.sites:
+        cpd = net.cpd(spec.name)
+        rows = torch.ones(enc.n_rows, dtype=torch.bool)
+        for q in (spec.name, *cpd.parents, *cpd.inputs, ACTION if spec.role == "param" else ""):
+            if q in given:
+                rows = rows & given[q]
+        if not bool(rows.any()):
+            raise ValueError(
+                f"site {spec.name!r}: no training row gives it together with its parents "
+                f"{[*cpd.parents, *cpd.inputs]}; EM needs at least one such row to start"
+            )
+        key = bytes(rows.numpy().tobytes())
+        if key not in by_rows:  # sites whose rows agree share one pass
+            by_rows[key] = statistics(net, enc if bool(rows.all()) else enc.rows(rows))
+        sites[spec.name] = by_rows[key].sites[spec.name]
+    stats = Statistics(sites, enc.n_rows)
+    cpds = params_from_statistics(net, stats, pseudo_count, min_variance)
+    return NetworkParams(cpds, pseudo_count, net)
 
 
 def missing_log_likelihood(

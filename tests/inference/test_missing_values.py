@@ -386,3 +386,29 @@ def test_the_guide_example_runs():
     blocks = [b.split("```")[0] for b in page.split("```python\n")[1:]]
     assert len(blocks) == 2
     exec(compile("\n".join(blocks), "docs/missing.md", "exec"), {})
+
+
+def test_no_complete_row_is_needed():
+    # every row misses exactly one of MIXED's values (a dimension of end.y counts as
+    # one): EM starts from each CPD's own available rows and lands near the complete fit
+    data, rows = mixed_rows(1500, seed=4, share=0.0)
+    rng = np.random.default_rng(4)
+    slots = [("initial.shape", None), ("action", None), ("end.shape", None)]
+    slots += [("initial.x", 0), ("end.x", 0), ("end.y", 0), ("end.y", 1)]
+    for i, k in enumerate(rng.integers(len(slots), size=1500)):
+        site, dim = slots[k]
+        if dim is None:
+            data[site][i] = None
+        else:
+            data[site][i, dim] = np.nan
+    result = fit(MIXED, data, pseudo_count=0.0, tol=1e-10, steps=2000)
+    assert result.converged
+    curve = np.array(result.log_likelihoods)
+    assert np.all(np.diff(curve) >= -1e-9 * abs(curve[-1]))
+    complete = fit(MIXED, rows, pseudo_count=0.0).params
+    for site in ("initial.shape", "action", "end.shape"):
+        torch.testing.assert_close(
+            result.params[site].probs, complete[site].probs, atol=0.03, rtol=0
+        )
+    for site in ("initial.x", "end.x", "end.y"):
+        torch.testing.assert_close(result.params[site].bias, complete[site].bias, atol=0.1, rtol=0)
