@@ -65,10 +65,22 @@ def continuous_gaps(net: EffectNetwork, enc: Evidence) -> dict[str, torch.Tensor
 
 
 def refuse_open_forms(net: EffectNetwork, enc: Evidence, gaps: dict[str, torch.Tensor]) -> None:
-    """Refuse what has no closed-form E-step: a continuous site of a kind other than the
-    linear Gaussian, or a discrete site whose continuous parent misses a value."""
+    """Refuse what has no closed-form E-step or M-step: a kind with neither a closed form
+    nor a ``maximise`` method, a continuous site of a kind other than the linear
+    Gaussian, or a discrete site whose continuous parent misses a value."""
     if not gaps:
         return
+    unfit = [
+        s.name
+        for s in net.sites
+        if not net.cpd(s.name).closed_form
+        and not callable(getattr(net.cpd(s.name), "maximise", None))
+    ]
+    if unfit:
+        raise ValueError(
+            f"sites {unfit} have neither a closed form nor a maximise method: EM over "
+            "missing values has no M-step for them"
+        )
     other = [s for s in continuous_sites(net) if not isinstance(net.cpd(s), LinearGaussianCPD)]
     if other:
         kinds = sorted({net.cpd(s).name for s in other})

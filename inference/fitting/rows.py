@@ -511,6 +511,7 @@ def _missing_labels(values: object, none_is_a_state: bool) -> np.ndarray | None:
         (
             (v is None and not none_is_a_state)
             or (isinstance(v, float | np.floating) and bool(np.isnan(v)))
+            or type(v).__name__ == "NAType"  # pandas' missing value, pandas not imported
             for v in flat
         ),
         dtype=bool,
