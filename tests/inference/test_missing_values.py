@@ -10,11 +10,14 @@ from dataclasses import fields, replace
 import numpy as np
 import pytest
 import torch
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from inference import ConvergenceWarning, fit, simulate
 from inference.fitting.missing import missing_log_likelihood
 from models import Continuous, Discrete, EffectNetwork, Partial, random_params
 from models.params import NetworkParams
+from tests.inference.test_fuzz import mixed_networks
 
 SHAPES, ACTIONS = ("box", "ball"), ("push", "lift")
 
@@ -434,3 +437,33 @@ def test_missing_continuous_values_beside_missing_actions_with_a_parameter():
     loss, gradient = marginal_loss(net, result.params, rows, masks, presence=True)
     assert loss == pytest.approx(result.losses[-1], rel=1e-10)
     assert gradient < 1e-5
+
+
+@settings(max_examples=25, deadline=None)
+@given(net=mixed_networks(), seed=st.integers(0, 1000), share=st.floats(0.05, 0.6))
+def test_the_closed_form_e_step_scores_rows_as_pyro_enumerates_them(net, seed, share):
+    # random mixed networks (softmax, parameters, 2-D features): rows missing discrete
+    # labels and end dimensions scored by the joint-Gaussian E-step equal the model's
+    # own enumeration, which reads a NaN end dimension as unobserved
+    from inference.queries.enumeration import enumerate_model
+    from models.evidence import Evidence
+
+    params = random_params(net, seed)
+    rows = net.encode(simulate(net, params, 25, seed=seed))
+    rng = np.random.default_rng(seed)
+    data, masks = dict(rows.items()), {}
+    for spec in net.sites:
+        if spec.role == "end" and not spec.discrete:
+            x = data[spec.name].clone()
+            x[torch.from_numpy(rng.random(tuple(x.shape)) < share)] = torch.nan
+            data[spec.name] = x
+        elif (
+            spec.discrete
+            and spec.role in ("initial", "end")
+            or (spec.name == "action" and not net.mixtures)
+        ):
+            masks[spec.name] = torch.from_numpy(rng.random(25) >= share)
+    gapped = Evidence(net, data, 25)
+    mine = missing_log_likelihood(net, params, gapped, masks)
+    theirs = float(enumerate_model(net, params, gapped, masks=masks).log_evidence.sum())
+    assert mine == pytest.approx(theirs, rel=1e-9, abs=1e-9)
