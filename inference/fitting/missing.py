@@ -253,8 +253,12 @@ def _completed_rows(net, params, enc, masks, allowed=None) -> Completed:
     gaps = continuous_gaps(net, enc)
     if gaps:
         return _completed_gaussian(net, params, enc, masks, allowed)
-    if not masks:
-        return Completed(enc, torch.ones(enc.n_rows, dtype=DTYPE), 0.0)
+    if not masks:  # nothing missing: the rows' log-likelihood alone
+        log_lik = sum(
+            float(enumerate_model(net, params, enc.rows(chunk)).log_evidence.sum())
+            for chunk in row_chunks(enc.n_rows, 1)
+        )
+        return Completed(enc, torch.ones(enc.n_rows, dtype=DTYPE), log_lik)
     size = math.prod(net.site(site).size for site in masks)
     model_rows = enc
     if allowed is not None:  # the clusters follow the action: the model derives them
