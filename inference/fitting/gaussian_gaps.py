@@ -31,7 +31,7 @@ import torch
 
 from inference.fitting.statistics import flat_index
 from models.cpds import LinearGaussianCPD, Moments
-from models.declaration import EffectNetwork
+from models.declaration import ACTION, EffectNetwork
 from models.dtype import DTYPE
 from models.evidence import Evidence
 from models.params import NetworkParams
@@ -46,12 +46,14 @@ __all__ = [
 ]
 
 
-def continuous_sites(net: EffectNetwork) -> dict[str, slice]:
-    """The continuous initial and end sites in the network's order, each with its
-    dimensions' slice of the joint vector."""
+def continuous_sites(net: EffectNetwork, parameters: bool = False) -> dict[str, slice]:
+    """The continuous initial and end sites (and with ``parameters`` the parameters'
+    values) in the network's order, each with its dimensions' slice of the joint
+    vector."""
+    roles = ("initial", "end", "param") if parameters else ("initial", "end")
     out, start = {}, 0
     for spec in net.sites:
-        if not spec.discrete and spec.role in ("initial", "end"):
+        if not spec.discrete and spec.role in roles:
             out[spec.name] = slice(start, start + spec.size)
             start += spec.size
     return out
@@ -104,12 +106,18 @@ def refuse_open_forms(net: EffectNetwork, enc: Evidence, gaps: dict[str, torch.T
 
 
 def joint_gaussian(
-    net: EffectNetwork, params: NetworkParams, rows: Evidence
+    net: EffectNetwork, params: NetworkParams, rows: Evidence, parameters: bool = False
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """The joint Gaussian of the continuous initial and end sites of each row given its
     discrete values (every one given) and its parameters' values: mean ``(n, D)`` and
-    covariance ``(n, D, D)``, the sites' dimensions in :func:`continuous_sites` order."""
-    layout = continuous_sites(net)
+    covariance ``(n, D, D)``, the sites' dimensions in :func:`continuous_sites` order.
+
+    With ``parameters``, the parameters' values are part of the joint (each its
+    cluster's Gaussian), so that an unknown one is integrated out; otherwise they are
+    given (NaN where the row's action does not use them). Either way a value counts only
+    where the row's action uses it."""
+    layout = continuous_sites(net, parameters)
+    mixtures = {m.value.site: m for m in net.mixtures}
     dim = sum(s.stop - s.start for s in layout.values())
     n = rows.n_rows
     mean = torch.zeros(n, dim, dtype=DTYPE)
@@ -128,6 +136,8 @@ def joint_gaussian(
             k = net.site(q).size
             w = weight[..., col : col + k]
             col += k
+            if q in mixtures:  # an action that does not use a parameter ignores it
+                w = w * mixtures[q].in_use(rows[ACTION]).to(DTYPE)[:, None, None]
             if q in layout:
                 lift[..., layout[q]] += w
             else:  # a parameter's value: given, or NaN where the action does not use it

@@ -48,11 +48,12 @@ def enumerate_unknown_initial(
     from inference.queries.enumeration import Enumerated, enumerate_model
 
     _refuse_open_forms(net, evidence, unknown)
-    layout = continuous_sites(net)
+    layout = continuous_sites(net, parameters=True)
     n = evidence.n_rows
     placeholder = {s: torch.zeros(n, net.site(s).size, dtype=DTYPE) for s in unknown}
     filled = evidence | Evidence(net, placeholder, n)
-    own = {s for s in layout if s in filled or s in trace_only}
+    # their own factors are the joint Gaussian's (a parameter's value is always traced)
+    own = {s for s in layout if s in filled or s in trace_only or net.site(s).role == "param"}
     e = enumerate_model(net, params, filled, keep=keep, trace_only=trace_only | own, masks=masks)
     # the configurations of the enumerated sites the continuous ones depend on
     parents = {q for s in layout for q in net.cpd(s).parents}
@@ -72,13 +73,17 @@ def enumerate_unknown_initial(
     completed = dict(rows.items()) | dict(net.encode_indices(values).items())
     for s in layout:  # an unknown or unobserved value: NaN, integrated out
         if s not in completed:
-            completed[s] = torch.full((len(grid.reshape(-1)), net.site(s).size), torch.nan)
-    for m in net.mixtures:  # a parameter no row's action uses may be left out
-        completed.setdefault(
-            m.value.site, torch.full((len(grid.reshape(-1)), m.parameter.dim), torch.nan)
-        )
+            completed[s] = torch.full((grid.numel(), net.site(s).size), torch.nan)
+    for m in net.mixtures:
+        action = completed[ACTION]
+        theta = completed[m.value.site]
+        # the value counts where the action uses it (the model leaves its density out
+        # elsewhere); a given value without its cluster observes its cell
+        completed[m.value.site] = torch.where(m.in_use(action)[:, None], theta, torch.nan)
+        if m.cluster.site not in completed:
+            completed[m.cluster.site] = m.cells(theta, action)
     completed = Evidence(net, completed, grid.numel())
-    mean, cov = joint_gaussian(net, params, completed)
+    mean, cov = joint_gaussian(net, params, completed, parameters=True)
     value = torch.cat([completed[s] for s in layout], -1)
     log_density = condition(mean, cov, value)[0].reshape(shape)
     # each continuous end site in the trace: its conditional given the configuration and
@@ -120,18 +125,3 @@ def _refuse_open_forms(net: EffectNetwork, evidence: Evidence, unknown: list[str
             f"queries need the initial state of {unknown} here: sites {other} are not "
             "linear Gaussians, so the unknown value has no closed-form integral"
         )
-    for m in net.mixtures:
-        if not m.continuous:
-            continue
-        x = evidence.get(m.value.site)
-        hidden = torch.ones(evidence.n_rows, dtype=torch.bool) if x is None else x.isnan().any(-1)
-        if ACTION in evidence:
-            hidden &= m.in_use(evidence[ACTION])
-        if bool(hidden.any()):
-            row = int(hidden.nonzero()[0])
-            raise ValueError(
-                f"queries need the initial state of {unknown} here: row {row} leaves the "
-                f"parameter {m.value.site!r} unknown for an action that may use it; an "
-                "unknown initial feature is integrated out only beside given parameters "
-                "(give the parameter, or the action when it does not use it)"
-            )

@@ -132,3 +132,53 @@ def test_queries_that_read_each_density_alone_still_need_the_initial_state():
         ValueError, match=r"imitation_check needs the initial state of \['initial.x'\]"
     ):
         imitation_check(NET, PARAMS, ev | {"action": ["push"]})
+
+
+def test_an_unknown_parameter_beside_it_is_integrated_out_too():
+    # tap's force (two clusters) acts on end.pos; initial.pos and the force unknown: the
+    # posterior over actions by a double integral over both
+    from models import Parameter
+
+    net = EffectNetwork(
+        (Discrete("visible", (0, 1)), Continuous("pos", 1)),
+        ("remove", "tap"),
+        (Parameter("force", 0.0, 10.0, 2, ("tap",), "pos"),),
+        parents={"end.visible": ("initial.visible", "action")},
+    )
+    params = random_params(net, 5)
+    y = 0.8
+
+    def arr(site):
+        p = params[site]
+        return p.weight.numpy(), p.bias.numpy(), p.covariance.numpy()
+
+    _, m0, v0 = arr("initial.pos")
+    w, b, r = arr("end.pos")  # (visible, action, cluster, 1, 2): inputs [pos, force]
+    _, mf, vf = arr("param.force")
+    clusters = params["cluster.force"].probs.numpy()
+    prior = params["action"].probs.numpy()
+
+    # Gauss-Hermite nodes of N(0, 1): E[f(z)] = sum_i weight_i f(node_i), exact to
+    # float64 here for the smooth Gaussian integrands
+    nodes, weights = np.polynomial.hermite_e.hermegauss(80)
+    weights = weights / weights.sum()
+    xs = m0[0] + math.sqrt(v0[0, 0]) * nodes
+
+    def joint(action):
+        if action == 0:  # remove ignores the force (cluster 0, its weight unused)
+            return sum(
+                q * normal(y, w[1, 0, 0, :, 0] * x + b[1, 0, 0], r[1, 0, 0])
+                for q, x in zip(weights, xs, strict=True)
+            )
+        total = 0.0
+        for c in range(2):
+            thetas = mf[c, 0] + math.sqrt(vf[c, 0, 0]) * nodes
+            for q, x in zip(weights, xs, strict=True):
+                for u, theta in zip(weights, thetas, strict=True):
+                    mean = w[1, 1, c, :, 0] * x + w[1, 1, c, :, 1] * theta + b[1, 1, c]
+                    total += clusters[1, c] * q * u * normal(y, mean, r[1, 1, c])
+        return total
+
+    want = np.array([prior[a] * joint(a) for a in range(2)])
+    got = infer_action(net, params, {"initial.visible": [1], "end.pos": [[y]]}).probs[0]
+    np.testing.assert_allclose(got.numpy(), want / want.sum(), atol=1e-7)
