@@ -10,7 +10,10 @@ as for any query, the unknown initial values filled with a placeholder and every
 continuous initial and end site's own factor left out, and one factor takes their place:
 the density of the observed continuous dimensions per configuration. Each continuous
 end site's traced distribution becomes its conditional given the configuration and the
-other observed values (what :func:`inference.predict` reads).
+observed values before it: the end sites observed in full in the network's order, then
+each other one given all of those and the other observed dimensions (what
+:func:`inference.predict` reads for a target, and the plausibility's distances add up
+to the joint one; exact where at most one end site is observed in part).
 
 No closed form exists, and the query is refused naming the site, where a discrete site
 (a softmax) reads the unknown value, where a continuous site is of a kind other than the
@@ -57,6 +60,8 @@ def enumerate_unknown_initial(
     e = enumerate_model(net, params, filled, keep=keep, trace_only=trace_only | own, masks=masks)
     # the configurations of the enumerated sites the continuous ones depend on
     parents = {q for s in layout for q in net.cpd(s).parents}
+    if net.mixtures:  # whether a parameter counts: its action
+        parents.add(ACTION)
     depth = max([-d for d in e.dims.values()], default=1)
     shape = [1] * depth
     for site, d in e.dims.items():
@@ -87,11 +92,17 @@ def enumerate_unknown_initial(
     value = torch.cat([completed[s] for s in layout], -1)
     log_density = condition(mean, cov, value)[0].reshape(shape)
     # each continuous end site in the trace: its conditional given the configuration and
-    # the other observed values
+    # the observed values before it (the end sites observed in full, in order, then
+    # the others, each given every fully observed one): so the traced densities
+    # multiply to the joint one, and the Mahalanobis distances add to the joint's
+    full = [s for s in layout if s in evidence and not bool(evidence[s].isnan().any())]
+    full = [s for s in full if net.site(s).role == "end"]
     for site, where in layout.items():
         if site in e.trace.nodes and net.site(site).role == "end":
             others = value.clone()
-            others[:, where] = torch.nan
+            later = full[full.index(site) :] if site in full else [site]
+            for t in later:
+                others[:, layout[t]] = torch.nan
             _, post_mean, post_cov = condition(mean, cov, others)
             loc = post_mean[:, where].reshape(*shape, -1)
             c = post_cov[:, where, where].reshape(*shape, where.stop - where.start, -1)

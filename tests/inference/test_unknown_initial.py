@@ -182,3 +182,28 @@ def test_an_unknown_parameter_beside_it_is_integrated_out_too():
     want = np.array([prior[a] * joint(a) for a in range(2)])
     got = infer_action(net, params, {"initial.visible": [1], "end.pos": [[y]]}).probs[0]
     np.testing.assert_allclose(got.numpy(), want / want.sum(), atol=1e-7)
+
+
+def test_plausibility_measures_the_joint_distance_of_the_observed_end_state():
+    # end.x and end.y observed, x unknown: they are dependent through x, and the squared
+    # Mahalanobis distance the flag reads is that of their joint Gaussian (by hand)
+    from scipy import stats
+
+    from inference.queries.plausibility import plausibility
+
+    ex, ey = [0.9], [2.0, -1.5]
+    evidence = NET.encode(
+        {"initial.shape": ["ball"], "action": ["push"], "end.x": [ex], "end.y": [ey]}
+    )
+    tail = plausibility(NET, PARAMS, evidence).tail[0].item()
+    _, m0, v0 = numbers("initial.x")
+    wx, bx, cx = (t[0] for t in numbers("end.x"))
+    wy, by, cy = (t[1, 0] for t in numbers("end.y"))
+    lift = np.vstack([wx, wy])  # (3, 1): [end.x, end.y] = lift x + offset + noise
+    mean = lift @ m0 + np.concatenate([bx, by])
+    cov = lift @ v0 @ lift.T
+    cov[:1, :1] += cx
+    cov[1:, 1:] += cy
+    r = np.concatenate([ex, ey]) - mean
+    d2 = r @ np.linalg.solve(cov, r)
+    assert tail == pytest.approx(stats.chi2.sf(d2, 3), rel=1e-9)
