@@ -472,3 +472,28 @@ def test_the_closed_form_e_step_scores_rows_as_pyro_enumerates_them(net, seed, s
     mine = missing_log_likelihood(net, params, gapped, masks)
     theirs = float(enumerate_model(net, params, gapped, masks=masks).log_evidence.sum())
     assert mine == pytest.approx(theirs, rel=1e-9, abs=1e-9)
+
+
+def test_missing_labels_read_alike_in_every_container():
+    # NaN in a float tensor or array, None or pandas' NA in an object array: the same
+    # missing value; None is a label where the feature declares it as a state
+    net = EffectNetwork(
+        (Discrete("v", (0, 1)), Discrete("w", (None, "x")), Continuous("p", 1)),
+        ACTIONS,
+        parents={"end.v": ("initial.v", "action"), "end.w": ("initial.w", "action")},
+    )
+    rows = simulate(net, random_params(net, 0), 200, seed=0)
+    v = np.asarray(rows["initial.v"], dtype=float)
+    v[[3, 8]] = np.nan
+    as_none = np.asarray(rows["initial.v"], dtype=object)
+    as_none[[3, 8]] = None
+    forms = [v, torch.from_numpy(v), as_none]
+    pd = pytest.importorskip("pandas")
+    forms.append(np.asarray(pd.array(list(as_none), dtype="Int64"), dtype=object))
+    fits = [fit(net, rows | {"initial.v": form}, tol=1e-10) for form in forms]
+    for other in fits[1:]:
+        assert other.log_likelihoods == fits[0].log_likelihoods
+    assert len(fits[0].log_likelihoods) > 1  # EM ran
+    # None is one of w's states: rows giving it miss nothing
+    assert None in list(rows["initial.w"])
+    assert fit(net, rows).log_likelihoods == ()
