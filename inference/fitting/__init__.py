@@ -2,7 +2,7 @@
 
 The closed form for tables and Gaussians (:func:`fit`, on sufficient statistics that
 merge by addition: :mod:`inference.fitting.statistics`), Newton steps for softmax CPDs,
-EM for adaptive clusters (:mod:`inference.fitting.em`) and for missing discrete values
+EM for adaptive clusters (:mod:`inference.fitting.em`) and for missing values
 (:mod:`inference.fitting.missing`), the gradient route (:func:`fit_gradient`) and a shared prior over table rows
 (:mod:`inference.fitting.pooling`). Every route checks its settings, training rows and
 masks with the same rules (:mod:`inference.fitting.rows`) and returns a

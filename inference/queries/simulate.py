@@ -100,6 +100,16 @@ def draw(
     with torch.random.fork_rng():
         torch.manual_seed(seed)
         if any(net.site(s).role not in ("initial", ACTION) for s in evidence):
+            unknown = [
+                s.name
+                for s in net.sites
+                if s.role == "initial" and not s.discrete and s.name not in evidence
+            ]
+            if unknown:  # drawn from its prior, it would ignore the evidence on the rest
+                raise ValueError(
+                    "simulate given evidence beyond the roots needs the initial state of "
+                    f"continuous features; missing {unknown}"
+                )
             try:
                 e = enumerate_model(net, params, evidence)
             except ValueError as exc:
