@@ -382,6 +382,12 @@ def test_the_scores_page_runs():
         exec(compile(code, str(page), "exec"), namespace)  # noqa: S102
     assert namespace["ll"].per_row.shape == (500,)
     assert namespace["ll_gaps"].total > namespace["ll"].total  # a value summed out
+    # the gaps marked in the rows: the same labels summed out, and the positions' gaps
+    # integrated out on top
+    ll_rows = namespace["ll_rows"].per_row
+    gapped = torch.isnan(torch.as_tensor(namespace["position"])).any(-1)
+    assert torch.equal(ll_rows[~gapped], namespace["ll_gaps"].per_row[~gapped])
+    assert not torch.allclose(ll_rows[gapped], namespace["ll_gaps"].per_row[gapped])
     assert namespace["cv"].per_fold.shape == (5,)
     assert namespace["choice"].chosen in namespace["choice"].candidates
 
