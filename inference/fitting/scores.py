@@ -114,7 +114,7 @@ class LogLikelihood:
     ----------
     per_row : torch.Tensor
         ``(n,)`` float64, each row's log-likelihood (natural log; densities of
-        continuous values in their units), missing values summed out.
+        continuous values in their units), missing values summed and integrated out.
     n_parameters : int
         The network's free parameters (:func:`n_parameters`).
     """
