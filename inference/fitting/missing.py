@@ -73,7 +73,13 @@ from models.declaration import ACTION, EffectNetwork
 from models.evidence import DTYPE, Evidence
 from models.params import NetworkParams, check_params
 
-__all__ = ["actions_allowed", "available_case_start", "fit_missing", "missing_log_likelihood"]
+__all__ = [
+    "actions_allowed",
+    "available_case_start",
+    "fit_missing",
+    "gaussian_row_log_likelihoods",
+    "missing_log_likelihood",
+]
 
 
 def fit_missing(
@@ -216,6 +222,24 @@ def missing_log_likelihood(
     return _completed_rows(net, params, enc, masks, actions_allowed(net, enc, masks)).log_lik
 
 
+def gaussian_row_log_likelihoods(
+    net: EffectNetwork, params: NetworkParams, enc: Evidence, masks: Mapping[str, torch.Tensor]
+) -> torch.Tensor:
+    """``(n,)`` each row's log-likelihood, its missing discrete values summed out and its
+    missing continuous ones integrated out: the terms of :func:`missing_log_likelihood`,
+    by the closed-form Gaussian path (every continuous initial and end site a linear
+    Gaussian, checked by :func:`~inference.fitting.gaussian_gaps.refuse_open_forms`).
+
+    ``enc``: checked rows (:func:`inference.fitting.rows.rows_with_gaps`), NaN where a
+    continuous value is missing, an adaptive parameter's cluster left out where the rows
+    do not give it (it is summed out); ``masks``: ``(n,)`` bool per discrete site, False
+    where missing. A row of probability 0 scores ``-inf``.
+    """
+    masks = {s: m for s, m in masks.items() if not bool(m.all())}
+    allowed = actions_allowed(net, enc, masks)
+    return _completed_gaussian(net, params, enc, masks, allowed, posterior=False).per_row
+
+
 def actions_allowed(net: EffectNetwork, enc: Evidence, masks) -> torch.Tensor | None:
     """``(A, n)`` bool, where the action is missing in a network with parameters: the
     actions that agree with the row's parameter values. A training row gives a
@@ -291,22 +315,26 @@ def _completed_rows(net, params, enc, masks, allowed=None) -> Completed:
 @dataclass(frozen=True)
 class Completed:
     """An E-step's result: the completed rows, their weights, the summed log-likelihood
-    (missing values summed out), and the conditional covariances' sums per linear
-    Gaussian where continuous values are missing (:mod:`inference.fitting.gaussian_gaps`)."""
+    (missing values summed out), the conditional covariances' sums per linear Gaussian
+    where continuous values are missing (:mod:`inference.fitting.gaussian_gaps`), and
+    there each row's log-likelihood ``(n,)``."""
 
     rows: Evidence
     weights: torch.Tensor
     log_lik: float
     moments: dict = field(default_factory=dict)
+    per_row: torch.Tensor | None = None
 
 
-def _completed_gaussian(net, params, enc, masks, allowed) -> Completed:
+def _completed_gaussian(net, params, enc, masks, allowed, posterior=True) -> Completed:
     """The E-step where continuous values are missing. The model, traced under
     enumeration with the missing discrete values latent and every continuous initial and
     end site's factor left out (their values filled in, read by no factor kept), gives
     each completion's discrete factors; the continuous sites' joint Gaussian given the
     completion (:func:`inference.fitting.gaussian_gaps.joint_gaussian`) gives the
-    density of the observed dimensions and the missing ones' conditional moments."""
+    density of the observed dimensions and the missing ones' conditional moments.
+    Without ``posterior``, only the rows' log-likelihoods (``per_row``, ``-inf`` for a
+    row of probability 0) and their sum: the rows are not completed."""
     refuse_open_forms(net, enc, continuous_gaps(net, enc))
     layout = continuous_sites(net)
     filled = enc | {s: enc[s].nan_to_num() for s in layout}
@@ -315,7 +343,7 @@ def _completed_gaussian(net, params, enc, masks, allowed) -> Completed:
     if allowed is not None:
         model_rows = filled.without(*(m.cluster.site for m in net.mixtures))
         size *= math.prod(m.cluster.size for m in net.mixtures)
-    parts, weights, covs, log_lik = [], [], [], 0.0
+    parts, weights, covs, per_row, log_lik = [], [], [], [], 0.0
     for chunk in row_chunks(enc.n_rows, size):
         rows = model_rows.rows(chunk)
         n = rows.n_rows
@@ -351,13 +379,16 @@ def _completed_gaussian(net, params, enc, masks, allowed) -> Completed:
         joint = torch.full_like(flat, -torch.inf)
         joint[assignment, row] = flat[assignment, row] + log_density[inverse]
         log_norm = joint.logsumexp(0)  # (n,)
+        per_row.append(log_norm + enumerated.log_offset)
+        if not posterior:
+            continue
         if not bool((log_norm > -torch.inf).all()):
             bad = int((log_norm == -torch.inf).nonzero()[0])
             raise ValueError(
                 f"training row {bad + (chunk.start or 0)} has probability 0 under every "
                 "completion of its missing values: no posterior exists"
             )
-        log_lik += float((log_norm + enumerated.log_offset).sum())
+        log_lik += float(per_row[-1].sum())
         w = (joint[assignment, row] - log_norm[row]).exp()
         keep = w > 0
         means = post_mean[inverse[keep]]
@@ -368,13 +399,16 @@ def _completed_gaussian(net, params, enc, masks, allowed) -> Completed:
         gapped = torch.isnan(value).any(-1)
         summed = torch.zeros(len(key), dtype=DTYPE).index_add_(0, inverse, w)
         covs.append((distinct.rows(gapped), post_cov[gapped], summed[gapped]))
+    if not posterior:
+        scored = torch.cat(per_row)
+        return Completed(enc, torch.ones(enc.n_rows, dtype=DTYPE), float(scored.sum()), {}, scored)
     moments = covariance_moments(
         net,
         _joined(net, [c[0] for c in covs]),
         torch.cat([c[1] for c in covs]),
         torch.cat([c[2] for c in covs]),
     )
-    return Completed(_joined(net, parts), torch.cat(weights), log_lik, moments)
+    return Completed(_joined(net, parts), torch.cat(weights), log_lik, moments, torch.cat(per_row))
 
 
 def _restrict_actions(net, enumerated: Enumerated, allowed: torch.Tensor) -> Enumerated:
@@ -400,10 +434,12 @@ def _assigned(net, dims, shape, sites, assignment) -> dict[str, torch.Tensor]:
 
 
 def _with_cells(net, completed: Evidence) -> Evidence:
-    """The completed rows with each parameter's cluster its value's cell under the
-    row's (completed) action."""
+    """The completed rows with each grid parameter's cluster its value's cell under the
+    row's (completed) action (an adaptive one's is enumerated with the rest)."""
     cells = {
-        m.cluster.site: m.cells(completed[m.value.site], completed[ACTION]) for m in net.mixtures
+        m.cluster.site: m.cells(completed[m.value.site], completed[ACTION])
+        for m in net.mixtures
+        if not m.parameter.adaptive
     }
     return completed | net.encode_indices(cells)
 

@@ -16,11 +16,27 @@ cancel when such networks are compared. A row's value is read as the model reads
 under the grid layout a value given without its cluster observes its cell as the
 cluster; under the adaptive layout the cluster is latent and summed out.
 
-**Missing values** are summed out exactly (:func:`inference.queries.enumeration.enumerate_model`):
-a discrete value marked missing in ``masks`` (as :func:`inference.fit` takes them) is
-enumerated; where the action is missing in a network with parameters, only the actions
-that agree with the parameters the row gives count (a row gives a parameter's value
-exactly when its action uses it), as in :func:`inference.fitting.missing.fit_missing`.
+**Missing values** are marked as :func:`inference.fit` reads them (in the rows: None or
+NaN for a discrete label, NaN for a continuous value or some of its dimensions; or by
+``masks``) and summed or integrated out exactly, row by row:
+
+* a row whose continuous values are all given goes through the traced model
+  (:func:`inference.queries.enumeration.enumerate_model`), its missing discrete values
+  enumerated;
+* a row that misses a continuous value goes through the continuous sites' joint
+  Gaussian given each completion of its discrete values
+  (:func:`inference.fitting.missing.gaussian_row_log_likelihoods`): the density of its
+  observed dimensions, the missing ones integrated out, times the completion's discrete
+  factors, summed over the completions. This needs what :func:`inference.fit` needs
+  there, and what has no closed form is refused by name: a continuous site of a kind
+  other than the linear Gaussian, or a discrete site (a softmax) that reads the missing
+  value.
+
+Where the action is missing in a network with parameters, only the actions that agree
+with the parameters the row gives count (a row gives a parameter's value exactly when
+its action uses it), as in :func:`inference.fitting.missing.fit_missing`. The rows'
+log-likelihoods sum to :func:`inference.fitting.missing.missing_log_likelihood`, the
+quantity EM raises; a complete row scores the same whatever the other rows miss.
 
 **Free parameters** (:func:`n_parameters`), per parent configuration a row can reach
 (every one of them, seen in the rows or not, as pgmpy counts):
@@ -63,8 +79,9 @@ import torch
 
 from inference.fitting.em import fit_em
 from inference.fitting.fit import fit
-from inference.fitting.missing import actions_allowed
-from inference.fitting.rows import ignore_missing, mask_values, row_masks, training_rows
+from inference.fitting.gaussian_gaps import continuous_gaps, refuse_open_forms
+from inference.fitting.missing import actions_allowed, gaussian_row_log_likelihoods
+from inference.fitting.rows import mask_values, rows_with_gaps, split_missing
 from inference.queries.enumeration import (
     Enumerated,
     enumerate_model,
@@ -97,7 +114,7 @@ class LogLikelihood:
     ----------
     per_row : torch.Tensor
         ``(n,)`` float64, each row's log-likelihood (natural log; densities of
-        continuous values in their units), missing values summed out.
+        continuous values in their units), missing values summed and integrated out.
     n_parameters : int
         The network's free parameters (:func:`n_parameters`).
     """
@@ -145,9 +162,11 @@ def log_likelihood(
     net, params
         The declaration and its fitted parameters.
     data
-        Rows as :func:`inference.fit` takes them (a mapping or a ``DataFrame``): every site given (labels for discrete
-        values, ``(n, d)`` numbers for continuous ones, ``param.p`` NaN where the action
-        does not use ``p``); ``cluster.p`` optional.
+        Rows as :func:`inference.fit` takes them (a mapping or a ``DataFrame``): every
+        site given (labels for discrete values, ``(n, d)`` numbers for continuous ones,
+        ``param.p`` NaN where the action does not use ``p``); ``cluster.p`` optional.
+        A missing value is None or NaN (a discrete label) or NaN (a continuous value,
+        whole or in some dimensions): summed or integrated out.
     masks
         ``(n,)`` bool per discrete site, False where the row's value is missing (it is
         summed out; the value there is ignored).
@@ -160,8 +179,9 @@ def log_likelihood(
     Raises
     ------
     ValueError
-        For rows or masks :func:`inference.fit` would refuse, or ``params`` fitted for
-        another network.
+        For rows or masks :func:`inference.fit` would refuse (a missing continuous value
+        that a discrete site reads, or at a site that is not a linear Gaussian: no closed
+        form), or ``params`` fitted for another network.
 
     Examples
     --------
@@ -174,8 +194,8 @@ def log_likelihood(
     -1.3863
     """
     check_params(net, params)
-    enc, gaps = _scored_rows(net, data, masks)
-    return LogLikelihood(_per_row(net, params, enc, gaps), n_parameters(net))
+    enc, gaps, unread = _scored_rows(net, data, masks)
+    return LogLikelihood(_per_row(net, params, enc, gaps, unread), n_parameters(net))
 
 
 def n_parameters(net: EffectNetwork) -> int:
@@ -271,7 +291,10 @@ def cross_validate(
     net
         The declaration.
     data
-        Rows as :func:`inference.fit` takes them (one mapping or ``DataFrame``).
+        Rows as :func:`inference.fit` takes them (one mapping or ``DataFrame``). A
+        missing value marked in the rows stays in its fold: the fit on the other folds
+        runs EM over it, and the held-out fold is scored with it summed or integrated
+        out (not with adaptive clusters).
     folds
         Parts, ``2 <= folds <= n``.
     seed
@@ -299,13 +322,15 @@ def cross_validate(
             f"from it), got "
             f"{type(data).__name__}"
         )
-    n = net.encode(data).n_rows
+    filled, found, holes = split_missing(net, data)  # the rows' own marks of gaps
+    n = net.encode(filled).n_rows
     fold = fold_of_rows(n, folds, seed)
     per_row = torch.empty(n, dtype=DTYPE)
     adaptive = any(p.adaptive for p in net.parameters)
-    if masks and adaptive:
+    if adaptive and (masks or found or holes):
+        what = "masks" if masks else f"data (missing values at {sorted([*found, *holes])})"
         raise ValueError(
-            "masks: inference.fit_em fits adaptive clusters from complete rows only; "
+            f"{what}: inference.fit_em fits adaptive clusters from complete rows only; "
             "score a network with missing values under the grid layout"
         )
     for f in range(folds):
@@ -363,35 +388,64 @@ def _take_masks(masks: Mapping[str, object] | None, index: torch.Tensor):
 
 def _scored_rows(
     net: EffectNetwork, data: Mapping[str, object], masks: Mapping[str, object] | None
-) -> tuple[Evidence, dict[str, torch.Tensor]]:
-    """The rows encoded and checked as :func:`inference.fit` checks them, each
-    parameter's cluster left to the model where the rows do not give it, and the masks
-    that leave gaps."""
+) -> tuple[Evidence, dict[str, torch.Tensor], tuple[str, ...]]:
+    """The rows encoded and checked as :func:`inference.fit` reads them
+    (:func:`~inference.fitting.rows.rows_with_gaps`: NaN where a continuous value is
+    missing), the masks that leave gaps (``masks`` and the rows' own marks), and the
+    parameters' clusters the rows do not give."""
     data = as_data(net, data)
     if not isinstance(data, Mapping):
         raise ValueError(
             f"data must be a mapping or a DataFrame of rows by site, got {type(data).__name__}"
         )
-    if masks is not None and not isinstance(masks, Mapping):
-        raise ValueError(
-            f"masks must map discrete site names to (n,) bool masks, got {type(masks).__name__}"
-        )
-    masks = dict(masks or {})
     given = {m.cluster.site for m in net.mixtures if m.cluster.site in data}
-    unknown_action = None
-    if ACTION in masks:
-        unknown_action = ~mask_values(ACTION, masks[ACTION])
-    enc = training_rows(net, ignore_missing(net, data, masks) if masks else data, unknown_action)
-    gaps = {s: m for s, m in row_masks(net, masks, enc.n_rows).items() if not bool(m.all())}
-    # the model reads a cluster the rows do not give: a value's cell (grid), latent
-    # (adaptive), or under each enumerated action where the action is missing
-    return enc.without(*(m.cluster.site for m in net.mixtures if m.cluster.site not in given)), gaps
+    enc, masks = rows_with_gaps(net, data, masks)
+    gaps = {s: m for s, m in masks.items() if not bool(m.all())}
+    return enc, gaps, tuple(m.cluster.site for m in net.mixtures if m.cluster.site not in given)
 
 
 def _per_row(
-    net: EffectNetwork, params: NetworkParams, enc: Evidence, gaps: dict[str, torch.Tensor]
+    net: EffectNetwork,
+    params: NetworkParams,
+    enc: Evidence,
+    gaps: dict[str, torch.Tensor],
+    unread: tuple[str, ...],
 ) -> torch.Tensor:
-    """``(n,)`` every row's log-evidence, its missing values summed out, in row chunks."""
+    """``(n,)`` every row's log-evidence, its missing values summed and integrated out.
+
+    The rows whose continuous values are all given go through the traced model
+    (:func:`_enumerated_per_row`); the others through the continuous sites' joint
+    Gaussian (:func:`inference.fitting.missing.gaussian_row_log_likelihoods`), which
+    needs every continuous initial and end site to be a linear Gaussian and no discrete
+    site to read a missing value (refused by name otherwise, as :func:`inference.fit`
+    refuses them)."""
+    continuous = continuous_gaps(net, enc)
+    if not continuous:
+        return _enumerated_per_row(net, params, enc, gaps, unread)
+    refuse_open_forms(net, enc, continuous)
+    gapped = torch.zeros(enc.n_rows, dtype=torch.bool)
+    for missing in continuous.values():
+        gapped |= missing.any(-1)
+    out = torch.empty(enc.n_rows, dtype=DTYPE)
+    for rows, score in ((~gapped, _enumerated_per_row), (gapped, _gaussian_per_row)):
+        if bool(rows.any()):
+            part = enc.rows(rows)
+            out[rows] = score(net, params, part, {s: m[rows] for s, m in gaps.items()}, unread)
+    return out
+
+
+def _enumerated_per_row(
+    net: EffectNetwork,
+    params: NetworkParams,
+    enc: Evidence,
+    gaps: dict[str, torch.Tensor],
+    unread: tuple[str, ...] = (),
+) -> torch.Tensor:
+    """``(n,)`` every row's log-evidence, its missing discrete values summed out, in row
+    chunks; the clusters ``unread`` left to the model (a value's cell under the grid
+    layout, latent under the adaptive one, or under each enumerated action where the
+    action is missing)."""
+    enc = enc.without(*unread)
     allowed = actions_allowed(net, enc, gaps)  # (A, n), or None
     # masked sites are enumerated: sized as if absent
     size = enumeration_size(net, enc.without(*gaps), contracted=allowed is None)
@@ -407,6 +461,22 @@ def _per_row(
             )
         out.append(e.log_evidence.reshape(-1).expand(rows.stop - rows.start))
     return torch.cat(out)
+
+
+def _gaussian_per_row(
+    net: EffectNetwork,
+    params: NetworkParams,
+    enc: Evidence,
+    gaps: dict[str, torch.Tensor],
+    unread: tuple[str, ...],
+) -> torch.Tensor:
+    """``(n,)`` the log-likelihood of rows that miss a continuous value: as EM's E-step
+    weighs them. A grid cluster stays its value's cell; an adaptive one the rows do not
+    give is summed out with the missing discrete values."""
+    adaptive = {m.cluster.site for m in net.mixtures if m.parameter.adaptive}
+    return gaussian_row_log_likelihoods(
+        net, params, enc.without(*(s for s in unread if s in adaptive)), gaps
+    )
 
 
 def _reachable(net: EffectNetwork, site: str) -> torch.Tensor | None:

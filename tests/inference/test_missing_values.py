@@ -392,8 +392,10 @@ def test_the_guide_example_runs():
 
     page = (Path(__file__).parents[2] / "docs" / "missing.md").read_text()
     blocks = [b.split("```")[0] for b in page.split("```python\n")[1:]]
-    assert len(blocks) == 2
-    exec(compile("\n".join(blocks), "docs/missing.md", "exec"), {})
+    assert len(blocks) == 3
+    namespace: dict = {}
+    exec(compile("\n".join(blocks), "docs/missing.md", "exec"), namespace)
+    assert namespace["scored"].per_row.shape == (500,)  # the gaps scored row by row
 
 
 def test_no_complete_row_is_needed():

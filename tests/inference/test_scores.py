@@ -16,6 +16,7 @@ from scipy.special import log_softmax, logsumexp
 from scipy.stats import multivariate_normal
 
 from inference import fit, fit_em
+from inference.fitting.missing import missing_log_likelihood
 from inference.fitting.scores import (
     aic,
     bic,
@@ -26,7 +27,7 @@ from inference.fitting.scores import (
     take_rows,
 )
 from inference.queries.simulate import simulate
-from models import Continuous, Discrete, EffectNetwork, Parameter, random_params
+from models import Continuous, Discrete, EffectNetwork, Parameter, random_params, to_frame
 from models.declaration import ACTION
 from models.interop import to_pgmpy
 from tests.helpers import brute_joint, discrete_network
@@ -158,11 +159,14 @@ def log_normal(y, mean, tril):
     return multivariate_normal(mean, cov).logpdf(y)
 
 
-def brute_log_joint(net, params, row):
+def brute_log_joint(net, params, row, skip=()):
     """log p of one full assignment: discrete sites as indices (the clusters included),
-    continuous ones as 1-d arrays; every factor from the fitted numbers."""
+    continuous ones as 1-d arrays; every factor from the fitted numbers (those of the
+    sites ``skip`` left out)."""
     total = 0.0
     for s in net.sites:
+        if s.name in skip:
+            continue
         cpd, p = net.cpd(s.name), params[s.name]
         index = tuple(row[q] for q in cpd.parents)
         if s.role in ("param", "cluster"):
@@ -378,6 +382,12 @@ def test_the_scores_page_runs():
         exec(compile(code, str(page), "exec"), namespace)  # noqa: S102
     assert namespace["ll"].per_row.shape == (500,)
     assert namespace["ll_gaps"].total > namespace["ll"].total  # a value summed out
+    # the gaps marked in the rows: the same labels summed out, and the positions' gaps
+    # integrated out on top
+    ll_rows = namespace["ll_rows"].per_row
+    gapped = torch.isnan(torch.as_tensor(namespace["position"])).any(-1)
+    assert torch.equal(ll_rows[~gapped], namespace["ll_gaps"].per_row[~gapped])
+    assert not torch.allclose(ll_rows[gapped], namespace["ll_gaps"].per_row[gapped])
     assert namespace["cv"].per_fold.shape == (5,)
     assert namespace["choice"].chosen in namespace["choice"].candidates
 
@@ -416,8 +426,6 @@ def test_random_discrete_networks_with_gaps_sum_the_joint(cards, n_actions, seed
 
 
 def test_scores_take_a_frame_as_they_take_its_mapping():
-    from models import to_frame
-
     net = EffectNetwork(
         features=(Discrete("v", (False, True)), Continuous("p", 1)), actions=("a", "b")
     )
@@ -440,3 +448,169 @@ def test_scores_take_a_frame_as_they_take_its_mapping():
     held_frame = cross_validate(net, frame, folds=3).per_row
     held_rows = cross_validate(net, rows, folds=3).per_row
     assert torch.equal(held_frame, held_rows)
+
+
+# ------------------------------------------------------- gaps marked in the rows themselves
+def gapped_network(layout="grid"):
+    """A discrete and a 2-d continuous feature, a force used by ``tap`` on the position;
+    no discrete site reads a continuous one, so every gap has a closed form."""
+    return EffectNetwork(
+        (Discrete("seen", ("no", "yes")), Continuous("pos", 2)),
+        ("tap", "look"),
+        (Parameter("force", (0.0,), (3.0,), (3,), ("tap",), "pos", layout=layout),),
+        parents={"end.seen": ("initial.seen", "action")},
+    )
+
+
+def punched(net, rows, seed, p=0.3):
+    """``rows`` with None at discrete labels (the action included) and NaN at continuous
+    dimensions, each with probability ``p``; the first two rows complete, the third
+    missing every continuous dimension."""
+    rng = np.random.default_rng(seed)
+    out = dict(rows)
+    n = len(rows[ACTION])
+    for site in ("initial.seen", "end.seen", ACTION):
+        labels = np.asarray(rows[site], dtype=object)
+        labels[(rng.random(n) < p) & (np.arange(n) >= 2)] = None
+        out[site] = labels
+    for site in ("initial.pos", "end.pos"):
+        values = np.array(rows[site], dtype=float)
+        values[(rng.random(values.shape) < p) & (np.arange(n) >= 2)[:, None]] = np.nan
+        values[2] = np.nan
+        out[site] = values
+    return out
+
+
+def brute_gapped(net, params, rows):
+    """Per row, by hand: the sum over the completions of its missing labels (a missing
+    action among those that agree with the force being given; an adaptive cluster summed
+    out, a grid one the value's cell) of the discrete factors times scipy's density of the
+    observed continuous dimensions under the joint Gaussian of (initial.pos, end.pos),
+    written here as its two blocks."""
+    mixture = net.mixture("force")
+    adaptive = mixture.parameter.adaptive
+    p0, p1 = params["initial.pos"], params["end.pos"]
+    mean0 = p0.bias.numpy()
+    cov0 = p0.scale_tril.numpy() @ p0.scale_tril.numpy().T
+    states = net.feature("seen").states
+    labels = {"initial.seen": states, "end.seen": states, ACTION: net.actions}
+    out = []
+    for i in range(len(rows[ACTION])):
+        force = np.asarray(rows["param.force"][i], dtype=float).reshape(1)
+        given = not np.isnan(force).any()
+        choices = {}
+        for site, states in labels.items():
+            v = rows[site][i]
+            if v is None:
+                ok = range(len(states))
+                if site == ACTION:
+                    ok = [a for a in ok if bool(mixture.uses[a]) == given]
+                choices[site] = list(ok)
+            else:
+                choices[site] = [states.index(v)]
+        value = np.concatenate([rows["initial.pos"][i], rows["end.pos"][i]])
+        seen = ~np.isnan(value)
+        terms = []
+        for combo in itertools.product(*choices.values()):
+            row = dict(zip(choices, combo, strict=True)) | {"param.force": force}
+            uses = bool(mixture.uses[row[ACTION]])
+            cells = [int(mixture.parameter.cluster_of(torch.as_tensor(force)[None])[0])]
+            if adaptive:
+                cells = list(range(mixture.cluster.size))
+            for cluster in cells if uses else [0]:
+                row["cluster.force"] = cluster
+                log_discrete = brute_log_joint(net, params, row, skip=("initial.pos", "end.pos"))
+                index = (row["initial.seen"], row[ACTION], cluster)
+                w = p1.weight.numpy()[index]
+                w_pos, w_force = w[:, :2], w[:, 2:]
+                shift = p1.bias.numpy()[index] + (w_force @ force if uses else 0.0)
+                noise = p1.scale_tril.numpy()[index]
+                mean = np.concatenate([mean0, w_pos @ mean0 + shift])
+                cov = np.block(
+                    [
+                        [cov0, cov0 @ w_pos.T],
+                        [w_pos @ cov0, w_pos @ cov0 @ w_pos.T + noise @ noise.T],
+                    ]
+                )
+                density = 0.0
+                if seen.any():
+                    marginal = multivariate_normal(mean[seen], cov[np.ix_(seen, seen)])
+                    density = marginal.logpdf(value[seen])
+                terms.append(log_discrete + density)
+        out.append(logsumexp(terms))
+    return np.array(out)
+
+
+@pytest.mark.parametrize("layout", ["grid", "adaptive"])
+def test_rows_with_gaps_score_as_the_joint_gaussian_by_hand(layout):
+    net = gapped_network(layout)
+    params = random_params(net, 3)
+    rows = punched(net, mixed_rows(net, params, 30, 4), seed=5)
+    ll = log_likelihood(net, params, rows)
+    np.testing.assert_allclose(ll.per_row.numpy(), brute_gapped(net, params, rows), rtol=1e-9)
+    # a complete row scores as it does alone, bit for bit
+    complete = torch.tensor([0, 1])
+    alone = log_likelihood(net, params, take_rows(rows, complete)).per_row
+    assert torch.equal(ll.per_row[complete], alone)
+    if layout == "grid":  # the quantity EM raises (which reads a grid cluster only)
+        assert ll.total == pytest.approx(missing_log_likelihood(net, params, rows), rel=1e-12)
+
+
+def test_labels_missing_in_the_rows_score_as_masks_do():
+    net = gapped_network()
+    params = random_params(net, 0)
+    rows = mixed_rows(net, params, 20, 1)
+    masks = {"initial.seen": torch.arange(20) % 3 != 0, ACTION: torch.arange(20) % 4 != 1}
+    marked = dict(rows)
+    for site, mask in masks.items():
+        marked[site] = [v if keep else None for v, keep in zip(rows[site], mask, strict=True)]
+    expected = log_likelihood(net, params, rows, masks=masks).per_row
+    assert torch.equal(log_likelihood(net, params, marked).per_row, expected)
+
+
+def test_gaps_without_a_closed_form_are_refused_by_name():
+    net = mixed_network()  # end.seen is a softmax of initial.pos
+    params = random_params(net, 0)
+    rows = mixed_rows(net, params, 20, 0)
+    pos = np.array(rows["initial.pos"], dtype=float)
+    pos[3] = np.nan
+    with pytest.raises(ValueError, match="'initial.pos': row 3 .*'end.seen' \\(softmax\\)"):
+        log_likelihood(net, params, rows | {"initial.pos": pos})
+    # a tap's force is never missing: NaN means that the action does not use it
+    action = np.array(rows[ACTION], dtype=object)
+    action[0] = "tap"
+    with pytest.raises(ValueError, match="'param.force': row 0 has action 'tap', which uses"):
+        log_likelihood(net, params, rows | {ACTION: action})
+
+
+def test_cross_validation_keeps_each_folds_gaps_and_fits_by_em():
+    net = gapped_network()
+    rows = punched(net, mixed_rows(net, random_params(net, 1), 60, 2), seed=3, p=0.15)
+    cv = cross_validate(net, rows, folds=2, seed=0)
+    assert bool(torch.isfinite(cv.per_row).all())
+    for f in range(2):
+        held = (cv.fold == f).nonzero().squeeze(-1)
+        rest = (cv.fold != f).nonzero().squeeze(-1)
+        result = fit(net, take_rows(rows, rest))
+        assert len(result.log_likelihoods) > 1  # EM ran over the training folds' gaps
+        expected = log_likelihood(net, result.params, take_rows(rows, held)).per_row
+        assert torch.equal(cv.per_row[held], expected)
+    adaptive = gapped_network("adaptive")
+    with pytest.raises(ValueError, match="missing values at \\['action', 'end.pos'"):
+        cross_validate(adaptive, rows, folds=2)
+
+
+def test_a_frame_with_gaps_scores_as_its_rows():
+    net = gapped_network()
+    params = random_params(net, 2)
+    rows = punched(net, mixed_rows(net, params, 40, 3), seed=4)
+    frame = to_frame(net, mixed_rows(net, params, 40, 3))
+    frame["initial.seen"] = pd.Series(rows["initial.seen"], dtype=object)
+    frame["action"] = pd.Series(rows[ACTION], dtype=object)
+    frame["end.seen"] = pd.Series(rows["end.seen"], dtype=object)
+    for site in ("initial.pos", "end.pos"):
+        for d in range(2):
+            frame[f"{site}[{d}]"] = rows[site][:, d]
+    got = log_likelihood(net, params, frame).per_row
+    assert torch.equal(got, log_likelihood(net, params, rows).per_row)
+    assert bool(torch.isfinite(got).all())

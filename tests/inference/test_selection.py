@@ -131,3 +131,19 @@ def test_on_noisy_throws_the_chosen_grid_re_throws_near_the_best():
     result = load_benchmark().compare(29_000, [4, 6, 8, 10, 12, 14, 16, 20], seed=0)
     assert result["heldout_choice"] in result["best_range"]
     assert result["bic_choice"] in result["best_range"]
+
+
+def test_rows_with_gaps_are_scored_as_fit_reads_them():
+    # a fifth of the shifts not measured: every candidate is fitted by EM over them and
+    # scored with them integrated out
+    rows = step_rows(300, seed=5)
+    shift = rows["end.shift"].copy()
+    shift[np.random.default_rng(5).random(300) < 0.2] = np.nan
+    rows = rows | {"end.shift": shift}
+    choice = select_clusters(step_network(), rows, [2, 4, 8], score="bic")
+    assert choice.chosen.bins == (4,)
+    for candidate in choice.candidates:
+        net = step_network(candidate.bins)
+        ll = log_likelihood(net, fit(net, rows).params, rows)
+        assert np.isfinite(ll.total) and ll.n_rows == 300
+        assert candidate.bic == pytest.approx(ll.bic)
