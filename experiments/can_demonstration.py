@@ -63,6 +63,8 @@ __all__ = [
 ANGLE = 0  # the can network is fitted on, and the demonstrations thrown at, 0°
 # Seed purposes: SeedSequence([seed, purpose]) for each kind of random draw.
 DEMO, HIDE, REPLAY = 1, 2, 3
+#: Starts drawn per demonstration asked for before :func:`play_demonstrations` gives up.
+MAX_STARTS = 20
 
 
 @dataclass(frozen=True)
@@ -120,14 +122,17 @@ def play_demonstrations(
     fitted to throw from) with a can standing; each throw's field is drawn uniformly
     among the throwable ones and thrown with an aim jitter of ``jitter`` m; the module's
     notes say which throws are kept and when a demonstration ends. A start from which
-    no drawn throw is kept is drawn again.
+    no drawn throw is kept is drawn again, up to ``MAX_STARTS * n`` starts in all
+    (``ValueError`` beyond).
     """
     rng = np.random.default_rng(np.random.SeedSequence([seed, DEMO]))
     throwable = np.flatnonzero(model.throwable.numpy())
     known = set(model.states)
     starts = sorted(c for c in trained if c != 0)
     demos = []
-    while len(demos) < n:
+    for _ in range(MAX_STARTS * n):
+        if len(demos) == n:
+            break
         configs, fields = [int(rng.choice(starts))], []
         while len(fields) < steps and configs[-1] != 0:
             start, fallback, kept = configs[-1], None, None
@@ -149,6 +154,12 @@ def play_demonstrations(
                 break
         if fields:
             demos.append((configs, fields))
+    if len(demos) < n:
+        raise ValueError(
+            f"only {len(demos)} of {n} demonstrations after {MAX_STARTS * n} starts: no "
+            f"throw of {tries} tries changed the configuration into one the network knows; "
+            "raise tries"
+        )
     return demos
 
 

@@ -101,3 +101,14 @@ def test_config_refuses_bad_settings():
         cd.CanDemonstrationConfig(hidden=1.5)
     with pytest.raises(ConfigError, match="^scale: "):
         cd.CanDemonstrationConfig(scale="huge")
+
+
+def test_a_world_where_no_throw_is_kept_is_refused():
+    # a network that knows only the three-can row: no throw that changes it is kept
+    throwable = [f for f in range(geometry.N_FIELDS) if field_throws.is_throwable(f, 0)]
+    net = can_network((7, 1023))  # the full pyramid: never the end of a throw from 7
+    rows = np.full(len(throwable), 7)
+    params = fit(net, can_rows(net, rows, np.array(throwable), rows)).params
+    model = CanModel(0, net, params, compile_queries(net, params), hand_model().throwable)
+    with pytest.raises(ValueError, match="^only 0 of 2 demonstrations after 40 starts"):
+        cd.play_demonstrations(model, {7}, 2, 2, 1, 0.003, seed=0)
