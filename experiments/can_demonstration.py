@@ -213,7 +213,9 @@ class CanDemonstrationResult(Result):
     ``throws``: over every thrown ball, the share whose field the most probable sequence
     names (``same_field``), whose named field thrown again repeats the demonstrated end
     configuration (``same_outcome``) and the same for the thrown field itself
-    (``reference_same_outcome``), the share flagged implausible. ``sequences``: the
+    (``reference_same_outcome``), the share flagged implausible; the throws from a
+    hidden configuration (``n_hidden_start``) and their ``same_outcome`` (None without
+    any). ``sequences``: the
     shares of demonstrations whose whole field sequence is named, and whose every
     throw's outcome is repeated; the demonstrations' lengths (``lengths``: throws ->
     demonstrations). ``shown``: one demonstration (the first of the most throws) with
@@ -235,7 +237,9 @@ class CanDemonstrationResult(Result):
 
     def to_markdown(self) -> str:
         t, q, s = self.throws, self.sequences, self.shown
-        lengths = ", ".join(f"{k} throws: {v}" for k, v in self.lengths.items())
+        lengths = ", ".join(
+            f"{v} of {k} throw{'' if k == '1' else 's'}" for k, v in self.lengths.items()
+        )
         steps = [
             f"| {i + 1} | {a} -> {b} | {'yes' if seen else 'no'} | {f} | {r} | {max(p):.3f} |"
             for i, (a, b, seen, f, r, p) in enumerate(
@@ -264,6 +268,13 @@ class CanDemonstrationResult(Result):
                 f"repeats the demonstrated end configuration at {t['same_outcome']:.1%} "
                 f"(the thrown field thrown again: {t['reference_same_outcome']:.1%}); "
                 f"{t['implausible']:.1%} flagged implausible",
+                f"- throws from a hidden configuration (its count seen): "
+                f"{t['n_hidden_start']}, the read field repeats the outcome at "
+                + (
+                    "-"
+                    if t["same_outcome_hidden_start"] is None
+                    else f"{t['same_outcome_hidden_start']:.1%}"
+                ),
                 f"- demonstrations: the whole field sequence named at "
                 f"{q['same_fields']:.1%}, every throw's outcome repeated at "
                 f"{q['same_outcomes']:.1%} (thrown fields again: "
@@ -306,7 +317,7 @@ def run_can_demonstration(config: CanDemonstrationConfig) -> CanDemonstrationRes
         model, trained, config.n_demos, config.steps, config.tries, jitter, config.seed
     )
     hide = np.random.default_rng(np.random.SeedSequence([config.seed, HIDE]))
-    starts, ends, thrown, read = [], [], [], []
+    starts, ends, thrown, read, start_seen = [], [], [], [], []
     implausible, n_throws = [], []
     by_length: dict[int, list[int]] = {}
     for i, (_, fields) in enumerate(demos):
@@ -320,12 +331,15 @@ def run_can_demonstration(config: CanDemonstrationConfig) -> CanDemonstrationRes
         for j, i in enumerate(rows):
             seen_of[i], read_of[i], probs_of[i] = seen[j], best[j], probs[j]
         starts.append(configs[:, :-1].ravel())
+        start_seen.append(seen[:, :-1].ravel())
         ends.append(configs[:, 1:].ravel())
         thrown.append(np.array([demos[i][1] for i in rows]).ravel())
         read.append(best.ravel())
         implausible.append(flags.ravel())
         n_throws += [length] * len(rows)
-    starts, ends, thrown, read = map(np.concatenate, (starts, ends, thrown, read))
+    starts, ends, thrown, read, start_seen = map(
+        np.concatenate, (starts, ends, thrown, read, start_seen)
+    )
     seeds = np.random.SeedSequence([config.seed, REPLAY]).generate_state(2 * len(starts))
     again = throw_again(starts, read, jitter, seeds[: len(starts)]) == ends
     reference = throw_again(starts, thrown, jitter, seeds[len(starts) :]) == ends
@@ -349,6 +363,10 @@ def run_can_demonstration(config: CanDemonstrationConfig) -> CanDemonstrationRes
             "same_outcome": float(again.mean()),
             "reference_same_outcome": float(reference.mean()),
             "implausible": float(np.concatenate(implausible).mean()),
+            "n_hidden_start": int((~start_seen).sum()),
+            "same_outcome_hidden_start": (
+                float(again[~start_seen].mean()) if (~start_seen).any() else None
+            ),
         },
         sequences={
             "same_fields": every(read == thrown),
