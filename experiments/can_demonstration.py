@@ -34,6 +34,9 @@ demonstrated end configuration (``same_outcome``, as the emulation row of
 and the reference, the thrown field thrown again with a fresh jitter (how often the
 world repeats itself). Per demonstration: the whole sequence named, every throw's
 outcome repeated.
+
+The can data set is simulated where ``executor`` says; the demonstrations and the
+throws again (some hundreds of throws) run in this process.
 """
 
 from __future__ import annotations
