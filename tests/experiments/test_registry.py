@@ -87,7 +87,9 @@ def test_generated_data_lives_in_the_cache_folder_whatever_the_current_directory
 def test_the_can_data_settings_are_written_once():
     """Every experiment on the can data set takes them from one base, with its checks."""
     can = [e for e in experiments().values() if "scale" in e.fields]
-    assert {e.name for e in can} == {"can_tossing", "combined", "physics_bounds", "active"}
+    assert {e.name for e in can} == {
+        *("can_tossing", "combined", "physics_bounds", "active", "can_demonstration")
+    }
     simulating = [e for e in experiments().values() if "executor" in e.fields]
     for exp in simulating:
         assert issubclass(exp.config, SimulationSettings), exp.name
