@@ -51,6 +51,7 @@ from models.throw_network import TARGET
 from sim2d import geometry, materials
 from sim2d.combined import CAN_BAND, TABLE_TOP_Z, first_contact, play_throw, settle
 from sim2d.configurations import stable_configurations
+from sim2d.field_throws import aim_offset, launch_state
 from sim2d.throw import TARGET_AREA, ReleaseNoise, throw
 
 __all__ = [
@@ -62,6 +63,7 @@ __all__ = [
     "Robot",
     "World",
     "build_world",
+    "face_height_spread",
     "field_link",
     "hit_gaussians",
     "run_combined",
@@ -72,6 +74,7 @@ __all__ = [
 PROPOSALS = ("can", "combined")  # the paper planner's actions, see CombinedConfig
 MAX_HORIZON = 50  # throws
 MAX_JITTER = 0.05  # m: beyond a field's height, the aim says nothing
+FIELD_SPREADS = ("measured", "none")  # how sharp the fields' boundaries are, see CombinedConfig
 
 
 @dataclass(frozen=True)
@@ -100,6 +103,12 @@ class CombinedConfig(CanDataSettings):
     jitter : float or None
         Aim jitter added to every throw's entry height, m, in ``[0, MAX_JITTER]``; None:
         the data set's.
+    field_spread : str
+        How a predicted hit is read as a field (:func:`hit_gaussians`): ``"measured"``,
+        with the fields' boundaries spread as the can data set's throws at the chosen
+        angle were spread about their fields' heights (:func:`face_height_spread`, read
+        off the training data); ``"none"``, sharp at the midpoints between the fields'
+        heights.
     seed : int
         Seeds the throw network's data and every play (>= 0).
     progress : bool
@@ -114,6 +123,7 @@ class CombinedConfig(CanDataSettings):
     proposals: str = "can"
     table_z: float = TABLE_TOP_Z
     jitter: float | None = None
+    field_spread: str = "measured"
     seed: int = 0
     progress: bool = True
 
@@ -128,6 +138,7 @@ class CombinedConfig(CanDataSettings):
         check_float("table_z", self.table_z, 0.0, TARGET_AREA.z_max, unit="m")
         if self.jitter is not None:
             check_float("jitter", self.jitter, 0.0, MAX_JITTER, unit="m")
+        check_choice("field_spread", self.field_spread, FIELD_SPREADS)
         check_int("seed", self.seed, 0)
 
 
@@ -172,6 +183,7 @@ class World:
     stable: frozenset[int]
     table_z: float = TABLE_TOP_Z
     jitter: float = 0.0  # m, the can data set's aim jitter added to every throw's entry height
+    field_spread: float = 0.0  # m, sd of the fields' boundaries in the hit's height
     _heights: dict = field(default_factory=dict)
 
     def heights(self, state: int) -> np.ndarray:
@@ -241,17 +253,66 @@ def build_world(config: CombinedConfig, data) -> tuple[World, dict]:
         "chosen_angle": geometry.ANGLE_NAMES[angle],
     }
     jitter = data.metadata["jitter"] if config.jitter is None else config.jitter
-    world = World(can, robot, frozenset(stable_configurations()), config.table_z, jitter)
-    return world, why | {"table_z": config.table_z, "jitter": jitter}
+    spread = face_height_spread(data, angle) if config.field_spread == "measured" else 0.0
+    stable = frozenset(stable_configurations())
+    world = World(can, robot, stable, config.table_z, jitter, field_spread=spread)
+    return world, why | {"table_z": config.table_z, "jitter": jitter, "field_spread": spread}
 
 
-def hit_gaussians(robot: Robot, aims: np.ndarray, table_z: float) -> GaussianMixture:
+def face_height_spread(data, angle: int) -> float:
+    """How far from its field's height the can data set's throws at ``angle`` crossed the
+    near face: the root mean square, over the throwable throws, of the crossing height's
+    offset from the jitter-free throw's (m).
+
+    A throw "at field f" in the data set passes ``field centre + offset``, the offset its
+    aim jitter (:func:`sim2d.field_throws.aim_offset`, read back from the throw's recorded
+    seed and the data set's ``jitter``), with the field's velocity there: the jitter-free
+    parabola moved by ``(dx, dz)``, which crosses the near face ``dz - dx * slope`` higher
+    to first order. Only the training data enters: no outcome, no play.
+    """
+    sel = (data.angle == angle) & data.throwable
+    if not sel.any():
+        raise ValueError(
+            f"the data set has no throwable throws at angle {angle} ({geometry.ANGLE_NAMES[angle]})"
+        )
+    jitter = float(data.metadata["jitter"])
+    offsets = np.array([aim_offset(jitter, int(seed)) for seed in data.seed[sel]])
+    fields = data.field[sel].astype(np.int64)
+    table = np.array([launch_state(f, angle) for f in range(geometry.N_FIELDS)])
+    (entry_x, entry_z), (vx, vz) = table[fields, 0].T, table[fields, 1].T
+
+    def crossing(x):  # the jitter-free throw's height at x
+        t = (x - entry_x) / vx
+        return entry_z + vz * t - 0.5 * materials.GRAVITY * t * t
+
+    shift = (
+        crossing(geometry.PYRAMID_X - offsets[:, 0]) + offsets[:, 1] - crossing(geometry.PYRAMID_X)
+    )
+    return float(np.sqrt(np.mean(shift * shift)))
+
+
+def hit_gaussians(
+    robot: Robot, aims: np.ndarray, table_z: float, field_spread: float = 0.0
+) -> GaussianMixture:
     """The throw network's predicted hit for each aim as one Gaussian a row, in the can
     frame (lateral, height above the table), its two coordinates taken as independent:
-    the can band is read across and the fields' slices up, one coordinate each."""
+    the can band is read across and the fields' slices up, one coordinate each.
+
+    ``field_spread`` (m) is added in quadrature to the height's sd: the fields' boundaries
+    are not sharp. The can network learned what field f does from throws that crossed the
+    near face about ``field_spread`` above or below f's height (their aim jitter,
+    :func:`face_height_spread`), so where a hit falls among the fields' heights is known
+    no better than that. With the boundaries moved together by a normal offset of that sd
+    (or, equally, the hit by minus it), the chance that the hit lies in a field's slice is
+    the slice's chance under the hit's height Gaussian widened by it. Without it, a
+    deterministic robot's predicted hit is a near step function of the aim: each aim reads
+    one field's few throws alone, and the planner picks the field whose few throws were
+    luckiest.
+    """
     mean, cov = robot.hit_distribution(aims)
     mean = torch.as_tensor(mean) - torch.tensor([0.0, table_z], dtype=torch.float64)
-    var = torch.diagonal(torch.as_tensor(cov), dim1=-2, dim2=-1)
+    var = torch.diagonal(torch.as_tensor(cov), dim1=-2, dim2=-1).clone()
+    var[:, 1] += field_spread**2
     return GaussianMixture(
         torch.ones(len(mean), 1, dtype=torch.float64), mean[:, None], torch.diag_embed(var)[:, None]
     )
@@ -295,7 +356,8 @@ def transition_model(world: World, states: list[int]) -> torch.Tensor:
             continue
         link, order = field_link(world.heights(s), fields)
         desired = np.stack([np.zeros(len(order)), world.heights(s)[order] + world.table_z], -1)
-        hits = hit_gaussians(world.robot, world.robot.aim(desired), world.table_z)
+        aims = world.robot.aim(desired)
+        hits = hit_gaussians(world.robot, aims, world.table_z, world.field_spread)
         links[index[s]] = link_probabilities(link, hits).padded(order, geometry.N_FIELDS)
         probs = world.can.end_config_probs(s, order).double()  # (hit field, network state)
         for j, target in enumerate(settled_index):
