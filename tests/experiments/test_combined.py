@@ -45,7 +45,7 @@ def test_tiny_run_end_to_end(tiny_data_dir, tmp_path):
     assert result.angle_choice["chosen_angle"] in geometry.ANGLE_NAMES
     angle = geometry.ANGLE_NAMES.index(result.angle_choice["chosen_angle"])
     data = can_dataset(tiny_data_dir, "tiny", progress=False)
-    assert result.angle_choice["field_spread"] == face_height_spread(data, angle) > 0
+    assert result.angle_choice["boundary_sd"] == face_height_spread(data, angle) > 0
     result.save(tmp_path)
     assert (tmp_path / "combined.md").read_text().count("success rate") == 3
     assert CombinedResult.load(tmp_path / "combined.json").to_json() == result.to_json()
@@ -63,7 +63,7 @@ def test_tiny_run_end_to_end(tiny_data_dir, tmp_path):
         ("jitter", -0.001),
         ("jitter", 1.0),
         ("proposals", "all"),
-        ("field_spread", "wide"),
+        ("boundary_spread", "wide"),
         ("seed", -3),
     ],
 )
@@ -124,7 +124,9 @@ def test_field_spread_integrates_over_the_fields_boundaries(spread):
     table_z = 0.75
     mean = np.array([[0.001, table_z + 0.104], [-0.003, table_z + 0.112], [0.0, table_z + 0.3]])
     cov = np.array([np.diag([1e-6, 4e-6]), np.diag([4e-6, 1e-8]), np.diag([1e-6, 1e-6])])
-    got = link_probabilities(link, hit_gaussians(FixedHits(mean, cov), None, table_z, spread))
+    got = link_probabilities(
+        link, hit_gaussians(FixedHits(mean, cov), None, table_z, boundary_sd=spread)
+    )
     h = heights[order]
     edges = np.concatenate([[-np.inf], (h[1:] + h[:-1]) / 2, [np.inf]])
     offsets = np.linspace(-9, 9, 3601) * spread
