@@ -16,8 +16,9 @@ Goals are the stable sub-configurations of the full pyramid. For each table heig
    action, configuration after) is fitted by maximum likelihood on the robot's
    experience; the throw network on ``n_throws`` random throws. Aiming at a height means:
    the throw network's inverse gives the aim, its forward model the predicted hit (a
-   Gaussian), which spreads the aim over the heights the can network knows; a hit beside
-   the cans or outside the face changes nothing. That chain gives the learned transition
+   Gaussian), which spreads the aim over the heights the can network knows, read among
+   bins whose boundaries are as uncertain as the training throws were spread (their
+   jitter; ``boundary_spread``); a hit beside the cans or outside the face changes nothing. That chain gives the learned transition
    ``P(next | state, aimed height)``.
 4. **Planners, played in the world.** The exact planner maximises the learned probability
    of the goal within ``horizon`` throws and is played ``episodes`` times (fresh seeds);
@@ -111,10 +112,10 @@ class AllGoalsConfig(SimulationSettings):
         The can world's aim jitter added to every throw's entry height, m.
     boundary_spread : str
         How a predicted hit is read as an aim height's bin
-        (:func:`experiments.combined.hit_gaussians`): ``"jitter"``, among bins whose
-        boundaries are as uncertain as the robot's training throws were spread about
-        their aim height (each crossed the face ``jitter`` above or below it); ``"none"``,
-        sharp half a step either side of each height.
+        (:func:`experiments.combined.hit_gaussians`): ``"jitter"``, among bins with
+        boundaries as uncertain as the robot's training throws were spread about their
+        aim height (sd ``jitter``: the world moves each throw's entry height by its aim
+        jitter); ``"none"``, sharp half a step either side of each height.
     noise : bool
         Throw with release noise.
     seed : int

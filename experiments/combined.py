@@ -302,7 +302,7 @@ def hit_gaussians(
     ``boundary_sd`` (m) widens the height's sd in quadrature: the boundaries between the
     can network's actions, read as moved together by a normal offset of that sd (equally:
     the hit's height moved by minus it). Why they are uncertain: the can network learned
-    what an action does from a few throws (three per state and field in the can data set)
+    what an action does from a few throws (three per state and field at the full scale)
     that crossed the near face about ``boundary_sd`` above or below the action's height
     (their aim jitter; :func:`face_height_spread` measures it on the training throws). An
     action's learned outcome is the physics averaged over that spread, so it cannot change
