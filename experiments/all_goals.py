@@ -16,8 +16,9 @@ Goals are the stable sub-configurations of the full pyramid. For each table heig
    action, configuration after) is fitted by maximum likelihood on the robot's
    experience; the throw network on ``n_throws`` random throws. Aiming at a height means:
    the throw network's inverse gives the aim, its forward model the predicted hit (a
-   Gaussian), which spreads the aim over the heights the can network knows; a hit beside
-   the cans or outside the face changes nothing. That chain gives the learned transition
+   Gaussian), which spreads the aim over the heights the can network knows, read among
+   bins whose boundaries are as uncertain as the training throws were spread (their
+   jitter; ``boundary_spread``); a hit beside the cans or outside the face changes nothing. That chain gives the learned transition
    ``P(next | state, aimed height)``.
 4. **Planners, played in the world.** The exact planner maximises the learned probability
    of the goal within ``horizon`` throws and is played ``episodes`` times (fresh seeds);
@@ -83,6 +84,7 @@ GOAL_RATIO = 0.90
 MAX_STEP = 0.1  # m between aim heights: coarser says little about a 6.4 cm can
 MAX_HORIZON = 20  # throws
 MAX_JITTER = 0.05  # m
+BOUNDARY_SPREADS = ("jitter", "none")  # how sharp the aim heights' bins are, see AllGoalsConfig
 
 
 @dataclass(frozen=True)
@@ -108,6 +110,12 @@ class AllGoalsConfig(SimulationSettings):
         The throw network's training throws and clusters per axis.
     jitter : float
         The can world's aim jitter added to every throw's entry height, m.
+    boundary_spread : str
+        How a predicted hit is read as an aim height's bin
+        (:func:`experiments.combined.hit_gaussians`): ``"jitter"``, among bins with
+        boundaries as uncertain as the robot's training throws were spread about their
+        aim height (sd ``jitter``: the world moves each throw's entry height by its aim
+        jitter); ``"none"``, sharp half a step either side of each height.
     noise : bool
         Throw with release noise.
     seed : int
@@ -125,6 +133,7 @@ class AllGoalsConfig(SimulationSettings):
     n_throws: int = 29_000
     bins: int = 16
     jitter: float = 0.003
+    boundary_spread: str = "jitter"
     noise: bool = False
     seed: int = 0
     progress: bool = True
@@ -154,6 +163,7 @@ class AllGoalsConfig(SimulationSettings):
         check_int("n_throws", self.n_throws, 10)
         check_int("bins", self.bins, 1, MAX_BINS)
         check_float("jitter", self.jitter, 0.0, MAX_JITTER, unit="m")
+        check_choice("boundary_spread", self.boundary_spread, BOUNDARY_SPREADS)
         check_choice("noise", self.noise, (False, True))
         check_int("seed", self.seed, 0)
 
@@ -284,14 +294,19 @@ def can_model(states: list[int], heights: np.ndarray, outcomes: dict[int, np.nda
 
 
 def learned_transition(
-    can_probs: torch.Tensor, robot: Robot, heights: np.ndarray, table_z: float
+    can_probs: torch.Tensor,
+    robot: Robot,
+    heights: np.ndarray,
+    table_z: float,
+    boundary_sd: float = 0.0,
 ) -> tuple[torch.Tensor, np.ndarray]:
     """``T[s, a, s']`` of aiming at ``heights[a]``, and the robot's aims ``(A, 2)``.
 
     The networks chained (:func:`inference.queries.chaining.chain`): the throw network's
-    predicted hit (:func:`experiments.combined.hit_gaussians`) read as the height bin it
-    falls in (each height owns the half step either side of it) within the can band;
-    a hit beside the band or off the face changes nothing.
+    predicted hit (:func:`experiments.combined.hit_gaussians`, its height widened by the
+    bins' boundary sd ``boundary_sd``, m) read as the height bin it falls in (each height
+    owns the half step either side of it) within the can band; a hit beside the band or
+    off the face changes nothing.
     """
     desired = np.stack([np.zeros_like(heights), heights + table_z], -1)
     aims = robot.aim(desired)
@@ -304,7 +319,7 @@ def learned_transition(
         labels=range(len(heights)),
         actions=range(len(heights)),
     )
-    hits = link_probabilities(link, hit_gaussians(robot, aims, table_z))
+    hits = link_probabilities(link, hit_gaussians(robot, aims, table_z, boundary_sd))
     return chain(hits, can_probs), aims
 
 
@@ -357,7 +372,9 @@ def run_table(config: AllGoalsConfig, table_z: float, robot: Robot, executor) ->
         empirical_transition(states, bound, slice(None, half)),
         empirical_transition(states, bound, slice(half, None)),
     )
-    t_learned, aims = learned_transition(can_model(states, heights, train), robot, heights, table_z)
+    spread = config.jitter if config.boundary_spread == "jitter" else 0.0
+    can = can_model(states, heights, train)
+    t_learned, aims = learned_transition(can, robot, heights, table_z, spread)
     most_probable = t_learned.argmax(-1).numpy()
     index = {s: i for i, s in enumerate(states)}
     h = config.horizon

@@ -18,8 +18,9 @@ Planners (:mod:`inference.queries.planning`): the paper's round planner, whose a
 are the fields whose most probable end configuration is the (intermediate) goal; and an
 exact planner that maximises the probability of reaching the goal within ``horizon``
 throws under the learned models, with the throw's uncertainty (the throw network's
-predicted hit Gaussian) included; its success rate is measured by playing its policy
-``episodes`` times.
+predicted hit Gaussian) included and the hit read among fields whose boundaries are as
+uncertain as the can data's throws were spread about them (:func:`hit_gaussians`); its
+success rate is measured by playing its policy ``episodes`` times.
 """
 
 from __future__ import annotations
@@ -51,6 +52,7 @@ from models.throw_network import TARGET
 from sim2d import geometry, materials
 from sim2d.combined import CAN_BAND, TABLE_TOP_Z, first_contact, play_throw, settle
 from sim2d.configurations import stable_configurations
+from sim2d.field_throws import aim_offset, launch_state
 from sim2d.throw import TARGET_AREA, ReleaseNoise, throw
 
 __all__ = [
@@ -62,6 +64,7 @@ __all__ = [
     "Robot",
     "World",
     "build_world",
+    "face_height_spread",
     "field_link",
     "hit_gaussians",
     "run_combined",
@@ -72,6 +75,7 @@ __all__ = [
 PROPOSALS = ("can", "combined")  # the paper planner's actions, see CombinedConfig
 MAX_HORIZON = 50  # throws
 MAX_JITTER = 0.05  # m: beyond a field's height, the aim says nothing
+BOUNDARY_SPREADS = ("measured", "none")  # how sharp the fields' boundaries are, see CombinedConfig
 
 
 @dataclass(frozen=True)
@@ -100,6 +104,12 @@ class CombinedConfig(CanDataSettings):
     jitter : float or None
         Aim jitter added to every throw's entry height, m, in ``[0, MAX_JITTER]``; None:
         the data set's.
+    boundary_spread : str
+        How a predicted hit is read as a field (:func:`hit_gaussians`): ``"measured"``,
+        among fields whose boundaries are as uncertain as the can data set's throws at
+        the chosen angle were spread about their fields' heights
+        (:func:`face_height_spread`, measured on the training throws); ``"none"``, sharp
+        at the midpoints between the fields' heights.
     seed : int
         Seeds the throw network's data and every play (>= 0).
     progress : bool
@@ -114,6 +124,7 @@ class CombinedConfig(CanDataSettings):
     proposals: str = "can"
     table_z: float = TABLE_TOP_Z
     jitter: float | None = None
+    boundary_spread: str = "measured"
     seed: int = 0
     progress: bool = True
 
@@ -128,6 +139,7 @@ class CombinedConfig(CanDataSettings):
         check_float("table_z", self.table_z, 0.0, TARGET_AREA.z_max, unit="m")
         if self.jitter is not None:
             check_float("jitter", self.jitter, 0.0, MAX_JITTER, unit="m")
+        check_choice("boundary_spread", self.boundary_spread, BOUNDARY_SPREADS)
         check_int("seed", self.seed, 0)
 
 
@@ -172,6 +184,7 @@ class World:
     stable: frozenset[int]
     table_z: float = TABLE_TOP_Z
     jitter: float = 0.0  # m, the can data set's aim jitter added to every throw's entry height
+    boundary_sd: float = 0.0  # m, sd of the fields' boundaries in the hit's height
     _heights: dict = field(default_factory=dict)
 
     def heights(self, state: int) -> np.ndarray:
@@ -241,17 +254,71 @@ def build_world(config: CombinedConfig, data) -> tuple[World, dict]:
         "chosen_angle": geometry.ANGLE_NAMES[angle],
     }
     jitter = data.metadata["jitter"] if config.jitter is None else config.jitter
-    world = World(can, robot, frozenset(stable_configurations()), config.table_z, jitter)
-    return world, why | {"table_z": config.table_z, "jitter": jitter}
+    spread = face_height_spread(data, angle) if config.boundary_spread == "measured" else 0.0
+    stable = frozenset(stable_configurations())
+    world = World(can, robot, stable, config.table_z, jitter, boundary_sd=spread)
+    return world, why | {"table_z": config.table_z, "jitter": jitter, "boundary_sd": spread}
 
 
-def hit_gaussians(robot: Robot, aims: np.ndarray, table_z: float) -> GaussianMixture:
+def face_height_spread(data, angle: int) -> float:
+    """How far from its field's height the can data set's throws at ``angle`` crossed the
+    near face: the root mean square, over the throwable throws, of the crossing height's
+    offset from the jitter-free throw's (m).
+
+    A throw "at field f" in the data set passes ``field centre + offset``, the offset its
+    aim jitter (:func:`sim2d.field_throws.aim_offset`, read back from the throw's recorded
+    seed and the data set's ``jitter``), with the field's velocity there: the jitter-free
+    parabola moved by ``(dx, dz)``, which crosses the near face ``dz - dx * slope`` higher
+    to first order. Only the training data enters: no outcome, no play.
+    """
+    sel = (data.angle == angle) & data.throwable
+    if not sel.any():
+        raise ValueError(
+            f"the data set has no throwable throws at angle {angle} ({geometry.ANGLE_NAMES[angle]})"
+        )
+    jitter = float(data.metadata["jitter"])
+    offsets = np.array([aim_offset(jitter, int(seed)) for seed in data.seed[sel]])
+    fields = data.field[sel].astype(np.int64)
+    table = np.array([launch_state(f, angle) for f in range(geometry.N_FIELDS)])
+    (entry_x, entry_z), (vx, vz) = table[fields, 0].T, table[fields, 1].T
+
+    def crossing(x):  # the jitter-free throw's height at x
+        t = (x - entry_x) / vx
+        return entry_z + vz * t - 0.5 * materials.GRAVITY * t * t
+
+    shift = (
+        crossing(geometry.PYRAMID_X - offsets[:, 0]) + offsets[:, 1] - crossing(geometry.PYRAMID_X)
+    )
+    return float(np.sqrt(np.mean(shift * shift)))
+
+
+def hit_gaussians(
+    robot: Robot, aims: np.ndarray, table_z: float, boundary_sd: float = 0.0
+) -> GaussianMixture:
     """The throw network's predicted hit for each aim as one Gaussian a row, in the can
     frame (lateral, height above the table), its two coordinates taken as independent:
-    the can band is read across and the fields' slices up, one coordinate each."""
+    the can band is read across and the fields' slices up, one coordinate each.
+
+    ``boundary_sd`` (m) widens the height's sd in quadrature: the boundaries between the
+    can network's actions, read as moved together by a normal offset of that sd (equally:
+    the hit's height moved by minus it). Why they are uncertain: the can network learned
+    what an action does from a few throws (three per state and field at the full scale)
+    that crossed the near face about ``boundary_sd`` above or below the action's height
+    (their aim jitter; :func:`face_height_spread` measures it on the training throws). An
+    action's learned outcome is the physics averaged over that spread, so it cannot change
+    faster than it with height: actions closer than it are near-replicates of one another,
+    and a hit is read among all of them, not as the one nearest. Without it a robot that
+    throws almost deterministically (the throw network's predicted sd is about 1 mm) reads
+    each aim as one field's few throws alone, and the planner, maximising over some 180
+    such estimates, picks the field whose few throws were luckiest (the maximum of many
+    noisy estimates is biased upward). The price: the spread is counted twice (in the
+    training throws and here), so the models' predicted success is blurred, too low where
+    the heights that succeed form a narrow band.
+    """
     mean, cov = robot.hit_distribution(aims)
     mean = torch.as_tensor(mean) - torch.tensor([0.0, table_z], dtype=torch.float64)
-    var = torch.diagonal(torch.as_tensor(cov), dim1=-2, dim2=-1)
+    var = torch.diagonal(torch.as_tensor(cov), dim1=-2, dim2=-1).clone()
+    var[:, 1] += boundary_sd**2
     return GaussianMixture(
         torch.ones(len(mean), 1, dtype=torch.float64), mean[:, None], torch.diag_embed(var)[:, None]
     )
@@ -278,8 +345,9 @@ def transition_model(world: World, states: list[int]) -> torch.Tensor:
     """``T[s, f, s']``: the learned chance that aiming at field ``f`` from ``s`` gives ``s'``.
 
     The two networks chained (:func:`inference.queries.chaining.chain`): the throw
-    network's predicted hit (:func:`hit_gaussians`) read through each state's
-    :func:`field_link` (the fields' matched near-face heights, :meth:`World.heights`),
+    network's predicted hit (:func:`hit_gaussians`, widened by the fields' boundary
+    spread ``World.boundary_sd``) read through each state's :func:`field_link` (the
+    fields' matched near-face heights, :meth:`World.heights`),
     and the can network's end configurations settled by the recorded rule; a hit beside
     the cans leaves the state unchanged. States the can network never saw as a start get
     no actions (their rows stay zero).
@@ -295,7 +363,8 @@ def transition_model(world: World, states: list[int]) -> torch.Tensor:
             continue
         link, order = field_link(world.heights(s), fields)
         desired = np.stack([np.zeros(len(order)), world.heights(s)[order] + world.table_z], -1)
-        hits = hit_gaussians(world.robot, world.robot.aim(desired), world.table_z)
+        aims = world.robot.aim(desired)
+        hits = hit_gaussians(world.robot, aims, world.table_z, world.boundary_sd)
         links[index[s]] = link_probabilities(link, hits).padded(order, geometry.N_FIELDS)
         probs = world.can.end_config_probs(s, order).double()  # (hit field, network state)
         for j, target in enumerate(settled_index):
@@ -393,7 +462,8 @@ class CombinedResult(Result):
     and ``rounds`` (the paper's table), the paper's ``paper_success_rate``, and the exact
     planner's measured ``success_rate_exact_planner``, its ``exact_planner_predicted``
     success under the models and its first field. ``angle_choice``: the robot's impact
-    direction, the angle the can network was trained on, the table height and jitter.
+    direction, the angle the can network was trained on, the table height, the jitter and
+    the fields' boundary sd (``boundary_sd``, m).
     """
 
     experiment_name: ClassVar[str] = "combined"
@@ -420,7 +490,8 @@ class CombinedResult(Result):
         head = (
             f"Robot impact direction {why['robot_impact_deg_mean']:.1f} deg; can network trained "
             f"on {why['chosen_angle']} ({why['angle_deg'][why['chosen_angle']]:.1f} deg), the "
-            f"closest; table top {why['table_z']} m, aim jitter {1000 * why['jitter']:.1f} mm."
+            f"closest; table top {why['table_z']} m, aim jitter {1000 * why['jitter']:.1f} mm; "
+            f"fields' boundaries read with sd {1000 * why.get('boundary_sd', 0.0):.2f} mm."
         )
         return "\n\n".join([head, *tables, "\n".join(lines)]) + "\n"
 

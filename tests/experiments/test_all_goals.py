@@ -48,19 +48,21 @@ def test_learned_transition_is_a_distribution_and_keeps_a_quiet_world(robot):
     assert torch.allclose(quiet, still)
 
 
-def test_learned_transition_is_the_chained_sum_written_out(robot):
+@pytest.mark.parametrize("boundary_sd", [0.0, 0.02])
+def test_learned_transition_is_the_chained_sum_written_out(robot, boundary_sd):
     """Against the chain written term by term with scipy's normal CDFs: the hit's lateral
-    coordinate in the can band times its height in each aim height's bin."""
+    coordinate in the can band times its height in each aim height's bin; with the bins'
+    boundaries uncertain, the height's variance and the boundaries' add."""
     heights = exact_throws(0.05)[0]
     n_s, n_a = 3, len(heights)
     can = torch.as_tensor(np.random.default_rng(1).dirichlet(np.ones(n_s), size=(n_s, n_a)))
-    t, aims = all_goals.learned_transition(can, robot, heights, TABLE_TOP_Z)
+    t, aims = all_goals.learned_transition(can, robot, heights, TABLE_TOP_Z, boundary_sd)
     mean, cov = robot.hit_distribution(aims)
     half = np.diff(heights).mean() / 2
     want = np.zeros((n_s, n_a, n_s))
     for a in range(n_a):
         across = stats.norm(mean[a, 0], np.sqrt(cov[a, 0, 0]))
-        up = stats.norm(mean[a, 1] - TABLE_TOP_Z, np.sqrt(cov[a, 1, 1]))
+        up = stats.norm(mean[a, 1] - TABLE_TOP_Z, np.sqrt(cov[a, 1, 1] + boundary_sd**2))
         band = across.cdf(CAN_BAND) - across.cdf(-CAN_BAND)
         p = [band * (up.cdf(h + half) - up.cdf(h - half)) for h in heights]
         for s in range(n_s):
@@ -88,6 +90,7 @@ def test_can_model_learns_a_deterministic_world():
         ("table_z", ()),
         ("table_z", (0.75, float("nan"))),
         ("jitter", -1.0),
+        ("boundary_spread", "wide"),
         ("executor", "cluster"),
     ],
 )

@@ -1,18 +1,26 @@
 """experiments.combined: the whole experiment at the tiny scale, and its settings' checks."""
 
+import math
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
+from experiments.cans import can_dataset
 from experiments.combined import (
     SCENARIOS,
     CombinedConfig,
     CombinedResult,
+    face_height_spread,
     field_link,
+    hit_gaussians,
     run_combined,
 )
 from experiments.config import ConfigError
-from sim2d import geometry
+from inference.queries.chaining import link_probabilities
+from sim2d import geometry, materials
 from sim2d.combined import CAN_BAND
+from sim2d.field_throws import aim_offset, launch_state
 
 
 def test_tiny_run_end_to_end(tiny_data_dir, tmp_path):
@@ -35,6 +43,9 @@ def test_tiny_run_end_to_end(tiny_data_dir, tmp_path):
             "fail_no_hit"
         ] + sum(first["intermediate"].values())
     assert result.angle_choice["chosen_angle"] in geometry.ANGLE_NAMES
+    angle = geometry.ANGLE_NAMES.index(result.angle_choice["chosen_angle"])
+    data = can_dataset(tiny_data_dir, "tiny", progress=False)
+    assert result.angle_choice["boundary_sd"] == face_height_spread(data, angle) > 0
     result.save(tmp_path)
     assert (tmp_path / "combined.md").read_text().count("success rate") == 3
     assert CombinedResult.load(tmp_path / "combined.json").to_json() == result.to_json()
@@ -52,6 +63,7 @@ def test_tiny_run_end_to_end(tiny_data_dir, tmp_path):
         ("jitter", -0.001),
         ("jitter", 1.0),
         ("proposals", "all"),
+        ("boundary_spread", "wide"),
         ("seed", -3),
     ],
 )
@@ -78,3 +90,103 @@ def test_field_link_reads_a_hit_as_the_nearest_field_in_the_band():
         for f, lateral in zip(nearest, y, strict=True)
     ]
     assert got == want
+
+
+class FixedHits:
+    """A robot stand-in whose predicted hit is given: means ``(n, 2)``, covariances ``(n, 2, 2)``."""
+
+    def __init__(self, mean, cov):
+        self.mean, self.cov = np.asarray(mean, float), np.asarray(cov, float)
+
+    def hit_distribution(self, aims):
+        return self.mean, self.cov
+
+
+def normal_cdf(x, mean, sd):
+    return 0.5 * (1 + math.erf((x - mean) / (sd * math.sqrt(2))))
+
+
+def slice_chance(low, high, mean, sd):
+    """The chance that a normal height falls in ``[low, high)``."""
+    return normal_cdf(high, mean, sd) - normal_cdf(low, mean, sd)
+
+
+@pytest.mark.parametrize("spread", [0.0, 0.002, 0.006])
+def test_field_spread_integrates_over_the_fields_boundaries(spread):
+    """A hit read with the fields' boundaries moved together by a normal offset of sd
+    ``spread``: each field's chance is the integral, over the offset, of the chance that the
+    hit's height falls in the field's moved slice (trapezoid rule here) times the chance
+    that it falls in the can band."""
+    heights = np.full(195, np.nan)
+    fields = np.array([3, 17, 40, 41, 77, 120])
+    heights[fields] = [0.100, 0.104, 0.105, 0.111, 0.130, 0.200]
+    link, order = field_link(heights, fields)
+    table_z = 0.75
+    mean = np.array([[0.001, table_z + 0.104], [-0.003, table_z + 0.112], [0.0, table_z + 0.3]])
+    cov = np.array([np.diag([1e-6, 4e-6]), np.diag([4e-6, 1e-8]), np.diag([1e-6, 1e-6])])
+    got = link_probabilities(
+        link, hit_gaussians(FixedHits(mean, cov), None, table_z, boundary_sd=spread)
+    )
+    h = heights[order]
+    edges = np.concatenate([[-np.inf], (h[1:] + h[:-1]) / 2, [np.inf]])
+    offsets = np.linspace(-9, 9, 3601) * spread
+    weight = (
+        np.exp(-0.5 * (offsets / spread) ** 2) / (spread * math.sqrt(2 * math.pi))
+        if spread
+        else None
+    )
+    for row, ((y, z), c) in enumerate(zip(mean, cov, strict=True)):
+        z, sd_y, sd_z = z - table_z, math.sqrt(c[0, 0]), math.sqrt(c[1, 1])
+        band = slice_chance(-CAN_BAND, CAN_BAND, y, sd_y)
+        for k, f in enumerate(order):
+            if spread:
+                chances = [slice_chance(edges[k] + u, edges[k + 1] + u, z, sd_z) for u in offsets]
+                want = np.trapezoid(weight * np.array(chances), offsets)
+            else:
+                want = slice_chance(edges[k], edges[k + 1], z, sd_z)
+            assert float(got.prob(int(f))[row]) == pytest.approx(band * want, abs=1e-7)
+        assert float(got.none[row]) == pytest.approx(1 - band, abs=1e-12)
+    if spread:  # the boundaries' spread reaches fields that the hit alone does not
+        sharp = link_probabilities(link, hit_gaussians(FixedHits(mean, cov), None, table_z))
+        assert float(got.prob(40)[1]) > 0.01 > float(sharp.prob(40)[1])
+
+
+def test_face_height_spread_is_where_the_training_throws_crossed_the_near_face(tiny_data_dir):
+    """Against each throw flown from its own jittered launch state to the near face; only
+    throwable throws at the angle count, and the outcomes play no part."""
+    data = can_dataset(tiny_data_dir, "tiny", progress=False)
+    jitter = data.metadata["jitter"]
+    for angle in range(len(geometry.ANGLES)):
+        sel = np.flatnonzero((data.angle == angle) & data.throwable)
+        shifts = []
+        for i in sel:
+            field, seed = int(data.field[i]), int(data.seed[i])
+            crossings = []
+            for offset in (aim_offset(jitter, seed), (0.0, 0.0)):
+                (x0, z0), (vx, vz) = launch_state(field, angle, offset=offset)
+                t = (geometry.PYRAMID_X - x0) / vx
+                crossings.append(z0 + vz * t - 0.5 * materials.GRAVITY * t * t)
+            shifts.append(crossings[0] - crossings[1])
+        want = math.sqrt(np.mean(np.square(shifts)))
+        assert face_height_spread(data, angle) == pytest.approx(want, rel=1e-9)
+        assert jitter / 2 < want < 3 * jitter  # the jitter per axis, seen along the throw
+    rng = np.random.default_rng(1)
+    shuffled = replace(
+        data,
+        end_config=rng.permutation(data.end_config),
+        thrown_off=rng.permutation(data.thrown_off),
+        hit_any_can=rng.permutation(data.hit_any_can),
+    )
+    assert face_height_spread(shuffled, 1) == face_height_spread(data, 1)
+    no_jitter = replace(data, metadata=data.metadata | {"jitter": 0.0})
+    assert face_height_spread(no_jitter, 1) == 0.0
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_top_three_exact_planner_near_its_bound_at_full_scale(seed):
+    """Table II at the full scale (the physics bound: 99 % held out). A sharp link read
+    each aim as one field's three throws, and at seed 0 the plan took the luckiest field
+    (16 %)."""
+    result = run_combined(CombinedConfig(seed=seed, progress=False))
+    assert result.scenarios["top_three"]["success_rate_exact_planner"] >= 0.9
