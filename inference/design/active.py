@@ -440,15 +440,27 @@ class _Scorer:
 
     def __init__(self, tables: dict[str, _Rows], score, alpha: float, strength: float):
         self.tables, self.score, self.alpha, self.strength = tables, score, alpha, strength
+        # each row's candidates, ascending: ``order[start[r]:start[r + 1]]``
+        self.members = {}
+        for s, t in tables.items():
+            order = np.argsort(t.row, kind="stable")
+            start = np.searchsorted(t.row[order], np.arange(len(t.parents) + 1))
+            self.members[s] = (order, start)
+        self.pooled: dict[str, np.ndarray] = {}  # per site, the groups' counts (see _prior)
         self.gain = {s: self._row_scores(t, np.arange(len(t.parents))) for s, t in tables.items()}
 
     def _prior(self, t: _Rows, rows: np.ndarray) -> torch.Tensor:
-        """``(len(rows), K)``: the Dirichlet prior of ``rows`` (pseudo-count and shared part)."""
+        """``(len(rows), K)``: the Dirichlet prior of ``rows`` (pseudo-count and shared part).
+
+        The groups' pooled counts change only when a batch is played: they are summed once
+        per batch (:meth:`refresh` forgets them), not once per row scored."""
         prior = torch.full((len(rows), t.size), self.alpha, dtype=DTYPE)
         if self.strength:
-            pooled = np.zeros((t.group.max() + 1, t.size), dtype=np.int64)
-            np.add.at(pooled, t.group, t.counts)
-            m = normalised(torch.as_tensor(pooled[t.group[rows]]), self.alpha).probs
+            if t.site not in self.pooled:
+                pooled = np.zeros((t.group.max() + 1, t.size), dtype=np.int64)
+                np.add.at(pooled, t.group, t.counts)
+                self.pooled[t.site] = pooled
+            m = normalised(torch.as_tensor(self.pooled[t.site][t.group[rows]]), self.alpha).probs
             prior = prior + self.strength * m
         return prior
 
@@ -486,12 +498,15 @@ class _Scorer:
                 new = float(self.score(alpha + pending[s, r])[0])
                 delta = new - current.get((s, r), float(self.gain[s][r]))
                 current[s, r] = new
-                score[(t.row == r) & available] += delta
+                order, start = self.members[s]
+                same = order[start[r] : start[r + 1]]  # the candidates of row r
+                score[same[available[same]]] += delta
         return np.asarray(batch, np.int64), np.asarray(gains)
 
     def refresh(self, batch: np.ndarray) -> None:
         """Recompute the scores of the rows the played ``batch`` changed (with the shared
         prior: every row of their groups)."""
+        self.pooled.clear()  # the played batch changed the counts
         for s, t in self.tables.items():
             rows = np.unique(t.row[batch])
             if self.strength:
