@@ -240,17 +240,25 @@ def table_one_on_replays(
     field scored by the fraction of its replays that reach the desired count.
 
     ``cases``: ``{protocol: (start masks, desired counts)}``; ``replays``: as
-    :func:`replay_counts` returns.
+    :func:`replay_counts` returns. A field is chosen once per distinct (start, desired
+    count) of all the protocols' cases (:func:`experiments.can_tossing.choose`, row by
+    row: the same field whichever protocol asks).
     """
     row = {c: i for i, c in enumerate(configs)}
-    out = {}
+    pairs = np.concatenate([np.stack([start, desired], 1) for start, desired in cases.values()])
+    distinct, inverse = np.unique(pairs.astype(np.int64), axis=0, return_inverse=True)
+    evidence = start_evidence(model, distinct[:, 0]) | {
+        "end.count": torch.as_tensor(distinct[:, 1])
+    }
+    fields = {rule: choose(model, evidence, rule)[inverse.reshape(-1)] for rule in rules}
+    out, at = {}, 0
     for protocol, (start, desired) in cases.items():
-        evidence = start_evidence(model, start) | {"end.count": torch.as_tensor(desired)}
         index = np.array([row[int(s)] for s in start])
+        part = slice(at, at + len(start))
+        at += len(start)
         out[protocol] = {}
         for rule in rules:
-            field = choose(model, evidence, rule)
-            success = replays[index, field] == desired[:, None]
+            success = replays[index, fields[rule][part]] == desired[:, None]
             out[protocol][rule] = float(success.mean())
     return out
 
