@@ -269,17 +269,29 @@ def bound_by_repeats(replays, configs, cases, throwable) -> dict[str, list[float
     first ``m`` replays of every throwable field (``m = 1 .. repeats // 2``), scored on the
     second half of the replays (:func:`experiments.physics_bounds.held_out_best` at
     ``m`` = half). Choosing with ``m`` throws of every pair costs ``m`` throws per pair."""
-    row = {c: i for i, c in enumerate(configs)}
     half = replays.shape[-1] // 2
     out = {}
     for p, (start, desired) in cases.items():
-        success = replays[[row[int(s)] for s in start]][:, throwable] == desired[:, None, None]
+        success, case = _replay_success(replays, configs, start, desired, throwable)
         held = success[..., half:].mean(-1)
         out[p] = []
         for m in range(1, half + 1):
             chosen = success[..., :m].mean(-1).argmax(-1)
-            out[p].append(float(np.take_along_axis(held, chosen[:, None], -1).mean()))
+            out[p].append(float(np.take_along_axis(held, chosen[:, None], -1)[case].mean()))
     return out
+
+
+def _replay_success(replays, configs, start, desired, fields) -> tuple[np.ndarray, np.ndarray]:
+    """``(success, case)``: per distinct (start, desired count) of the cases ``(start
+    masks, desired counts)``, whether each replay of each of ``fields`` reached the desired
+    count, ``(distinct, fields, repeats)`` bool; and each case's distinct row. Many cases
+    share a start and a desired count: every per-row figure of ``success`` indexed by
+    ``case`` is the per-case figure, element for element."""
+    row = {c: i for i, c in enumerate(configs)}
+    pairs = np.stack([np.asarray(start), np.asarray(desired)], 1).astype(np.int64)
+    distinct, case = np.unique(pairs, axis=0, return_inverse=True)
+    index = [row[int(s)] for s in distinct[:, 0]]
+    return replays[index][:, fields] == distinct[:, 1, None, None], case.reshape(-1)
 
 
 def cases_seen(rows, cases) -> float:
@@ -439,12 +451,10 @@ def run_active(config: ActiveConfig) -> ActiveResult:
     )
     scoring = scoring_network(net)
     full = _scores(scoring, rows, pool, throwable, pooling, cases, replays, configs)
-    row = {c: i for i, c in enumerate(configs)}
     bound = {}
     for p, (start, desired) in cases.items():
-        fields = throwable.numpy()
-        success = replays[[row[int(s)] for s in start]][:, fields] == desired[:, None, None]
-        bound[p] = float(held_out_best(success).mean())
+        success, case = _replay_success(replays, configs, start, desired, throwable.numpy())
+        bound[p] = float(held_out_best(success)[case].mean())
 
     by_repeats = bound_by_repeats(replays, configs, cases, throwable.numpy())
     curves, by_seed, covered, seen, seconds, point_time = {}, {}, {}, {}, {}, {}

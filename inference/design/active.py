@@ -313,6 +313,16 @@ def explore(
     chosen, scores = list(state.chosen), list(state.scores)
     outcomes = {s: list(v) for s, v in state.outcomes.items()}
 
+    def current() -> ExplorationState:
+        return ExplorationState(
+            chosen=np.asarray(chosen, np.int64),
+            scores=np.asarray(scores, np.float64),
+            outcomes={s: np.asarray(v, np.int64) for s, v in outcomes.items()},
+            counts={s: t.counts.copy() for s, t in tables.items()},
+            rng=rng.bit_generator.state,
+            settings=settings,
+        )
+
     bar = tqdm(
         total=budget, initial=len(chosen), desc=f"explore ({strategy})", disable=not progress
     )
@@ -340,18 +350,11 @@ def explore(
         scores += list(map(float, gains))
         if scorer is not None:
             scorer.refresh(batch)
-        state = ExplorationState(
-            chosen=np.asarray(chosen, np.int64),
-            scores=np.asarray(scores, np.float64),
-            outcomes={s: np.asarray(v, np.int64) for s, v in outcomes.items()},
-            counts={s: t.counts.copy() for s, t in tables.items()},
-            rng=rng.bit_generator.state,
-            settings=settings,
-        )
-        if path is not None:
-            state.save(path)
+        if path is not None:  # the state is built (its counts copied) only to be saved
+            current().save(path)
         bar.update(k)
     bar.close()
+    state = current()
 
     index = torch.as_tensor(state.chosen)
     rows = enc.rows(index) | net.encode_indices(
