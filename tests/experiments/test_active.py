@@ -64,6 +64,26 @@ def test_bound_by_repeats_chooses_on_the_first_m_replays_and_scores_on_the_secon
     assert got == {"counts": [1.0, 1.0]}
 
 
+def test_bound_by_repeats_of_cases_that_repeat_equals_a_case_by_case_count():
+    """Many of Table I's cases share a start and a desired count: they are scored once and
+    counted once per case, as a loop over the cases scores them."""
+    rng = np.random.default_rng(5)
+    configs = [3, 7, 11]
+    replays = rng.integers(0, 4, size=(3, 6, 8))
+    throwable = np.array([True, False, True, True, True, False])
+    start = rng.choice(configs, size=40)
+    desired = rng.integers(0, 4, size=40)
+    got = ex.bound_by_repeats(replays, configs, {"p": (start, desired)}, throwable)["p"]
+    want = []
+    for m in range(1, 5):
+        rates = []
+        for s, d in zip(start, desired, strict=True):
+            success = replays[configs.index(int(s))][throwable] == d  # (fields, repeats)
+            rates.append(success[:, 4:].mean(-1)[success[:, :m].mean(-1).argmax()])
+        want.append(np.mean(rates))
+    assert got == pytest.approx(want, abs=1e-15)
+
+
 def test_cases_seen_counts_cases_some_row_reached():
     rows = {"initial.config": torch.tensor([0, 0, 1]), "end.count": torch.tensor([3, 2, 5])}
     cases = (torch.tensor([0, 0, 1, 1]), torch.tensor([2, 4, 5, 3]))
