@@ -57,7 +57,8 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -182,15 +183,26 @@ class ExplorationResult:
     ``chosen`` ``(m,)`` pool indices in order of choice; ``scores`` ``(m,)`` their scores
     when chosen (NaN for ``random``); ``rows`` the chosen training rows (the pool's
     initial sites and action with the oracle's end sites, encoded: :func:`inference.fit`
-    reads them); ``params`` the tables from the closed-form counts, equal to
-    ``fit(net, rows, pseudo_count=...)``; ``state`` the state to resume from.
+    reads them); ``state`` the state to resume from; :attr:`params` the tables from the
+    closed-form counts.
     """
 
     chosen: np.ndarray
     scores: np.ndarray
     rows: Evidence
-    params: NetworkParams
     state: ExplorationState
+    _tables: dict = field(repr=False, compare=False)
+    _pseudo_count: float = field(repr=False, compare=False)
+    _net: EffectNetwork = field(repr=False, compare=False)
+
+    @cached_property
+    def params(self) -> NetworkParams:
+        """The tables from the closed-form counts, equal to ``fit(net, rows,
+        pseudo_count=...)``; built on first access (a table over every parent
+        configuration can be large, and a caller that refits on prefixes of ``rows``
+        never reads them)."""
+        alpha = self._pseudo_count
+        return NetworkParams({s: t.table(alpha) for s, t in self._tables.items()}, alpha, self._net)
 
 
 def explore(
@@ -360,8 +372,7 @@ def explore(
     rows = enc.rows(index) | net.encode_indices(
         {s: torch.as_tensor(v) for s, v in state.outcomes.items()}
     )
-    params = NetworkParams({s: t.table(pseudo_count) for s, t in tables.items()}, pseudo_count, net)
-    return ExplorationResult(state.chosen, state.scores, rows, params, state)
+    return ExplorationResult(state.chosen, state.scores, rows, state, tables, pseudo_count, net)
 
 
 def with_pool_prior(

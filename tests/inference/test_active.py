@@ -189,6 +189,17 @@ def test_the_greedy_choice_equals_one_recomputed_from_scratch(batch, strength):
     assert r.chosen.tolist() == want
 
 
+def test_the_tables_are_built_on_first_access_to_params():
+    """A caller that refits on prefixes of the rows never builds explore's own tables
+    (over every parent configuration: 38 million values for the can network)."""
+    pool, oracle, _ = world(2)
+    r = explore(NET, pool, oracle, 12, batch_size=4, strategy="eig", seed=1)
+    assert "params" not in vars(r)
+    fitted = fit(NET, r.rows, pseudo_count=0.01).params
+    assert torch.equal(r.params["end.f0"].n, fitted["end.f0"].n)
+    assert vars(r)["params"] is r.params  # built once
+
+
 @pytest.mark.parametrize("strategy", STRATEGIES)
 def test_a_resumed_run_makes_the_choices_of_an_uninterrupted_one(tmp_path, strategy):
     pool, oracle, _ = world(3)
