@@ -31,7 +31,11 @@ the network fitted on every throw.
   way the start and field priors are the pool's
   (:func:`inference.design.active.with_pool_prior`), not the learner's play
   frequencies, which would otherwise steer the choice towards often-played fields. The full data is fitted the same two ways, and the
-  goal is measured against its best score.
+  goal is measured against its best score. The fits are of :func:`scoring_network`, the
+  can network without the end configuration's table that no score reads (the same
+  answers, bit for bit, at a fraction of the cost); the compiled tables of each fit
+  answer both protocols, one field per distinct (start, desired count). Each budget's
+  evaluation time is in the result (``point_time_s``; goal under ``POINT_GOAL_S``).
 * **Strategies.** ``eig`` (plain Dirichlet information gain with the fit's pseudo-count
   as prior), ``eig_shared`` (the same with a prior shared by a start configuration's
   fields, weight ``prior_strength``), ``uncertainty`` (predictive entropy) and
