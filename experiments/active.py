@@ -32,8 +32,8 @@ the network fitted on every throw.
   (:func:`inference.design.active.with_pool_prior`), not the learner's play
   frequencies, which would otherwise steer the choice towards often-played fields. The full data is fitted the same two ways, and the
   goal is measured against its best score. The fits are of :func:`scoring_network`, the
-  can network without the end configuration's table that no score reads (the same
-  answers, bit for bit, at a fraction of the cost); the compiled tables of each fit
+  can network with the end configuration parentless (its large table, which no score
+  reads, is never fitted; the same answers, bit for bit, at a fraction of the cost); the compiled tables of each fit
   answer both protocols, one field per distinct (start, desired count). Each budget's
   evaluation time is in the result (``point_time_s``; goal under ``POINT_GOAL_S``).
 * **Strategies.** ``eig`` (plain Dirichlet information gain with the fit's pseudo-count
