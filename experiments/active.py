@@ -31,7 +31,11 @@ the network fitted on every throw.
   way the start and field priors are the pool's
   (:func:`inference.design.active.with_pool_prior`), not the learner's play
   frequencies, which would otherwise steer the choice towards often-played fields. The full data is fitted the same two ways, and the
-  goal is measured against its best score.
+  goal is measured against its best score. The fits are of :func:`scoring_network`, the
+  can network with the end configuration parentless (its large table, which no score
+  reads, is never fitted; the same answers, bit for bit, at a fraction of the cost); the compiled tables of each fit
+  answer both protocols, one field per distinct (start, desired count). Each budget's
+  evaluation time is in the result (``point_time_s``; goal under ``POINT_GOAL_S``).
 * **Strategies.** ``eig`` (plain Dirichlet information gain with the fit's pseudo-count
   as prior), ``eig_shared`` (the same with a prior shared by a start configuration's
   fields, weight ``prior_strength``), ``uncertainty`` (predictive entropy) and
@@ -77,6 +81,7 @@ from inference import compile as compile_queries
 from inference import fit, fit_pooled, grid_kernel
 from inference.design.active import explore, with_pool_prior
 from models.can_network import can_network, can_rows, config_index
+from models.declaration import EffectNetwork
 from sim2d import field_throws, geometry
 from sim2d.can_dataset import generate_dataset, load_dataset
 from sim2d.executors import open_executor
@@ -92,6 +97,7 @@ __all__ = [
     "cases_seen",
     "replay_counts",
     "run_active",
+    "scoring_network",
     "table_one_on_replays",
 ]
 
@@ -108,6 +114,8 @@ LEARNERS = {
 SCORES = ("aim", "index", "pooled")
 GOAL_FRACTION = 0.10  # of the full data's throws
 GOAL_POINTS = 0.01  # within one point of the full data's exact fraction
+#: Goal of one budget point's Table I evaluation (fits and scores), CPU seconds.
+POINT_GOAL_S = 1.0
 #: The quick scale's settings (examples/active.py --quick).
 QUICK = {"scale": "quick", "repeats": 8, "fractions": (0.05, 0.1, 0.2, 0.5), "batch_size": 20}
 
@@ -236,17 +244,25 @@ def table_one_on_replays(
     field scored by the fraction of its replays that reach the desired count.
 
     ``cases``: ``{protocol: (start masks, desired counts)}``; ``replays``: as
-    :func:`replay_counts` returns.
+    :func:`replay_counts` returns. A field is chosen once per distinct (start, desired
+    count) of all the protocols' cases (:func:`experiments.can_tossing.choose`, row by
+    row: the same field whichever protocol asks).
     """
     row = {c: i for i, c in enumerate(configs)}
-    out = {}
+    pairs = np.concatenate([np.stack([start, desired], 1) for start, desired in cases.values()])
+    distinct, inverse = np.unique(pairs.astype(np.int64), axis=0, return_inverse=True)
+    evidence = start_evidence(model, distinct[:, 0]) | {
+        "end.count": torch.as_tensor(distinct[:, 1])
+    }
+    fields = {rule: choose(model, evidence, rule)[inverse.reshape(-1)] for rule in rules}
+    out, at = {}, 0
     for protocol, (start, desired) in cases.items():
-        evidence = start_evidence(model, start) | {"end.count": torch.as_tensor(desired)}
         index = np.array([row[int(s)] for s in start])
+        part = slice(at, at + len(start))
+        at += len(start)
         out[protocol] = {}
         for rule in rules:
-            field = choose(model, evidence, rule)
-            success = replays[index, field] == desired[:, None]
+            success = replays[index, fields[rule][part]] == desired[:, None]
             out[protocol][rule] = float(success.mean())
     return out
 
@@ -257,17 +273,29 @@ def bound_by_repeats(replays, configs, cases, throwable) -> dict[str, list[float
     first ``m`` replays of every throwable field (``m = 1 .. repeats // 2``), scored on the
     second half of the replays (:func:`experiments.physics_bounds.held_out_best` at
     ``m`` = half). Choosing with ``m`` throws of every pair costs ``m`` throws per pair."""
-    row = {c: i for i, c in enumerate(configs)}
     half = replays.shape[-1] // 2
     out = {}
     for p, (start, desired) in cases.items():
-        success = replays[[row[int(s)] for s in start]][:, throwable] == desired[:, None, None]
+        success, case = _replay_success(replays, configs, start, desired, throwable)
         held = success[..., half:].mean(-1)
         out[p] = []
         for m in range(1, half + 1):
             chosen = success[..., :m].mean(-1).argmax(-1)
-            out[p].append(float(np.take_along_axis(held, chosen[:, None], -1).mean()))
+            out[p].append(float(np.take_along_axis(held, chosen[:, None], -1)[case].mean()))
     return out
+
+
+def _replay_success(replays, configs, start, desired, fields) -> tuple[np.ndarray, np.ndarray]:
+    """``(success, case)``: per distinct (start, desired count) of the cases ``(start
+    masks, desired counts)``, whether each replay of each of ``fields`` reached the desired
+    count, ``(distinct, fields, repeats)`` bool; and each case's distinct row. Many cases
+    share a start and a desired count: every per-row figure of ``success`` indexed by
+    ``case`` is the per-case figure, element for element."""
+    row = {c: i for i, c in enumerate(configs)}
+    pairs = np.stack([np.asarray(start), np.asarray(desired)], 1).astype(np.int64)
+    distinct, case = np.unique(pairs, axis=0, return_inverse=True)
+    index = [row[int(s)] for s in distinct[:, 0]]
+    return replays[index][:, fields] == distinct[:, 1, None, None], case.reshape(-1)
 
 
 def cases_seen(rows, cases) -> float:
@@ -280,12 +308,29 @@ def cases_seen(rows, cases) -> float:
     return float(np.mean(hit))
 
 
+def scoring_network(net: EffectNetwork) -> EffectNetwork:
+    """The can network as Table I's query reads it: ``net`` with the end configuration
+    parentless.
+
+    Table I's query observes the start (configuration and count) and the desired end
+    count and infers the field. The end configuration is neither observed nor a parent
+    of the end count, so its table sums to one in every answer: the query never reads it.
+    In ``net`` that table has ``configurations x 11 x 195 x configurations`` values (24.5
+    million at full scale), and fitting, tracing and compiling it was most of a curve
+    point's cost. Declared parentless it has ``configurations`` values; fitted on the
+    same rows, every table the query reads is the same, and so is every answer, bit for
+    bit (tests/experiments/test_active.py).
+    """
+    parents = dict(net.parents) | {"end.config": ()}
+    return EffectNetwork(net.features, net.actions, net.parameters, parents, net.kinds)
+
+
 def _model(net, rows, pool, throwable, pooling=None) -> CanModel:
     """The can model fitted on ``rows``: plainly, or pooled with ``pooling = (kernel,
     strength)``; the start and field priors are the pool's (design-free:
     :func:`inference.design.active.with_pool_prior`). Pooled, only the end count's table
-    is pooled: the one Table I's query reads (the end configuration's, 24.5 million
-    values at full scale, is the plain fit's and read by no score)."""
+    is pooled: the one Table I's query reads. ``net`` is :func:`scoring_network`'s (the
+    end configuration's table, read by no score, is not fitted)."""
     if pooling is None:
         params = fit(net, rows).params
     else:
@@ -296,7 +341,8 @@ def _model(net, rows, pool, throwable, pooling=None) -> CanModel:
 
 
 def _scores(net, rows, pool, throwable, pooling, cases, replays, configs) -> dict:
-    """``{protocol: {score: exact fraction}}`` for every one of ``SCORES``."""
+    """``{protocol: {score: exact fraction}}`` for every one of ``SCORES`` (``net``:
+    :func:`scoring_network`'s)."""
     plain = table_one_on_replays(_model(net, rows, pool, throwable), cases, replays, configs)
     pooled = table_one_on_replays(
         _model(net, rows, pool, throwable, pooling), cases, replays, configs, ("aim",)
@@ -319,7 +365,9 @@ class ActiveResult(Result):
     :func:`cases_seen`); ``goal[learner][protocol][rule]``
     the fewest throws (of the budgets) within one point of the full data's best score
     (the largest of ``full[protocol]``), or None;
-    ``seconds[learner]`` the learner's choosing time; ``settings`` the config.
+    ``seconds[learner]`` the learner's choosing time; ``point_time_s[learner]`` the CPU
+    seconds of each budget's Table I evaluation (both fits, both protocols; mean over
+    seeds; goal under ``POINT_GOAL_S``); ``settings`` the config.
     """
 
     experiment_name: ClassVar[str] = "active"
@@ -341,6 +389,7 @@ class ActiveResult(Result):
     curves_by_seed: dict
     goal: dict
     seconds: dict
+    point_time_s: dict
     settings: dict
 
     def to_markdown(self) -> str:
@@ -404,16 +453,15 @@ def run_active(config: ActiveConfig) -> ActiveResult:
         grid_kernel((geometry.N_ROWS, geometry.N_COLUMNS), config.pool_sigma),
         config.pool_strength,
     )
-    full = _scores(net, rows, pool, throwable, pooling, cases, replays, configs)
-    row = {c: i for i, c in enumerate(configs)}
+    scoring = scoring_network(net)
+    full = _scores(scoring, rows, pool, throwable, pooling, cases, replays, configs)
     bound = {}
     for p, (start, desired) in cases.items():
-        fields = throwable.numpy()
-        success = replays[[row[int(s)] for s in start]][:, fields] == desired[:, None, None]
-        bound[p] = float(held_out_best(success).mean())
+        success, case = _replay_success(replays, configs, start, desired, throwable.numpy())
+        bound[p] = float(held_out_best(success)[case].mean())
 
     by_repeats = bound_by_repeats(replays, configs, cases, throwable.numpy())
-    curves, by_seed, covered, seen, seconds = {}, {}, {}, {}, {}
+    curves, by_seed, covered, seen, seconds, point_time = {}, {}, {}, {}, {}, {}
     cases_rows = {
         p: (config_index(net, start), torch.as_tensor(desired))
         for p, (start, desired) in cases.items()
@@ -421,6 +469,7 @@ def run_active(config: ActiveConfig) -> ActiveResult:
     for name in config.learners:
         strategy, shared = LEARNERS[name]
         runs, seen_runs, covered[name], seconds[name] = [], [], [], 0.0
+        point_times = []
         for seed in range(config.seed, config.seed + config.n_seeds):
             checkpoint = None
             if config.checkpoint_dir is not None:
@@ -440,13 +489,16 @@ def run_active(config: ActiveConfig) -> ActiveResult:
                 progress=config.progress,
             )
             seconds[name] += time.process_time() - start_time
-            points = []
+            points, times = [], []
             for b in tqdm(budgets, desc=f"Table I ({name})", disable=not config.progress):
+                start_time = time.process_time()
                 chosen = learned.rows.rows(slice(0, b))
                 points.append(
-                    _scores(net, chosen, pool, throwable, pooling, cases, replays, configs)
+                    _scores(scoring, chosen, pool, throwable, pooling, cases, replays, configs)
                 )
+                times.append(time.process_time() - start_time)
             runs.append(points)
+            point_times.append(times)
             covered[name].append([len(np.unique(pair[learned.chosen[:b]])) for b in budgets])
             seen_runs.append(
                 {
@@ -463,6 +515,7 @@ def run_active(config: ActiveConfig) -> ActiveResult:
             for p in PROTOCOLS
         }
         seen[name] = {p: np.mean([r[p] for r in seen_runs], 0).tolist() for p in PROTOCOLS}
+        point_time[name] = np.mean(point_times, 0).tolist()
 
     goal = {
         name: {
@@ -503,6 +556,7 @@ def run_active(config: ActiveConfig) -> ActiveResult:
         curves_by_seed=by_seed,
         goal=goal,
         seconds=seconds,
+        point_time_s=point_time,
         settings=settings,
     )
 

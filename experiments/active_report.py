@@ -8,7 +8,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from experiments.active import GOAL_FRACTION, GOAL_POINTS, SCORES
+from experiments.active import GOAL_FRACTION, GOAL_POINTS, POINT_GOAL_S, SCORES
 from experiments.can_tossing import PROTOCOLS
 
 if TYPE_CHECKING:
@@ -80,6 +80,12 @@ def markdown(r: ActiveResult) -> str:
         + ".",
         "Choosing time (CPU s, whole run): "
         + ", ".join(f"{name} {s:.1f}" for name, s in r.seconds.items())
+        + ". Table I per budget point (CPU s, both fits and both protocols; goal under "
+        f"{POINT_GOAL_S:g} s): "
+        + "; ".join(
+            f"{name} " + ", ".join(f"{t:.2f}" for t in times)
+            for name, times in r.point_time_s.items()
+        )
         + ".",
         "",
     ]

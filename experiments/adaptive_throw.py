@@ -311,10 +311,13 @@ def local_inverse(train_targets, train_hits, desired, start, neighbours, iterati
     step; at most the neighbourhood's radius), and keep the aim whose local model misses
     least. Only the training throws are used."""
     aims = np.clip(np.array(start, dtype=np.float64), TARGET_AREA.low, TARGET_AREA.high)
+    # the squared distances as two columns' sum: the same additions as ``.sum(-1)`` over
+    # the pair, without numpy's slow reduction over a short last axis
+    y, z = (np.ascontiguousarray(c) for c in np.asarray(train_targets).T)
     for i, goal in enumerate(desired):
         aim, best, best_miss = aims[i].copy(), aims[i].copy(), np.inf
         for _ in range(iterations + 1):
-            d2 = ((train_targets - aim) ** 2).sum(-1)
+            d2 = (y - aim[0]) ** 2 + (z - aim[1]) ** 2
             rows = np.argpartition(d2, neighbours - 1)[:neighbours]
             u = train_targets[rows] - aim
             design = np.column_stack(

@@ -57,7 +57,8 @@ from __future__ import annotations
 import math
 import os
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
 
 import numpy as np
@@ -182,15 +183,26 @@ class ExplorationResult:
     ``chosen`` ``(m,)`` pool indices in order of choice; ``scores`` ``(m,)`` their scores
     when chosen (NaN for ``random``); ``rows`` the chosen training rows (the pool's
     initial sites and action with the oracle's end sites, encoded: :func:`inference.fit`
-    reads them); ``params`` the tables from the closed-form counts, equal to
-    ``fit(net, rows, pseudo_count=...)``; ``state`` the state to resume from.
+    reads them); ``state`` the state to resume from; :attr:`params` the tables from the
+    closed-form counts.
     """
 
     chosen: np.ndarray
     scores: np.ndarray
     rows: Evidence
-    params: NetworkParams
     state: ExplorationState
+    _tables: dict = field(repr=False, compare=False)
+    _pseudo_count: float = field(repr=False, compare=False)
+    _net: EffectNetwork = field(repr=False, compare=False)
+
+    @cached_property
+    def params(self) -> NetworkParams:
+        """The tables from the closed-form counts, equal to ``fit(net, rows,
+        pseudo_count=...)``; built on first access (a table over every parent
+        configuration can be large, and a caller that refits on prefixes of ``rows``
+        never reads them)."""
+        alpha = self._pseudo_count
+        return NetworkParams({s: t.table(alpha) for s, t in self._tables.items()}, alpha, self._net)
 
 
 def explore(
@@ -313,6 +325,16 @@ def explore(
     chosen, scores = list(state.chosen), list(state.scores)
     outcomes = {s: list(v) for s, v in state.outcomes.items()}
 
+    def current() -> ExplorationState:
+        return ExplorationState(
+            chosen=np.asarray(chosen, np.int64),
+            scores=np.asarray(scores, np.float64),
+            outcomes={s: np.asarray(v, np.int64) for s, v in outcomes.items()},
+            counts={s: t.counts.copy() for s, t in tables.items()},
+            rng=rng.bit_generator.state,
+            settings=settings,
+        )
+
     bar = tqdm(
         total=budget, initial=len(chosen), desc=f"explore ({strategy})", disable=not progress
     )
@@ -340,25 +362,17 @@ def explore(
         scores += list(map(float, gains))
         if scorer is not None:
             scorer.refresh(batch)
-        state = ExplorationState(
-            chosen=np.asarray(chosen, np.int64),
-            scores=np.asarray(scores, np.float64),
-            outcomes={s: np.asarray(v, np.int64) for s, v in outcomes.items()},
-            counts={s: t.counts.copy() for s, t in tables.items()},
-            rng=rng.bit_generator.state,
-            settings=settings,
-        )
-        if path is not None:
-            state.save(path)
+        if path is not None:  # the state is built (its counts copied) only to be saved
+            current().save(path)
         bar.update(k)
     bar.close()
+    state = current()
 
     index = torch.as_tensor(state.chosen)
     rows = enc.rows(index) | net.encode_indices(
         {s: torch.as_tensor(v) for s, v in state.outcomes.items()}
     )
-    params = NetworkParams({s: t.table(pseudo_count) for s, t in tables.items()}, pseudo_count, net)
-    return ExplorationResult(state.chosen, state.scores, rows, params, state)
+    return ExplorationResult(state.chosen, state.scores, rows, state, tables, pseudo_count, net)
 
 
 def with_pool_prior(
@@ -440,15 +454,27 @@ class _Scorer:
 
     def __init__(self, tables: dict[str, _Rows], score, alpha: float, strength: float):
         self.tables, self.score, self.alpha, self.strength = tables, score, alpha, strength
+        # each row's candidates, ascending: ``order[start[r]:start[r + 1]]``
+        self.members = {}
+        for s, t in tables.items():
+            order = np.argsort(t.row, kind="stable")
+            start = np.searchsorted(t.row[order], np.arange(len(t.parents) + 1))
+            self.members[s] = (order, start)
+        self.pooled: dict[str, np.ndarray] = {}  # per site, the groups' counts (see _prior)
         self.gain = {s: self._row_scores(t, np.arange(len(t.parents))) for s, t in tables.items()}
 
     def _prior(self, t: _Rows, rows: np.ndarray) -> torch.Tensor:
-        """``(len(rows), K)``: the Dirichlet prior of ``rows`` (pseudo-count and shared part)."""
+        """``(len(rows), K)``: the Dirichlet prior of ``rows`` (pseudo-count and shared part).
+
+        The groups' pooled counts change only when a batch is played: they are summed once
+        per batch (:meth:`refresh` forgets them), not once per row scored."""
         prior = torch.full((len(rows), t.size), self.alpha, dtype=DTYPE)
         if self.strength:
-            pooled = np.zeros((t.group.max() + 1, t.size), dtype=np.int64)
-            np.add.at(pooled, t.group, t.counts)
-            m = normalised(torch.as_tensor(pooled[t.group[rows]]), self.alpha).probs
+            if t.site not in self.pooled:
+                pooled = np.zeros((t.group.max() + 1, t.size), dtype=np.int64)
+                np.add.at(pooled, t.group, t.counts)
+                self.pooled[t.site] = pooled
+            m = normalised(torch.as_tensor(self.pooled[t.site][t.group[rows]]), self.alpha).probs
             prior = prior + self.strength * m
         return prior
 
@@ -486,12 +512,15 @@ class _Scorer:
                 new = float(self.score(alpha + pending[s, r])[0])
                 delta = new - current.get((s, r), float(self.gain[s][r]))
                 current[s, r] = new
-                score[(t.row == r) & available] += delta
+                order, start = self.members[s]
+                same = order[start[r] : start[r + 1]]  # the candidates of row r
+                score[same[available[same]]] += delta
         return np.asarray(batch, np.int64), np.asarray(gains)
 
     def refresh(self, batch: np.ndarray) -> None:
         """Recompute the scores of the rows the played ``batch`` changed (with the shared
         prior: every row of their groups)."""
+        self.pooled.clear()  # the played batch changed the counts
         for s, t in self.tables.items():
             rows = np.unique(t.row[batch])
             if self.strength:

@@ -64,6 +64,26 @@ def test_bound_by_repeats_chooses_on_the_first_m_replays_and_scores_on_the_secon
     assert got == {"counts": [1.0, 1.0]}
 
 
+def test_bound_by_repeats_of_cases_that_repeat_equals_a_case_by_case_count():
+    """Many of Table I's cases share a start and a desired count: they are scored once and
+    counted once per case, as a loop over the cases scores them."""
+    rng = np.random.default_rng(5)
+    configs = [3, 7, 11]
+    replays = rng.integers(0, 4, size=(3, 6, 8))
+    throwable = np.array([True, False, True, True, True, False])
+    start = rng.choice(configs, size=40)
+    desired = rng.integers(0, 4, size=40)
+    got = ex.bound_by_repeats(replays, configs, {"p": (start, desired)}, throwable)["p"]
+    want = []
+    for m in range(1, 5):
+        rates = []
+        for s, d in zip(start, desired, strict=True):
+            success = replays[configs.index(int(s))][throwable] == d  # (fields, repeats)
+            rates.append(success[:, 4:].mean(-1)[success[:, :m].mean(-1).argmax()])
+        want.append(np.mean(rates))
+    assert got == pytest.approx(want, abs=1e-15)
+
+
 def test_cases_seen_counts_cases_some_row_reached():
     rows = {"initial.config": torch.tensor([0, 0, 1]), "end.count": torch.tensor([3, 2, 5])}
     cases = (torch.tensor([0, 0, 1, 1]), torch.tensor([2, 4, 5, 3]))
@@ -99,11 +119,15 @@ def test_a_tiny_run_end_to_end(tiny_run, tiny_data_dir, tmp_path):
             for p in PROTOCOLS:  # the whole pool: every case's count some throw reached
                 assert r.cases_seen[name][p][-1] == pytest.approx(seen_by_all[p])
             assert all(cov[-1] == r.n_pairs for cov in r.pairs_covered[name])
+    for name in r.curves:  # CPU seconds of each budget point's Table I evaluation
+        assert len(r.point_time_s[name]) == len(r.budgets)
+        assert all(t >= 0 for t in r.point_time_s[name])
     files = r.save(tmp_path)
     assert [f.name for f in files] == ["active.json", "active.md", "active.png"]
     assert ex.ActiveResult.load(tmp_path / "active.json").to_json() == r.to_json()
     text = (tmp_path / "active.md").read_text()
     assert "| eig |" in text and "Physics bound (counts)" in text
+    assert "Table I per budget point (CPU s" in text
 
 
 def test_the_choice_is_scored_on_the_replays_of_the_chosen_field(tiny_run, tiny_data_dir):
@@ -155,6 +179,43 @@ def test_the_pooled_score_is_table_one_on_the_pooled_fit(tiny_run, tiny_data_dir
                     None,
                 )
                 assert r.goal[name][p][rule] == first
+
+
+def test_the_scoring_network_answers_table_one_as_the_can_network_does(tiny_data_dir):
+    """The curve points fit and query :func:`experiments.active.scoring_network` (the end
+    configuration parentless); the can network itself, fitted on the same rows, gives the
+    same tables where the query reads them and the same answers and scores, bit for bit."""
+    data = can_dataset(tiny_data_dir, "tiny", progress=False)
+    net, pool, _, rows = ex.can_pool(data)
+    scoring = ex.scoring_network(net)
+    assert scoring.cpd("end.config").parents == ()
+    assert scoring.cpd("end.count").parents == net.cpd("end.count").parents
+    config = ex.ActiveConfig(scale="tiny", data_dir=tiny_data_dir, repeats=2, progress=False)
+    replays, configs = ex.replay_counts(config)
+    cases = {p: table_one_cases(data, p) for p in PROTOCOLS}
+    throwable = fit_can_network(data, 0).throwable
+    kernel = grid_kernel((geometry.N_ROWS, geometry.N_COLUMNS), config.pool_sigma)
+    order = np.random.default_rng(3).permutation(rows.n_rows)
+    for n in (7, rows.n_rows // 3):  # a few throws: most rows unplayed
+        chosen = rows.rows(torch.as_tensor(order[:n]))
+        for pooling in (None, (kernel, config.pool_strength)):
+            small = ex._model(scoring, chosen, pool, throwable, pooling)
+            whole = ex._model(net, chosen, pool, throwable, pooling)
+            for site in ("initial.config", "initial.count", "action", "end.count"):
+                assert torch.equal(small.params[site].probs, whole.params[site].probs), site
+            for p, (start, desired) in cases.items():
+                evidence = {
+                    "initial.config": start,
+                    "initial.count": np.array([bin(int(m)).count("1") for m in start]),
+                    "end.count": desired,
+                }
+                a = small.compiled.infer_action(evidence, allowed=throwable)
+                b = whole.compiled.infer_action(evidence, allowed=throwable)
+                for field in ("probs", "best", "log_evidence", "unseen", "implausible"):
+                    assert torch.equal(getattr(a, field), getattr(b, field)), (n, p, field)
+    got = ex._scores(scoring, chosen, pool, throwable, (kernel, 0.5), cases, replays, configs)
+    want = ex._scores(net, chosen, pool, throwable, (kernel, 0.5), cases, replays, configs)
+    assert got == want
 
 
 @pytest.mark.parametrize(

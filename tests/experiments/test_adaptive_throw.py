@@ -14,6 +14,7 @@ from experiments.adaptive_throw import (
     run_adaptive_throw,
 )
 from experiments.config import ConfigError
+from sim2d.throw import TARGET_AREA
 
 TINY = {
     "n_train": 400,
@@ -121,6 +122,44 @@ def test_the_local_inverse_is_exact_on_a_quadratic_map():
     desired = np.column_stack([want[:, 0] + 0.1 * want[:, 1] ** 2, 0.5 * want[:, 1]])
     aims = local_inverse(targets, hits, desired, want + 0.05, 12, iterations=8)
     assert np.allclose(aims, want, atol=1e-9)
+
+
+def test_the_local_inverse_neighbours_are_the_nearest_by_the_pairs_sum():
+    """The aims equal, bit for bit, those of the same Newton steps with each training
+    throw's squared distance summed over the pair by numpy (``.sum(-1)``)."""
+
+    def reference(targets, hits, desired, start, neighbours, iterations=4):
+        aims = np.clip(np.array(start, dtype=np.float64), TARGET_AREA.low, TARGET_AREA.high)
+        for i, goal in enumerate(desired):
+            aim, best, best_miss = aims[i].copy(), aims[i].copy(), np.inf
+            for _ in range(iterations + 1):
+                d2 = ((targets - aim) ** 2).sum(-1)
+                rows = np.argpartition(d2, neighbours - 1)[:neighbours]
+                u = targets[rows] - aim
+                design = np.column_stack(
+                    [np.ones(len(u)), u, u[:, 0] ** 2, u[:, 0] * u[:, 1], u[:, 1] ** 2]
+                )
+                coef = np.linalg.lstsq(design, hits[rows], rcond=None)[0]
+                miss = float(np.linalg.norm(goal - coef[0]))
+                if miss < best_miss:
+                    best, best_miss = aim.copy(), miss
+                step = np.linalg.lstsq(coef[1:3].T, goal - coef[0], rcond=1e-3)[0]
+                radius = float(np.sqrt(d2[rows].max()))
+                norm = float(np.linalg.norm(step))
+                if norm > radius:
+                    step *= radius / norm
+                aim = np.clip(aim + step, TARGET_AREA.low, TARGET_AREA.high)
+            aims[i] = best
+        return aims
+
+    rng = np.random.default_rng(4)
+    low, high = np.asarray(TARGET_AREA.low), np.asarray(TARGET_AREA.high)
+    targets = rng.uniform(low, high, (500, 2))
+    hits = np.column_stack([np.sin(targets[:, 0]) + targets[:, 1] ** 2, targets.prod(-1)])
+    desired = hits[:15] + rng.normal(0, 0.01, (15, 2))
+    start = targets[:15] + rng.normal(0, 0.05, (15, 2))
+    got = local_inverse(targets, hits, desired, start, 12)
+    assert np.array_equal(got, reference(targets, hits, desired, start, 12))
 
 
 @pytest.mark.parametrize(
