@@ -22,6 +22,7 @@ from inference.fitting.em import EMResult, fit_em
 from inference.fitting.fit import ConvergenceWarning, FitResult, fit, fit_gradient, fit_statistics
 from inference.fitting.pooling import fit_pooled, grid_kernel
 from inference.fitting.statistics import params_from_statistics
+from inference.fitting.structure import learn_structure
 from inference.queries import (
     ActionPosterior,
     CompiledQueries,
@@ -64,6 +65,7 @@ __all__ = [
     "imitation_check",
     "infer_action",
     "infer_parameter",
+    "learn_structure",
     "parameter_for_effect",
     "params_from_statistics",
     "predict",

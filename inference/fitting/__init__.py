@@ -10,6 +10,7 @@ masks with the same rules (:mod:`inference.fitting.rows`) and returns a
 """
 
 from inference.fitting.em import EMResult, fit_em
+from inference.fitting.family import family_scores
 from inference.fitting.fit import (
     ConvergenceWarning,
     FitResult,
@@ -19,17 +20,20 @@ from inference.fitting.fit import (
 )
 from inference.fitting.pooling import fit_pooled, grid_kernel
 from inference.fitting.statistics import Statistics, params_from_statistics
+from inference.fitting.structure import learn_structure
 
 __all__ = [
     "ConvergenceWarning",
     "EMResult",
     "FitResult",
     "Statistics",
+    "family_scores",
     "fit",
     "fit_em",
     "fit_gradient",
     "fit_pooled",
     "fit_statistics",
     "grid_kernel",
+    "learn_structure",
     "params_from_statistics",
 ]
