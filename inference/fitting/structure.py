@@ -136,10 +136,10 @@ def learn_structure(
     features, actions, parameters = tuple(features), tuple(actions), tuple(parameters)
     # the sites' encoding does not depend on the parents: the sparsest network serves
     bare = _network(features, actions, parameters, {})
-    families = Families(
+    space = _Space(bare, max_parents, end_parents, required, forbidden)
+    space.families = Families(
         bare, data, score=score, min_variance=min_variance, l2=l2, steps=steps, ess=ess
     )
-    space = _Space(bare, families, max_parents, end_parents, required, forbidden)
     if search == "auto":
         small = space.cost() <= EXHAUSTIVE_COST and len(space.movers) <= EXHAUSTIVE_ENDS
         search = "exhaustive" if small else "greedy"
@@ -166,8 +166,9 @@ def _network(features, actions, parameters, chosen: Mapping[str, tuple[str, ...]
 class _Space:
     """The parent sets the declaration allows for each end site, and their search."""
 
-    def __init__(self, net, families: Families, max_parents, end_parents, required, forbidden):
-        self.families = families
+    families: Families  # the rows' scores, set once the arguments are checked
+
+    def __init__(self, net, max_parents, end_parents, required, forbidden):
         self.ends = [s.name for s in net.sites if s.role == "end"]
         initial = [s.name for s in net.sites if s.role == "initial"]
         # discrete end sites that may be parents: the only edges that can close a cycle

@@ -1,0 +1,396 @@
+"""Structure learning: true parent sets recovered from simulated networks, the optimum of
+pgmpy's exhaustive search and never below its hill climbing, and an affordance world
+whose irrelevant feature is dropped."""
+
+import itertools
+import logging
+import math
+import warnings
+
+import numpy as np
+import pandas as pd
+import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from pyro import poutine
+
+from inference import fit, learn_structure, simulate
+from inference.fitting import family_scores
+from models import Continuous, Discrete, EffectNetwork, Parameter, random_params
+from models.model import effect_model
+
+logging.getLogger("pgmpy").setLevel(logging.ERROR)
+
+
+def learned_edges(net: EffectNetwork) -> set[tuple[str, str]]:
+    """Every (parent, end site) edge of ``net`` but a parameter's."""
+    out = set()
+    for s in net.sites:
+        if s.role == "end":
+            cpd = net.cpd(s.name)
+            out |= {
+                (q, s.name)
+                for q in (*cpd.parents, *cpd.inputs)
+                if not q.startswith(("cluster.", "param."))
+            }
+    return out
+
+
+# ------------------------------------------------------------------ recovery
+#: The effect size: each parent moves a discrete child's logits by EFFECT (per state, or
+#: per standard deviation of a continuous parent), and a continuous child's mean by
+#: EFFECT_MEAN noise standard deviations per state step or per input sd.
+EFFECT = 2.0
+EFFECT_MEAN = 1.0
+
+
+@st.composite
+def small_worlds(draw):
+    """A network (features, actions, true end parents) with no edge among end sites."""
+    features = []
+    for i in range(draw(st.integers(2, 4))):
+        if draw(st.booleans()) or i == 0:
+            features.append(Discrete(f"f{i}", tuple(range(draw(st.integers(2, 3))))))
+        else:
+            features.append(Continuous(f"f{i}", 1))
+    actions = tuple(f"a{i}" for i in range(draw(st.integers(2, 3))))
+    initial = [f"initial.{f.name}" for f in features]
+    parents = {}
+    for f in features:
+        ps = draw(st.lists(st.sampled_from(initial), max_size=2, unique=True))
+        if draw(st.booleans()):
+            ps.append("action")
+        parents[f"end.{f.name}"] = tuple(ps)
+    return tuple(features), actions, parents
+
+
+def simulate_world(features, actions, parents, n: int, seed: int) -> dict:
+    """Rows of the world, in numpy: discrete children by additive logits, continuous ones
+    by additive means with unit noise (effect sizes EFFECT and EFFECT_MEAN)."""
+    rng = np.random.default_rng(seed)
+    card = {f"initial.{f.name}": len(f.states) for f in features if isinstance(f, Discrete)}
+    card["action"] = len(actions)
+    values = {"action": rng.integers(0, len(actions), n)}
+    for f in features:
+        site = f"initial.{f.name}"
+        values[site] = (
+            rng.integers(0, len(f.states), n) if isinstance(f, Discrete) else rng.normal(size=n)
+        )
+    rows = {"action": np.array(actions)[values["action"]]}
+    for f in features:
+        ps = parents[f"end.{f.name}"]
+        if isinstance(f, Discrete):
+            k = len(f.states)
+            logits = np.zeros((n, k))
+            for q in ps:
+                if q in card:  # each state of the parent favours its own child state
+                    shift = rng.integers(0, k)
+                    logits[np.arange(n), (values[q] + shift) % k] += EFFECT
+                else:
+                    logits += EFFECT * np.outer(values[q], np.linspace(-1, 1, k))
+            p = np.exp(logits - logits.max(1, keepdims=True))
+            p /= p.sum(1, keepdims=True)
+            end = (p.cumsum(1) > rng.random((n, 1))).argmax(1)
+            rows[f"initial.{f.name}"] = values[f"initial.{f.name}"]
+        else:
+            end = rng.normal(size=n)
+            for q in ps:
+                if q in card:
+                    end += EFFECT_MEAN * rng.permutation(card[q])[values[q]]
+                else:
+                    end += EFFECT_MEAN * rng.choice([-1.0, 1.0]) * values[q]
+            end = end[:, None]
+            rows[f"initial.{f.name}"] = values[f"initial.{f.name}"][:, None]
+        rows[f"end.{f.name}"] = end
+    return rows
+
+
+def recovery(world, n: int, seed: int):
+    features, actions, parents = world
+    rows = simulate_world(features, actions, parents, n, seed)
+    truth = {(q, s) for s, ps in parents.items() for q in ps}
+    found = learned_edges(learn_structure(rows, features, actions))
+    return truth, found
+
+
+@settings(max_examples=4, deadline=None)
+@given(world=small_worlds(), seed=st.integers(0, 10_000))
+def test_recovers_the_true_parents_of_small_worlds(world, seed):
+    """At 2,000 rows and effects of EFFECT / EFFECT_MEAN, every true edge and no other."""
+    truth, found = recovery(world, 2000, seed)
+    assert found == truth
+
+
+@pytest.mark.slow
+@settings(max_examples=40, deadline=None)
+@given(world=small_worlds(), seed=st.integers(0, 10_000))
+def test_recovers_at_least_95_percent_of_true_edges_at_5000_rows(world, seed):
+    truth, found = recovery(world, 5000, seed)
+    assert len(found & truth) >= 0.95 * len(truth)
+    assert len(found - truth) <= 0.05 * max(len(found), 1)
+
+
+# ------------------------------------------------------------------ pgmpy
+X = Discrete("x", (0, 1, 2))
+Y = Discrete("y", ("off", "on"), initial=False)
+Z = Discrete("z", (0, 1), initial=False)
+PUSH = ("push", "pull")
+
+
+def discrete_rows(features, n: int, seed: int) -> dict:
+    """Rows of a random discrete network over ``features``' sites (initial ones and
+    the action roots, each end site drawn from a random table of some earlier sites)."""
+    rng = np.random.default_rng(seed)
+    rows = {"action": rng.integers(0, 2, n)}
+    card = {"action": 2}
+    for f in features:
+        if f.initial:
+            rows[f"initial.{f.name}"] = rng.integers(0, len(f.states), n)
+            card[f"initial.{f.name}"] = len(f.states)
+    for f in features:
+        earlier = list(rows)
+        chosen = [q for q in earlier if rng.random() < 0.5]
+        k = len(f.states)
+        shape = [card[q] for q in chosen]
+        table = rng.dirichlet(np.full(k, 0.7), size=int(np.prod(shape, dtype=int)))
+        index = np.zeros(n, dtype=int)
+        for q in chosen:
+            index = index * card[q] + rows[q]
+        p = table[index]
+        rows[f"end.{f.name}"] = (p.cumsum(1) > rng.random((n, 1))).argmax(1)
+        card[f"end.{f.name}"] = k
+    labelled = {"action": np.array(PUSH)[rows.pop("action")]}
+    for f in features:
+        for site in (f"initial.{f.name}", f"end.{f.name}"):
+            if site in rows:
+                labelled[site] = np.array(f.states)[rows[site]]
+    return labelled
+
+
+def pgmpy_bic(features, rows):
+    from pgmpy.structure_score import BIC
+
+    frame = pd.DataFrame({k: np.asarray(v).astype(str) for k, v in rows.items()})
+    states = {"action": list(PUSH)}
+    for f in features:
+        for site in (f"initial.{f.name}", f"end.{f.name}"):
+            if site in rows:
+                states[site] = [str(s) for s in f.states]
+    return frame, BIC(frame, state_names=states)
+
+
+def as_graph(net: EffectNetwork):
+    import networkx as nx
+
+    graph = nx.DiGraph()
+    graph.add_nodes_from(s.name for s in net.sites)
+    graph.add_edges_from(learned_edges(net))
+    return graph
+
+
+def allowed(graph, roots) -> bool:
+    """The declaration's rules: no edge into a root (initial sites, the action)."""
+    return not any(b in roots for _, b in graph.edges())
+
+
+@settings(max_examples=5, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.sampled_from([60, 300, 2000]))
+def test_bic_optimum_equals_pgmpys_exhaustive_search_under_the_same_rules(seed, n):
+    """Four sites (initial.x and the action roots; end.x and end.y discrete): every DAG
+    pgmpy's ExhaustiveSearch enumerates that keeps the roots roots, scored by pgmpy's BIC;
+    the learned network's pgmpy BIC is their maximum, by both searches."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FutureWarning)
+        from pgmpy.estimators import ExhaustiveSearch
+
+    features = (X, Y)
+    rows = discrete_rows(features, n, seed)
+    frame, bic = pgmpy_bic(features, rows)
+    roots = {"initial.x", "action"}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FutureWarning)
+        dags = ExhaustiveSearch(frame).all_dags(sorted(frame.columns))
+        best = max(bic.score(g) for g in dags if allowed(g, roots))
+    for search in ("exhaustive", "greedy"):
+        net = learn_structure(rows, features, PUSH, max_parents=None, search=search)
+        assert bic.score(as_graph(net)) == pytest.approx(best, rel=1e-10, abs=1e-9), search
+
+
+@settings(max_examples=4, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.sampled_from([200, 2000]))
+def test_bic_is_never_below_pgmpys_hill_climbing_under_the_same_rules(seed, n):
+    from pgmpy.causal_discovery import ExpertKnowledge, HillClimbSearch
+
+    features = (X, Discrete("w", (0, 1)), Y, Z)
+    rows = discrete_rows(features, n, seed)
+    frame, bic = pgmpy_bic(features, rows)
+    roots = {"initial.x", "initial.w", "action"}
+    forbidden = {(a, b) for a in frame.columns for b in roots if a != b}
+    climb = HillClimbSearch(
+        scoring_method=bic,
+        expert_knowledge=ExpertKnowledge(forbidden_edges=forbidden),
+        return_type="dag",
+        show_progress=False,
+    )
+    theirs = bic.score(climb.fit(frame).causal_graph_)
+    exhaustive = learn_structure(rows, features, PUSH, max_parents=None, search="exhaustive")
+    greedy = learn_structure(rows, features, PUSH, max_parents=None, search="greedy")
+    assert bic.score(as_graph(exhaustive)) >= theirs - 1e-9 * abs(theirs)
+    assert bic.score(as_graph(greedy)) >= theirs - 1e-9 * abs(theirs)
+    assert bic.score(as_graph(exhaustive)) >= bic.score(as_graph(greedy)) - 1e-9 * abs(theirs)
+
+
+# ------------------------------------------------------------------ affordances
+SHAPES = ("ball", "box", "cylinder")
+COLOURS = ("red", "green", "blue")
+AFFORDANCE = (
+    Discrete("shape", SHAPES),
+    Continuous("size", 1),
+    Discrete("colour", COLOURS),
+    Discrete("moved", (False, True), initial=False),
+    Discrete("contact", (False, True), initial=False),
+    Continuous("velocity", 1, initial=False),
+)
+GESTURES = ("grasp", "tap", "touch")
+
+
+def affordance_rows(n: int, seed: int) -> dict:
+    """Grasp moves small objects, tap rolls balls and cylinders fast, touch barely moves
+    anything and misses small objects; colour changes nothing."""
+    rng = np.random.default_rng(seed)
+    shape = rng.integers(0, 3, n)
+    size = rng.uniform(0.03, 0.12, n)  # metres
+    colour = rng.integers(0, 3, n)
+    action = rng.integers(0, 3, n)
+    rolls = shape != 1
+    p_moved = np.select(
+        [action == 0, action == 1],
+        [1 / (1 + np.exp(80 * (size - 0.08))), np.where(rolls, 0.9, 0.3)],
+        0.05,
+    )
+    p_contact = np.select(
+        [action == 0, action == 1], [0.95, 0.9], 1 / (1 + np.exp(-60 * (size - 0.06)))
+    )
+    velocity = np.select(
+        [action == 0, action == 1],
+        [np.full(n, 0.3), np.where(rolls, 0.05 / size, 0.2)],
+        0.05,
+    )
+    return {
+        "initial.shape": np.array(SHAPES)[shape],
+        "initial.size": size[:, None],
+        "initial.colour": np.array(COLOURS)[colour],
+        "action": np.array(GESTURES)[action],
+        "end.shape": np.array(SHAPES)[shape],
+        "end.size": size[:, None] + rng.normal(0, 0.002, (n, 1)),
+        "end.colour": np.array(COLOURS)[colour],
+        "end.moved": rng.random(n) < p_moved,
+        "end.contact": rng.random(n) < p_contact,
+        "end.velocity": (velocity + rng.normal(0, 0.05, n))[:, None],
+    }
+
+
+def held_out_loglik(net: EffectNetwork, train: dict, test: dict) -> float:
+    """The log-likelihood of ``test`` under ``net`` fitted on ``train``: the traced
+    model's, every site observed."""
+    params = fit(net, train).params
+    trace = poutine.trace(effect_model).get_trace(net, params, net.encode(test))
+    return float(trace.log_prob_sum())
+
+
+def split(rows: dict, n_train: int) -> tuple[dict, dict]:
+    return {k: v[:n_train] for k, v in rows.items()}, {k: v[n_train:] for k, v in rows.items()}
+
+
+def test_affordance_world_drops_colour_and_beats_fig1_on_held_out_rows():
+    train, test = split(affordance_rows(4000, 0), 3000)
+    net = learn_structure(train, AFFORDANCE, GESTURES)
+    effects = ("end.moved", "end.contact", "end.velocity")
+    for s in effects:
+        assert "initial.colour" not in net.cpd(s).parents, s
+        assert "end.colour" not in net.cpd(s).parents, s
+        assert "action" in net.cpd(s).parents, s
+    assert "initial.shape" in net.cpd("end.velocity").parents
+    assert "initial.size" in net.cpd("end.moved").inputs
+    fig1 = EffectNetwork(AFFORDANCE, GESTURES)
+    assert "initial.colour" in fig1.cpd("end.moved").parents
+    assert held_out_loglik(net, train, test) > held_out_loglik(fig1, train, test)
+
+
+# ------------------------------------------------------------------ declarations
+FORCE = Parameter("force", (0.0,), (1.0,), (2,), ("tap",), "velocity")
+
+
+def test_a_parameters_sites_stay_and_the_action_is_required_where_it_acts():
+    true = EffectNetwork(
+        AFFORDANCE[:2] + AFFORDANCE[-1:],
+        GESTURES,
+        (FORCE,),
+        parents={"end.velocity": ("action",), "end.shape": (), "end.size": ()},
+    )
+    rows = simulate(true, random_params(true, 1), 1000, seed=1)
+    net = learn_structure(rows, true.features, GESTURES, (FORCE,), max_parents=1)
+    assert net.cpd("end.velocity").parents == ("action", "cluster.force")
+    assert net.cpd("end.velocity").inputs == ("param.force",)
+    with pytest.raises(ValueError, match=r"forbidden names \('action', 'end.velocity'\)"):
+        learn_structure(
+            rows, true.features, GESTURES, (FORCE,), forbidden=[("action", "end.velocity")]
+        )
+    with pytest.raises(ValueError, match="max_parents=0"):
+        learn_structure(rows, true.features, GESTURES, (FORCE,), max_parents=0)
+
+
+def test_required_and_forbidden_pairs_bind_the_search():
+    features = (X, Y, Z)
+    rows = discrete_rows(features, 500, 3)
+    for search in ("exhaustive", "greedy"):
+        net = learn_structure(
+            rows,
+            features,
+            PUSH,
+            search=search,
+            required=[("end.y", "end.z"), ("initial.x", "end.x")],
+            forbidden=[("end.z", "end.y"), ("action", "end.x")],
+        )
+        edges = learned_edges(net)
+        assert {("end.y", "end.z"), ("initial.x", "end.x")} <= edges
+        assert not edges & {("end.z", "end.y"), ("action", "end.x")}
+
+
+def test_boundary_errors_name_the_argument():
+    features = (X, Y)
+    rows = discrete_rows(features, 100, 0)
+    with pytest.raises(ValueError, match="search must be"):
+        learn_structure(rows, features, PUSH, search="tabu")
+    with pytest.raises(ValueError, match="max_parents"):
+        learn_structure(rows, features, PUSH, max_parents=-1)
+    with pytest.raises(ValueError, match=r"required names \('end.x', 'initial.x'\)"):
+        learn_structure(rows, features, PUSH, required=[("end.x", "initial.x")])
+    with pytest.raises(ValueError, match="pairs"):
+        learn_structure(rows, features, PUSH, required=["end.x"])
+    with pytest.raises(ValueError, match="cycle"):
+        learn_structure(rows, features, PUSH, required=[("end.x", "end.y"), ("end.y", "end.x")])
+    mixed = (X, Continuous("v", 1, initial=False))
+    with pytest.raises(ValueError, match=r"required names \('end.v', 'end.x'\)"):
+        learn_structure({}, mixed, PUSH, required=[("end.v", "end.x")])
+
+
+def test_the_learned_networks_score_is_the_sum_of_its_families():
+    """The learned network's BIC (its families' scores) is at least that of every other
+    network of the same rules on two discrete ends (all enumerated here)."""
+    features = (X, Y)
+    rows = discrete_rows(features, 400, 7)
+    net = learn_structure(rows, features, PUSH, max_parents=None)
+    best = sum(family_scores(net, rows).values())
+    options = ["initial.x", "action"]
+    for ax, ay in itertools.product(range(4), range(4)):
+        for edge in (None, "x->y", "y->x"):
+            ps_x = [q for i, q in enumerate(options) if ax >> i & 1]
+            ps_y = [q for i, q in enumerate(options) if ay >> i & 1]
+            if edge == "x->y":
+                ps_y.append("end.x")
+            if edge == "y->x":
+                ps_x.append("end.y")
+            other = EffectNetwork(features, PUSH, parents={"end.x": ps_x, "end.y": ps_y})
+            assert sum(family_scores(other, rows).values()) <= best + 1e-9 * abs(best)
+    assert math.isfinite(best)
