@@ -171,6 +171,10 @@ class Families:
             found = self._cache[key] = self._score(site, key[1])
         return found
 
+    def scored(self, site: str) -> list[Family]:
+        """The families of ``site`` scored so far, in the order they were."""
+        return [f for (s, _), f in self._cache.items() if s == site]
+
     def _score(self, site: str, parents: tuple[str, ...]) -> Family:
         discrete, card, inputs, width = self.layout(site, parents)
         spec = self.specs[site]

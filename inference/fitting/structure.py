@@ -356,8 +356,8 @@ class _Space:
         for s, ps in start.items():
             if not math.isfinite(self._score(s, ps)):
                 raise ValueError(self._no_family(s))
-        best = self._climb(start)
-        best_score = sum(self._score(s, ps) for s, ps in best.items())
+        best = self._settle(start)
+        best_score = self._total(best)
         for _ in range(restarts):
             state = dict(best)
             for _ in range(max(2, len(self.ends))):  # a few random legal edge changes
@@ -366,12 +366,33 @@ class _Space:
                     break
                 for s, ps in moves[int(rng.integers(len(moves)))]:
                     state[s] = ps
-            state = self._climb(state)
-            total = sum(self._score(s, ps) for s, ps in state.items())
+            state = self._settle(state)
+            total = self._total(state)
             if total > best_score:
                 best, best_score = state, total
         order = list(self.families.specs)
         return {s: tuple(q for q in order if q in ps) for s, ps in best.items()}
+
+    def _total(self, state: Mapping[str, frozenset]) -> float:
+        return sum(self._score(s, ps) for s, ps in state.items())
+
+    def _settle(self, state: dict[str, frozenset]) -> dict[str, frozenset]:
+        """Climb from ``state``; then, while it gains, recombine: the best acyclic choice
+        among every family scored so far (the exhaustive order search over them, which
+        turns edges among end sites that the climb, one edge at a time, cannot), and
+        climb from there."""
+        state = self._climb(state)
+        if len(self.movers) > EXHAUSTIVE_ENDS:
+            return state
+        while True:
+            scored = {s: self.families.scored(s) for s in self.ends}
+            chosen = {s: max(scored[s], key=lambda f: f.score).parents for s in self.ends}
+            chosen.update(self._best_order({s: scored[s] for s in self.movers}))
+            combined = {s: frozenset(ps) for s, ps in chosen.items()}
+            total = self._total(state)
+            if self._total(combined) <= total + 1e-9 * max(1.0, abs(total)):
+                return state
+            state = self._climb(combined)
 
 
 def _subsets(n: int, most: int) -> int:

