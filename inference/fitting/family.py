@@ -41,7 +41,7 @@ from dataclasses import dataclass
 import torch
 
 from inference.fitting.rows import check_settings, refuse_adaptive, training_rows
-from models.cpds import Counts, LinearGaussianCPD, Moments, SoftmaxCPD, SoftmaxParams
+from models.cpds import Counts, LinearGaussianCPD, SoftmaxCPD, SoftmaxParams
 from models.declaration import ACTION, DTYPE, MAX_CPD_ENTRIES, EffectNetwork
 from models.sites import SiteSpec
 
@@ -59,7 +59,10 @@ ABSENT = -600.0
 class Family:
     """One end site with one parent set, scored: ``parents`` the chosen parents (the
     parameter sites excluded), ``loglik`` at the maximum-likelihood parameters, ``free``
-    the free parameters, ``score`` the requested score."""
+    the free parameters, ``score`` the requested score. ``degenerate``: a linear
+    Gaussian with a configuration of fewer rows than its mean's numbers plus its
+    dimension, which it fits exactly: the covariance there is the floor
+    ``min_variance`` and the likelihood grows without bound as the floor falls."""
 
     site: str
     parents: tuple[str, ...]
@@ -67,6 +70,7 @@ class Family:
     loglik: float
     free: int
     score: float
+    degenerate: bool = False
 
 
 class Families:
@@ -117,16 +121,11 @@ class Families:
         self.min_variance, self.l2, self.steps, self.ess = min_variance, l2, steps, ess
         self.n = enc.n_rows
         self.specs: dict[str, SiteSpec] = {s.name: s for s in net.sites}
-        self.values: dict[str, torch.Tensor] = {}
-        for name, spec in self.specs.items():
-            value = enc[name]
-            if not spec.discrete:
-                # centred: the sums of squares keep their digits; an intercept per
-                # configuration absorbs the shift, so no likelihood changes
-                given = ~torch.isnan(value).any(-1)
-                centre = value[given].mean(0) if bool(given.any()) else 0.0
-                value = (value - centre).nan_to_num()
-            self.values[name] = value
+        # as the fit reads them: a parameter's value NaN (unused) counts as 0
+        self.values = {
+            name: enc[name] if spec.discrete else enc[name].nan_to_num()
+            for name, spec in self.specs.items()
+        }
         self._cache: dict[tuple[str, tuple[str, ...]], Family] = {}
 
     # ------------------------------------------------------------------ the family's shape
@@ -183,6 +182,7 @@ class Families:
         y = self.values[site]
         x = torch.cat([self.values[q] for q in inputs], -1) if inputs else None
         groups = math.prod(card)
+        degenerate = False
         if spec.discrete and x is None:
             kind = "table"
             counts = torch.bincount(index * spec.size + y, minlength=groups * spec.size)
@@ -212,12 +212,18 @@ class Families:
             zero = self._zero_weights(site, discrete, card, width)
             cpd = LinearGaussianCPD(site, discrete, card, spec.size, inputs, width, zero)
             moments = cpd.statistics(index, x, y)
-            loglik = _gaussian_loglik(cpd.m_step(moments, 0.0, self.min_variance), moments)
+            fitted = cpd.m_step(moments, 0.0, self.min_variance)
+            loglik = _gaussian_loglik(fitted, index, x, y)
             d = spec.size
             fixed = zero.sum(-1) if zero is not None else torch.zeros(groups, dtype=torch.long)
             per = d * (width + 1) + d * (d + 1) // 2 - d * fixed
             free = int(per[reachable.reshape(-1)].sum())
-        return Family(site, parents, kind, loglik, free, self._penalised(loglik, free))
+            # a configuration with fewer rows than its means' numbers plus the dimension
+            # fits them exactly: its covariance is the floor, its likelihood unbounded
+            seen = moments.n > 0
+            degenerate = bool((moments.n[seen] < (width + 1 - fixed + d)[seen]).any())
+        score = self._penalised(loglik, free)
+        return Family(site, parents, kind, loglik, free, score, degenerate)
 
     def _penalised(self, loglik: float, free: int) -> float:
         if self.score_name == "bic":
@@ -276,19 +282,20 @@ def _bdeu(counts: torch.Tensor, ess: float) -> float:
     return float(cells - rows)
 
 
-def _gaussian_loglik(params, moments: Moments) -> float:
-    """The rows' log-likelihood under a linear Gaussian, from their sums per
-    configuration: ``-1/2 sum_g [n_g (d log 2 pi + log|S_g|) + tr(S_g^-1 R_g)]``."""
-    zz, zy, yy, n = moments.zz, moments.zy, moments.yy, moments.n
-    groups, q, d = zy.shape
-    weight = params.weight.reshape(groups, d, q - 1)
-    beta = torch.cat([weight.mT, params.bias.reshape(groups, 1, d)], 1)  # (G, q, d)
-    resid = yy - zy.mT @ beta - beta.mT @ zy + beta.mT @ zz @ beta
-    tril = params.scale_tril.reshape(groups, d, d)
+def _gaussian_loglik(params, index: torch.Tensor, x: torch.Tensor | None, y: torch.Tensor):
+    """The rows' log-likelihood under a linear Gaussian, row by row as the model's
+    density reads it: ``-1/2 [d log 2 pi + log|S_g| + r^T S_g^-1 r]`` with ``r`` the
+    row's residual in its configuration ``g``."""
+    d = y.shape[-1]
+    groups = params.bias.numel() // d
+    mean = params.bias.reshape(groups, d)[index]
+    if x is not None:
+        weight = params.weight.reshape(groups, d, -1)[index]
+        mean = mean + (weight @ x[:, :, None])[..., 0]
+    tril = params.scale_tril.reshape(groups, d, d)[index]
+    white = torch.linalg.solve_triangular(tril, (y - mean)[:, :, None], upper=False)[..., 0]
     logdet = 2 * tril.diagonal(dim1=-2, dim2=-1).log().sum(-1)
-    trace = torch.cholesky_solve(resid, tril).diagonal(dim1=-2, dim2=-1).sum(-1)
-    terms = n * (d * math.log(2 * math.pi) + logdet) + trace
-    return float(-0.5 * terms[n > 0].sum())
+    return float(-0.5 * (d * math.log(2 * math.pi) + logdet + white.square().sum(-1)).sum())
 
 
 def family_scores(

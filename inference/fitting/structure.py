@@ -28,6 +28,7 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Iterable, Mapping
+from functools import partial
 
 import numpy as np
 
@@ -43,6 +44,9 @@ __all__ = ["EXHAUSTIVE_COST", "EXHAUSTIVE_ENDS", "SOFTMAX_COST", "learn_structur
 #: (the order search visits every subset of them).
 EXHAUSTIVE_COST = 4000
 EXHAUSTIVE_ENDS = 12
+#: Scores this close (relative) are equal up to rounding: the choice between them goes
+#: to the family with fewer end parents.
+TIE = 1e-9
 #: A softmax family's cost in table fits: Newton's method on the rows takes several
 #: passes over them where a table takes one count.
 SOFTMAX_COST = 50
@@ -250,16 +254,28 @@ class _Space:
         return total
 
     def exhaustive(self) -> dict[str, tuple[str, ...]]:
-        scored = {s: [self.families.family(s, ps) for ps in self._sets(s)] for s in self.ends}
+        scored = {
+            s: [f for f in map(partial(self.families.family, s), self._sets(s)) if not f.degenerate]
+            for s in self.ends
+        }
         for s, options in scored.items():
             if not options:
                 raise ValueError(self._no_family(s))
         chosen = {}
         for s in self.ends:
             if s not in self.index:  # not a parent of any end: no cycle through it
-                chosen[s] = max(scored[s], key=lambda f: f.score).parents
+                chosen[s] = self._preferred(scored[s]).parents
         chosen.update(self._best_order({s: scored[s] for s in self.movers}))
         return chosen
+
+    def _preferred(self, options: list[Family]) -> Family:
+        """The best-scoring family; among those within rounding (:data:`TIE`) of it,
+        the first with the fewest end parents (an end feature the action leaves as it
+        was copies its initial site, which then explains as much)."""
+        top = max(f.score for f in options)
+        near = [f for f in options if f.score >= top - TIE * abs(top)]
+        specs = self.families.specs
+        return min(near, key=lambda f: sum(specs[q].role == "end" for q in f.parents))
 
     def _best_order(self, scored: Mapping[str, list[Family]]) -> dict[str, tuple[str, ...]]:
         """The best acyclic choice of families for the discrete end sites that may be
@@ -282,7 +298,8 @@ class _Space:
                 step = 1 << bit
                 shape = (size // (2 * step), 2, step)
                 v, w = value.reshape(shape), which.reshape(shape)
-                better = v[:, 0, :] > v[:, 1, :]
+                # within rounding, the family with fewer end parents
+                better = v[:, 0, :] >= v[:, 1, :] - TIE * np.abs(v[:, 1, :])
                 v[:, 1, :] = np.where(better, v[:, 0, :], v[:, 1, :])
                 w[:, 1, :] = np.where(better, w[:, 0, :], w[:, 1, :])
             best[s], pick[s] = value, which
@@ -318,33 +335,43 @@ class _Space:
     def _score(self, site: str, parents) -> float:
         if not self.families.admissible(site, parents):
             return -math.inf
-        return self.families.family(site, parents).score
+        found = self.families.family(site, parents)
+        return -math.inf if found.degenerate else found.score
 
-    def _moves(self, state: dict[str, frozenset]):
-        """Every legal single-edge change: ``(site, new parents)`` pairs, one or two."""
+    def _moves(self, state: dict[str, frozenset], rank: Mapping[str, float] | None = None):
+        """Every legal single-edge change: ``(site, new parents)`` pairs, one or two.
+        With ``rank``, an edge between end sites is added only from a lower rank to a
+        higher one, and none is turned."""
         for s in self.ends:
             ps = state[s]
             for q in self.candidates[s]:
                 if q in ps:
                     if q not in self.required[s]:
                         yield ((s, ps - {q}),)
+                        if rank is not None:
+                            continue
                         if q in self.index and s in self.index and s in self.candidates[q]:
                             if len(state[q]) < self.max_parents:
                                 turned = ((s, ps - {q}), (q, state[q] | {s}))
                                 if not _cyclic(_with(state, turned, self.index)):
                                     yield turned
                 elif len(ps) < self.max_parents:
+                    if rank is not None and rank.get(q, -1) > rank.get(s, math.inf):
+                        continue
                     added = ((s, ps | {q}),)
                     if q not in self.index or not _cyclic(_with(state, added, self.index)):
                         yield added
 
-    def _climb(self, state: dict[str, frozenset]) -> dict[str, frozenset]:
+    def _climb(self, state: dict[str, frozenset], rank=None) -> dict[str, frozenset]:
         current = {s: self._score(s, ps) for s, ps in state.items()}
         while True:
-            best, gain = None, 1e-9 * max(1.0, abs(sum(current.values())))
-            for move in self._moves(state):
+            # a gain within rounding is none, and a move beats an earlier one only by
+            # more than rounding: initial parents come first, so a tie goes to them
+            rounding = TIE * max(1.0, abs(sum(current.values())))
+            best, gain = None, rounding
+            for move in self._moves(state, rank):
                 delta = sum(self._score(s, ps) - current[s] for s, ps in move)
-                if delta > gain:
+                if delta > gain + (rounding if best is not None else 0.0):
                     best, gain = move, delta
             if best is None:
                 return state
@@ -358,17 +385,23 @@ class _Space:
                 raise ValueError(self._no_family(s))
         best = self._settle(start)
         best_score = self._total(best)
-        for _ in range(restarts):
-            state = dict(best)
-            for _ in range(max(2, len(self.ends))):  # a few random legal edge changes
-                moves = list(self._moves(state))
-                if not moves:
-                    break
-                for s, ps in moves[int(rng.integers(len(moves)))]:
-                    state[s] = ps
+        for restart in range(restarts):
+            if restart % 2 == 0 and len(self.movers) > 1:
+                # from no chosen parents, edges among end sites only along a random
+                # order of them: another orientation of what they share
+                rank = dict(zip(self.movers, rng.permutation(len(self.movers)), strict=True))
+                state = self._climb(dict(start), rank)
+            else:
+                state = dict(best)
+                for _ in range(max(2, len(self.ends))):  # a few random legal edge changes
+                    moves = list(self._moves(state))
+                    if not moves:
+                        break
+                    for s, ps in moves[int(rng.integers(len(moves)))]:
+                        state[s] = ps
             state = self._settle(state)
             total = self._total(state)
-            if total > best_score:
+            if total > best_score + TIE * max(1.0, abs(best_score)):
                 best, best_score = state, total
         order = list(self.families.specs)
         return {s: tuple(q for q in order if q in ps) for s, ps in best.items()}
@@ -385,8 +418,10 @@ class _Space:
         if len(self.movers) > EXHAUSTIVE_ENDS:
             return state
         while True:
-            scored = {s: self.families.scored(s) for s in self.ends}
-            chosen = {s: max(scored[s], key=lambda f: f.score).parents for s in self.ends}
+            scored = {
+                s: [f for f in self.families.scored(s) if not f.degenerate] for s in self.ends
+            }
+            chosen = {s: self._preferred(scored[s]).parents for s in self.ends}
             chosen.update(self._best_order({s: scored[s] for s in self.movers}))
             combined = {s: frozenset(ps) for s, ps in chosen.items()}
             total = self._total(state)

@@ -6,7 +6,9 @@ import functools
 import itertools
 import logging
 import math
+import re
 import warnings
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -209,24 +211,29 @@ def allowed_dags(nodes: tuple[str, ...]) -> list:
 def test_bic_optimum_equals_pgmpys_exhaustive_search_under_the_same_rules(seed, n):
     """Four sites (initial.x and the action roots; end.x and end.y discrete): every DAG
     pgmpy's ExhaustiveSearch enumerates that keeps the roots roots, scored by pgmpy's BIC;
-    the learned network's pgmpy BIC is their maximum, by both searches."""
+    the learned network's pgmpy BIC is their maximum."""
     features = (X, Y)
     rows = discrete_rows(features, n, seed)
     frame, bic = pgmpy_bic(features, rows)
     best = max(bic.score(g) for g in allowed_dags(tuple(sorted(frame.columns))))
-    for search in ("exhaustive", "greedy"):
+    for search in ("auto", "exhaustive"):
         net = learn_structure(rows, features, PUSH, max_parents=None, search=search)
         assert bic.score(as_graph(net)) == pytest.approx(best, rel=1e-10, abs=1e-9), search
+    # the climb is a local search: at most the optimum (a pair of parents that only
+    # helps together is beyond its single-edge steps)
+    greedy = learn_structure(rows, features, PUSH, max_parents=None, search="greedy")
+    assert bic.score(as_graph(greedy)) <= best + 1e-9 * abs(best)
 
 
-@settings(max_examples=4, deadline=None)
-@given(seed=st.integers(0, 10_000), n=st.sampled_from([200, 2000]))
-def test_bic_is_never_below_pgmpys_hill_climbing_under_the_same_rules(seed, n):
+FOUR = (X, Discrete("w", (0, 1)), Y, Z)  # 3 roots, 4 discrete end sites
+
+
+def pgmpy_climb(rows) -> tuple[float, object]:
+    """pgmpy's HillClimbSearch (BIC, the declared states) with every edge into a root
+    forbidden: its network's BIC, and the scorer."""
     from pgmpy.causal_discovery import ExpertKnowledge, HillClimbSearch
 
-    features = (X, Discrete("w", (0, 1)), Y, Z)
-    rows = discrete_rows(features, n, seed)
-    frame, bic = pgmpy_bic(features, rows)
+    frame, bic = pgmpy_bic(FOUR, rows)
     roots = {"initial.x", "initial.w", "action"}
     forbidden = {(a, b) for a in frame.columns for b in roots if a != b}
     climb = HillClimbSearch(
@@ -235,12 +242,37 @@ def test_bic_is_never_below_pgmpys_hill_climbing_under_the_same_rules(seed, n):
         return_type="dag",
         show_progress=False,
     )
-    theirs = bic.score(climb.fit(frame).causal_graph_)
-    exhaustive = learn_structure(rows, features, PUSH, max_parents=None, search="exhaustive")
-    greedy = learn_structure(rows, features, PUSH, max_parents=None, search="greedy")
-    assert bic.score(as_graph(exhaustive)) >= theirs - 1e-9 * abs(theirs)
-    assert bic.score(as_graph(greedy)) >= theirs - 1e-9 * abs(theirs)
-    assert bic.score(as_graph(exhaustive)) >= bic.score(as_graph(greedy)) - 1e-9 * abs(theirs)
+    return bic.score(climb.fit(frame).causal_graph_), bic
+
+
+@settings(max_examples=4, deadline=None)
+@given(seed=st.integers(0, 10_000), n=st.sampled_from([200, 2000]))
+def test_bic_is_never_below_pgmpys_hill_climbing_under_the_same_rules(seed, n):
+    """The default search (exhaustive here) finds the optimum: never below the climb."""
+    rows = discrete_rows(FOUR, n, seed)
+    theirs, bic = pgmpy_climb(rows)
+    for search in ("auto", "exhaustive"):
+        net = learn_structure(rows, FOUR, PUSH, max_parents=None, search=search)
+        assert bic.score(as_graph(net)) >= theirs - 1e-9 * abs(theirs), search
+
+
+def test_the_climb_scores_above_pgmpys_on_average_and_never_above_the_optimum():
+    """The greedy search is a local search too: over 10 drawn networks its BIC is at most
+    the exhaustive optimum and on average at least pgmpy's climb (in 120 drawn networks
+    it was below pgmpy's in 2 and below the optimum in 26; pgmpy's below the optimum in
+    57)."""
+    ours, theirs = [], []
+    for seed in range(10):
+        rows = discrete_rows(FOUR, 500, seed)
+        score, bic = pgmpy_climb(rows)
+        greedy = bic.score(
+            as_graph(learn_structure(rows, FOUR, PUSH, max_parents=None, search="greedy"))
+        )
+        best = bic.score(as_graph(learn_structure(rows, FOUR, PUSH, max_parents=None)))
+        assert greedy <= best + 1e-9 * abs(best)
+        ours.append(greedy)
+        theirs.append(score)
+    assert np.mean(ours) >= np.mean(theirs)
 
 
 # ------------------------------------------------------------------ affordances
@@ -399,3 +431,14 @@ def test_the_learned_networks_score_is_the_sum_of_its_families():
             other = EffectNetwork(features, PUSH, parents={"end.x": ps_x, "end.y": ps_y})
             assert sum(family_scores(other, rows).values()) <= best + 1e-9 * abs(best)
     assert math.isfinite(best)
+
+
+def test_the_structure_pages_snippet_runs_and_learns_what_it_says():
+    """docs/structure.md's example: colour and size dropped from the moved's parents."""
+    page = Path(__file__).resolve().parents[2] / "docs" / "structure.md"
+    blocks = re.findall(r"^```python\n(.*?)^```", page.read_text(), re.S | re.M)
+    assert len(blocks) == 1
+    scope: dict = {}
+    exec(compile(blocks[0], str(page), "exec"), scope)
+    assert scope["moved_by"] == ("initial.shape", "action")
+    assert scope["p"] == pytest.approx(0.9, abs=0.05)
