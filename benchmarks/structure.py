@@ -55,7 +55,7 @@ def world(kind: str, n_features: int, seed: int) -> EffectNetwork:
 
 def pgmpy_search(net: EffectNetwork, rows: dict, max_parents: int, kind: str):
     """pgmpy's HillClimbSearch under the same constraints; returns the learned edges."""
-    from pgmpy.estimators import ExpertKnowledge, HillClimbSearch
+    from pgmpy.causal_discovery import ExpertKnowledge, HillClimbSearch
 
     frame = {}
     for s in net.sites:
@@ -70,15 +70,14 @@ def pgmpy_search(net: EffectNetwork, rows: dict, max_parents: int, kind: str):
     names = [s.name for s in net.sites]
     forbidden = {(a, b) for b in roots for a in names if a != b}
     forbidden |= {(a, b) for a in sinks for b in names if a != b}
-    knowledge = ExpertKnowledge(forbidden_edges=forbidden)
-    score = "bic-d" if kind == "discrete" else "bic-cg"
-    dag = HillClimbSearch(frame).estimate(
-        scoring_method=score,
+    climb = HillClimbSearch(
+        scoring_method="bic-d" if kind == "discrete" else "bic-cg",
         max_indegree=max_parents,
-        expert_knowledge=knowledge,
+        expert_knowledge=ExpertKnowledge(forbidden_edges=forbidden),
+        return_type="dag",
         show_progress=False,
     )
-    return set(dag.edges())
+    return set(climb.fit(frame).causal_graph_.edges())
 
 
 def edges(net: EffectNetwork) -> set[tuple[str, str]]:

@@ -15,7 +15,10 @@ declaration gives that family (:func:`models.cpds.default_kind`), at the paramet
   least squares of the child on its continuous parents and a one, with the full residual
   covariance (:meth:`models.cpds.LinearGaussianCPD.m_step`, its eigenvalues floored at
   ``min_variance``), log-likelihood ``-1/2 sum_g [n_g (d log 2 pi + log|S_g|) + tr(S_g^-1
-  R_g)]`` with ``R_g`` the residual sums of squares.
+  R_g)]`` with ``R_g`` the residual sums of squares. A configuration with fewer rows
+  than its mean's numbers plus ``d`` fits them exactly and its covariance is the floor;
+  structure learning scores those rows under the residual covariance pooled over the
+  other configurations instead (``Families(pooled=True)``), a bounded likelihood.
 
 BIC subtracts ``k / 2 * ln n`` and AIC ``k``, with ``k`` the family's free parameters
 over the parent configurations the structure can reach (an action that does not use a
@@ -41,7 +44,8 @@ from dataclasses import dataclass
 import torch
 
 from inference.fitting.rows import check_settings, refuse_adaptive, training_rows
-from models.cpds import Counts, LinearGaussianCPD, SoftmaxCPD, SoftmaxParams
+from models.cpds import Counts, LinearGaussianCPD, LinearGaussianParams, SoftmaxCPD, SoftmaxParams
+from models.cpds.linear_gaussian import floor_variance
 from models.declaration import ACTION, DTYPE, MAX_CPD_ENTRIES, EffectNetwork
 from models.sites import SiteSpec
 
@@ -61,8 +65,8 @@ class Family:
     parameter sites excluded), ``loglik`` at the maximum-likelihood parameters, ``free``
     the free parameters, ``score`` the requested score. ``degenerate``: a linear
     Gaussian with a configuration of fewer rows than its mean's numbers plus its
-    dimension, which it fits exactly: the covariance there is the floor
-    ``min_variance`` and the likelihood grows without bound as the floor falls."""
+    dimension, which it fits exactly: the fit's covariance there is the floor
+    ``min_variance``, and its likelihood grows without bound as the floor falls."""
 
     site: str
     parents: tuple[str, ...]
@@ -89,6 +93,11 @@ class Families:
     min_variance, l2, steps, ess
         The covariance floor and the softmax prior and Newton steps (as in
         :func:`inference.fit`); BDeu's equivalent sample size.
+    pooled
+        Whether a linear Gaussian's configuration that fits its few rows exactly
+        (``degenerate``) scores them under the residual covariance pooled over its
+        other configurations instead of the floor ``min_variance`` (the fit's): a
+        bounded likelihood, so that a family's few exact fits do not buy it a score.
     """
 
     def __init__(
@@ -101,6 +110,7 @@ class Families:
         l2: float = 0.01,
         steps: int = 500,
         ess: float = 1.0,
+        pooled: bool = False,
     ) -> None:
         if score not in SCORES:
             raise ValueError(f"score must be one of {SCORES}, got {score!r}")
@@ -119,6 +129,7 @@ class Families:
         enc = training_rows(net, data)
         self.net, self.score_name = net, score
         self.min_variance, self.l2, self.steps, self.ess = min_variance, l2, steps, ess
+        self.pooled = pooled
         self.n = enc.n_rows
         self.specs: dict[str, SiteSpec] = {s.name: s for s in net.sites}
         # as the fit reads them: a parameter's value NaN (unused) counts as 0
@@ -213,15 +224,17 @@ class Families:
             cpd = LinearGaussianCPD(site, discrete, card, spec.size, inputs, width, zero)
             moments = cpd.statistics(index, x, y)
             fitted = cpd.m_step(moments, 0.0, self.min_variance)
-            loglik = _gaussian_loglik(fitted, index, x, y)
             d = spec.size
             fixed = zero.sum(-1) if zero is not None else torch.zeros(groups, dtype=torch.long)
+            # a configuration with fewer rows than its mean's numbers plus the dimension
+            # fits them exactly: its covariance is the floor, its likelihood unbounded
+            short = (moments.n > 0) & (moments.n < width + 1 - fixed + d)
+            degenerate = bool(short.any())
+            if degenerate and self.pooled:
+                fitted = _pooled_where(fitted, short, index, x, y, self.min_variance)
+            loglik = _gaussian_loglik(fitted, index, x, y)
             per = d * (width + 1) + d * (d + 1) // 2 - d * fixed
             free = int(per[reachable.reshape(-1)].sum())
-            # a configuration with fewer rows than its means' numbers plus the dimension
-            # fits them exactly: its covariance is the floor, its likelihood unbounded
-            seen = moments.n > 0
-            degenerate = bool((moments.n[seen] < (width + 1 - fixed + d)[seen]).any())
         score = self._penalised(loglik, free)
         return Family(site, parents, kind, loglik, free, score, degenerate)
 
@@ -280,6 +293,25 @@ def _bdeu(counts: torch.Tensor, ess: float) -> float:
     cells = (lg(counts + b) - lg(b)).sum()
     rows = (lg(counts.sum(-1) + a) - lg(a)).sum()
     return float(cells - rows)
+
+
+def _pooled_where(params, short, index, x, y, min_variance: float) -> LinearGaussianParams:
+    """``params`` with the covariance of the configurations ``short`` (``(G,)`` bool)
+    replaced by the residual covariance pooled over the rows of the others (of all rows
+    around their mean where every configuration is short), floored at ``min_variance``."""
+    d = y.shape[-1]
+    groups = short.shape[0]
+    mean = params.bias.reshape(groups, d)[index]
+    if x is not None:
+        mean = mean + (params.weight.reshape(groups, d, -1)[index] @ x[:, :, None])[..., 0]
+    kept = ~short[index]
+    resid = (y - mean)[kept] if bool(kept.any()) else y - y.mean(0)
+    cov = floor_variance((resid.mT @ resid / resid.shape[0])[None], min_variance)[0]
+    tril = params.scale_tril.reshape(groups, d, d).clone()
+    tril[short] = torch.linalg.cholesky(cov)
+    return LinearGaussianParams(
+        params.weight, params.bias, tril.reshape(params.scale_tril.shape), params.n
+    )
 
 
 def _gaussian_loglik(params, index: torch.Tensor, x: torch.Tensor | None, y: torch.Tensor):

@@ -28,7 +28,6 @@ from __future__ import annotations
 import itertools
 import math
 from collections.abc import Iterable, Mapping
-from functools import partial
 
 import numpy as np
 
@@ -43,6 +42,8 @@ __all__ = ["EXHAUSTIVE_COST", "EXHAUSTIVE_ENDS", "SOFTMAX_COST", "learn_structur
 #: and the discrete end sites that may be parents are at most :data:`EXHAUSTIVE_ENDS`
 #: (the order search visits every subset of them).
 EXHAUSTIVE_COST = 4000
+#: The most discrete end sites that may be parents for which the order search runs (it
+#: visits every subset of them): for exhaustive search and the climb's recombination.
 EXHAUSTIVE_ENDS = 12
 #: Scores this close (relative) are equal up to rounding: the choice between them goes
 #: to the family with fewer end parents.
@@ -142,7 +143,14 @@ def learn_structure(
     bare = _network(features, actions, parameters, {})
     space = _Space(bare, max_parents, end_parents, required, forbidden)
     space.families = Families(
-        bare, data, score=score, min_variance=min_variance, l2=l2, steps=steps, ess=ess
+        bare,
+        data,
+        score=score,
+        min_variance=min_variance,
+        l2=l2,
+        steps=steps,
+        ess=ess,
+        pooled=True,
     )
     if search == "auto":
         small = space.cost() <= EXHAUSTIVE_COST and len(space.movers) <= EXHAUSTIVE_ENDS
@@ -254,10 +262,7 @@ class _Space:
         return total
 
     def exhaustive(self) -> dict[str, tuple[str, ...]]:
-        scored = {
-            s: [f for f in map(partial(self.families.family, s), self._sets(s)) if not f.degenerate]
-            for s in self.ends
-        }
+        scored = {s: [self.families.family(s, ps) for ps in self._sets(s)] for s in self.ends}
         for s, options in scored.items():
             if not options:
                 raise ValueError(self._no_family(s))
@@ -335,8 +340,7 @@ class _Space:
     def _score(self, site: str, parents) -> float:
         if not self.families.admissible(site, parents):
             return -math.inf
-        found = self.families.family(site, parents)
-        return -math.inf if found.degenerate else found.score
+        return self.families.family(site, parents).score
 
     def _moves(self, state: dict[str, frozenset], rank: Mapping[str, float] | None = None):
         """Every legal single-edge change: ``(site, new parents)`` pairs, one or two.
@@ -418,9 +422,7 @@ class _Space:
         if len(self.movers) > EXHAUSTIVE_ENDS:
             return state
         while True:
-            scored = {
-                s: [f for f in self.families.scored(s) if not f.degenerate] for s in self.ends
-            }
+            scored = {s: self.families.scored(s) for s in self.ends}
             chosen = {s: self._preferred(scored[s]).parents for s in self.ends}
             chosen.update(self._best_order({s: scored[s] for s in self.movers}))
             combined = {s: frozenset(ps) for s, ps in chosen.items()}

@@ -442,3 +442,26 @@ def test_the_structure_pages_snippet_runs_and_learns_what_it_says():
     exec(compile(blocks[0], str(page), "exec"), scope)
     assert scope["moved_by"] == ("initial.shape", "action")
     assert scope["p"] == pytest.approx(0.9, abs=0.05)
+
+
+def test_a_gaussian_family_that_fits_its_rows_exactly_is_not_chosen():
+    """60 rows, an initial label seen once each, a continuous end value it does not
+    affect: grouped by the label each row is fitted exactly, the fit's covariance sits
+    on the floor and its likelihood (+6 nats a row at min_variance=1e-6) outruns BIC's
+    penalty. The search scores such rows under the pooled covariance instead, and does
+    not choose the family."""
+    rng = np.random.default_rng(0)
+    ids = tuple(range(60))
+    features = (Discrete("id", ids), Continuous("v", 1, initial=False))
+    rows = {
+        "initial.id": np.array(ids),
+        "action": ["look"] * 60,
+        "end.id": np.array(ids),
+        "end.v": rng.normal(size=(60, 1)),
+    }
+    net = EffectNetwork(features, ("look",), parents={"end.v": ("initial.id",)})
+    flat = EffectNetwork(features, ("look",), parents={"end.v": ()})
+    overfit = family_scores(net, rows)["end.v"]
+    assert overfit > family_scores(flat, rows)["end.v"]  # what BIC alone would choose
+    learned = learn_structure(rows, features, ("look",))
+    assert learned.cpd("end.v").parents == ()
