@@ -108,31 +108,39 @@ def simulate_world(features, actions, parents, n: int, seed: int) -> dict:
     return rows
 
 
-def recovery(world, n: int, seed: int):
-    features, actions, parents = world
-    rows = simulate_world(features, actions, parents, n, seed)
-    truth = {(q, s) for s, ps in parents.items() for q in ps}
-    found = learned_edges(learn_structure(rows, features, actions))
-    return truth, found
+def recovery(worlds, n: int, seed: int) -> tuple[int, int, int]:
+    """Over ``worlds``: the true edges, the true ones learned, the learned ones not true."""
+    true = found = extra = 0
+    for i, (features, actions, parents) in enumerate(worlds):
+        rows = simulate_world(features, actions, parents, n, seed + i)
+        truth = {(q, s) for s, ps in parents.items() for q in ps}
+        learned = learned_edges(learn_structure(rows, features, actions))
+        true += len(truth)
+        found += len(learned & truth)
+        extra += len(learned - truth)
+    return true, found, extra
 
 
-@settings(max_examples=4, deadline=None, derandomize=True)
-@given(world=small_worlds(), seed=st.integers(0, 10_000))
-def test_recovers_the_true_parents_of_small_worlds(world, seed):
-    """At 2,000 rows and effects of EFFECT / EFFECT_MEAN, every true edge and no other.
-    (A spurious edge turned up in 1 of 150 drawn worlds at this size: the examples are
-    drawn the same way on every run, and the slow test below states the rate.)"""
-    truth, found = recovery(world, 2000, seed)
-    assert found == truth
+@settings(max_examples=1, deadline=None, derandomize=True)
+@given(worlds=st.lists(small_worlds(), min_size=6, max_size=6), seed=st.integers(0, 10_000))
+def test_recovers_the_true_parents_of_small_worlds(worlds, seed):
+    """At 2,000 rows and effects of EFFECT / EFFECT_MEAN: at least 95 % of the true edges,
+    and at most 5 % of the learned ones false, over six drawn worlds (drawn the same way on
+    every run)."""
+    true, found, extra = recovery(worlds, 2000, seed)
+    assert found >= 0.95 * true
+    assert extra <= 0.05 * (found + extra)
 
 
 @pytest.mark.slow
-@settings(max_examples=40, deadline=None)
-@given(world=small_worlds(), seed=st.integers(0, 10_000))
-def test_recovers_at_least_95_percent_of_true_edges_at_5000_rows(world, seed):
-    truth, found = recovery(world, 5000, seed)
-    assert len(found & truth) >= 0.95 * len(truth)
-    assert len(found - truth) <= 0.05 * max(len(found), 1)
+@settings(max_examples=3, deadline=None)
+@given(worlds=st.lists(small_worlds(), min_size=20, max_size=20), seed=st.integers(0, 10_000))
+def test_recovers_at_least_95_percent_of_true_edges_at_5000_rows(worlds, seed):
+    """Over 20 drawn worlds at a time: a false edge is rare, but any one world may show
+    one, so the bounds hold on the totals."""
+    true, found, extra = recovery(worlds, 5000, seed)
+    assert found >= 0.95 * true
+    assert extra <= 0.05 * (found + extra)
 
 
 # ------------------------------------------------------------------ pgmpy
