@@ -47,7 +47,7 @@ napoleon_use_keyword = False
 
 # third-party types only; every name of this project's must resolve
 nitpick_ignore_regex = [
-    (r"py:.*", r"(torch|pyro|numpy|np|matplotlib|pgmpy|dask|ray|pymunk)(\..*)?"),
+    (r"py:.*", r"(torch|pyro|numpy|np|matplotlib|pgmpy|pandas|dask|ray|pymunk)(\..*)?"),
     # the standard library's (no intersphinx: the build is offline)
     (r"py:class", r"(collections\.abc|pathlib|typing)\..*"),
 ]

@@ -40,7 +40,7 @@ import numpy as np
 import torch
 
 from experiments.cans import SimulationSettings
-from experiments.combined import Robot
+from experiments.combined import Robot, hit_gaussians
 from experiments.config import (
     ConfigError,
     Result,
@@ -59,6 +59,7 @@ from experiments.registry import Experiment
 from experiments.throwing import MAX_BINS, fit_throws, get_data
 from inference import compile as compile_queries
 from inference import fit, predict
+from inference.queries.chaining import BoxPartition, chain, link_probabilities
 from inference.queries.planning import exact_plan, paper_planner
 from models.can_network import can_network, can_rows
 from sim2d import geometry
@@ -285,28 +286,26 @@ def can_model(states: list[int], heights: np.ndarray, outcomes: dict[int, np.nda
 def learned_transition(
     can_probs: torch.Tensor, robot: Robot, heights: np.ndarray, table_z: float
 ) -> tuple[torch.Tensor, np.ndarray]:
-    """``T[s, a, s']`` of aiming at ``heights[a]``, and the robot's aims ``(A, 2)``."""
+    """``T[s, a, s']`` of aiming at ``heights[a]``, and the robot's aims ``(A, 2)``.
+
+    The networks chained (:func:`inference.queries.chaining.chain`): the throw network's
+    predicted hit (:func:`experiments.combined.hit_gaussians`) read as the height bin it
+    falls in (each height owns the half step either side of it) within the can band;
+    a hit beside the band or off the face changes nothing.
+    """
     desired = np.stack([np.zeros_like(heights), heights + table_z], -1)
     aims = robot.aim(desired)
-    mean, cov = robot.hit_distribution(aims)
     half = np.diff(heights).mean() / 2 if len(heights) > 1 else 0.01
-    edges = torch.as_tensor(np.concatenate([heights - half, [heights[-1] + half]]))
-    z = torch.distributions.Normal(
-        torch.as_tensor(mean[:, 1] - table_z)[:, None],
-        torch.as_tensor(np.sqrt(cov[:, 1, 1]))[:, None],
+    edges = np.concatenate([heights - half, [heights[-1] + half]])
+    across = np.tile([-CAN_BAND, CAN_BAND], (len(heights), 1))
+    link = BoxPartition(
+        np.stack([across[:, 0], edges[:-1]], -1),
+        np.stack([across[:, 1], edges[1:]], -1),
+        labels=range(len(heights)),
+        actions=range(len(heights)),
     )
-    cdf = z.cdf(edges[None, :])
-    p_bin = cdf[:, 1:] - cdf[:, :-1]  # (aimed, hit bin); the rest falls off the face
-    y = torch.distributions.Normal(
-        torch.as_tensor(mean[:, 0]), torch.as_tensor(np.sqrt(cov[:, 0, 0]))
-    )
-    p_band = y.cdf(torch.tensor(CAN_BAND)) - y.cdf(torch.tensor(-CAN_BAND))
-    p_hit = p_band[:, None] * p_bin  # (A, B)
-    t = torch.einsum("ab,sbt->sat", p_hit, can_probs)
-    stay = (1 - p_hit.sum(-1)).clamp_min(0.0)  # (A,)
-    idx = torch.arange(can_probs.shape[0])
-    t[idx, :, idx] += stay[None, :]
-    return t, aims
+    hits = link_probabilities(link, hit_gaussians(robot, aims, table_z))
+    return chain(hits, can_probs), aims
 
 
 def _paper_task(start, goal, most_probable, states, aims, table_z, jitter, noise, seed):

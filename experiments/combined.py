@@ -43,8 +43,9 @@ from experiments.config import (
 )
 from experiments.registry import Experiment
 from experiments.throwing import MAX_BINS, fit_throws, get_data
+from inference import GaussianMixture, predict
 from inference import compile as compile_queries
-from inference import predict
+from inference.queries.chaining import BoxPartition, chain, link_probabilities
 from inference.queries.planning import exact_plan, paper_planner
 from models.throw_network import TARGET
 from sim2d import geometry, materials
@@ -61,6 +62,8 @@ __all__ = [
     "Robot",
     "World",
     "build_world",
+    "field_link",
+    "hit_gaussians",
     "run_combined",
     "run_scenario",
     "transition_model",
@@ -242,47 +245,63 @@ def build_world(config: CombinedConfig, data) -> tuple[World, dict]:
     return world, why | {"table_z": config.table_z, "jitter": jitter}
 
 
+def hit_gaussians(robot: Robot, aims: np.ndarray, table_z: float) -> GaussianMixture:
+    """The throw network's predicted hit for each aim as one Gaussian a row, in the can
+    frame (lateral, height above the table), its two coordinates taken as independent:
+    the can band is read across and the fields' slices up, one coordinate each."""
+    mean, cov = robot.hit_distribution(aims)
+    mean = torch.as_tensor(mean) - torch.tensor([0.0, table_z], dtype=torch.float64)
+    var = torch.diagonal(torch.as_tensor(cov), dim1=-2, dim2=-1)
+    return GaussianMixture(
+        torch.ones(len(mean), 1, dtype=torch.float64), mean[:, None], torch.diag_embed(var)[:, None]
+    )
+
+
+def field_link(heights: np.ndarray, fields: np.ndarray) -> tuple[BoxPartition, np.ndarray]:
+    """A hit in the can band read as the field whose near-face height is nearest: each of
+    ``fields`` owns the heights between the midpoints to its neighbours (the lowest and
+    highest open-ended); a hit beside the band hits nothing. Returns the partition (the
+    can network's actions: every field) and ``fields`` ordered by height."""
+    order = fields[np.argsort(heights[fields])]
+    edges = np.concatenate([[-np.inf], (heights[order][1:] + heights[order][:-1]) / 2, [np.inf]])
+    across = np.tile([-CAN_BAND, CAN_BAND], (len(order), 1))
+    link = BoxPartition(
+        np.stack([across[:, 0], edges[:-1]], -1),
+        np.stack([across[:, 1], edges[1:]], -1),
+        labels=order.tolist(),
+        actions=range(geometry.N_FIELDS),
+    )
+    return link, order
+
+
 def transition_model(world: World, states: list[int]) -> torch.Tensor:
     """``T[s, f, s']``: the learned chance that aiming at field ``f`` from ``s`` gives ``s'``.
 
-    The hit's height is drawn from the throw network's predicted Gaussian and read as the
-    field whose matched near-face height (:meth:`World.heights`) is nearest to it; a hit
-    outside the can band leaves the state unchanged. States the can network never saw as
-    a start get no actions (their rows stay zero).
+    The two networks chained (:func:`inference.queries.chaining.chain`): the throw
+    network's predicted hit (:func:`hit_gaussians`) read through each state's
+    :func:`field_link` (the fields' matched near-face heights, :meth:`World.heights`),
+    and the can network's end configurations settled by the recorded rule; a hit beside
+    the cans leaves the state unchanged. States the can network never saw as a start get
+    no actions (their rows stay zero).
     """
     index = {s: i for i, s in enumerate(states)}
-    t = torch.zeros(len(states), geometry.N_FIELDS, len(states), dtype=torch.float64)
     can_states = world.can.states
     settled_index = [index.get(settle(end, world.stable), -1) for end in can_states]
+    fields = np.flatnonzero(world.can.throwable.numpy())
+    lower = torch.zeros(len(states), geometry.N_FIELDS, len(states), dtype=torch.float64)
+    links = [None] * len(states)
     for s in states:
         if s not in can_states:
             continue
-        heights = world.heights(s)
-        fields = np.flatnonzero(world.can.throwable.numpy())
-        order = fields[np.argsort(heights[fields])]
-        edges = (heights[order][1:] + heights[order][:-1]) / 2
-        desired = np.stack([np.zeros(len(order)), heights[order] + world.table_z], -1)
-        mean, cov = world.robot.hit_distribution(world.robot.aim(desired))
-        # chance that the hit's height falls in each field's slice: (aimed, hit) over `order`
-        height = torch.distributions.Normal(
-            torch.as_tensor(mean[:, 1] - world.table_z)[:, None],
-            torch.as_tensor(np.sqrt(cov[:, 1, 1]))[:, None],
-        )
-        bounds = torch.as_tensor(np.concatenate([[-np.inf], edges, [np.inf]]))
-        p_field = height.cdf(bounds[None, 1:]) - height.cdf(bounds[None, :-1])
-        lateral = torch.distributions.Normal(
-            torch.as_tensor(mean[:, 0]), torch.as_tensor(np.sqrt(cov[:, 0, 0]))
-        )
-        p_band = lateral.cdf(torch.tensor(CAN_BAND)) - lateral.cdf(torch.tensor(-CAN_BAND))
+        link, order = field_link(world.heights(s), fields)
+        desired = np.stack([np.zeros(len(order)), world.heights(s)[order] + world.table_z], -1)
+        hits = hit_gaussians(world.robot, world.robot.aim(desired), world.table_z)
+        links[index[s]] = link_probabilities(link, hits).padded(order, geometry.N_FIELDS)
         probs = world.can.end_config_probs(s, order).double()  # (hit field, network state)
-        settled = torch.zeros(len(order), len(states), dtype=torch.float64)
         for j, target in enumerate(settled_index):
             if target >= 0:
-                settled[:, target] += probs[:, j]
-        outcome = p_band[:, None] * (p_field @ settled)  # (aimed, s')
-        outcome[:, index[s]] += 1 - p_band
-        t[index[s], torch.as_tensor(order)] = outcome
-    return t
+                lower[index[s], order, target] += probs[:, j]
+    return chain(links, lower)
 
 
 def run_scenario(world: World, name: str, config: CombinedConfig) -> dict:

@@ -4,10 +4,19 @@ README and the guide teach.
 Fitting (:mod:`inference.fitting`): :func:`fit`, :func:`fit_gradient`, :func:`fit_em`,
 :func:`fit_pooled` (with :func:`grid_kernel`), :func:`fit_statistics` and
 :func:`params_from_statistics`; :func:`simulate` draws rows in ``fit``'s format.
+Scores (:mod:`inference.fitting.scores`): :func:`log_likelihood`, :func:`bic`,
+:func:`aic`, :func:`cross_validate`, and :func:`select_clusters`, which chooses a
+parameter's clusters by them; :func:`learn_structure` chooses the end features' parents
+by a decomposable score (:mod:`inference.fitting.structure`).
 Questions (:mod:`inference.queries`): :func:`predict`, :func:`imitation_check`,
 :func:`infer_action`, :func:`infer_parameter` (the parameter posterior),
-:func:`parameter_for_effect` (the inverse model), and :func:`compile`, whose methods of
-the same names answer from compiled tables where they can. Active exploration
+:func:`parameter_for_effect` (the inverse model), :func:`predict_joint` (the end
+features' joint), :func:`transitions` (``P(next state | state, action)`` over a
+network's states), :func:`plan` (the policy that reaches a goal within a horizon),
+:func:`explain` (a demonstration read as the actions that produced it), and
+:func:`compile`, whose methods of the same names answer from compiled tables where they
+can; :func:`link_probabilities` and :func:`chain` read one network's continuous output
+as another's actions. Active exploration
 (:mod:`inference.design`): :func:`explore`. Pictures of a network and its fitted
 numbers (matplotlib, drawn into the caller's axes): the module :mod:`inference.plots`.
 
@@ -21,40 +30,79 @@ from inference.design.active import explore
 from inference.fitting.em import EMResult, fit_em
 from inference.fitting.fit import ConvergenceWarning, FitResult, fit, fit_gradient, fit_statistics
 from inference.fitting.pooling import fit_pooled, grid_kernel
+from inference.fitting.scores import (
+    CrossValidation,
+    LogLikelihood,
+    aic,
+    bic,
+    cross_validate,
+    log_likelihood,
+    n_parameters,
+)
+from inference.fitting.selection import ClusterSelection, select_clusters
 from inference.fitting.statistics import params_from_statistics
 from inference.fitting.structure import learn_structure
 from inference.queries import (
     ActionPosterior,
+    BoxPartition,
     CompiledQueries,
+    FunctionLink,
     GaussianMixture,
     ImitationCheck,
+    JointPrediction,
+    LinkProbabilities,
     ParameterForEffect,
     ParameterPosterior,
+    Plan,
     Prediction,
+    StateSpace,
+    Transitions,
+    chain,
     compile,
     imitation_check,
     infer_action,
     infer_parameter,
+    link_probabilities,
     parameter_for_effect,
+    plan,
     predict,
+    predict_joint,
+    transitions,
 )
+from inference.queries.explain import Explanation, explain
 from inference.queries.plausibility import OutsideTrainingData
 from inference.queries.simulate import simulate
 from models.deprecation import moved
 
 __all__ = [
     "ActionPosterior",
+    "BoxPartition",
+    "ClusterSelection",
     "CompiledQueries",
     "ConvergenceWarning",
+    "CrossValidation",
     "EMResult",
+    "Explanation",
     "FitResult",
+    "FunctionLink",
     "GaussianMixture",
     "ImitationCheck",
+    "JointPrediction",
+    "LinkProbabilities",
+    "LogLikelihood",
     "OutsideTrainingData",
     "ParameterForEffect",
     "ParameterPosterior",
+    "Plan",
     "Prediction",
+    "StateSpace",
+    "Transitions",
+    "aic",
+    "bic",
+    "chain",
     "compile",
+    "cross_validate",
+    "explain",
     "explore",
     "fit",
     "fit_em",
@@ -66,10 +114,17 @@ __all__ = [
     "infer_action",
     "infer_parameter",
     "learn_structure",
+    "link_probabilities",
+    "log_likelihood",
+    "n_parameters",
     "parameter_for_effect",
     "params_from_statistics",
+    "plan",
     "predict",
+    "predict_joint",
+    "select_clusters",
     "simulate",
+    "transitions",
 ]
 
 #: Lower-level names this face used to export -> the module that holds them.

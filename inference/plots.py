@@ -16,6 +16,8 @@ so importing this module costs nothing.
   a one-dimensional value, over the training rows when given.
 * :func:`plot_action_posterior` -- an :class:`~inference.queries.ActionPosterior` row as
   bars by action name.
+* :func:`plot_demonstration` -- an :class:`~inference.queries.explain.Explanation` row:
+  the per-step action posterior as a heat map, the most probable sequence marked.
 """
 
 from __future__ import annotations
@@ -547,4 +549,38 @@ def plot_action_posterior(posterior, ax=None, actions: Sequence[str] | None = No
     ax.set_xticks(range(len(chosen)), list(chosen))
     ax.set_ylim(0.0, 1.0)
     ax.set_ylabel("P(action | evidence)")
+    return ax
+
+
+def plot_demonstration(explanation, ax=None, row: int = 0):
+    """Draw one demonstration's per-step action posterior as a heat map.
+
+    Parameters
+    ----------
+    explanation : Explanation
+        What :func:`inference.explain` returned.
+    ax : matplotlib.axes.Axes, optional
+        Where to draw; a new figure when ``None``.
+    row : int
+        The demonstration to draw.
+
+    Returns
+    -------
+    matplotlib.axes.Axes
+        One column per step and one row per action, the cell's shade the action's
+        posterior probability at that step (0 white, 1 dark); a dot marks each step's
+        action in the most probable sequence.
+    """
+    n = explanation.probs.shape[0]
+    if not -n <= row < n:
+        raise ValueError(f"row {row} is not a demonstration of this explanation, which has {n}")
+    probs = explanation.probs[row].detach().cpu().double().numpy().T  # (A, T)
+    ax = _axes(ax)
+    ax.imshow(probs, cmap="Blues", vmin=0.0, vmax=1.0, aspect="auto", origin="upper")
+    steps = np.arange(probs.shape[1])
+    ax.plot(steps, explanation.best[row].numpy(), "o", color="C1", label="most probable sequence")
+    ax.set_xticks(steps, [f"{t} → {t + 1}" for t in steps])
+    ax.set_yticks(range(len(explanation.actions)), list(explanation.actions))
+    ax.set_xlabel("step (state → state)")
+    ax.set_ylabel("P(action | demonstration)")
     return ax

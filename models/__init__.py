@@ -24,6 +24,7 @@ from models.declaration import (
 )
 from models.deprecation import renamed
 from models.evidence import Evidence, Partial
+from models.frames import from_frame, to_frame
 from models.interop import PgmpyNetwork, from_pgmpy, read_bif, to_pgmpy, write_bif
 from models.model import effect_model
 from models.params import NetworkParams, load, random_params, save
@@ -56,6 +57,7 @@ __all__ = [
     "cluster_site",
     "effect_model",
     "end_site",
+    "from_frame",
     "from_pgmpy",
     "initial_site",
     "load",
@@ -63,6 +65,7 @@ __all__ = [
     "read_bif",
     "random_params",
     "save",
+    "to_frame",
     "to_pgmpy",
     "write_bif",
 ]

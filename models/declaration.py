@@ -37,6 +37,7 @@ from models.cpds import CPD, KINDS, ParameterMixture
 from models.dtype import DTYPE
 from models.evidence import Evidence, decode, encode
 from models.features import LAYOUTS, Continuous, Discrete, Feature, FeatureKind, Parameter
+from models.frames import as_data
 from models.sites import ACTION, SiteSpec, cluster_site, end_site, initial_site, param_site
 from models.structure import (
     MAX_CPD_ENTRIES,
@@ -253,7 +254,8 @@ class EffectNetwork:
         continuous end feature observed in some dimensions only is
         ``Partial(value, observed=mask)`` (:class:`models.evidence.Partial`). All values
         must have the same number of rows ``n``. Already encoded :class:`Evidence` is
-        returned as it is. See :mod:`models.evidence` for the whole convention.
+        returned as it is. See :mod:`models.evidence` for the whole convention. A pandas
+        ``DataFrame`` is read by the column convention of :mod:`models.frames`.
 
         Raises
         ------
@@ -261,7 +263,7 @@ class EffectNetwork:
             Naming the site and the problem: unknown site, unknown state, wrong
             dimension, NaN or inf, or rows that disagree in number.
         """
-        return encode(self, evidence, indices=False)
+        return encode(self, as_data(self, evidence), indices=False)
 
     def encode_indices(self, evidence: Mapping[str, object]) -> Evidence:
         """Like :meth:`encode`, but discrete values are state *indices* ``0..K-1``.

@@ -52,6 +52,9 @@ def test_readme_snippets_run(tmp_path, monkeypatch):
     assert float(namespace["surprise"][0]) > 0.99
     assert abs(float(namespace["force_needed"][0, 0]) - 10.0) < 0.5
     assert abs(float(namespace["force_to_use"][0, 0]) - 10.0) < 0.5
+    assert namespace["p_gone"] > 0.99
+    assert namespace["first"] == "remove" and namespace["chance"] > 0.99
+    assert namespace["story"] == (("tap", "remove"),)
     assert namespace["gap"] < 1e-12  # the compiled parameter posterior, the traced one's
     assert namespace["draws"]["param.force"].shape == (100, 5, 1)
     assert set(namespace["draws"]) == {site.name for site in namespace["net"].sites}

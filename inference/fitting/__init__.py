@@ -2,11 +2,13 @@
 
 The closed form for tables and Gaussians (:func:`fit`, on sufficient statistics that
 merge by addition: :mod:`inference.fitting.statistics`), Newton steps for softmax CPDs,
-EM for adaptive clusters (:mod:`inference.fitting.em`) and for missing discrete values
+EM for adaptive clusters (:mod:`inference.fitting.em`) and for missing values
 (:mod:`inference.fitting.missing`), the gradient route (:func:`fit_gradient`) and a shared prior over table rows
 (:mod:`inference.fitting.pooling`). Every route checks its settings, training rows and
 masks with the same rules (:mod:`inference.fitting.rows`) and returns a
-:class:`FitResult` (:mod:`inference.fitting.result`).
+:class:`FitResult` (:mod:`inference.fitting.result`). Structure learning
+(:func:`learn_structure`) chooses the end features' parents by a decomposable score
+(:mod:`inference.fitting.structure`, the families' scores in :mod:`inference.fitting.family`).
 """
 
 from inference.fitting.em import EMResult, fit_em
@@ -19,14 +21,30 @@ from inference.fitting.fit import (
     fit_statistics,
 )
 from inference.fitting.pooling import fit_pooled, grid_kernel
+from inference.fitting.scores import (
+    CrossValidation,
+    LogLikelihood,
+    aic,
+    bic,
+    cross_validate,
+    log_likelihood,
+    n_parameters,
+)
+from inference.fitting.selection import ClusterSelection, select_clusters
 from inference.fitting.statistics import Statistics, params_from_statistics
 from inference.fitting.structure import learn_structure
 
 __all__ = [
+    "ClusterSelection",
     "ConvergenceWarning",
+    "CrossValidation",
     "EMResult",
     "FitResult",
+    "LogLikelihood",
     "Statistics",
+    "aic",
+    "bic",
+    "cross_validate",
     "family_scores",
     "fit",
     "fit_em",
@@ -35,5 +53,8 @@ __all__ = [
     "fit_statistics",
     "grid_kernel",
     "learn_structure",
+    "log_likelihood",
+    "n_parameters",
     "params_from_statistics",
+    "select_clusters",
 ]

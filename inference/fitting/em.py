@@ -61,6 +61,7 @@ from inference.fitting.statistics import params_from_statistics, statistics
 from models.cpds import Counts, LinearGaussianCPD, Moments, ParameterMixture, TableCPD
 from models.declaration import ACTION, EffectNetwork
 from models.evidence import DTYPE, Evidence
+from models.frames import as_data
 from models.gaussian import quadratic_features
 from models.params import NetworkParams, check_params
 
@@ -145,6 +146,7 @@ def fit_em(
     check_settings(pseudo_count=pseudo_count, min_variance=min_variance, steps=steps, tol=tol)
     start = time.perf_counter()
     mixtures = _adaptive(net)
+    data = as_data(net, data)
     if not isinstance(data, Mapping):
         raise ValueError(
             f"data must be one mapping of rows (EM revisits them every step), got "

@@ -8,9 +8,10 @@ defines:
   covariance, cluster Gaussians are sample means and covariances. Softmax CPDs (a discrete
   child of continuous parents) have no closed form: each parent configuration is a
   multinomial logistic regression, solved by Newton's method
-  (:meth:`models.cpds.SoftmaxCPD.maximise`). When some rows miss a discrete value
-  (``masks``), EM with exact E-steps maximises the marginal likelihood, the missing
-  values summed out (:func:`inference.fitting.missing.fit_missing`).
+  (:meth:`models.cpds.SoftmaxCPD.maximise`). When some rows miss a value (None or NaN
+  for a discrete label, NaN for a continuous value or some of its dimensions, or
+  ``masks``), EM with exact E-steps maximises the marginal likelihood, the missing
+  values summed and integrated out (:func:`inference.fitting.missing.fit_missing`).
 * :func:`fit_gradient` -- ``TraceEnum_ELBO`` with an empty guide, minimised by L-BFGS
   (Adam with gaps) on tensors local to the call (Pyro's global parameter store is left
   alone): with no latent continuous sites, the ELBO *is* the (marginal) log-likelihood.
@@ -49,15 +50,14 @@ import torch
 from pyro.infer import TraceEnum_ELBO
 from tqdm.auto import tqdm
 
-from inference.fitting.missing import fit_missing
+from inference.fitting.gaussian_gaps import continuous_gaps
+from inference.fitting.missing import available_case_start, fit_missing
 from inference.fitting.result import ConvergenceWarning, FitResult
 from inference.fitting.rows import (
     check_settings,
-    ignore_missing,
-    mask_values,
-    missing_masks,
     refuse_adaptive,
     row_masks,
+    rows_with_gaps,
     training_rows,
 )
 from inference.fitting.statistics import (
@@ -66,8 +66,9 @@ from inference.fitting.statistics import (
     params_from_statistics,
     statistics,
 )
-from models.declaration import ACTION, EffectNetwork
+from models.declaration import EffectNetwork
 from models.evidence import Evidence
+from models.frames import as_data
 from models.model import effect_model
 from models.params import NetworkParams, check_params, initial_params
 
@@ -98,9 +99,13 @@ def fit(
     Parameters
     ----------
     data
-        Training rows by site name (see :meth:`EffectNetwork.encode`); every site of the
+        Training rows by site name (see :meth:`EffectNetwork.encode`), or a pandas
+        ``DataFrame`` with a column per site (:mod:`models.frames`); every site of the
         network must be present. ``param.p`` holds NaN in rows whose action does not use
-        ``p``. Or an iterable of such row chunks (a generator, say), read once: each
+        ``p`` (a missing value of a parameter the action uses is refused). A missing
+        value is None or NaN for a discrete label (an object or float array), NaN for a
+        continuous initial or end value or some of its dimensions (or
+        :class:`models.evidence.Partial`); then the fit is EM (see ``masks``). Or an iterable of such row chunks (a generator, say), read once: each
         chunk's sufficient statistics are computed and summed
         (:mod:`inference.fitting.statistics`), so the rows never need to be in memory together.
         Chunks serve networks whose CPDs all have a closed form, without ``masks``.
@@ -112,10 +117,12 @@ def fit(
         in its slope. Pass 0 when every configuration has rows enough.
     masks
         ``(n,)`` bool per discrete site, False where the row's value is missing (the
-        row's value there is ignored). With gaps the fit is EM (see
-        :func:`inference.fitting.missing.fit_missing`), started from the closed form on the rows
-        that miss nothing; ``FitResult.losses`` is its per-row negative log-likelihood
-        (missing values summed out) at the start and after each step, never rising.
+        row's value there is ignored), another way to mark missing labels. With gaps
+        the fit is EM (see :func:`inference.fitting.missing.fit_missing`), started from
+        each CPD's closed form on the rows that give its site and parents; ``FitResult.losses`` is its
+        per-row negative log-likelihood (missing values summed out) at the start and
+        after each step, never rising, and ``FitResult.log_likelihoods`` the summed
+        log-likelihood.
     steps, lr, l2, tol, progress
         ``steps``: the most Newton iterations of a softmax fit, or EM steps with gaps.
         ``l2``: the precision of the softmax slopes' Gaussian prior. ``tol``: EM has
@@ -127,6 +134,7 @@ def fit(
         pseudo_count=pseudo_count, min_variance=min_variance, steps=steps, lr=lr, l2=l2, tol=tol
     )
     refuse_adaptive(net, "fit")
+    data = as_data(net, data)
     if not isinstance(data, Mapping):
         if isinstance(data, str | bytes) or not isinstance(data, Iterable):
             raise ValueError(
@@ -144,36 +152,14 @@ def fit(
             )
         cpds = params_from_statistics(net, stats, pseudo_count, min_variance)
         return FitResult(NetworkParams(cpds, pseudo_count, net))
-    if masks is not None and not isinstance(masks, Mapping):
-        raise ValueError(
-            f"masks must map discrete site names to (n,) bool masks, got {type(masks).__name__}"
-        )
-    if masks:
-        missing_masks(net, masks, None)  # what EM cannot fill, before the rows' checks
-        data = ignore_missing(net, data, masks)
-    action_mask = (masks or {}).get(ACTION)
-    unknown_action = None
-    if action_mask is not None:
-        unknown_action = ~mask_values(ACTION, action_mask)
-    enc = training_rows(net, data, unknown_action)
-    masks = row_masks(net, masks, enc.n_rows)
+    enc, masks = rows_with_gaps(net, data, masks)
     gaps = {site: m for site, m in masks.items() if not bool(m.all())}
-    complete = torch.ones(enc.n_rows, dtype=torch.bool)
-    for m in gaps.values():
-        complete &= m
-    if not complete.any():
-        raise ValueError(
-            "every row misses some value; at least one complete row is needed to start"
-        )
-    rows = enc if not gaps else enc.rows(complete)  # no copy of the rows when none misses
-    cpds = params_from_statistics(net, statistics(net, rows), pseudo_count, min_variance)
-    params = NetworkParams(cpds, pseudo_count, net)
-    if gaps:
+    if gaps or continuous_gaps(net, enc):
         return fit_missing(
             net,
             enc,
             gaps,
-            init=params,
+            init=available_case_start(net, enc, gaps, pseudo_count, min_variance),
             pseudo_count=pseudo_count,
             min_variance=min_variance,
             l2=l2,
@@ -181,6 +167,8 @@ def fit(
             tol=tol,
             progress=progress,
         )
+    cpds = params_from_statistics(net, statistics(net, enc), pseudo_count, min_variance)
+    params = NetworkParams(cpds, pseudo_count, net)
     return _fit_open_forms(net, enc, params, steps=steps, lr=lr, l2=l2, tol=tol, progress=progress)
 
 
@@ -246,6 +234,7 @@ def fit_statistics(
     refuse_adaptive(net, "fit_statistics")
     total, empty = None, 0
     for chunk in tqdm(chunks, desc="fit (chunks)", unit="chunk", disable=not progress):
+        chunk = as_data(net, chunk)  # a chunk may be a DataFrame
         if not isinstance(chunk, Mapping):
             raise ValueError(
                 f"data must be a mapping of rows or an iterable of such chunks; got a "

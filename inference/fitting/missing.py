@@ -1,18 +1,37 @@
-"""Expectation-maximisation over missing discrete values.
+"""Expectation-maximisation over missing values.
 
-Missing discrete values (:func:`fit_missing`, what :func:`inference.fit` runs when
-``masks`` leave gaps) are discrete latent variables, as adaptive clusters are
-(:mod:`inference.fitting.em`), so EM serves them alike. The E-step is exact: the
-Pyro model, traced under enumeration with the masked values latent
-(:func:`inference.queries.enumeration.enumerate_model`), gives each row's joint posterior over its missing
-values and its log-likelihood with them summed out. Each row then stands for one
-completed row per assignment of its missing values, weighted by that assignment's
-posterior, and the M-step is the closed form on the weighted statistics of the completed
-rows (:func:`inference.fitting.statistics.statistics` with ``weights``) -- exactly the expected
-sufficient statistics -- and, for a CPD without a closed form (softmax), its own
-weighted maximisation (Newton's method from the current parameters). Continuous values
-are never missing, so the pooled statistics behind the pseudo-count policy do not change
-between steps.
+Missing values (:func:`fit_missing`, what :func:`inference.fit` runs when some training
+row misses a value) are latent variables, as adaptive clusters are
+(:mod:`inference.fitting.em`), so EM serves them alike, with exact E-steps:
+
+* **Discrete values** (None or NaN in the rows, or False in ``masks``): the Pyro model,
+  traced under enumeration with them latent
+  (:func:`inference.queries.enumeration.enumerate_model`), gives each row's joint
+  posterior over its missing values and its log-likelihood with them summed out. Each
+  row then stands for one completed row per assignment of its missing values, weighted
+  by that assignment's posterior.
+* **Continuous values** (NaN, whole or in some dimensions, at a continuous initial or
+  end site): given an assignment of the discrete values, the row's continuous sites are
+  jointly Gaussian (:mod:`inference.fitting.gaussian_gaps`). The model, traced with
+  their factors left out, gives each assignment's discrete factors; the joint Gaussian
+  gives the density of the observed dimensions (the missing ones integrated out) and the
+  missing ones' conditional mean and covariance. Each completed row holds the
+  conditional means, and the conditional covariances join the sums of the linear
+  Gaussians: ``E[v v^T] = E[v] E[v]^T + Cov[v]``.
+
+The M-step is the closed form on the weighted statistics of the completed rows
+(:func:`inference.fitting.statistics.statistics` with ``weights``, plus the covariance
+sums) -- exactly the expected sufficient statistics -- and, for a CPD without a closed
+form (softmax), its own weighted maximisation (Newton's method from the current
+parameters). The log-likelihood never falls from step to step; with a pseudo-count the
+pooled pseudo-rows move with the completed rows, so a step that would lower the
+likelihood is not taken and the fit ends there.
+
+What has no closed form is refused by name: a discrete site (a softmax) whose
+continuous parent misses a value, a continuous site of a kind other than the linear
+Gaussian, and a missing value of a parameter that the row's action uses (``param.p``
+NaN means that the action does not use ``p``; where the action is given and uses it, the
+row is refused; where the action itself is missing, see below).
 
 A missing action in a network with parameters: a training row gives a parameter's value
 exactly when its action uses the parameter (:func:`inference.fit` refuses a row that
@@ -28,26 +47,39 @@ from __future__ import annotations
 import math
 import warnings
 from collections.abc import Mapping
-from dataclasses import replace
+from dataclasses import dataclass, field, replace
 
 import torch
 from tqdm.auto import tqdm
 
-from inference.fitting.result import ConvergenceWarning, FitResult
-from inference.fitting.rows import (
-    check_settings,
-    ignore_missing,
-    mask_values,
-    missing_masks,
-    training_rows,
+from inference.fitting.gaussian_gaps import (
+    condition,
+    continuous_gaps,
+    continuous_sites,
+    covariance_moments,
+    joint_gaussian,
+    refuse_open_forms,
 )
-from inference.fitting.statistics import maximise_site, params_from_statistics, statistics
+from inference.fitting.result import ConvergenceWarning, FitResult
+from inference.fitting.rows import check_settings, missing_masks, rows_with_gaps
+from inference.fitting.statistics import (
+    Statistics,
+    maximise_site,
+    params_from_statistics,
+    statistics,
+)
 from inference.queries.enumeration import Enumerated, enumerate_model, row_chunks
 from models.declaration import ACTION, EffectNetwork
 from models.evidence import DTYPE, Evidence
 from models.params import NetworkParams, check_params
 
-__all__ = ["fit_missing", "missing_log_likelihood"]
+__all__ = [
+    "actions_allowed",
+    "available_case_start",
+    "fit_missing",
+    "gaussian_row_log_likelihoods",
+    "missing_log_likelihood",
+]
 
 
 def fit_missing(
@@ -63,11 +95,11 @@ def fit_missing(
     tol: float = 1e-6,
     progress: bool = False,
 ) -> FitResult:
-    """Maximum likelihood with missing discrete values, by EM with exact E-steps.
+    """Maximum likelihood with missing values, by EM with exact E-steps.
 
-    ``enc``: complete, checked rows (:func:`inference.fit`'s), whatever they hold where a
-    value is missing; ``masks``: ``(n,)`` bool per discrete site, False where the row's
-    value is missing; ``init``: the start (``fit`` gives the closed form on the complete
+    ``enc``: checked rows (:func:`inference.fitting.rows.rows_with_gaps`), NaN where a
+    continuous initial or end value is missing, any state where a discrete one is;
+    ``masks``: ``(n,)`` bool per discrete site, False where the row's value is missing; ``init``: the start (``fit`` gives the closed form on the complete
     rows). At most ``steps`` EM steps; the fit has converged when a step lowers the
     per-row loss by less than ``tol`` (relative). ``l2``: the softmax slopes' prior.
 
@@ -76,27 +108,33 @@ def fit_missing(
     see the module) and the softmax prior included, at the start and after each step. EM cannot raise
     it (with ``pseudo_count = 0``; a pseudo-count's prior can ask for a hair more near the
     optimum): a step that would is not taken, and the fit ends there as converged, so the
-    curve never rises.
+    curve never rises. ``FitResult.log_likelihoods``: the summed log-likelihood at the
+    same points. A :class:`ConvergenceWarning` names the sites with missing values when
+    ``steps`` run out first.
     """
     check_settings(pseudo_count=pseudo_count, min_variance=min_variance, steps=steps, tol=tol)
     masks = missing_masks(net, masks, enc.n_rows)
-    allowed = _actions_allowed(net, enc, masks)
+    gaps = continuous_gaps(net, enc)
+    refuse_open_forms(net, enc, gaps)
+    allowed = actions_allowed(net, enc, masks)
     n = enc.n_rows
     params = init
-    expanded, weights, log_lik = _completed_rows(net, params, enc, masks, allowed)
-    curve = [(_prior(net, params, l2) - log_lik) / n]
+    completed = _completed_rows(net, params, enc, masks, allowed)
+    curve = [(_prior(net, params, l2) - completed.log_lik) / n]
+    log_liks = [completed.log_lik]
     converged = False
     bar = tqdm(total=steps, desc="fit (EM, missing values)", disable=not progress)
     for _ in range(steps):
-        proposal = _m_step_missing(net, params, expanded, weights, pseudo_count, min_variance, l2)
-        rows, w, log_lik = _completed_rows(net, proposal, enc, masks, allowed)
-        loss = (_prior(net, proposal, l2) - log_lik) / n
+        proposal = _m_step_missing(net, params, completed, pseudo_count, min_variance, l2)
+        step = _completed_rows(net, proposal, enc, masks, allowed)
+        loss = (_prior(net, proposal, l2) - step.log_lik) / n
         bar.update()
         if not loss <= curve[-1]:  # a dip (a pseudo-count's prior), or NaN: stop before it
             converged = True
             break
-        params, expanded, weights = proposal, rows, w
+        params, completed = proposal, step
         curve.append(loss)
+        log_liks.append(step.log_lik)
         bar.set_postfix(loss=f"{loss:.6g}")
         if curve[-2] - curve[-1] <= tol * max(1.0, abs(curve[-1])):
             converged = True
@@ -104,31 +142,105 @@ def fit_missing(
     bar.close()
     if not converged:
         warnings.warn(
-            f"EM over the missing values of {sorted(masks)} did not settle in {steps} steps "
-            f"(last relative gain of the log-likelihood above tol={tol:g}); raise steps",
+            f"EM over the missing values of {sorted([*masks, *gaps])} did not settle in "
+            f"{steps} steps (last relative gain of the log-likelihood above tol={tol:g}); "
+            "raise steps",
             ConvergenceWarning,
             stacklevel=3,
         )
-    return FitResult(params, tuple(curve), converged)
+    return FitResult(params, tuple(curve), converged, tuple(log_liks))
+
+
+def available_case_start(
+    net: EffectNetwork,
+    enc: Evidence,
+    masks: Mapping[str, torch.Tensor],
+    pseudo_count: float,
+    min_variance: float,
+) -> NetworkParams:
+    """EM's start: each CPD's closed form on the rows that give its site and every
+    parent (available cases), so that a start exists wherever each CPD has such rows,
+    even when no row gives every value.
+
+    Raises
+    ------
+    ValueError
+        Naming a site that no row gives together with all its parents.
+    """
+    given = {s: m for s, m in masks.items()}
+    for site, x in continuous_gaps(net, enc).items():
+        given[site] = ~x.any(-1)
+    everything = torch.ones(enc.n_rows, dtype=torch.bool)
+    for m in given.values():
+        everything &= m
+    if bool(everything.all()):
+        return NetworkParams(
+            params_from_statistics(net, statistics(net, enc), pseudo_count, min_variance),
+            pseudo_count,
+            net,
+        )
+    # another site's missing values stand in as 0 there: only each site's own sums are kept
+    enc = enc | {s: x.nan_to_num() for s, x in enc.items() if x.is_floating_point()}
+    sites, by_rows = {}, {}
+    for spec in net.sites:
+        cpd = net.cpd(spec.name)
+        rows = torch.ones(enc.n_rows, dtype=torch.bool)
+        for q in (spec.name, *cpd.parents, *cpd.inputs, ACTION if spec.role == "param" else ""):
+            if q in given:
+                rows = rows & given[q]
+        if not bool(rows.any()):
+            raise ValueError(
+                f"site {spec.name!r}: no training row gives it together with its parents "
+                f"{[*cpd.parents, *cpd.inputs]}; EM needs at least one such row to start"
+            )
+        key = bytes(rows.numpy().tobytes())
+        if key not in by_rows:  # sites whose rows agree share one pass
+            by_rows[key] = statistics(net, enc if bool(rows.all()) else enc.rows(rows))
+        sites[spec.name] = by_rows[key].sites[spec.name]
+    stats = Statistics(sites, enc.n_rows)
+    cpds = params_from_statistics(net, stats, pseudo_count, min_variance)
+    return NetworkParams(cpds, pseudo_count, net)
 
 
 def missing_log_likelihood(
     net: EffectNetwork,
     params: NetworkParams,
     data: Mapping[str, object],
-    masks: Mapping[str, torch.Tensor],
+    masks: Mapping[str, torch.Tensor] | None = None,
 ) -> float:
-    """The summed log-likelihood of rows with missing discrete values (False in
-    ``masks``), those values summed out: what :func:`fit_missing` raises."""
+    """The summed log-likelihood of training rows with missing values, those values
+    summed and integrated out: what :func:`fit_missing` raises.
+
+    Missing values are marked as :func:`inference.fit` reads them: in the rows (None or
+    NaN for a discrete label, NaN for a continuous value or some of its dimensions) or
+    by ``masks`` (False where a discrete value is missing).
+    """
     check_params(net, params)
-    unknown = masks.get(ACTION)
-    unknown = None if unknown is None else ~mask_values(ACTION, unknown)
-    enc = training_rows(net, ignore_missing(net, data, masks), unknown)
+    enc, masks = rows_with_gaps(net, data, masks)
     masks = missing_masks(net, masks, enc.n_rows)
-    return _completed_rows(net, params, enc, masks, _actions_allowed(net, enc, masks))[2]
+    refuse_open_forms(net, enc, continuous_gaps(net, enc))
+    return _completed_rows(net, params, enc, masks, actions_allowed(net, enc, masks)).log_lik
 
 
-def _actions_allowed(net: EffectNetwork, enc: Evidence, masks) -> torch.Tensor | None:
+def gaussian_row_log_likelihoods(
+    net: EffectNetwork, params: NetworkParams, enc: Evidence, masks: Mapping[str, torch.Tensor]
+) -> torch.Tensor:
+    """``(n,)`` each row's log-likelihood, its missing discrete values summed out and its
+    missing continuous ones integrated out: the terms of :func:`missing_log_likelihood`,
+    by the closed-form Gaussian path (every continuous initial and end site a linear
+    Gaussian, checked by :func:`~inference.fitting.gaussian_gaps.refuse_open_forms`).
+
+    ``enc``: checked rows (:func:`inference.fitting.rows.rows_with_gaps`), NaN where a
+    continuous value is missing, an adaptive parameter's cluster left out where the rows
+    do not give it (it is summed out); ``masks``: ``(n,)`` bool per discrete site, False
+    where missing. A row of probability 0 scores ``-inf``.
+    """
+    masks = {s: m for s, m in masks.items() if not bool(m.all())}
+    allowed = actions_allowed(net, enc, masks)
+    return _completed_gaussian(net, params, enc, masks, allowed, posterior=False).per_row
+
+
+def actions_allowed(net: EffectNetwork, enc: Evidence, masks) -> torch.Tensor | None:
     """``(A, n)`` bool, where the action is missing in a network with parameters: the
     actions that agree with the row's parameter values. A training row gives a
     parameter's value exactly when its action uses the parameter (:func:`inference.fit`
@@ -154,15 +266,23 @@ def _actions_allowed(net: EffectNetwork, enc: Evidence, masks) -> torch.Tensor |
     return allowed
 
 
-def _completed_rows(net, params, enc, masks, allowed=None) -> tuple[Evidence, torch.Tensor, float]:
+def _completed_rows(net, params, enc, masks, allowed=None) -> Completed:
     """The E-step: every row once per assignment of its missing values that has posterior
     weight, with that weight, and the summed log-likelihood (missing values summed out).
-    ``allowed`` (:func:`_actions_allowed`) restricts a missing action; the parameters'
+    ``allowed`` (:func:`actions_allowed`) restricts a missing action; the parameters'
     clusters then follow each assignment's action (the cell of the value, or cell 0).
     Rows go through the model in chunks whose joint posterior stays below
-    :data:`inference.queries.enumeration.CHUNK_ELEMENTS`."""
-    if not masks:
-        return enc, torch.ones(enc.n_rows, dtype=DTYPE), 0.0
+    :data:`inference.queries.enumeration.CHUNK_ELEMENTS`. Where a continuous value is
+    missing (NaN), :func:`_completed_gaussian` serves instead."""
+    gaps = continuous_gaps(net, enc)
+    if gaps:
+        return _completed_gaussian(net, params, enc, masks, allowed)
+    if not masks:  # nothing missing: the rows' log-likelihood alone
+        log_lik = sum(
+            float(enumerate_model(net, params, enc.rows(chunk)).log_evidence.sum())
+            for chunk in row_chunks(enc.n_rows, 1)
+        )
+        return Completed(enc, torch.ones(enc.n_rows, dtype=DTYPE), log_lik)
     size = math.prod(net.site(site).size for site in masks)
     model_rows = enc
     if allowed is not None:  # the clusters follow the action: the model derives them
@@ -175,40 +295,160 @@ def _completed_rows(net, params, enc, masks, allowed=None) -> tuple[Evidence, to
         enumerated = enumerate_model(net, params, rows, masks=chunk_masks)
         assert set(masks) <= set(enumerated.dims), (enumerated.dims, list(masks))
         if allowed is not None:
-            dim = enumerated.dims[ACTION]
-            agree = allowed[:, chunk].reshape(len(net.actions), *([1] * (-dim - 2)), -1)
-            log_weight = enumerated.log_weight.masked_fill(~agree, -torch.inf)
-            enumerated = Enumerated(
-                (log_weight,), enumerated.dims, enumerated.trace, enumerated.offsets
-            )
+            enumerated = _restrict_actions(net, enumerated, allowed[:, chunk])
         posterior = enumerated.posterior()  # (E_k, ..., E_1, n)
         log_lik += float(enumerated.log_evidence.sum())
         others = [d + posterior.dim() for s, d in enumerated.dims.items() if s not in masks]
         if others:  # the clusters: summed out (each assignment's action fixes them)
             posterior = posterior.sum(others, keepdim=True)
-        shape = posterior.shape[:-1]
         flat = posterior.reshape(-1, rows.n_rows)
         assignment, row = flat.nonzero(as_tuple=True)
-        values = {}
-        for site in masks:
-            dim = enumerated.dims[site]
-            k = net.site(site).size
-            assert posterior.shape[dim] == k, (site, posterior.shape, dim)
-            states = torch.arange(k).reshape(k, *([1] * (-dim - 2)))
-            values[site] = states.expand(shape).reshape(-1)[assignment]
+        values = _assigned(net, enumerated.dims, posterior.shape[:-1], masks, assignment)
         completed = enc.rows(chunk).rows(row) | net.encode_indices(values)
         if allowed is not None:
-            cells = {
-                m.cluster.site: m.cells(completed[m.value.site], completed[ACTION])
-                for m in net.mixtures
-            }
-            completed = completed | net.encode_indices(cells)
+            completed = _with_cells(net, completed)
         parts.append(completed)
         weights.append(flat[assignment, row])
+    return Completed(_joined(net, parts), torch.cat(weights), log_lik)
+
+
+@dataclass(frozen=True)
+class Completed:
+    """An E-step's result: the completed rows, their weights, the summed log-likelihood
+    (missing values summed out), the conditional covariances' sums per linear Gaussian
+    where continuous values are missing (:mod:`inference.fitting.gaussian_gaps`), and
+    there each row's log-likelihood ``(n,)``."""
+
+    rows: Evidence
+    weights: torch.Tensor
+    log_lik: float
+    moments: dict = field(default_factory=dict)
+    per_row: torch.Tensor | None = None
+
+
+def _completed_gaussian(net, params, enc, masks, allowed, posterior=True) -> Completed:
+    """The E-step where continuous values are missing. The model, traced under
+    enumeration with the missing discrete values latent and every continuous initial and
+    end site's factor left out (their values filled in, read by no factor kept), gives
+    each completion's discrete factors; the continuous sites' joint Gaussian given the
+    completion (:func:`inference.fitting.gaussian_gaps.joint_gaussian`) gives the
+    density of the observed dimensions and the missing ones' conditional moments.
+    Without ``posterior``, only the rows' log-likelihoods (``per_row``, ``-inf`` for a
+    row of probability 0) and their sum: the rows are not completed."""
+    refuse_open_forms(net, enc, continuous_gaps(net, enc))
+    layout = continuous_sites(net)
+    filled = enc | {s: enc[s].nan_to_num() for s in layout}
+    size = math.prod(net.site(site).size for site in masks) if masks else 1
+    model_rows = filled
+    if allowed is not None:
+        model_rows = filled.without(*(m.cluster.site for m in net.mixtures))
+        size *= math.prod(m.cluster.size for m in net.mixtures)
+    parts, weights, covs, per_row, log_lik = [], [], [], [], 0.0
+    for chunk in row_chunks(enc.n_rows, size):
+        rows = model_rows.rows(chunk)
+        n = rows.n_rows
+        chunk_masks = {s: m[chunk] for s, m in masks.items()}
+        enumerated = enumerate_model(net, params, rows, masks=chunk_masks, trace_only=layout)
+        if allowed is not None:
+            enumerated = _restrict_actions(net, enumerated, allowed[:, chunk])
+        dims = enumerated.dims
+        shape = [1] * max([-d for d in dims.values()], default=1)
+        for site, d in dims.items():
+            shape[d] = net.site(site).size
+        shape[-1] = n
+        flat = enumerated.log_weight.expand(shape).reshape(-1, n)
+        assignment, row = (flat > -torch.inf).nonzero(as_tuple=True)
+        values = _assigned(net, dims, tuple(shape[:-1]), dims, assignment)
+        completed = enc.rows(chunk).rows(row) | net.encode_indices(values)
+        if allowed is not None:
+            completed = _with_cells(net, completed)
+        # the Gaussian part once per row and configuration of the continuous sites'
+        # discrete parents (the completions of other sites share it)
+        key = row.clone()
+        for site in dims:
+            if any(site in net.cpd(c).parents for c in layout):
+                key = key * net.site(site).size + completed[site]
+        key, inverse = torch.unique(key, return_inverse=True)
+        first = torch.zeros(len(key), dtype=torch.long).scatter_(
+            0, inverse, torch.arange(len(inverse))
+        )
+        distinct = completed.rows(first)
+        mean, cov = joint_gaussian(net, params, distinct)
+        value = torch.cat([distinct[s] for s in layout], -1)
+        log_density, post_mean, post_cov = condition(mean, cov, value)
+        joint = torch.full_like(flat, -torch.inf)
+        joint[assignment, row] = flat[assignment, row] + log_density[inverse]
+        log_norm = joint.logsumexp(0)  # (n,)
+        per_row.append(log_norm + enumerated.log_offset)
+        if not posterior:
+            continue
+        if not bool((log_norm > -torch.inf).all()):
+            bad = int((log_norm == -torch.inf).nonzero()[0])
+            raise ValueError(
+                f"training row {bad + (chunk.start or 0)} has probability 0 under every "
+                "completion of its missing values: no posterior exists"
+            )
+        log_lik += float(per_row[-1].sum())
+        w = (joint[assignment, row] - log_norm[row]).exp()
+        keep = w > 0
+        means = post_mean[inverse[keep]]
+        parts.append(completed.rows(keep) | {s: means[:, own] for s, own in layout.items()})
+        weights.append(w[keep])
+        # the conditional covariances' sums: per distinct Gaussian that misses a value,
+        # its completions' weights summed
+        gapped = torch.isnan(value).any(-1)
+        summed = torch.zeros(len(key), dtype=DTYPE).index_add_(0, inverse, w)
+        covs.append((distinct.rows(gapped), post_cov[gapped], summed[gapped]))
+    if not posterior:
+        scored = torch.cat(per_row)
+        return Completed(enc, torch.ones(enc.n_rows, dtype=DTYPE), float(scored.sum()), {}, scored)
+    moments = covariance_moments(
+        net,
+        _joined(net, [c[0] for c in covs]),
+        torch.cat([c[1] for c in covs]),
+        torch.cat([c[2] for c in covs]),
+    )
+    return Completed(_joined(net, parts), torch.cat(weights), log_lik, moments, torch.cat(per_row))
+
+
+def _restrict_actions(net, enumerated: Enumerated, allowed: torch.Tensor) -> Enumerated:
+    """``enumerated`` with the actions that disagree with a row's parameter values
+    impossible (``allowed`` ``(A, n)``)."""
+    dim = enumerated.dims[ACTION]
+    agree = allowed.reshape(len(net.actions), *([1] * (-dim - 2)), -1)
+    log_weight = enumerated.log_weight.masked_fill(~agree, -torch.inf)
+    return Enumerated((log_weight,), enumerated.dims, enumerated.trace, enumerated.offsets)
+
+
+def _assigned(net, dims, shape, sites, assignment) -> dict[str, torch.Tensor]:
+    """The state of each of ``sites`` (enumerated at ``dims``) in each flat
+    ``assignment`` of a joint of ``shape``."""
+    values = {}
+    for site in sites:
+        dim = dims[site]
+        k = net.site(site).size
+        assert shape[dim + 1] == k, (site, shape, dim)
+        states = torch.arange(k).reshape(k, *([1] * (-dim - 2)))
+        values[site] = states.expand(shape).reshape(-1)[assignment]
+    return values
+
+
+def _with_cells(net, completed: Evidence) -> Evidence:
+    """The completed rows with each grid parameter's cluster its value's cell under the
+    row's (completed) action (an adaptive one's is enumerated with the rest)."""
+    cells = {
+        m.cluster.site: m.cells(completed[m.value.site], completed[ACTION])
+        for m in net.mixtures
+        if not m.parameter.adaptive
+    }
+    return completed | net.encode_indices(cells)
+
+
+def _joined(net, parts: list[Evidence]) -> Evidence:
     if len(parts) == 1:
-        return parts[0], weights[0], log_lik
+        return parts[0]
     completed = {site: torch.cat([p[site] for p in parts]) for site in parts[0]}
-    return Evidence(net, completed, sum(p.n_rows for p in parts)), torch.cat(weights), log_lik
+    return Evidence(net, completed, sum(p.n_rows for p in parts))
 
 
 #: The most Newton iterations of one M-step (from the last step's optimum it takes a
@@ -216,10 +456,13 @@ def _completed_rows(net, params, enc, masks, allowed=None) -> tuple[Evidence, to
 M_STEP_ITERATIONS = 100
 
 
-def _m_step_missing(net, params, rows, weights, alpha, min_variance, l2) -> NetworkParams:
-    """Every CPD refitted on the weighted completed rows: the closed form, and Newton's
-    method from the current parameters where there is none."""
+def _m_step_missing(net, params, completed: Completed, alpha, min_variance, l2) -> NetworkParams:
+    """Every CPD refitted on the weighted completed rows: the closed form on their
+    expected sums, and Newton's method from the current parameters where there is none."""
+    rows, weights = completed.rows, completed.weights
     stats = statistics(net, rows, weights)
+    for site, extra in completed.moments.items():
+        stats.sites[site] = stats.sites[site] + extra
     cpds = params_from_statistics(net, stats, alpha, min_variance)
     for spec in net.sites:
         if net.cpd(spec.name).closed_form:

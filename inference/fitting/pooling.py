@@ -39,6 +39,7 @@ from inference.fitting.rows import check_settings
 from models.cpds.table import TableCPD, TableParams
 from models.declaration import ACTION, EffectNetwork
 from models.evidence import DTYPE
+from models.frames import as_data
 from models.params import NetworkParams
 
 __all__ = ["fit_pooled", "grid_kernel"]
@@ -123,6 +124,7 @@ def fit_pooled(
         )
     if not bool(torch.isfinite(kernel).all()) or bool((kernel < 0).any()):
         raise ValueError("kernel must hold finite non-negative weights")
+    data = as_data(net, data)
     chunks = [data] if isinstance(data, Mapping) else data
     stats = fit_statistics(net, chunks, progress=progress)
     if stats.gradient:

@@ -14,11 +14,14 @@ class FitResult:
     """What fitting returns: new parameters; for an iterative fit the loss curve (the
     per-row negative log-likelihood, the softmax prior included: at each Newton
     iteration, EM step or gradient evaluation) and whether it settled within the
-    tolerance."""
+    tolerance. EM over missing values also gives ``log_likelihoods``: the summed
+    log-likelihood of the rows (missing values summed and integrated out, no prior) at
+    the start and after each step, never falling."""
 
     params: NetworkParams
     losses: tuple[float, ...] = ()
     converged: bool = True
+    log_likelihoods: tuple[float, ...] = ()
 
 
 class ConvergenceWarning(UserWarning):

@@ -6,9 +6,10 @@ are written once here:
 
 * settings (:func:`check_settings`): finite Python numbers, ``steps`` a positive int;
 * rows (:func:`training_rows`): every site given, a parameter's value present exactly
-  where the row's action uses it, no partly observed continuous value, nothing whose
-  square would overflow; each parameter's cluster added where the rows do not give it
-  (its value's equidistant cell);
+  where the row's action uses it, nothing whose square would overflow; each parameter's
+  cluster added where the rows do not give it (its value's equidistant cell);
+* missing values (:func:`split_missing`, :func:`rows_with_gaps`): None or NaN for a
+  discrete label, NaN for a continuous initial or end value or some of its dimensions;
 * masks (:func:`mask_values`, :func:`row_masks`, :func:`missing_masks`): one bool per
   row of a discrete site, False where the value is missing;
 * the layout (:func:`refuse_adaptive`): the closed form files each row under its value's
@@ -27,7 +28,7 @@ import numpy as np
 import torch
 
 from models.declaration import ACTION, EffectNetwork, cluster_site, param_site
-from models.evidence import Evidence, check_magnitude, is_partial
+from models.evidence import Evidence, Partial, check_magnitude, is_partial
 
 __all__ = [
     "check_settings",
@@ -37,7 +38,9 @@ __all__ = [
     "missing_masks",
     "refuse_adaptive",
     "row_masks",
+    "split_missing",
     "training_rows",
+    "with_gaps",
 ]
 
 
@@ -240,7 +243,7 @@ def mask_values(site: str, mask: object) -> torch.Tensor:
             raise ValueError(
                 f"masks[{site!r}] must hold bools (False where missing), got dtype {mask.dtype}"
             )
-        mask = torch.from_numpy(mask)
+        mask = torch.tensor(mask)  # a copy: a pandas column's array is read-only
     if mask.dim() > 1:
         raise ValueError(
             f"masks[{site!r}] must be one bool per row, shape (n,), got shape {tuple(mask.shape)}"
@@ -393,3 +396,168 @@ def ignore_missing(
         values[missing] = states[0]
         out[site] = values
     return out
+
+
+# ------------------------------------------------------------------- missing values
+def split_missing(
+    net: EffectNetwork, data: Mapping[str, object]
+) -> tuple[Mapping[str, object], dict[str, torch.Tensor], dict[str, torch.Tensor]]:
+    """The values the rows themselves mark missing, and the rows with placeholders there.
+
+    A discrete value is missing where it is ``None`` (unless ``None`` is one of the
+    site's states) or NaN (in a float or object array); a continuous initial or end
+    value where it is NaN, whole or in some dimensions. ``param.<p>`` keeps its own
+    convention (NaN: the row's action does not use ``p``), and a parameter's cluster is
+    never missing on its own; neither is read here.
+
+    Parameters
+    ----------
+    net
+        The network.
+    data
+        Rows by site name, as :func:`training_rows` reads them (labels; encoded
+        :class:`Evidence` may mark a continuous end value missing by NaN).
+
+    Returns
+    -------
+    data
+        ``data`` with each missing discrete value replaced by the site's first state and
+        each missing continuous value by 0 (the same object where nothing is missing).
+    masks
+        ``(n,)`` bool per discrete site that misses a value, False where missing.
+    gaps
+        The flat bool mask of each continuous site's missing entries, True where
+        missing, in the order of the given values' elements (:func:`with_gaps` puts
+        NaN back there once the rows are encoded).
+    """
+    if isinstance(data, Evidence):  # encoded: only a continuous end value may be NaN
+        partial = {
+            s: v
+            for s, v in data.items()
+            if not net.site(s).discrete and net.site(s).role == "end" and is_partial(v)
+        }
+        gaps = {s: torch.isnan(v).reshape(-1) for s, v in partial.items()}
+        filled = {s: v.nan_to_num() for s, v in partial.items()}
+        return (data | Evidence(net, filled, data.n_rows) if filled else data), {}, gaps
+    masks: dict[str, torch.Tensor] = {}
+    gaps = {}
+    out = dict(data)
+    for site, values in data.items():
+        if site not in {s.name for s in net.sites}:
+            continue  # refused by the encoding, naming it
+        spec = net.site(site)
+        if spec.role in ("param", "cluster"):
+            continue
+        if spec.discrete:
+            missing = _missing_labels(values, None in labels_of(net, site))
+            if missing is not None and missing.any():
+                masks[site] = torch.from_numpy(~missing)
+                filled = np.asarray(values, dtype=object).reshape(-1).copy()
+                filled[missing] = labels_of(net, site)[0]
+                out[site] = filled
+            continue
+        if isinstance(values, Partial):  # some dimensions observed: the others missing
+            values = net.encode({site: values})[site]
+        if isinstance(values, str | bytes):
+            continue
+        raw = values.detach() if isinstance(values, torch.Tensor) else values
+        try:
+            array = torch.as_tensor(np.asarray(raw, dtype=np.float64))
+        except (TypeError, ValueError, RuntimeError):
+            continue  # refused by the encoding, naming the site
+        nan = torch.isnan(array)
+        if bool(nan.any()):
+            gaps[site] = nan.reshape(-1)
+            out[site] = array.nan_to_num(nan=0.0)
+    return (out if masks or gaps else data), masks, gaps
+
+
+def with_gaps(enc: Evidence, gaps: Mapping[str, torch.Tensor]) -> Evidence:
+    """The encoded rows with NaN where :func:`split_missing` found a continuous value
+    missing."""
+    if not gaps:
+        return enc
+    values = dict(enc.items())
+    for site, missing in gaps.items():
+        values[site] = torch.where(missing.reshape(values[site].shape), torch.nan, values[site])
+    return Evidence(enc.net, values, enc.n_rows)
+
+
+def labels_of(net: EffectNetwork, site: str) -> tuple:
+    """A discrete site's states (the actions for ``action``)."""
+    spec = net.site(site)
+    return net.actions if site == ACTION else net.feature(spec.feature).states
+
+
+def _missing_labels(values: object, none_is_a_state: bool) -> np.ndarray | None:
+    """``(n,)`` bool, True where a discrete value is missing (None or NaN), or ``None``
+    where the values cannot hold a missing one (integers, strings, booleans)."""
+    if isinstance(values, str | bytes):
+        return None
+    if isinstance(values, torch.Tensor):
+        if not values.is_floating_point():
+            return None
+        return torch.isnan(values.detach()).reshape(-1).cpu().numpy()
+    try:
+        array = np.asarray(values)
+    except (TypeError, ValueError):
+        return None  # a ragged container: the encoding reads it
+    if array.dtype.kind == "f":
+        return np.isnan(array).reshape(-1)
+    if array.dtype != object:
+        return None
+    flat = array.reshape(-1)
+    return np.fromiter(
+        (
+            (v is None and not none_is_a_state)
+            or (isinstance(v, float | np.floating) and bool(np.isnan(v)))
+            or type(v).__name__ == "NAType"  # pandas' missing value, pandas not imported
+            for v in flat
+        ),
+        dtype=bool,
+        count=flat.size,
+    )
+
+
+def rows_with_gaps(
+    net: EffectNetwork, data: Mapping[str, object], masks: Mapping[str, object] | None
+) -> tuple[Evidence, dict[str, torch.Tensor]]:
+    """Training rows that may miss values, encoded and checked.
+
+    Parameters
+    ----------
+    net
+        The network.
+    data
+        Rows by site name; missing values marked in the rows themselves
+        (:func:`split_missing`) or by ``masks``.
+    masks
+        Per discrete site, one bool (or 0/1) per row, False where missing, or ``None``.
+
+    Returns
+    -------
+    Evidence
+        The checked rows (:func:`training_rows`), NaN where a continuous initial or end
+        value is missing, a placeholder state where a discrete one is.
+    dict of str to torch.Tensor
+        ``(n,)`` bool per discrete site (``masks`` and the rows' own marks together),
+        False where missing.
+    """
+    if masks is not None and not isinstance(masks, Mapping):
+        raise ValueError(
+            f"masks must map discrete site names to (n,) bool masks, got {type(masks).__name__}"
+        )
+    data, found, gaps = split_missing(net, data)
+    masks = dict(masks or {})
+    for site, mask in found.items():
+        given = None if site not in masks else mask_values(site, masks[site])
+        if given is None or given.shape == mask.shape:  # else row_masks refuses the length
+            masks[site] = mask if given is None else mask & given
+    if masks:
+        missing_masks(net, masks, None)  # what EM cannot fill, before the rows' checks
+        data = ignore_missing(net, data, masks)
+    unknown_action = None
+    if ACTION in masks:
+        unknown_action = ~mask_values(ACTION, masks[ACTION])
+    enc = with_gaps(training_rows(net, data, unknown_action), gaps)
+    return enc, row_masks(net, masks, enc.n_rows)

@@ -12,8 +12,20 @@ its compiled answer (tables read once off the same model) side by side.
   continuous features no other parameter acts on.
 * :mod:`~inference.queries.inverse` -- :func:`parameter_for_effect`: the inverse model,
   the value under which a desired effect is most likely.
+* :mod:`~inference.queries.joint` -- :func:`predict_joint`: the joint of the discrete end
+  features (not only each one's marginal).
+* :mod:`~inference.queries.transitions` -- :func:`transitions`: ``P(next state | state,
+  action)`` over a network's states (:mod:`~inference.queries.states`), from its tables.
+* :mod:`~inference.queries.planner` -- :func:`~inference.queries.planner.plan`: the policy that reaches a goal
+  within a horizon with the highest probability, by exact dynamic programming.
+* :mod:`~inference.queries.explain` -- :func:`inference.explain`: a demonstration (a
+  sequence of observed states) read as the actions that produced it (exported on the
+  :mod:`inference` face only, so that the module keeps its name here).
 * :mod:`~inference.queries.compiled` -- :func:`~inference.queries.compiled.compile`: one
   object whose methods answer these questions, from the compiled tables where they can.
+* :mod:`~inference.queries.chaining` -- :func:`link_probabilities` and :func:`chain`:
+  one network's continuous output read as another's actions, and the chained transitions
+  a planner plans over.
 
 Beside them: :mod:`~inference.queries.results` (the result types),
 :mod:`~inference.queries.batching` (evidence checks and row handling),
@@ -33,10 +45,19 @@ for that row. Empty evidence rows (``n = 0``) give empty results of the right sh
 """
 
 from inference.queries.action import infer_action
+from inference.queries.chaining import (
+    BoxPartition,
+    FunctionLink,
+    LinkProbabilities,
+    chain,
+    link_probabilities,
+)
 from inference.queries.compiled import CompiledQueries, compile
 from inference.queries.forward import imitation_check, predict
 from inference.queries.inverse import parameter_for_effect
+from inference.queries.joint import JointPrediction, predict_joint
 from inference.queries.parameter import infer_parameter
+from inference.queries.planner import Plan, plan
 from inference.queries.results import (
     ActionPosterior,
     GaussianMixture,
@@ -45,19 +66,33 @@ from inference.queries.results import (
     ParameterPosterior,
     Prediction,
 )
+from inference.queries.states import StateSpace
+from inference.queries.transitions import Transitions, transitions
 
 __all__ = [
     "ActionPosterior",
+    "BoxPartition",
     "CompiledQueries",
+    "FunctionLink",
     "GaussianMixture",
     "ImitationCheck",
+    "JointPrediction",
+    "LinkProbabilities",
     "ParameterForEffect",
     "ParameterPosterior",
+    "Plan",
     "Prediction",
+    "StateSpace",
+    "Transitions",
+    "chain",
     "compile",
     "imitation_check",
     "infer_action",
     "infer_parameter",
+    "link_probabilities",
     "parameter_for_effect",
+    "plan",
     "predict",
+    "predict_joint",
+    "transitions",
 ]

@@ -11,7 +11,9 @@ tables are built on first use and kept:
 * ``infer_parameter``: the compiled parameter posterior
   (:func:`~inference.queries.parameter.compile_parameter_query`) where no other parameter
   acts on the parameter's continuous features and the evidence is one it reads;
-* ``predict``, ``imitation_check``, ``parameter_for_effect``: the traced queries.
+* ``predict``, ``imitation_check``, ``parameter_for_effect``: the traced queries;
+* ``transitions`` and ``plan``: the model's tables traced once per context (the
+  continuous initial features' values; :func:`~inference.queries.transitions.model_tables`).
 
 The building blocks' former names here (``compile_discrete``, ``compile_parameter_query``,
 ``CompiledNetwork``, ``CompiledParameterQuery``, ``CompiledJointParameterQuery``,
@@ -32,6 +34,7 @@ from inference.queries.forward import imitation_check, predict
 from inference.queries.inverse import parameter_for_effect
 from inference.queries.parameter import compile_parameter_query as _compile_parameter_query
 from inference.queries.parameter import infer_parameter, shared_features
+from inference.queries.planner import Plan, plan_on
 from inference.queries.plausibility import IMPLAUSIBLE_BELOW
 from inference.queries.results import (
     ActionPosterior,
@@ -41,8 +44,10 @@ from inference.queries.results import (
     Prediction,
 )
 from inference.queries.surprise import QUADRATURE_POINTS
+from inference.queries.transitions import Transitions, model_tables, transitions
 from models.declaration import EffectNetwork
 from models.deprecation import moved
+from models.frames import as_data
 from models.params import NetworkParams, check_params
 
 if TYPE_CHECKING:  # the building blocks' names stay deprecated at runtime (see __getattr__)
@@ -173,6 +178,7 @@ class CompiledQueries:
         initial states); by the traced model otherwise (an unknown initial state, an
         observed end feature the parameter does not act on, an invalid evidence)."""
         query = self.parameter_query(parameter)
+        evidence = as_data(self.net, evidence)  # a frame reaches the compiled query too
         if query is not None and isinstance(evidence, Mapping) and query.serves(set(evidence)):
             return query.infer_parameter(
                 evidence, mixture=mixture, implausible_below=implausible_below
@@ -185,6 +191,59 @@ class CompiledQueries:
             mixture=mixture,
             implausible_below=implausible_below,
         )
+
+    def transitions(
+        self,
+        *,
+        states=None,
+        actions=None,
+        parameter_values: str = "integrate",
+        given: Mapping[str, object] | None = None,
+        normalise: bool = False,
+    ) -> Transitions:
+        """:func:`inference.transitions`, read from the model's tables, traced once per
+        ``given`` (the continuous initial features' values) and kept."""
+        key = ("tables", _context_key(given))
+        if key not in self._built:
+            self._built[key] = model_tables(self.net, self.params, given)
+        return transitions(
+            self.net,
+            self.params,
+            states=states,
+            actions=actions,
+            parameter_values=parameter_values,
+            normalise=normalise,
+            tables=self._built[key],
+        )
+
+    def plan(
+        self,
+        start,
+        goal,
+        horizon: int,
+        allowed=None,
+        *,
+        states=None,
+        parameter_values: str = "integrate",
+        given: Mapping[str, object] | None = None,
+        normalise: bool = False,
+        avoid_unseen: bool = False,
+    ) -> Plan:
+        """:func:`inference.plan` on :meth:`transitions` (the kept tables)."""
+        model = self.transitions(
+            states=states, parameter_values=parameter_values, given=given, normalise=normalise
+        )
+        return plan_on(model, start, goal, horizon, allowed, avoid_unseen=avoid_unseen)
+
+
+def _context_key(given: Mapping[str, object] | None) -> tuple:
+    """A hashable key of the continuous initial features' values."""
+    if not given:
+        return ()
+    return tuple(
+        (k, tuple(torch.as_tensor(v, dtype=torch.float64).reshape(-1).tolist()))
+        for k, v in sorted(given.items())
+    )
 
 
 #: The building blocks' former names here -> the module that holds them now.

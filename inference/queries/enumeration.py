@@ -279,9 +279,11 @@ def enumerate_model(
         for s in net.sites
         if s.role == "initial" and not s.discrete and s.name not in evidence
     ]
-    if missing_initial:
-        raise ValueError(
-            f"queries need the initial state of continuous features; missing {missing_initial}"
+    if missing_initial:  # integrated out in closed form, or refused naming the site
+        from inference.queries.unknown_initial import enumerate_unknown_initial
+
+        return enumerate_unknown_initial(
+            net, params, evidence, missing_initial, keep=keep, trace_only=trace_only, masks=masks
         )
     # Pyro's checks of every site's value and log-probability repeat, per call, what the
     # evidence's encoding and the parameters' check have settled once

@@ -169,6 +169,11 @@ def imitation_check(
         raise ValueError(
             "imitation_check needs the executed action in the evidence (site 'action')"
         )
+    unknown = [
+        s.name for s in net.sites if s.role == "initial" and not s.discrete and s.name not in enc
+    ]
+    if unknown:  # its surprise reads each observed feature's own density given the rest
+        raise ValueError(f"imitation_check needs the initial state of {unknown}")
     observed = [end_site(f.name) for f in net.features if end_site(f.name) in enc]
     if not observed:
         raise ValueError(

@@ -162,14 +162,20 @@ class ExactPlan:
 
 
 def exact_plan(
-    transition: torch.Tensor, goal: int, horizon: int, *, allowed: torch.Tensor | None = None
+    transition: torch.Tensor,
+    goal: int | torch.Tensor,
+    horizon: int,
+    *,
+    allowed: torch.Tensor | None = None,
 ) -> ExactPlan:
     """Finite-horizon dynamic programming on ``transition[s, a, s'] = P(s' | s, a)``.
 
-    The goal is absorbing and counts as reached; ``allowed`` ``(S, A)`` bool excludes
-    actions (e.g. ones the model never saw from that state).
+    The goal (a state's index, or an ``(S,)`` bool mask of goal states) is absorbing and
+    counts as reached; ``allowed`` ``(S, A)`` bool excludes actions (e.g. ones the model
+    never saw from that state). A row of ``transition`` may sum to less than one: the
+    rest is a next state outside the modelled ones, from which the goal is never reached.
     """
-    _check_transition(transition, goal)
+    goal = _check_transition(transition, goal)
     if horizon < 1:
         raise ValueError(f"horizon must be >= 1, got {horizon}")
     s = transition.shape[0]
@@ -187,16 +193,17 @@ def exact_plan(
 
 
 def policy_value(
-    transition: torch.Tensor, policy: torch.Tensor, goal: int, horizon: int
+    transition: torch.Tensor, policy: torch.Tensor, goal: int | torch.Tensor, horizon: int
 ) -> torch.Tensor:
     """``value[h, s]``: the probability that following ``policy`` from ``s`` reaches the goal
     within ``h`` actions, under ``transition[s, a, s'] = P(s' | s, a)``.
 
     ``policy`` is ``(H + 1, S)`` as in :class:`ExactPlan` (``H >= horizon``); a state whose
     entry is ``-1`` has no action and never reaches the goal. Use it to evaluate a plan made
-    on one transition model under another (e.g. held-out simulations).
+    on one transition model under another (e.g. held-out simulations). ``goal``: a
+    state's index or an ``(S,)`` bool mask, as in :func:`exact_plan`.
     """
-    _check_transition(transition, goal)
+    goal = _check_transition(transition, goal)
     s = transition.shape[0]
     if policy.dim() != 2 or policy.shape[0] < horizon + 1 or policy.shape[1] != s:
         raise ValueError(
@@ -213,8 +220,15 @@ def policy_value(
     return value
 
 
-def _check_transition(transition: torch.Tensor, goal: int) -> None:
+def _check_transition(transition: torch.Tensor, goal: int | torch.Tensor) -> int | torch.Tensor:
+    """The goal as an index or an ``(S,)`` bool mask, checked against ``transition``."""
     if transition.dim() != 3 or transition.shape[0] != transition.shape[2]:
         raise ValueError(f"transition must have shape (S, A, S), got {tuple(transition.shape)}")
-    if not 0 <= goal < transition.shape[0]:
-        raise ValueError(f"goal index {goal} outside 0..{transition.shape[0] - 1}")
+    s = transition.shape[0]
+    if isinstance(goal, torch.Tensor) and goal.dtype == torch.bool:
+        if goal.shape != (s,):
+            raise ValueError(f"a goal mask must have shape ({s},), got {tuple(goal.shape)}")
+        return goal
+    if not 0 <= goal < s:
+        raise ValueError(f"goal index {goal} outside 0..{s - 1}")
+    return goal

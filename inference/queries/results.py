@@ -9,18 +9,24 @@ the evidence rows (leading axis ``n``).
   the parameter posterior.
 * :class:`ParameterForEffect` -- :func:`~inference.queries.inverse.parameter_for_effect`,
   the inverse model.
+
+Each has ``to_frame()``: a pandas ``DataFrame``, one row per evidence row, with labels
+rather than indices. A probability of a state is a column ``site=label``
+(``end.visible=True``, ``action=tap``), the most probable label the column named like
+the site (``end.visible``, ``action``); a vector of dimension ``d > 1`` takes the
+columns ``name[0]`` ... ``name[d-1]``, as in :mod:`models.frames`.
 """
 
 from __future__ import annotations
 
 from collections.abc import Hashable
 from dataclasses import dataclass, field
+from typing import Any
 
 import torch
 
-from models.declaration import (
-    Parameter,
-)
+from models.declaration import Parameter, end_site
+from models.frames import require_pandas
 
 
 @dataclass(frozen=True)
@@ -67,6 +73,34 @@ class Prediction:
         states = self._states(feature)
         return tuple(states[i] for i in self.discrete[feature].argmax(-1).tolist())
 
+    def to_frame(self, index: Any = None) -> Any:
+        """The prediction as a ``DataFrame``, one row per evidence row.
+
+        Parameters
+        ----------
+        index
+            The frame's index (the evidence frame's, say); ``0..n-1`` by default.
+
+        Returns
+        -------
+        pandas.DataFrame
+            Per discrete feature ``f``: ``end.f``, the most likely state's label, and
+            ``end.f=<state>``, each state's probability; per continuous feature: its
+            predicted mean, ``end.f`` (dimension 1) or ``end.f[i]``; then ``unseen``
+            and, where computed, ``implausible``.
+        """
+        columns: dict[str, Any] = {}
+        for feature, probs in self.discrete.items():
+            columns[end_site(feature)] = list(self.most_likely(feature))
+            for k, state in enumerate(self._states(feature)):
+                columns[f"{end_site(feature)}={state}"] = _numpy(probs[:, k])
+        for feature, mixture in self.continuous.items():
+            columns |= _vector(end_site(feature), mixture.mean)
+        columns["unseen"] = _numpy(self.unseen)
+        if self.implausible is not None:
+            columns["implausible"] = _numpy(self.implausible)
+        return _frame(columns, index)
+
     def _states(self, feature: str) -> tuple:
         if feature not in self.discrete:
             raise ValueError(
@@ -96,6 +130,32 @@ class ActionPosterior:
             raise ValueError(f"unknown action {action!r}; actions are {list(self.actions)}")
         return self.probs[:, self.actions.index(action)]
 
+    def to_frame(self, index: Any = None) -> Any:
+        """The posterior as a ``DataFrame``, one row per evidence row.
+
+        Parameters
+        ----------
+        index
+            The frame's index (the evidence frame's, say); ``0..n-1`` by default.
+
+        Returns
+        -------
+        pandas.DataFrame
+            ``action``: the most probable action's name; ``action=<a>``: each action's
+            posterior probability; ``log_evidence``; ``unseen|action=<a>``: the
+            probability of an unseen configuration had ``a`` been done; and, where
+            computed, ``implausible``.
+        """
+        columns: dict[str, Any] = {"action": list(self.best_names)}
+        for k, action in enumerate(self.actions):
+            columns[f"action={action}"] = _numpy(self.probs[:, k])
+        columns["log_evidence"] = _numpy(self.log_evidence)
+        for k, action in enumerate(self.actions):
+            columns[f"unseen|action={action}"] = _numpy(self.unseen[:, k])
+        if self.implausible is not None:
+            columns["implausible"] = _numpy(self.implausible)
+        return _frame(columns, index)
+
 
 @dataclass(frozen=True)
 class ImitationCheck:
@@ -123,6 +183,19 @@ class ImitationCheck:
     unseen: torch.Tensor
     implausible: torch.Tensor | None = None
 
+    def to_frame(self, index: Any = None) -> Any:
+        """The check as a ``DataFrame``: the columns ``log_likelihood``, ``surprise``,
+        ``unseen`` and, where computed, ``implausible``, one row per evidence row (its
+        index ``index``, ``0..n-1`` by default)."""
+        columns = {
+            "log_likelihood": _numpy(self.log_likelihood),
+            "surprise": _numpy(self.surprise),
+            "unseen": _numpy(self.unseen),
+        }
+        if self.implausible is not None:
+            columns["implausible"] = _numpy(self.implausible)
+        return _frame(columns, index)
+
 
 @dataclass(frozen=True)
 class ParameterPosterior:
@@ -144,6 +217,34 @@ class ParameterPosterior:
     outside: torch.Tensor | None = None
     mixture: GaussianMixture | None = None
     implausible: torch.Tensor | None = None
+
+    def to_frame(self, index: Any = None) -> Any:
+        """The posterior as a ``DataFrame``, one row per evidence row.
+
+        Parameters
+        ----------
+        index
+            The frame's index (the evidence frame's, say); ``0..n-1`` by default.
+
+        Returns
+        -------
+        pandas.DataFrame
+            ``cluster``: the best cluster; ``cluster=<c>``: each cluster's posterior
+            probability; ``mean`` and ``sd`` (dimension 1) or ``mean[i]`` and ``sd[i]``:
+            the parameter given the best cluster (``sd`` the square root of the
+            covariance's diagonal); ``unseen``; and, where computed, ``outside`` and
+            ``implausible``.
+        """
+        columns: dict[str, Any] = {"cluster": _numpy(self.best_cluster)}
+        for c in range(self.cluster_probs.shape[-1]):
+            columns[f"cluster={c}"] = _numpy(self.cluster_probs[:, c])
+        columns |= _vector("mean", self.mean)
+        columns |= _vector("sd", self.cov.diagonal(dim1=-2, dim2=-1).sqrt())
+        columns["unseen"] = _numpy(self.unseen)
+        for name in ("outside", "implausible"):
+            if getattr(self, name) is not None:
+                columns[name] = _numpy(getattr(self, name))
+        return _frame(columns, index)
 
 
 @dataclass(frozen=True)
@@ -168,8 +269,36 @@ class ParameterForEffect:
     candidate_log_density: torch.Tensor
     outside: torch.Tensor
 
+    def to_frame(self, index: Any = None) -> Any:
+        """The answer as a ``DataFrame``, one row per evidence row (its index ``index``,
+        ``0..n-1`` by default): ``value`` (dimension 1) or ``value[i]``, ``cluster``,
+        ``log_density``, ``miss`` and ``outside``."""
+        columns = _vector("value", self.value) | {
+            "cluster": _numpy(self.cluster),
+            "log_density": _numpy(self.log_density),
+            "miss": _numpy(self.miss),
+            "outside": _numpy(self.outside),
+        }
+        return _frame(columns, index)
+
 
 def outside_range(p: Parameter, value: torch.Tensor) -> torch.Tensor:
     """``(n,)`` bool: a parameter value ``(n, d)`` outside ``[low, high]`` in some dim."""
     low, high = value.new_tensor(p.low), value.new_tensor(p.high)
     return ((value < low) | (value > high)).any(-1)
+
+
+def _numpy(t: torch.Tensor) -> Any:
+    return t.detach().cpu().numpy()
+
+
+def _vector(name: str, value: torch.Tensor) -> dict[str, Any]:
+    """``(n, d)`` values as one column ``name`` (``d`` 1) or ``name[0]`` ... ``name[d-1]``."""
+    if value.shape[-1] == 1:
+        return {name: _numpy(value[:, 0])}
+    return {f"{name}[{i}]": _numpy(value[:, i]) for i in range(value.shape[-1])}
+
+
+def _frame(columns: dict[str, Any], index: Any) -> Any:
+    pandas = require_pandas()
+    return pandas.DataFrame(columns, index=index)

@@ -31,6 +31,7 @@ from inference.queries.enumeration import enumerate_model
 from models.cpds import ParameterMixture
 from models.declaration import ACTION, DTYPE, EffectNetwork
 from models.evidence import Evidence, is_partial
+from models.frames import to_frame
 from models.gaussian import condition_on_observed
 from models.model import effect_model
 from models.params import NetworkParams, check_params, check_seed
@@ -43,6 +44,7 @@ def simulate(
     evidence: Mapping[str, object] | None = None,
     *,
     seed: int = 0,
+    as_frame: bool = False,
 ) -> dict[str, object]:
     """Draw ``n`` rows from the model, given ``evidence`` if any.
 
@@ -51,10 +53,15 @@ def simulate(
     n
         Rows to draw.
     evidence
-        Values of some sites (labels, as everywhere), one row (shared by all ``n``) or
-        ``n`` rows (one per draw). ``None``: draws from the model's joint.
+        Values of some sites (labels, as everywhere; or a pandas ``DataFrame``, see
+        :mod:`models.frames`), one row (shared by all ``n``) or ``n`` rows (one per
+        draw). ``None``: draws from the model's joint.
     seed
         Seeds the draws; the global random state is left as it was.
+    as_frame
+        Return the rows as a pandas ``DataFrame``
+        (:func:`models.frames.to_frame`: a column per site, ``site[i]`` per dimension
+        of a vector) instead of a dict.
 
     Returns
     -------
@@ -64,7 +71,7 @@ def simulate(
         ``p``. ``cluster.p`` is the cluster each value was drawn from (0 where the action
         does not use ``p``); the value, drawn from that cluster's Gaussian, may lie outside
         the cluster's cell, and :func:`inference.fit` files the row under the cluster
-        given.
+        given. With ``as_frame``, the same rows as a ``DataFrame``.
     """
     check_params(net, params)
     if not isinstance(n, int | np.integer) or isinstance(n, bool) or n < 1:
@@ -76,6 +83,8 @@ def simulate(
     if len(enc) and enc.n_rows == 1 and n > 1:
         enc = enc.repeat(n)
     rows = draw(net, params, enc if len(enc) else Evidence(net, {}, n), seed=seed)
+    if as_frame:
+        return to_frame(net, Evidence(net, rows, n))
     return {
         site: net.decode(site, value) if net.site(site).discrete else value
         for site, value in rows.items()
@@ -91,6 +100,16 @@ def draw(
     with torch.random.fork_rng():
         torch.manual_seed(seed)
         if any(net.site(s).role not in ("initial", ACTION) for s in evidence):
+            unknown = [
+                s.name
+                for s in net.sites
+                if s.role == "initial" and not s.discrete and s.name not in evidence
+            ]
+            if unknown:  # drawn from its prior, it would ignore the evidence on the rest
+                raise ValueError(
+                    "simulate given evidence beyond the roots needs the initial state of "
+                    f"continuous features; missing {unknown}"
+                )
             try:
                 e = enumerate_model(net, params, evidence)
             except ValueError as exc:

@@ -22,6 +22,9 @@ kind's typed container, named for it (``params_type``: ``TableCPD`` fits a
 * ``free(params)``, ``bound(free, params)``, ``penalised(free)`` -- the unconstrained
   tensors the gradient route optimises, the parameters they stand for, and the tensors
   that carry the L2 prior;
+* ``n_free(reachable)`` -- the number of free parameters (what a likelihood penalty such
+  as BIC counts) in the parent configurations ``reachable`` ``(P...)`` bool marks
+  (default: all, seen by rows or not), less what the structure fixes;
 * ``check(params)`` -- validation against the declared shapes; the save format names
   the container by its class name (the toolkit's own by their names of format 2,
   :data:`models.params.SAVED_NAMES`).
@@ -74,6 +77,23 @@ class CPD:
     def shapes(self) -> dict[str, tuple[int, ...]]:
         """The shape of every tensor of the kind's container."""
         raise NotImplementedError
+
+    def n_free(self, reachable: torch.Tensor | None = None) -> int:
+        """The number of free parameters in the parent configurations ``reachable``
+        ``(P...)`` bool marks (default: every one, reached by rows or not), less what the
+        structure fixes."""
+        raise NotImplementedError(
+            f"site {self.site!r}: the kind {type(self).__name__} does not count its free "
+            "parameters; define n_free() to score it"
+        )
+
+    def configurations(self, reachable: torch.Tensor | None = None) -> torch.Tensor:
+        """``(P...)`` bool: the parent configurations ``reachable`` marks (all by
+        default), checked for shape."""
+        if reachable is None:
+            return torch.ones(self.card, dtype=torch.bool)
+        assert reachable.shape == self.card, (self.site, tuple(reachable.shape), self.card)
+        return reachable.to(torch.bool)
 
     def check(self, params: object) -> None:
         """Raise ``ValueError`` unless ``params`` is this kind's container with the

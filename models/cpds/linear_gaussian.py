@@ -108,6 +108,17 @@ class LinearGaussianCPD(CPD):
             "n": card,
         }
 
+    def n_free(self, reachable: torch.Tensor | None = None) -> int:
+        """Per parent configuration ``d p`` weights (less those ``zero_weights`` fixes),
+        ``d`` offsets and ``d (d + 1) / 2`` for the full covariance."""
+        d = self.size
+        configs = self.configurations(reachable).reshape(-1)
+        per_config = d * self.width + d + d * (d + 1) // 2
+        fixed = 0
+        if self.zero_weights is not None:
+            fixed = d * int(self.zero_weights[configs].sum())
+        return int(configs.sum()) * per_config - fixed
+
     def initialize(
         self, generator: torch.Generator | None = None, unseen: float = 0.0
     ) -> LinearGaussianParams:

@@ -65,6 +65,12 @@ class SoftmaxCPD(CPD):
         card, k = self.card, self.size
         return {"weight": (*card, k, self.width), "bias": (*card, k), "n": card}
 
+    def n_free(self, reachable: torch.Tensor | None = None) -> int:
+        """``(K - 1) (p + 1)`` per parent configuration: ``K`` slopes of ``p`` inputs and
+        ``K`` offsets, less one class's (adding one vector to every class's logits leaves
+        the softmax as it is)."""
+        return int(self.configurations(reachable).sum()) * (self.size - 1) * (self.width + 1)
+
     def initialize(
         self, generator: torch.Generator | None = None, unseen: float = 0.0
     ) -> SoftmaxParams:

@@ -95,6 +95,13 @@ class TableCPD(CPD):
         fixed[0] = 0.0
         return torch.where(self.pinned[..., None], fixed, logs)
 
+    def n_free(self, reachable: torch.Tensor | None = None) -> int:
+        """``K - 1`` per parent configuration; a pinned configuration has none."""
+        configs = self.configurations(reachable)
+        if self.pinned is not None:
+            configs = configs & ~self.pinned
+        return int(configs.sum()) * (self.size - 1)
+
     def initialize(
         self, generator: torch.Generator | None = None, unseen: float = 0.0
     ) -> TableParams:

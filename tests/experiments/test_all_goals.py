@@ -5,13 +5,14 @@ import json
 import numpy as np
 import pytest
 import torch
+from scipy import stats
 
 from experiments import all_goals
 from experiments import physics_bounds as pb
 from experiments.all_goals import AllGoalsConfig, AllGoalsResult
 from experiments.config import ConfigError
 from sim2d import geometry
-from sim2d.combined import TABLE_TOP_Z, exact_throws
+from sim2d.combined import CAN_BAND, TABLE_TOP_Z, exact_throws
 
 
 @pytest.fixture(scope="module")
@@ -45,6 +46,27 @@ def test_learned_transition_is_a_distribution_and_keeps_a_quiet_world(robot):
     still = torch.eye(n_s, dtype=torch.float64)[:, None, :].expand(n_s, len(heights), n_s)
     quiet, _ = all_goals.learned_transition(still, robot, heights, TABLE_TOP_Z)
     assert torch.allclose(quiet, still)
+
+
+def test_learned_transition_is_the_chained_sum_written_out(robot):
+    """Against the chain written term by term with scipy's normal CDFs: the hit's lateral
+    coordinate in the can band times its height in each aim height's bin."""
+    heights = exact_throws(0.05)[0]
+    n_s, n_a = 3, len(heights)
+    can = torch.as_tensor(np.random.default_rng(1).dirichlet(np.ones(n_s), size=(n_s, n_a)))
+    t, aims = all_goals.learned_transition(can, robot, heights, TABLE_TOP_Z)
+    mean, cov = robot.hit_distribution(aims)
+    half = np.diff(heights).mean() / 2
+    want = np.zeros((n_s, n_a, n_s))
+    for a in range(n_a):
+        across = stats.norm(mean[a, 0], np.sqrt(cov[a, 0, 0]))
+        up = stats.norm(mean[a, 1] - TABLE_TOP_Z, np.sqrt(cov[a, 1, 1]))
+        band = across.cdf(CAN_BAND) - across.cdf(-CAN_BAND)
+        p = [band * (up.cdf(h + half) - up.cdf(h - half)) for h in heights]
+        for s in range(n_s):
+            want[s, a] = sum(p[b] * can[s, b].numpy() for b in range(n_a))
+            want[s, a, s] += 1 - sum(p)
+    np.testing.assert_allclose(t.numpy(), want, rtol=0, atol=1e-12)
 
 
 def test_can_model_learns_a_deterministic_world():

@@ -1,10 +1,18 @@
 """experiments.combined: the whole experiment at the tiny scale, and its settings' checks."""
 
+import numpy as np
 import pytest
 
-from experiments.combined import SCENARIOS, CombinedConfig, CombinedResult, run_combined
+from experiments.combined import (
+    SCENARIOS,
+    CombinedConfig,
+    CombinedResult,
+    field_link,
+    run_combined,
+)
 from experiments.config import ConfigError
 from sim2d import geometry
+from sim2d.combined import CAN_BAND
 
 
 def test_tiny_run_end_to_end(tiny_data_dir, tmp_path):
@@ -51,3 +59,22 @@ def test_config_names_the_field_at_fault(field, value):
     with pytest.raises(ConfigError, match=f"^{field}: ") as raised:
         CombinedConfig(**{field: value})
     assert raised.value.field == field
+
+
+def test_field_link_reads_a_hit_as_the_nearest_field_in_the_band():
+    """Each hit height goes to the field whose height is nearest; beside the band: none."""
+    rng = np.random.default_rng(0)
+    heights = np.full(195, np.nan)
+    fields = np.sort(rng.choice(195, 12, replace=False))
+    heights[fields] = rng.uniform(0.0, 0.4, 12)
+    link, order = field_link(heights, fields)
+    assert sorted(order.tolist()) == fields.tolist()
+    z = rng.uniform(-0.1, 0.5, 200)
+    y = rng.uniform(-2 * CAN_BAND, 2 * CAN_BAND, 200)
+    got = link(np.stack([y, z], -1))
+    nearest = fields[np.abs(heights[fields][None, :] - z[:, None]).argmin(-1)]
+    want = [
+        int(f) if abs(lateral) < CAN_BAND else link.none
+        for f, lateral in zip(nearest, y, strict=True)
+    ]
+    assert got == want

@@ -195,7 +195,10 @@ def test_continuous_calls_are_right_or_refused(seed, bad, where, data):
         rows[site] = rows[site].copy()
         rows[site][row, 0] = bad
     huge_only = bad == 1e200
-    if corrupt and not (huge_only and site != "param.force"):
+    if corrupt and np.isnan(bad) and site == "end.pos":  # a missing value: EM fills it
+        fitted = fit(net, rows).params
+        assert torch.isfinite(fitted["end.pos"].bias).all()
+    elif corrupt and not (huge_only and site != "param.force"):
         with pytest.raises(ValueError, match=site.replace(".", r"\.")):
             fit(net, rows)
     else:

@@ -160,3 +160,20 @@ def test_policy_value_on_a_hand_made_chain():
     assert policy_value(t, no_action, 2, 3)[3, 0].item() == 0.0
     with pytest.raises(ValueError, match="policy must have shape"):
         policy_value(t, policy[:2], 2, 3)
+
+
+def test_a_goal_mask_of_one_state_is_that_state_and_of_two_reaches_either():
+    g = torch.Generator().manual_seed(1)
+    t = torch.rand(4, 3, 4, generator=g, dtype=torch.float64)
+    t = t / t.sum(-1, keepdim=True)
+    one = torch.tensor([False, False, True, False])
+    by_index, by_mask = exact_plan(t, 2, 3), exact_plan(t, one, 3)
+    torch.testing.assert_close(by_mask.value, by_index.value)
+    assert torch.equal(by_mask.policy, by_index.policy)
+    torch.testing.assert_close(policy_value(t, by_index.policy, one, 3), by_index.value)
+    # two goal states: one step from s reaches either with P(s' in goal | s, a)
+    two = torch.tensor([False, True, True, False])
+    step = exact_plan(t, two, 1)
+    torch.testing.assert_close(step.value[1, ~two], t[~two][:, :, two].sum(-1).amax(-1))
+    with pytest.raises(ValueError, match="goal mask"):
+        exact_plan(t, torch.tensor([True, False]), 1)

@@ -457,3 +457,21 @@ def test_every_tutorial_cell_is_marked():
     for script in (ROOT / "docs" / "tutorials").glob("*.py"):
         text = script.read_text()
         assert text.startswith("# %%") and text.count("# %%") >= 4, script
+
+
+def test_demonstration_heat_map_shows_the_posterior_and_the_sequence(tmp_path):
+    from inference import explain
+    from inference.plots import plot_demonstration
+
+    net = tap_net()
+    params = random_params(net, 3)
+    demo = [{"visible": True, "pos": [0.0]}, {"visible": None, "pos": [0.4]}, {"pos": [0.1]}]
+    result = explain(net, params, demo)
+    ax = rendered(plot_demonstration(result), tmp_path)
+    image = ax.get_images()[0].get_array()
+    np.testing.assert_allclose(np.asarray(image), result.probs[0].numpy().T)
+    line = ax.get_lines()[0]
+    assert list(line.get_ydata()) == result.best[0].tolist()
+    assert [t.get_text() for t in ax.get_yticklabels()] == list(net.actions)
+    with pytest.raises(ValueError, match="row 1 is not a demonstration"):
+        plot_demonstration(result, row=1)
