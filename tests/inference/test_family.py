@@ -11,7 +11,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from pyro import poutine
 
-from inference import fit, simulate
+from inference import fit, log_likelihood, simulate
 from inference.fitting import family_scores
 from models import Continuous, Discrete, EffectNetwork, Parameter, random_params
 from models.model import effect_model
@@ -210,3 +210,28 @@ def test_bic_counts_reachable_configurations_and_free_weights_of_a_parameter():
     loglik = family_scores(net, rows, score="loglik")["end.velocity"]
     bic = family_scores(net, rows, score="bic")["end.velocity"]
     assert bic == pytest.approx(loglik - 0.5 * math.log(400) * 31, rel=1e-12)
+
+
+@settings(max_examples=4, deadline=None)
+@given(
+    declarations=st.lists(
+        st.tuples(st.sampled_from(MOVED), st.sampled_from(VELOCITY), st.sampled_from(SIZE)),
+        min_size=3,
+        max_size=3,
+    ),
+    seed=st.integers(0, 1000),
+)
+def test_family_bics_add_up_to_the_networks_bic_score(declarations, seed):
+    """``log_likelihood(...).bic_score`` (pgmpy's sign: the whole network's log-likelihood
+    less ``ln n / 2`` per free parameter, by its own count) less the end sites' family
+    BICs is the roots' and the parameter's share: the same for every declaration of the
+    same features, actions and parameter."""
+    truth = EffectNetwork(FEATURES, ACTIONS, (FORCE,))
+    rows = simulate(truth, random_params(truth, seed), 1500, seed=seed)
+    shares = []
+    for moved, velocity, size in declarations:
+        parents = {"end.moved": moved, "end.velocity": velocity, "end.size": size}
+        net = EffectNetwork(FEATURES, ACTIONS, (FORCE,), parents=parents)
+        whole = log_likelihood(net, fit(net, rows, pseudo_count=0.0).params, rows).bic_score
+        shares.append(whole - sum(family_scores(net, rows).values()))
+    assert shares == pytest.approx([shares[0]] * 3, rel=1e-9, abs=1e-6)
