@@ -43,10 +43,11 @@ from dataclasses import dataclass
 
 import torch
 
-from inference.fitting.rows import check_settings, refuse_adaptive, training_rows
+from inference.fitting.rows import check_settings, refuse_adaptive, split_missing, training_rows
 from models.cpds import Counts, LinearGaussianCPD, LinearGaussianParams, SoftmaxCPD, SoftmaxParams
 from models.cpds.linear_gaussian import floor_variance
 from models.declaration import ACTION, DTYPE, MAX_CPD_ENTRIES, EffectNetwork
+from models.frames import as_data
 from models.sites import SiteSpec
 
 __all__ = ["SCORES", "Families", "family_scores"]
@@ -126,6 +127,17 @@ class Families:
             if ess <= 0:
                 raise ValueError(f"ess (BDeu's equivalent sample size) must be > 0, got {ess}")
         refuse_adaptive(net, "learn_structure")
+        data = as_data(net, data)
+        if isinstance(data, Mapping):
+            _, masks, gaps = split_missing(net, data)
+            missing = [s for s, m in masks.items() if not bool(m.all())]
+            missing += [s for s, g in gaps.items() if bool(g.any())]
+            if missing:
+                raise ValueError(
+                    f"learn_structure and family_scores need complete rows; the rows miss "
+                    f"values of {sorted(set(missing))} (fit the learned network with the "
+                    "gaps: inference.fit runs EM over them)"
+                )
         enc = training_rows(net, data)
         self.net, self.score_name = net, score
         self.min_variance, self.l2, self.steps, self.ess = min_variance, l2, steps, ess
@@ -380,5 +392,11 @@ def family_scores(
             cpd = net.cpd(spec.name)
             clusters, values = families.fixed_parents(spec.name)
             chosen = [q for q in (*cpd.parents, *cpd.inputs) if q not in (*clusters, *values)]
-            out[spec.name] = families.family(spec.name, chosen).score
+            found = families.family(spec.name, chosen)
+            if found.kind != cpd.name:
+                raise ValueError(
+                    f"site {spec.name!r} is declared of kind {cpd.name!r}; family scores are "
+                    f"computed for the default kinds ({found.kind!r} there)"
+                )
+            out[spec.name] = found.score
     return out

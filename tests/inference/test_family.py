@@ -14,6 +14,7 @@ from pyro import poutine
 from inference import fit, log_likelihood, simulate
 from inference.fitting import family_scores
 from models import Continuous, Discrete, EffectNetwork, Parameter, random_params
+from models.cpds import TableCPD
 from models.model import effect_model
 
 logging.getLogger("pgmpy").setLevel(logging.ERROR)
@@ -198,6 +199,16 @@ def test_scores_refuse_what_they_cannot_score():
         family_scores(mixed, {}, score="bdeu")
     with pytest.raises(ValueError, match="ess"):
         family_scores(net, rows, score="bdeu", ess=0.0)
+    gappy = dict(rows, **{"end.b": [None, *rows["end.b"][1:]]})
+    with pytest.raises(ValueError, match=r"complete rows.*\['end.b'\]"):
+        family_scores(net, gappy)
+
+    class Counted(TableCPD):  # a kind of the user's: not what the scores compute
+        name = "counted"
+
+    own = EffectNetwork(DISCRETE, ("push", "pull"), kinds={"end.a": Counted})
+    with pytest.raises(ValueError, match="'end.a' is declared of kind 'counted'"):
+        family_scores(own, rows)
 
 
 def test_bic_counts_reachable_configurations_and_free_weights_of_a_parameter():
@@ -235,3 +246,11 @@ def test_family_bics_add_up_to_the_networks_bic_score(declarations, seed):
         whole = log_likelihood(net, fit(net, rows, pseudo_count=0.0).params, rows).bic_score
         shares.append(whole - sum(family_scores(net, rows).values()))
     assert shares == pytest.approx([shares[0]] * 3, rel=1e-9, abs=1e-6)
+
+
+def test_a_data_frame_scores_as_its_rows():
+    from models.frames import to_frame
+
+    net = EffectNetwork(FEATURES, ACTIONS, (FORCE,))
+    rows = simulate(net, random_params(net, 2), 300, seed=2)
+    assert family_scores(net, to_frame(net, rows)) == family_scores(net, rows)
