@@ -77,8 +77,9 @@ def learn_structure(
     Parameters
     ----------
     data
-        Complete training rows by site, as :func:`inference.fit` takes them (labels;
-        ``param.p`` NaN where the action does not use ``p``).
+        Complete training rows by site, as :func:`inference.fit` takes them (a mapping
+        of labels or a ``DataFrame``; ``param.p`` NaN where the action does not use
+        ``p``). Rows with missing values are refused.
     features, actions, parameters
         The declaration (:class:`~models.declaration.EffectNetwork`); its end sites'
         parents are learned.

@@ -231,6 +231,23 @@ def test_bic_optimum_equals_pgmpys_exhaustive_search_under_the_same_rules(seed, 
     assert bic.score(as_graph(greedy)) <= best + 1e-9 * abs(best)
 
 
+def test_bdeu_optimum_equals_pgmpys_over_the_same_dags():
+    """BDeu (equivalent sample size 5) is the maximum of pgmpy's BDeu over the DAGs the
+    rules allow, on rows that show every state (pgmpy's BDeu drops a state no row
+    shows)."""
+    from pgmpy.structure_score import BDeu
+
+    features = (X, Y)
+    for seed in range(3):
+        rows = discrete_rows(features, 1000, seed)
+        frame, bic = pgmpy_bic(features, rows)
+        assert all(frame[c].nunique() == len(bic.state_names[c]) for c in frame.columns)
+        bdeu = BDeu(frame, equivalent_sample_size=5.0, state_names=bic.state_names)
+        best = max(bdeu.score(g) for g in allowed_dags(tuple(sorted(frame.columns))))
+        net = learn_structure(rows, features, PUSH, score="bdeu", ess=5.0, max_parents=None)
+        assert bdeu.score(as_graph(net)) == pytest.approx(best, rel=1e-10)
+
+
 FOUR = (X, Discrete("w", (0, 1)), Y, Z)  # 3 roots, 4 discrete end sites
 
 
@@ -396,6 +413,10 @@ def test_required_and_forbidden_pairs_bind_the_search():
         edges = learned_edges(net)
         assert {("end.y", "end.z"), ("initial.x", "end.x")} <= edges
         assert not edges & {("end.z", "end.y"), ("action", "end.x")}
+    apart = learned_edges(learn_structure(rows, features, PUSH, end_parents=False))
+    assert not {(q, s) for q, s in apart if q.startswith("end.")}
+    with pytest.raises(ValueError, match=r"required names \('end.y', 'end.z'\)"):
+        learn_structure(rows, features, PUSH, end_parents=False, required=[("end.y", "end.z")])
 
 
 def test_boundary_errors_name_the_argument():
