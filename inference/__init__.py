@@ -6,7 +6,8 @@ Fitting (:mod:`inference.fitting`): :func:`fit`, :func:`fit_gradient`, :func:`fi
 :func:`params_from_statistics`; :func:`simulate` draws rows in ``fit``'s format.
 Scores (:mod:`inference.fitting.scores`): :func:`log_likelihood`, :func:`bic`,
 :func:`aic`, :func:`cross_validate`, and :func:`select_clusters`, which chooses a
-parameter's clusters by them.
+parameter's clusters by them; :func:`learn_structure` chooses the end features' parents
+by a decomposable score (:mod:`inference.fitting.structure`).
 Questions (:mod:`inference.queries`): :func:`predict`, :func:`imitation_check`,
 :func:`infer_action`, :func:`infer_parameter` (the parameter posterior),
 :func:`parameter_for_effect` (the inverse model), :func:`predict_joint` (the end
@@ -40,6 +41,7 @@ from inference.fitting.scores import (
 )
 from inference.fitting.selection import ClusterSelection, select_clusters
 from inference.fitting.statistics import params_from_statistics
+from inference.fitting.structure import learn_structure
 from inference.queries import (
     ActionPosterior,
     BoxPartition,
@@ -111,6 +113,7 @@ __all__ = [
     "imitation_check",
     "infer_action",
     "infer_parameter",
+    "learn_structure",
     "link_probabilities",
     "log_likelihood",
     "n_parameters",

@@ -6,10 +6,13 @@ EM for adaptive clusters (:mod:`inference.fitting.em`) and for missing values
 (:mod:`inference.fitting.missing`), the gradient route (:func:`fit_gradient`) and a shared prior over table rows
 (:mod:`inference.fitting.pooling`). Every route checks its settings, training rows and
 masks with the same rules (:mod:`inference.fitting.rows`) and returns a
-:class:`FitResult` (:mod:`inference.fitting.result`).
+:class:`FitResult` (:mod:`inference.fitting.result`). Structure learning
+(:func:`learn_structure`) chooses the end features' parents by a decomposable score
+(:mod:`inference.fitting.structure`, the families' scores in :mod:`inference.fitting.family`).
 """
 
 from inference.fitting.em import EMResult, fit_em
+from inference.fitting.family import family_scores
 from inference.fitting.fit import (
     ConvergenceWarning,
     FitResult,
@@ -29,6 +32,7 @@ from inference.fitting.scores import (
 )
 from inference.fitting.selection import ClusterSelection, select_clusters
 from inference.fitting.statistics import Statistics, params_from_statistics
+from inference.fitting.structure import learn_structure
 
 __all__ = [
     "ClusterSelection",
@@ -41,12 +45,14 @@ __all__ = [
     "aic",
     "bic",
     "cross_validate",
+    "family_scores",
     "fit",
     "fit_em",
     "fit_gradient",
     "fit_pooled",
     "fit_statistics",
     "grid_kernel",
+    "learn_structure",
     "log_likelihood",
     "n_parameters",
     "params_from_statistics",
