@@ -55,6 +55,11 @@ def test_readme_snippets_run(tmp_path, monkeypatch):
     assert namespace["p_gone"] > 0.99
     assert namespace["first"] == "remove" and namespace["chance"] > 0.99
     assert namespace["story"] == (("tap", "remove"),)
+    curve = namespace["fitted"].log_likelihoods
+    assert all(b >= a for a, b in zip(curve, curve[1:], strict=False))
+    assert math.isfinite(namespace["score"])
+    assert namespace["parents"] == ("initial.visible", "action")
+    assert namespace["better"]
     assert namespace["gap"] < 1e-12  # the compiled parameter posterior, the traced one's
     assert namespace["draws"]["param.force"].shape == (100, 5, 1)
     assert set(namespace["draws"]) == {site.name for site in namespace["net"].sites}
