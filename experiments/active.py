@@ -220,7 +220,8 @@ def can_pool(data):
 
 def replay_counts(config: ActiveConfig, executor=None) -> tuple[np.ndarray, list[int]]:
     """``(configs, 195, repeats)`` end counts of the held-out replays of every non-empty
-    start configuration's 0° fields (sorted configurations), and those configurations."""
+    start configuration's 0° fields (sorted configurations), and those configurations.
+    """
     configs = [c for c in start_configurations(SCALES[config.scale]["n_configs"]) if c]
     path = generate_dataset(
         config.data_dir / f"can_bound_{config.scale}_{config.repeats}.npz",
@@ -272,7 +273,8 @@ def bound_by_repeats(replays, configs, cases, throwable) -> dict[str, list[float
     exact fraction when each case's field is the one that succeeded most often on the
     first ``m`` replays of every throwable field (``m = 1 .. repeats // 2``), scored on the
     second half of the replays (:func:`experiments.physics_bounds.held_out_best` at
-    ``m`` = half). Choosing with ``m`` throws of every pair costs ``m`` throws per pair."""
+    ``m`` = half). Choosing with ``m`` throws of every pair costs ``m`` throws per pair.
+    """
     half = replays.shape[-1] // 2
     out = {}
     for p, (start, desired) in cases.items():
@@ -290,7 +292,8 @@ def _replay_success(replays, configs, start, desired, fields) -> tuple[np.ndarra
     masks, desired counts)``, whether each replay of each of ``fields`` reached the desired
     count, ``(distinct, fields, repeats)`` bool; and each case's distinct row. Many cases
     share a start and a desired count: every per-row figure of ``success`` indexed by
-    ``case`` is the per-case figure, element for element."""
+    ``case`` is the per-case figure, element for element.
+    """
     row = {c: i for i, c in enumerate(configs)}
     pairs = np.stack([np.asarray(start), np.asarray(desired)], 1).astype(np.int64)
     distinct, case = np.unique(pairs, axis=0, return_inverse=True)
@@ -301,7 +304,8 @@ def _replay_success(replays, configs, start, desired, fields) -> tuple[np.ndarra
 def cases_seen(rows, cases) -> float:
     """The fraction of cases ``(start state indices, desired counts)`` whose desired count
     some row of ``rows`` reached from the case's start: without such a row the network
-    can only guess a field for the case."""
+    can only guess a field for the case.
+    """
     played = set(zip(rows["initial.config"].tolist(), rows["end.count"].tolist(), strict=True))
     start, desired = cases
     hit = [(s, d) in played for s, d in zip(start.tolist(), desired.tolist(), strict=True)]
@@ -330,7 +334,8 @@ def _model(net, rows, pool, throwable, pooling=None) -> CanModel:
     strength)``; the start and field priors are the pool's (design-free:
     :func:`inference.design.active.with_pool_prior`). Pooled, only the end count's table
     is pooled: the one Table I's query reads. ``net`` is :func:`scoring_network`'s (the
-    end configuration's table, read by no score, is not fitted)."""
+    end configuration's table, read by no score, is not fitted).
+    """
     if pooling is None:
         params = fit(net, rows).params
     else:
@@ -342,7 +347,8 @@ def _model(net, rows, pool, throwable, pooling=None) -> CanModel:
 
 def _scores(net, rows, pool, throwable, pooling, cases, replays, configs) -> dict:
     """``{protocol: {score: exact fraction}}`` for every one of ``SCORES`` (``net``:
-    :func:`scoring_network`'s)."""
+    :func:`scoring_network`'s).
+    """
     plain = table_one_on_replays(_model(net, rows, pool, throwable), cases, replays, configs)
     pooled = table_one_on_replays(
         _model(net, rows, pool, throwable, pooling), cases, replays, configs, ("aim",)
@@ -394,7 +400,8 @@ class ActiveResult(Result):
 
     def to_markdown(self) -> str:
         """Per protocol and rule, each learner's exact fraction at every budget
-        (:func:`experiments.active_report.markdown`)."""
+        (:func:`experiments.active_report.markdown`).
+        """
         from experiments.active_report import markdown
 
         return markdown(self)
@@ -406,7 +413,8 @@ class ActiveResult(Result):
 
     def summary_rows(self, results) -> list[str]:
         """Per protocol, each learner at the budget nearest ``GOAL_FRACTION`` of the full
-        data's throws (plain fit with tie-break ``aim``, and pooled), beside the bound."""
+        data's throws (plain fit with tie-break ``aim``, and pooled), beside the bound.
+        """
         k = min(range(len(self.fractions)), key=lambda i: abs(self.fractions[i] - GOAL_FRACTION))
         rows = []
         for protocol, words in TABLE_I_PROTOCOLS.items():

@@ -177,7 +177,8 @@ class AdaptiveThrowConfig:
 
 def adaptive_throw_network(bins) -> EffectNetwork:
     """The throw network (:func:`models.throw_network.throw_network`) with adaptive
-    target clusters seeded by the ``bins`` grid."""
+    target clusters seeded by the ``bins`` grid.
+    """
     net = throw_network(bins)
     target = dataclasses.replace(net.parameters[0], layout="adaptive")
     return EffectNetwork(net.features, net.actions, (target,))
@@ -185,7 +186,8 @@ def adaptive_throw_network(bins) -> EffectNetwork:
 
 def _fit(layout, k, train, config):
     """Fit one layout with ``k x k`` clusters: ``(model, seconds, EM curve)`` per EM
-    checkpoint (one for the grid); the seconds and the curve accumulate."""
+    checkpoint (one for the grid); the seconds and the curve accumulate.
+    """
     targets, hits = train
     start = time.perf_counter()
     if layout == "grid":
@@ -214,7 +216,8 @@ def _fit(layout, k, train, config):
 def _query(model, desired, window, query="posterior"):
     """The inferred aims ``(n, 2)`` for the desired hits, clipped into the area, and for
     the inverse model every cluster's candidate ``(n, C, 2)``, clipped (None for the
-    posterior query)."""
+    posterior query).
+    """
     net, params = model
     evidence = hit_evidence(desired, low=window[0], high=window[1])
     if query == "posterior":
@@ -233,7 +236,8 @@ def _aims(model, desired, window, query="posterior"):
 
 def _best_candidate(candidates, desired):
     """Errors ``(n, 2)`` of re-throwing at the candidate that the throw itself says misses
-    least: how well a perfect choice among the model's per-cluster answers would do."""
+    least: how well a perfect choice among the model's per-cluster answers would do.
+    """
     n, c, _ = candidates.shape
     hits = throw(candidates.reshape(n * c, 2)).hit.reshape(n, c, 2)
     best = np.linalg.norm(hits - desired[:, None], axis=-1).argmin(1)
@@ -283,7 +287,8 @@ def plane_residuals(targets, hits, bins, use=None):
 
 def _noisy_spread(aims, desired, repeats, rng, noise) -> dict[str, float]:
     """RMS per axis of ``repeats`` noisy re-throws at ``aims`` against the desired hits,
-    and of the same throws about their noise-free hits (the noise's own scatter)."""
+    and of the same throws about their noise-free hits (the noise's own scatter).
+    """
     clean = throw(aims).hit
     hits = np.concatenate([throw(aims, rng=rng, noise=noise).hit for _ in range(repeats)])
     error = rms(hits - np.tile(desired, (repeats, 1)))
@@ -309,7 +314,8 @@ def local_inverse(train_targets, train_hits, desired, start, neighbours, iterati
     ``neighbours`` training throws nearest the aim, step towards the target its model
     says hits the desired point (least squares, so a clamped, flat direction takes no
     step; at most the neighbourhood's radius), and keep the aim whose local model misses
-    least. Only the training throws are used."""
+    least. Only the training throws are used.
+    """
     aims = np.clip(np.array(start, dtype=np.float64), TARGET_AREA.low, TARGET_AREA.high)
     # the squared distances as two columns' sum: the same additions as ``.sum(-1)`` over
     # the pair, without numpy's slow reduction over a short last axis
@@ -428,7 +434,8 @@ class AdaptiveThrowResult(Result):
 
     def to_markdown(self) -> str:
         """Both layouts side by side, the references, the active curves and the goals, in
-        cm (:func:`experiments.adaptive_throw_report.markdown`)."""
+        cm (:func:`experiments.adaptive_throw_report.markdown`).
+        """
         from experiments.adaptive_throw_report import markdown
 
         return markdown(self)
@@ -446,7 +453,8 @@ class AdaptiveThrowResult(Result):
 
 def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
     """Both layouts per grid size, the noisy comparison, the references and the active
-    curves."""
+    curves.
+    """
     n = config.n_train + config.n_test
     seeds = np.random.SeedSequence(config.seed).spawn(5)
     exact = get_data(n, np.random.default_rng(seeds[0]), None)

@@ -1,5 +1,6 @@
 """The adaptive-throw experiment's report: its Markdown, its figure and its rows of the
-results table (:mod:`experiments.adaptive_throw`)."""
+results table (:mod:`experiments.adaptive_throw`).
+"""
 
 from __future__ import annotations
 
@@ -107,7 +108,8 @@ def summary_rows(t: AdaptiveThrowResult) -> list[str]:
     the paper's posterior query, and active throw targets. The adaptive layout is shown
     at its best EM checkpoint fitted in under 2 s (the goal's), else its last; the noisy
     comparison at its own cluster count. A layout with no inverse-model row (``query``
-    ``"effect"``) is shown by its posterior query."""
+    ``"effect"``) is shown by its posterior query.
+    """
     k = max(row["n_clusters"] for row in t.layouts)
     k_noisy = max((row.get("n_clusters", k) for row in t.noisy), default=k)
 

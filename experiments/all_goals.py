@@ -468,7 +468,8 @@ def run_all_goals(config: AllGoalsConfig) -> AllGoalsResult:
 
 def plot(result: AllGoalsResult, path) -> None:
     """Per goal and table height: the bound, the exact planner (measured and predicted) and
-    the paper planner, goals ordered by their bound."""
+    the paper planner, goals ordered by their bound.
+    """
     import matplotlib
 
     matplotlib.use("Agg")

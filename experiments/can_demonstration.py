@@ -197,7 +197,8 @@ def read_demonstrations(
 @simulation
 def throw_again(start: np.ndarray, fields: np.ndarray, jitter: float, seeds) -> np.ndarray:
     """``(n,)`` end configurations of the 0° throws ``(start[i], fields[i])`` with seeded
-    jitter."""
+    jitter.
+    """
     return np.array(
         [
             field_throws.throw_at_field(
@@ -390,7 +391,8 @@ def run_can_demonstration(config: CanDemonstrationConfig) -> CanDemonstrationRes
 def plot_shown(result: CanDemonstrationResult, path) -> Path:
     """The shown demonstration, one panel per throw: the cans standing before it (a
     hidden configuration dashed), the posterior over the fields as a heat map on the
-    field grid, the thrown field (x) and the read one (o); saved to ``path``."""
+    field grid, the thrown field (x) and the read one (o); saved to ``path``.
+    """
     from matplotlib.figure import Figure
     from matplotlib.patches import Rectangle
 

@@ -179,7 +179,8 @@ def start_evidence(model: CanModel, start: np.ndarray) -> dict:
 
 def field_throw_ends(start, fields, seeds, jitter: float) -> np.ndarray:
     """``(n,)`` end configurations of the 0° throws ``(start[i], fields[i])`` with seeded
-    jitter (an executor task: arrays in, an array out)."""
+    jitter (an executor task: arrays in, an array out).
+    """
     return np.array(
         [
             field_throws.throw_at_field(
@@ -193,7 +194,8 @@ def field_throw_ends(start, fields, seeds, jitter: float) -> np.ndarray:
 
 def ball_ends(start, positions, velocities) -> np.ndarray:
     """``(n,)`` end configurations of the ball states ``(positions[i], velocities[i])``
-    ``(n, 2)`` each, m and m/s at the entry line, played into ``start[i]`` (an executor task)."""
+    ``(n, 2)`` each, m and m/s at the entry line, played into ``start[i]`` (an executor task).
+    """
     return np.array(
         [
             field_throws.play_ball(int(s), p, v).end_config
@@ -207,7 +209,8 @@ def ball_ends(start, positions, velocities) -> np.ndarray:
 def _in_chunks(task, columns, extra, desc: str, progress: bool, executor) -> np.ndarray:
     """``task(*columns, *extra)`` over the rows of ``columns``, in chunks of ``CHUNK`` rows on
     ``executor`` (None: here, row by row); the results in row order, the same on every
-    executor."""
+    executor.
+    """
     n = len(columns[0])
     if executor is None:
         rows = tqdm(range(n), desc=desc, leave=False, disable=not progress)
@@ -225,7 +228,8 @@ def play(
     start, fields, jitter: float, seeds, desc: str, progress: bool = True, executor=None
 ) -> np.ndarray:
     """End configurations of the 0° throws ``(start[i], fields[i])`` with seeded jitter,
-    simulated on ``executor`` (an object with ``submit``; None: in this process)."""
+    simulated on ``executor`` (an object with ``submit``; None: in this process).
+    """
     columns = [np.asarray(start), np.asarray(fields), np.asarray(seeds)]
     return _in_chunks(field_throw_ends, columns, (jitter,), desc, progress, executor)
 
@@ -241,7 +245,8 @@ def play_table_one(
     executor=None,
 ) -> dict[str, np.ndarray]:
     """Table I's cases played: per case ``start``, ``desired``, ``field``, ``seed``,
-    ``achieved`` (count) and ``reachable`` (some 0° training throw reached ``desired``)."""
+    ``achieved`` (count) and ``reachable`` (some 0° training throw reached ``desired``).
+    """
     start, desired = table_one_cases(data, mode)
     sel = (data.angle == ANGLE) & data.throwable
     seen = np.unique(data.start_config[sel] * 16 + data.count_after[sel])
@@ -389,7 +394,8 @@ def pooled_surprise(model: CanModel, throws: dict, sigma: float, tables: dict) -
     """``(n,)`` surprise of each observed end configuration under the intended field's
     predictive pooled over an aim error of ``sigma`` fields; an end configuration the
     network has no state for was never seen: 1. ``tables`` caches
-    ``model.end_config_probs`` per start configuration."""
+    ``model.end_config_probs`` per start configuration.
+    """
     start, observed = throws["start"], throws["observed"]
     surprise = np.ones(len(start))
     known = np.isin(observed, model.states)
@@ -523,14 +529,16 @@ class CanTossingResult(Result):
 
     def to_markdown(self) -> str:
         """Table I under both protocols and rules beside the paper's, emulation and
-        imitation (:func:`experiments.can_tossing_report.markdown`)."""
+        imitation (:func:`experiments.can_tossing_report.markdown`).
+        """
         from experiments.can_tossing_report import markdown
 
         return markdown(self)
 
     def figures(self, out: Path) -> list[Path]:
         """``can_tossing_table1.png`` and (when the imitation has both classes)
-        ``can_tossing_roc.png``."""
+        ``can_tossing_roc.png``.
+        """
         from experiments.can_tossing_report import plot_roc, plot_table_one
 
         files = [plot_table_one(self, out / "can_tossing_table1.png")]

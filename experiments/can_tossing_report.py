@@ -1,5 +1,6 @@
 """The can-tossing experiment's report: its Markdown, its figures and its rows of the
-results table (:mod:`experiments.can_tossing`)."""
+results table (:mod:`experiments.can_tossing`).
+"""
 
 from __future__ import annotations
 
@@ -34,7 +35,8 @@ TABLE_I_PROTOCOLS = {
 
 def markdown(r: CanTossingResult) -> str:
     """The report: Table I under both protocols and rules beside the paper's, emulation and
-    imitation."""
+    imitation.
+    """
     tabs = r.table_one
     cols = [(m, rule) for m in ("counts", "actions") for rule in ("index", "aim")]
     lines = [
@@ -161,7 +163,8 @@ def plot_roc(result: dict, path) -> Path:
 
 def table_one_rows(c: CanTossingResult | None, b: PhysicsBoundsResult | None) -> list[str]:
     """Table I under both protocols, ours (``c``) beside the physics bound (``b``); either
-    may be missing."""
+    may be missing.
+    """
     if c is None and b is None:
         return []
     rows = []

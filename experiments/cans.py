@@ -52,7 +52,8 @@ SCALES = {
 
 def default_data_dir() -> Path:
     """Where generated data is saved unless a folder is named: ``data`` in the cache folder
-    (``$EFFECT_NETWORKS_CACHE``, else ``~/.cache/effect-networks``)."""
+    (``$EFFECT_NETWORKS_CACHE``, else ``~/.cache/effect-networks``).
+    """
     return cache_dir() / "data"
 
 
@@ -197,7 +198,8 @@ def fit_can_network(data: CanDataset, angle: int) -> CanModel:
 def choose(model: CanModel, evidence: dict, rule: str) -> np.ndarray:
     """Best field per row for ``evidence``: the query's argmax or the aim-robust one. Rows
     of equal evidence (many of Table I's cases share a start and a desired count) are
-    answered once."""
+    answered once.
+    """
     enc = model.net.encode(evidence)
     if enc.n_rows == 0:
         return _choose(model, enc, rule)

@@ -328,7 +328,8 @@ def field_link(heights: np.ndarray, fields: np.ndarray) -> tuple[BoxPartition, n
     """A hit in the can band read as the field whose near-face height is nearest: each of
     ``fields`` owns the heights between the midpoints to its neighbours (the lowest and
     highest open-ended); a hit beside the band hits nothing. Returns the partition (the
-    can network's actions: every field) and ``fields`` ordered by height."""
+    can network's actions: every field) and ``fields`` ordered by height.
+    """
     order = fields[np.argsort(heights[fields])]
     edges = np.concatenate([[-np.inf], (heights[order][1:] + heights[order][:-1]) / 2, [np.inf]])
     across = np.tile([-CAN_BAND, CAN_BAND], (len(order), 1))

@@ -191,12 +191,14 @@ class Result:
 
     def summary_rows(self, results: Mapping[str, Result]) -> list[str]:
         """Rows of the results table (``| experiment | paper | ours | bound |``), given every
-        result of the run by experiment name; none by default."""
+        result of the run by experiment name; none by default.
+        """
         return []
 
     def save(self, out) -> list[Path]:
         """Write ``<name>.json``, ``<name>.md`` and the figures to the folder ``out``
-        (made if absent); the paths written."""
+        (made if absent); the paths written.
+        """
         name = self.experiment_name
         assert name, f"{type(self).__name__} names no experiment"
         out = Path(out)
@@ -218,7 +220,8 @@ class Result:
     @classmethod
     def from_json(cls: type[T], text: str) -> T:
         """The result :meth:`to_json` wrote; ``ValueError`` for a file of another
-        experiment, or one that is not JSON (truncated, nested too deep) or not an object."""
+        experiment, or one that is not JSON (truncated, nested too deep) or not an object.
+        """
         try:
             data = json.loads(text)
         except (ValueError, RecursionError) as error:

@@ -97,7 +97,8 @@ def door_network() -> EffectNetwork:
 
 def door_rows(n: int, seed: int) -> dict[str, np.ndarray]:
     """``n`` training rows by site (labels, ``(n,)`` each): random scenes, a uniform
-    action, the end state by the door world's rules."""
+    action, the end state by the door world's rules.
+    """
     rng = np.random.default_rng(seed)
     door = rng.choice(STATES["door"], n)
     drawer = rng.choice(STATES["drawer"], n)
@@ -229,7 +230,8 @@ def drawn_list(probs) -> list[list[float]]:
 
 def plot_shown(result: DemonstrationResult, path) -> Path:
     """The shown demonstration's per-step action posterior as a heat map; saved to
-    ``path``."""
+    ``path``.
+    """
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(6.5, 3.6))

@@ -112,7 +112,8 @@ class PhysicsBoundsConfig(CanDataSettings):
 
 def held_out_best(success: np.ndarray) -> np.ndarray:
     """``success (cases, actions, repeats)`` bool -> per case, the held-out rate of the action
-    that succeeded most often on the first half of the repeats (ties: the lowest index)."""
+    that succeeded most often on the first half of the repeats (ties: the lowest index).
+    """
     half = success.shape[-1] // 2
     chosen = success[..., :half].mean(-1).argmax(-1)
     held = success[..., half:].mean(-1)
@@ -189,7 +190,8 @@ def empirical_transition(
     states: list[int], outcomes: dict[int, np.ndarray], cols: slice
 ) -> torch.Tensor:
     """``T[s, a, s']`` counted from the simulated outcomes' repeats ``cols``; a state
-    without outcomes (never reached, or no cans) stays where it is."""
+    without outcomes (never reached, or no cans) stays where it is.
+    """
     index = {s: i for i, s in enumerate(states)}
     n_a = next(iter(outcomes.values())).shape[0]
     t = torch.zeros(len(states), n_a, len(states), dtype=torch.float64)
@@ -236,7 +238,8 @@ def combined_bound(
     config: PhysicsBoundsConfig, table_z: float, jitter: float, executor=None
 ) -> dict:
     """Per scenario: the best plan's success over the robot's exact throws, held out
-    (cross-fitted) and in sample, within ``horizon`` throws and in one throw."""
+    (cross-fitted) and in sample, within ``horizon`` throws and in one throw.
+    """
     outcomes = robot_throws(
         config.data_dir, table_z=table_z, step=config.step, repeats=config.combined_repeats,
         jitter=jitter, horizon=config.horizon, executor=executor, progress=config.progress,
@@ -313,7 +316,8 @@ class PhysicsBoundsResult(Result):
 
     def summary_rows(self, results) -> list[str]:
         """Table I's bounds, when the can-tossing result (which shows them beside its own
-        figures) is missing; the combined bounds are the combined result's rows."""
+        figures) is missing; the combined bounds are the combined result's rows.
+        """
         if "can_tossing" in results:
             return []
         from experiments.can_tossing_report import table_one_rows

@@ -172,7 +172,8 @@ class ThrowKinematicsConfig:
 @dataclass
 class ThrowKinematicsResult(Result):
     """The throw's numbers: shares in [0, 1], the time of ``n`` throws (s), the release
-    noise's scatter at the plane (m, sd per axis), and the figures' paths."""
+    noise's scatter at the plane (m, sd per axis), and the figures' paths.
+    """
 
     experiment_name: ClassVar[str] = "throw_kinematics"
 

@@ -36,7 +36,8 @@ STEP_RECORD_ENV = "EFFECT_NETWORKS_STEP_RECORD"
 class StepMeasure:
     """``simulation_seconds``: wall time spent simulating; ``peak_bytes``: peak resident
     memory of the step's process; ``children_peak_bytes``: that of the largest process it
-    started and waited for (0: none)."""
+    started and waited for (0: none).
+    """
 
     simulation_seconds: float
     peak_bytes: int
@@ -58,7 +59,8 @@ def own_peak_bytes() -> int:
     """This process's peak resident memory: ``VmHWM`` of ``/proc/self/status`` where there
     is one (Linux), else ``ru_maxrss``. (On Linux ``ru_maxrss`` also keeps the peak of the
     process that started this one, up to the moment it started the program: a step
-    started by a large process would seem as large.)"""
+    started by a large process would seem as large.)
+    """
     try:
         for line in Path("/proc/self/status").read_text().splitlines():
             if line.startswith("VmHWM:"):

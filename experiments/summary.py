@@ -60,7 +60,8 @@ class RunRecord(Result):
     ``simulation_seconds`` (per step, the wall time spent simulating:
     :mod:`sim2d.clock`) and ``peak_bytes`` (per step, the peak resident memory of its
     largest process: :mod:`experiments.steps`). A record written before the last two
-    were measured loads with them empty."""
+    were measured loads with them empty.
+    """
 
     scale: str
     commit: str
@@ -138,7 +139,8 @@ def run_record(
     root=None,
 ) -> RunRecord:
     """The record of a run that just ended, in the git work tree ``root`` (default: this
-    package's repository)."""
+    package's repository).
+    """
     root = Path(root) if root is not None else Path(__file__).resolve().parents[1]
     commit = _git(root, "rev-parse", "--short", "HEAD") or "unknown"
     if commit != "unknown" and _git(root, "status", "--porcelain", "--untracked-files=no"):
@@ -158,7 +160,8 @@ def run_record(
 def load_results(folder) -> dict[str, Result]:
     """Every experiment's result saved below the results folder ``folder``, by name, in
     order (:func:`experiments.registry.experiments`); an experiment that has not run is
-    missing. A file of another shape raises a ``ValueError`` naming it."""
+    missing. A file of another shape raises a ``ValueError`` naming it.
+    """
     found = {}
     for name, exp in experiments().items():
         path = exp.result_file(folder)
@@ -193,7 +196,8 @@ def summary_markdown(folder) -> str:
 
 def step_table(run: RunRecord) -> list[str]:
     """Per step: wall time, the part spent simulating, the rest, and the peak memory of
-    its largest process; then the total and the goals beside the measured figures."""
+    its largest process; then the total and the goals beside the measured figures.
+    """
     lines = [
         "| step | wall time (s) | simulation (s) | rest (s) | peak memory (MB) |",
         "|---|---:|---:|---:|---:|",

@@ -208,7 +208,8 @@ class EffectNetwork:
 
     def end_sites_needed(self, sites: Iterable[str]) -> set[str]:
         """The end sites among ``sites`` and every end site they depend on (their end
-        ancestors): the end sites whose factors a query on ``sites`` must keep."""
+        ancestors): the end sites whose factors a query on ``sites`` must keep.
+        """
         todo = [s for s in sites if s in self._sites and self._sites[s].role == "end"]
         needed: set[str] = set()
         while todo:
@@ -332,7 +333,8 @@ class EffectNetwork:
     @classmethod
     def from_dict(cls, d: Mapping, kinds: Iterable[type[CPD]] = ()) -> EffectNetwork:
         """The network :meth:`to_dict` described; ``kinds``: the user-defined kinds it
-        names (the toolkit's own are known)."""
+        names (the toolkit's own are known).
+        """
         features: list[Feature] = []
         for f in d["features"]:
             if f["type"] == "discrete":

@@ -1,6 +1,7 @@
 """Old names kept for one release: a module's ``__getattr__`` that answers an old name
 with the object of its new name (:func:`renamed`) or a name from the module that holds it
-now (:func:`moved`), and a ``DeprecationWarning``."""
+now (:func:`moved`), and a ``DeprecationWarning``.
+"""
 
 from __future__ import annotations
 
@@ -18,7 +19,8 @@ def renamed(
     """A ``__getattr__`` for ``module`` (its ``__name__``) that answers each old name of
     ``names`` (``{old: new}``) with the module's object named ``new``, warning (with
     ``why``, the reason for the new name) that the old name goes away in the next
-    release."""
+    release.
+    """
 
     def __getattr__(name: str) -> object:
         new = names.get(name)
@@ -38,7 +40,8 @@ def renamed(
 def moved(module: str, homes: Mapping[str, str], message: str) -> Callable[[str], object]:
     """A ``__getattr__`` for ``module`` (its ``__name__``) that answers each name of
     ``homes`` (``{name: the module that holds it now}``) from that module, warning with
-    ``message`` formatted with ``name`` and ``home``."""
+    ``message`` formatted with ``name`` and ``home``.
+    """
 
     def __getattr__(name: str) -> object:
         home = homes.get(name)

@@ -27,7 +27,8 @@ import torch
 
 def two_sum(a: torch.Tensor, b: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """``(s, e)``: ``s`` the float64 sum ``a + b``, ``e`` its rounding error, so that
-    ``s + e == a + b`` exactly wherever ``a + b`` is finite (Knuth's TwoSum, no branch)."""
+    ``s + e == a + b`` exactly wherever ``a + b`` is finite (Knuth's TwoSum, no branch).
+    """
     s = a + b
     v = s - a
     return s, (a - (s - v)) + (b - v)
@@ -40,7 +41,8 @@ _SPLITTER = 134217729.0
 def two_product(a: torch.Tensor, b: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """``(p, e)``: ``p`` the float64 product ``a * b``, ``e`` its rounding error, so that
     ``p + e == a * b`` exactly (Dekker's product of split halves, no fused multiply-add),
-    for factors below about 1e300 and products above about 1e-290 in magnitude."""
+    for factors below about 1e300 and products above about 1e-290 in magnitude.
+    """
     p = a * b
     ca, cb = _SPLITTER * a, _SPLITTER * b
     a_hi, b_hi = ca - (ca - a), cb - (cb - b)
@@ -55,7 +57,8 @@ def affine_pair(
     ``(hi, lo)``: ``hi`` its float64 rounding, ``lo`` the rest, together within about
     ``p * 2^-104`` of the sum of the terms' magnitudes (the products and sums error-free,
     their errors summed once: Ogita, Rump and Oishi's Dot2). Where a term is not finite
-    (or a factor beyond two_product's range) ``lo`` is 0 and ``hi`` the plain sum."""
+    (or a factor beyond two_product's range) ``lo`` is 0 and ``hi`` the plain sum.
+    """
     products, errors = two_product(weight, x.unsqueeze(-2))  # (..., d, p)
     hi = bias.expand(torch.broadcast_shapes(bias.shape, products.shape[:-1]))
     lo = torch.zeros_like(hi)
@@ -80,7 +83,8 @@ def sum_rounds_off(
     times ``noise_scale`` (the smallest noise scale it is compared with): its rounding
     bound ``(p + 1) 2^-52 (p max|W| max|x| + max|b|)`` from the largest entries (``x``
     ``(..., p)``; cheap: never the joint's shape). NaN inputs count as rounding off (the
-    pair keeps them NaN)."""
+    pair keeps them NaN).
+    """
     p = x.shape[-1]
     if not p or not x.numel():
         return False
@@ -109,7 +113,8 @@ def condition_linear_gaussian(
     y: torch.Tensor,
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """Posterior mean ``(..., k)`` and covariance ``(..., k, k)`` of ``theta`` given ``y``
-    (given its dimensions that are not NaN, where some are)."""
+    (given its dimensions that are not NaN, where some are).
+    """
     y_loc, y_cov = linear_gaussian_marginal(mean, cov, weight, offset, noise_cov)
     if bool(torch.isnan(y).any()):
         y, y_loc, y_cov, seen = mask_unobserved(y, y_loc, y_cov)
@@ -131,7 +136,8 @@ def mask_unobserved(
     columns. Then ``N(y'; loc', cov') = N(y_o; loc_o, cov_oo) N(0; 0, 1)^u`` (the
     observed dimensions' marginal, a Gaussian's rows and columns dropped, times a
     constant) and conditioning on ``y'`` is conditioning on ``y_o``. Returns ``y'``,
-    ``loc'``, ``cov'`` (broadcast together) and the observed mask ``(..., d)``."""
+    ``loc'``, ``cov'`` (broadcast together) and the observed mask ``(..., d)``.
+    """
     seen = ~torch.isnan(y)
     shape = torch.broadcast_shapes(y.shape[:-1], loc.shape[:-1], cov.shape[:-2])
     d = y.shape[-1]
@@ -148,7 +154,8 @@ def partial_log_density(
     y: torch.Tensor, loc: torch.Tensor, scale_tril: torch.Tensor
 ) -> torch.Tensor:
     """``log N(y_o; loc_o, cov_oo)`` over the dimensions ``o`` where ``y`` is not NaN
-    (0 where none is), ``cov = scale_tril scale_tril^T``; batch-shaped."""
+    (0 where none is), ``cov = scale_tril scale_tril^T``; batch-shaped.
+    """
     y, loc, cov, seen = mask_unobserved(y, loc, scale_tril @ scale_tril.mT)
     tril = torch.linalg.cholesky(cov)
     z = torch.linalg.solve_triangular(tril, (y - loc)[..., None], upper=False).squeeze(-1)
@@ -162,7 +169,8 @@ def condition_on_observed(
 ) -> tuple[torch.Tensor, torch.Tensor]:
     """``N(loc, cov)`` of ``y`` ``(..., d)`` conditioned on its dimensions that are not
     NaN: the unobserved dimensions get ``loc_u + S_uo S_oo^-1 (y_o - loc_o)`` and
-    ``S_uu - S_uo S_oo^-1 S_ou``; the observed ones their value, with zero variance."""
+    ``S_uu - S_uo S_oo^-1 S_ou``; the observed ones their value, with zero variance.
+    """
     seen = ~torch.isnan(y)
     eye = torch.eye(y.shape[-1], dtype=cov.dtype)
     noise = torch.zeros_like(eye)
@@ -174,7 +182,8 @@ def condition_on_observed(
 def residual_of(fn, value: torch.Tensor) -> torch.Tensor:
     """``value - mean`` of the Gaussian ``fn``, batch-shaped; a mean held as a pair
     (``fn.loc_low``, :func:`affine_pair`) subtracted in its order, ``(value - loc) -
-    loc_low``."""
+    loc_low``.
+    """
     diff = value - fn.loc
     low = getattr(fn, "loc_low", None)
     return diff if low is None else diff - low
@@ -184,7 +193,8 @@ def mahalanobis(fn, value: torch.Tensor) -> torch.Tensor:
     """Squared Mahalanobis distance of ``value`` under the Gaussian ``fn`` (a distribution
     with ``loc`` and ``scale_tril``), batch-shaped; a value with NaN dimensions (partial
     evidence) is measured in its observed dimensions' marginal. A mean held as a pair
-    (``fn.loc_low``, :func:`affine_pair`) gives the residual ``(value - loc) - loc_low``."""
+    (``fn.loc_low``, :func:`affine_pair`) gives the residual ``(value - loc) - loc_low``.
+    """
     diff = residual_of(fn, value)
     tril = fn.scale_tril
     if bool(torch.isnan(value).any()):  # the observed dimensions' marginal
@@ -203,7 +213,8 @@ def chi_square_tail(dof: int, x: float) -> float:
     """``P(X > x)`` for ``X`` chi-square with ``dof >= 1`` degrees of freedom: the
     regularised ``gammaincc(dof / 2, x / 2)`` in closed form, from ``Q(1, h) = e^-h`` (even
     ``dof``) or ``Q(1/2, h) = erfc(sqrt h)`` (odd) up by ``Q(a + 1, h) = Q(a, h) + h^a
-    e^-h / Gamma(a + 1)``."""
+    e^-h / Gamma(a + 1)``.
+    """
     h = x / 2
     if h == math.inf:
         return 0.0

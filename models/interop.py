@@ -511,7 +511,8 @@ def _check_structure(model, initial: list[str], actions_node: str) -> None:
 def _declared(model, features: list[Discrete], actions_node: str) -> dict[str, tuple[str, ...]]:
     """Every initial and end site's parents in ``model`` as sites (the action node as
     ``action``): initial sites first, then the action, then end sites, each in feature
-    order."""
+    order.
+    """
     order = [initial_site(f.name) for f in features if f.initial]
     order += [actions_node, *(end_site(f.name) for f in features)]
     site = {node: node for node in order} | {actions_node: ACTION}

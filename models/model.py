@@ -207,7 +207,8 @@ def _rows(data: Evidence, n_rows: int | None) -> int:
 
 def _parameter(m: ParameterMixture, params, action, data, masks, collapse, n, cache):
     """Sample ``cluster.p`` and ``param.p``; return them, and the rows where the value is
-    known (bool, the parameter's batch shape)."""
+    known (bool, the parameter's batch shape).
+    """
     c_site, p_site = m.sites
     p = m.parameter
     uses = m.in_use(action)  # (E..., n or 1)
@@ -264,7 +265,8 @@ def _partly(data: Mapping, site: str) -> bool:
 
 class _PartlyObserved(dist.MultivariateNormal):
     """A Gaussian observed in the dimensions where its value is not NaN: the density of
-    those dimensions' marginal (partial evidence, :class:`models.evidence.Partial`)."""
+    those dimensions' marginal (partial evidence, :class:`models.evidence.Partial`).
+    """
 
     def log_prob(self, value: torch.Tensor) -> torch.Tensor:
         return partial_log_density(value, self.loc, self.scale_tril)
@@ -276,7 +278,8 @@ def _observe(
     """Sample a continuous site: latent, observed, or observed in some dimensions (NaN in
     the others: their marginal is the site's factor). A latent ``leaf`` (an end site in
     the collapsed form) is integrated out: nothing depends on it, so its integral is one;
-    it is drawn, with its factor masked, so that exact sums stay exact."""
+    it is drawn, with its factor masked, so that exact sums stay exact.
+    """
     if obs is not None and is_partial(obs):
         fn = _PartlyObserved(fn.loc, scale_tril=fn.scale_tril)
     if obs is None and leaf:
@@ -319,7 +322,8 @@ def _site_names(net: EffectNetwork, end_sites: object) -> list[str]:
     """``end_sites`` as a list of the network's site names: a string (whose letters
     would be taken for names) or a name the network lacks is a ``ValueError``, since
     leaving an end site out changes the model silently. Names of other roles are ignored
-    (the queries pass their whole evidence)."""
+    (the queries pass their whole evidence).
+    """
     if isinstance(end_sites, str | bytes) or not hasattr(end_sites, "__iter__"):
         raise ValueError(
             f"end_sites must be a collection of end site names, got {end_sites!r} (one site "

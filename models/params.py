@@ -98,7 +98,8 @@ class NetworkParams:
 
 def check_params(net: EffectNetwork, params: NetworkParams) -> None:
     """Raise ``ValueError`` unless ``params`` has the right CPD for every site of ``net``
-    and was fitted for a declaration with ``net``'s identity (:func:`check_bound`)."""
+    and was fitted for a declaration with ``net``'s identity (:func:`check_bound`).
+    """
     if not isinstance(params, NetworkParams):
         raise ValueError(f"params must be NetworkParams, got {type(params).__name__}")
     check_bound(net, params)
@@ -116,7 +117,8 @@ def check_bound(net: EffectNetwork, params: NetworkParams) -> None:
     """Raise ``ValueError``, naming the first site that differs and how, if ``params``
     were fitted for a declaration whose identity differs from ``net``'s
     (:meth:`~models.declaration.EffectNetwork.identity`). Cheap where they are the same
-    declaration: the model runs it on every call."""
+    declaration: the model runs it on every call.
+    """
     fitted = getattr(params, "network", None)
     if fitted is None or fitted is net:
         return
@@ -272,7 +274,8 @@ def _cpu(value):
 
 def _checksum(payload: dict) -> str:
     """sha256 of a payload's content: its header, declaration and pseudo-count, and
-    every site's tensors (dtype, shape and bytes), sites and fields in sorted order."""
+    every site's tensors (dtype, shape and bytes), sites and fields in sorted order.
+    """
     cpds = payload["cpds"]
     h = hashlib.sha256()
     header = {
@@ -301,7 +304,8 @@ def _checksum(payload: dict) -> str:
 def _check_archive(path: Path) -> None:
     """Refuse, before anything is inflated, a file whose members are compressed (a
     small file can inflate to gigabytes; :func:`save` compresses nothing) or whose
-    pickled structure is larger than :data:`MAX_STRUCTURE_BYTES`."""
+    pickled structure is larger than :data:`MAX_STRUCTURE_BYTES`.
+    """
     try:
         with zipfile.ZipFile(path) as archive:
             members = archive.infolist()
@@ -359,7 +363,8 @@ def random_params(net: EffectNetwork, seed: int, *, unseen: float = 0.0) -> Netw
 
 def initial_params(net: EffectNetwork, pseudo_count: float) -> NetworkParams:
     """Every kind's neutral start (uniform tables, zero-slope unit Gaussians, zero
-    softmax): the gradient route's default."""
+    softmax): the gradient route's default.
+    """
     return NetworkParams(
         {s.name: net.cpd(s.name).initialize() for s in net.sites}, pseudo_count, net
     )

@@ -42,7 +42,8 @@ def check_declaration(
 ) -> tuple[tuple[Feature, ...], tuple[str, ...], tuple[Parameter, ...]]:
     """A declaration's features, actions and parameters as tuples, checked: actions
     ordered and distinct, names distinct, every parameter's features and actions known,
-    parameters sharing a feature only where an unknown value does not couple them."""
+    parameters sharing a feature only where an unknown value does not couple them.
+    """
     if isinstance(actions, str | bytes) or not hasattr(actions, "__iter__"):
         raise ValueError(
             f"actions must be a sequence of action names, got {actions!r} (one "
@@ -99,7 +100,8 @@ def declared_sites(
     features: tuple[Feature, ...], actions: tuple[str, ...], parameters: tuple[Parameter, ...]
 ) -> dict[str, SiteSpec]:
     """Every site of a declaration, in declaration order: initial sites, the action,
-    each parameter's cluster and value, end sites."""
+    each parameter's cluster and value, end sites.
+    """
     declared: dict[str, SiteSpec] = {}
     for f in features:
         if f.initial:
@@ -123,7 +125,8 @@ def _spec(name: str, f: Feature, role: Literal["initial", "end"]) -> SiteSpec:
 
 def fig1_parents(sites: Mapping[str, SiteSpec]) -> dict[str, tuple[str, ...]]:
     """The paper's Fig. 1: initial sites are roots; every initial site and the action are
-    parents of every end site."""
+    parents of every end site.
+    """
     initial = tuple(s for s, spec in sites.items() if spec.role == "initial")
     return {
         s: (initial + (ACTION,) if spec.role == "end" else ())
@@ -142,7 +145,8 @@ def parents_of(
 ) -> dict[str, tuple[str, ...]]:
     """Every initial and end site's parents, ``declared`` (a mapping or pairs) where
     given and Fig. 1's elsewhere, checked: names, roles, duplicates, and the action for
-    a parameter's feature."""
+    a parameter's feature.
+    """
     given = declared
     if isinstance(given, Mapping):
         given = tuple(given.items())
@@ -215,7 +219,8 @@ def _check_parent(site: str, spec: SiteSpec, parent: str, sites: Mapping[str, Si
 
 def topological(sites: Mapping[str, SiteSpec], parents: Mapping[str, tuple[str, ...]]) -> list[str]:
     """Site names with parents before children, otherwise in declaration order; a cycle
-    raises, naming its sites."""
+    raises, naming its sites.
+    """
     order: list[str] = []
     state: dict[str, str] = {}
 
@@ -272,7 +277,8 @@ def resolve_kinds(given, sites: Mapping[str, SiteSpec]) -> tuple[tuple[str, type
 
 def _check_size(cpd: CPD, why: str) -> None:
     """Refuse a site whose fitted numbers would exceed :data:`MAX_CPD_ENTRIES`, before
-    anything of that size is allocated."""
+    anything of that size is allocated.
+    """
     entries = sum(math.prod(shape) for shape in cpd.shapes().values())
     if entries > MAX_CPD_ENTRIES:
         raise ValueError(
@@ -291,7 +297,8 @@ def build_cpds(
 ) -> tuple[dict[str, CPD], dict[str, ParameterMixture]]:
     """Every site's kind (``kinds`` where declared, the default elsewhere) in site order,
     and each parameter's mixture, by parameter name. The mixtures come first: their
-    sites join the parents of the features they affect."""
+    sites join the parents of the features they affect.
+    """
     mixtures = {
         p.name: ParameterMixture.of(
             p,

@@ -57,7 +57,8 @@ def simulation(fn: F) -> F:
 
 def simulation_seconds() -> float:
     """Seconds of wall time this process has spent simulating so far (an interval still
-    open counts up to now)."""
+    open counts up to now).
+    """
     with _lock:
         running = time.perf_counter() - _started if _depth else 0.0
         return _total + running

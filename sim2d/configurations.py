@@ -186,7 +186,8 @@ def stable_configurations(
 
 def _read_cache(file: Path) -> tuple[int, ...] | None:
     """The configurations cached in ``file``; None if it is missing, of other constants,
-    or damaged in any way (unreadable, not JSON, JSON of another shape): recompute."""
+    or damaged in any way (unreadable, not JSON, JSON of another shape): recompute.
+    """
     try:
         data = json.loads(file.read_text())
     except (OSError, ValueError, RecursionError):

@@ -155,7 +155,8 @@ def _ball_patch(xz, colour=_BALL_COLOUR, alpha: float = 1.0):
 
 def _legend(ax, *, path: bool = False) -> None:
     """The throw pictures' key: ball, cans thrown off, cans kept (and the ball's path and
-    aimed field centre when ``path``)."""
+    aimed field centre when ``path``).
+    """
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
@@ -217,7 +218,8 @@ def animate_throw(
     path, recording: ThrowRecording, field: int, angle: int, *, fps: int = 25
 ) -> Path:
     """An animated GIF of a recorded throw (one frame per recorded instant, ``fps`` frames a
-    second), with the legend of :func:`plot_throw`."""
+    second), with the legend of :func:`plot_throw`.
+    """
     from matplotlib.animation import PillowWriter
 
     o = recording.outcome

@@ -88,7 +88,8 @@ TIE = 1e-9
 
 def predictive_entropy(alpha: torch.Tensor) -> torch.Tensor:
     """``(...)`` nats: the entropy of ``Dirichlet(alpha)``'s predictive ``alpha / alpha0``
-    (``alpha`` ``(..., K)``, positive)."""
+    (``alpha`` ``(..., K)``, positive).
+    """
     p = alpha / alpha.sum(-1, keepdim=True)
     return -(p * p.log()).sum(-1)
 
@@ -200,7 +201,8 @@ class ExplorationResult:
         """The tables from the closed-form counts, equal to ``fit(net, rows,
         pseudo_count=...)``; built on first access (a table over every parent
         configuration can be large, and a caller that refits on prefixes of ``rows``
-        never reads them)."""
+        never reads them).
+        """
         alpha = self._pseudo_count
         return NetworkParams({s: t.table(alpha) for s, t in self._tables.items()}, alpha, self._net)
 
@@ -467,7 +469,8 @@ class _Scorer:
         """``(len(rows), K)``: the Dirichlet prior of ``rows`` (pseudo-count and shared part).
 
         The groups' pooled counts change only when a batch is played: they are summed once
-        per batch (:meth:`refresh` forgets them), not once per row scored."""
+        per batch (:meth:`refresh` forgets them), not once per row scored.
+        """
         prior = torch.full((len(rows), t.size), self.alpha, dtype=DTYPE)
         if self.strength:
             if t.site not in self.pooled:
@@ -519,7 +522,8 @@ class _Scorer:
 
     def refresh(self, batch: np.ndarray) -> None:
         """Recompute the scores of the rows the played ``batch`` changed (with the shared
-        prior: every row of their groups)."""
+        prior: every row of their groups).
+        """
         self.pooled.clear()  # the played batch changed the counts
         for s, t in self.tables.items():
             rows = np.unique(t.row[batch])
@@ -530,7 +534,8 @@ class _Scorer:
 
 def _check_network(net: EffectNetwork) -> None:
     """Refuse networks :func:`explore` cannot learn: non-table sites, pinned tables, end
-    sites with end parents."""
+    sites with end parents.
+    """
     for spec in net.sites:
         cpd = net.cpd(spec.name)
         if not isinstance(cpd, TableCPD) or cpd.pinned is not None:

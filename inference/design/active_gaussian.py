@@ -68,7 +68,8 @@ def regression_information(
     """``(m,)`` expected information gain (nats) of one more row at each candidate about
     the regression of the feature ``parameter`` acts on, given the training rows
     ``data`` (every site, as for :func:`inference.fit`). ``candidates``: rows giving the
-    action, the parameter and the feature's other parents (no end values)."""
+    action, the parameter and the feature's other parents (no end values).
+    """
     return _information(net, parameter, data, candidates, prior_precision)[0]
 
 
@@ -102,7 +103,8 @@ def select_by_information(
 ) -> torch.Tensor:
     """Indices ``(k,)`` of ``k`` distinct candidates chosen greedily by
     :func:`regression_information`, each pick's row added to its configuration's
-    statistics before the next (see the module)."""
+    statistics before the next (see the module).
+    """
     if isinstance(k, bool) or not isinstance(k, int) or k < 1:
         raise ValueError(f"k must be a positive int, got {k!r}")
     gain, zz, group, z, d = _information(net, parameter, data, candidates, prior_precision)

@@ -188,7 +188,8 @@ def em_step(
     min_variance: float = 1e-9,
 ) -> NetworkParams:
     """One EM step from ``params``: responsibilities under ``params``, then the weighted
-    closed-form refit of every adaptive mixture's sites (the others are kept)."""
+    closed-form refit of every adaptive mixture's sites (the others are kept).
+    """
     check_settings(pseudo_count=pseudo_count, min_variance=min_variance)
     mixtures = _adaptive(net)
     check_params(net, params)
@@ -201,7 +202,8 @@ def responsibilities(
     net: EffectNetwork, params: NetworkParams, data: Mapping[str, object]
 ) -> dict[str, torch.Tensor]:
     """Each adaptive parameter's cluster posterior per row, ``(n, C)``, given the row's
-    value and the features it acts on (keyed by parameter name)."""
+    value and the features it acts on (keyed by parameter name).
+    """
     mixtures = _adaptive(net)
     check_params(net, params)
     resp, _ = _e_step(net, params, training_rows(net, data), mixtures)
@@ -273,7 +275,8 @@ def _e_step(net, params, enc, mixtures, buffers=None) -> tuple[list[torch.Tensor
 
     ``buffers``: one ``(C, n)`` tensor per mixture to compute the responsibilities in
     (``fit_em`` reuses the last step's: a fresh tensor of that size costs as much as the
-    arithmetic, in page faults)."""
+    arithmetic, in page faults).
+    """
     n = enc.n_rows
     total = torch.zeros(n, dtype=DTYPE)
     resp = []
@@ -310,7 +313,8 @@ def _e_step(net, params, enc, mixtures, buffers=None) -> tuple[list[torch.Tensor
 
 def _group(enc: Evidence, cpd) -> torch.Tensor:
     """``(n,)`` row-major index of each row's configuration of the CPD's parents but the
-    last (the cluster)."""
+    last (the cluster).
+    """
     group = torch.zeros(enc.n_rows, dtype=torch.long)
     for s, k in zip(cpd.parents[:-1], cpd.card[:-1], strict=True):
         group = group * k + enc[s]
@@ -329,7 +333,8 @@ def _log_density(cpd, params, group, x, y, out=None, add=False) -> torch.Tensor:
     every cluster's coefficients.
 
     ``out``: a ``(C, n)`` tensor to write the result into, or with ``add`` to add it to;
-    returned."""
+    returned.
+    """
     c = cpd.card[-1]
     if out is None:
         out = torch.empty(c, len(group), dtype=DTYPE)
@@ -378,7 +383,8 @@ def _log_density(cpd, params, group, x, y, out=None, add=False) -> torch.Tensor:
 
 def _configurations(group: torch.Tensor):
     """``(g, rows)`` per parent configuration present: a slice of all rows when there
-    is one (no copies), else a mask."""
+    is one (no copies), else a mask.
+    """
     present = torch.unique(group).tolist()
     if len(present) == 1:
         yield present[0], slice(None)
@@ -389,7 +395,8 @@ def _configurations(group: torch.Tensor):
 
 def _weighted_sums(group: torch.Tensor, resp: torch.Tensor, rows: torch.Tensor, groups: int):
     """``out[g * C + c] = sum_{i: group_i = g} resp[c, i] * rows[i]`` for rows ``(n, ...)``:
-    one matrix product per parent configuration present."""
+    one matrix product per parent configuration present.
+    """
     c = resp.shape[0]
     flat = rows.reshape(rows.shape[0], -1)
     out = torch.zeros(groups, c, flat.shape[1], dtype=DTYPE)
@@ -434,7 +441,8 @@ def _m_step(net, params, enc, mixtures, resp, alpha, min_variance) -> NetworkPar
 
 def _moments(group, r, x, y, groups) -> Moments:
     """A linear Gaussian's statistics with fractional rows: ``r`` ``(C, n)`` weights (one
-    weighted sum of every product at once)."""
+    weighted sum of every product at once).
+    """
     n, d = y.shape
     z = torch.cat([x, torch.ones(n, 1, dtype=DTYPE)], -1) if x is not None else None
     z = z if z is not None else torch.ones(n, 1, dtype=DTYPE)

@@ -49,7 +49,8 @@ __all__ = [
 def continuous_sites(net: EffectNetwork, parameters: bool = False) -> dict[str, slice]:
     """The continuous initial and end sites (and with ``parameters`` the parameters'
     values) in the network's order, each with its dimensions' slice of the joint
-    vector."""
+    vector.
+    """
     roles = ("initial", "end", "param") if parameters else ("initial", "end")
     out, start = {}, 0
     for spec in net.sites:
@@ -69,7 +70,8 @@ def continuous_gaps(net: EffectNetwork, enc: Evidence) -> dict[str, torch.Tensor
 def refuse_open_forms(net: EffectNetwork, enc: Evidence, gaps: dict[str, torch.Tensor]) -> None:
     """Refuse what has no closed-form E-step or M-step: a kind with neither a closed form
     nor a ``maximise`` method, a continuous site of a kind other than the linear
-    Gaussian, or a discrete site whose continuous parent misses a value."""
+    Gaussian, or a discrete site whose continuous parent misses a value.
+    """
     if not gaps:
         return
     unfit = [
@@ -115,7 +117,8 @@ def joint_gaussian(
     With ``parameters``, the parameters' values are part of the joint (each its
     cluster's Gaussian), so that an unknown one is integrated out; otherwise they are
     given (NaN where the row's action does not use them). Either way a value counts only
-    where the row's action uses it."""
+    where the row's action uses it.
+    """
     layout = continuous_sites(net, parameters)
     mixtures = {m.value.site: m for m in net.mixtures}
     dim = sum(s.stop - s.start for s in layout.values())
@@ -201,7 +204,8 @@ def covariance_moments(
     """Per continuous initial or end site, the weighted sums of the conditional
     covariance of its ``z = [x, 1]`` and ``y`` (``cov`` ``(n, D, D)`` over the joint
     vector, zero where observed): what the expected sums add to those of the row with
-    its missing values at their conditional means."""
+    its missing values at their conditional means.
+    """
     layout = continuous_sites(net)
     dim = cov.shape[-1]
     padded = torch.zeros(cov.shape[0], dim + 1, dim + 1, dtype=DTYPE)

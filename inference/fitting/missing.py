@@ -245,7 +245,8 @@ def actions_allowed(net: EffectNetwork, enc: Evidence, masks) -> torch.Tensor | 
     actions that agree with the row's parameter values. A training row gives a
     parameter's value exactly when its action uses the parameter (:func:`inference.fit`
     checks it where the action is given), so where the action is missing the presence
-    of each value is evidence of it. ``None`` where there is nothing to restrict."""
+    of each value is evidence of it. ``None`` where there is nothing to restrict.
+    """
     if ACTION not in masks or not net.mixtures:
         return None
     missing = ~masks[ACTION]
@@ -273,7 +274,8 @@ def _completed_rows(net, params, enc, masks, allowed=None) -> Completed:
     clusters then follow each assignment's action (the cell of the value, or cell 0).
     Rows go through the model in chunks whose joint posterior stays below
     :data:`inference.queries.enumeration.CHUNK_ELEMENTS`. Where a continuous value is
-    missing (NaN), :func:`_completed_gaussian` serves instead."""
+    missing (NaN), :func:`_completed_gaussian` serves instead.
+    """
     gaps = continuous_gaps(net, enc)
     if gaps:
         return _completed_gaussian(net, params, enc, masks, allowed)
@@ -317,7 +319,8 @@ class Completed:
     """An E-step's result: the completed rows, their weights, the summed log-likelihood
     (missing values summed out), the conditional covariances' sums per linear Gaussian
     where continuous values are missing (:mod:`inference.fitting.gaussian_gaps`), and
-    there each row's log-likelihood ``(n,)``."""
+    there each row's log-likelihood ``(n,)``.
+    """
 
     rows: Evidence
     weights: torch.Tensor
@@ -334,7 +337,8 @@ def _completed_gaussian(net, params, enc, masks, allowed, posterior=True) -> Com
     completion (:func:`inference.fitting.gaussian_gaps.joint_gaussian`) gives the
     density of the observed dimensions and the missing ones' conditional moments.
     Without ``posterior``, only the rows' log-likelihoods (``per_row``, ``-inf`` for a
-    row of probability 0) and their sum: the rows are not completed."""
+    row of probability 0) and their sum: the rows are not completed.
+    """
     refuse_open_forms(net, enc, continuous_gaps(net, enc))
     layout = continuous_sites(net)
     filled = enc | {s: enc[s].nan_to_num() for s in layout}
@@ -413,7 +417,8 @@ def _completed_gaussian(net, params, enc, masks, allowed, posterior=True) -> Com
 
 def _restrict_actions(net, enumerated: Enumerated, allowed: torch.Tensor) -> Enumerated:
     """``enumerated`` with the actions that disagree with a row's parameter values
-    impossible (``allowed`` ``(A, n)``)."""
+    impossible (``allowed`` ``(A, n)``).
+    """
     dim = enumerated.dims[ACTION]
     agree = allowed.reshape(len(net.actions), *([1] * (-dim - 2)), -1)
     log_weight = enumerated.log_weight.masked_fill(~agree, -torch.inf)
@@ -422,7 +427,8 @@ def _restrict_actions(net, enumerated: Enumerated, allowed: torch.Tensor) -> Enu
 
 def _assigned(net, dims, shape, sites, assignment) -> dict[str, torch.Tensor]:
     """The state of each of ``sites`` (enumerated at ``dims``) in each flat
-    ``assignment`` of a joint of ``shape``."""
+    ``assignment`` of a joint of ``shape``.
+    """
     values = {}
     for site in sites:
         dim = dims[site]
@@ -435,7 +441,8 @@ def _assigned(net, dims, shape, sites, assignment) -> dict[str, torch.Tensor]:
 
 def _with_cells(net, completed: Evidence) -> Evidence:
     """The completed rows with each grid parameter's cluster its value's cell under the
-    row's (completed) action (an adaptive one's is enumerated with the rest)."""
+    row's (completed) action (an adaptive one's is enumerated with the rest).
+    """
     cells = {
         m.cluster.site: m.cells(completed[m.value.site], completed[ACTION])
         for m in net.mixtures
@@ -458,7 +465,8 @@ M_STEP_ITERATIONS = 100
 
 def _m_step_missing(net, params, completed: Completed, alpha, min_variance, l2) -> NetworkParams:
     """Every CPD refitted on the weighted completed rows: the closed form on their
-    expected sums, and Newton's method from the current parameters where there is none."""
+    expected sums, and Newton's method from the current parameters where there is none.
+    """
     rows, weights = completed.rows, completed.weights
     stats = statistics(net, rows, weights)
     for site, extra in completed.moments.items():
@@ -477,7 +485,8 @@ def _m_step_missing(net, params, completed: Completed, alpha, min_variance, l2) 
 
 def _prior(net: EffectNetwork, params: NetworkParams, l2: float) -> float:
     """The negative log of the Gaussian prior on the penalised tensors (the softmax
-    slopes; its constant left out), as :func:`inference.fit_gradient` adds it."""
+    slopes; its constant left out), as :func:`inference.fit_gradient` adds it.
+    """
     total = 0.0
     for spec in net.sites:
         cpd = net.cpd(spec.name)

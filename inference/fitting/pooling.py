@@ -48,7 +48,8 @@ __all__ = ["fit_pooled", "grid_kernel"]
 def grid_kernel(grid_shape: tuple[int, int], sigma: float) -> torch.Tensor:
     """``(A, A)`` Gaussian weights ``exp(-d^2 / (2 sigma^2))`` between the cells of a
     ``(rows, columns)`` grid in row-major order (``A = rows * columns``, ``d`` the distance
-    in cells); ``sigma = 0`` gives the identity (no pooling)."""
+    in cells); ``sigma = 0`` gives the identity (no pooling).
+    """
     if len(grid_shape) != 2 or not all(
         isinstance(k, int) and not isinstance(k, bool) and k >= 1 for k in grid_shape
     ):
@@ -152,7 +153,8 @@ def _pooled(counts, off, strength, alpha, axis) -> TableParams:
 
     A configuration of the other parents that no row reached (most of them, in a large
     table) has no counts and no neighbours' counts: its rows are computed once and
-    copied (element by element the same operations, so the same bits)."""
+    copied (element by element the same operations, so the same bits).
+    """
     k, n_actions = counts.shape[-1], counts.shape[-2]
     neighbours = torch.einsum("ab,...bk->...ak", off, counts)
     groups = counts.reshape(-1, n_actions, k)
@@ -174,7 +176,8 @@ def _pooled(counts, off, strength, alpha, axis) -> TableParams:
 
 def _pooled_rows(counts, neighbours, strength, alpha) -> tuple[torch.Tensor, torch.Tensor]:
     """The pooled rows ``(g, A, K)`` and their evidence counts ``(g, A)`` of ``counts``
-    given the neighbours' weighted counts."""
+    given the neighbours' weighted counts.
+    """
     k = counts.shape[-1]
     weight = neighbours.sum(-1, keepdim=True)
     m = torch.where(weight > 0, neighbours / weight.clamp_min(1e-300), 0.0)

@@ -16,7 +16,8 @@ class FitResult:
     iteration, EM step or gradient evaluation) and whether it settled within the
     tolerance. EM over missing values also gives ``log_likelihoods``: the summed
     log-likelihood of the rows (missing values summed and integrated out, no prior) at
-    the start and after each step, never falling."""
+    the start and after each step, never falling.
+    """
 
     params: NetworkParams
     losses: tuple[float, ...] = ()

@@ -474,7 +474,8 @@ def split_missing(
 
 def with_gaps(enc: Evidence, gaps: Mapping[str, torch.Tensor]) -> Evidence:
     """The encoded rows with NaN where :func:`split_missing` found a continuous value
-    missing."""
+    missing.
+    """
     if not gaps:
         return enc
     values = dict(enc.items())
@@ -491,7 +492,8 @@ def labels_of(net: EffectNetwork, site: str) -> tuple:
 
 def _missing_labels(values: object, none_is_a_state: bool) -> np.ndarray | None:
     """``(n,)`` bool, True where a discrete value is missing (None or NaN), or ``None``
-    where the values cannot hold a missing one (integers, strings, booleans)."""
+    where the values cannot hold a missing one (integers, strings, booleans).
+    """
     if isinstance(values, str | bytes):
         return None
     if isinstance(values, torch.Tensor):

@@ -218,7 +218,8 @@ def bic(
     masks: Mapping[str, object] | None = None,
 ) -> float:
     """``-2 L + k ln n`` (lower is better) of the rows (see :func:`log_likelihood`);
-    pgmpy's ``BIC`` score is ``-bic / 2`` (:attr:`LogLikelihood.bic_score`)."""
+    pgmpy's ``BIC`` score is ``-bic / 2`` (:attr:`LogLikelihood.bic_score`).
+    """
     return log_likelihood(net, params, data, masks=masks).bic
 
 
@@ -348,7 +349,8 @@ def cross_validate(
 
 def fold_of_rows(n: int, folds: int, seed: int) -> torch.Tensor:
     """``(n,)`` long: each row's fold, the rows shuffled with ``seed`` and cut into
-    ``folds`` parts whose sizes differ by at most one."""
+    ``folds`` parts whose sizes differ by at most one.
+    """
     for name, value, low, high in (("folds", folds, 2, n), ("seed", seed, 0, None)):
         ok = isinstance(value, int | np.integer) and not isinstance(value, bool)
         if not ok or value < low or (high is not None and value > high):
@@ -363,7 +365,8 @@ def fold_of_rows(n: int, folds: int, seed: int) -> torch.Tensor:
 
 def take_rows(data: Mapping[str, object], index: torch.Tensor) -> Mapping[str, object]:
     """The rows ``index`` ``(m,)`` long of rows given by site (labels in lists, arrays or
-    tensors; :class:`~models.evidence.Evidence`)."""
+    tensors; :class:`~models.evidence.Evidence`).
+    """
     if isinstance(data, Evidence):
         return data.rows(index)
     out = {}
@@ -392,7 +395,8 @@ def _scored_rows(
     """The rows encoded and checked as :func:`inference.fit` reads them
     (:func:`~inference.fitting.rows.rows_with_gaps`: NaN where a continuous value is
     missing), the masks that leave gaps (``masks`` and the rows' own marks), and the
-    parameters' clusters the rows do not give."""
+    parameters' clusters the rows do not give.
+    """
     data = as_data(net, data)
     if not isinstance(data, Mapping):
         raise ValueError(
@@ -418,7 +422,8 @@ def _per_row(
     Gaussian (:func:`inference.fitting.missing.gaussian_row_log_likelihoods`), which
     needs every continuous initial and end site to be a linear Gaussian and no discrete
     site to read a missing value (refused by name otherwise, as :func:`inference.fit`
-    refuses them)."""
+    refuses them).
+    """
     continuous = continuous_gaps(net, enc)
     if not continuous:
         return _enumerated_per_row(net, params, enc, gaps, unread)
@@ -444,7 +449,8 @@ def _enumerated_per_row(
     """``(n,)`` every row's log-evidence, its missing discrete values summed out, in row
     chunks; the clusters ``unread`` left to the model (a value's cell under the grid
     layout, latent under the adaptive one, or under each enumerated action where the
-    action is missing)."""
+    action is missing).
+    """
     enc = enc.without(*unread)
     allowed = actions_allowed(net, enc, gaps)  # (A, n), or None
     # masked sites are enumerated: sized as if absent
@@ -472,7 +478,8 @@ def _gaussian_per_row(
 ) -> torch.Tensor:
     """``(n,)`` the log-likelihood of rows that miss a continuous value: as EM's E-step
     weighs them. A grid cluster stays its value's cell; an adaptive one the rows do not
-    give is summed out with the missing discrete values."""
+    give is summed out with the missing discrete values.
+    """
     adaptive = {m.cluster.site for m in net.mixtures if m.parameter.adaptive}
     return gaussian_row_log_likelihoods(
         net, params, enc.without(*(s for s in unread if s in adaptive)), gaps
@@ -482,7 +489,8 @@ def _gaussian_per_row(
 def _reachable(net: EffectNetwork, site: str) -> torch.Tensor | None:
     """``(P...)`` bool: the parent configurations of ``site`` some row can reach; a
     configuration of an action that does not use a parameter with that parameter's
-    cluster other than 0 cannot (the cluster is pinned on cell 0)."""
+    cluster other than 0 cannot (the cluster is pinned on cell 0).
+    """
     cpd = net.cpd(site)
     reachable = None
     for m in net.mixtures:

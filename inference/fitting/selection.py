@@ -61,7 +61,8 @@ class ClusterScore:
 @dataclass(frozen=True)
 class ClusterSelection:
     """What :func:`select_clusters` returns: every candidate's score and the chosen one
-    (the highest held-out log-likelihood, or the lowest BIC; the first on a tie)."""
+    (the highest held-out log-likelihood, or the lowest BIC; the first on a tie).
+    """
 
     parameter: str
     score: str
@@ -223,7 +224,8 @@ def _factory(net_or_factory, parameter):
 
 def _bins(bins, dim: int | None):
     """A candidate as one int per dimension (``dim``), checked; ``dim=None`` (a factory's
-    candidate): as given."""
+    candidate): as given.
+    """
     if isinstance(bins, int) and not isinstance(bins, bool) and bins >= 1:
         return bins if dim is None else (bins,) * dim
     out = tuple(bins) if isinstance(bins, Sequence) else ()

@@ -165,7 +165,8 @@ def learn_structure(
 
 def _network(features, actions, parameters, chosen: Mapping[str, tuple[str, ...]]):
     """The declaration with ``chosen`` parents for every end site (none where absent,
-    but the action for a feature a parameter affects)."""
+    but the action for a feature a parameter affects).
+    """
     affected = {end_site(f) for p in parameters for f in p.features}
     parents = {
         end_site(f.name): chosen.get(
@@ -231,7 +232,8 @@ class _Space:
     # ------------------------------------------------------------------ exhaustive
     def _sets(self, site: str):
         """Every admissible parent set of ``site``: the required parents plus at most
-        ``max_parents`` in all, in site order."""
+        ``max_parents`` in all, in site order.
+        """
         needed = self.required[site]
         free = [q for q in self.candidates[site] if q not in needed]
         room = min(len(free), self.max_parents - len(needed))
@@ -244,7 +246,8 @@ class _Space:
     def cost(self) -> int:
         """What exhaustive search would cost, in table fits: the parent sets it would
         score, a softmax family (a discrete site with a continuous parent: Newton's method
-        on the rows) counting :data:`SOFTMAX_COST` (admissibility is not checked)."""
+        on the rows) counting :data:`SOFTMAX_COST` (admissibility is not checked).
+        """
         total = 0
         for s in self.ends:
             needed = self.required[s]
@@ -277,7 +280,8 @@ class _Space:
     def _preferred(self, options: list[Family]) -> Family:
         """The best-scoring family; among those within rounding (:data:`TIE`) of it,
         the first with the fewest end parents (an end feature the action leaves as it
-        was copies its initial site, which then explains as much)."""
+        was copies its initial site, which then explains as much).
+        """
         top = max(f.score for f in options)
         near = [f for f in options if f.score >= top - TIE * abs(top)]
         specs = self.families.specs
@@ -286,7 +290,8 @@ class _Space:
     def _best_order(self, scored: Mapping[str, list[Family]]) -> dict[str, tuple[str, ...]]:
         """The best acyclic choice of families for the discrete end sites that may be
         each other's parents: over orders of them, by subsets (each site takes its best
-        family among those whose end parents all come before it)."""
+        family among those whose end parents all come before it).
+        """
         m = len(self.movers)
         if not m:
             return {}
@@ -346,7 +351,8 @@ class _Space:
     def _moves(self, state: dict[str, frozenset], rank: Mapping[str, float] | None = None):
         """Every legal single-edge change: ``(site, new parents)`` pairs, one or two.
         With ``rank``, an edge between end sites is added only from a lower rank to a
-        higher one, and none is turned."""
+        higher one, and none is turned.
+        """
         for s in self.ends:
             ps = state[s]
             for q in self.candidates[s]:
@@ -418,7 +424,8 @@ class _Space:
         """Climb from ``state``; then, while it gains, recombine: the best acyclic choice
         among every family scored so far (the exhaustive order search over them, which
         turns edges among end sites that the climb, one edge at a time, cannot), and
-        climb from there."""
+        climb from there.
+        """
         state = self._climb(state)
         if len(self.movers) > EXHAUSTIVE_ENDS:
             return state

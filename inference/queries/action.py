@@ -186,7 +186,8 @@ class _Answers:
     def marginal(log_table: torch.Tensor, k: int, a: int, unseen: torch.Tensor | None) -> _Answers:
         """Answers of a table ``(observed sizes..., latent sizes...)`` with ``k`` observed
         axes and the action at latent axis ``a``, the other latent sites summed out, in
-        chunks of configurations of at most ``ANSWERS_CHUNK`` elements."""
+        chunks of configurations of at most ``ANSWERS_CHUNK`` elements.
+        """
         n_actions = log_table.shape[k + a]
         latent_sizes = log_table.shape[k:]
         groups = math.prod(log_table.shape[:k])
@@ -239,7 +240,8 @@ class _RowSums:
     indexed at the observed states of ``n`` rows it returns the rows' part, ``(n, latent
     sizes...)``, combining the factors' parts in their order exactly as the whole table
     combines them (the same additions, or logical ors, element by element: the same
-    bits)."""
+    bits).
+    """
 
     def __init__(self, parts: list[torch.Tensor], shape: tuple[int, ...], k: int, add: bool):
         self.parts, self.shape, self.k, self.add = parts, torch.Size(shape), k, add
@@ -257,7 +259,8 @@ class _RowSums:
 
 def _lazy_plan(net, order, observed, kept, misses) -> _Plan | None:
     """The plan of ``observed`` with its table and unseen indicator as :class:`_RowSums`,
-    where the table would exceed ``PLAN_BUDGET`` elements; None where it would not."""
+    where the table would exceed ``PLAN_BUDGET`` elements; None where it would not.
+    """
     sizes = [net.site(s).size for s in order]
     shape = torch.broadcast_shapes(*(t.shape for t in kept))
     shape = [sizes[a] if s == ACTION else shape[a] for a, s in enumerate(order)]
@@ -477,7 +480,8 @@ class CompiledNetwork:
     def _one_answer(self, enc: Evidence, plan: _Plan, below: float) -> ActionPosterior:
         """One row of a pattern with answers per configuration, read by its position in
         the flattened tables (slices, no index tensors): the same numbers as the batched
-        gather, in a few small operations."""
+        gather, in a few small operations.
+        """
         row = 0
         for s, size in zip(plan.observed, plan.log_table.shape, strict=False):
             row = row * size + int(enc[s])
@@ -501,7 +505,8 @@ class CompiledNetwork:
         self, enc: Evidence, plan: _Plan, row: int, log_evidence: float, below: float
     ) -> torch.Tensor:
         """``(1,)`` bool: :meth:`_evidence_below` for one row of a pattern with answers,
-        from its table of ``log_evidence - log_prior`` per configuration (built once)."""
+        from its table of ``log_evidence - log_prior`` per configuration (built once).
+        """
         pattern = frozenset(enc)
         if pattern not in self.surprises:
             ends = {end_site(f.name) for f in self.net.features}
@@ -529,7 +534,8 @@ class CompiledNetwork:
 
     def _evidence_below(self, enc: Evidence, log_evidence: torch.Tensor | float, below: float):
         """``(n,)`` bool: p(observed end sites | the rest of the evidence) below ``below``
-        (``log_evidence``: ``(n,)``, or a float for one row)."""
+        (``log_evidence``: ``(n,)``, or a float for one row).
+        """
         ends = {end_site(f.name) for f in self.net.features}
         given = frozenset(s for s in enc if s not in ends)
         if len(given) == len(enc):

@@ -227,7 +227,8 @@ class LinkProbabilities:
 
     def padded(self, rows: Sequence[int], n_upper: int) -> LinkProbabilities:
         """These rows placed at upper actions ``rows`` of ``n_upper``; the others are zero
-        rows (upper actions not offered: the chained model gives them no transitions)."""
+        rows (upper actions not offered: the chained model gives them no transitions).
+        """
         rows = torch.as_tensor(rows, dtype=torch.long)
         if rows.shape != (len(self.probs),):
             raise ValueError(

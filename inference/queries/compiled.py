@@ -59,7 +59,8 @@ if TYPE_CHECKING:  # the building blocks' names stay deprecated at runtime (see 
 def compile(net: EffectNetwork, params: NetworkParams) -> CompiledQueries:
     """The questions on ``net`` with fitted ``params``, answered from compiled tables
     where they can be (built on first use) and by the traced model otherwise; the same
-    answers either way (tested equal)."""
+    answers either way (tested equal).
+    """
     check_params(net, params)
     return CompiledQueries(net, params)
 
@@ -80,7 +81,8 @@ class CompiledQueries:
     @property
     def action_tables(self) -> CompiledNetwork | None:
         """The discrete factor tables (built on first use); ``None`` where a site is
-        continuous."""
+        continuous.
+        """
         if "action" not in self._built:
             discrete = all(s.discrete for s in self.net.sites)
             self._built["action"] = _compile_discrete(self.net, self.params) if discrete else None
@@ -90,7 +92,8 @@ class CompiledQueries:
         self, parameter: str
     ) -> CompiledParameterQuery | CompiledJointParameterQuery | None:
         """The compiled parameter posterior of ``parameter`` (built on first use);
-        ``None`` where another parameter acts on one of its continuous features."""
+        ``None`` where another parameter acts on one of its continuous features.
+        """
         key = ("parameter", parameter)
         if key not in self._built:
             refused = shared_features(self.net, parameter)
@@ -117,7 +120,8 @@ class CompiledQueries:
         implausible_below: float = IMPLAUSIBLE_BELOW,
     ) -> ImitationCheck:
         """:func:`inference.imitation_check`, answered by the traced model (no tables
-        yet)."""
+        yet).
+        """
         return imitation_check(
             self.net,
             self.params,
@@ -131,7 +135,8 @@ class CompiledQueries:
         self, parameter: str, evidence: Mapping[str, object]
     ) -> ParameterForEffect:
         """:func:`inference.parameter_for_effect`, the inverse model, answered by the
-        traced model (its candidates scored in closed form where it can)."""
+        traced model (its candidates scored in closed form where it can).
+        """
         return parameter_for_effect(self.net, self.params, parameter, evidence)
 
     def infer_action(
@@ -145,7 +150,8 @@ class CompiledQueries:
         """:func:`inference.infer_action`, answered from the discrete factor tables where
         every site is discrete (any evidence, unknown initial states included; where the
         unknown sites are many and their joint splits, by elimination over the tables,
-        row by row), by the traced model otherwise."""
+        row by row), by the traced model otherwise.
+        """
         tables = self.action_tables
         if tables is None:
             return infer_action(
@@ -176,7 +182,8 @@ class CompiledQueries:
         features and the evidence gives exactly what that query reads (an affected
         feature, the action, the features' discrete parents and continuous inputs, all
         initial states); by the traced model otherwise (an unknown initial state, an
-        observed end feature the parameter does not act on, an invalid evidence)."""
+        observed end feature the parameter does not act on, an invalid evidence).
+        """
         query = self.parameter_query(parameter)
         evidence = as_data(self.net, evidence)  # a frame reaches the compiled query too
         if query is not None and isinstance(evidence, Mapping) and query.serves(set(evidence)):
@@ -202,7 +209,8 @@ class CompiledQueries:
         normalise: bool = False,
     ) -> Transitions:
         """:func:`inference.transitions`, read from the model's tables, traced once per
-        ``given`` (the continuous initial features' values) and kept."""
+        ``given`` (the continuous initial features' values) and kept.
+        """
         key = ("tables", _context_key(given))
         if key not in self._built:
             self._built[key] = model_tables(self.net, self.params, given)

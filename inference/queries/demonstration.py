@@ -33,7 +33,8 @@ class Demonstrations:
     """A batch read: ``allowed`` ``(n, T + 1, S)`` the states consistent with what each
     time shows; ``continuous[f]`` ``(n, T + 1, d)`` (NaN: not observed);
     ``outcomes[f]`` ``(n, T + 1)`` state indices of discrete outcome features (-1: not
-    observed)."""
+    observed).
+    """
 
     allowed: torch.Tensor
     continuous: dict[str, np.ndarray]
@@ -48,7 +49,8 @@ class Demonstrations:
     def read(net: EffectNetwork, space: StateSpace, states) -> Demonstrations:
         """Read ``states`` (:func:`~inference.queries.explain.explain`'s one demonstration
         or batch) against ``space``; a ``ValueError`` names the feature, the value and
-        what was expected."""
+        what was expected.
+        """
         batch = _as_batch(net, states)
         lengths = {np.shape(v)[:2] for v in batch.values() if v is not None}
         if not isinstance(states, Mapping):
@@ -110,7 +112,8 @@ class Demonstrations:
         """``(n, T)`` the index of each step's observation among the distinct ones, and
         the distinct ones ``(K, m)``: each step's continuous values at its start and end
         and its outcomes (-1 / NaN: not observed). Steps that observe the same get one
-        step table."""
+        step table.
+        """
         n, steps = self.shape
         columns = []
         for x in self.continuous.values():
@@ -161,7 +164,8 @@ def _as_batch(net: EffectNetwork, states) -> dict[str, object]:
 
 def _discrete_indices(net: EffectNetwork, f: Discrete, value, shape) -> np.ndarray:
     """``shape`` state indices of ``value`` (labels, ``None`` for unobserved), -1 where
-    unobserved (everywhere for ``None``); labels are read as the network reads them."""
+    unobserved (everywhere for ``None``); labels are read as the network reads them.
+    """
     index = np.full(shape, -1, dtype=np.int64)
     if value is None:
         return index
@@ -233,7 +237,8 @@ def with_action_prior(
     net: EffectNetwork, params: NetworkParams, prior: Mapping[str, float] | Sequence[float] | None
 ) -> NetworkParams:
     """``params`` with the action table replaced by ``prior``: a mapping action ->
-    probability, an ``(A,)`` sequence, or ``None`` for uniform."""
+    probability, an ``(A,)`` sequence, or ``None`` for uniform.
+    """
     a = len(net.actions)
     if prior is None:
         probs = torch.full((a,), 1.0 / a, dtype=DTYPE)

@@ -31,7 +31,8 @@ def scope(factor: torch.Tensor) -> frozenset[tuple[int, int]]:
 
 def dense_enough(factors: list[torch.Tensor]) -> bool:
     """Whether the factors' joint is small enough, or the contraction no cheaper, to sum
-    it as one dense tensor."""
+    it as one dense tensor.
+    """
     scopes = tuple(scope(f) for f in factors)
     sizes = dict(s for sc in scopes for s in sc)
     joint = math.prod(sizes.values())
@@ -45,7 +46,8 @@ def plan(
     scopes: tuple[frozenset[tuple[int, int]], ...], eliminate: frozenset[int]
 ) -> tuple[tuple[int, ...], int]:
     """A greedy elimination order of the dims ``eliminate`` for factors of these scopes,
-    and the largest intermediate it builds (configurations per row)."""
+    and the largest intermediate it builds (configurations per row).
+    """
     live = [{d for d, _ in sc} for sc in scopes]
     sizes = {d: k for sc in scopes for d, k in sc}
     todo = set(eliminate) & set(sizes)
@@ -67,7 +69,8 @@ def plan(
 
 def contract_size(scopes: tuple[frozenset[tuple[int, int]], ...]) -> int:
     """Configurations per row of the largest tensor that summing every dim builds: the
-    joint's where it is summed dense."""
+    joint's where it is summed dense.
+    """
     sizes = dict(s for sc in scopes for s in sc)
     joint = math.prod(sizes.values())
     if joint <= DENSE_CONFIGURATIONS:
@@ -83,7 +86,8 @@ def schedule(
     """The steps of summing the dims ``eliminate`` out of factors of these scopes, in
     :func:`plan`'s order: per step the dim and the slots of the factors it sums (the
     factors are slots ``0 .. F-1``; each step's answer takes the next slot), and the
-    slots left at the end. Cached per structure, so that a query repeats no planning."""
+    slots left at the end. Cached per structure, so that a query repeats no planning.
+    """
     order, _ = plan(scopes, eliminate)
     spans = {i: {d for d, _ in sc} for i, sc in enumerate(scopes)}
     steps = []
@@ -98,7 +102,8 @@ def schedule(
 def _eliminate(factors, eliminate, reduce, scopes=None):
     """Sum (``reduce``) the dims ``eliminate`` out of the factors, one at a time; returns
     the remaining factors and, per step, the dim and the summed tensor. ``scopes``: the
-    factors' (:func:`scope` of each), where the caller knows them."""
+    factors' (:func:`scope` of each), where the caller knows them.
+    """
     slots = list(factors)
     if scopes is None:
         scopes = tuple(scope(f) for f in slots)
@@ -129,14 +134,16 @@ def contract(
 ) -> torch.Tensor:
     """``log sum exp`` over the dims ``eliminate`` of the factors' sum, by elimination:
     a tensor whose other dims keep their size and whose eliminated dims are 1.
-    ``scopes``: each factor's :func:`scope`, where the caller has them."""
+    ``scopes``: each factor's :func:`scope`, where the caller has them.
+    """
     left, _ = _eliminate(factors, eliminate, _logsumexp, scopes)
     return _sum(left)
 
 
 def maximum(factors: list[torch.Tensor], eliminate: list[int]) -> torch.Tensor:
     """The largest value over the dims ``eliminate`` of the factors' sum, by elimination
-    (max-product), laid out as :func:`contract`'s answer."""
+    (max-product), laid out as :func:`contract`'s answer.
+    """
     left, _ = _eliminate(factors, eliminate, lambda t, d: t.amax(d, keepdim=True))
     return _sum(left)
 
@@ -145,7 +152,8 @@ def sample(factors: list[torch.Tensor], eliminate: list[int], n: int) -> dict[in
     """One joint draw per row of the dims ``eliminate`` from the distribution
     ``exp(sum of the factors)`` (normalised per row): the dims summed out in order, then
     each drawn, last summed first, given those drawn before it (``{dim: (n,) index}``;
-    torch's global generator). Every row must have a possible configuration."""
+    torch's global generator). Every row must have a possible configuration.
+    """
     left, steps = _eliminate(factors, eliminate, lambda t, d: (t.logsumexp(d, keepdim=True), t))
     drawn: dict[int, torch.Tensor] = {}
     for d, (_, total) in reversed(steps):
@@ -162,8 +170,8 @@ def max_config(
 ) -> tuple[torch.Tensor, dict[int, torch.Tensor]]:
     """Per row, the largest value of the factors' sum over the dims ``eliminate`` (every
     enumerated dim) and a configuration reaching it (max-product elimination, then the
-    argmaxes traced back): ``(top (n,), {dim: (n,) index})``."""
-
+    argmaxes traced back): ``(top (n,), {dim: (n,) index})``.
+    """
     left, steps = _eliminate(factors, eliminate, lambda t, d: t.max(d, keepdim=True))
     top = _sum(left).reshape(-1).expand(n)
     best: dict[int, torch.Tensor] = {}
@@ -174,7 +182,8 @@ def max_config(
 
 def value_at(t: torch.Tensor, best: dict[int, torch.Tensor], n: int) -> torch.Tensor:
     """``(n,)`` per row, ``t`` at the configuration ``best`` (a dim ``t`` spans with size
-    1, or one ``best`` lacks, is read at 0)."""
+    1, or one ``best`` lacks, is read at 0).
+    """
     zeros = torch.zeros(n, dtype=torch.long)
     index = []
     for i, k in enumerate(t.shape):

@@ -83,7 +83,8 @@ class Enumerated:
     def log_weight(self) -> torch.Tensor:
         """``(E_k, ..., E_1, n)`` the joint log-weight, the factors summed (built here,
         once, when several factors are held: as large as the product of the sites'
-        sizes; sums and marginals do not need it)."""
+        sizes; sums and marginals do not need it).
+        """
         if not self.contracted:
             return self.factors[0]
         return _full(_dense_sum(list(self.factors)), self.dims, self.n_rows)
@@ -124,7 +125,8 @@ class Enumerated:
         """``log sum exp`` of the joint (with the log-factors ``extra`` added, each
         broadcastable to it) over every enumerated site but ``keep``: a tensor of the
         joint's rank, ``(..., n)``, whose dims of ``keep`` keep their size and the others
-        are 1. By contraction where the factors are several."""
+        are 1. By contraction where the factors are several.
+        """
         keep = frozenset(keep)
         extra = list(extra)
         if not extra and keep in self._sums:
@@ -163,7 +165,8 @@ class Enumerated:
 
     def joint(self, sites: Sequence[str]) -> torch.Tensor:
         """``(n, K_1 * ... * K_m)`` the posterior over the joint states of ``sites`` (the
-        first varying slowest), every other site summed out."""
+        first varying slowest), every other site summed out.
+        """
         w = self.log_sum(sites)
         keep = [w.dim() + self.dims[s] for s in sites]
         shape = list(w.shape)
@@ -177,7 +180,8 @@ class Enumerated:
 
     def sample(self) -> dict[str, torch.Tensor]:
         """One joint draw per row of the enumerated sites some factor depends on, from
-        their exact posterior, by contraction (torch's global generator)."""
+        their exact posterior, by contraction (torch's global generator).
+        """
         self.check_possible(self.log_norm)
         drawn = sample(list(self.factors), list(self.dims.values()), self.n_rows)
         return {site: drawn[d] for site, d in self.dims.items() if d in drawn}
@@ -215,7 +219,8 @@ class Enumerated:
     def check_possible(self, log_norm: torch.Tensor) -> None:
         """Refuse a row whose evidence has probability 0 under every configuration: no
         posterior exists (in float64, a density also underflows to 0 where the value lies
-        beyond about 1e154 of the component's standard deviations)."""
+        beyond about 1e154 of the component's standard deviations).
+        """
         if bool((log_norm > -torch.inf).all()):
             return
         row = int((log_norm == -torch.inf).nonzero()[0])
@@ -354,7 +359,8 @@ def enumerate_model(
 def _contracted(bounded, unbounded, offsets, dims, trace, n) -> Enumerated:
     """The factors kept apart, each unbounded one less its offset. Where the row's most
     probable configuration (by max-product contraction) lies far from 0, each unbounded
-    factor is centred at its value there instead, as the dense sum is."""
+    factor is centred at its value there instead, as the dense sum is.
+    """
     factors = bounded + [lp - offsets[name] for name, lp in unbounded.items()]
     if unbounded:
         top, best = max_config(factors, list(dims.values()), n)
@@ -374,7 +380,8 @@ def _centred_sum(
     n: int,
 ) -> torch.Tensor:
     """The factors' sum, ``(E_k, ..., E_1, n)``, each unbounded one less its ``(n,)``
-    offset."""
+    offset.
+    """
     factors = bounded + [lp - offsets[name] for name, lp in unbounded.items()]
     return _full(_dense_sum(factors), dims, n)
 
@@ -400,7 +407,8 @@ def _full(
     total: torch.Tensor, dims: Mapping[str, int], n: int, depth: int | None = None
 ) -> torch.Tensor:
     """``total`` with its rows expanded to ``n`` (where ``n``) and dims of size 1 in
-    front up to the enumeration's depth."""
+    front up to the enumeration's depth.
+    """
     if depth is None:
         depth = max([-d for d in dims.values()], default=1)
     if n and (total.dim() == 0 or total.shape[-1] != n):
@@ -414,7 +422,8 @@ def log_ratio(a: Enumerated, b: Enumerated) -> torch.Tensor:
     """``(n,)`` ``log p(a's evidence) - log p(b's evidence)`` for the same rows, where the
     factors both share (a continuous initial state's density, say) cancel exactly, at
     any magnitude; the difference of the two ``log_evidence`` loses what such a factor's
-    size hides."""
+    size hides.
+    """
     ratio = a.log_norm - b.log_norm
     for name in a.offsets.keys() | b.offsets.keys():
         ratio = ratio + (a.offsets.get(name, 0.0) - b.offsets.get(name, 0.0))
@@ -432,7 +441,8 @@ def conditional_log_evidence(
     """``(n,)`` ``log p(evidence | given) = log_joint - log_given`` (``given``: some of the
     evidence's sites, ``log_joint`` and ``log_given`` their ``log_evidence``), recomputed
     by :func:`log_ratio` in the rows where either is large enough that the subtraction
-    would lose digits (a density far in its tail)."""
+    would lose digits (a density far in its tail).
+    """
     ratio = log_joint - log_given
     far = (log_joint.abs() > _CENTRED) | (log_given.abs() > _CENTRED)
     if not bool(far.any()):
@@ -462,7 +472,8 @@ _RECENTRINGS = 24
 def _unbounded(net: EffectNetwork, name: str) -> bool:
     """Whether a site's log-probability can take any magnitude: a continuous site's
     density, or a discrete site with continuous inputs (a softmax). A table's (and a
-    factor's) is ``0``, ``-inf`` or a log-probability above float64's smallest."""
+    factor's) is ``0``, ``-inf`` or a log-probability above float64's smallest.
+    """
     try:
         spec = net.site(name)
     except KeyError:  # a factor (the cluster's cell, an observed mask): 0 or -inf
@@ -472,7 +483,8 @@ def _unbounded(net: EffectNetwork, name: str) -> bool:
 
 def _row_max(lp: torch.Tensor) -> torch.Tensor:
     """Per row (last dim), the largest value over the other dims, kept as dims of size 1;
-    a row whose largest value is not finite (all ``-inf``) gets 0."""
+    a row whose largest value is not finite (all ``-inf``) gets 0.
+    """
     top = lp.amax(tuple(range(lp.dim() - 1)), keepdim=True) if lp.dim() > 1 else lp
     return torch.where(torch.isfinite(top), top, 0.0)
 
@@ -492,7 +504,8 @@ def over_row_chunks(
     ``trace_only`` as :func:`enumerate_model` takes them), the results concatenated along
     the rows (a tuple element by element). ``contracted``: ``fn`` reads sums and
     marginals only, never the joint (``log_weight``, ``posterior``), so chunks are sized
-    by the contraction's largest intermediate (:func:`enumeration_size`)."""
+    by the contraction's largest intermediate (:func:`enumeration_size`).
+    """
     size = enumeration_size(net, evidence, keep, contracted=contracted)
     outs = []
     for rows in row_chunks(evidence.n_rows, size):
@@ -514,7 +527,8 @@ CHUNK_ELEMENTS = 1 << 20
 
 def row_chunks(n: int, enum_size: int, budget: int | None = None) -> list[slice]:
     """Row slices so that one chunk's joint tensor stays below ``budget`` elements
-    (default ``CHUNK_ELEMENTS``)."""
+    (default ``CHUNK_ELEMENTS``).
+    """
     budget = CHUNK_ELEMENTS if budget is None else budget
     step = max(1, budget // max(1, enum_size))
     return [slice(i, min(n, i + step)) for i in range(0, n, step)] or [slice(0, 0)]
@@ -528,7 +542,8 @@ def enumeration_size(
     ``contracted`` (the query sums by :meth:`Enumerated.log_sum` and marginals, never
     reading the joint) the largest intermediate of the contraction, from the declared
     parents (the joint's where parameters' clusters take part), or the kept sites'
-    joint where larger."""
+    joint where larger.
+    """
     ends = net.end_sites_needed({*evidence, *keep})
     latent = {
         s.name: s.size

@@ -99,7 +99,8 @@ class Explanation:
 
     def path_labels(self, i: int = 0) -> list[dict[str, object]]:
         """Demonstration ``i``'s most probable state path: one mapping feature -> label
-        per time, ``T + 1`` of them."""
+        per time, ``T + 1`` of them.
+        """
         return [
             dict(zip(self.features, self.states[s], strict=True)) for s in self.path[i].tolist()
         ]
@@ -214,7 +215,8 @@ class _StepTables:
     ``log_discrete`` the same without the continuous end observations (the discrete
     plausibility's numerator); ``log_start`` ``(K, S)`` the initial distribution's
     ``log p(start state, start observations)``; ``tail`` ``(K, S, S)`` and ``initial``
-    ``{site: (K, S)}`` the plausibility tails; ``-inf`` / 1 where never needed."""
+    ``{site: (K, S)}`` the plausibility tails; ``-inf`` / 1 where never needed.
+    """
 
     log_step: torch.Tensor
     log_discrete: torch.Tensor
@@ -229,7 +231,8 @@ def _log_evidence(net: EffectNetwork, params: NetworkParams, enc: Evidence) -> t
 
 def _step_tables(net, params, space, demo, key, keys) -> _StepTables:
     """The step tables, from the traced model, for the (start, end) state pairs some
-    step of each distinct observation allows."""
+    step of each distinct observation allows.
+    """
     s, a, k = len(space), len(net.actions), len(keys)
     # the (start, end) pairs some step of each distinct observation allows, summed over
     # the steps in chunks (a batch's pairs at once would be (n, T, S, S))
@@ -296,7 +299,8 @@ def _step_tables(net, params, space, demo, key, keys) -> _StepTables:
 def _pair_evidence(net, space, digits, keys, columns, triples) -> dict[str, torch.Tensor]:
     """Evidence by site (indices, numbers) for rows ``(key, start state, end state)``:
     the start and end states and the key's observations, its unobserved outcomes left
-    out (the rows share one pattern)."""
+    out (the rows share one pattern).
+    """
     k, start, end = triples[:, 0], triples[:, 1], triples[:, 2]
     ev: dict[str, torch.Tensor] = {}
     for f, digit in zip(space.features, digits, strict=True):
@@ -344,7 +348,8 @@ class _Shared:
     """A batch's step tables in the forms the passes read: the action summed out
     (``forward``; ``backward`` transposed), pairs of states by action (``pairs``
     ``(K, S * S, A)``), the discrete plausibility's with the action summed out
-    (``discrete``), and the action maximised (``top``, ``act`` ``(K, S, S)``)."""
+    (``discrete``), and the action maximised (``top``, ``act`` ``(K, S, S)``).
+    """
 
     forward: LogTables
     backward: LogTables
@@ -433,7 +438,8 @@ def _no_demonstrations(net: EffectNetwork, space: StateSpace, steps: int) -> Exp
 
 def _outside(initial: dict[str, torch.Tensor], shape, below: float) -> torch.Tensor:
     """``shape`` ``(n, T)`` bool: a step's continuous initial state lies outside the
-    training data (warned, naming the site, the first demonstration and its step)."""
+    training data (warned, naming the site, the first demonstration and its step).
+    """
     flag = torch.zeros(shape, dtype=torch.bool)
     for site, tail in initial.items():
         outside = tail < below

@@ -30,7 +30,8 @@ SUMMED_TABLE = 1 << 22
 @dataclass(frozen=True)
 class _Part:
     """One factor table: its axes of observed sites first and flattened (the rows' index),
-    then the latent sites it spans, ``(prod observed sizes, latent sizes...)``."""
+    then the latent sites it spans, ``(prod observed sizes, latent sizes...)``.
+    """
 
     table: torch.Tensor
     observed: tuple[str, ...]  # the observed sites it spans, slowest first
@@ -39,7 +40,8 @@ class _Part:
 
     def at(self, enc: Evidence) -> torch.Tensor:
         """``(latent layout..., n)`` the factor at each row's observed states (rows 1
-        where it spans no observed site)."""
+        where it spans no observed site).
+        """
         if not self.observed:
             return self.table.reshape(*self.shape, 1)
         row = enc[self.observed[0]]
@@ -51,7 +53,8 @@ class _Part:
 
 def _part(table: torch.Tensor, order: tuple[str, ...], observed, latent) -> _Part:
     """``table`` (one axis per site of ``order``) laid out for a pattern whose latent
-    layout is ``latent``."""
+    layout is ``latent``.
+    """
     obs_axes = [a for a, s in enumerate(order) if s in observed and table.shape[a] > 1]
     lat_axes = [a for a, s in enumerate(order) if s in latent and table.shape[a] > 1]
     rest = [a for a in range(len(order)) if a not in obs_axes and a not in lat_axes]
@@ -67,7 +70,8 @@ class FactoredPlan:
     """A pattern's kept factors, each laid out by ``_Part``, over the latent sites
     ``latent`` (the action among them). ``unseen`` holds, where some configuration of
     an observed end site's parents was never seen in training, that site's indicator of
-    a seen configuration as a log-factor (0 or ``-inf``)."""
+    a seen configuration as a log-factor (0 or ``-inf``).
+    """
 
     observed: tuple[str, ...]
     latent: tuple[str, ...]
@@ -88,7 +92,8 @@ class FactoredPlan:
         ``SUMMED_TABLE`` values and the latent sites' joint is larger than the
         elimination's steps by far (the rule
         :func:`~inference.queries.elimination.contract_size` applies); ``None`` where the
-        table is small or the joint does not split, and one summed table serves better."""
+        table is small or the joint does not split, and one summed table serves better.
+        """
         spanned = {s for t in kept for a, s in enumerate(order) if t.shape[a] > 1}
         latent = tuple(s for s in order if s not in observed and (s in spanned or s == ACTION))
         dim = {s: i - len(latent) - 1 for i, s in enumerate(latent)}  # rows last
@@ -116,7 +121,8 @@ class FactoredPlan:
 
     def _sum(self, factors: list[torch.Tensor], keep_action: bool, n: int) -> torch.Tensor:
         """``(n, A)`` (or ``(n,)`` without ``keep_action``) the factors' log-sum over
-        the latent sites."""
+        the latent sites.
+        """
         rank = len(self.latent) + 1
         eliminate = [i - rank for i, s in enumerate(self.latent) if not keep_action or s != ACTION]
         total = contract(factors, eliminate, self.scopes[: len(factors)])
@@ -128,7 +134,8 @@ class FactoredPlan:
 
     def log_evidence(self, enc: Evidence) -> torch.Tensor:
         """``(n,)`` log-probability of each row's observed states, every latent site
-        summed out."""
+        summed out.
+        """
         if any(p.observed for p in self.parts):
             return self._sum([p.at(enc) for p in self.parts], False, enc.n_rows)
         if "prior" not in self.__dict__:  # the same for every row: summed once
@@ -138,7 +145,8 @@ class FactoredPlan:
     def answer(self, enc: Evidence) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Per row: the action's posterior ``(n, A)``, the evidence's log-probability
         ``(n,)``, and the posterior probability, given each action, that an observed end
-        site sits on a configuration unseen in training ``(n, A)``."""
+        site sits on a configuration unseen in training ``(n, A)``.
+        """
         n = enc.n_rows
         factors = [p.at(enc) for p in self.parts]
         log_marginal = self._sum(factors, True, n)
@@ -155,5 +163,6 @@ class FactoredPlan:
 
 def _scope(shape: tuple[int, ...]) -> frozenset[tuple[int, int]]:
     """:func:`~inference.queries.elimination.scope` of a part laid out in ``shape`` (rows
-    last)."""
+    last).
+    """
     return frozenset((i - len(shape) - 1, k) for i, k in enumerate(shape) if k > 1)

@@ -118,7 +118,8 @@ def predict(
 
 def _mixture(net, params, enc, site) -> GaussianMixture:
     """The site's mixture over the enumerated sites; a partly observed site's components
-    are conditioned on its observed dimensions (which hold their value, variance 0)."""
+    are conditioned on its observed dimensions (which hold their value, variance 0).
+    """
     partial = site in enc
 
     def fn(e: Enumerated, chunk: Evidence, _):

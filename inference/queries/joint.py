@@ -43,7 +43,8 @@ class JointPrediction:
 
     def prob(self, state: Sequence[Hashable] | Mapping[str, Hashable]) -> torch.Tensor:
         """``(n,)`` the probability of one joint state (labels in ``features`` order, or
-        ``{feature: label}``)."""
+        ``{feature: label}``).
+        """
         if isinstance(state, Mapping):
             if set(state) != set(self.features):
                 raise ValueError(f"name exactly the features {self.features}, got {dict(state)}")

@@ -147,7 +147,8 @@ def _over_latent_parents(net, params, m, enc, children, latent, mixture) -> Para
     """:func:`infer_parameter` where initial states the observed effects depend on are
     unknown: their states and the cluster enumerated jointly (their exact posterior), the
     parameter given the best cluster a mixture over those states (its mean and covariance
-    returned, by the law of total covariance), each cluster's in ``mixture`` likewise."""
+    returned, by the law of total covariance), each cluster's in ``mixture`` likewise.
+    """
     p = m.parameter
     sites = [*latent, m.cluster.site]
 
@@ -189,7 +190,8 @@ def _over_latent_parents(net, params, m, enc, children, latent, mixture) -> Para
 def _parameter_from_cluster(net, params, m, enc, observed, mixture) -> ParameterPosterior:
     """The answer when only discrete features the parameter acts on are observed: they
     depend on its cell, so the parameter given its best cluster is that cluster's
-    Gaussian."""
+    Gaussian.
+    """
 
     def fn(e: Enumerated, *_):
         if e.contracted:
@@ -238,7 +240,8 @@ class CompiledJointParameterQuery(InferRenamed):
         besides the parameter (the action may be left out, as for
         :meth:`CompiledParameterQuery.serves`), and every other site an initial state (an
         observed end site outside the affected ones, whose own plausibility the traced
-        query would weigh, is left to it)."""
+        query would weigh, is left to it).
+        """
         m = self.net.mixture(self.parameter.name)
         observed = {s for s in m.affected if s in sites}
         needed = {
@@ -387,7 +390,8 @@ def _depending_on(net: EffectNetwork, sites: set[str]) -> set[str]:
 def shared_features(net: EffectNetwork, parameter: str) -> list[str]:
     """The continuous features ``parameter`` acts on that another parameter acts on too:
     where there are any, :func:`compile_parameter_query` refuses (the traced
-    :func:`infer_parameter` answers)."""
+    :func:`infer_parameter` answers).
+    """
     m = net.mixture(parameter)
     return [s for s in m.continuous if net.acting_on(s) != (m,)]
 
@@ -400,7 +404,8 @@ def compile_parameter_query(
     (its tables) for a parameter acting on one continuous feature,
     :class:`CompiledJointParameterQuery` for one acting on several features. A
     continuous feature that several parameters act on is refused (use
-    :func:`inference.infer_parameter`)."""
+    :func:`inference.infer_parameter`).
+    """
     check_params(net, params)
     m = net.mixture(parameter)
     shared = shared_features(net, parameter)

@@ -95,7 +95,8 @@ class CompiledParameterQuery(InferRenamed):
         parameter (the action may be left out: the query fills it in where one action uses
         the parameter, and refuses as the traced one does otherwise), and every other site
         an initial state (an observed end site, whose own plausibility the traced query
-        would weigh, is left to it)."""
+        would weigh, is left to it).
+        """
         y_site = end_site(self.parameter.features[0])
         needed = {*self.parents[:-1], *self.inputs[:-1]} - {ACTION}
         return (
@@ -206,7 +207,8 @@ class CompiledParameterQuery(InferRenamed):
     def _one_tables(self) -> dict | None:
         """Per action, the numpy views :meth:`_one_row` reads (``None``: no one-row path,
         the feature has discrete parents besides the action and the cluster, or
-        continuous inputs besides the parameter)."""
+        continuous inputs besides the parameter).
+        """
         if "tables" in self._one:
             return self._one["tables"]
         tables = None
@@ -257,7 +259,8 @@ class CompiledParameterQuery(InferRenamed):
         tensor ones. The same steps as the batched query on the same tables, so the same
         answers up to rounding. ``None`` where the evidence is anything else (several
         rows, a partial observation, encoded evidence, an error to report): the general
-        path then serves it."""
+        path then serves it.
+        """
         if isinstance(evidence, Evidence) or not isinstance(evidence, Mapping):
             return None
         t = self._one_tables()
@@ -341,7 +344,8 @@ class CompiledParameterQuery(InferRenamed):
     def _rounds_off(self, x: torch.Tensor) -> bool:
         """Whether the mean ``offset + w_x x`` may round off against the marginal's
         smallest noise scale (:func:`models.gaussian.sum_rounds_off`; that scale at least
-        ``1 / |whiten|``, the largest Frobenius norm of the inverse factors)."""
+        ``1 / |whiten|``, the largest Frobenius norm of the inverse factors).
+        """
         if "extremes" not in self._one:  # the tables' part, once
             largest_inverse = self.whiten.square().sum((-2, -1)).max().sqrt()
             parts = [self.w_x.abs().max(), self.offset.abs().max(), 1 / largest_inverse]
@@ -354,7 +358,8 @@ class CompiledParameterQuery(InferRenamed):
         tables hold them for all dimensions; the marginal covariance ``L L^T``, the
         cross-covariance ``gain L L^T`` and the cluster covariance ``post_cov + gain L
         L^T gain^T`` are read back from them, then every observed-dimension quantity is
-        taken from those (:func:`models.gaussian.mask_unobserved`)."""
+        taken from those (:func:`models.gaussian.mask_unobserved`).
+        """
         n = y.shape[0]
         eye = torch.eye(y.shape[-1], dtype=DTYPE)
         tril = torch.linalg.solve_triangular(self.whiten[index], eye, upper=False)
@@ -399,7 +404,8 @@ class CompiledParameterQuery(InferRenamed):
 
 def refuse_impossible(log_post: torch.Tensor) -> None:
     """Refuse rows ``(n, C)`` whose every cluster has probability 0 (in float64): no
-    posterior exists (as :class:`inference.queries.enumeration.Enumerated` refuses them)."""
+    posterior exists (as :class:`inference.queries.enumeration.Enumerated` refuses them).
+    """
     top = log_post.amax(-1)
     if not bool((top > -torch.inf).all()):
         row = int((top == -torch.inf).nonzero()[0])
@@ -417,7 +423,8 @@ def _whitened_distance(
     rest ``low``, where it is a pair) ``(n or 1, C, d)`` and lower triangular ``whiten``
     ``(n or C, ..., d, d)``: the residual first, then whitened, one dimension at a time
     on ``(n, C)`` tensors (a sum of squares without cancellation, and no ``(n, C, d)``
-    temporaries)."""
+    temporaries).
+    """
     d = y.shape[-1]
     diff = [y[:, j, None] - loc[..., j] for j in range(d)]  # (n, C) each
     if low is not None:

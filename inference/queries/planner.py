@@ -72,7 +72,8 @@ class Plan:
 
     def action(self, state: StateLike | int, steps_left: int | None = None) -> str | None:
         """The action label to take in ``state`` with ``steps_left`` actions left (default
-        the horizon); ``None`` in a goal state or where no action is allowed."""
+        the horizon); ``None`` in a goal state or where no action is allowed.
+        """
         h = self.horizon if steps_left is None else steps_left
         if not isinstance(h, int) or not 1 <= h <= self.horizon:
             raise ValueError(f"steps_left must be an int in 1..{self.horizon}, got {steps_left!r}")
@@ -81,13 +82,15 @@ class Plan:
 
     def probability(self, state: StateLike | int, steps_left: int | None = None) -> float:
         """The probability of reaching the goal from ``state`` within ``steps_left``
-        actions (default the horizon)."""
+        actions (default the horizon).
+        """
         h = self.horizon if steps_left is None else steps_left
         return float(self.value[h, self.model.space.index_of(state)])
 
     def to_dict(self) -> dict[tuple[tuple[Hashable, ...], int], str]:
         """``{(state, steps left): action}`` by labels, for every non-goal state with an
-        allowed action."""
+        allowed action.
+        """
         out = {}
         for h in range(1, self.horizon + 1):
             for i, s in enumerate(self.model.space.states):
@@ -255,7 +258,8 @@ def _most_likely_path(
 ) -> tuple[Sequence[int], float]:
     """The most probable state sequence under the policy that ends in the goal within
     ``horizon`` actions (Viterbi over the policy's chain, the goal absorbing), as
-    ``(s0, a0, s1, a1, ..., goal)`` indices, and its probability."""
+    ``(s0, a0, s1, a1, ..., goal)`` indices, and its probability.
+    """
     s = probs.shape[0]
     rows = torch.arange(s)
     log_t = probs.to(DTYPE).log()

@@ -155,7 +155,8 @@ def paper_planner(
 @dataclass(frozen=True)
 class ExactPlan:
     """``value[h, s]``: the best probability of reaching the goal from state ``s`` with ``h``
-    actions left; ``policy[h, s]``: the action achieving it (``h >= 1``)."""
+    actions left; ``policy[h, s]``: the action achieving it (``h >= 1``).
+    """
 
     value: torch.Tensor  # (H + 1, S)
     policy: torch.Tensor  # (H + 1, S) long; row 0 unused (-1)

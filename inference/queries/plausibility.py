@@ -51,7 +51,8 @@ continuous observation beyond about 3.9 standard deviations in one dimension).""
 
 class OutsideTrainingData(UserWarning):
     """An observed continuous initial state lies far outside what the model was fitted on
-    (its tail under the fitted initial Gaussian is below the threshold)."""
+    (its tail under the fitted initial Gaussian is below the threshold).
+    """
 
 
 @dataclass(frozen=True)
@@ -60,7 +61,8 @@ class Plausibility:
     ``tail`` ``(n,)``: chi-square tail probability of the observed continuous end state
     under its closest possible component. Both 1 where nothing of the kind is observed.
     ``initial``: per observed continuous initial site, ``(n,)`` the chi-square tail of its
-    value under the model's fitted Gaussian of that initial state."""
+    value under the model's fitted Gaussian of that initial state.
+    """
 
     discrete: torch.Tensor
     tail: torch.Tensor
@@ -68,13 +70,15 @@ class Plausibility:
 
     def outside(self, below: float = IMPLAUSIBLE_BELOW) -> dict[str, torch.Tensor]:
         """Per continuous initial site, ``(n,)`` bool: its value lies outside the training
-        data (tail below ``below``)."""
+        data (tail below ``below``).
+        """
         return {site: tail < below for site, tail in self.initial.items()}
 
     def implausible(self, below: float = IMPLAUSIBLE_BELOW) -> torch.Tensor:
         """``(n,)`` bool: any probability below ``below``. Warns
         (:class:`OutsideTrainingData`), naming the site and the first row, where an
-        initial state lies outside the training data."""
+        initial state lies outside the training data.
+        """
         return (self.discrete < below) | (self.tail < below) | outside_training(self.initial, below)
 
 
@@ -139,7 +143,8 @@ def plausibility(
 def outside_training(initial: dict[str, torch.Tensor], below: float) -> torch.Tensor | bool:
     """``(n,)`` bool (or ``False`` without any site): some initial state's tail
     (:func:`initial_tails`) below ``below``; warns (:class:`OutsideTrainingData`) naming
-    each such site and its first row."""
+    each such site and its first row.
+    """
     flag = False
     for site, tail in initial.items():
         outside = tail < below
@@ -159,7 +164,8 @@ def outside_training(initial: dict[str, torch.Tensor], below: float) -> torch.Te
 def initial_tails(net: EffectNetwork, params: NetworkParams, evidence) -> dict[str, torch.Tensor]:
     """Per continuous initial site in ``evidence`` (encoded) whose parents are all given,
     ``(n,)`` the chi-square tail ``P(chi2_d > D^2)`` of its value's squared Mahalanobis
-    distance ``D^2`` under the model's own distribution of that initial state."""
+    distance ``D^2`` under the model's own distribution of that initial state.
+    """
     out = {}
     cache: dict[str, torch.Tensor] = {}
     for spec in net.sites:
@@ -179,7 +185,8 @@ def initial_tails(net: EffectNetwork, params: NetworkParams, evidence) -> dict[s
 def _closest_distance(net, params, evidence, sites) -> tuple[torch.Tensor, torch.Tensor]:
     """``(n,)`` smallest squared Mahalanobis distance over possible configurations, and
     ``(n,)`` the summed dimension of ``sites`` observed in each row (partial evidence:
-    the distance of the observed dimensions under their marginal)."""
+    the distance of the observed dimensions under their marginal).
+    """
     dof = sum(observed_dims(evidence[s]).sum(-1) for s in sites).to(DTYPE)
 
     def fn(e, *_):

@@ -53,7 +53,8 @@ class GaussianMixture:
 @dataclass(frozen=True)
 class Prediction:
     """``discrete[feature]``: ``(n, K)`` probabilities over the feature's states in
-    declaration order (``states[feature]``); ``continuous[feature]``: a mixture."""
+    declaration order (``states[feature]``); ``continuous[feature]``: a mixture.
+    """
 
     discrete: dict[str, torch.Tensor]
     continuous: dict[str, GaussianMixture]
@@ -114,7 +115,8 @@ class ActionPosterior:
     """``probs`` ``(n, A)`` over ``actions``; ``best`` ``(n,)`` index; ``unseen`` ``(n, A)``;
     ``implausible`` ``(n,)`` bool: the observed end state has (almost) no probability
     under the model (see :mod:`inference.queries.plausibility`; ``None`` from the compiled
-    queries), so ``best`` answers a question the model cannot explain."""
+    queries), so ``best`` answers a question the model cannot explain.
+    """
 
     probs: torch.Tensor
     best: torch.Tensor
@@ -186,7 +188,8 @@ class ImitationCheck:
     def to_frame(self, index: Any = None) -> Any:
         """The check as a ``DataFrame``: the columns ``log_likelihood``, ``surprise``,
         ``unseen`` and, where computed, ``implausible``, one row per evidence row (its
-        index ``index``, ``0..n-1`` by default)."""
+        index ``index``, ``0..n-1`` by default).
+        """
         columns = {
             "log_likelihood": _numpy(self.log_likelihood),
             "surprise": _numpy(self.surprise),
@@ -272,7 +275,8 @@ class ParameterForEffect:
     def to_frame(self, index: Any = None) -> Any:
         """The answer as a ``DataFrame``, one row per evidence row (its index ``index``,
         ``0..n-1`` by default): ``value`` (dimension 1) or ``value[i]``, ``cluster``,
-        ``log_density``, ``miss`` and ``outside``."""
+        ``log_density``, ``miss`` and ``outside``.
+        """
         columns = _vector("value", self.value) | {
             "cluster": _numpy(self.cluster),
             "log_density": _numpy(self.log_density),

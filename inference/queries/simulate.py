@@ -131,7 +131,8 @@ def draw(
 
 def _unobserved_draw(fn, y: torch.Tensor) -> torch.Tensor:
     """``y`` ``(n, d)`` with its NaN dimensions drawn from ``fn`` (the feature's Gaussian
-    given its parents) conditioned on the observed ones."""
+    given its parents) conditioned on the observed ones.
+    """
     mean, cov = condition_on_observed(y, fn.loc, fn.covariance_matrix)
     seen = ~torch.isnan(y)
     cov = cov + torch.diag_embed(seen.to(DTYPE))  # observed dims: variance 0, kept as given

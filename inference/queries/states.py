@@ -38,7 +38,8 @@ Selection = Mapping[str, Hashable] | Callable[[Mapping[str, Hashable]], bool]
 
 def state_features(net: EffectNetwork) -> tuple[Discrete, ...]:
     """The features that make a network's state: discrete, with an initial node (every
-    declared feature has an end node), in declaration order."""
+    declared feature has an end node), in declaration order.
+    """
     return tuple(f for f in net.features if isinstance(f, Discrete) and f.initial)
 
 
@@ -155,7 +156,8 @@ class StateSpace:
 
     def index_of(self, state: StateLike | int) -> int:
         """The index of a state given as a label tuple, a ``{feature: label}`` mapping
-        naming every state feature, or an index (checked)."""
+        naming every state feature, or an index (checked).
+        """
         if isinstance(state, int) and not isinstance(state, bool):
             if not 0 <= state < len(self):
                 raise ValueError(f"state index {state} outside 0..{len(self) - 1}")
@@ -172,7 +174,8 @@ class StateSpace:
     def mask(self, selection: Selection) -> torch.Tensor:
         """``(S,)`` bool: the states that ``selection`` picks: labels of some features
         (``{"door": "open"}``: every state whose door is open) or a predicate called
-        with each state's ``{feature: label}``."""
+        with each state's ``{feature: label}``.
+        """
         if callable(selection) and not isinstance(selection, Mapping):
             out = [bool(selection(self.labels(i))) for i in range(len(self))]
             return torch.tensor(out, dtype=torch.bool)
@@ -192,7 +195,8 @@ class StateSpace:
     ) -> torch.Tensor:
         """``(S,)`` float64: the states ``selection`` picks (a partial assignment, a full
         state or a predicate), weighted by ``prior`` ``(S,)`` (uniform by default) and
-        normalised. ``ValueError`` if it picks no state of positive weight."""
+        normalised. ``ValueError`` if it picks no state of positive weight.
+        """
         if isinstance(selection, Sequence) and not isinstance(selection, str | bytes):
             keep = torch.zeros(len(self), dtype=torch.bool)
             keep[self.index_of(selection)] = True

@@ -160,7 +160,8 @@ def continuous_surprise(
 
 def _by_outcome(e: Enumerated, outcomes: list[str], t: torch.Tensor) -> torch.Tensor:
     """``t`` ``(E..., n, *event)`` laid out ``(n, O, K, *event)``: the rows, the discrete
-    outcomes' configurations, the other enumerated sites' configurations."""
+    outcomes' configurations, the other enumerated sites' configurations.
+    """
     depth = e.log_weight.dim()
     event = t.dim() - depth
     rows = depth - 1
@@ -233,7 +234,8 @@ def _joint_gaussians(net, params, evidence: Evidence, continuous, discrete):
 
 def _assemble(blocks) -> torch.Tensor:
     """A block lower-triangular matrix from per-feature ``(left, own)`` blocks: ``left``
-    the rows' part under the earlier features (``None`` for the first)."""
+    the rows' part under the earlier features (``None`` for the first).
+    """
     sizes = [own.shape[-1] for _, own in blocks]
     total = sum(sizes)
     shape = torch.broadcast_shapes(*(own.shape[:-2] for _, own in blocks))
@@ -272,7 +274,8 @@ def _neighbours(offset, slope, weight, top):
     and ``A`` the slope), and ``c``'s own term at least ``weight_c - top^2 / 2``; a term
     below that by more than 60 nats changes no float64 sum. Returns ``offset``, ``slope``
     and ``weight`` (broadcast to ``(m, O, K, K'')``) over the fewest ``K''`` components
-    that hold every one that can matter (all of them where the components overlap)."""
+    that hold every one that can matter (all of them where the components overlap).
+    """
     m, o, k = weight.shape
     reach = offset.norm(dim=-1) - top * slope.square().sum((-2, -1)).sqrt()
     bound = weight[:, :, None, :] - 0.5 * reach.clamp_min(0).square()  # (m, O, K, K')
@@ -294,7 +297,8 @@ def _quadrature(log_prior, mean, tril, log_joint, n_points, seed) -> torch.Tenso
     """``(m, O, K)``: under each component, the probability of an outcome (its discrete
     part the component's) more likely than the observed one. ``log_prior`` ``(m, O, K)``:
     ``log p(c, E)``; ``mean`` ``(m, O, K, d)``, ``tril``: the components' Gaussians over
-    the ``d`` observed dimensions; ``log_joint`` ``(m,)``: ``log p(o*, E)``."""
+    the ``d`` observed dimensions; ``log_joint`` ``(m,)``: ``log p(o*, E)``.
+    """
     m, o, k, dim = mean.shape
     u, n_radii = _directions(dim, n_points, seed)  # (J, d)
     # every component c's points in every component c''s whitened coordinates:
@@ -367,7 +371,8 @@ def _crossing(base, linear, quadratic, level, low, high) -> torch.Tensor:
     """``(N,)`` squared radii where the mixture's log-density along a ray, ``logsumexp(base
     - r (linear + r quadratic))`` over the components (``(N, K)`` each), meets ``level``
     ``(N,)``: the Illinois variant of regula falsi in ``r^2`` between the bracketing
-    nodes ``low`` and ``high`` (``(r^2, excess)`` pairs of opposite signs)."""
+    nodes ``low`` and ``high`` (``(r^2, excess)`` pairs of opposite signs).
+    """
     (s0, f0), (s1, f1) = low, high
     for _ in range(_CROSSING_STEPS):
         step = torch.where(f1 != f0, f1 * (s1 - s0) / (f1 - f0), 0.0)

@@ -192,7 +192,8 @@ class Transitions:
 
     def prob(self, state: StateLike | int, action: str | int, next: StateLike | int) -> float:
         """``P(next | state, action)``; states as label tuples or mappings, the action
-        by label."""
+        by label.
+        """
         s, s2 = self.space.index_of(state), self.space.index_of(next)
         return float(self.probs[s, self.action_index(action), s2])
 
@@ -304,7 +305,8 @@ def transitions(
 
 def _check_size(net: EffectNetwork, space: StateSpace, offered: _Offered) -> None:
     """Refuse a question whose tables, read at every ``(state, action, next state)`` with
-    the latent sites they span, would hold more than :data:`MAX_ENTRIES` numbers."""
+    the latent sites they span, would hold more than :data:`MAX_ENTRIES` numbers.
+    """
     s, a = len(space), len(offered.labels)
     fixed = {initial_site(f.name) for f in space.features} | {ACTION, *offered.clusters}
     fixed |= {end_site(f.name) for f in space.features}
@@ -440,7 +442,8 @@ def _transitions(net, space: StateSpace, offered: _Offered, tables: ModelTables)
 def _read(table, order, index, latent, shape) -> torch.Tensor:
     """``table`` (one axis per site of ``order``) at the fixed sites' indices: a tensor
     ``(S|1, A|1, S'|1, latent sizes..., 1)`` (the trailing 1 is the rows' dim that
-    :func:`~inference.queries.elimination.contract` expects)."""
+    :func:`~inference.queries.elimination.contract` expects).
+    """
     fixed = [i for i, q in enumerate(order) if q in index]
     rest = [order.index(q) for q in latent]
     moved = table.permute(*fixed, *rest)

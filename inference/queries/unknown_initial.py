@@ -46,7 +46,8 @@ def enumerate_unknown_initial(
     masks,
 ):
     """:func:`inference.queries.enumeration.enumerate_model` for evidence that leaves the
-    continuous initial sites ``unknown`` out (see the module)."""
+    continuous initial sites ``unknown`` out (see the module).
+    """
     from inference.fitting.gaussian_gaps import condition, continuous_sites, joint_gaussian
     from inference.queries.enumeration import Enumerated, enumerate_model
 

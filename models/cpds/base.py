@@ -69,7 +69,8 @@ class CPD:
     @classmethod
     def refuses(cls, discrete: bool, width: int) -> str | None:
         """Why this kind cannot model a site (discrete or not, with ``width`` continuous
-        inputs), or ``None`` if it can."""
+        inputs), or ``None`` if it can.
+        """
         if discrete != cls.discrete:
             return f"it models a {'discrete' if cls.discrete else 'continuous'} child"
         return None
@@ -81,7 +82,8 @@ class CPD:
     def n_free(self, reachable: torch.Tensor | None = None) -> int:
         """The number of free parameters in the parent configurations ``reachable``
         ``(P...)`` bool marks (default: every one, reached by rows or not), less what the
-        structure fixes."""
+        structure fixes.
+        """
         raise NotImplementedError(
             f"site {self.site!r}: the kind {type(self).__name__} does not count its free "
             "parameters; define n_free() to score it"
@@ -89,7 +91,8 @@ class CPD:
 
     def configurations(self, reachable: torch.Tensor | None = None) -> torch.Tensor:
         """``(P...)`` bool: the parent configurations ``reachable`` marks (all by
-        default), checked for shape."""
+        default), checked for shape.
+        """
         if reachable is None:
             return torch.ones(self.card, dtype=torch.bool)
         assert reachable.shape == self.card, (self.site, tuple(reachable.shape), self.card)
@@ -97,7 +100,8 @@ class CPD:
 
     def check(self, params: object) -> None:
         """Raise ``ValueError`` unless ``params`` is this kind's container with the
-        declared shapes."""
+        declared shapes.
+        """
         kind = self.params_type.__name__
         if type(params) is not self.params_type:
             raise ValueError(
@@ -113,7 +117,8 @@ class CPD:
 
     def initialize(self, generator: torch.Generator | None = None, unseen: float = 0.0):
         """A neutral start (``generator=None``) or valid random parameters; with a
-        generator, ``unseen`` is the share of configurations marked as reached by no row."""
+        generator, ``unseen`` is the share of configurations marked as reached by no row.
+        """
         raise NotImplementedError
 
     def distribution(self, params, index: list[torch.Tensor], x: torch.Tensor | None, cache):
@@ -129,7 +134,8 @@ class CPD:
     ):
         """Sufficient statistics of rows: ``index`` ``(n,)`` the flattened parent
         configuration, ``x`` ``(n, width)`` or ``None``, ``y`` the site's values,
-        ``weights`` ``(n,)`` each row's weight (default 1; fractional in an EM step)."""
+        ``weights`` ``(n,)`` each row's weight (default 1; fractional in an EM step).
+        """
         raise NotImplementedError
 
     def m_step(self, stats, alpha: float, min_variance: float):
@@ -158,7 +164,8 @@ class CPD:
 
     def counts_reached(self, generator: torch.Generator, unseen: float) -> torch.Tensor:
         """``n`` for a random initialisation: 5 rows per configuration, 0 for a share
-        ``unseen`` of them."""
+        ``unseen`` of them.
+        """
         n = torch.rand(self.card, generator=generator, dtype=DTYPE) >= unseen
         return n.to(DTYPE) * 5
 
@@ -170,7 +177,8 @@ def map_tensors(container, fn):
 
 def concat_inputs(parts: list[torch.Tensor]) -> torch.Tensor | None:
     """Continuous parents' values side by side ``(..., width)``, broadcast over their
-    batch dims; ``None`` without any."""
+    batch dims; ``None`` without any.
+    """
     if not parts:
         return None
     if len(parts) == 1:

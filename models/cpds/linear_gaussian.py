@@ -54,7 +54,8 @@ class LinearGaussianParams:
     @cached_property  # read by every traced density of continuous inputs: computed once
     def extremes(self) -> tuple[float, float, float]:
         """The largest ``|weight|`` and ``|bias|``, and the smallest noise scale (the
-        square root of the smallest eigenvalue of any configuration's covariance)."""
+        square root of the smallest eigenvalue of any configuration's covariance).
+        """
         if not self.bias.numel():
             return 0.0, 0.0, math.inf
         smallest = torch.linalg.eigvalsh(self.covariance).min().clamp_min(0.0).sqrt()
@@ -66,7 +67,8 @@ class LinearGaussianParams:
 class Moments:
     """A linear Gaussian's sums per parent configuration ``G`` (flattened ``P...``):
     ``zz`` ``(G, q, q)``, ``zy`` ``(G, q, d)``, ``yy`` ``(G, d, d)``, rows ``n`` ``(G,)``,
-    with ``z = [x, 1]``."""
+    with ``z = [x, 1]``.
+    """
 
     zz: torch.Tensor
     zy: torch.Tensor
@@ -110,7 +112,8 @@ class LinearGaussianCPD(CPD):
 
     def n_free(self, reachable: torch.Tensor | None = None) -> int:
         """Per parent configuration ``d p`` weights (less those ``zero_weights`` fixes),
-        ``d`` offsets and ``d (d + 1) / 2`` for the full covariance."""
+        ``d`` offsets and ``d (d + 1) / 2`` for the full covariance.
+        """
         d = self.size
         configs = self.configurations(reachable).reshape(-1)
         per_config = d * self.width + d + d * (d + 1) // 2
@@ -153,7 +156,8 @@ class LinearGaussianCPD(CPD):
         self, params: LinearGaussianParams, index, x: torch.Tensor | None
     ) -> dist.MultivariateNormal:
         """The site's Gaussian given the parents, its mean kept as a pair
-        (:class:`PairMeanNormal`) where the plain sum may round off against the noise."""
+        (:class:`PairMeanNormal`) where the plain sum may round off against the noise.
+        """
         index = _rows_collapsed(index) if index else index
         loc, tril = self._bias_tril(params, index)
         if x is None:
@@ -271,7 +275,8 @@ class LinearGaussianCPD(CPD):
 
 def _mean_rounds_off(params: LinearGaussianParams, x: torch.Tensor) -> bool:
     """Whether ``W x + b`` may round off against the smallest noise scale of any
-    configuration (:func:`models.gaussian.sum_rounds_off`)."""
+    configuration (:func:`models.gaussian.sum_rounds_off`).
+    """
     weight, bias, smallest = params.extremes
     return sum_rounds_off(weight, bias, x, smallest)
 
@@ -281,7 +286,8 @@ class PairMeanNormal(dist.MultivariateNormal):
     float64 numbers (:func:`models.gaussian.affine_pair`), ``loc`` its rounding and
     ``loc_low`` the rest. Its density reads the residual as ``(value - loc) - loc_low``,
     exact where the value is near the mean at any magnitude of both; everything else
-    (sampling, moments, ``loc``) is the plain Gaussian's at ``loc``."""
+    (sampling, moments, ``loc``) is the plain Gaussian's at ``loc``.
+    """
 
     def __init__(
         self,
@@ -311,7 +317,8 @@ def gaussian_of(
     loc: torch.Tensor, scale_tril: torch.Tensor, loc_low: torch.Tensor | None = None
 ) -> dist.MultivariateNormal:
     """``N(loc, scale_tril scale_tril^T)``, a :class:`PairMeanNormal` where the mean's
-    rest ``loc_low`` is given."""
+    rest ``loc_low`` is given.
+    """
     if loc_low is None:
         return dist.MultivariateNormal(loc, scale_tril=scale_tril)
     return PairMeanNormal(loc, scale_tril, loc_low)
@@ -363,7 +370,8 @@ def safe_cholesky(cov: torch.Tensor, site: str, tries: int = 24) -> torch.Tensor
 def _rows_collapsed(index: list) -> list:
     """The parents' indices with the rows dim (the last) cut to one where every index is
     the same along it (one action for all rows, say): the gathered parameters then
-    broadcast over the rows instead of being copied once per row."""
+    broadcast over the rows instead of being copied once per row.
+    """
     rows = [t for t in index if isinstance(t, torch.Tensor) and t.dim() and t.shape[-1] > 1]
     if not rows or any(bool((t != t[..., :1]).any()) for t in rows):
         return index

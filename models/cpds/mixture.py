@@ -90,7 +90,8 @@ class ParameterMixture:
         continuous: tuple[str, ...],
     ) -> ParameterMixture:
         """The mixture's kinds: ``cluster`` given the action (actions not using the
-        parameter pinned on cell 0), ``value`` given the cluster."""
+        parameter pinned on cell 0), ``value`` given the cluster.
+        """
         c, k = parameter.n_clusters, parameter.dim
         n_actions = uses.shape[0]
         return cls(
@@ -114,7 +115,8 @@ class ParameterMixture:
     def cells(self, theta: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
         """The cluster a row giving the value alone is read as observing: the value's
         cell, or 0 where the action does not use the parameter (NaN values count as 0
-        there)."""
+        there).
+        """
         return torch.where(self.in_use(action), self.parameter.cluster_of(theta.nan_to_num()), 0)
 
     # ---------------------------------------------------------------- the affected feature
@@ -123,7 +125,8 @@ class ParameterMixture:
     ) -> torch.Tensor:
         """``(G, width)`` bool for the affected feature's linear Gaussian (parents
         ``parents`` with cardinalities ``card``, the parameter its inputs ``end - dim`` to
-        ``end``): its weights on the parameter in configurations of actions not using it."""
+        ``end``): its weights on the parameter in configurations of actions not using it.
+        """
         unused = self._on_action_axis(~self.uses, parents, 0).expand(*card).reshape(-1)
         out = torch.zeros(unused.shape[0], width, dtype=torch.bool)
         out[:, end - self.parameter.dim : end] = unused[:, None]
@@ -131,7 +134,8 @@ class ParameterMixture:
 
     def _on_action_axis(self, per_action: torch.Tensor, parents, trailing: int) -> torch.Tensor:
         """``(A,)`` shaped to broadcast on the action axis of tables over ``parents``
-        followed by ``trailing`` more dims."""
+        followed by ``trailing`` more dims.
+        """
         after = len(parents) - 1 - parents.index(self.action)
         return per_action.reshape(-1, *([1] * (after + trailing)))
 
@@ -139,7 +143,8 @@ class ParameterMixture:
         """The affected feature's CPD with the parameter integrated out, per configuration:
         ``weight`` ``W_x`` ``(P..., d, p - k)``, ``bias`` ``b + W_p m_c`` ``(P..., d)``,
         ``scale_tril`` the Cholesky factor of ``R + W_p S_c W_p^T``. For actions not using
-        the parameter ``W_p`` counts as zero."""
+        the parameter ``W_p`` counts as zero.
+        """
         cpd = params[child.site]
         prior = params[self.value.site]
         k = self.parameter.dim
@@ -164,7 +169,8 @@ class ParameterMixture:
         """The affected feature's Gaussian: given the parameter where it is ``known``
         (bool rows), integrated out where not. ``inputs``: the child's continuous
         parents' values, the parameter last. Its mean is a pair where the plain sum may
-        round off (:meth:`LinearGaussianCPD.gaussian`)."""
+        round off (:meth:`LinearGaussianCPD.gaussian`).
+        """
         everywhere = bool(known.all())
         nowhere = not bool(known.any())
         inputs = list(inputs)
@@ -205,7 +211,8 @@ class ParameterMixture:
         ``prior``: the cluster's mean and covariance, if already gathered. ``acting``:
         every parameter acting on the child, in input order, when there are several; the
         others count where ``values`` gives them (not NaN) and are integrated out, given
-        their cluster in ``values``, where not."""
+        their cluster in ``values``, where not.
+        """
         w_p, offset, noise, y = self.linear_terms(params, child, values, cluster, acting)
         if prior is None:
             prior = self.belief(params, cluster)
@@ -225,7 +232,8 @@ class ParameterMixture:
         Returns ``(W_p, offset, noise, y)``, ``y`` the child's observed value broadcast
         like the others and ``offset`` a Gaussian whose mean is the offset, a pair where
         the plain sum may round off (:meth:`LinearGaussianCPD.gaussian`; its residual
-        :func:`models.gaussian.residual_of`)."""
+        :func:`models.gaussian.residual_of`).
+        """
         extra = cluster.dim() - 1  # trailing dims the row-wise values must broadcast over
 
         def rows(t: torch.Tensor) -> torch.Tensor:
@@ -272,7 +280,8 @@ class ParameterMixture:
     def _split(self, params, child, index, inputs, action):
         """The child's Gaussian without the value (its mean the offset ``b + W_x x``, a
         pair where it may round off) and its weights on the value (zero for actions not
-        using it), gathered at the parents."""
+        using it), gathered at the parents.
+        """
         cpd = params[child.site]
         k = self.parameter.dim
         zero = torch.zeros(k, dtype=cpd.weight.dtype)
@@ -286,7 +295,8 @@ class ParameterMixture:
     ) -> dist.MultivariateNormal:
         """Like :meth:`child_gaussian` for a value acting on several continuous sites:
         where unknown, integrated out under ``belief`` (the value's Gaussian given the
-        cluster and the affected sites observed so far; ``None``: the cluster's own)."""
+        cluster and the affected sites observed so far; ``None``: the cluster's own).
+        """
         if belief is None:
             return self.child_gaussian(params, child, index, inputs, action, known)
         offset, w_p = self._split(params, child, index, inputs, action)
@@ -303,7 +313,8 @@ class ParameterMixture:
         self, params, child, index, inputs, action, y, belief
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """``belief`` (``None``: the cluster's Gaussian, gathered at the child's last
-        discrete parent) conditioned on the child's observed value ``y``."""
+        discrete parent) conditioned on the child's observed value ``y``.
+        """
         if belief is None:
             belief = self.belief(params, index[-1])
         offset, w_p = self._split(params, child, index, inputs, action)
@@ -319,7 +330,8 @@ class ParameterMixture:
         acting: tuple[ParameterMixture, ...] = (),
     ) -> tuple[torch.Tensor, torch.Tensor]:
         """:meth:`condition` on each of ``children`` (observed continuous sites the value
-        acts on) in turn: the value's Gaussian given all of them."""
+        acts on) in turn: the value's Gaussian given all of them.
+        """
         for child in children:
             prior = self.condition(params, child, values, cluster, prior, acting)
         return prior
@@ -339,7 +351,8 @@ class ParameterMixture:
         ``L`` each child's noise Cholesky factor) and ``log_norm`` ``(...)`` their
         Gaussians' log-normaliser, ``-log det L - D/2 log 2 pi``. A child observed in some
         dimensions only (NaN in the others) counts with its observed dimensions' marginal
-        (each unobserved dimension adds the constant ``-1/2 log 2 pi`` to ``log_norm``)."""
+        (each unobserved dimension adds the constant ``-1/2 log 2 pi`` to ``log_norm``).
+        """
         slopes, targets, log_norm = [], [], 0.0
         for child in children:
             w_p, offset, noise, y = self.linear_terms(params, child, values, cluster, acting)
@@ -374,7 +387,8 @@ class ParameterMixture:
         solution nearest the cluster's mean in the cluster's own metric (the minimum-norm
         least-squares solution in the cluster's whitened coordinates). Returns the value ``(..., k)`` and
         the children's squared Mahalanobis distance from their prediction at it, summed
-        ``(...)``: zero when the value produces the observed effect exactly."""
+        ``(...)``: zero when the value produces the observed effect exactly.
+        """
         slope, target = whitened[0], whitened[1]
         mean, cov = self.belief(params, cluster)
         # in the cluster's whitened coordinates theta = mean + L z, the solution nearest
@@ -393,7 +407,8 @@ class ParameterMixture:
         """Tables of the inverse query, per configuration of the child's parents: the
         marginal's offset, inverse Cholesky factor (``whiten``) and log-normaliser, the
         other inputs' weights, the conditioning gain and posterior covariance, the
-        cluster's log-prior given the action, the cluster means and the seen flags."""
+        cluster's log-prior given the action, the cluster means and the seen flags.
+        """
         marginal = self.marginal(params, child)
         tril = marginal.scale_tril
         cpd = params[child.site]
@@ -428,7 +443,8 @@ class ParameterMixture:
         weights: torch.Tensor | None = None,
     ):
         """The two sites' statistics, over the rows whose action uses the parameter
-        (each counting its weight, default 1)."""
+        (each counting its weight, default 1).
+        """
         uses = self.in_use(action)
         w = None if weights is None else weights[uses]
         return {
@@ -440,7 +456,8 @@ class ParameterMixture:
         self, value: LinearGaussianParams, generator: torch.Generator
     ) -> LinearGaussianParams:
         """Random cluster Gaussians, each inside its own cell as a fitted one is: mean in
-        the cell's middle half, standard deviation an eighth of the cell."""
+        the cell's middle half, standard deviation an eighth of the cell.
+        """
         p = self.parameter
         width = (torch.tensor(p.high, dtype=DTYPE) - torch.tensor(p.low, dtype=DTYPE)) / (
             torch.tensor(p.bins, dtype=DTYPE)
@@ -454,7 +471,8 @@ class ParameterMixture:
 def _conditioned(belief, w_p, offset: dist.MultivariateNormal, noise, y):
     """:func:`models.gaussian.condition_linear_gaussian` of ``belief`` on ``y = offset +
     W_p theta + e`` with the offset ``offset``'s mean: where that is a pair, on the exact
-    residual ``y - offset`` (and a zero offset)."""
+    residual ``y - offset`` (and a zero offset).
+    """
     if getattr(offset, "loc_low", None) is None:
         return condition_linear_gaussian(*belief, w_p, offset.loc, noise, y)
     residual = residual_of(offset, y)
@@ -475,7 +493,8 @@ def affected_gaussian(
     counts where it is ``known`` (rows, by parameter name) and is integrated out where
     not: ``y ~ N(b + W_x x + sum_j W_j mu_j, R + sum_j W_j S_j W_j^T)`` over the unknown
     ``j`` (independent given their clusters). Its mean is a pair where the plain sum may
-    round off (:meth:`LinearGaussianCPD.gaussian`)."""
+    round off (:meth:`LinearGaussianCPD.gaussian`).
+    """
     if len(acting) == 1:
         m = acting[0]
         return m.child_gaussian(params, child, index, inputs, action, known[m.parameter.name])

@@ -68,7 +68,8 @@ class SoftmaxCPD(CPD):
     def n_free(self, reachable: torch.Tensor | None = None) -> int:
         """``(K - 1) (p + 1)`` per parent configuration: ``K`` slopes of ``p`` inputs and
         ``K`` offsets, less one class's (adding one vector to every class's logits leaves
-        the softmax as it is)."""
+        the softmax as it is).
+        """
         return int(self.configurations(reachable).sum()) * (self.size - 1) * (self.width + 1)
 
     def initialize(
@@ -151,7 +152,8 @@ class SoftmaxCPD(CPD):
 
         def objective(theta, rows):
             """Per configuration, over ``rows`` (index, z, target): the objective and the
-            rows' log-probabilities."""
+            rows' log-probabilities.
+            """
             i, zs, t = rows
             logp = torch.einsum("nkq,nq->nk", theta[i], zs).log_softmax(-1)  # (m, K)
             f = torch.zeros(groups, dtype=DTYPE).index_add_(0, i, -(t * logp).sum(-1))
@@ -273,7 +275,8 @@ class SoftmaxFit:
     """What :meth:`SoftmaxCPD.maximise` returns: the parameters; the objective (the
     penalised negative log-likelihood, summed over rows) at the start and after each
     Newton iteration; whether every configuration converged; and the largest gradient
-    component relative to its configuration's row scale at the end."""
+    component relative to its configuration's row scale at the end.
+    """
 
     params: SoftmaxParams
     objectives: tuple[float, ...]
@@ -284,7 +287,8 @@ class SoftmaxFit:
 def _solve(matrix: torch.Tensor, rhs: torch.Tensor) -> torch.Tensor:
     """``matrix^-1 rhs`` for a batch of symmetric positive (semi)definite matrices: a
     Cholesky factor, with a jitter on the diagonal where the curvature vanishes (classes
-    the data separate, inputs that do not vary)."""
+    the data separate, inputs that do not vary).
+    """
     jitter = 0.0
     size = matrix.diagonal(dim1=-2, dim2=-1).abs().mean(-1, keepdim=True).clamp_min(1e-300)
     eye = torch.eye(matrix.shape[-1], dtype=matrix.dtype)

@@ -88,7 +88,8 @@ class TableCPD(CPD):
         """``logs`` with the pinned configurations exactly on state 0: log-probability 0
         there and ``-inf`` elsewhere. (A zero probability's log is otherwise clamped to
         ``log(eps)``, about -36, which would let a pinned configuration's other states
-        into every sum over them.)"""
+        into every sum over them.)
+        """
         if self.pinned is None:
             return logs
         fixed = torch.full((self.size,), -torch.inf, dtype=logs.dtype)
@@ -160,7 +161,8 @@ class TableCPD(CPD):
 def _logits(probs: torch.Tensor) -> torch.Tensor:
     """``probs_to_logits`` of the normalised ``probs`` (clamped to ``[eps, 1 - eps]``,
     then log) in one new tensor: the same values, without a temporary per step (a large
-    table's log is taken once per fit)."""
+    table's log is taken once per fit).
+    """
     eps = torch.finfo(probs.dtype).eps
     logs = probs / probs.sum(-1, keepdim=True)
     return logs.clamp_(min=eps, max=1 - eps).log_()
@@ -223,7 +225,8 @@ class GatheredCategorical(dist.TorchDistribution):
 
 def broadcast_shapes(*shapes: tuple[int, ...]) -> torch.Size:
     """``torch.broadcast_shapes`` of concrete shapes, in plain Python: torch's own checks
-    symbolic sizes too and costs tens of microseconds, paid per site of every trace."""
+    symbolic sizes too and costs tens of microseconds, paid per site of every trace.
+    """
     out = [1] * max((len(s) for s in shapes), default=0)
     for shape in shapes:
         for i, k in enumerate(shape, len(out) - len(shape)):
@@ -294,7 +297,8 @@ _ROWS_FIRST: WeakIdKeyDictionary = WeakIdKeyDictionary()
 def _rows_first(table: torch.Tensor, rows: tuple[int, ...], kept: tuple[int, ...]) -> torch.Tensor:
     """``table`` with the axes ``rows`` first, merged, and the axes ``kept`` flattened
     behind them, contiguous: ``(prod(rows), rest)``. Kept per table (a cached log table
-    is gathered this way on every query of one evidence pattern)."""
+    is gathered this way on every query of one evidence pattern).
+    """
     per_table = _ROWS_FIRST.setdefault(table, {})
     key = (rows, kept)
     if table.requires_grad or key not in per_table:
@@ -321,7 +325,8 @@ def counts(
     weights: torch.Tensor | None = None,
 ) -> Counts:
     """Counts of ``child`` states per flattened parent configuration ``index`` (each row
-    counting its weight, default 1)."""
+    counting its weight, default 1).
+    """
     size = math.prod(card)
     flat = child if not card else torch.add(child, index, alpha=k)  # no parents: index 0
     if weights is None:  # ones: the counts come out as float64
