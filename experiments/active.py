@@ -313,8 +313,7 @@ def cases_seen(rows, cases) -> float:
 
 
 def scoring_network(net: EffectNetwork) -> EffectNetwork:
-    """The can network as Table I's query reads it: ``net`` with the end configuration
-    parentless.
+    """The can network as Table I's query reads it: ``net`` with the end configuration parentless.
 
     Table I's query observes the start (configuration and count) and the desired end
     count and infers the field. The end configuration is neither observed nor a parent

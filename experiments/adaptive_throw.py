@@ -452,8 +452,7 @@ class AdaptiveThrowResult(Result):
 
 
 def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
-    """Both layouts per grid size, the noisy comparison, the references and the active
-    curves.
+    """Both layouts per grid size, the noisy comparison, the references and the active curves.
     """
     n = config.n_train + config.n_test
     seeds = np.random.SeedSequence(config.seed).spawn(5)

@@ -196,8 +196,7 @@ def read_demonstrations(
 
 @simulation
 def throw_again(start: np.ndarray, fields: np.ndarray, jitter: float, seeds) -> np.ndarray:
-    """``(n,)`` end configurations of the 0° throws ``(start[i], fields[i])`` with seeded
-    jitter.
+    """``(n,)`` end configurations of the 0° throws ``(start[i], fields[i])`` with seeded jitter.
     """
     return np.array(
         [

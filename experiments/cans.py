@@ -196,9 +196,10 @@ def fit_can_network(data: CanDataset, angle: int) -> CanModel:
 
 
 def choose(model: CanModel, evidence: dict, rule: str) -> np.ndarray:
-    """Best field per row for ``evidence``: the query's argmax or the aim-robust one. Rows
-    of equal evidence (many of Table I's cases share a start and a desired count) are
-    answered once.
+    """Best field per row for ``evidence``: the query's argmax or the aim-robust one.
+
+    Rows of equal evidence (many of Table I's cases share a start and a desired count) are answered
+    once.
     """
     enc = model.net.encode(evidence)
     if enc.n_rows == 0:

@@ -170,8 +170,7 @@ def percent(x: float | None, digits: int = 2) -> str:
 
 @dataclass
 class Result:
-    """Base of the experiments' results: JSON round trip of the dataclass's fields, and
-    their files.
+    """Base of the experiments' results: JSON round trip of the dataclass's fields, and their files.
 
     A subclass names its experiment in the class variable ``experiment_name`` (its files
     are ``<experiment_name>.json`` and ``.md``), writes its report in :meth:`to_markdown`, and may

@@ -229,8 +229,7 @@ def drawn_list(probs) -> list[list[float]]:
 
 
 def plot_shown(result: DemonstrationResult, path) -> Path:
-    """The shown demonstration's per-step action posterior as a heat map; saved to
-    ``path``.
+    """The shown demonstration's per-step action posterior as a heat map; saved to ``path``.
     """
     from matplotlib.figure import Figure
 

@@ -1,5 +1,4 @@
-"""What one step of the main job measured about itself: its simulation time and its peak
-memory.
+"""What one step of the main job measured about itself: its simulation time and its peak memory.
 
 ``./reproduce`` runs each step as a child process and names a file in the environment
 variable ``STEP_RECORD_ENV``; the step's script (:func:`experiments.config.run_script`)

@@ -52,8 +52,7 @@ def can_network(configurations: Sequence[int], n_fields: int = N_FIELDS) -> Effe
 def can_rows(
     net: EffectNetwork, start_config: np.ndarray, field: np.ndarray, end_config: np.ndarray
 ) -> Evidence:
-    """Training rows (encoded) from arrays of equal length ``(n,)`` int: masks and field
-    indices.
+    """Training rows (encoded) from arrays of equal length ``(n,)`` int: masks and field indices.
 
     Counts are derived from the masks. Raises ``ValueError`` for a mask that is not a
     state of ``net`` (an end configuration no start configuration lists, say).

@@ -330,14 +330,15 @@ class Completed:
 
 
 def _completed_gaussian(net, params, enc, masks, allowed, posterior=True) -> Completed:
-    """The E-step where continuous values are missing. The model, traced under
-    enumeration with the missing discrete values latent and every continuous initial and
-    end site's factor left out (their values filled in, read by no factor kept), gives
-    each completion's discrete factors; the continuous sites' joint Gaussian given the
-    completion (:func:`inference.fitting.gaussian_gaps.joint_gaussian`) gives the
-    density of the observed dimensions and the missing ones' conditional moments.
-    Without ``posterior``, only the rows' log-likelihoods (``per_row``, ``-inf`` for a
-    row of probability 0) and their sum: the rows are not completed.
+    """The E-step where continuous values are missing.
+
+    The model, traced under enumeration with the missing discrete values latent and every continuous
+    initial and end site's factor left out (their values filled in, read by no factor kept), gives
+    each completion's discrete factors; the continuous sites' joint Gaussian given the completion
+    (:func:`inference.fitting.gaussian_gaps.joint_gaussian`) gives the density of the observed
+    dimensions and the missing ones' conditional moments. Without ``posterior``, only the rows'
+    log-likelihoods (``per_row``, ``-inf`` for a row of probability 0) and their sum: the rows are
+    not completed.
     """
     refuse_open_forms(net, enc, continuous_gaps(net, enc))
     layout = continuous_sites(net)

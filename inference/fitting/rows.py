@@ -473,8 +473,7 @@ def split_missing(
 
 
 def with_gaps(enc: Evidence, gaps: Mapping[str, torch.Tensor]) -> Evidence:
-    """The encoded rows with NaN where :func:`split_missing` found a continuous value
-    missing.
+    """The encoded rows with NaN where :func:`split_missing` found a continuous value missing.
     """
     if not gaps:
         return enc

@@ -199,8 +199,9 @@ def log_likelihood(
 
 
 def n_parameters(net: EffectNetwork) -> int:
-    """The free parameters of a declaration: the sum over its sites (see the module's
-    table). They depend on the declaration only, not on fitted numbers.
+    """The free parameters of a declaration: the sum over its sites (see the module's table).
+
+    They depend on the declaration only, not on fitted numbers.
 
     Raises
     ------
@@ -476,9 +477,10 @@ def _gaussian_per_row(
     gaps: dict[str, torch.Tensor],
     unread: tuple[str, ...],
 ) -> torch.Tensor:
-    """``(n,)`` the log-likelihood of rows that miss a continuous value: as EM's E-step
-    weighs them. A grid cluster stays its value's cell; an adaptive one the rows do not
-    give is summed out with the missing discrete values.
+    """``(n,)`` the log-likelihood of rows that miss a continuous value: as EM's E-step weighs them.
+
+    A grid cluster stays its value's cell; an adaptive one the rows do not give is summed out with
+    the missing discrete values.
     """
     adaptive = {m.cluster.site for m in net.mixtures if m.parameter.adaptive}
     return gaussian_row_log_likelihoods(

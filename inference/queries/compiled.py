@@ -80,8 +80,7 @@ class CompiledQueries:
 
     @property
     def action_tables(self) -> CompiledNetwork | None:
-        """The discrete factor tables (built on first use); ``None`` where a site is
-        continuous.
+        """The discrete factor tables (built on first use); ``None`` where a site is continuous.
         """
         if "action" not in self._built:
             discrete = all(s.discrete for s in self.net.sites)
@@ -119,8 +118,7 @@ class CompiledQueries:
         seed: int = 0,
         implausible_below: float = IMPLAUSIBLE_BELOW,
     ) -> ImitationCheck:
-        """:func:`inference.imitation_check`, answered by the traced model (no tables
-        yet).
+        """:func:`inference.imitation_check`, answered by the traced model (no tables yet).
         """
         return imitation_check(
             self.net,

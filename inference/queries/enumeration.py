@@ -164,8 +164,10 @@ class Enumerated:
         return (m - norm).exp().T
 
     def joint(self, sites: Sequence[str]) -> torch.Tensor:
-        """``(n, K_1 * ... * K_m)`` the posterior over the joint states of ``sites`` (the
-        first varying slowest), every other site summed out.
+        """``(n, K_1 * ...
+
+        * K_m)`` the posterior over the joint states of ``sites`` (the first varying slowest), every
+        other site summed out.
         """
         w = self.log_sum(sites)
         keep = [w.dim() + self.dims[s] for s in sites]
@@ -357,9 +359,10 @@ def enumerate_model(
 
 
 def _contracted(bounded, unbounded, offsets, dims, trace, n) -> Enumerated:
-    """The factors kept apart, each unbounded one less its offset. Where the row's most
-    probable configuration (by max-product contraction) lies far from 0, each unbounded
-    factor is centred at its value there instead, as the dense sum is.
+    """The factors kept apart, each unbounded one less its offset.
+
+    Where the row's most probable configuration (by max-product contraction) lies far from 0, each
+    unbounded factor is centred at its value there instead, as the dense sum is.
     """
     factors = bounded + [lp - offsets[name] for name, lp in unbounded.items()]
     if unbounded:
@@ -379,8 +382,7 @@ def _centred_sum(
     dims: dict[str, int],
     n: int,
 ) -> torch.Tensor:
-    """The factors' sum, ``(E_k, ..., E_1, n)``, each unbounded one less its ``(n,)``
-    offset.
+    """The factors' sum, ``(E_k, ..., E_1, n)``, each unbounded one less its ``(n,)`` offset.
     """
     factors = bounded + [lp - offsets[name] for name, lp in unbounded.items()]
     return _full(_dense_sum(factors), dims, n)

@@ -133,8 +133,7 @@ class FactoredPlan:
         return total.reshape(total.shape[0], -1).expand(total.shape[0], n).T
 
     def log_evidence(self, enc: Evidence) -> torch.Tensor:
-        """``(n,)`` log-probability of each row's observed states, every latent site
-        summed out.
+        """``(n,)`` log-probability of each row's observed states, every latent site summed out.
         """
         if any(p.observed for p in self.parts):
             return self._sum([p.at(enc) for p in self.parts], False, enc.n_rows)
@@ -162,7 +161,6 @@ class FactoredPlan:
 
 
 def _scope(shape: tuple[int, ...]) -> frozenset[tuple[int, int]]:
-    """:func:`~inference.queries.elimination.scope` of a part laid out in ``shape`` (rows
-    last).
+    """:func:`~inference.queries.elimination.scope` of a part laid out in ``shape`` (rows last).
     """
     return frozenset((i - len(shape) - 1, k) for i, k in enumerate(shape) if k > 1)

@@ -75,9 +75,10 @@ class Plausibility:
         return {site: tail < below for site, tail in self.initial.items()}
 
     def implausible(self, below: float = IMPLAUSIBLE_BELOW) -> torch.Tensor:
-        """``(n,)`` bool: any probability below ``below``. Warns
-        (:class:`OutsideTrainingData`), naming the site and the first row, where an
-        initial state lies outside the training data.
+        """``(n,)`` bool: any probability below ``below``.
+
+        Warns (:class:`OutsideTrainingData`), naming the site and the first row, where an initial
+        state lies outside the training data.
         """
         return (self.discrete < below) | (self.tail < below) | outside_training(self.initial, below)
 

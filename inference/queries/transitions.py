@@ -145,8 +145,7 @@ def _given(net: EffectNetwork, given: Mapping[str, object] | None) -> dict[str, 
 
 @dataclass(frozen=True)
 class Transitions:
-    """``probs[s, a, s']``: ``P(next state s' | state s, action a)`` over ``space`` and
-    ``actions``.
+    """``probs[s, a, s']``: ``P(next state s' | state s, action a)`` over ``space`` and ``actions``.
 
     Attributes
     ----------
@@ -191,8 +190,7 @@ class Transitions:
             raise ValueError(f"unknown action {action!r}; actions are {self.actions}") from None
 
     def prob(self, state: StateLike | int, action: str | int, next: StateLike | int) -> float:
-        """``P(next | state, action)``; states as label tuples or mappings, the action
-        by label.
+        """``P(next | state, action)``; states as label tuples or mappings, the action by label.
         """
         s, s2 = self.space.index_of(state), self.space.index_of(next)
         return float(self.probs[s, self.action_index(action), s2])

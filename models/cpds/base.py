@@ -99,8 +99,7 @@ class CPD:
         return reachable.to(torch.bool)
 
     def check(self, params: object) -> None:
-        """Raise ``ValueError`` unless ``params`` is this kind's container with the
-        declared shapes.
+        """Raise ``ValueError`` unless ``params`` is this kind's container with the declared shapes.
         """
         kind = self.params_type.__name__
         if type(params) is not self.params_type:
