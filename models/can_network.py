@@ -1,10 +1,10 @@
-"""The can-tossing effect network (paper Fig. 2, §IV-A).
+r"""The can-tossing effect network (paper Fig. 2, §IV-A).
 
 All sites discrete::
 
     initial.config   initial.count          (which cans stand; how many)
-          \\    \\    /    /
-           \\    action (field)
+          \    \    /    /
+           \    action (field)
             v    v    v
         end.config   end.count
 

@@ -1,13 +1,13 @@
-"""What an effect network is: its features, actions and action parameters.
+r"""What an effect network is: its features, actions and action parameters.
 
 The paper's Fig. 1 structure is built from a small, frozen declaration::
 
     initial.f1   initial.f2   ...        (one root site per feature, state before the action)
-        |  \\      /  |
-        |   \\    /   |      action       (one discrete root site, enumerated)
-        |    \\  /    |     /
-        |     \\/     |    /    cluster.p --> param.p     (optional action parameter)
-        v     /\\     v   v        |             |
+        |  \      /  |
+        |   \    /   |      action       (one discrete root site, enumerated)
+        |    \  /    |     /
+        |     \/     |    /    cluster.p --> param.p     (optional action parameter)
+        v     /\     v   v        |             |
     end.f1   end.f2   ...  <-------+-------------+  (only the features the parameter affects)
 
 By default (the paper's Fig. 1) every initial site is a parent of every end site, the
@@ -156,6 +156,7 @@ class EffectNetwork:
         return tuple(self._sites.values())
 
     def site(self, name: str) -> SiteSpec:
+        """The site named ``name``; an unknown name is a ``KeyError`` naming the sites."""
         try:
             return self._sites[name]
         except KeyError:
@@ -187,6 +188,7 @@ class EffectNetwork:
         return tuple(m for m in self._mixtures.values() if site in m.continuous)
 
     def feature(self, name: str) -> Feature:
+        """The feature named ``name``; an unknown name is a ``KeyError`` naming the features."""
         for f in self.features:
             if f.name == name:
                 return f
@@ -207,8 +209,9 @@ class EffectNetwork:
         return self.cpd(end_site(feature)).inputs
 
     def end_sites_needed(self, sites: Iterable[str]) -> set[str]:
-        """The end sites among ``sites`` and every end site they depend on (their end
-        ancestors): the end sites whose factors a query on ``sites`` must keep.
+        """The end sites among ``sites`` and every end site they depend on.
+
+        Their end ancestors: the end sites whose factors a query on ``sites`` must keep.
         """
         todo = [s for s in sites if s in self._sites and self._sites[s].role == "end"]
         needed: set[str] = set()
@@ -224,6 +227,7 @@ class EffectNetwork:
         return self._mixtures[parameter.name].uses.clone()
 
     def action_index(self, action: str) -> int:
+        """The index of ``action``; an unknown one is a ``ValueError`` naming the actions."""
         try:
             return self.actions.index(action)
         except ValueError:
@@ -332,8 +336,9 @@ class EffectNetwork:
 
     @classmethod
     def from_dict(cls, d: Mapping, kinds: Iterable[type[CPD]] = ()) -> EffectNetwork:
-        """The network :meth:`to_dict` described; ``kinds``: the user-defined kinds it
-        names (the toolkit's own are known).
+        """The network :meth:`to_dict` described.
+
+        ``kinds``: the user-defined kinds it names (the toolkit's own are known).
         """
         features: list[Feature] = []
         for f in d["features"]:

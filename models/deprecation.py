@@ -1,6 +1,8 @@
-"""Old names kept for one release: a module's ``__getattr__`` that answers an old name
-with the object of its new name (:func:`renamed`) or a name from the module that holds it
-now (:func:`moved`), and a ``DeprecationWarning``.
+"""Old names kept for one release.
+
+A module's ``__getattr__`` that answers an old name with the object of its new name
+(:func:`renamed`) or a name from the module that holds it now (:func:`moved`), and a
+``DeprecationWarning``.
 """
 
 from __future__ import annotations
@@ -16,10 +18,11 @@ def renamed(
     names: Mapping[str, str],
     why: str = "a kind's fitted numbers are named <kind>Params",
 ) -> Callable[[str], object]:
-    """A ``__getattr__`` for ``module`` (its ``__name__``) that answers each old name of
-    ``names`` (``{old: new}``) with the module's object named ``new``, warning (with
-    ``why``, the reason for the new name) that the old name goes away in the next
-    release.
+    """A ``__getattr__`` for ``module`` that answers old names with their new objects.
+
+    ``module`` is its ``__name__``. Each old name of ``names`` (``{old: new}``) is answered with the
+    module's object named ``new``, warning (with ``why``, the reason for the new name) that the old
+    name goes away in the next release.
     """
 
     def __getattr__(name: str) -> object:
@@ -38,9 +41,11 @@ def renamed(
 
 
 def moved(module: str, homes: Mapping[str, str], message: str) -> Callable[[str], object]:
-    """A ``__getattr__`` for ``module`` (its ``__name__``) that answers each name of
-    ``homes`` (``{name: the module that holds it now}``) from that module, warning with
-    ``message`` formatted with ``name`` and ``home``.
+    """A ``__getattr__`` for ``module`` that answers moved names from their new modules.
+
+    ``module`` is its ``__name__``. Each name of ``homes`` (``{name: the module that holds it
+    now}``) is answered from that module, warning with ``message`` formatted with ``name`` and
+    ``home``.
     """
 
     def __getattr__(name: str) -> object:

@@ -68,21 +68,28 @@ class Network(Protocol):
     """
 
     @property
-    def actions(self) -> tuple[str, ...]: ...
+    def actions(self) -> tuple[str, ...]:
+        """The network's actions, in order."""
 
     @property
-    def sites(self) -> tuple[SiteSpec, ...]: ...
+    def sites(self) -> tuple[SiteSpec, ...]:
+        """Every site of the network, in site order."""
 
-    def site(self, name: str) -> SiteSpec: ...
+    def site(self, name: str) -> SiteSpec:
+        """The site named ``name``."""
 
-    def feature(self, name: str) -> Feature: ...
+    def feature(self, name: str) -> Feature:
+        """The feature named ``name``."""
 
-    def encode(self, evidence: Mapping[str, object]) -> Evidence: ...
+    def encode(self, evidence: Mapping[str, object]) -> Evidence:
+        """``evidence`` encoded for the network's sites."""
 
 
 class Partial:
-    """Some dimensions of a continuous end feature: evidence ``{"end.xy": Partial(value,
-    observed=[True, False])}`` observes ``x`` and leaves ``y`` unknown.
+    """Some dimensions of a continuous end feature.
+
+    Evidence ``{"end.xy": Partial(value, observed=[True, False])}`` observes ``x`` and leaves ``y``
+    unknown.
 
     ``value``: numbers of shape ``(n, dim)`` (or ``(dim,)`` for one row), as for full
     evidence; entries in unobserved dimensions are ignored (they may be NaN).

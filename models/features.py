@@ -23,6 +23,7 @@ _KINDS = ("object", "meta", "world")
 
 
 def check_name(name: str, what: str) -> None:
+    """Raise ``ValueError`` unless ``name`` is a Python identifier; ``what`` names its role."""
     if not isinstance(name, str) or not name.isidentifier():
         raise ValueError(f"{what} name {name!r} must be a Python identifier (letters, digits, _)")
 
@@ -60,6 +61,7 @@ class Discrete:
 
     @property
     def cardinality(self) -> int:
+        """The number of states."""
         return len(self.states)
 
 
@@ -180,6 +182,7 @@ class Parameter:
 
     @property
     def dim(self) -> int:
+        """The parameter's dimension."""
         return len(self.low)
 
     @property
@@ -189,6 +192,7 @@ class Parameter:
 
     @property
     def n_clusters(self) -> int:
+        """The number of clusters: the product of the cells per dimension."""
         return math.prod(self.bins)
 
     def cluster_of(self, values: torch.Tensor) -> torch.Tensor:

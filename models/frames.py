@@ -267,8 +267,9 @@ def _numbers(spec: SiteSpec, series: list) -> object:
 
 
 def _labels(net: Network, spec: SiteSpec, series: Any) -> np.ndarray:
-    """The column's values as declared labels, ``None`` where missing (one look-up per
-    distinct value).
+    """The column's values as declared labels, ``None`` where missing.
+
+    One look-up per distinct value.
     """
     pandas = require_pandas()
     codes, uniques = pandas.factorize(series, use_na_sentinel=True)
@@ -339,8 +340,9 @@ def to_frame(net: Network, data: Mapping[str, object]) -> Any:
 
 
 def _dtype(net: Network, spec: SiteSpec) -> object:
-    """bool, int64 or object: the dtype its declared labels share (so a column of bools
-    is a bool column).
+    """bool, int64 or object: the dtype its declared labels share.
+
+    So a column of bools is a bool column.
     """
     states = labels(net, spec)
     if all(type(s) is bool for s in states):

@@ -26,7 +26,8 @@ import torch
 
 
 def two_sum(a: torch.Tensor, b: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(s, e)``: ``s`` the float64 sum ``a + b``, ``e`` its rounding error, so that
+    """``(s, e)``: the float64 sum ``a + b`` and its rounding error.
+
     ``s + e == a + b`` exactly wherever ``a + b`` is finite (Knuth's TwoSum, no branch).
     """
     s = a + b
@@ -39,9 +40,10 @@ _SPLITTER = 134217729.0
 
 
 def two_product(a: torch.Tensor, b: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(p, e)``: ``p`` the float64 product ``a * b``, ``e`` its rounding error, so that
-    ``p + e == a * b`` exactly (Dekker's product of split halves, no fused multiply-add),
-    for factors below about 1e300 and products above about 1e-290 in magnitude.
+    """``(p, e)``: the float64 product ``a * b`` and its rounding error.
+
+    ``p + e == a * b`` exactly (Dekker's product of split halves, no fused multiply-add), for
+    factors below about 1e300 and products above about 1e-290 in magnitude.
     """
     p = a * b
     ca, cb = _SPLITTER * a, _SPLITTER * b
@@ -53,11 +55,12 @@ def two_product(a: torch.Tensor, b: torch.Tensor) -> tuple[torch.Tensor, torch.T
 def affine_pair(
     weight: torch.Tensor, x: torch.Tensor, bias: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """``W x + b`` (``weight`` ``(..., d, p)``, ``x`` ``(..., p)``, ``bias`` ``(..., d)``) as
-    ``(hi, lo)``: ``hi`` its float64 rounding, ``lo`` the rest, together within about
-    ``p * 2^-104`` of the sum of the terms' magnitudes (the products and sums error-free,
-    their errors summed once: Ogita, Rump and Oishi's Dot2). Where a term is not finite
-    (or a factor beyond two_product's range) ``lo`` is 0 and ``hi`` the plain sum.
+    """``W x + b`` as ``(hi, lo)``: ``hi`` its float64 rounding, ``lo`` the rest.
+
+    ``weight`` ``(..., d, p)``, ``x`` ``(..., p)``, ``bias`` ``(..., d)``; together within about ``p
+    * 2^-104`` of the sum of the terms' magnitudes (the products and sums error-free, their errors
+    summed once: Ogita, Rump and Oishi's Dot2). Where a term is not finite (or a factor beyond
+    two_product's range) ``lo`` is 0 and ``hi`` the plain sum.
     """
     products, errors = two_product(weight, x.unsqueeze(-2))  # (..., d, p)
     hi = bias.expand(torch.broadcast_shapes(bias.shape, products.shape[:-1]))
@@ -79,11 +82,11 @@ MEAN_ROUNDING = 2.0**-40
 def sum_rounds_off(
     largest_weight: float, largest_bias: float, x: torch.Tensor, noise_scale: float
 ) -> bool:
-    """Whether ``W x + b`` summed in float64 may be off by more than ``MEAN_ROUNDING``
-    times ``noise_scale`` (the smallest noise scale it is compared with): its rounding
-    bound ``(p + 1) 2^-52 (p max|W| max|x| + max|b|)`` from the largest entries (``x``
-    ``(..., p)``; cheap: never the joint's shape). NaN inputs count as rounding off (the
-    pair keeps them NaN).
+    """Whether ``W x + b`` summed in float64 may be off by more than ``MEAN_ROUNDING`` noise scales.
+
+    ``noise_scale`` is the smallest noise scale it is compared with. The rounding bound ``(p + 1)
+    2^-52 (p max|W| max|x| + max|b|)`` comes from the largest entries (``x`` ``(..., p)``; cheap:
+    never the joint's shape). NaN inputs count as rounding off (the pair keeps them NaN).
     """
     p = x.shape[-1]
     if not p or not x.numel():
@@ -112,8 +115,9 @@ def condition_linear_gaussian(
     noise_cov: torch.Tensor,
     y: torch.Tensor,
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """Posterior mean ``(..., k)`` and covariance ``(..., k, k)`` of ``theta`` given ``y``
-    (given its dimensions that are not NaN, where some are).
+    """Posterior mean ``(..., k)`` and covariance ``(..., k, k)`` of ``theta`` given ``y``.
+
+    Given its dimensions that are not NaN, where some are.
     """
     y_loc, y_cov = linear_gaussian_marginal(mean, cov, weight, offset, noise_cov)
     if bool(torch.isnan(y).any()):
@@ -130,13 +134,14 @@ def condition_linear_gaussian(
 def mask_unobserved(
     y: torch.Tensor, loc: torch.Tensor, cov: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor, torch.Tensor]:
-    """A Gaussian ``N(loc, cov)`` of ``y`` ``(..., d)`` observed where ``y`` is not NaN,
-    rewritten so that the unobserved dimensions carry no information: there ``y`` and
-    ``loc`` are 0 and ``cov`` has 1 on the diagonal and 0 elsewhere in their rows and
-    columns. Then ``N(y'; loc', cov') = N(y_o; loc_o, cov_oo) N(0; 0, 1)^u`` (the
-    observed dimensions' marginal, a Gaussian's rows and columns dropped, times a
-    constant) and conditioning on ``y'`` is conditioning on ``y_o``. Returns ``y'``,
-    ``loc'``, ``cov'`` (broadcast together) and the observed mask ``(..., d)``.
+    """A partly observed ``y``'s Gaussian, its unobserved dimensions carrying no information.
+
+    A Gaussian ``N(loc, cov)`` of ``y`` ``(..., d)`` observed where ``y`` is not NaN, rewritten so
+    that the unobserved dimensions carry no information: there ``y`` and ``loc`` are 0 and ``cov``
+    has 1 on the diagonal and 0 elsewhere in their rows and columns. Then ``N(y'; loc', cov') =
+    N(y_o; loc_o, cov_oo) N(0; 0, 1)^u`` (the observed dimensions' marginal, a Gaussian's rows and
+    columns dropped, times a constant) and conditioning on ``y'`` is conditioning on ``y_o``.
+    Returns ``y'``, ``loc'``, ``cov'`` (broadcast together) and the observed mask ``(..., d)``.
     """
     seen = ~torch.isnan(y)
     shape = torch.broadcast_shapes(y.shape[:-1], loc.shape[:-1], cov.shape[:-2])
@@ -153,8 +158,9 @@ def mask_unobserved(
 def partial_log_density(
     y: torch.Tensor, loc: torch.Tensor, scale_tril: torch.Tensor
 ) -> torch.Tensor:
-    """``log N(y_o; loc_o, cov_oo)`` over the dimensions ``o`` where ``y`` is not NaN
-    (0 where none is), ``cov = scale_tril scale_tril^T``; batch-shaped.
+    """``log N(y_o; loc_o, cov_oo)`` over the dimensions ``o`` where ``y`` is not NaN.
+
+    0 where none is; ``cov = scale_tril scale_tril^T``; batch-shaped.
     """
     y, loc, cov, seen = mask_unobserved(y, loc, scale_tril @ scale_tril.mT)
     tril = torch.linalg.cholesky(cov)
@@ -167,9 +173,10 @@ def partial_log_density(
 def condition_on_observed(
     y: torch.Tensor, loc: torch.Tensor, cov: torch.Tensor
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """``N(loc, cov)`` of ``y`` ``(..., d)`` conditioned on its dimensions that are not
-    NaN: the unobserved dimensions get ``loc_u + S_uo S_oo^-1 (y_o - loc_o)`` and
-    ``S_uu - S_uo S_oo^-1 S_ou``; the observed ones their value, with zero variance.
+    """``N(loc, cov)`` of ``y`` ``(..., d)`` conditioned on its dimensions that are not NaN.
+
+    The unobserved dimensions get ``loc_u + S_uo S_oo^-1 (y_o - loc_o)`` and ``S_uu - S_uo S_oo^-1
+    S_ou``; the observed ones their value, with zero variance.
     """
     seen = ~torch.isnan(y)
     eye = torch.eye(y.shape[-1], dtype=cov.dtype)
@@ -180,9 +187,10 @@ def condition_on_observed(
 
 
 def residual_of(fn, value: torch.Tensor) -> torch.Tensor:
-    """``value - mean`` of the Gaussian ``fn``, batch-shaped; a mean held as a pair
-    (``fn.loc_low``, :func:`affine_pair`) subtracted in its order, ``(value - loc) -
-    loc_low``.
+    """``value - mean`` of the Gaussian ``fn``, batch-shaped.
+
+    A mean held as a pair (``fn.loc_low``, :func:`affine_pair`) is subtracted in its order, ``(value
+    - loc) - loc_low``.
     """
     diff = value - fn.loc
     low = getattr(fn, "loc_low", None)
@@ -190,8 +198,9 @@ def residual_of(fn, value: torch.Tensor) -> torch.Tensor:
 
 
 def mahalanobis(fn, value: torch.Tensor) -> torch.Tensor:
-    """Squared Mahalanobis distance of ``value`` under the Gaussian ``fn`` (a distribution
-    with ``loc`` and ``scale_tril``), batch-shaped; a value with NaN dimensions (partial
+    """Squared Mahalanobis distance of ``value`` under the Gaussian ``fn``, batch-shaped.
+
+    ``fn`` is a distribution with ``loc`` and ``scale_tril``. A value with NaN dimensions (partial
     evidence) is measured in its observed dimensions' marginal. A mean held as a pair
     (``fn.loc_low``, :func:`affine_pair`) gives the residual ``(value - loc) - loc_low``.
     """
@@ -210,10 +219,11 @@ def mahalanobis(fn, value: torch.Tensor) -> torch.Tensor:
 
 
 def chi_square_tail(dof: int, x: float) -> float:
-    """``P(X > x)`` for ``X`` chi-square with ``dof >= 1`` degrees of freedom: the
-    regularised ``gammaincc(dof / 2, x / 2)`` in closed form, from ``Q(1, h) = e^-h`` (even
-    ``dof``) or ``Q(1/2, h) = erfc(sqrt h)`` (odd) up by ``Q(a + 1, h) = Q(a, h) + h^a
-    e^-h / Gamma(a + 1)``.
+    """``P(X > x)`` for ``X`` chi-square with ``dof >= 1`` degrees of freedom.
+
+    The regularised ``gammaincc(dof / 2, x / 2)`` in closed form, from ``Q(1, h) = e^-h`` (even
+    ``dof``) or ``Q(1/2, h) = erfc(sqrt h)`` (odd) up by ``Q(a + 1, h) = Q(a, h) + h^a e^-h /
+    Gamma(a + 1)``.
     """
     h = x / 2
     if h == math.inf:

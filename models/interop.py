@@ -1,10 +1,10 @@
-"""Interoperation with pgmpy: a network's discrete part as a pgmpy network, and back.
+r"""Interoperation with pgmpy: a network's discrete part as a pgmpy network, and back.
 
 An effect network whose features are all discrete is an ordinary discrete Bayesian
 network; with the paper's Fig. 1 structure::
 
     initial.f1  initial.f2  action        roots, one table each
-          \\   \\  /  /   /
+          \   \  /  /   /
            end.f1   end.f2               one table per end site, over every initial
                                           node and the action
 
@@ -509,9 +509,10 @@ def _check_structure(model, initial: list[str], actions_node: str) -> None:
 
 
 def _declared(model, features: list[Discrete], actions_node: str) -> dict[str, tuple[str, ...]]:
-    """Every initial and end site's parents in ``model`` as sites (the action node as
-    ``action``): initial sites first, then the action, then end sites, each in feature
-    order.
+    """Every initial and end site's parents in ``model`` as sites.
+
+    The action node as ``action``: initial sites first, then the action, then end sites, each in
+    feature order.
     """
     order = [initial_site(f.name) for f in features if f.initial]
     order += [actions_node, *(end_site(f.name) for f in features)]

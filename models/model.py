@@ -206,8 +206,9 @@ def _rows(data: Evidence, n_rows: int | None) -> int:
 
 
 def _parameter(m: ParameterMixture, params, action, data, masks, collapse, n, cache):
-    """Sample ``cluster.p`` and ``param.p``; return them, and the rows where the value is
-    known (bool, the parameter's batch shape).
+    """Sample ``cluster.p`` and ``param.p``.
+
+    Return them, and the rows where the value is known (bool, the parameter's batch shape).
     """
     c_site, p_site = m.sites
     p = m.parameter
@@ -264,8 +265,9 @@ def _partly(data: Mapping, site: str) -> bool:
 
 
 class _PartlyObserved(dist.MultivariateNormal):
-    """A Gaussian observed in the dimensions where its value is not NaN: the density of
-    those dimensions' marginal (partial evidence, :class:`models.evidence.Partial`).
+    """A Gaussian observed in the dimensions where its value is not NaN.
+
+    The density of those dimensions' marginal (partial evidence, :class:`models.evidence.Partial`).
     """
 
     def log_prob(self, value: torch.Tensor) -> torch.Tensor:
@@ -275,10 +277,11 @@ class _PartlyObserved(dist.MultivariateNormal):
 def _observe(
     site: str, fn: dist.MultivariateNormal, obs: torch.Tensor | None, leaf: bool = False
 ) -> torch.Tensor:
-    """Sample a continuous site: latent, observed, or observed in some dimensions (NaN in
-    the others: their marginal is the site's factor). A latent ``leaf`` (an end site in
-    the collapsed form) is integrated out: nothing depends on it, so its integral is one;
-    it is drawn, with its factor masked, so that exact sums stay exact.
+    """Sample a continuous site: latent, observed, or observed in some dimensions.
+
+    NaN in the other dimensions: their marginal is the site's factor. A latent ``leaf`` (an end site
+    in the collapsed form) is integrated out: nothing depends on it, so its integral is one; it is
+    drawn, with its factor masked, so that exact sums stay exact.
     """
     if obs is not None and is_partial(obs):
         fn = _PartlyObserved(fn.loc, scale_tril=fn.scale_tril)
@@ -319,10 +322,11 @@ def _continuous(site: str, value: object) -> torch.Tensor:
 
 
 def _site_names(net: EffectNetwork, end_sites: object) -> list[str]:
-    """``end_sites`` as a list of the network's site names: a string (whose letters
-    would be taken for names) or a name the network lacks is a ``ValueError``, since
-    leaving an end site out changes the model silently. Names of other roles are ignored
-    (the queries pass their whole evidence).
+    """``end_sites`` as a list of the network's site names.
+
+    A string (whose letters would be taken for names) or a name the network lacks is a
+    ``ValueError``, since leaving an end site out changes the model silently. Names of other roles
+    are ignored (the queries pass their whole evidence).
     """
     if isinstance(end_sites, str | bytes) or not hasattr(end_sites, "__iter__"):
         raise ValueError(

@@ -97,8 +97,10 @@ class NetworkParams:
 
 
 def check_params(net: EffectNetwork, params: NetworkParams) -> None:
-    """Raise ``ValueError`` unless ``params`` has the right CPD for every site of ``net``
-    and was fitted for a declaration with ``net``'s identity (:func:`check_bound`).
+    """Raise ``ValueError`` unless ``params`` fit ``net``.
+
+    ``params`` must have the right CPD for every site of ``net`` and have been fitted for a
+    declaration with ``net``'s identity (:func:`check_bound`).
     """
     if not isinstance(params, NetworkParams):
         raise ValueError(f"params must be NetworkParams, got {type(params).__name__}")
@@ -114,10 +116,11 @@ def check_params(net: EffectNetwork, params: NetworkParams) -> None:
 
 
 def check_bound(net: EffectNetwork, params: NetworkParams) -> None:
-    """Raise ``ValueError``, naming the first site that differs and how, if ``params``
-    were fitted for a declaration whose identity differs from ``net``'s
-    (:meth:`~models.declaration.EffectNetwork.identity`). Cheap where they are the same
-    declaration: the model runs it on every call.
+    """Raise ``ValueError`` if ``params`` were fitted for a declaration other than ``net``'s.
+
+    Naming the first site that differs and how, if the declaration's identity differs from ``net``'s
+    (:meth:`~models.declaration.EffectNetwork.identity`). Cheap where they are the same declaration:
+    the model runs it on every call.
     """
     fitted = getattr(params, "network", None)
     if fitted is None or fitted is net:
@@ -196,8 +199,9 @@ def save(path: str | Path, net: EffectNetwork, params: NetworkParams) -> Path:
 def load(
     path: str | Path, kinds: Iterable[type[KindCPD]] = ()
 ) -> tuple[EffectNetwork, NetworkParams]:
-    """Load a network saved by :func:`save`; ``kinds``: the classes of the user-defined
-    kinds it names (the toolkit's own are known).
+    """Load a network saved by :func:`save`.
+
+    ``kinds``: the classes of the user-defined kinds it names (the toolkit's own are known).
 
     Nothing in the file is executed (``torch.load(weights_only=True)``), and nothing is
     inflated before it is known: the file's members must be stored uncompressed, as
@@ -273,8 +277,10 @@ def _cpu(value):
 
 
 def _checksum(payload: dict) -> str:
-    """sha256 of a payload's content: its header, declaration and pseudo-count, and
-    every site's tensors (dtype, shape and bytes), sites and fields in sorted order.
+    """sha256 of a payload's content.
+
+    Its header, declaration and pseudo-count, and every site's tensors (dtype, shape and bytes),
+    sites and fields in sorted order.
     """
     cpds = payload["cpds"]
     h = hashlib.sha256()
@@ -302,9 +308,10 @@ def _checksum(payload: dict) -> str:
 
 
 def _check_archive(path: Path) -> None:
-    """Refuse, before anything is inflated, a file whose members are compressed (a
-    small file can inflate to gigabytes; :func:`save` compresses nothing) or whose
-    pickled structure is larger than :data:`MAX_STRUCTURE_BYTES`.
+    """Refuse, before anything is inflated, a file too large to open safely.
+
+    That is a file whose members are compressed (a small file can inflate to gigabytes; :func:`save`
+    compresses nothing) or whose pickled structure is larger than :data:`MAX_STRUCTURE_BYTES`.
     """
     try:
         with zipfile.ZipFile(path) as archive:
@@ -362,8 +369,9 @@ def random_params(net: EffectNetwork, seed: int, *, unseen: float = 0.0) -> Netw
 
 
 def initial_params(net: EffectNetwork, pseudo_count: float) -> NetworkParams:
-    """Every kind's neutral start (uniform tables, zero-slope unit Gaussians, zero
-    softmax): the gradient route's default.
+    """Every kind's neutral start: the gradient route's default.
+
+    Uniform tables, zero-slope unit Gaussians, zero softmax.
     """
     return NetworkParams(
         {s.name: net.cpd(s.name).initialize() for s in net.sites}, pseudo_count, net

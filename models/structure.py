@@ -1,5 +1,6 @@
-"""How a declaration becomes a network's structure: its sites, their parents and order,
-and each site's conditional-distribution kind.
+"""How a declaration becomes a network's structure.
+
+Its sites, their parents and order, and each site's conditional-distribution kind.
 
 The steps :class:`~models.declaration.EffectNetwork` takes when it is made, each a
 function of the declaration's parts: :func:`check_declaration` (features, actions,
@@ -40,8 +41,9 @@ MAX_CPD_ENTRIES = 10**8
 def check_declaration(
     features: Iterable[Feature], actions: Iterable[str], parameters: Iterable[Parameter]
 ) -> tuple[tuple[Feature, ...], tuple[str, ...], tuple[Parameter, ...]]:
-    """A declaration's features, actions and parameters as tuples, checked: actions
-    ordered and distinct, names distinct, every parameter's features and actions known,
+    """A declaration's features, actions and parameters as tuples, checked.
+
+    Actions ordered and distinct, names distinct, every parameter's features and actions known,
     parameters sharing a feature only where an unknown value does not couple them.
     """
     if isinstance(actions, str | bytes) or not hasattr(actions, "__iter__"):
@@ -99,8 +101,9 @@ def check_declaration(
 def declared_sites(
     features: tuple[Feature, ...], actions: tuple[str, ...], parameters: tuple[Parameter, ...]
 ) -> dict[str, SiteSpec]:
-    """Every site of a declaration, in declaration order: initial sites, the action,
-    each parameter's cluster and value, end sites.
+    """Every site of a declaration, in declaration order.
+
+    Initial sites, the action, each parameter's cluster and value, end sites.
     """
     declared: dict[str, SiteSpec] = {}
     for f in features:
@@ -124,8 +127,9 @@ def _spec(name: str, f: Feature, role: Literal["initial", "end"]) -> SiteSpec:
 
 
 def fig1_parents(sites: Mapping[str, SiteSpec]) -> dict[str, tuple[str, ...]]:
-    """The paper's Fig. 1: initial sites are roots; every initial site and the action are
-    parents of every end site.
+    """The paper's Fig. 1.
+
+    Initial sites are roots; every initial site and the action are parents of every end site.
     """
     initial = tuple(s for s, spec in sites.items() if spec.role == "initial")
     return {
@@ -143,9 +147,10 @@ def differing_from_fig1(parents: Mapping, fig1: Mapping) -> tuple[tuple[str, tup
 def parents_of(
     declared: object, parameters: tuple[Parameter, ...], sites: Mapping[str, SiteSpec]
 ) -> dict[str, tuple[str, ...]]:
-    """Every initial and end site's parents, ``declared`` (a mapping or pairs) where
-    given and Fig. 1's elsewhere, checked: names, roles, duplicates, and the action for
-    a parameter's feature.
+    """Every initial and end site's parents, checked.
+
+    ``declared`` (a mapping or pairs) where given and Fig. 1's elsewhere, checked: names, roles,
+    duplicates, and the action for a parameter's feature.
     """
     given = declared
     if isinstance(given, Mapping):
@@ -218,8 +223,9 @@ def _check_parent(site: str, spec: SiteSpec, parent: str, sites: Mapping[str, Si
 
 
 def topological(sites: Mapping[str, SiteSpec], parents: Mapping[str, tuple[str, ...]]) -> list[str]:
-    """Site names with parents before children, otherwise in declaration order; a cycle
-    raises, naming its sites.
+    """Site names with parents before children, otherwise in declaration order.
+
+    A cycle raises, naming its sites.
     """
     order: list[str] = []
     state: dict[str, str] = {}
@@ -276,8 +282,9 @@ def resolve_kinds(given, sites: Mapping[str, SiteSpec]) -> tuple[tuple[str, type
 
 
 def _check_size(cpd: CPD, why: str) -> None:
-    """Refuse a site whose fitted numbers would exceed :data:`MAX_CPD_ENTRIES`, before
-    anything of that size is allocated.
+    """Refuse a site whose fitted numbers would exceed :data:`MAX_CPD_ENTRIES`.
+
+    Before anything of that size is allocated.
     """
     entries = sum(math.prod(shape) for shape in cpd.shapes().values())
     if entries > MAX_CPD_ENTRIES:
@@ -295,9 +302,10 @@ def build_cpds(
     sites: Mapping[str, SiteSpec],
     parents: Mapping[str, tuple[str, ...]],
 ) -> tuple[dict[str, CPD], dict[str, ParameterMixture]]:
-    """Every site's kind (``kinds`` where declared, the default elsewhere) in site order,
-    and each parameter's mixture, by parameter name. The mixtures come first: their
-    sites join the parents of the features they affect.
+    """Every site's kind in site order, and each parameter's mixture, by parameter name.
+
+    ``kinds`` where declared, the default elsewhere. The mixtures come first: their sites join the
+    parents of the features they affect.
     """
     mixtures = {
         p.name: ParameterMixture.of(

@@ -68,8 +68,9 @@ class CPD:
 
     @classmethod
     def refuses(cls, discrete: bool, width: int) -> str | None:
-        """Why this kind cannot model a site (discrete or not, with ``width`` continuous
-        inputs), or ``None`` if it can.
+        """Why this kind cannot model a site, or ``None`` if it can.
+
+        The site is discrete or not, with ``width`` continuous inputs.
         """
         if discrete != cls.discrete:
             return f"it models a {'discrete' if cls.discrete else 'continuous'} child"
@@ -80,9 +81,10 @@ class CPD:
         raise NotImplementedError
 
     def n_free(self, reachable: torch.Tensor | None = None) -> int:
-        """The number of free parameters in the parent configurations ``reachable``
-        ``(P...)`` bool marks (default: every one, reached by rows or not), less what the
-        structure fixes.
+        """The number of free parameters, less what the structure fixes.
+
+        Counted in the parent configurations ``reachable`` ``(P...)`` bool marks (default: every
+        one, reached by rows or not).
         """
         raise NotImplementedError(
             f"site {self.site!r}: the kind {type(self).__name__} does not count its free "
@@ -90,8 +92,9 @@ class CPD:
         )
 
     def configurations(self, reachable: torch.Tensor | None = None) -> torch.Tensor:
-        """``(P...)`` bool: the parent configurations ``reachable`` marks (all by
-        default), checked for shape.
+        """The parent configurations ``reachable`` marks, checked for shape.
+
+        ``(P...)`` bool; all by default.
         """
         if reachable is None:
             return torch.ones(self.card, dtype=torch.bool)
@@ -99,8 +102,7 @@ class CPD:
         return reachable.to(torch.bool)
 
     def check(self, params: object) -> None:
-        """Raise ``ValueError`` unless ``params`` is this kind's container with the declared shapes.
-        """
+        """Raise ``ValueError`` unless ``params`` is this kind's container with the declared shapes."""
         kind = self.params_type.__name__
         if type(params) is not self.params_type:
             raise ValueError(
@@ -115,8 +117,9 @@ class CPD:
                 )
 
     def initialize(self, generator: torch.Generator | None = None, unseen: float = 0.0):
-        """A neutral start (``generator=None``) or valid random parameters; with a
-        generator, ``unseen`` is the share of configurations marked as reached by no row.
+        """A neutral start (``generator=None``) or valid random parameters.
+
+        With a generator, ``unseen`` is the share of configurations marked as reached by no row.
         """
         raise NotImplementedError
 
@@ -131,9 +134,11 @@ class CPD:
         y: torch.Tensor,
         weights: torch.Tensor | None = None,
     ):
-        """Sufficient statistics of rows: ``index`` ``(n,)`` the flattened parent
-        configuration, ``x`` ``(n, width)`` or ``None``, ``y`` the site's values,
-        ``weights`` ``(n,)`` each row's weight (default 1; fractional in an EM step).
+        """Sufficient statistics of rows.
+
+        ``index`` ``(n,)`` the flattened parent configuration, ``x`` ``(n, width)`` or ``None``,
+        ``y`` the site's values, ``weights`` ``(n,)`` each row's weight (default 1; fractional in an
+        EM step).
         """
         raise NotImplementedError
 
@@ -162,8 +167,9 @@ class CPD:
         return torch.randn(shape, generator=generator, dtype=DTYPE)
 
     def counts_reached(self, generator: torch.Generator, unseen: float) -> torch.Tensor:
-        """``n`` for a random initialisation: 5 rows per configuration, 0 for a share
-        ``unseen`` of them.
+        """``n`` for a random initialisation.
+
+        5 rows per configuration, 0 for a share ``unseen`` of them.
         """
         n = torch.rand(self.card, generator=generator, dtype=DTYPE) >= unseen
         return n.to(DTYPE) * 5
@@ -175,8 +181,9 @@ def map_tensors(container, fn):
 
 
 def concat_inputs(parts: list[torch.Tensor]) -> torch.Tensor | None:
-    """Continuous parents' values side by side ``(..., width)``, broadcast over their
-    batch dims; ``None`` without any.
+    """Continuous parents' values side by side ``(..., width)``.
+
+    Broadcast over their batch dims; ``None`` without any.
     """
     if not parts:
         return None

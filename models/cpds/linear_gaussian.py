@@ -49,12 +49,15 @@ class LinearGaussianParams:
 
     @property
     def covariance(self) -> torch.Tensor:
+        """``(P..., d, d)``: the noise covariance, ``scale_tril scale_tril^T``."""
         return self.scale_tril @ self.scale_tril.mT
 
     @cached_property  # read by every traced density of continuous inputs: computed once
     def extremes(self) -> tuple[float, float, float]:
-        """The largest ``|weight|`` and ``|bias|``, and the smallest noise scale (the
-        square root of the smallest eigenvalue of any configuration's covariance).
+        """The largest ``|weight|`` and ``|bias|``, and the smallest noise scale.
+
+        The noise scale is the square root of the smallest eigenvalue of any configuration's
+        covariance.
         """
         if not self.bias.numel():
             return 0.0, 0.0, math.inf
@@ -65,9 +68,10 @@ class LinearGaussianParams:
 
 @dataclass(frozen=True)
 class Moments:
-    """A linear Gaussian's sums per parent configuration ``G`` (flattened ``P...``):
-    ``zz`` ``(G, q, q)``, ``zy`` ``(G, q, d)``, ``yy`` ``(G, d, d)``, rows ``n`` ``(G,)``,
-    with ``z = [x, 1]``.
+    """A linear Gaussian's sums per parent configuration ``G`` (flattened ``P...``).
+
+    ``zz`` ``(G, q, q)``, ``zy`` ``(G, q, d)``, ``yy`` ``(G, d, d)``, rows ``n`` ``(G,)``, with ``z
+    = [x, 1]``.
     """
 
     zz: torch.Tensor
@@ -79,6 +83,7 @@ class Moments:
         return Moments(*(getattr(self, f.name) + getattr(other, f.name) for f in fields(self)))
 
     def add_(self, other: Moments) -> None:
+        """Add ``other``'s sums to these, in place."""
         for f in fields(self):
             getattr(self, f.name).add_(getattr(other, f.name))
 
@@ -102,6 +107,7 @@ class LinearGaussianCPD(CPD):
     discrete = False
 
     def shapes(self) -> dict[str, tuple[int, ...]]:
+        """The shape of every tensor of the kind's parameters (:meth:`~models.CPD.shapes`)."""
         card, d = self.card, self.size
         return {
             "weight": (*card, d, self.width),
@@ -111,8 +117,10 @@ class LinearGaussianCPD(CPD):
         }
 
     def n_free(self, reachable: torch.Tensor | None = None) -> int:
-        """Per parent configuration ``d p`` weights (less those ``zero_weights`` fixes),
-        ``d`` offsets and ``d (d + 1) / 2`` for the full covariance.
+        """The number of free parameters per parent configuration.
+
+        ``d p`` weights (less those ``zero_weights`` fixes), ``d`` offsets and ``d (d + 1) / 2`` for
+        the full covariance.
         """
         d = self.size
         configs = self.configurations(reachable).reshape(-1)
@@ -125,6 +133,7 @@ class LinearGaussianCPD(CPD):
     def initialize(
         self, generator: torch.Generator | None = None, unseen: float = 0.0
     ) -> LinearGaussianParams:
+        """Zero weights and unit noise, or random parameters (:meth:`~models.CPD.initialize`)."""
         shapes, d = self.shapes(), self.size
         if generator is None:
             eye = torch.eye(d, dtype=DTYPE).expand(shapes["scale_tril"]).clone()
@@ -150,13 +159,16 @@ class LinearGaussianCPD(CPD):
     def distribution(
         self, params: LinearGaussianParams, index, x, cache
     ) -> dist.MultivariateNormal:
+        """The site's Gaussian given its parents (:meth:`~models.CPD.distribution`)."""
         return self.gaussian(params, index, x)
 
     def gaussian(
         self, params: LinearGaussianParams, index, x: torch.Tensor | None
     ) -> dist.MultivariateNormal:
-        """The site's Gaussian given the parents, its mean kept as a pair
-        (:class:`PairMeanNormal`) where the plain sum may round off against the noise.
+        """The site's Gaussian given the parents.
+
+        Its mean is kept as a pair (:class:`PairMeanNormal`) where the plain sum may round off
+        against the noise.
         """
         index = _rows_collapsed(index) if index else index
         loc, tril = self._bias_tril(params, index)
@@ -185,6 +197,7 @@ class LinearGaussianCPD(CPD):
     def statistics(
         self, index: torch.Tensor, x: torch.Tensor | None, y: torch.Tensor, weights=None
     ) -> Moments:
+        """The rows' :class:`Moments` per parent configuration (:meth:`~models.CPD.statistics`)."""
         groups = math.prod(self.card)
         n_rows, d = y.shape
         ones = torch.ones(n_rows, 1, dtype=DTYPE)
@@ -259,6 +272,7 @@ class LinearGaussianCPD(CPD):
         )
 
     def free(self, params: LinearGaussianParams) -> dict[str, torch.Tensor]:
+        """Weights, offsets and the noise's free Cholesky factor (:meth:`~models.CPD.free`)."""
         return {
             "weight": params.weight,
             "bias": params.bias,
@@ -268,24 +282,27 @@ class LinearGaussianCPD(CPD):
     def bound(
         self, free: dict[str, torch.Tensor], params: LinearGaussianParams
     ) -> LinearGaussianParams:
+        """The parameters ``free`` stands for (:meth:`~models.CPD.bound`)."""
         return LinearGaussianParams(
             free["weight"], free["bias"], _LOWER_CHOLESKY(free["tril"]), params.n
         )
 
 
 def _mean_rounds_off(params: LinearGaussianParams, x: torch.Tensor) -> bool:
-    """Whether ``W x + b`` may round off against the smallest noise scale of any
-    configuration (:func:`models.gaussian.sum_rounds_off`).
+    """Whether ``W x + b`` may round off against the smallest noise scale.
+
+    The smallest noise scale of any configuration (:func:`models.gaussian.sum_rounds_off`).
     """
     weight, bias, smallest = params.extremes
     return sum_rounds_off(weight, bias, x, smallest)
 
 
 class PairMeanNormal(dist.MultivariateNormal):
-    """``N(loc + loc_low, scale_tril scale_tril^T)``: a Gaussian whose mean is held as two
-    float64 numbers (:func:`models.gaussian.affine_pair`), ``loc`` its rounding and
-    ``loc_low`` the rest. Its density reads the residual as ``(value - loc) - loc_low``,
-    exact where the value is near the mean at any magnitude of both; everything else
+    """``N(loc + loc_low, scale_tril scale_tril^T)`` with its mean held as two float64 numbers.
+
+    A Gaussian whose mean is held as two float64 numbers (:func:`models.gaussian.affine_pair`),
+    ``loc`` its rounding and ``loc_low`` the rest. Its density reads the residual as ``(value - loc)
+    - loc_low``, exact where the value is near the mean at any magnitude of both; everything else
     (sampling, moments, ``loc``) is the plain Gaussian's at ``loc``.
     """
 
@@ -300,12 +317,14 @@ class PairMeanNormal(dist.MultivariateNormal):
         self.loc_low = loc_low.expand(self.loc.shape)
 
     def expand(self, batch_shape, _instance=None) -> PairMeanNormal:
+        """The same Gaussian broadcast to ``batch_shape``, its mean's rest with it."""
         new = self._get_checked_instance(PairMeanNormal, _instance)
         new = super().expand(batch_shape, _instance=new)
         new.loc_low = self.loc_low.expand(new.loc.shape)
         return new
 
     def log_prob(self, value: torch.Tensor) -> torch.Tensor:
+        """The density at ``value``, its residual read as ``(value - loc) - loc_low``."""
         if self._validate_args:
             self._validate_sample(value)
         half_log_det = self._unbroadcasted_scale_tril.diagonal(dim1=-2, dim2=-1).log().sum(-1)
@@ -316,8 +335,9 @@ class PairMeanNormal(dist.MultivariateNormal):
 def gaussian_of(
     loc: torch.Tensor, scale_tril: torch.Tensor, loc_low: torch.Tensor | None = None
 ) -> dist.MultivariateNormal:
-    """``N(loc, scale_tril scale_tril^T)``, a :class:`PairMeanNormal` where the mean's
-    rest ``loc_low`` is given.
+    """``N(loc, scale_tril scale_tril^T)``.
+
+    A :class:`PairMeanNormal` where the mean's rest ``loc_low`` is given.
     """
     if loc_low is None:
         return dist.MultivariateNormal(loc, scale_tril=scale_tril)
@@ -368,9 +388,10 @@ def safe_cholesky(cov: torch.Tensor, site: str, tries: int = 24) -> torch.Tensor
 
 
 def _rows_collapsed(index: list) -> list:
-    """The parents' indices with the rows dim (the last) cut to one where every index is
-    the same along it (one action for all rows, say): the gathered parameters then
-    broadcast over the rows instead of being copied once per row.
+    """The parents' indices with the rows dim cut to one where every index is the same along it.
+
+    The rows dim is the last; every index is the same along it for one action for all rows, say. The
+    gathered parameters then broadcast over the rows instead of being copied once per row.
     """
     rows = [t for t in index if isinstance(t, torch.Tensor) and t.dim() and t.shape[-1] > 1]
     if not rows or any(bool((t != t[..., :1]).any()) for t in rows):

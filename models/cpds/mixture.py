@@ -1,4 +1,4 @@
-"""An action parameter: its cluster, its value, and how they act on the features.
+r"""An action parameter: its cluster, its value, and how they act on the features.
 
 Paper §III: a continuous parameter ``param.p`` (a force, a target) with a discrete
 ``cluster.p`` over equidistant cells of its range, one Gaussian per cell (a mixture of
@@ -7,9 +7,9 @@ input and the cluster as its last discrete parent (a linear Gaussian); a discret
 feature takes the cluster only (its table or softmax has a cell axis)::
 
     action --> cluster.p --> param.p
-       \\           \\   \\         \\
+       \           \   \         \
         +-----------+---+---------+--> end.g      (continuous: linear Gaussian)
-                         \\
+                         \
                           +-----------> end.h      (discrete: depends on the cell)
 
 :class:`ParameterMixture` owns the two sites' kinds (a pinned table and a linear
@@ -89,8 +89,9 @@ class ParameterMixture:
         affected: tuple[str, ...],
         continuous: tuple[str, ...],
     ) -> ParameterMixture:
-        """The mixture's kinds: ``cluster`` given the action (actions not using the
-        parameter pinned on cell 0), ``value`` given the cluster.
+        """The mixture's kinds: ``cluster`` given the action, ``value`` given the cluster.
+
+        Actions not using the parameter are pinned on cell 0.
         """
         c, k = parameter.n_clusters, parameter.dim
         n_actions = uses.shape[0]
@@ -106,6 +107,7 @@ class ParameterMixture:
 
     @property
     def sites(self) -> tuple[str, str]:
+        """The two sites' names: ``(cluster.p, param.p)``."""
         return self.cluster.site, self.value.site
 
     def in_use(self, action: torch.Tensor) -> torch.Tensor:
@@ -113,8 +115,9 @@ class ParameterMixture:
         return self.uses[action]
 
     def cells(self, theta: torch.Tensor, action: torch.Tensor) -> torch.Tensor:
-        """The cluster a row giving the value alone is read as observing: the value's
-        cell, or 0 where the action does not use the parameter (NaN values count as 0
+        """The cluster a row giving the value alone is read as observing.
+
+        The value's cell, or 0 where the action does not use the parameter (NaN values count as 0
         there).
         """
         return torch.where(self.in_use(action), self.parameter.cluster_of(theta.nan_to_num()), 0)
@@ -123,9 +126,10 @@ class ParameterMixture:
     def zero_weights(
         self, parents: tuple[str, ...], card: tuple[int, ...], width: int, end: int
     ) -> torch.Tensor:
-        """``(G, width)`` bool for the affected feature's linear Gaussian (parents
-        ``parents`` with cardinalities ``card``, the parameter its inputs ``end - dim`` to
-        ``end``): its weights on the parameter in configurations of actions not using it.
+        """The affected feature's weights on the parameter where the action does not use it.
+
+        ``(G, width)`` bool for the affected feature's linear Gaussian (parents ``parents`` with
+        cardinalities ``card``, the parameter its inputs ``end - dim`` to ``end``).
         """
         unused = self._on_action_axis(~self.uses, parents, 0).expand(*card).reshape(-1)
         out = torch.zeros(unused.shape[0], width, dtype=torch.bool)
@@ -133,17 +137,19 @@ class ParameterMixture:
         return out
 
     def _on_action_axis(self, per_action: torch.Tensor, parents, trailing: int) -> torch.Tensor:
-        """``(A,)`` shaped to broadcast on the action axis of tables over ``parents``
-        followed by ``trailing`` more dims.
+        """``(A,)`` shaped to broadcast on the action axis of tables.
+
+        The tables are over ``parents`` followed by ``trailing`` more dims.
         """
         after = len(parents) - 1 - parents.index(self.action)
         return per_action.reshape(-1, *([1] * (after + trailing)))
 
     def marginal(self, params: Mapping, child: LinearGaussianCPD) -> LinearGaussianParams:
-        """The affected feature's CPD with the parameter integrated out, per configuration:
+        """The affected feature's CPD with the parameter integrated out, per configuration.
+
         ``weight`` ``W_x`` ``(P..., d, p - k)``, ``bias`` ``b + W_p m_c`` ``(P..., d)``,
-        ``scale_tril`` the Cholesky factor of ``R + W_p S_c W_p^T``. For actions not using
-        the parameter ``W_p`` counts as zero.
+        ``scale_tril`` the Cholesky factor of ``R + W_p S_c W_p^T``. For actions not using the
+        parameter ``W_p`` counts as zero.
         """
         cpd = params[child.site]
         prior = params[self.value.site]
@@ -166,10 +172,11 @@ class ParameterMixture:
         action: torch.Tensor,
         known: torch.Tensor,
     ) -> dist.MultivariateNormal:
-        """The affected feature's Gaussian: given the parameter where it is ``known``
-        (bool rows), integrated out where not. ``inputs``: the child's continuous
-        parents' values, the parameter last. Its mean is a pair where the plain sum may
-        round off (:meth:`LinearGaussianCPD.gaussian`).
+        """The affected feature's Gaussian.
+
+        Given the parameter where it is ``known`` (bool rows), integrated out where not. ``inputs``:
+        the child's continuous parents' values, the parameter last. Its mean is a pair where the
+        plain sum may round off (:meth:`LinearGaussianCPD.gaussian`).
         """
         everywhere = bool(known.all())
         nowhere = not bool(known.any())
@@ -205,13 +212,13 @@ class ParameterMixture:
         prior: tuple[torch.Tensor, torch.Tensor] | None = None,
         acting: tuple[ParameterMixture, ...] = (),
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """The parameter's Gaussian given the affected feature's value ``values[child]``,
-        its other parents' values and a cluster per row: ``cluster`` ``(n,)``, or
-        ``(n, C)`` for several clusters per row (the results then carry the ``C`` dim).
-        ``prior``: the cluster's mean and covariance, if already gathered. ``acting``:
-        every parameter acting on the child, in input order, when there are several; the
-        others count where ``values`` gives them (not NaN) and are integrated out, given
-        their cluster in ``values``, where not.
+        """The parameter's Gaussian given the affected feature's value ``values[child]``.
+
+        Given also its other parents' values and a cluster per row: ``cluster`` ``(n,)``, or ``(n,
+        C)`` for several clusters per row (the results then carry the ``C`` dim). ``prior``: the
+        cluster's mean and covariance, if already gathered. ``acting``: every parameter acting on
+        the child, in input order, when there are several; the others count where ``values`` gives
+        them (not NaN) and are integrated out, given their cluster in ``values``, where not.
         """
         w_p, offset, noise, y = self.linear_terms(params, child, values, cluster, acting)
         if prior is None:
@@ -226,13 +233,13 @@ class ParameterMixture:
         cluster: torch.Tensor,
         acting: tuple[ParameterMixture, ...] = (),
     ) -> tuple[torch.Tensor, dist.MultivariateNormal, torch.Tensor, torch.Tensor]:
-        """The child as a linear function of the value, per row and cluster (arguments as
-        for :meth:`condition`): ``y = offset + W_p theta + e``, ``e ~ N(0, noise)``, with
-        the other inputs' and the other parameters' terms in ``offset`` and ``noise``.
-        Returns ``(W_p, offset, noise, y)``, ``y`` the child's observed value broadcast
-        like the others and ``offset`` a Gaussian whose mean is the offset, a pair where
-        the plain sum may round off (:meth:`LinearGaussianCPD.gaussian`; its residual
-        :func:`models.gaussian.residual_of`).
+        """The child as a linear function of the value, per row and cluster.
+
+        Arguments as for :meth:`condition`: ``y = offset + W_p theta + e``, ``e ~ N(0, noise)``,
+        with the other inputs' and the other parameters' terms in ``offset`` and ``noise``. Returns
+        ``(W_p, offset, noise, y)``, ``y`` the child's observed value broadcast like the others and
+        ``offset`` a Gaussian whose mean is the offset, a pair where the plain sum may round off
+        (:meth:`LinearGaussianCPD.gaussian`; its residual :func:`models.gaussian.residual_of`).
         """
         extra = cluster.dim() - 1  # trailing dims the row-wise values must broadcast over
 
@@ -278,9 +285,10 @@ class ParameterMixture:
         return Vindex(prior.bias)[cluster, :], Vindex(prior.covariance)[cluster, :, :]
 
     def _split(self, params, child, index, inputs, action):
-        """The child's Gaussian without the value (its mean the offset ``b + W_x x``, a
-        pair where it may round off) and its weights on the value (zero for actions not
-        using it), gathered at the parents.
+        """The child's Gaussian without the value and its weights on the value.
+
+        Its mean is the offset ``b + W_x x``, a pair where it may round off; the weights are zero
+        for actions not using the value; both gathered at the parents.
         """
         cpd = params[child.site]
         k = self.parameter.dim
@@ -293,8 +301,9 @@ class ParameterMixture:
     def shared_gaussian(
         self, params, child, index, inputs, action, known, belief
     ) -> dist.MultivariateNormal:
-        """Like :meth:`child_gaussian` for a value acting on several continuous sites:
-        where unknown, integrated out under ``belief`` (the value's Gaussian given the
+        """Like :meth:`child_gaussian` for a value acting on several continuous sites.
+
+        Where unknown, the value is integrated out under ``belief`` (the value's Gaussian given the
         cluster and the affected sites observed so far; ``None``: the cluster's own).
         """
         if belief is None:
@@ -312,8 +321,9 @@ class ParameterMixture:
     def update(
         self, params, child, index, inputs, action, y, belief
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """``belief`` (``None``: the cluster's Gaussian, gathered at the child's last
-        discrete parent) conditioned on the child's observed value ``y``.
+        """``belief`` conditioned on the child's observed value ``y``.
+
+        ``None``: the cluster's Gaussian, gathered at the child's last discrete parent.
         """
         if belief is None:
             belief = self.belief(params, index[-1])
@@ -329,8 +339,10 @@ class ParameterMixture:
         prior: tuple[torch.Tensor, torch.Tensor] | None = None,
         acting: tuple[ParameterMixture, ...] = (),
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """:meth:`condition` on each of ``children`` (observed continuous sites the value
-        acts on) in turn: the value's Gaussian given all of them.
+        """The value's Gaussian given all of ``children``.
+
+        :meth:`condition` on each of ``children`` (observed continuous sites the value acts on) in
+        turn.
         """
         for child in children:
             prior = self.condition(params, child, values, cluster, prior, acting)
@@ -344,14 +356,15 @@ class ParameterMixture:
         cluster: torch.Tensor,
         acting: tuple[ParameterMixture, ...] = (),
     ) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """The observed ``children`` stacked and whitened by their noise, per row and
-        cluster (arguments as for :meth:`posterior`): ``(A, b, log_norm)`` such that
-        ``|b - A theta|^2`` is their squared Mahalanobis distance from their prediction at
-        ``theta`` (``A = L^-1 W_p`` ``(..., D, k)``, ``b = L^-1 (y - offset)`` ``(..., D)``,
-        ``L`` each child's noise Cholesky factor) and ``log_norm`` ``(...)`` their
-        Gaussians' log-normaliser, ``-log det L - D/2 log 2 pi``. A child observed in some
-        dimensions only (NaN in the others) counts with its observed dimensions' marginal
-        (each unobserved dimension adds the constant ``-1/2 log 2 pi`` to ``log_norm``).
+        """The observed ``children`` stacked and whitened by their noise, per row and cluster.
+
+        Arguments as for :meth:`posterior`. Returns ``(A, b, log_norm)`` such that ``|b - A
+        theta|^2`` is their squared Mahalanobis distance from their prediction at ``theta`` (``A =
+        L^-1 W_p`` ``(..., D, k)``, ``b = L^-1 (y - offset)`` ``(..., D)``, ``L`` each child's noise
+        Cholesky factor) and ``log_norm`` ``(...)`` their Gaussians' log-normaliser, ``-log det L -
+        D/2 log 2 pi``. A child observed in some dimensions only (NaN in the others) counts with its
+        observed dimensions' marginal (each unobserved dimension adds the constant ``-1/2 log 2 pi``
+        to ``log_norm``).
         """
         slopes, targets, log_norm = [], [], 0.0
         for child in children:
@@ -379,15 +392,16 @@ class ParameterMixture:
     def best_fit(
         self, params: Mapping, whitened: tuple[torch.Tensor, ...], cluster: torch.Tensor
     ) -> tuple[torch.Tensor, torch.Tensor]:
-        """The value under which the observed children are most likely given the cluster,
-        from their :meth:`whitened` terms ``(A, b, _)``: the least-squares solution of
-        ``A theta = b``, i.e. of ``y_j = offset_j + W_j theta`` over the children, each
-        weighted by its inverse noise covariance. Where the children leave some directions
-        of ``theta`` free (fewer effect dims than parameter dims, or a zero weight), the
-        solution nearest the cluster's mean in the cluster's own metric (the minimum-norm
-        least-squares solution in the cluster's whitened coordinates). Returns the value ``(..., k)`` and
-        the children's squared Mahalanobis distance from their prediction at it, summed
-        ``(...)``: zero when the value produces the observed effect exactly.
+        """The value under which the observed children are most likely given the cluster.
+
+        From their :meth:`whitened` terms ``(A, b, _)``: the least-squares solution of ``A theta =
+        b``, i.e. of ``y_j = offset_j + W_j theta`` over the children, each weighted by its inverse
+        noise covariance. Where the children leave some directions of ``theta`` free (fewer effect
+        dims than parameter dims, or a zero weight), the solution nearest the cluster's mean in the
+        cluster's own metric (the minimum-norm least-squares solution in the cluster's whitened
+        coordinates). Returns the value ``(..., k)`` and the children's squared Mahalanobis distance
+        from their prediction at it, summed ``(...)``: zero when the value produces the observed
+        effect exactly.
         """
         slope, target = whitened[0], whitened[1]
         mean, cov = self.belief(params, cluster)
@@ -404,10 +418,11 @@ class ParameterMixture:
         return value[..., 0], miss
 
     def query_tables(self, params: Mapping, child: LinearGaussianCPD) -> dict[str, torch.Tensor]:
-        """Tables of the inverse query, per configuration of the child's parents: the
-        marginal's offset, inverse Cholesky factor (``whiten``) and log-normaliser, the
-        other inputs' weights, the conditioning gain and posterior covariance, the
-        cluster's log-prior given the action, the cluster means and the seen flags.
+        """Tables of the inverse query, per configuration of the child's parents.
+
+        The marginal's offset, inverse Cholesky factor (``whiten``) and log-normaliser, the other
+        inputs' weights, the conditioning gain and posterior covariance, the cluster's log-prior
+        given the action, the cluster means and the seen flags.
         """
         marginal = self.marginal(params, child)
         tril = marginal.scale_tril
@@ -442,8 +457,9 @@ class ParameterMixture:
         theta: torch.Tensor,
         weights: torch.Tensor | None = None,
     ):
-        """The two sites' statistics, over the rows whose action uses the parameter
-        (each counting its weight, default 1).
+        """The two sites' statistics, over the rows whose action uses the parameter.
+
+        Each row counts its weight, default 1.
         """
         uses = self.in_use(action)
         w = None if weights is None else weights[uses]
@@ -455,8 +471,9 @@ class ParameterMixture:
     def randomize(
         self, value: LinearGaussianParams, generator: torch.Generator
     ) -> LinearGaussianParams:
-        """Random cluster Gaussians, each inside its own cell as a fitted one is: mean in
-        the cell's middle half, standard deviation an eighth of the cell.
+        """Random cluster Gaussians, each inside its own cell as a fitted one is.
+
+        Mean in the cell's middle half, standard deviation an eighth of the cell.
         """
         p = self.parameter
         width = (torch.tensor(p.high, dtype=DTYPE) - torch.tensor(p.low, dtype=DTYPE)) / (
@@ -469,8 +486,9 @@ class ParameterMixture:
 
 
 def _conditioned(belief, w_p, offset: dist.MultivariateNormal, noise, y):
-    """:func:`models.gaussian.condition_linear_gaussian` of ``belief`` on ``y = offset +
-    W_p theta + e`` with the offset ``offset``'s mean: where that is a pair, on the exact
+    """Condition ``belief`` on ``y = offset + W_p theta + e`` with the offset ``offset``'s mean.
+
+    :func:`models.gaussian.condition_linear_gaussian`; where the offset is a pair, on the exact
     residual ``y - offset`` (and a zero offset).
     """
     if getattr(offset, "loc_low", None) is None:
@@ -488,12 +506,13 @@ def affected_gaussian(
     action: torch.Tensor,
     known: Mapping[str, torch.Tensor],
 ) -> dist.MultivariateNormal:
-    """A continuous feature's Gaussian given the parameters ``acting`` on it (their
-    values its last inputs, their clusters its last parents, in this order): each value
-    counts where it is ``known`` (rows, by parameter name) and is integrated out where
-    not: ``y ~ N(b + W_x x + sum_j W_j mu_j, R + sum_j W_j S_j W_j^T)`` over the unknown
-    ``j`` (independent given their clusters). Its mean is a pair where the plain sum may
-    round off (:meth:`LinearGaussianCPD.gaussian`).
+    """A continuous feature's Gaussian given the parameters ``acting`` on it.
+
+    Their values are its last inputs, their clusters its last parents, in this order. Each value
+    counts where it is ``known`` (rows, by parameter name) and is integrated out where not: ``y ~
+    N(b + W_x x + sum_j W_j mu_j, R + sum_j W_j S_j W_j^T)`` over the unknown ``j`` (independent
+    given their clusters). Its mean is a pair where the plain sum may round off
+    (:meth:`LinearGaussianCPD.gaussian`).
     """
     if len(acting) == 1:
         m = acting[0]

@@ -57,24 +57,28 @@ class SoftmaxCPD(CPD):
 
     @classmethod
     def refuses(cls, discrete: bool, width: int) -> str | None:
+        """A softmax needs continuous parents (:meth:`~models.CPD.refuses`)."""
         if not width:
             return "a softmax needs continuous parents (use 'table')"
         return super().refuses(discrete, width)
 
     def shapes(self) -> dict[str, tuple[int, ...]]:
+        """The shape of every tensor of a :class:`SoftmaxParams` (:meth:`~models.CPD.shapes`)."""
         card, k = self.card, self.size
         return {"weight": (*card, k, self.width), "bias": (*card, k), "n": card}
 
     def n_free(self, reachable: torch.Tensor | None = None) -> int:
-        """``(K - 1) (p + 1)`` per parent configuration: ``K`` slopes of ``p`` inputs and
-        ``K`` offsets, less one class's (adding one vector to every class's logits leaves
-        the softmax as it is).
+        """``(K - 1) (p + 1)`` per parent configuration.
+
+        ``K`` slopes of ``p`` inputs and ``K`` offsets, less one class's (adding one vector to every
+        class's logits leaves the softmax as it is).
         """
         return int(self.configurations(reachable).sum()) * (self.size - 1) * (self.width + 1)
 
     def initialize(
         self, generator: torch.Generator | None = None, unseen: float = 0.0
     ) -> SoftmaxParams:
+        """Zero slopes and offsets, or random parameters (:meth:`~models.CPD.initialize`)."""
         shapes = self.shapes()
         if generator is None:
             return SoftmaxParams(
@@ -86,6 +90,7 @@ class SoftmaxCPD(CPD):
         )
 
     def distribution(self, params: SoftmaxParams, index, x, cache) -> dist.Categorical:
+        """The site's categorical given its parents (:meth:`~models.CPD.distribution`)."""
         # The logits in log space per configuration: slopes and offsets taken relative to
         # their mean over the states (the same softmax), so that a slope all states share
         # cancels before it meets a large input, then shifted by their maximum, so that
@@ -98,9 +103,11 @@ class SoftmaxCPD(CPD):
         return dist.Categorical(logits=logits - torch.where(torch.isfinite(top), top, 0.0))
 
     def statistics(self, index: torch.Tensor, x, y: torch.Tensor, weights=None) -> Counts:
+        """Counts of the site's states per parent configuration (:meth:`~models.CPD.statistics`)."""
         return counts(index, y, self.card, self.size, weights)
 
     def m_step(self, stats: Counts, alpha: float, min_variance: float) -> SoftmaxParams:
+        """Newton's method on the penalised likelihood (:meth:`~models.CPD.m_step`)."""
         # the table's log-frequencies with zero slopes
         start = normalised(stats.counts, max(alpha, 1e-3))
         weight = torch.zeros(self.shapes()["weight"], dtype=DTYPE)
@@ -151,8 +158,9 @@ class SoftmaxCPD(CPD):
         chunk = max(1, CHUNK_ELEMENTS // (k * k * q * q))
 
         def objective(theta, rows):
-            """Per configuration, over ``rows`` (index, z, target): the objective and the
-            rows' log-probabilities.
+            """The objective and the rows' log-probabilities, per configuration.
+
+            Over ``rows`` (index, z, target).
             """
             i, zs, t = rows
             logp = torch.einsum("nkq,nq->nk", theta[i], zs).log_softmax(-1)  # (m, K)
@@ -250,12 +258,15 @@ class SoftmaxCPD(CPD):
         return SoftmaxFit(params, tuple(curve), converged, float(relative.max()))
 
     def free(self, params: SoftmaxParams) -> dict[str, torch.Tensor]:
+        """Slopes and offsets, unconstrained as they are (:meth:`~models.CPD.free`)."""
         return {"weight": params.weight, "bias": params.bias}
 
     def bound(self, free: dict[str, torch.Tensor], params: SoftmaxParams) -> SoftmaxParams:
+        """The parameters ``free`` stands for (:meth:`~models.CPD.bound`)."""
         return SoftmaxParams(free["weight"], free["bias"], params.n)
 
     def penalised(self, free: dict[str, torch.Tensor]) -> list[torch.Tensor]:
+        """The slopes carry the L2 prior (:meth:`~models.CPD.penalised`)."""
         return [free["weight"]]
 
 
@@ -272,10 +283,11 @@ CHUNK_ELEMENTS = 1 << 21
 
 @dataclass(frozen=True)
 class SoftmaxFit:
-    """What :meth:`SoftmaxCPD.maximise` returns: the parameters; the objective (the
-    penalised negative log-likelihood, summed over rows) at the start and after each
-    Newton iteration; whether every configuration converged; and the largest gradient
-    component relative to its configuration's row scale at the end.
+    """What :meth:`SoftmaxCPD.maximise` returns.
+
+    The parameters; the objective (the penalised negative log-likelihood, summed over rows) at the
+    start and after each Newton iteration; whether every configuration converged; and the largest
+    gradient component relative to its configuration's row scale at the end.
     """
 
     params: SoftmaxParams
@@ -285,9 +297,10 @@ class SoftmaxFit:
 
 
 def _solve(matrix: torch.Tensor, rhs: torch.Tensor) -> torch.Tensor:
-    """``matrix^-1 rhs`` for a batch of symmetric positive (semi)definite matrices: a
-    Cholesky factor, with a jitter on the diagonal where the curvature vanishes (classes
-    the data separate, inputs that do not vary).
+    """``matrix^-1 rhs`` for a batch of symmetric positive (semi)definite matrices.
+
+    A Cholesky factor, with a jitter on the diagonal where the curvature vanishes (classes the data
+    separate, inputs that do not vary).
     """
     jitter = 0.0
     size = matrix.diagonal(dim1=-2, dim2=-1).abs().mean(-1, keepdim=True).clamp_min(1e-300)

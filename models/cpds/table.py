@@ -48,6 +48,7 @@ class Counts:
         return Counts(self.counts + other.counts)
 
     def add_(self, other: Counts) -> None:
+        """Add ``other``'s counts to these, in place."""
         self.counts.add_(other.counts)
 
 
@@ -69,11 +70,13 @@ class TableCPD(CPD):
 
     @classmethod
     def refuses(cls, discrete: bool, width: int) -> str | None:
+        """A table has no continuous parents (:meth:`~models.CPD.refuses`)."""
         if width:
             return "a table has no continuous parents (use 'softmax')"
         return super().refuses(discrete, width)
 
     def shapes(self) -> dict[str, tuple[int, ...]]:
+        """The shape of every tensor of a :class:`TableParams` (:meth:`~models.CPD.shapes`)."""
         return {"probs": (*self.card, self.size), "n": self.card}
 
     def pin(self, probs: torch.Tensor) -> torch.Tensor:
@@ -85,9 +88,10 @@ class TableCPD(CPD):
         return torch.where(self.pinned[..., None], fixed, probs)
 
     def pin_logs(self, logs: torch.Tensor) -> torch.Tensor:
-        """``logs`` with the pinned configurations exactly on state 0: log-probability 0
-        there and ``-inf`` elsewhere. (A zero probability's log is otherwise clamped to
-        ``log(eps)``, about -36, which would let a pinned configuration's other states
+        """``logs`` with the pinned configurations exactly on state 0.
+
+        Log-probability 0 there and ``-inf`` elsewhere. (A zero probability's log is otherwise
+        clamped to ``log(eps)``, about -36, which would let a pinned configuration's other states
         into every sum over them.)
         """
         if self.pinned is None:
@@ -106,6 +110,7 @@ class TableCPD(CPD):
     def initialize(
         self, generator: torch.Generator | None = None, unseen: float = 0.0
     ) -> TableParams:
+        """Uniform tables, or random ones (:meth:`~models.CPD.initialize`)."""
         shape = self.shapes()["probs"]
         if generator is None:
             probs = torch.full(shape, 1.0 / self.size, dtype=DTYPE)
@@ -139,29 +144,35 @@ class TableCPD(CPD):
         return logs
 
     def distribution(self, params: TableParams, index, x, cache) -> dist.TorchDistribution:
+        """The site's categorical given its parents (:meth:`~models.CPD.distribution`)."""
         logs = self.log_table(params, cache)
         if not index:
             return dist.Categorical(logits=logs)
         return GatheredCategorical(logs, tuple(index))
 
     def statistics(self, index: torch.Tensor, x, y: torch.Tensor, weights=None) -> Counts:
+        """Counts of the site's states per parent configuration (:meth:`~models.CPD.statistics`)."""
         return counts(index, y, self.card, self.size, weights)
 
     def m_step(self, stats: Counts, alpha: float, min_variance: float) -> TableParams:
+        """Normalised counts, pinned configurations kept on state 0 (:meth:`~models.CPD.m_step`)."""
         table = normalised(stats.counts, alpha)
         return TableParams(self.pin(table.probs), table.n) if self.pinned is not None else table
 
     def free(self, params: TableParams) -> dict[str, torch.Tensor]:
+        """The tables' log-probabilities (:meth:`~models.CPD.free`)."""
         return {"logits": params.probs.clamp_min(1e-12).log()}
 
     def bound(self, free: dict[str, torch.Tensor], params: TableParams) -> TableParams:
+        """The tables ``free`` stands for, its softmax (:meth:`~models.CPD.bound`)."""
         return TableParams(self.pin(free["logits"].softmax(-1)), params.n)
 
 
 def _logits(probs: torch.Tensor) -> torch.Tensor:
-    """``probs_to_logits`` of the normalised ``probs`` (clamped to ``[eps, 1 - eps]``,
-    then log) in one new tensor: the same values, without a temporary per step (a large
-    table's log is taken once per fit).
+    """``probs_to_logits`` of the normalised ``probs`` in one new tensor.
+
+    ``probs`` clamped to ``[eps, 1 - eps]``, then log: the same values, without a temporary per step
+    (a large table's log is taken once per fit).
     """
     eps = torch.finfo(probs.dtype).eps
     logs = probs / probs.sum(-1, keepdim=True)
@@ -191,21 +202,26 @@ class GatheredCategorical(dist.TorchDistribution):
 
     @property
     def support(self):
+        """The states ``0`` to ``K - 1``."""
         return dist.constraints.integer_interval(0, self.logs.shape[-1] - 1)
 
     @property
     def logits(self) -> torch.Tensor:
+        """``(..., K)``: each row's log-probabilities, gathered."""
         rows = Vindex(self.logs)[(*self.index, slice(None))]
         return rows.expand(*self.batch_shape, rows.shape[-1])
 
     @property
     def probs(self) -> torch.Tensor:
+        """``(..., K)``: each row's probabilities, gathered."""
         return self.logits.exp()
 
     def expand(self, batch_shape, _instance=None):
+        """The same tables, gathered for ``batch_shape``."""
         return GatheredCategorical(self.logs, self.index, batch_shape)
 
     def log_prob(self, value: torch.Tensor) -> torch.Tensor:
+        """Each row's log-probability of its state ``value``, gathered for that state only."""
         value = value.long()
         k = self.logs.shape[-1]
         if value.numel() and (int(value.min()) < 0 or int(value.max()) >= k):
@@ -215,17 +231,21 @@ class GatheredCategorical(dist.TorchDistribution):
         return lp.expand(broadcast_shapes(lp.shape, self.batch_shape))
 
     def sample(self, sample_shape: tuple[int, ...] = ()) -> torch.Tensor:
+        """Forward draws of ``sample_shape`` from the gathered rows."""
         return dist.Categorical(logits=self.logits).sample(torch.Size(sample_shape))
 
     def enumerate_support(self, expand: bool = True) -> torch.Tensor:
+        """Every state, shaped to broadcast over the batch (expanded to it if ``expand``)."""
         k = self.logs.shape[-1]
         values = torch.arange(k).reshape((k,) + (1,) * len(self.batch_shape))
         return values.expand((k, *self.batch_shape)) if expand else values
 
 
 def broadcast_shapes(*shapes: tuple[int, ...]) -> torch.Size:
-    """``torch.broadcast_shapes`` of concrete shapes, in plain Python: torch's own checks
-    symbolic sizes too and costs tens of microseconds, paid per site of every trace.
+    """``torch.broadcast_shapes`` of concrete shapes, in plain Python.
+
+    torch's own checks symbolic sizes too and costs tens of microseconds, paid per site of every
+    trace.
     """
     out = [1] * max((len(s) for s in shapes), default=0)
     for shape in shapes:
@@ -295,9 +315,10 @@ _ROWS_FIRST: WeakIdKeyDictionary = WeakIdKeyDictionary()
 
 
 def _rows_first(table: torch.Tensor, rows: tuple[int, ...], kept: tuple[int, ...]) -> torch.Tensor:
-    """``table`` with the axes ``rows`` first, merged, and the axes ``kept`` flattened
-    behind them, contiguous: ``(prod(rows), rest)``. Kept per table (a cached log table
-    is gathered this way on every query of one evidence pattern).
+    """``table`` as ``(prod(rows), rest)``, contiguous.
+
+    The axes ``rows`` first, merged, and the axes ``kept`` flattened behind them. Kept per table (a
+    cached log table is gathered this way on every query of one evidence pattern).
     """
     per_table = _ROWS_FIRST.setdefault(table, {})
     key = (rows, kept)
@@ -324,8 +345,9 @@ def counts(
     k: int,
     weights: torch.Tensor | None = None,
 ) -> Counts:
-    """Counts of ``child`` states per flattened parent configuration ``index`` (each row
-    counting its weight, default 1).
+    """Counts of ``child`` states per flattened parent configuration ``index``.
+
+    Each row counts its weight, default 1.
     """
     size = math.prod(card)
     flat = child if not card else torch.add(child, index, alpha=k)  # no parents: index 0
