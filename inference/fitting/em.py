@@ -187,8 +187,10 @@ def em_step(
     pseudo_count: float = 0.01,
     min_variance: float = 1e-9,
 ) -> NetworkParams:
-    """One EM step from ``params``: responsibilities under ``params``, then the weighted
-    closed-form refit of every adaptive mixture's sites (the others are kept).
+    """One EM step from ``params``.
+
+    Responsibilities under ``params``, then the weighted closed-form refit of every adaptive
+    mixture's sites (the others are kept).
     """
     check_settings(pseudo_count=pseudo_count, min_variance=min_variance)
     mixtures = _adaptive(net)
@@ -201,8 +203,9 @@ def em_step(
 def responsibilities(
     net: EffectNetwork, params: NetworkParams, data: Mapping[str, object]
 ) -> dict[str, torch.Tensor]:
-    """Each adaptive parameter's cluster posterior per row, ``(n, C)``, given the row's
-    value and the features it acts on (keyed by parameter name).
+    """Each adaptive parameter's cluster posterior per row, ``(n, C)``.
+
+    Given the row's value and the features it acts on (keyed by parameter name).
     """
     mixtures = _adaptive(net)
     check_params(net, params)
@@ -312,8 +315,9 @@ def _e_step(net, params, enc, mixtures, buffers=None) -> tuple[list[torch.Tensor
 
 
 def _group(enc: Evidence, cpd) -> torch.Tensor:
-    """``(n,)`` row-major index of each row's configuration of the CPD's parents but the
-    last (the cluster).
+    """``(n,)`` row-major index of each row's configuration of the CPD's parents but the last.
+
+    The last parent is the cluster.
     """
     group = torch.zeros(enc.n_rows, dtype=torch.long)
     for s, k in zip(cpd.parents[:-1], cpd.card[:-1], strict=True):
@@ -322,8 +326,9 @@ def _group(enc: Evidence, cpd) -> torch.Tensor:
 
 
 def _log_density(cpd, params, group, x, y, out=None, add=False) -> torch.Tensor:
-    """``(C, n)``: the CPD's log-density of each row's ``y`` given its parents, with the
-    last parent (the cluster) set to each of its ``C`` states in turn.
+    """``(C, n)``: the CPD's log-density of each row's ``y`` given its parents.
+
+    The last parent (the cluster) is set to each of its ``C`` states in turn.
 
     A linear Gaussian's log-density is a quadratic form in ``z = [y, x]``: with the
     whitened residual ``L^-1 (y - W x - b) = M z - s``, ``|M z - s|^2 = z^T M^T M z -
@@ -382,8 +387,9 @@ def _log_density(cpd, params, group, x, y, out=None, add=False) -> torch.Tensor:
 
 
 def _configurations(group: torch.Tensor):
-    """``(g, rows)`` per parent configuration present: a slice of all rows when there
-    is one (no copies), else a mask.
+    """``(g, rows)`` per parent configuration present.
+
+    A slice of all rows when there is one (no copies), else a mask.
     """
     present = torch.unique(group).tolist()
     if len(present) == 1:
@@ -394,8 +400,9 @@ def _configurations(group: torch.Tensor):
 
 
 def _weighted_sums(group: torch.Tensor, resp: torch.Tensor, rows: torch.Tensor, groups: int):
-    """``out[g * C + c] = sum_{i: group_i = g} resp[c, i] * rows[i]`` for rows ``(n, ...)``:
-    one matrix product per parent configuration present.
+    """``out[g * C + c] = sum_{i: group_i = g} resp[c, i] * rows[i]`` for rows ``(n, ...)``.
+
+    One matrix product per parent configuration present.
     """
     c = resp.shape[0]
     flat = rows.reshape(rows.shape[0], -1)
@@ -440,8 +447,9 @@ def _m_step(net, params, enc, mixtures, resp, alpha, min_variance) -> NetworkPar
 
 
 def _moments(group, r, x, y, groups) -> Moments:
-    """A linear Gaussian's statistics with fractional rows: ``r`` ``(C, n)`` weights (one
-    weighted sum of every product at once).
+    """A linear Gaussian's statistics with fractional rows.
+
+    ``r`` ``(C, n)`` weights (one weighted sum of every product at once).
     """
     n, d = y.shape
     z = torch.cat([x, torch.ones(n, 1, dtype=DTYPE)], -1) if x is not None else None

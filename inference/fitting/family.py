@@ -62,11 +62,12 @@ ABSENT = -600.0
 
 @dataclass(frozen=True)
 class Family:
-    """One end site with one parent set, scored: ``parents`` the chosen parents (the
-    parameter sites excluded), ``loglik`` at the maximum-likelihood parameters, ``free``
-    the free parameters, ``score`` the requested score. ``degenerate``: a linear
-    Gaussian with a configuration of fewer rows than its mean's numbers plus its
-    dimension, which it fits exactly: the fit's covariance there is the floor
+    """One end site with one parent set, scored.
+
+    ``parents`` the chosen parents (the parameter sites excluded), ``loglik`` at the
+    maximum-likelihood parameters, ``free`` the free parameters, ``score`` the requested score.
+    ``degenerate``: a linear Gaussian with a configuration of fewer rows than its mean's numbers
+    plus its dimension, which it fits exactly: the fit's covariance there is the floor
     ``min_variance``, and its likelihood grows without bound as the floor falls.
     """
 
@@ -154,16 +155,18 @@ class Families:
 
     # ------------------------------------------------------------------ the family's shape
     def fixed_parents(self, site: str) -> tuple[tuple[str, ...], tuple[str, ...]]:
-        """The discrete and continuous parents every family of ``site`` has: the
-        clusters (and, for a continuous site, the values) of the parameters acting on it.
+        """The discrete and continuous parents every family of ``site`` has.
+
+        The clusters (and, for a continuous site, the values) of the parameters acting on it.
         """
         acting = [m for m in self.net.mixtures if site in m.affected]
         values = () if self.specs[site].discrete else tuple(m.value.site for m in acting)
         return tuple(m.cluster.site for m in acting), values
 
     def layout(self, site: str, parents: Iterable[str]):
-        """``(discrete parents, their cardinalities, continuous inputs, width)`` of the
-        family, in the order :func:`models.structure.build_cpds` gives them.
+        """``(discrete parents, their cardinalities, continuous inputs, width)`` of the family.
+
+        In the order :func:`models.structure.build_cpds` gives them.
         """
         chosen = set(parents)
         ordered = [q for q in self.specs if q in chosen]
@@ -182,8 +185,10 @@ class Families:
         return groups * (size + size * width + size * size + 1)
 
     def admissible(self, site: str, parents: Iterable[str]) -> bool:
-        """Whether the family can be fitted: at most as many parent configurations as
-        rows, and at most :data:`~models.structure.MAX_CPD_ENTRIES` numbers.
+        """Whether the family can be fitted.
+
+        At most as many parent configurations as rows, and at most
+        :data:`~models.structure.MAX_CPD_ENTRIES` numbers.
         """
         _, card, _, _ = self.layout(site, parents)
         return math.prod(card) <= self.n and self.entries(site, parents) <= MAX_CPD_ENTRIES
@@ -268,8 +273,9 @@ class Families:
         return index
 
     def _reachable(self, site: str, discrete: tuple[str, ...], card: tuple[int, ...]):
-        """``(P...)`` bool: the configurations an action's use of each acting parameter
-        allows (an action not using ``p`` puts ``cluster.p`` on cell 0).
+        """``(P...)`` bool: the configurations an action's use of each acting parameter allows.
+
+        An action not using ``p`` puts ``cluster.p`` on cell 0.
         """
         reachable = torch.ones(card, dtype=torch.bool)
         for m in self.net.mixtures:
@@ -313,9 +319,11 @@ def _bdeu(counts: torch.Tensor, ess: float) -> float:
 
 
 def _pooled_where(params, short, index, x, y, min_variance: float) -> LinearGaussianParams:
-    """``params`` with the covariance of the configurations ``short`` (``(G,)`` bool)
-    replaced by the residual covariance pooled over the rows of the others (of all rows
-    around their mean where every configuration is short), floored at ``min_variance``.
+    """``params`` with the covariance of the configurations ``short`` replaced by a pooled one.
+
+    ``short`` is ``(G,)`` bool; the pooled covariance is the residual covariance over the rows of
+    the others (of all rows around their mean where every configuration is short), floored at
+    ``min_variance``.
     """
     d = y.shape[-1]
     groups = short.shape[0]
@@ -333,9 +341,10 @@ def _pooled_where(params, short, index, x, y, min_variance: float) -> LinearGaus
 
 
 def _gaussian_loglik(params, index: torch.Tensor, x: torch.Tensor | None, y: torch.Tensor):
-    """The rows' log-likelihood under a linear Gaussian, row by row as the model's
-    density reads it: ``-1/2 [d log 2 pi + log|S_g| + r^T S_g^-1 r]`` with ``r`` the
-    row's residual in its configuration ``g``.
+    """The rows' log-likelihood under a linear Gaussian, row by row as the model's density reads it.
+
+    ``-1/2 [d log 2 pi + log|S_g| + r^T S_g^-1 r]`` with ``r`` the row's residual in its
+    configuration ``g``.
     """
     d = y.shape[-1]
     groups = params.bias.numel() // d
@@ -359,8 +368,9 @@ def family_scores(
     steps: int = 500,
     ess: float = 1.0,
 ) -> dict[str, float]:
-    """The score of every end site's family in ``net``: the site given its declared
-    parents (see the module).
+    """The score of every end site's family in ``net``.
+
+    The site given its declared parents (see the module).
 
     Parameters
     ----------

@@ -47,9 +47,9 @@ __all__ = [
 
 
 def continuous_sites(net: EffectNetwork, parameters: bool = False) -> dict[str, slice]:
-    """The continuous initial and end sites (and with ``parameters`` the parameters'
-    values) in the network's order, each with its dimensions' slice of the joint
-    vector.
+    """The continuous initial and end sites, each with its dimensions' slice of the joint vector.
+
+    With ``parameters`` the parameters' values too; in the network's order.
     """
     roles = ("initial", "end", "param") if parameters else ("initial", "end")
     out, start = {}, 0
@@ -68,9 +68,10 @@ def continuous_gaps(net: EffectNetwork, enc: Evidence) -> dict[str, torch.Tensor
 
 
 def refuse_open_forms(net: EffectNetwork, enc: Evidence, gaps: dict[str, torch.Tensor]) -> None:
-    """Refuse what has no closed-form E-step or M-step: a kind with neither a closed form
-    nor a ``maximise`` method, a continuous site of a kind other than the linear
-    Gaussian, or a discrete site whose continuous parent misses a value.
+    """Refuse what has no closed-form E-step or M-step.
+
+    A kind with neither a closed form nor a ``maximise`` method, a continuous site of a kind other
+    than the linear Gaussian, or a discrete site whose continuous parent misses a value.
     """
     if not gaps:
         return
@@ -110,8 +111,9 @@ def refuse_open_forms(net: EffectNetwork, enc: Evidence, gaps: dict[str, torch.T
 def joint_gaussian(
     net: EffectNetwork, params: NetworkParams, rows: Evidence, parameters: bool = False
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """The joint Gaussian of the continuous initial and end sites of each row given its
-    discrete values (every one given) and its parameters' values: mean ``(n, D)`` and
+    """The joint Gaussian of the continuous initial and end sites of each row.
+
+    Given its discrete values (every one given) and its parameters' values: mean ``(n, D)`` and
     covariance ``(n, D, D)``, the sites' dimensions in :func:`continuous_sites` order.
 
     With ``parameters``, the parameters' values are part of the joint (each its
@@ -201,10 +203,11 @@ def condition(
 def covariance_moments(
     net: EffectNetwork, rows: Evidence, cov: torch.Tensor, weights: torch.Tensor
 ) -> dict[str, Moments]:
-    """Per continuous initial or end site, the weighted sums of the conditional
-    covariance of its ``z = [x, 1]`` and ``y`` (``cov`` ``(n, D, D)`` over the joint
-    vector, zero where observed): what the expected sums add to those of the row with
-    its missing values at their conditional means.
+    """Per continuous initial or end site, the weighted sums of the conditional covariance.
+
+    Of its ``z = [x, 1]`` and ``y`` (``cov`` ``(n, D, D)`` over the joint vector, zero where
+    observed): what the expected sums add to those of the row with its missing values at their
+    conditional means.
     """
     layout = continuous_sites(net)
     dim = cov.shape[-1]

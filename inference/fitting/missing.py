@@ -158,9 +158,10 @@ def available_case_start(
     pseudo_count: float,
     min_variance: float,
 ) -> NetworkParams:
-    """EM's start: each CPD's closed form on the rows that give its site and every
-    parent (available cases), so that a start exists wherever each CPD has such rows,
-    even when no row gives every value.
+    """EM's start: each CPD's closed form on the rows that give its site and every parent.
+
+    These are the available cases, so that a start exists wherever each CPD has such rows, even when
+    no row gives every value.
 
     Raises
     ------
@@ -208,8 +209,9 @@ def missing_log_likelihood(
     data: Mapping[str, object],
     masks: Mapping[str, torch.Tensor] | None = None,
 ) -> float:
-    """The summed log-likelihood of training rows with missing values, those values
-    summed and integrated out: what :func:`fit_missing` raises.
+    """The summed log-likelihood of training rows with missing values.
+
+    Those values summed and integrated out: what :func:`fit_missing` raises.
 
     Missing values are marked as :func:`inference.fit` reads them: in the rows (None or
     NaN for a discrete label, NaN for a continuous value or some of its dimensions) or
@@ -225,10 +227,12 @@ def missing_log_likelihood(
 def gaussian_row_log_likelihoods(
     net: EffectNetwork, params: NetworkParams, enc: Evidence, masks: Mapping[str, torch.Tensor]
 ) -> torch.Tensor:
-    """``(n,)`` each row's log-likelihood, its missing discrete values summed out and its
-    missing continuous ones integrated out: the terms of :func:`missing_log_likelihood`,
-    by the closed-form Gaussian path (every continuous initial and end site a linear
-    Gaussian, checked by :func:`~inference.fitting.gaussian_gaps.refuse_open_forms`).
+    """``(n,)`` each row's log-likelihood, its missing values summed or integrated out.
+
+    Its missing discrete values summed out and its missing continuous ones integrated out: the terms
+    of :func:`missing_log_likelihood`, by the closed-form Gaussian path (every continuous initial
+    and end site a linear Gaussian, checked by
+    :func:`~inference.fitting.gaussian_gaps.refuse_open_forms`).
 
     ``enc``: checked rows (:func:`inference.fitting.rows.rows_with_gaps`), NaN where a
     continuous value is missing, an adaptive parameter's cluster left out where the rows
@@ -241,11 +245,12 @@ def gaussian_row_log_likelihoods(
 
 
 def actions_allowed(net: EffectNetwork, enc: Evidence, masks) -> torch.Tensor | None:
-    """``(A, n)`` bool, where the action is missing in a network with parameters: the
-    actions that agree with the row's parameter values. A training row gives a
-    parameter's value exactly when its action uses the parameter (:func:`inference.fit`
-    checks it where the action is given), so where the action is missing the presence
-    of each value is evidence of it. ``None`` where there is nothing to restrict.
+    """The actions that agree with each row's parameter values, where the action is missing.
+
+    ``(A, n)`` bool, in a network with parameters. A training row gives a parameter's value exactly
+    when its action uses the parameter (:func:`inference.fit` checks it where the action is given),
+    so where the action is missing the presence of each value is evidence of it. ``None`` where
+    there is nothing to restrict.
     """
     if ACTION not in masks or not net.mixtures:
         return None
@@ -268,13 +273,14 @@ def actions_allowed(net: EffectNetwork, enc: Evidence, masks) -> torch.Tensor | 
 
 
 def _completed_rows(net, params, enc, masks, allowed=None) -> Completed:
-    """The E-step: every row once per assignment of its missing values that has posterior
-    weight, with that weight, and the summed log-likelihood (missing values summed out).
-    ``allowed`` (:func:`actions_allowed`) restricts a missing action; the parameters'
-    clusters then follow each assignment's action (the cell of the value, or cell 0).
-    Rows go through the model in chunks whose joint posterior stays below
-    :data:`inference.queries.enumeration.CHUNK_ELEMENTS`. Where a continuous value is
-    missing (NaN), :func:`_completed_gaussian` serves instead.
+    """The E-step: every row once per assignment of its missing values, with its weight.
+
+    Every assignment that has posterior weight, with that weight, and the summed log-likelihood
+    (missing values summed out). ``allowed`` (:func:`actions_allowed`) restricts a missing action;
+    the parameters' clusters then follow each assignment's action (the cell of the value, or cell
+    0). Rows go through the model in chunks whose joint posterior stays below
+    :data:`inference.queries.enumeration.CHUNK_ELEMENTS`. Where a continuous value is missing (NaN),
+    :func:`_completed_gaussian` serves instead.
     """
     gaps = continuous_gaps(net, enc)
     if gaps:
@@ -316,10 +322,11 @@ def _completed_rows(net, params, enc, masks, allowed=None) -> Completed:
 
 @dataclass(frozen=True)
 class Completed:
-    """An E-step's result: the completed rows, their weights, the summed log-likelihood
-    (missing values summed out), the conditional covariances' sums per linear Gaussian
-    where continuous values are missing (:mod:`inference.fitting.gaussian_gaps`), and
-    there each row's log-likelihood ``(n,)``.
+    """An E-step's result.
+
+    The completed rows, their weights, the summed log-likelihood (missing values summed out), the
+    conditional covariances' sums per linear Gaussian where continuous values are missing
+    (:mod:`inference.fitting.gaussian_gaps`), and there each row's log-likelihood ``(n,)``.
     """
 
     rows: Evidence
@@ -417,8 +424,9 @@ def _completed_gaussian(net, params, enc, masks, allowed, posterior=True) -> Com
 
 
 def _restrict_actions(net, enumerated: Enumerated, allowed: torch.Tensor) -> Enumerated:
-    """``enumerated`` with the actions that disagree with a row's parameter values
-    impossible (``allowed`` ``(A, n)``).
+    """``enumerated`` with the actions that disagree with a row's parameter values impossible.
+
+    ``allowed`` ``(A, n)``.
     """
     dim = enumerated.dims[ACTION]
     agree = allowed.reshape(len(net.actions), *([1] * (-dim - 2)), -1)
@@ -427,8 +435,9 @@ def _restrict_actions(net, enumerated: Enumerated, allowed: torch.Tensor) -> Enu
 
 
 def _assigned(net, dims, shape, sites, assignment) -> dict[str, torch.Tensor]:
-    """The state of each of ``sites`` (enumerated at ``dims``) in each flat
-    ``assignment`` of a joint of ``shape``.
+    """The state of each of ``sites`` in each flat ``assignment`` of a joint of ``shape``.
+
+    ``sites`` are enumerated at ``dims``.
     """
     values = {}
     for site in sites:
@@ -441,8 +450,9 @@ def _assigned(net, dims, shape, sites, assignment) -> dict[str, torch.Tensor]:
 
 
 def _with_cells(net, completed: Evidence) -> Evidence:
-    """The completed rows with each grid parameter's cluster its value's cell under the
-    row's (completed) action (an adaptive one's is enumerated with the rest).
+    """The completed rows with each grid parameter's cluster its value's cell.
+
+    Its cell under the row's (completed) action; an adaptive one's is enumerated with the rest.
     """
     cells = {
         m.cluster.site: m.cells(completed[m.value.site], completed[ACTION])
@@ -465,8 +475,10 @@ M_STEP_ITERATIONS = 100
 
 
 def _m_step_missing(net, params, completed: Completed, alpha, min_variance, l2) -> NetworkParams:
-    """Every CPD refitted on the weighted completed rows: the closed form on their
-    expected sums, and Newton's method from the current parameters where there is none.
+    """Every CPD refitted on the weighted completed rows.
+
+    The closed form on their expected sums, and Newton's method from the current parameters where
+    there is none.
     """
     rows, weights = completed.rows, completed.weights
     stats = statistics(net, rows, weights)
@@ -485,8 +497,9 @@ def _m_step_missing(net, params, completed: Completed, alpha, min_variance, l2) 
 
 
 def _prior(net: EffectNetwork, params: NetworkParams, l2: float) -> float:
-    """The negative log of the Gaussian prior on the penalised tensors (the softmax
-    slopes; its constant left out), as :func:`inference.fit_gradient` adds it.
+    """The negative log of the Gaussian prior on the penalised tensors.
+
+    The softmax slopes; its constant left out, as :func:`inference.fit_gradient` adds it.
     """
     total = 0.0
     for spec in net.sites:

@@ -46,9 +46,10 @@ __all__ = ["fit_pooled", "grid_kernel"]
 
 
 def grid_kernel(grid_shape: tuple[int, int], sigma: float) -> torch.Tensor:
-    """``(A, A)`` Gaussian weights ``exp(-d^2 / (2 sigma^2))`` between the cells of a
-    ``(rows, columns)`` grid in row-major order (``A = rows * columns``, ``d`` the distance
-    in cells); ``sigma = 0`` gives the identity (no pooling).
+    """``(A, A)`` Gaussian weights ``exp(-d^2 / (2 sigma^2))`` between the cells of a grid.
+
+    A ``(rows, columns)`` grid in row-major order (``A = rows * columns``, ``d`` the distance in
+    cells); ``sigma = 0`` gives the identity (no pooling).
     """
     if len(grid_shape) != 2 or not all(
         isinstance(k, int) and not isinstance(k, bool) and k >= 1 for k in grid_shape
@@ -76,8 +77,9 @@ def fit_pooled(
     progress: bool = False,
     sites: Iterable[str] | None = None,
 ) -> FitResult:
-    """Fit ``net`` like :func:`inference.fit`, with the end sites' table rows given a prior
-    from the plays of similar actions (see the module).
+    """Fit ``net`` like :func:`inference.fit`, end tables pooled over similar actions.
+
+    The end sites' table rows are given a prior from the plays of similar actions (see the module).
 
     Parameters
     ----------
@@ -148,8 +150,9 @@ def fit_pooled(
 
 
 def _pooled(counts, off, strength, alpha, axis) -> TableParams:
-    """The pooled table of ``counts`` ``(..., A, K)`` (action axis moved next to last),
-    returned with the action axis back at ``axis``.
+    """The pooled table of ``counts`` ``(..., A, K)``.
+
+    The action axis is moved next to last, and back at ``axis`` in what is returned.
 
     A configuration of the other parents that no row reached (most of them, in a large
     table) has no counts and no neighbours' counts: its rows are computed once and
@@ -175,8 +178,9 @@ def _pooled(counts, off, strength, alpha, axis) -> TableParams:
 
 
 def _pooled_rows(counts, neighbours, strength, alpha) -> tuple[torch.Tensor, torch.Tensor]:
-    """The pooled rows ``(g, A, K)`` and their evidence counts ``(g, A)`` of ``counts``
-    given the neighbours' weighted counts.
+    """The pooled rows ``(g, A, K)`` and their evidence counts ``(g, A)`` of ``counts``.
+
+    Given the neighbours' weighted counts.
     """
     k = counts.shape[-1]
     weight = neighbours.sum(-1, keepdim=True)

@@ -11,12 +11,13 @@ __all__ = ["ConvergenceWarning", "FitResult"]
 
 @dataclass(frozen=True)
 class FitResult:
-    """What fitting returns: new parameters; for an iterative fit the loss curve (the
-    per-row negative log-likelihood, the softmax prior included: at each Newton
-    iteration, EM step or gradient evaluation) and whether it settled within the
-    tolerance. EM over missing values also gives ``log_likelihoods``: the summed
-    log-likelihood of the rows (missing values summed and integrated out, no prior) at
-    the start and after each step, never falling.
+    """What fitting returns.
+
+    New parameters; for an iterative fit the loss curve (the per-row negative log-likelihood, the
+    softmax prior included: at each Newton iteration, EM step or gradient evaluation) and whether it
+    settled within the tolerance. EM over missing values also gives ``log_likelihoods``: the summed
+    log-likelihood of the rows (missing values summed and integrated out, no prior) at the start and
+    after each step, never falling.
     """
 
     params: NetworkParams

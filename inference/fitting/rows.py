@@ -107,8 +107,9 @@ def refuse_adaptive(net: EffectNetwork, name: str) -> None:
 def training_rows(
     net: EffectNetwork, data: Mapping[str, object], unknown_action: torch.Tensor | None = None
 ) -> Evidence:
-    """Encode training rows, check them, and add each parameter's cluster where the rows
-    do not give it (its value's cell).
+    """Encode training rows, check them, and add each parameter's cluster.
+
+    The cluster is added where the rows do not give it (its value's cell).
 
     Parameters
     ----------
@@ -473,8 +474,7 @@ def split_missing(
 
 
 def with_gaps(enc: Evidence, gaps: Mapping[str, torch.Tensor]) -> Evidence:
-    """The encoded rows with NaN where :func:`split_missing` found a continuous value missing.
-    """
+    """The encoded rows with NaN where :func:`split_missing` found a continuous value missing."""
     if not gaps:
         return enc
     values = dict(enc.items())
@@ -490,8 +490,9 @@ def labels_of(net: EffectNetwork, site: str) -> tuple:
 
 
 def _missing_labels(values: object, none_is_a_state: bool) -> np.ndarray | None:
-    """``(n,)`` bool, True where a discrete value is missing (None or NaN), or ``None``
-    where the values cannot hold a missing one (integers, strings, booleans).
+    """``(n,)`` bool, True where a discrete value is missing (None or NaN).
+
+    ``None`` where the values cannot hold a missing one (integers, strings, booleans).
     """
     if isinstance(values, str | bytes):
         return None

@@ -218,7 +218,8 @@ def bic(
     *,
     masks: Mapping[str, object] | None = None,
 ) -> float:
-    """``-2 L + k ln n`` (lower is better) of the rows (see :func:`log_likelihood`);
+    """``-2 L + k ln n`` (lower is better) of the rows (see :func:`log_likelihood`).
+
     pgmpy's ``BIC`` score is ``-bic / 2`` (:attr:`LogLikelihood.bic_score`).
     """
     return log_likelihood(net, params, data, masks=masks).bic
@@ -349,8 +350,10 @@ def cross_validate(
 
 
 def fold_of_rows(n: int, folds: int, seed: int) -> torch.Tensor:
-    """``(n,)`` long: each row's fold, the rows shuffled with ``seed`` and cut into
-    ``folds`` parts whose sizes differ by at most one.
+    """``(n,)`` long: each row's fold.
+
+    The rows are shuffled with ``seed`` and cut into ``folds`` parts whose sizes differ by at most
+    one.
     """
     for name, value, low, high in (("folds", folds, 2, n), ("seed", seed, 0, None)):
         ok = isinstance(value, int | np.integer) and not isinstance(value, bool)
@@ -365,8 +368,9 @@ def fold_of_rows(n: int, folds: int, seed: int) -> torch.Tensor:
 
 
 def take_rows(data: Mapping[str, object], index: torch.Tensor) -> Mapping[str, object]:
-    """The rows ``index`` ``(m,)`` long of rows given by site (labels in lists, arrays or
-    tensors; :class:`~models.evidence.Evidence`).
+    """The rows ``index`` ``(m,)`` long of rows given by site.
+
+    Labels in lists, arrays or tensors; :class:`~models.evidence.Evidence`.
     """
     if isinstance(data, Evidence):
         return data.rows(index)
@@ -393,9 +397,10 @@ def _take_masks(masks: Mapping[str, object] | None, index: torch.Tensor):
 def _scored_rows(
     net: EffectNetwork, data: Mapping[str, object], masks: Mapping[str, object] | None
 ) -> tuple[Evidence, dict[str, torch.Tensor], tuple[str, ...]]:
-    """The rows encoded and checked as :func:`inference.fit` reads them
-    (:func:`~inference.fitting.rows.rows_with_gaps`: NaN where a continuous value is
-    missing), the masks that leave gaps (``masks`` and the rows' own marks), and the
+    """The rows encoded and checked as :func:`inference.fit` reads them, and what leaves gaps.
+
+    The rows as :func:`~inference.fitting.rows.rows_with_gaps` gives them (NaN where a continuous
+    value is missing), the masks that leave gaps (``masks`` and the rows' own marks), and the
     parameters' clusters the rows do not give.
     """
     data = as_data(net, data)
@@ -447,10 +452,10 @@ def _enumerated_per_row(
     gaps: dict[str, torch.Tensor],
     unread: tuple[str, ...] = (),
 ) -> torch.Tensor:
-    """``(n,)`` every row's log-evidence, its missing discrete values summed out, in row
-    chunks; the clusters ``unread`` left to the model (a value's cell under the grid
-    layout, latent under the adaptive one, or under each enumerated action where the
-    action is missing).
+    """``(n,)`` every row's log-evidence, its missing discrete values summed out, in row chunks.
+
+    The clusters ``unread`` are left to the model (a value's cell under the grid layout, latent
+    under the adaptive one, or under each enumerated action where the action is missing).
     """
     enc = enc.without(*unread)
     allowed = actions_allowed(net, enc, gaps)  # (A, n), or None
@@ -489,9 +494,10 @@ def _gaussian_per_row(
 
 
 def _reachable(net: EffectNetwork, site: str) -> torch.Tensor | None:
-    """``(P...)`` bool: the parent configurations of ``site`` some row can reach; a
-    configuration of an action that does not use a parameter with that parameter's
-    cluster other than 0 cannot (the cluster is pinned on cell 0).
+    """``(P...)`` bool: the parent configurations of ``site`` some row can reach.
+
+    A configuration of an action that does not use a parameter with that parameter's cluster other
+    than 0 cannot (the cluster is pinned on cell 0).
     """
     cpd = net.cpd(site)
     reachable = None

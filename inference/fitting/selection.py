@@ -60,8 +60,9 @@ class ClusterScore:
 
 @dataclass(frozen=True)
 class ClusterSelection:
-    """What :func:`select_clusters` returns: every candidate's score and the chosen one
-    (the highest held-out log-likelihood, or the lowest BIC; the first on a tie).
+    """What :func:`select_clusters` returns: every candidate's score and the chosen one.
+
+    The chosen one has the highest held-out log-likelihood, or the lowest BIC; the first on a tie.
     """
 
     parameter: str
@@ -223,8 +224,9 @@ def _factory(net_or_factory, parameter):
 
 
 def _bins(bins, dim: int | None):
-    """A candidate as one int per dimension (``dim``), checked; ``dim=None`` (a factory's
-    candidate): as given.
+    """A candidate as one int per dimension (``dim``), checked.
+
+    ``dim=None`` (a factory's candidate): as given.
     """
     if isinstance(bins, int) and not isinstance(bins, bool) and bins >= 1:
         return bins if dim is None else (bins,) * dim

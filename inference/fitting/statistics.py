@@ -57,8 +57,9 @@ class Statistics:
         return Statistics(merged, self.rows + other.rows, self.gradient)
 
     def merged_into(self, total: Statistics | None) -> Statistics:
-        """``total + self``, adding into ``total``'s tensors in place (no copy of a big
-        table per chunk); ``self`` when ``total`` is ``None``.
+        """``total + self``, adding into ``total``'s tensors in place.
+
+        No copy of a big table per chunk; ``self`` when ``total`` is ``None``.
         """
         if total is None:
             return self
@@ -72,8 +73,9 @@ class Statistics:
 def statistics(
     net: EffectNetwork, enc: Evidence, weights: torch.Tensor | None = None
 ) -> Statistics:
-    """The sums of one chunk of complete, checked rows (see :func:`inference.fit`), each
-    row counting ``weights`` ``(n,)`` (default 1; an EM step's responsibilities).
+    """The sums of one chunk of complete, checked rows (see :func:`inference.fit`).
+
+    Each row counts ``weights`` ``(n,)`` (default 1; an EM step's responsibilities).
     """
     sites: dict = {}
     flat: dict[tuple[str, ...], torch.Tensor] = {}  # sites sharing their parents share the index
@@ -100,8 +102,9 @@ def statistics(
 def params_from_statistics(
     net: EffectNetwork, stats: Statistics, alpha: float, min_variance: float
 ) -> dict:
-    """Every kind's ``m_step``: the closed-form maximum-likelihood CPDs (for kinds without
-    one, the gradient route's start).
+    """Every kind's ``m_step``: the closed-form maximum-likelihood CPDs.
+
+    For kinds without one, the gradient route's start.
     """
     return {
         s.name: net.cpd(s.name).m_step(stats.sites[s.name], alpha, min_variance) for s in net.sites

@@ -164,8 +164,9 @@ def learn_structure(
 
 
 def _network(features, actions, parameters, chosen: Mapping[str, tuple[str, ...]]):
-    """The declaration with ``chosen`` parents for every end site (none where absent,
-    but the action for a feature a parameter affects).
+    """The declaration with ``chosen`` parents for every end site.
+
+    None where absent, but the action for a feature a parameter affects.
     """
     affected = {end_site(f) for p in parameters for f in p.features}
     parents = {
@@ -231,8 +232,9 @@ class _Space:
 
     # ------------------------------------------------------------------ exhaustive
     def _sets(self, site: str):
-        """Every admissible parent set of ``site``: the required parents plus at most
-        ``max_parents`` in all, in site order.
+        """Every admissible parent set of ``site``.
+
+        The required parents plus at most ``max_parents`` in all, in site order.
         """
         needed = self.required[site]
         free = [q for q in self.candidates[site] if q not in needed]
@@ -244,9 +246,10 @@ class _Space:
                     yield chosen
 
     def cost(self) -> int:
-        """What exhaustive search would cost, in table fits: the parent sets it would
-        score, a softmax family (a discrete site with a continuous parent: Newton's method
-        on the rows) counting :data:`SOFTMAX_COST` (admissibility is not checked).
+        """What exhaustive search would cost, in table fits.
+
+        The parent sets it would score, a softmax family (a discrete site with a continuous parent:
+        Newton's method on the rows) counting :data:`SOFTMAX_COST` (admissibility is not checked).
         """
         total = 0
         for s in self.ends:
@@ -278,9 +281,11 @@ class _Space:
         return chosen
 
     def _preferred(self, options: list[Family]) -> Family:
-        """The best-scoring family; among those within rounding (:data:`TIE`) of it,
-        the first with the fewest end parents (an end feature the action leaves as it
-        was copies its initial site, which then explains as much).
+        """The best-scoring family.
+
+        Among those within rounding (:data:`TIE`) of it, the first with the fewest end parents (an
+        end feature the action leaves as it was copies its initial site, which then explains as
+        much).
         """
         top = max(f.score for f in options)
         near = [f for f in options if f.score >= top - TIE * abs(top)]
@@ -288,9 +293,10 @@ class _Space:
         return min(near, key=lambda f: sum(specs[q].role == "end" for q in f.parents))
 
     def _best_order(self, scored: Mapping[str, list[Family]]) -> dict[str, tuple[str, ...]]:
-        """The best acyclic choice of families for the discrete end sites that may be
-        each other's parents: over orders of them, by subsets (each site takes its best
-        family among those whose end parents all come before it).
+        """The best acyclic choice of families for the discrete end sites.
+
+        For the end sites that may be each other's parents: over orders of them, by subsets (each
+        site takes its best family among those whose end parents all come before it).
         """
         m = len(self.movers)
         if not m:
@@ -350,8 +356,9 @@ class _Space:
 
     def _moves(self, state: dict[str, frozenset], rank: Mapping[str, float] | None = None):
         """Every legal single-edge change: ``(site, new parents)`` pairs, one or two.
-        With ``rank``, an edge between end sites is added only from a lower rank to a
-        higher one, and none is turned.
+
+        With ``rank``, an edge between end sites is added only from a lower rank to a higher one,
+        and none is turned.
         """
         for s in self.ends:
             ps = state[s]
@@ -421,10 +428,11 @@ class _Space:
         return sum(self._score(s, ps) for s, ps in state.items())
 
     def _settle(self, state: dict[str, frozenset]) -> dict[str, frozenset]:
-        """Climb from ``state``; then, while it gains, recombine: the best acyclic choice
-        among every family scored so far (the exhaustive order search over them, which
-        turns edges among end sites that the climb, one edge at a time, cannot), and
-        climb from there.
+        """Climb from ``state``; then, while it gains, recombine and climb again.
+
+        Recombine: the best acyclic choice among every family scored so far (the exhaustive order
+        search over them, which turns edges among end sites that the climb, one edge at a time,
+        cannot), and climb from there.
         """
         state = self._climb(state)
         if len(self.movers) > EXHAUSTIVE_ENDS:
