@@ -164,10 +164,9 @@ class Enumerated:
         return (m - norm).exp().T
 
     def joint(self, sites: Sequence[str]) -> torch.Tensor:
-        """``(n, K_1 * ...
+        """``(n, K_1 * ... * K_m)`` the posterior over the joint states of ``sites``.
 
-        * K_m)`` the posterior over the joint states of ``sites`` (the first varying slowest), every
-        other site summed out.
+        The first site varies slowest; every other site is summed out.
         """
         w = self.log_sum(sites)
         keep = [w.dim() + self.dims[s] for s in sites]

@@ -26,10 +26,11 @@ from models.params import NetworkParams
 
 @dataclass(frozen=True)
 class JointPrediction:
-    """``probs`` ``(n, K_1 * ...
+    """Per row, the joint over the discrete end features ``features``.
 
-    * K_m)``: per row the joint over the discrete end features ``features``, over their joint states
-    ``states`` (label tuples, the first feature varying slowest).
+    ``probs`` ``(n, K_1 * ... * K_m)``: per row the joint over the discrete end features
+    ``features``, over their joint states ``states`` (label tuples, the first feature varying
+    slowest).
 
     ``unseen`` ``(n,)``: the probability that the prediction rests on a parent
     configuration no training row reached; ``implausible`` ``(n,)`` bool: the observed end
