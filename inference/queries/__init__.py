@@ -1,6 +1,7 @@
-"""Exact queries on a fitted effect network, batched over evidence rows: one module per
-question, each with its traced answer (the Pyro model, enumerated) and, where one exists,
-its compiled answer (tables read once off the same model) side by side.
+"""Exact queries on a fitted effect network, batched over evidence rows.
+
+One module per question, each with its traced answer (the Pyro model, enumerated) and, where one
+exists, its compiled answer (tables read once off the same model) side by side.
 
 * :mod:`~inference.queries.forward` -- :func:`predict` (the end state given the initial
   state and an action) and :func:`imitation_check` (how surprising an observed end state

@@ -159,8 +159,10 @@ class _Plan:
 
 @dataclass(frozen=True)
 class _Answers:
-    """The posterior per observed configuration, for a pattern whose latent sites include
-    the action: a query then gathers its answer instead of computing it per row.
+    """The posterior per observed configuration, for a pattern with the action latent.
+
+    The pattern's latent sites include the action: a query then gathers its answer instead of
+    computing it per row.
 
     Each is computed over the plan's table exactly as :meth:`CompiledNetwork.infer_action`
     computes it over gathered rows (row by row the same operations): with the action the
@@ -184,9 +186,10 @@ class _Answers:
 
     @staticmethod
     def marginal(log_table: torch.Tensor, k: int, a: int, unseen: torch.Tensor | None) -> _Answers:
-        """Answers of a table ``(observed sizes..., latent sizes...)`` with ``k`` observed
-        axes and the action at latent axis ``a``, the other latent sites summed out, in
-        chunks of configurations of at most ``ANSWERS_CHUNK`` elements.
+        """Answers of a table ``(observed sizes..., latent sizes...)``, in chunks.
+
+        The table has ``k`` observed axes and the action at latent axis ``a``; the other latent
+        sites are summed out, in chunks of configurations of at most ``ANSWERS_CHUNK`` elements.
         """
         n_actions = log_table.shape[k + a]
         latent_sizes = log_table.shape[k:]
@@ -236,11 +239,11 @@ PLAN_BUDGET = 1 << 24
 
 
 class _RowSums:
-    """A plan's table ``(observed sizes..., latent sizes...)`` that is never built:
-    indexed at the observed states of ``n`` rows it returns the rows' part, ``(n, latent
-    sizes...)``, combining the factors' parts in their order exactly as the whole table
-    combines them (the same additions, or logical ors, element by element: the same
-    bits).
+    """A plan's table ``(observed sizes..., latent sizes...)`` that is never built.
+
+    Indexed at the observed states of ``n`` rows it returns the rows' part, ``(n, latent
+    sizes...)``, combining the factors' parts in their order exactly as the whole table combines
+    them (the same additions, or logical ors, element by element: the same bits).
     """
 
     def __init__(self, parts: list[torch.Tensor], shape: tuple[int, ...], k: int, add: bool):
@@ -258,8 +261,9 @@ class _RowSums:
 
 
 def _lazy_plan(net, order, observed, kept, misses) -> _Plan | None:
-    """The plan of ``observed`` with its table and unseen indicator as :class:`_RowSums`,
-    where the table would exceed ``PLAN_BUDGET`` elements; None where it would not.
+    """The plan of ``observed`` with its table and unseen indicator as :class:`_RowSums`.
+
+    Where the table would exceed ``PLAN_BUDGET`` elements; None where it would not.
     """
     sizes = [net.site(s).size for s in order]
     shape = torch.broadcast_shapes(*(t.shape for t in kept))
@@ -384,6 +388,7 @@ class CompiledNetwork:
 
     @property
     def order_sizes(self) -> tuple[int, ...]:
+        """The sizes of the sites of ``order``, in that order."""
         return tuple(self.net.site(s).size for s in self.order)
 
     def infer_action(
@@ -478,9 +483,10 @@ class CompiledNetwork:
         )
 
     def _one_answer(self, enc: Evidence, plan: _Plan, below: float) -> ActionPosterior:
-        """One row of a pattern with answers per configuration, read by its position in
-        the flattened tables (slices, no index tensors): the same numbers as the batched
-        gather, in a few small operations.
+        """One row of a pattern with answers per configuration.
+
+        Read by its position in the flattened tables (slices, no index tensors): the same numbers as
+        the batched gather, in a few small operations.
         """
         row = 0
         for s, size in zip(plan.observed, plan.log_table.shape, strict=False):
@@ -504,8 +510,9 @@ class CompiledNetwork:
     def _one_below(
         self, enc: Evidence, plan: _Plan, row: int, log_evidence: float, below: float
     ) -> torch.Tensor:
-        """``(1,)`` bool: :meth:`_evidence_below` for one row of a pattern with answers,
-        from its table of ``log_evidence - log_prior`` per configuration (built once).
+        """``(1,)`` bool: :meth:`_evidence_below` for one row of a pattern with answers.
+
+        From its table of ``log_evidence - log_prior`` per configuration (built once).
         """
         pattern = frozenset(enc)
         if pattern not in self.surprises:
@@ -533,8 +540,9 @@ class CompiledNetwork:
         return torch.from_numpy(np.array([flag]))
 
     def _evidence_below(self, enc: Evidence, log_evidence: torch.Tensor | float, below: float):
-        """``(n,)`` bool: p(observed end sites | the rest of the evidence) below ``below``
-        (``log_evidence``: ``(n,)``, or a float for one row).
+        """``(n,)`` bool: p(observed end sites | the rest of the evidence) below ``below``.
+
+        ``log_evidence``: ``(n,)``, or a float for one row.
         """
         ends = {end_site(f.name) for f in self.net.features}
         given = frozenset(s for s in enc if s not in ends)

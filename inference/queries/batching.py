@@ -37,8 +37,9 @@ TIE_TOLERANCE = 1e-9
 
 
 def first_best(score: torch.Tensor, top: torch.Tensor | None = None) -> torch.Tensor:
-    """``(n,)`` index of the best score per row; among ties (within a relative
-    ``TIE_TOLERANCE`` of the maximum, so that rounding does not decide) the lowest index.
+    """``(n,)`` index of the best score per row; among ties the lowest index.
+
+    Ties are within a relative ``TIE_TOLERANCE`` of the maximum, so that rounding does not decide.
     ``top``: the rows' maxima ``(n,)``, if already known.
     """
     top = score.max(-1).values if top is None else top
@@ -46,8 +47,9 @@ def first_best(score: torch.Tensor, top: torch.Tensor | None = None) -> torch.Te
 
 
 def prepare(net: EffectNetwork, params: NetworkParams, evidence: Mapping[str, object]) -> Evidence:
-    """``evidence`` encoded by ``net`` after ``params`` are checked against it; a
-    ``ValueError`` for evidence with no rows.
+    """``evidence`` encoded by ``net`` after ``params`` are checked against it.
+
+    A ``ValueError`` for evidence with no rows.
     """
     check_params(net, params)
     enc = net.encode(evidence)
@@ -90,8 +92,9 @@ def allowed_actions(net: EffectNetwork, allowed: object, n: int) -> torch.Tensor
 
 
 def placeholder_row(enc: Evidence) -> Evidence:
-    """A placeholder row (state 0, zeros) that stands in for empty evidence: a query runs
-    on it and cuts its answer to zero rows (:func:`no_rows`).
+    """A placeholder row (state 0, zeros) that stands in for empty evidence.
+
+    A query runs on it and cuts its answer to zero rows (:func:`no_rows`).
     """
     values = {k: torch.zeros(1, *v.shape[1:], dtype=v.dtype) for k, v in enc.items()}
     return Evidence(enc.net, values, 1)
@@ -130,8 +133,9 @@ def unseen_indicator(
 def unseen_flags(
     net: EffectNetwork, params: NetworkParams, e: Enumerated, sites: list[str]
 ) -> list[torch.Tensor]:
-    """Per site of ``sites``, a bool tensor over its parents' enumerated dims: whether the
-    configuration is unseen.
+    """Per site of ``sites``, whether each configuration of its parents is unseen.
+
+    A bool tensor over the parents' enumerated dims.
     """
     values = {name: s["value"] for name, s in e.trace.nodes.items() if s["type"] == "sample"}
     flags = []
@@ -149,10 +153,11 @@ def unseen_mass(
     sites: list[str],
     keep: tuple[str, ...] = (),
 ) -> torch.Tensor:
-    """Posterior probability that any of ``sites`` sits on an unseen configuration, by
-    contraction: one minus that of every one seen, whose factors (0 or ``-inf`` per
-    site) join the contraction. Over the rows, or given each state of the one site in
-    ``keep`` (``(n, K)``; 0 where that state is impossible). ``-inf`` weight rows: 0.
+    """Posterior probability that any of ``sites`` sits on an unseen configuration.
+
+    By contraction: one minus that of every one seen, whose factors (0 or ``-inf`` per site) join
+    the contraction. Over the rows, or given each state of the one site in ``keep`` (``(n, K)``; 0
+    where that state is impossible). ``-inf`` weight rows: 0.
     """
     flags = unseen_flags(net, params, e, sites)
     log_all = e.log_sum(keep)
@@ -177,9 +182,11 @@ def parameter_placeholder(m, enc: Evidence) -> Evidence:
 
 
 def check_parameter_evidence(net, m, enc: Evidence, query: str) -> tuple[Evidence, list[str]]:
-    """Check the evidence of a query about a parameter: the parameter unknown, an effect of it observed,
-    an action using it in every row (filled in when only one action does). Returns the
-    evidence with the action, and the observed sites the parameter acts on.
+    """Check the evidence of a query about a parameter.
+
+    The parameter unknown, an effect of it observed, an action using it in every row (filled in when
+    only one action does). Returns the evidence with the action, and the observed sites the
+    parameter acts on.
     """
     p = m.parameter
     if param_site(p.name) in enc or cluster_site(p.name) in enc:
@@ -208,10 +215,11 @@ def check_parameter_evidence(net, m, enc: Evidence, query: str) -> tuple[Evidenc
 
 
 def given_other_parameters(net, m, enc: Evidence, children, query: str):
-    """The other parameters acting on the same feature, which must be given in every row
-    whose action uses them (elsewhere they are ignored, NaN or absent): the evidence with
-    their cells as clusters, and every parameter acting on the feature (in input order).
-    Checks that the observed children's discrete parents are given.
+    """The other parameters acting on the same feature, given where their action uses them.
+
+    They must be given in every row whose action uses them (elsewhere they are ignored, NaN or
+    absent). Returns the evidence with their cells as clusters, and every parameter acting on the
+    feature (in input order). Checks that the observed children's discrete parents are given.
     """
     p = m.parameter
     acting = net.acting_on(m.child) if m.child is not None else (m,)

@@ -1,5 +1,6 @@
-"""Networks chained into one planner: an upper network's continuous output read as a
-lower network's action.
+"""Networks chained into one planner.
+
+An upper network's continuous output is read as a lower network's action.
 
 An upper network (say, one that throws) predicts a continuous end feature as a Gaussian
 mixture (:class:`~inference.queries.results.GaussianMixture`, what
@@ -226,8 +227,10 @@ class LinkProbabilities:
         return self.probs[:, self.actions.index(action)]
 
     def padded(self, rows: Sequence[int], n_upper: int) -> LinkProbabilities:
-        """These rows placed at upper actions ``rows`` of ``n_upper``; the others are zero
-        rows (upper actions not offered: the chained model gives them no transitions).
+        """These rows placed at upper actions ``rows`` of ``n_upper``.
+
+        The others are zero rows (upper actions not offered: the chained model gives them no
+        transitions).
         """
         rows = torch.as_tensor(rows, dtype=torch.long)
         if rows.shape != (len(self.probs),):
@@ -254,8 +257,9 @@ def link_probabilities(
     seed: int = 0,
     nodes: int = QUADRATURE_NODES,
 ) -> LinkProbabilities:
-    """``P(lower action | upper row)``: the upper network's predicted mixture integrated
-    over the link.
+    """``P(lower action | upper row)``.
+
+    The upper network's predicted mixture integrated over the link.
 
     Parameters
     ----------
@@ -322,8 +326,9 @@ def chain(
     | Callable[[int], LinkProbabilities | None],
     lower_transitions: torch.Tensor,
 ) -> torch.Tensor:
-    """The chained transitions ``T[s, u, s']``: an upper action read through the link as
-    the lower network's actions.
+    """The chained transitions ``T[s, u, s']``.
+
+    An upper action is read through the link as the lower network's actions.
 
     ``T[s, u, s'] = sum_a P(a | u, s) P(s' | s, a) + P(none | u, s) [s' = s]``.
 

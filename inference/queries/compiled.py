@@ -1,6 +1,7 @@
-"""One compiled surface for the questions: :func:`compile` returns a
-:class:`CompiledQueries` whose methods carry the traced queries' names, arguments (less
-``net`` and ``params``) and result types.
+"""One compiled surface for the questions.
+
+:func:`compile` returns a :class:`CompiledQueries` whose methods carry the traced queries' names,
+arguments (less ``net`` and ``params``) and result types.
 
 A method answers from tables read once off the model where they can answer the
 evidence, and otherwise calls the traced query; each method's docstring says which. The
@@ -57,9 +58,10 @@ if TYPE_CHECKING:  # the building blocks' names stay deprecated at runtime (see 
 
 
 def compile(net: EffectNetwork, params: NetworkParams) -> CompiledQueries:
-    """The questions on ``net`` with fitted ``params``, answered from compiled tables
-    where they can be (built on first use) and by the traced model otherwise; the same
-    answers either way (tested equal).
+    """The questions on ``net`` with fitted ``params``, from compiled tables where they can be.
+
+    Answered from compiled tables where they can be (built on first use) and by the traced model
+    otherwise; the same answers either way (tested equal).
     """
     check_params(net, params)
     return CompiledQueries(net, params)
@@ -80,8 +82,7 @@ class CompiledQueries:
 
     @property
     def action_tables(self) -> CompiledNetwork | None:
-        """The discrete factor tables (built on first use); ``None`` where a site is continuous.
-        """
+        """The discrete factor tables (built on first use); ``None`` where a site is continuous."""
         if "action" not in self._built:
             discrete = all(s.discrete for s in self.net.sites)
             self._built["action"] = _compile_discrete(self.net, self.params) if discrete else None
@@ -90,7 +91,8 @@ class CompiledQueries:
     def parameter_query(
         self, parameter: str
     ) -> CompiledParameterQuery | CompiledJointParameterQuery | None:
-        """The compiled parameter posterior of ``parameter`` (built on first use);
+        """The compiled parameter posterior of ``parameter`` (built on first use).
+
         ``None`` where another parameter acts on one of its continuous features.
         """
         key = ("parameter", parameter)
@@ -118,8 +120,7 @@ class CompiledQueries:
         seed: int = 0,
         implausible_below: float = IMPLAUSIBLE_BELOW,
     ) -> ImitationCheck:
-        """:func:`inference.imitation_check`, answered by the traced model (no tables yet).
-        """
+        """:func:`inference.imitation_check`, answered by the traced model (no tables yet)."""
         return imitation_check(
             self.net,
             self.params,
@@ -132,8 +133,9 @@ class CompiledQueries:
     def parameter_for_effect(
         self, parameter: str, evidence: Mapping[str, object]
     ) -> ParameterForEffect:
-        """:func:`inference.parameter_for_effect`, the inverse model, answered by the
-        traced model (its candidates scored in closed form where it can).
+        """:func:`inference.parameter_for_effect`, the inverse model, answered by the traced model.
+
+        Its candidates are scored in closed form where it can.
         """
         return parameter_for_effect(self.net, self.params, parameter, evidence)
 
@@ -145,10 +147,11 @@ class CompiledQueries:
         avoid_unseen: bool = True,
         implausible_below: float = IMPLAUSIBLE_BELOW,
     ) -> ActionPosterior:
-        """:func:`inference.infer_action`, answered from the discrete factor tables where
-        every site is discrete (any evidence, unknown initial states included; where the
-        unknown sites are many and their joint splits, by elimination over the tables,
-        row by row), by the traced model otherwise.
+        """:func:`inference.infer_action`, from the discrete factor tables where it can be.
+
+        Answered from the tables where every site is discrete (any evidence, unknown initial states
+        included; where the unknown sites are many and their joint splits, by elimination over the
+        tables, row by row), by the traced model otherwise.
         """
         tables = self.action_tables
         if tables is None:
@@ -175,12 +178,13 @@ class CompiledQueries:
         mixture: bool = False,
         implausible_below: float = IMPLAUSIBLE_BELOW,
     ) -> ParameterPosterior:
-        """:func:`inference.infer_parameter`, the parameter posterior, answered from the
-        compiled query where no other parameter acts on the parameter's continuous
-        features and the evidence gives exactly what that query reads (an affected
-        feature, the action, the features' discrete parents and continuous inputs, all
-        initial states); by the traced model otherwise (an unknown initial state, an
-        observed end feature the parameter does not act on, an invalid evidence).
+        """:func:`inference.infer_parameter`, the parameter posterior, compiled where it can be.
+
+        Answered from the compiled query where no other parameter acts on the parameter's continuous
+        features and the evidence gives exactly what that query reads (an affected feature, the
+        action, the features' discrete parents and continuous inputs, all initial states); by the
+        traced model otherwise (an unknown initial state, an observed end feature the parameter does
+        not act on, an invalid evidence).
         """
         query = self.parameter_query(parameter)
         evidence = as_data(self.net, evidence)  # a frame reaches the compiled query too
@@ -206,8 +210,9 @@ class CompiledQueries:
         given: Mapping[str, object] | None = None,
         normalise: bool = False,
     ) -> Transitions:
-        """:func:`inference.transitions`, read from the model's tables, traced once per
-        ``given`` (the continuous initial features' values) and kept.
+        """:func:`inference.transitions`, read from the model's tables.
+
+        Traced once per ``given`` (the continuous initial features' values) and kept.
         """
         key = ("tables", _context_key(given))
         if key not in self._built:

@@ -1,5 +1,6 @@
-"""A demonstration read: what each of its states shows, per time, as the network's
-state space and arrays.
+"""A demonstration read: what each of its states shows, per time.
+
+As the network's state space and arrays.
 
 :func:`explain <inference.queries.explain.explain>` reads its ``states`` here.
 :class:`~inference.queries.states.StateSpace` numbers the configurations of a
@@ -30,10 +31,11 @@ from models.sites import end_site, initial_site
 
 @dataclass(frozen=True)
 class Demonstrations:
-    """A batch read: ``allowed`` ``(n, T + 1, S)`` the states consistent with what each
-    time shows; ``continuous[f]`` ``(n, T + 1, d)`` (NaN: not observed);
-    ``outcomes[f]`` ``(n, T + 1)`` state indices of discrete outcome features (-1: not
-    observed).
+    """A batch read.
+
+    ``allowed`` ``(n, T + 1, S)`` the states consistent with what each time shows; ``continuous[f]``
+    ``(n, T + 1, d)`` (NaN: not observed); ``outcomes[f]`` ``(n, T + 1)`` state indices of discrete
+    outcome features (-1: not observed).
     """
 
     allowed: torch.Tensor
@@ -47,9 +49,10 @@ class Demonstrations:
 
     @staticmethod
     def read(net: EffectNetwork, space: StateSpace, states) -> Demonstrations:
-        """Read ``states`` (:func:`~inference.queries.explain.explain`'s one demonstration
-        or batch) against ``space``; a ``ValueError`` names the feature, the value and
-        what was expected.
+        """Read ``states`` against ``space``.
+
+        ``states`` is :func:`~inference.queries.explain.explain`'s one demonstration or batch; a
+        ``ValueError`` names the feature, the value and what was expected.
         """
         batch = _as_batch(net, states)
         lengths = {np.shape(v)[:2] for v in batch.values() if v is not None}
@@ -109,10 +112,11 @@ class Demonstrations:
         ]
 
     def step_keys(self) -> tuple[np.ndarray, np.ndarray]:
-        """``(n, T)`` the index of each step's observation among the distinct ones, and
-        the distinct ones ``(K, m)``: each step's continuous values at its start and end
-        and its outcomes (-1 / NaN: not observed). Steps that observe the same get one
-        step table.
+        """Each step's observation as an index among the distinct ones, and the distinct ones.
+
+        ``(n, T)`` the index of each step's observation among the distinct ones, and the distinct
+        ones ``(K, m)``: each step's continuous values at its start and end and its outcomes (-1 /
+        NaN: not observed). Steps that observe the same get one step table.
         """
         n, steps = self.shape
         columns = []
@@ -163,8 +167,10 @@ def _as_batch(net: EffectNetwork, states) -> dict[str, object]:
 
 
 def _discrete_indices(net: EffectNetwork, f: Discrete, value, shape) -> np.ndarray:
-    """``shape`` state indices of ``value`` (labels, ``None`` for unobserved), -1 where
-    unobserved (everywhere for ``None``); labels are read as the network reads them.
+    """``shape`` state indices of ``value``, -1 where unobserved.
+
+    ``value`` holds labels, ``None`` for unobserved (everywhere for ``None``); labels are read as
+    the network reads them.
     """
     index = np.full(shape, -1, dtype=np.int64)
     if value is None:
@@ -236,8 +242,9 @@ def key_columns(net: EffectNetwork, demo: Demonstrations) -> dict[str, slice]:
 def with_action_prior(
     net: EffectNetwork, params: NetworkParams, prior: Mapping[str, float] | Sequence[float] | None
 ) -> NetworkParams:
-    """``params`` with the action table replaced by ``prior``: a mapping action ->
-    probability, an ``(A,)`` sequence, or ``None`` for uniform.
+    """``params`` with the action table replaced by ``prior``.
+
+    ``prior``: a mapping action -> probability, an ``(A,)`` sequence, or ``None`` for uniform.
     """
     a = len(net.actions)
     if prior is None:
@@ -276,9 +283,10 @@ def simulate_demonstrations(
     prior: Mapping[str, float] | Sequence[float] | None = None,
     seed: int = 0,
 ) -> tuple[dict[str, np.ndarray], np.ndarray]:
-    """Draw ``n`` demonstrations of ``steps`` steps from the model: the first state from
-    the network's initial distribution, each step's action from ``prior`` (uniform for
-    ``None``), its parameter from the action's clusters, and each end state from the
+    """Draw ``n`` demonstrations of ``steps`` steps from the model.
+
+    The first state from the network's initial distribution, each step's action from ``prior``
+    (uniform for ``None``), its parameter from the action's clusters, and each end state from the
     model given the step's start, which is the previous step's end.
 
     Returns

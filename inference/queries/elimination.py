@@ -30,8 +30,9 @@ def scope(factor: torch.Tensor) -> frozenset[tuple[int, int]]:
 
 
 def dense_enough(factors: list[torch.Tensor]) -> bool:
-    """Whether the factors' joint is small enough, or the contraction no cheaper, to sum
-    it as one dense tensor.
+    """Whether to sum the factors' joint as one dense tensor.
+
+    It is, where the joint is small enough, or the contraction no cheaper.
     """
     scopes = tuple(scope(f) for f in factors)
     sizes = dict(s for sc in scopes for s in sc)
@@ -45,8 +46,9 @@ def dense_enough(factors: list[torch.Tensor]) -> bool:
 def plan(
     scopes: tuple[frozenset[tuple[int, int]], ...], eliminate: frozenset[int]
 ) -> tuple[tuple[int, ...], int]:
-    """A greedy elimination order of the dims ``eliminate`` for factors of these scopes,
-    and the largest intermediate it builds (configurations per row).
+    """A greedy elimination order of the dims ``eliminate`` for factors of these scopes.
+
+    And the largest intermediate it builds (configurations per row).
     """
     live = [{d for d, _ in sc} for sc in scopes]
     sizes = {d: k for sc in scopes for d, k in sc}
@@ -68,8 +70,9 @@ def plan(
 
 
 def contract_size(scopes: tuple[frozenset[tuple[int, int]], ...]) -> int:
-    """Configurations per row of the largest tensor that summing every dim builds: the
-    joint's where it is summed dense.
+    """Configurations per row of the largest tensor that summing every dim builds.
+
+    The joint's where it is summed dense.
     """
     sizes = dict(s for sc in scopes for s in sc)
     joint = math.prod(sizes.values())
@@ -83,10 +86,11 @@ def contract_size(scopes: tuple[frozenset[tuple[int, int]], ...]) -> int:
 def schedule(
     scopes: tuple[frozenset[tuple[int, int]], ...], eliminate: frozenset[int]
 ) -> tuple[tuple[tuple[int, tuple[int, ...]], ...], tuple[int, ...]]:
-    """The steps of summing the dims ``eliminate`` out of factors of these scopes, in
-    :func:`plan`'s order: per step the dim and the slots of the factors it sums (the
-    factors are slots ``0 .. F-1``; each step's answer takes the next slot), and the
-    slots left at the end. Cached per structure, so that a query repeats no planning.
+    """The steps of summing the dims ``eliminate`` out of factors of these scopes.
+
+    In :func:`plan`'s order: per step the dim and the slots of the factors it sums (the factors are
+    slots ``0 .. F-1``; each step's answer takes the next slot), and the slots left at the end.
+    Cached per structure, so that a query repeats no planning.
     """
     order, _ = plan(scopes, eliminate)
     spans = {i: {d for d, _ in sc} for i, sc in enumerate(scopes)}
@@ -100,8 +104,9 @@ def schedule(
 
 
 def _eliminate(factors, eliminate, reduce, scopes=None):
-    """Sum (``reduce``) the dims ``eliminate`` out of the factors, one at a time; returns
-    the remaining factors and, per step, the dim and the summed tensor. ``scopes``: the
+    """Sum (``reduce``) the dims ``eliminate`` out of the factors, one at a time.
+
+    Returns the remaining factors and, per step, the dim and the summed tensor. ``scopes``: the
     factors' (:func:`scope` of each), where the caller knows them.
     """
     slots = list(factors)
@@ -132,27 +137,30 @@ def contract(
     eliminate: list[int],
     scopes: tuple[frozenset[tuple[int, int]], ...] | None = None,
 ) -> torch.Tensor:
-    """``log sum exp`` over the dims ``eliminate`` of the factors' sum, by elimination:
-    a tensor whose other dims keep their size and whose eliminated dims are 1.
-    ``scopes``: each factor's :func:`scope`, where the caller has them.
+    """``log sum exp`` over the dims ``eliminate`` of the factors' sum, by elimination.
+
+    A tensor whose other dims keep their size and whose eliminated dims are 1. ``scopes``: each
+    factor's :func:`scope`, where the caller has them.
     """
     left, _ = _eliminate(factors, eliminate, _logsumexp, scopes)
     return _sum(left)
 
 
 def maximum(factors: list[torch.Tensor], eliminate: list[int]) -> torch.Tensor:
-    """The largest value over the dims ``eliminate`` of the factors' sum, by elimination
-    (max-product), laid out as :func:`contract`'s answer.
+    """The largest value over the dims ``eliminate`` of the factors' sum, by elimination.
+
+    Max-product, laid out as :func:`contract`'s answer.
     """
     left, _ = _eliminate(factors, eliminate, lambda t, d: t.amax(d, keepdim=True))
     return _sum(left)
 
 
 def sample(factors: list[torch.Tensor], eliminate: list[int], n: int) -> dict[int, torch.Tensor]:
-    """One joint draw per row of the dims ``eliminate`` from the distribution
-    ``exp(sum of the factors)`` (normalised per row): the dims summed out in order, then
-    each drawn, last summed first, given those drawn before it (``{dim: (n,) index}``;
-    torch's global generator). Every row must have a possible configuration.
+    """One joint draw per row of the dims ``eliminate`` from ``exp(sum of the factors)``.
+
+    The distribution is normalised per row: the dims summed out in order, then each drawn, last
+    summed first, given those drawn before it (``{dim: (n,) index}``; torch's global generator).
+    Every row must have a possible configuration.
     """
     left, steps = _eliminate(factors, eliminate, lambda t, d: (t.logsumexp(d, keepdim=True), t))
     drawn: dict[int, torch.Tensor] = {}
@@ -168,9 +176,10 @@ def sample(factors: list[torch.Tensor], eliminate: list[int], n: int) -> dict[in
 def max_config(
     factors: list[torch.Tensor], eliminate: list[int], n: int
 ) -> tuple[torch.Tensor, dict[int, torch.Tensor]]:
-    """Per row, the largest value of the factors' sum over the dims ``eliminate`` (every
-    enumerated dim) and a configuration reaching it (max-product elimination, then the
-    argmaxes traced back): ``(top (n,), {dim: (n,) index})``.
+    """Per row, the largest value of the factors' sum and a configuration reaching it.
+
+    Over the dims ``eliminate`` (every enumerated dim), by max-product elimination, then the
+    argmaxes traced back: ``(top (n,), {dim: (n,) index})``.
     """
     left, steps = _eliminate(factors, eliminate, lambda t, d: t.max(d, keepdim=True))
     top = _sum(left).reshape(-1).expand(n)
@@ -181,8 +190,9 @@ def max_config(
 
 
 def value_at(t: torch.Tensor, best: dict[int, torch.Tensor], n: int) -> torch.Tensor:
-    """``(n,)`` per row, ``t`` at the configuration ``best`` (a dim ``t`` spans with size
-    1, or one ``best`` lacks, is read at 0).
+    """``(n,)`` per row, ``t`` at the configuration ``best``.
+
+    A dim ``t`` spans with size 1, or one ``best`` lacks, is read at 0.
     """
     zeros = torch.zeros(n, dtype=torch.long)
     index = []

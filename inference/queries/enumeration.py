@@ -81,9 +81,10 @@ class Enumerated:
 
     @cached_property
     def log_weight(self) -> torch.Tensor:
-        """``(E_k, ..., E_1, n)`` the joint log-weight, the factors summed (built here,
-        once, when several factors are held: as large as the product of the sites'
-        sizes; sums and marginals do not need it).
+        """``(E_k, ..., E_1, n)`` the joint log-weight, the factors summed.
+
+        Built here, once, when several factors are held: as large as the product of the sites'
+        sizes; sums and marginals do not need it.
         """
         if not self.contracted:
             return self.factors[0]
@@ -122,10 +123,11 @@ class Enumerated:
         return self.log_norm + self.log_offset
 
     def log_sum(self, keep: Iterable[str] = (), extra: Iterable[torch.Tensor] = ()) -> torch.Tensor:
-        """``log sum exp`` of the joint (with the log-factors ``extra`` added, each
-        broadcastable to it) over every enumerated site but ``keep``: a tensor of the
-        joint's rank, ``(..., n)``, whose dims of ``keep`` keep their size and the others
-        are 1. By contraction where the factors are several.
+        """``log sum exp`` of the joint over every enumerated site but ``keep``.
+
+        The log-factors ``extra`` are added, each broadcastable to it: a tensor of the joint's rank,
+        ``(..., n)``, whose dims of ``keep`` keep their size and the others are 1. By contraction
+        where the factors are several.
         """
         keep = frozenset(keep)
         extra = list(extra)
@@ -180,16 +182,18 @@ class Enumerated:
         return (w - w.logsumexp(-1, keepdim=True)).exp()
 
     def sample(self) -> dict[str, torch.Tensor]:
-        """One joint draw per row of the enumerated sites some factor depends on, from
-        their exact posterior, by contraction (torch's global generator).
+        """One joint draw per row of the enumerated sites some factor depends on.
+
+        From their exact posterior, by contraction (torch's global generator).
         """
         self.check_possible(self.log_norm)
         drawn = sample(list(self.factors), list(self.dims.values()), self.n_rows)
         return {site: drawn[d] for site, d in self.dims.items() if d in drawn}
 
     def posterior(self, *, strict: bool = True) -> torch.Tensor:
-        """Normalised joint weight, same shape as ``log_weight`` (which this builds: as
-        large as the product of the sites' sizes).
+        """Normalised joint weight, same shape as ``log_weight``.
+
+        This builds ``log_weight``: as large as the product of the sites' sizes.
 
         A row whose evidence has probability 0 has no posterior: ``ValueError``, or with
         ``strict=False`` a weight of 0 everywhere in that row (for sums over the
@@ -218,9 +222,10 @@ class Enumerated:
         return post.div_(total).reshape(rows_first.shape).movedim(0, -1)
 
     def check_possible(self, log_norm: torch.Tensor) -> None:
-        """Refuse a row whose evidence has probability 0 under every configuration: no
-        posterior exists (in float64, a density also underflows to 0 where the value lies
-        beyond about 1e154 of the component's standard deviations).
+        """Refuse a row whose evidence has probability 0 under every configuration.
+
+        No posterior exists (in float64, a density also underflows to 0 where the value lies beyond
+        about 1e154 of the component's standard deviations).
         """
         if bool((log_norm > -torch.inf).all()):
             return
@@ -381,8 +386,7 @@ def _centred_sum(
     dims: dict[str, int],
     n: int,
 ) -> torch.Tensor:
-    """The factors' sum, ``(E_k, ..., E_1, n)``, each unbounded one less its ``(n,)`` offset.
-    """
+    """The factors' sum, ``(E_k, ..., E_1, n)``, each unbounded one less its ``(n,)`` offset."""
     factors = bounded + [lp - offsets[name] for name, lp in unbounded.items()]
     return _full(_dense_sum(factors), dims, n)
 
@@ -407,8 +411,9 @@ def _dense_sum(factors: list[torch.Tensor]) -> torch.Tensor:
 def _full(
     total: torch.Tensor, dims: Mapping[str, int], n: int, depth: int | None = None
 ) -> torch.Tensor:
-    """``total`` with its rows expanded to ``n`` (where ``n``) and dims of size 1 in
-    front up to the enumeration's depth.
+    """``total`` with its rows expanded and dims of size 1 in front.
+
+    Rows expanded to ``n`` (where ``n``), dims of size 1 up to the enumeration's depth.
     """
     if depth is None:
         depth = max([-d for d in dims.values()], default=1)
@@ -420,10 +425,10 @@ def _full(
 
 
 def log_ratio(a: Enumerated, b: Enumerated) -> torch.Tensor:
-    """``(n,)`` ``log p(a's evidence) - log p(b's evidence)`` for the same rows, where the
-    factors both share (a continuous initial state's density, say) cancel exactly, at
-    any magnitude; the difference of the two ``log_evidence`` loses what such a factor's
-    size hides.
+    """``(n,)`` ``log p(a's evidence) - log p(b's evidence)`` for the same rows.
+
+    The factors both share (a continuous initial state's density, say) cancel exactly, at any
+    magnitude; the difference of the two ``log_evidence`` loses what such a factor's size hides.
     """
     ratio = a.log_norm - b.log_norm
     for name in a.offsets.keys() | b.offsets.keys():
@@ -439,9 +444,10 @@ def conditional_log_evidence(
     log_joint: torch.Tensor,
     log_given: torch.Tensor,
 ) -> torch.Tensor:
-    """``(n,)`` ``log p(evidence | given) = log_joint - log_given`` (``given``: some of the
-    evidence's sites, ``log_joint`` and ``log_given`` their ``log_evidence``), recomputed
-    by :func:`log_ratio` in the rows where either is large enough that the subtraction
+    """``(n,)`` ``log p(evidence | given) = log_joint - log_given``.
+
+    ``given``: some of the evidence's sites, ``log_joint`` and ``log_given`` their ``log_evidence``;
+    recomputed by :func:`log_ratio` in the rows where either is large enough that the subtraction
     would lose digits (a density far in its tail).
     """
     ratio = log_joint - log_given
@@ -471,9 +477,10 @@ _RECENTRINGS = 24
 
 
 def _unbounded(net: EffectNetwork, name: str) -> bool:
-    """Whether a site's log-probability can take any magnitude: a continuous site's
-    density, or a discrete site with continuous inputs (a softmax). A table's (and a
-    factor's) is ``0``, ``-inf`` or a log-probability above float64's smallest.
+    """Whether a site's log-probability can take any magnitude.
+
+    A continuous site's density, or a discrete site with continuous inputs (a softmax). A table's
+    (and a factor's) is ``0``, ``-inf`` or a log-probability above float64's smallest.
     """
     try:
         spec = net.site(name)
@@ -483,8 +490,9 @@ def _unbounded(net: EffectNetwork, name: str) -> bool:
 
 
 def _row_max(lp: torch.Tensor) -> torch.Tensor:
-    """Per row (last dim), the largest value over the other dims, kept as dims of size 1;
-    a row whose largest value is not finite (all ``-inf``) gets 0.
+    """Per row (last dim), the largest value over the other dims, kept as dims of size 1.
+
+    A row whose largest value is not finite (all ``-inf``) gets 0.
     """
     top = lp.amax(tuple(range(lp.dim() - 1)), keepdim=True) if lp.dim() > 1 else lp
     return torch.where(torch.isfinite(top), top, 0.0)
@@ -500,12 +508,13 @@ def over_row_chunks(
     *,
     contracted: bool = False,
 ):
-    """``fn(enumerated, chunk, rows)`` over row chunks of encoded ``evidence`` (``chunk``
-    its rows ``rows``, a slice; ``enumerated`` the model summed on them with ``keep`` and
-    ``trace_only`` as :func:`enumerate_model` takes them), the results concatenated along
-    the rows (a tuple element by element). ``contracted``: ``fn`` reads sums and
-    marginals only, never the joint (``log_weight``, ``posterior``), so chunks are sized
-    by the contraction's largest intermediate (:func:`enumeration_size`).
+    """``fn(enumerated, chunk, rows)`` over row chunks of encoded ``evidence``.
+
+    ``chunk`` holds its rows ``rows``, a slice; ``enumerated`` is the model summed on them with
+    ``keep`` and ``trace_only`` as :func:`enumerate_model` takes them. The results are concatenated
+    along the rows (a tuple element by element). ``contracted``: ``fn`` reads sums and marginals
+    only, never the joint (``log_weight``, ``posterior``), so chunks are sized by the contraction's
+    largest intermediate (:func:`enumeration_size`).
     """
     size = enumeration_size(net, evidence, keep, contracted=contracted)
     outs = []
@@ -527,8 +536,9 @@ CHUNK_ELEMENTS = 1 << 20
 
 
 def row_chunks(n: int, enum_size: int, budget: int | None = None) -> list[slice]:
-    """Row slices so that one chunk's joint tensor stays below ``budget`` elements
-    (default ``CHUNK_ELEMENTS``).
+    """Row slices so that one chunk's joint tensor stays below ``budget`` elements.
+
+    ``budget`` defaults to ``CHUNK_ELEMENTS``.
     """
     budget = CHUNK_ELEMENTS if budget is None else budget
     step = max(1, budget // max(1, enum_size))
@@ -538,12 +548,12 @@ def row_chunks(n: int, enum_size: int, budget: int | None = None) -> list[slice]
 def enumeration_size(
     net: EffectNetwork, evidence: Evidence, keep: Iterable[str] = (), *, contracted: bool = False
 ) -> int:
-    """Upper bound on the configurations per row that one sum over the enumerated sites
-    builds for this evidence: the product of the sites' sizes (the joint), or with
-    ``contracted`` (the query sums by :meth:`Enumerated.log_sum` and marginals, never
-    reading the joint) the largest intermediate of the contraction, from the declared
-    parents (the joint's where parameters' clusters take part), or the kept sites'
-    joint where larger.
+    """Upper bound on the configurations per row that one sum over the enumerated sites builds.
+
+    For this evidence: the product of the sites' sizes (the joint), or with ``contracted`` (the
+    query sums by :meth:`Enumerated.log_sum` and marginals, never reading the joint) the largest
+    intermediate of the contraction, from the declared parents (the joint's where parameters'
+    clusters take part), or the kept sites' joint where larger.
     """
     ends = net.end_sites_needed({*evidence, *keep})
     latent = {

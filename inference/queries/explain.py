@@ -98,8 +98,9 @@ class Explanation:
         return self.probs[..., self.actions.index(action)]
 
     def path_labels(self, i: int = 0) -> list[dict[str, object]]:
-        """Demonstration ``i``'s most probable state path: one mapping feature -> label
-        per time, ``T + 1`` of them.
+        """Demonstration ``i``'s most probable state path.
+
+        One mapping feature -> label per time, ``T + 1`` of them.
         """
         return [
             dict(zip(self.features, self.states[s], strict=True)) for s in self.path[i].tolist()
@@ -115,8 +116,9 @@ def explain(
     state_space: Sequence | None = None,
     implausible_below: float = IMPLAUSIBLE_BELOW,
 ) -> Explanation:
-    """The actions that produced a demonstration: per-step posterior, most probable
-    sequence, log-likelihood.
+    """The actions that produced a demonstration.
+
+    Per-step posterior, most probable sequence, log-likelihood.
 
     Parameters
     ----------
@@ -210,12 +212,13 @@ def explain(
 
 @dataclass(frozen=True)
 class _StepTables:
-    """Per distinct step observation ``k``: ``log_step`` ``(K, S, A, S)`` the step's
-    ``log p(a) + log p(end state and observations | start state and observations, a)``;
-    ``log_discrete`` the same without the continuous end observations (the discrete
-    plausibility's numerator); ``log_start`` ``(K, S)`` the initial distribution's
-    ``log p(start state, start observations)``; ``tail`` ``(K, S, S)`` and ``initial``
-    ``{site: (K, S)}`` the plausibility tails; ``-inf`` / 1 where never needed.
+    """Per distinct step observation ``k``, the step's tables.
+
+    ``log_step`` ``(K, S, A, S)`` the step's ``log p(a) + log p(end state and observations | start
+    state and observations, a)``; ``log_discrete`` the same without the continuous end observations
+    (the discrete plausibility's numerator); ``log_start`` ``(K, S)`` the initial distribution's
+    ``log p(start state, start observations)``; ``tail`` ``(K, S, S)`` and ``initial`` ``{site: (K,
+    S)}`` the plausibility tails; ``-inf`` / 1 where never needed.
     """
 
     log_step: torch.Tensor
@@ -230,8 +233,9 @@ def _log_evidence(net: EffectNetwork, params: NetworkParams, enc: Evidence) -> t
 
 
 def _step_tables(net, params, space, demo, key, keys) -> _StepTables:
-    """The step tables, from the traced model, for the (start, end) state pairs some
-    step of each distinct observation allows.
+    """The step tables, from the traced model.
+
+    For the (start, end) state pairs some step of each distinct observation allows.
     """
     s, a, k = len(space), len(net.actions), len(keys)
     # the (start, end) pairs some step of each distinct observation allows, summed over
@@ -297,9 +301,10 @@ def _step_tables(net, params, space, demo, key, keys) -> _StepTables:
 
 
 def _pair_evidence(net, space, digits, keys, columns, triples) -> dict[str, torch.Tensor]:
-    """Evidence by site (indices, numbers) for rows ``(key, start state, end state)``:
-    the start and end states and the key's observations, its unobserved outcomes left
-    out (the rows share one pattern).
+    """Evidence by site (indices, numbers) for rows ``(key, start state, end state)``.
+
+    The start and end states and the key's observations, its unobserved outcomes left out (the rows
+    share one pattern).
     """
     k, start, end = triples[:, 0], triples[:, 1], triples[:, 2]
     ev: dict[str, torch.Tensor] = {}
@@ -345,9 +350,10 @@ def _over_paths(demo: Demonstrations, key: np.ndarray, tables: _StepTables, belo
 
 @dataclass(frozen=True)
 class _Shared:
-    """A batch's step tables in the forms the passes read: the action summed out
-    (``forward``; ``backward`` transposed), pairs of states by action (``pairs``
-    ``(K, S * S, A)``), the discrete plausibility's with the action summed out
+    """A batch's step tables in the forms the passes read.
+
+    The action summed out (``forward``; ``backward`` transposed), pairs of states by action
+    (``pairs`` ``(K, S * S, A)``), the discrete plausibility's with the action summed out
     (``discrete``), and the action maximised (``top``, ``act`` ``(K, S, S)``).
     """
 
@@ -437,8 +443,9 @@ def _no_demonstrations(net: EffectNetwork, space: StateSpace, steps: int) -> Exp
 
 
 def _outside(initial: dict[str, torch.Tensor], shape, below: float) -> torch.Tensor:
-    """``shape`` ``(n, T)`` bool: a step's continuous initial state lies outside the
-    training data (warned, naming the site, the first demonstration and its step).
+    """``shape`` ``(n, T)`` bool: a step's continuous initial state lies outside the training data.
+
+    Warned, naming the site, the first demonstration and its step.
     """
     flag = torch.zeros(shape, dtype=torch.bool)
     for site, tail in initial.items():

@@ -29,8 +29,10 @@ SUMMED_TABLE = 1 << 22
 
 @dataclass(frozen=True)
 class _Part:
-    """One factor table: its axes of observed sites first and flattened (the rows' index),
-    then the latent sites it spans, ``(prod observed sizes, latent sizes...)``.
+    """One factor table.
+
+    Its axes of observed sites first and flattened (the rows' index), then the latent sites it
+    spans, ``(prod observed sizes, latent sizes...)``.
     """
 
     table: torch.Tensor
@@ -39,8 +41,9 @@ class _Part:
     shape: tuple[int, ...]  # its shape in the pattern's latent layout (1 where not spanned)
 
     def at(self, enc: Evidence) -> torch.Tensor:
-        """``(latent layout..., n)`` the factor at each row's observed states (rows 1
-        where it spans no observed site).
+        """``(latent layout..., n)`` the factor at each row's observed states.
+
+        Rows 1 where it spans no observed site.
         """
         if not self.observed:
             return self.table.reshape(*self.shape, 1)
@@ -52,8 +55,9 @@ class _Part:
 
 
 def _part(table: torch.Tensor, order: tuple[str, ...], observed, latent) -> _Part:
-    """``table`` (one axis per site of ``order``) laid out for a pattern whose latent
-    layout is ``latent``.
+    """``table`` laid out for a pattern whose latent layout is ``latent``.
+
+    ``table`` has one axis per site of ``order``.
     """
     obs_axes = [a for a, s in enumerate(order) if s in observed and table.shape[a] > 1]
     lat_axes = [a for a, s in enumerate(order) if s in latent and table.shape[a] > 1]
@@ -67,10 +71,11 @@ def _part(table: torch.Tensor, order: tuple[str, ...], observed, latent) -> _Par
 
 @dataclass(frozen=True)
 class FactoredPlan:
-    """A pattern's kept factors, each laid out by ``_Part``, over the latent sites
-    ``latent`` (the action among them). ``unseen`` holds, where some configuration of
-    an observed end site's parents was never seen in training, that site's indicator of
-    a seen configuration as a log-factor (0 or ``-inf``).
+    """A pattern's kept factors, each laid out by ``_Part``, over the latent sites ``latent``.
+
+    The action is among the latent sites. ``unseen`` holds, where some configuration of an observed
+    end site's parents was never seen in training, that site's indicator of a seen configuration as
+    a log-factor (0 or ``-inf``).
     """
 
     observed: tuple[str, ...]
@@ -88,11 +93,12 @@ class FactoredPlan:
         kept: list[torch.Tensor],
         misses: list[torch.Tensor],
     ) -> FactoredPlan | None:
-        """The plan of ``observed`` by elimination, where the summed table would exceed
-        ``SUMMED_TABLE`` values and the latent sites' joint is larger than the
-        elimination's steps by far (the rule
-        :func:`~inference.queries.elimination.contract_size` applies); ``None`` where the
-        table is small or the joint does not split, and one summed table serves better.
+        """The plan of ``observed`` by elimination, where one summed table would serve worse.
+
+        Where the summed table would exceed ``SUMMED_TABLE`` values and the latent sites' joint is
+        larger than the elimination's steps by far (the rule
+        :func:`~inference.queries.elimination.contract_size` applies); ``None`` where the table is
+        small or the joint does not split, and one summed table serves better.
         """
         spanned = {s for t in kept for a, s in enumerate(order) if t.shape[a] > 1}
         latent = tuple(s for s in order if s not in observed and (s in spanned or s == ACTION))
@@ -120,8 +126,9 @@ class FactoredPlan:
         return FactoredPlan(observed, latent, parts, unseen, scopes)
 
     def _sum(self, factors: list[torch.Tensor], keep_action: bool, n: int) -> torch.Tensor:
-        """``(n, A)`` (or ``(n,)`` without ``keep_action``) the factors' log-sum over
-        the latent sites.
+        """``(n, A)`` the factors' log-sum over the latent sites.
+
+        ``(n,)`` without ``keep_action``.
         """
         rank = len(self.latent) + 1
         eliminate = [i - rank for i, s in enumerate(self.latent) if not keep_action or s != ACTION]
@@ -133,8 +140,7 @@ class FactoredPlan:
         return total.reshape(total.shape[0], -1).expand(total.shape[0], n).T
 
     def log_evidence(self, enc: Evidence) -> torch.Tensor:
-        """``(n,)`` log-probability of each row's observed states, every latent site summed out.
-        """
+        """``(n,)`` log-probability of each row's observed states, every latent site summed out."""
         if any(p.observed for p in self.parts):
             return self._sum([p.at(enc) for p in self.parts], False, enc.n_rows)
         if "prior" not in self.__dict__:  # the same for every row: summed once
@@ -142,9 +148,11 @@ class FactoredPlan:
         return self.__dict__["prior"].expand(enc.n_rows)
 
     def answer(self, enc: Evidence) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """Per row: the action's posterior ``(n, A)``, the evidence's log-probability
-        ``(n,)``, and the posterior probability, given each action, that an observed end
-        site sits on a configuration unseen in training ``(n, A)``.
+        """Per row: the action's posterior, the evidence's log-probability, and its unseen share.
+
+        The action's posterior ``(n, A)``, the evidence's log-probability ``(n,)``, and the
+        posterior probability, given each action, that an observed end site sits on a configuration
+        unseen in training ``(n, A)``.
         """
         n = enc.n_rows
         factors = [p.at(enc) for p in self.parts]
@@ -161,6 +169,5 @@ class FactoredPlan:
 
 
 def _scope(shape: tuple[int, ...]) -> frozenset[tuple[int, int]]:
-    """:func:`~inference.queries.elimination.scope` of a part laid out in ``shape`` (rows last).
-    """
+    """:func:`~inference.queries.elimination.scope` of a part laid out in ``shape`` (rows last)."""
     return frozenset((i - len(shape) - 1, k) for i, k in enumerate(shape) if k > 1)

@@ -117,8 +117,10 @@ def predict(
 
 
 def _mixture(net, params, enc, site) -> GaussianMixture:
-    """The site's mixture over the enumerated sites; a partly observed site's components
-    are conditioned on its observed dimensions (which hold their value, variance 0).
+    """The site's mixture over the enumerated sites.
+
+    A partly observed site's components are conditioned on its observed dimensions (which hold their
+    value, variance 0).
     """
     partial = site in enc
 
@@ -152,7 +154,7 @@ def imitation_check(
     seed: int = 0,
     implausible_below: float = IMPLAUSIBLE_BELOW,
 ) -> ImitationCheck:
-    """How surprising is each observed end state under the executed action?
+    """How surprising each observed end state is under the executed action.
 
     The fields are defined in :class:`~inference.queries.results.ImitationCheck`. Discrete end states are summed
     exactly; with a continuous end feature observed, the surprise is exact where each

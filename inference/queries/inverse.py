@@ -1,6 +1,7 @@
-"""The inverse model: the parameter value under which a desired continuous effect is most
-likely (:func:`parameter_for_effect`; per cluster by least squares, the clusters'
-candidates ranked by their exact joint density with the evidence).
+"""The inverse model: the parameter value under which a desired continuous effect is most likely.
+
+:func:`parameter_for_effect`; per cluster by least squares, the clusters' candidates ranked by their
+exact joint density with the evidence.
 
 The parameter posterior (:func:`inference.queries.parameter.infer_parameter`) answers
 "which value was used, given that this effect was seen"; the inverse model answers "which
@@ -128,14 +129,14 @@ _SCORE_CHUNK = 1 << 18
 
 
 def _candidate_scores(net, params, m, given: Evidence, children, acting, candidates, whitened):
-    """``log sum_c' p(c' | action) p(theta | c') prod_j p(y_j | ..., c', theta)`` for every
-    row and candidate ``theta`` ``(n, C, k)``, from the children's ``whitened`` terms
-    (:meth:`models.cpds.mixture.ParameterMixture.whitened`): the factors of
-    ``log p(theta, evidence)`` that depend on the value (under the grid layout the value's
-    cell is its cluster), in closed form. The other
-    factors are a constant per row. None where that does not hold: a site other than the
-    observed continuous ``children`` depends on the cluster or the value, the cluster has
-    parents besides the action, or a child's other continuous inputs are not all given.
+    """The factors of ``log p(theta, evidence)`` that depend on the value, in closed form.
+
+    ``log sum_c' p(c' | action) p(theta | c') prod_j p(y_j | ..., c', theta)`` for every row and
+    candidate ``theta`` ``(n, C, k)``, from the children's ``whitened`` terms
+    (:meth:`models.cpds.mixture.ParameterMixture.whitened`); under the grid layout the value's cell
+    is its cluster. The other factors are a constant per row. None where that does not hold: a site
+    other than the observed continuous ``children`` depends on the cluster or the value, the cluster
+    has parents besides the action, or a child's other continuous inputs are not all given.
     """
     depends = {m.cluster.site, m.value.site}
     mine = {child.site for child in children}

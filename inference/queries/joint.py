@@ -1,5 +1,7 @@
-"""The joint of the discrete end features: :func:`predict_joint`, the twin of
-:func:`~inference.queries.forward.predict` that keeps the end features together.
+"""The joint of the discrete end features.
+
+:func:`predict_joint`, the twin of :func:`~inference.queries.forward.predict` that keeps the end
+features together.
 
 :func:`~inference.queries.forward.predict` gives each end feature's marginal. Where end
 features depend on each other (declared end -> end parents, a shared end-only feature,
@@ -44,8 +46,9 @@ class JointPrediction:
     implausible: torch.Tensor
 
     def prob(self, state: Sequence[Hashable] | Mapping[str, Hashable]) -> torch.Tensor:
-        """``(n,)`` the probability of one joint state (labels in ``features`` order, or
-        ``{feature: label}``).
+        """``(n,)`` the probability of one joint state.
+
+        Labels in ``features`` order, or ``{feature: label}``.
         """
         if isinstance(state, Mapping):
             if set(state) != set(self.features):

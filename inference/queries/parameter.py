@@ -144,10 +144,11 @@ def infer_parameter(
 
 
 def _over_latent_parents(net, params, m, enc, children, latent, mixture) -> ParameterPosterior:
-    """:func:`infer_parameter` where initial states the observed effects depend on are
-    unknown: their states and the cluster enumerated jointly (their exact posterior), the
-    parameter given the best cluster a mixture over those states (its mean and covariance
-    returned, by the law of total covariance), each cluster's in ``mixture`` likewise.
+    """:func:`infer_parameter` where initial states the observed effects depend on are unknown.
+
+    Their states and the cluster are enumerated jointly (their exact posterior), the parameter given
+    the best cluster a mixture over those states (its mean and covariance returned, by the law of
+    total covariance), each cluster's in ``mixture`` likewise.
     """
     p = m.parameter
     sites = [*latent, m.cluster.site]
@@ -188,9 +189,9 @@ def _over_latent_parents(net, params, m, enc, children, latent, mixture) -> Para
 
 
 def _parameter_from_cluster(net, params, m, enc, observed, mixture) -> ParameterPosterior:
-    """The answer when only discrete features the parameter acts on are observed: they
-    depend on its cell, so the parameter given its best cluster is that cluster's
-    Gaussian.
+    """The answer when only discrete features the parameter acts on are observed.
+
+    They depend on its cell, so the parameter given its best cluster is that cluster's Gaussian.
     """
 
     def fn(e: Enumerated, *_):
@@ -235,12 +236,13 @@ class CompiledJointParameterQuery(InferRenamed):
     log_cluster: torch.Tensor  # (A, C)
 
     def serves(self, sites: set[str]) -> bool:
-        """Whether evidence on ``sites`` gets the traced query's answer here: an affected
-        feature observed, with the observed ones' discrete parents and continuous inputs
+        """Whether evidence on ``sites`` gets the traced query's answer here.
+
+        An affected feature observed, with the observed ones' discrete parents and continuous inputs
         besides the parameter (the action may be left out, as for
-        :meth:`CompiledParameterQuery.serves`), and every other site an initial state (an
-        observed end site outside the affected ones, whose own plausibility the traced
-        query would weigh, is left to it).
+        :meth:`CompiledParameterQuery.serves`), and every other site an initial state (an observed
+        end site outside the affected ones, whose own plausibility the traced query would weigh, is
+        left to it).
         """
         m = self.net.mixture(self.parameter.name)
         observed = {s for s in m.affected if s in sites}
@@ -388,9 +390,10 @@ def _depending_on(net: EffectNetwork, sites: set[str]) -> set[str]:
 
 
 def shared_features(net: EffectNetwork, parameter: str) -> list[str]:
-    """The continuous features ``parameter`` acts on that another parameter acts on too:
-    where there are any, :func:`compile_parameter_query` refuses (the traced
-    :func:`infer_parameter` answers).
+    """The continuous features ``parameter`` acts on that another parameter acts on too.
+
+    Where there are any, :func:`compile_parameter_query` refuses (the traced :func:`infer_parameter`
+    answers).
     """
     m = net.mixture(parameter)
     return [s for s in m.continuous if net.acting_on(s) != (m,)]
@@ -399,11 +402,11 @@ def shared_features(net: EffectNetwork, parameter: str) -> list[str]:
 def compile_parameter_query(
     net: EffectNetwork, params: NetworkParams, parameter: str
 ) -> CompiledParameterQuery | CompiledJointParameterQuery:
-    """Precompute the parameter posterior of ``parameter``:
-    :class:`~inference.queries.parameter_tables.CompiledParameterQuery`
-    (its tables) for a parameter acting on one continuous feature,
-    :class:`CompiledJointParameterQuery` for one acting on several features. A
-    continuous feature that several parameters act on is refused (use
+    """Precompute the parameter posterior of ``parameter``.
+
+    :class:`~inference.queries.parameter_tables.CompiledParameterQuery` (its tables) for a parameter
+    acting on one continuous feature, :class:`CompiledJointParameterQuery` for one acting on several
+    features. A continuous feature that several parameters act on is refused (use
     :func:`inference.infer_parameter`).
     """
     check_params(net, params)

@@ -1,9 +1,10 @@
-"""The parameter posterior of a parameter acting on one continuous feature, from Gaussian
-tables computed once (:class:`CompiledParameterQuery`): per parent configuration the
-affected feature's marginal Cholesky factor and the conditioning gain, so that a query is
-gathers, one Gaussian log-density per cluster and one matrix-vector product. Built by
-:func:`inference.queries.parameter.compile_parameter_query`; the same answers as the
-traced :func:`inference.queries.parameter.infer_parameter`.
+"""The parameter posterior of a parameter acting on one continuous feature, from tables.
+
+From Gaussian tables computed once (:class:`CompiledParameterQuery`): per parent configuration the
+affected feature's marginal Cholesky factor and the conditioning gain, so that a query is gathers,
+one Gaussian log-density per cluster and one matrix-vector product. Built by
+:func:`inference.queries.parameter.compile_parameter_query`; the same answers as the traced
+:func:`inference.queries.parameter.infer_parameter`.
 """
 
 from __future__ import annotations
@@ -90,12 +91,13 @@ class CompiledParameterQuery(InferRenamed):
     _one: dict = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def serves(self, sites: set[str]) -> bool:
-        """Whether evidence on ``sites`` gets the traced query's answer here: the affected
-        feature observed, with its discrete parents and its continuous inputs besides the
-        parameter (the action may be left out: the query fills it in where one action uses
-        the parameter, and refuses as the traced one does otherwise), and every other site
-        an initial state (an observed end site, whose own plausibility the traced query
-        would weigh, is left to it).
+        """Whether evidence on ``sites`` gets the traced query's answer here.
+
+        The affected feature observed, with its discrete parents and its continuous inputs besides
+        the parameter (the action may be left out: the query fills it in where one action uses the
+        parameter, and refuses as the traced one does otherwise), and every other site an initial
+        state (an observed end site, whose own plausibility the traced query would weigh, is left to
+        it).
         """
         y_site = end_site(self.parameter.features[0])
         needed = {*self.parents[:-1], *self.inputs[:-1]} - {ACTION}
@@ -205,9 +207,10 @@ class CompiledParameterQuery(InferRenamed):
         )
 
     def _one_tables(self) -> dict | None:
-        """Per action, the numpy views :meth:`_one_row` reads (``None``: no one-row path,
-        the feature has discrete parents besides the action and the cluster, or
-        continuous inputs besides the parameter).
+        """Per action, the numpy views :meth:`_one_row` reads.
+
+        ``None``: no one-row path, the feature has discrete parents besides the action and the
+        cluster, or continuous inputs besides the parameter.
         """
         if "tables" in self._one:
             return self._one["tables"]
@@ -254,12 +257,12 @@ class CompiledParameterQuery(InferRenamed):
         return tables
 
     def _one_row(self, evidence: object, mixture: bool, below: float) -> ParameterPosterior | None:
-        """The query of one fully observed hit (and perhaps the action, as a label) with
-        numpy on per-action tables: a handful of small operations instead of some forty
-        tensor ones. The same steps as the batched query on the same tables, so the same
-        answers up to rounding. ``None`` where the evidence is anything else (several
-        rows, a partial observation, encoded evidence, an error to report): the general
-        path then serves it.
+        """The query of one fully observed hit with numpy on per-action tables.
+
+        One hit, and perhaps the action as a label: a handful of small operations instead of some
+        forty tensor ones. The same steps as the batched query on the same tables, so the same
+        answers up to rounding. ``None`` where the evidence is anything else (several rows, a
+        partial observation, encoded evidence, an error to report): the general path then serves it.
         """
         if isinstance(evidence, Evidence) or not isinstance(evidence, Mapping):
             return None
@@ -342,9 +345,10 @@ class CompiledParameterQuery(InferRenamed):
         )
 
     def _rounds_off(self, x: torch.Tensor) -> bool:
-        """Whether the mean ``offset + w_x x`` may round off against the marginal's
-        smallest noise scale (:func:`models.gaussian.sum_rounds_off`; that scale at least
-        ``1 / |whiten|``, the largest Frobenius norm of the inverse factors).
+        """Whether the mean ``offset + w_x x`` may round off against the marginal's noise.
+
+        Against its smallest noise scale (:func:`models.gaussian.sum_rounds_off`; that scale is at
+        least ``1 / |whiten|``, the largest Frobenius norm of the inverse factors).
         """
         if "extremes" not in self._one:  # the tables' part, once
             largest_inverse = self.whiten.square().sum((-2, -1)).max().sqrt()
@@ -353,12 +357,13 @@ class CompiledParameterQuery(InferRenamed):
         return sum_rounds_off(*self._one["extremes"][:2], x, self._one["extremes"][2])
 
     def _infer_partial(self, enc, y, index, loc, low, mixture, below) -> ParameterPosterior:
-        """The query for ``y`` observed in some dimensions (NaN in the others): each
-        cluster's marginal and conditioning restricted to the observed dimensions. The
-        tables hold them for all dimensions; the marginal covariance ``L L^T``, the
-        cross-covariance ``gain L L^T`` and the cluster covariance ``post_cov + gain L
-        L^T gain^T`` are read back from them, then every observed-dimension quantity is
-        taken from those (:func:`models.gaussian.mask_unobserved`).
+        """The query for ``y`` observed in some dimensions (NaN in the others).
+
+        Each cluster's marginal and conditioning restricted to the observed dimensions. The tables
+        hold them for all dimensions; the marginal covariance ``L L^T``, the cross-covariance ``gain
+        L L^T`` and the cluster covariance ``post_cov + gain L L^T gain^T`` are read back from them,
+        then every observed-dimension quantity is taken from those
+        (:func:`models.gaussian.mask_unobserved`).
         """
         n = y.shape[0]
         eye = torch.eye(y.shape[-1], dtype=DTYPE)
@@ -403,8 +408,9 @@ class CompiledParameterQuery(InferRenamed):
 
 
 def refuse_impossible(log_post: torch.Tensor) -> None:
-    """Refuse rows ``(n, C)`` whose every cluster has probability 0 (in float64): no
-    posterior exists (as :class:`inference.queries.enumeration.Enumerated` refuses them).
+    """Refuse rows ``(n, C)`` whose every cluster has probability 0 (in float64).
+
+    No posterior exists (as :class:`inference.queries.enumeration.Enumerated` refuses them).
     """
     top = log_post.amax(-1)
     if not bool((top > -torch.inf).all()):
@@ -419,11 +425,12 @@ def refuse_impossible(log_post: torch.Tensor) -> None:
 def _whitened_distance(
     y: torch.Tensor, loc: torch.Tensor, whiten: torch.Tensor, low: torch.Tensor | None = None
 ) -> torch.Tensor:
-    """``(n, C)`` ``|whiten (y - loc - low)|^2`` for ``y`` ``(n, d)``, ``loc`` (and the mean's
-    rest ``low``, where it is a pair) ``(n or 1, C, d)`` and lower triangular ``whiten``
-    ``(n or C, ..., d, d)``: the residual first, then whitened, one dimension at a time
-    on ``(n, C)`` tensors (a sum of squares without cancellation, and no ``(n, C, d)``
-    temporaries).
+    """``(n, C)`` ``|whiten (y - loc - low)|^2``, one dimension at a time.
+
+    For ``y`` ``(n, d)``, ``loc`` (and the mean's rest ``low``, where it is a pair) ``(n or 1, C,
+    d)`` and lower triangular ``whiten`` ``(n or C, ..., d, d)``: the residual first, then whitened,
+    one dimension at a time on ``(n, C)`` tensors (a sum of squares without cancellation, and no
+    ``(n, C, d)`` temporaries).
     """
     d = y.shape[-1]
     diff = [y[:, j, None] - loc[..., j] for j in range(d)]  # (n, C) each

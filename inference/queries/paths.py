@@ -87,8 +87,10 @@ def max_matvec(
 
 
 def _product(left: torch.Tensor, tables: torch.Tensor, key: torch.Tensor) -> torch.Tensor:
-    """``(n, M)`` ``left[i] @ tables[key[i]]``: one product per distinct table where they
-    are few, one batched product of gathered tables otherwise.
+    """``(n, M)`` ``left[i] @ tables[key[i]]``.
+
+    One product per distinct table where they are few, one batched product of gathered tables
+    otherwise.
     """
     present = key.unique()
     if len(present) == 1:

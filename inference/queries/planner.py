@@ -1,5 +1,6 @@
-"""Plan with any network: the actions that reach a goal within a horizon, over the
-network's own states.
+"""Plan with any network.
+
+The actions that reach a goal within a horizon, over the network's own states.
 
 :func:`~inference.queries.planner.plan` builds the network's joint transitions
 (:func:`~inference.queries.transitions.transitions`) and runs finite-horizon dynamic
@@ -71,8 +72,10 @@ class Plan:
     path_probability: float = 0.0
 
     def action(self, state: StateLike | int, steps_left: int | None = None) -> str | None:
-        """The action label to take in ``state`` with ``steps_left`` actions left (default
-        the horizon); ``None`` in a goal state or where no action is allowed.
+        """The action label to take in ``state`` with ``steps_left`` actions left.
+
+        ``steps_left`` defaults to the horizon; ``None`` in a goal state or where no action is
+        allowed.
         """
         h = self.horizon if steps_left is None else steps_left
         if not isinstance(h, int) or not 1 <= h <= self.horizon:
@@ -81,15 +84,17 @@ class Plan:
         return None if a < 0 else self.model.actions[a]
 
     def probability(self, state: StateLike | int, steps_left: int | None = None) -> float:
-        """The probability of reaching the goal from ``state`` within ``steps_left``
-        actions (default the horizon).
+        """The probability of reaching the goal from ``state`` within ``steps_left`` actions.
+
+        ``steps_left`` defaults to the horizon.
         """
         h = self.horizon if steps_left is None else steps_left
         return float(self.value[h, self.model.space.index_of(state)])
 
     def to_dict(self) -> dict[tuple[tuple[Hashable, ...], int], str]:
-        """``{(state, steps left): action}`` by labels, for every non-goal state with an
-        allowed action.
+        """``{(state, steps left): action}`` by labels.
+
+        For every non-goal state with an allowed action.
         """
         out = {}
         for h in range(1, self.horizon + 1):
@@ -121,8 +126,9 @@ def plan(
     normalise: bool = False,
     avoid_unseen: bool = False,
 ) -> Plan:
-    """The policy maximising the probability of reaching ``goal`` within ``horizon``
-    actions, by exact finite-horizon dynamic programming over the network's states.
+    """The policy maximising the probability of reaching ``goal`` within ``horizon`` actions.
+
+    By exact finite-horizon dynamic programming over the network's states.
 
     Parameters
     ----------
@@ -256,9 +262,10 @@ def _most_likely_path(
     start: torch.Tensor,
     horizon: int,
 ) -> tuple[Sequence[int], float]:
-    """The most probable state sequence under the policy that ends in the goal within
-    ``horizon`` actions (Viterbi over the policy's chain, the goal absorbing), as
-    ``(s0, a0, s1, a1, ..., goal)`` indices, and its probability.
+    """The most probable state sequence under the policy that ends in the goal.
+
+    Within ``horizon`` actions (Viterbi over the policy's chain, the goal absorbing), as ``(s0, a0,
+    s1, a1, ..., goal)`` indices, and its probability.
     """
     s = probs.shape[0]
     rows = torch.arange(s)

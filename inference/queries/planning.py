@@ -58,6 +58,7 @@ class Round:
     success_rate: float = float("nan")
 
     def as_dict(self, names: dict[State, str]) -> dict:
+        """The round as JSON-ready data, states written by their ``names``."""
         return {
             "round": self.name,
             "state": sorted(self.state),
@@ -154,8 +155,10 @@ def paper_planner(
 
 @dataclass(frozen=True)
 class ExactPlan:
-    """``value[h, s]``: the best probability of reaching the goal from state ``s`` with ``h``
-    actions left; ``policy[h, s]``: the action achieving it (``h >= 1``).
+    """The best probability of reaching the goal, and the action achieving it.
+
+    ``value[h, s]``: the best probability of reaching the goal from state ``s`` with ``h`` actions
+    left; ``policy[h, s]``: the action achieving it (``h >= 1``).
     """
 
     value: torch.Tensor  # (H + 1, S)
@@ -196,8 +199,10 @@ def exact_plan(
 def policy_value(
     transition: torch.Tensor, policy: torch.Tensor, goal: int | torch.Tensor, horizon: int
 ) -> torch.Tensor:
-    """``value[h, s]``: the probability that following ``policy`` from ``s`` reaches the goal
-    within ``h`` actions, under ``transition[s, a, s'] = P(s' | s, a)``.
+    """The probability that following ``policy`` reaches the goal.
+
+    ``value[h, s]``: the probability that following ``policy`` from ``s`` reaches the goal within
+    ``h`` actions, under ``transition[s, a, s'] = P(s' | s, a)``.
 
     ``policy`` is ``(H + 1, S)`` as in :class:`ExactPlan` (``H >= horizon``); a state whose
     entry is ``-1`` has no action and never reaches the goal. Use it to evaluate a plan made

@@ -50,18 +50,21 @@ continuous observation beyond about 3.9 standard deviations in one dimension).""
 
 
 class OutsideTrainingData(UserWarning):
-    """An observed continuous initial state lies far outside what the model was fitted on
-    (its tail under the fitted initial Gaussian is below the threshold).
+    """An observed continuous initial state lies far outside what the model was fitted on.
+
+    Its tail under the fitted initial Gaussian is below the threshold.
     """
 
 
 @dataclass(frozen=True)
 class Plausibility:
-    """``discrete`` ``(n,)``: p(observed discrete end state | the rest of the evidence);
-    ``tail`` ``(n,)``: chi-square tail probability of the observed continuous end state
-    under its closest possible component. Both 1 where nothing of the kind is observed.
-    ``initial``: per observed continuous initial site, ``(n,)`` the chi-square tail of its
-    value under the model's fitted Gaussian of that initial state.
+    """How plausible the observed end states are under the model.
+
+    ``discrete`` ``(n,)``: p(observed discrete end state | the rest of the evidence); ``tail``
+    ``(n,)``: chi-square tail probability of the observed continuous end state under its closest
+    possible component. Both 1 where nothing of the kind is observed. ``initial``: per observed
+    continuous initial site, ``(n,)`` the chi-square tail of its value under the model's fitted
+    Gaussian of that initial state.
     """
 
     discrete: torch.Tensor
@@ -69,8 +72,9 @@ class Plausibility:
     initial: dict[str, torch.Tensor] = field(default_factory=dict)
 
     def outside(self, below: float = IMPLAUSIBLE_BELOW) -> dict[str, torch.Tensor]:
-        """Per continuous initial site, ``(n,)`` bool: its value lies outside the training
-        data (tail below ``below``).
+        """Per continuous initial site, ``(n,)`` bool: its value lies outside the training data.
+
+        Its tail is below ``below``.
         """
         return {site: tail < below for site, tail in self.initial.items()}
 
@@ -142,9 +146,10 @@ def plausibility(
 
 
 def outside_training(initial: dict[str, torch.Tensor], below: float) -> torch.Tensor | bool:
-    """``(n,)`` bool (or ``False`` without any site): some initial state's tail
-    (:func:`initial_tails`) below ``below``; warns (:class:`OutsideTrainingData`) naming
-    each such site and its first row.
+    """``(n,)`` bool: some initial state's tail (:func:`initial_tails`) below ``below``.
+
+    ``False`` without any site; warns (:class:`OutsideTrainingData`) naming each such site and its
+    first row.
     """
     flag = False
     for site, tail in initial.items():
@@ -163,9 +168,11 @@ def outside_training(initial: dict[str, torch.Tensor], below: float) -> torch.Te
 
 
 def initial_tails(net: EffectNetwork, params: NetworkParams, evidence) -> dict[str, torch.Tensor]:
-    """Per continuous initial site in ``evidence`` (encoded) whose parents are all given,
-    ``(n,)`` the chi-square tail ``P(chi2_d > D^2)`` of its value's squared Mahalanobis
-    distance ``D^2`` under the model's own distribution of that initial state.
+    """Per continuous initial site, the chi-square tail of its value under the model.
+
+    For every site in ``evidence`` (encoded) whose parents are all given, ``(n,)`` the chi-square
+    tail ``P(chi2_d > D^2)`` of its value's squared Mahalanobis distance ``D^2`` under the model's
+    own distribution of that initial state.
     """
     out = {}
     cache: dict[str, torch.Tensor] = {}
@@ -184,9 +191,10 @@ def initial_tails(net: EffectNetwork, params: NetworkParams, evidence) -> dict[s
 
 
 def _closest_distance(net, params, evidence, sites) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(n,)`` smallest squared Mahalanobis distance over possible configurations, and
-    ``(n,)`` the summed dimension of ``sites`` observed in each row (partial evidence:
-    the distance of the observed dimensions under their marginal).
+    """``(n,)`` smallest squared Mahalanobis distance over possible configurations.
+
+    And ``(n,)`` the summed dimension of ``sites`` observed in each row (partial evidence: the
+    distance of the observed dimensions under their marginal).
     """
     dof = sum(observed_dims(evidence[s]).sum(-1) for s in sites).to(DTYPE)
 

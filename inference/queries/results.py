@@ -1,5 +1,6 @@
-"""What the queries answer: one frozen result type per question, every field batched over
-the evidence rows (leading axis ``n``).
+"""What the queries answer: one frozen result type per question.
+
+Every field is batched over the evidence rows (leading axis ``n``).
 
 * :class:`Prediction` -- :func:`~inference.queries.forward.predict`, the end state;
   :class:`GaussianMixture` -- a continuous end feature's (or a parameter's) distribution.
@@ -52,8 +53,10 @@ class GaussianMixture:
 
 @dataclass(frozen=True)
 class Prediction:
-    """``discrete[feature]``: ``(n, K)`` probabilities over the feature's states in
-    declaration order (``states[feature]``); ``continuous[feature]``: a mixture.
+    """The end features' distributions, discrete and continuous.
+
+    ``discrete[feature]``: ``(n, K)`` probabilities over the feature's states in declaration order
+    (``states[feature]``); ``continuous[feature]``: a mixture.
     """
 
     discrete: dict[str, torch.Tensor]
@@ -112,10 +115,12 @@ class Prediction:
 
 @dataclass(frozen=True)
 class ActionPosterior:
-    """``probs`` ``(n, A)`` over ``actions``; ``best`` ``(n,)`` index; ``unseen`` ``(n, A)``;
-    ``implausible`` ``(n,)`` bool: the observed end state has (almost) no probability
-    under the model (see :mod:`inference.queries.plausibility`; ``None`` from the compiled
-    queries), so ``best`` answers a question the model cannot explain.
+    """The action posterior and its best action per row.
+
+    ``probs`` ``(n, A)`` over ``actions``; ``best`` ``(n,)`` index; ``unseen`` ``(n, A)``;
+    ``implausible`` ``(n,)`` bool: the observed end state has (almost) no probability under the
+    model (see :mod:`inference.queries.plausibility`; ``None`` from the compiled queries), so
+    ``best`` answers a question the model cannot explain.
     """
 
     probs: torch.Tensor
@@ -186,9 +191,10 @@ class ImitationCheck:
     implausible: torch.Tensor | None = None
 
     def to_frame(self, index: Any = None) -> Any:
-        """The check as a ``DataFrame``: the columns ``log_likelihood``, ``surprise``,
-        ``unseen`` and, where computed, ``implausible``, one row per evidence row (its
-        index ``index``, ``0..n-1`` by default).
+        """The check as a ``DataFrame``, one row per evidence row.
+
+        The columns ``log_likelihood``, ``surprise``, ``unseen`` and, where computed,
+        ``implausible``; its index is ``index``, ``0..n-1`` by default.
         """
         columns = {
             "log_likelihood": _numpy(self.log_likelihood),
@@ -202,8 +208,10 @@ class ImitationCheck:
 
 @dataclass(frozen=True)
 class ParameterPosterior:
-    """``cluster_probs`` ``(n, C)``, ``best_cluster`` ``(n,)``; the parameter given the best
-    cluster (the paper's answer): ``mean`` ``(n, d)``, ``cov`` ``(n, d, d)``.
+    """The cluster posterior and the parameter given the best cluster.
+
+    ``cluster_probs`` ``(n, C)``, ``best_cluster`` ``(n,)``; the parameter given the best cluster
+    (the paper's answer): ``mean`` ``(n, d)``, ``cov`` ``(n, d, d)``.
 
     ``outside`` ``(n,)`` bool: that mean lies outside the parameter's ``[low, high]`` (an
     action the declaration does not cover). ``mixture``: with ``mixture=True``, the full
@@ -273,9 +281,10 @@ class ParameterForEffect:
     outside: torch.Tensor
 
     def to_frame(self, index: Any = None) -> Any:
-        """The answer as a ``DataFrame``, one row per evidence row (its index ``index``,
-        ``0..n-1`` by default): ``value`` (dimension 1) or ``value[i]``, ``cluster``,
-        ``log_density``, ``miss`` and ``outside``.
+        """The answer as a ``DataFrame``, one row per evidence row.
+
+        Its index is ``index``, ``0..n-1`` by default; the columns ``value`` (dimension 1) or
+        ``value[i]``, ``cluster``, ``log_density``, ``miss`` and ``outside``.
         """
         columns = _vector("value", self.value) | {
             "cluster": _numpy(self.cluster),

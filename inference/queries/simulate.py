@@ -130,8 +130,9 @@ def draw(
 
 
 def _unobserved_draw(fn, y: torch.Tensor) -> torch.Tensor:
-    """``y`` ``(n, d)`` with its NaN dimensions drawn from ``fn`` (the feature's Gaussian
-    given its parents) conditioned on the observed ones.
+    """``y`` ``(n, d)`` with its NaN dimensions drawn given the observed ones.
+
+    Drawn from ``fn`` (the feature's Gaussian given its parents) conditioned on the observed ones.
     """
     mean, cov = condition_on_observed(y, fn.loc, fn.covariance_matrix)
     seen = ~torch.isnan(y)

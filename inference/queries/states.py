@@ -1,5 +1,7 @@
-"""A network's state space: the discrete features that have both an initial and an end
-node, their joint states enumerated as label tuples.
+"""A network's state space.
+
+The discrete features that have both an initial and an end node, their joint states enumerated as
+label tuples.
 
 A state is one label per state feature, in the network's feature order: in a door world
 with ``door`` in (``"shut"``, ``"open"``) and ``lock`` in (``"off"``, ``"on"``), the states
@@ -37,8 +39,9 @@ Selection = Mapping[str, Hashable] | Callable[[Mapping[str, Hashable]], bool]
 
 
 def state_features(net: EffectNetwork) -> tuple[Discrete, ...]:
-    """The features that make a network's state: discrete, with an initial node (every
-    declared feature has an end node), in declaration order.
+    """The features that make a network's state.
+
+    Discrete, with an initial node (every declared feature has an end node), in declaration order.
     """
     return tuple(f for f in net.features if isinstance(f, Discrete) and f.initial)
 
@@ -79,9 +82,11 @@ class StateSpace:
         *,
         stateless: bool = False,
     ) -> StateSpace:
-        """The state space of ``net``: every combination of its state features' states
-        (the last feature fastest), or only ``states`` (label tuples in feature order or
-        ``{feature: label}`` mappings, each naming every state feature), in their order.
+        """The state space of ``net``.
+
+        Every combination of its state features' states (the last feature fastest), or only
+        ``states`` (label tuples in feature order or ``{feature: label}`` mappings, each naming
+        every state feature), in their order.
 
         ``stateless=True`` gives a network without a state feature its one state ``()``
         (a demonstration of such a network is still a sequence of actions); without it
@@ -155,8 +160,10 @@ class StateSpace:
         return dict(zip(self.names, self.states[i], strict=True))
 
     def index_of(self, state: StateLike | int) -> int:
-        """The index of a state given as a label tuple, a ``{feature: label}`` mapping
-        naming every state feature, or an index (checked).
+        """The index of a state, checked.
+
+        The state is given as a label tuple, a ``{feature: label}`` mapping naming every state
+        feature, or an index.
         """
         if isinstance(state, int) and not isinstance(state, bool):
             if not 0 <= state < len(self):
@@ -172,9 +179,10 @@ class StateSpace:
 
     # ---------------------------------------------------------------- selecting
     def mask(self, selection: Selection) -> torch.Tensor:
-        """``(S,)`` bool: the states that ``selection`` picks: labels of some features
-        (``{"door": "open"}``: every state whose door is open) or a predicate called
-        with each state's ``{feature: label}``.
+        """``(S,)`` bool: the states that ``selection`` picks.
+
+        Labels of some features (``{"door": "open"}``: every state whose door is open) or a
+        predicate called with each state's ``{feature: label}``.
         """
         if callable(selection) and not isinstance(selection, Mapping):
             out = [bool(selection(self.labels(i))) for i in range(len(self))]
@@ -193,9 +201,11 @@ class StateSpace:
     def distribution(
         self, selection: Selection | StateLike, prior: torch.Tensor | None = None
     ) -> torch.Tensor:
-        """``(S,)`` float64: the states ``selection`` picks (a partial assignment, a full
-        state or a predicate), weighted by ``prior`` ``(S,)`` (uniform by default) and
-        normalised. ``ValueError`` if it picks no state of positive weight.
+        """``(S,)`` float64: the states ``selection`` picks, weighted and normalised.
+
+        ``selection`` is a partial assignment, a full state or a predicate; weighted by ``prior``
+        ``(S,)`` (uniform by default) and normalised. ``ValueError`` if it picks no state of
+        positive weight.
         """
         if isinstance(selection, Sequence) and not isinstance(selection, str | bytes):
             keep = torch.zeros(len(self), dtype=torch.bool)

@@ -86,8 +86,9 @@ def continuous_surprise(
     n_points: int = QUADRATURE_POINTS,
     seed: int = 0,
 ) -> torch.Tensor:
-    """``(n,)`` surprise of the observed end sites ``observed`` (at least one continuous)
-    of every row of encoded ``evidence`` (at least one row).
+    """``(n,)`` surprise of the observed end sites ``observed`` of every row.
+
+    At least one of ``observed`` is continuous; rows of encoded ``evidence`` (at least one row).
 
     ``n_points``: quadrature points per component (directions times radii) for rows where a discrete
     outcome has several components; ``seed`` fixes the scrambled Sobol directions used
@@ -159,8 +160,9 @@ def continuous_surprise(
 
 
 def _by_outcome(e: Enumerated, outcomes: list[str], t: torch.Tensor) -> torch.Tensor:
-    """``t`` ``(E..., n, *event)`` laid out ``(n, O, K, *event)``: the rows, the discrete
-    outcomes' configurations, the other enumerated sites' configurations.
+    """``t`` ``(E..., n, *event)`` laid out ``(n, O, K, *event)``.
+
+    The rows, the discrete outcomes' configurations, the other enumerated sites' configurations.
     """
     depth = e.log_weight.dim()
     event = t.dim() - depth
@@ -174,10 +176,11 @@ def _by_outcome(e: Enumerated, outcomes: list[str], t: torch.Tensor) -> torch.Te
 
 
 def _joint_gaussians(net, params, evidence: Evidence, continuous, discrete):
-    """Per row and component the joint Gaussian of the observed continuous end features,
-    ``(n, O, K, D)`` mean and ``(n, O, K, D, D)`` Cholesky factor, ``D`` their summed
-    dimensions, laid out as :func:`mask_unobserved` writes a partial observation (an
-    unobserved dimension: mean 0, unit variance, independent of the others).
+    """Per row and component the joint Gaussian of the observed continuous end features.
+
+    ``(n, O, K, D)`` mean and ``(n, O, K, D, D)`` Cholesky factor, ``D`` their summed dimensions,
+    laid out as :func:`mask_unobserved` writes a partial observation (an unobserved dimension: mean
+    0, unit variance, independent of the others).
 
     The model samples the features in its trace's order, each given those before it
     (a shared unknown parameter conditioned on them); its mean is affine in their
@@ -233,8 +236,9 @@ def _joint_gaussians(net, params, evidence: Evidence, continuous, discrete):
 
 
 def _assemble(blocks) -> torch.Tensor:
-    """A block lower-triangular matrix from per-feature ``(left, own)`` blocks: ``left``
-    the rows' part under the earlier features (``None`` for the first).
+    """A block lower-triangular matrix from per-feature ``(left, own)`` blocks.
+
+    ``left`` the rows' part under the earlier features (``None`` for the first).
     """
     sizes = [own.shape[-1] for _, own in blocks]
     total = sum(sizes)
@@ -267,14 +271,15 @@ def _directions(dim: int, n_points: int, seed: int) -> tuple[torch.Tensor, int]:
 
 
 def _neighbours(offset, slope, weight, top):
-    """For each component ``c``, the components ``c'`` whose density can matter on the
-    ball of radius ``top`` around ``c`` (in ``c``'s whitened coordinates): ``c'``'s term
-    there is at most ``weight_c' - D^2 / 2``, ``D`` the least distance of the ball from
-    ``c'``'s mean in ``c'``'s whitened coordinates (``|b| - top |A|``, ``b`` the offset
-    and ``A`` the slope), and ``c``'s own term at least ``weight_c - top^2 / 2``; a term
-    below that by more than 60 nats changes no float64 sum. Returns ``offset``, ``slope``
-    and ``weight`` (broadcast to ``(m, O, K, K'')``) over the fewest ``K''`` components
-    that hold every one that can matter (all of them where the components overlap).
+    """For each component ``c``, the components ``c'`` whose density can matter near ``c``.
+
+    Near ``c`` is on the ball of radius ``top`` around ``c`` (in ``c``'s whitened coordinates):
+    ``c'``'s term there is at most ``weight_c' - D^2 / 2``, ``D`` the least distance of the ball
+    from ``c'``'s mean in ``c'``'s whitened coordinates (``|b| - top |A|``, ``b`` the offset and
+    ``A`` the slope), and ``c``'s own term at least ``weight_c - top^2 / 2``; a term below that by
+    more than 60 nats changes no float64 sum. Returns ``offset``, ``slope`` and ``weight``
+    (broadcast to ``(m, O, K, K'')``) over the fewest ``K''`` components that hold every one that
+    can matter (all of them where the components overlap).
     """
     m, o, k = weight.shape
     reach = offset.norm(dim=-1) - top * slope.square().sum((-2, -1)).sqrt()
@@ -294,10 +299,11 @@ def _neighbours(offset, slope, weight, top):
 
 
 def _quadrature(log_prior, mean, tril, log_joint, n_points, seed) -> torch.Tensor:
-    """``(m, O, K)``: under each component, the probability of an outcome (its discrete
-    part the component's) more likely than the observed one. ``log_prior`` ``(m, O, K)``:
-    ``log p(c, E)``; ``mean`` ``(m, O, K, d)``, ``tril``: the components' Gaussians over
-    the ``d`` observed dimensions; ``log_joint`` ``(m,)``: ``log p(o*, E)``.
+    """``(m, O, K)``: per component, the probability of an outcome more likely than the observed.
+
+    The outcome's discrete part is the component's. ``log_prior`` ``(m, O, K)``: ``log p(c, E)``;
+    ``mean`` ``(m, O, K, d)``, ``tril``: the components' Gaussians over the ``d`` observed
+    dimensions; ``log_joint`` ``(m,)``: ``log p(o*, E)``.
     """
     m, o, k, dim = mean.shape
     u, n_radii = _directions(dim, n_points, seed)  # (J, d)
@@ -368,10 +374,11 @@ _CROSSING_STEPS = 12
 
 
 def _crossing(base, linear, quadratic, level, low, high) -> torch.Tensor:
-    """``(N,)`` squared radii where the mixture's log-density along a ray, ``logsumexp(base
-    - r (linear + r quadratic))`` over the components (``(N, K)`` each), meets ``level``
-    ``(N,)``: the Illinois variant of regula falsi in ``r^2`` between the bracketing
-    nodes ``low`` and ``high`` (``(r^2, excess)`` pairs of opposite signs).
+    """``(N,)`` squared radii where the mixture's log-density along a ray meets ``level``.
+
+    The log-density is ``logsumexp(base - r (linear + r quadratic))`` over the components (``(N,
+    K)`` each), ``level`` ``(N,)``: the Illinois variant of regula falsi in ``r^2`` between the
+    bracketing nodes ``low`` and ``high`` (``(r^2, excess)`` pairs of opposite signs).
     """
     (s0, f0), (s1, f1) = low, high
     for _ in range(_CROSSING_STEPS):

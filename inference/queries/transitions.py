@@ -1,12 +1,13 @@
-"""Joint transitions of a network: ``P(next state | state, action)`` for every state and
-action, exactly, from the network's own tables.
+r"""Joint transitions of a network: ``P(next state | state, action)``.
+
+For every state and action, exactly, from the network's own tables.
 
 A network's state is its discrete features that have both an initial and an end node
 (:mod:`inference.queries.states`). One step is the network itself: the state's features
 are its initial sites, the action its action, the next state's features its end sites::
 
     initial.f1  initial.f2    action --> cluster.p   (integrated out, or one action per cluster)
-         \\        |       /      \\         |
+         \        |       /      \         |
           v       v      v        v        v
         end.f1 ------> end.f2     end.g (an end-only feature: summed out)
 
@@ -190,8 +191,7 @@ class Transitions:
             raise ValueError(f"unknown action {action!r}; actions are {self.actions}") from None
 
     def prob(self, state: StateLike | int, action: str | int, next: StateLike | int) -> float:
-        """``P(next | state, action)``; states as label tuples or mappings, the action by label.
-        """
+        """``P(next | state, action)``; states as label tuples or mappings, the action by label."""
         s, s2 = self.space.index_of(state), self.space.index_of(next)
         return float(self.probs[s, self.action_index(action), s2])
 
@@ -302,8 +302,9 @@ def transitions(
 
 
 def _check_size(net: EffectNetwork, space: StateSpace, offered: _Offered) -> None:
-    """Refuse a question whose tables, read at every ``(state, action, next state)`` with
-    the latent sites they span, would hold more than :data:`MAX_ENTRIES` numbers.
+    """Refuse a question whose tables would hold more than :data:`MAX_ENTRIES` numbers.
+
+    The tables read at every ``(state, action, next state)`` with the latent sites they span.
     """
     s, a = len(space), len(offered.labels)
     fixed = {initial_site(f.name) for f in space.features} | {ACTION, *offered.clusters}
@@ -438,8 +439,9 @@ def _transitions(net, space: StateSpace, offered: _Offered, tables: ModelTables)
 
 
 def _read(table, order, index, latent, shape) -> torch.Tensor:
-    """``table`` (one axis per site of ``order``) at the fixed sites' indices: a tensor
-    ``(S|1, A|1, S'|1, latent sizes..., 1)`` (the trailing 1 is the rows' dim that
+    """``table`` (one axis per site of ``order``) at the fixed sites' indices.
+
+    A tensor ``(S|1, A|1, S'|1, latent sizes..., 1)`` (the trailing 1 is the rows' dim that
     :func:`~inference.queries.elimination.contract` expects).
     """
     fixed = [i for i, q in enumerate(order) if q in index]

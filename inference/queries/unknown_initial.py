@@ -45,8 +45,9 @@ def enumerate_unknown_initial(
     trace_only: set[str],
     masks,
 ):
-    """:func:`inference.queries.enumeration.enumerate_model` for evidence that leaves the
-    continuous initial sites ``unknown`` out (see the module).
+    """:func:`inference.queries.enumeration.enumerate_model` without the continuous initial sites.
+
+    For evidence that leaves the continuous initial sites ``unknown`` out (see the module).
     """
     from inference.fitting.gaussian_gaps import condition, continuous_sites, joint_gaussian
     from inference.queries.enumeration import Enumerated, enumerate_model
