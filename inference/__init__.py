@@ -1,5 +1,6 @@
-"""Fitting (maximum likelihood) and exact queries on effect networks: the names the
-README and the guide teach.
+"""Fitting (maximum likelihood) and exact queries on effect networks.
+
+The names the README and the guide teach.
 
 Fitting (:mod:`inference.fitting`): :func:`fit`, :func:`fit_gradient`, :func:`fit_em`,
 :func:`fit_pooled` (with :func:`grid_kernel`), :func:`fit_statistics` and

@@ -87,16 +87,19 @@ TIE = 1e-9
 
 
 def predictive_entropy(alpha: torch.Tensor) -> torch.Tensor:
-    """``(...)`` nats: the entropy of ``Dirichlet(alpha)``'s predictive ``alpha / alpha0``
-    (``alpha`` ``(..., K)``, positive).
+    """``(...)`` nats: the entropy of ``Dirichlet(alpha)``'s predictive ``alpha / alpha0``.
+
+    ``alpha`` ``(..., K)``, positive.
     """
     p = alpha / alpha.sum(-1, keepdim=True)
     return -(p * p.log()).sum(-1)
 
 
 def dirichlet_eig(alpha: torch.Tensor) -> torch.Tensor:
-    """``(...)`` nats: the information one categorical draw gives about ``theta ~
-    Dirichlet(alpha)`` (``alpha`` ``(..., K)``, positive), in closed form (see the module).
+    """``(...)`` nats: the information one categorical draw gives about ``theta``.
+
+    ``theta ~ Dirichlet(alpha)`` (``alpha`` ``(..., K)``, positive), in closed form (see the
+    module).
 
     It is the mutual information ``I(theta; y)``: 0 for a row known exactly (huge
     counts), at most ``log K``.
@@ -198,10 +201,10 @@ class ExplorationResult:
 
     @cached_property
     def params(self) -> NetworkParams:
-        """The tables from the closed-form counts, equal to ``fit(net, rows,
-        pseudo_count=...)``; built on first access (a table over every parent
-        configuration can be large, and a caller that refits on prefixes of ``rows``
-        never reads them).
+        """The tables from the closed-form counts, equal to ``fit(net, rows, pseudo_count=...)``.
+
+        Built on first access (a table over every parent configuration can be large, and a caller
+        that refits on prefixes of ``rows`` never reads them).
         """
         alpha = self._pseudo_count
         return NetworkParams({s: t.table(alpha) for s, t in self._tables.items()}, alpha, self._net)
@@ -222,8 +225,10 @@ def explore(
     checkpoint: str | os.PathLike | None = None,
     progress: bool = False,
 ) -> ExplorationResult:
-    """Choose ``budget`` candidates of ``pool`` batch by batch, play them with ``oracle``
-    and learn the tables from their outcomes in closed form.
+    """Choose ``budget`` candidates of ``pool`` batch by batch, play them and learn from them.
+
+    The candidates are played with ``oracle`` and the tables learnt from their outcomes in closed
+    form.
 
     Parameters
     ----------
@@ -380,9 +385,9 @@ def explore(
 def with_pool_prior(
     net: EffectNetwork, params: NetworkParams, pool: Mapping[str, object]
 ) -> NetworkParams:
-    """``params`` with the tables of the initial sites and the action refitted on ``pool``
-    (every candidate counted once, with ``params``' pseudo-count); the end sites' tables
-    are kept.
+    """``params`` with the tables of the initial sites and the action refitted on ``pool``.
+
+    Every candidate is counted once, with ``params``' pseudo-count; the end sites' tables are kept.
 
     Tables fitted on the rows :func:`explore` chose (or on any designed experiment) learn
     the chooser's frequencies as ``p(action)`` and ``p(initial state)``: a design that
@@ -521,8 +526,9 @@ class _Scorer:
         return np.asarray(batch, np.int64), np.asarray(gains)
 
     def refresh(self, batch: np.ndarray) -> None:
-        """Recompute the scores of the rows the played ``batch`` changed (with the shared
-        prior: every row of their groups).
+        """Recompute the scores of the rows the played ``batch`` changed.
+
+        With the shared prior: every row of their groups.
         """
         self.pooled.clear()  # the played batch changed the counts
         for s, t in self.tables.items():
@@ -533,8 +539,9 @@ class _Scorer:
 
 
 def _check_network(net: EffectNetwork) -> None:
-    """Refuse networks :func:`explore` cannot learn: non-table sites, pinned tables, end
-    sites with end parents.
+    """Refuse networks :func:`explore` cannot learn.
+
+    Non-table sites, pinned tables, end sites with end parents.
     """
     for spec in net.sites:
         cpd = net.cpd(spec.name)

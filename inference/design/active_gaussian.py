@@ -65,10 +65,11 @@ def regression_information(
     *,
     prior_precision: float = 1e-3,
 ) -> torch.Tensor:
-    """``(m,)`` expected information gain (nats) of one more row at each candidate about
-    the regression of the feature ``parameter`` acts on, given the training rows
-    ``data`` (every site, as for :func:`inference.fit`). ``candidates``: rows giving the
-    action, the parameter and the feature's other parents (no end values).
+    """``(m,)`` expected information gain (nats) of one more row at each candidate.
+
+    About the regression of the feature ``parameter`` acts on, given the training rows ``data``
+    (every site, as for :func:`inference.fit`). ``candidates``: rows giving the action, the
+    parameter and the feature's other parents (no end values).
     """
     return _information(net, parameter, data, candidates, prior_precision)[0]
 
@@ -101,8 +102,9 @@ def select_by_information(
     *,
     prior_precision: float = 1e-3,
 ) -> torch.Tensor:
-    """Indices ``(k,)`` of ``k`` distinct candidates chosen greedily by
-    :func:`regression_information`, each pick's row added to its configuration's
+    """Indices ``(k,)`` of ``k`` distinct candidates, chosen greedily.
+
+    Chosen by :func:`regression_information`; each pick's row is added to its configuration's
     statistics before the next (see the module).
     """
     if isinstance(k, bool) or not isinstance(k, int) or k < 1:
