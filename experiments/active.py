@@ -122,9 +122,10 @@ QUICK = {"scale": "quick", "repeats": 8, "fractions": (0.05, 0.1, 0.2, 0.5), "ba
 
 @dataclass(frozen=True)
 class ActiveConfig(CanDataSettings):
-    """Settings of :func:`run_active`; every field is checked on construction (the can data
-    set's, and where the replays are simulated if they are not under ``data_dir`` yet:
-    :class:`experiments.cans.CanDataSettings`).
+    """Settings of :func:`run_active`; every field is checked on construction.
+
+    The can data set's, and where the replays are simulated if they are not under ``data_dir`` yet:
+    :class:`experiments.cans.CanDataSettings`.
 
     Attributes
     ----------
@@ -199,8 +200,9 @@ class ActiveConfig(CanDataSettings):
 
 
 def can_pool(data):
-    """The can network over the data set's configurations and the pool of its 0° throwable
-    throws: ``(net, pool rows (encoded initial sites and action), oracle, end configs)``.
+    """The can network over the data set's configurations and the pool of its 0° throwable throws.
+
+    ``(net, pool rows (encoded initial sites and action), oracle, end configs)``.
 
     ``oracle(index)`` returns the recorded end configuration and count of the throws
     ``index`` of the pool.
@@ -219,8 +221,10 @@ def can_pool(data):
 
 
 def replay_counts(config: ActiveConfig, executor=None) -> tuple[np.ndarray, list[int]]:
-    """``(configs, 195, repeats)`` end counts of the held-out replays of every non-empty
-    start configuration's 0° fields (sorted configurations), and those configurations.
+    """``(configs, 195, repeats)`` end counts of the held-out replays, and their configurations.
+
+    The replays of every non-empty start configuration's 0° fields (sorted configurations), and
+    those configurations.
     """
     configs = [c for c in start_configurations(SCALES[config.scale]["n_configs"]) if c]
     path = generate_dataset(
@@ -241,12 +245,13 @@ def replay_counts(config: ActiveConfig, executor=None) -> tuple[np.ndarray, list
 def table_one_on_replays(
     model: CanModel, cases: dict, replays, configs, rules: tuple[str, ...] = RULES
 ) -> dict:
-    """Table I's exact fraction per protocol and rule (of ``rules``), each case's chosen
-    field scored by the fraction of its replays that reach the desired count.
+    """Table I's exact fraction per protocol and rule (of ``rules``).
+
+    Each case's chosen field is scored by the fraction of its replays that reach the desired count.
 
     ``cases``: ``{protocol: (start masks, desired counts)}``; ``replays``: as
     :func:`replay_counts` returns. A field is chosen once per distinct (start, desired
-    count) of all the protocols' cases (:func:`experiments.can_tossing.choose`, row by
+    count) of all the protocols' cases (:func:`experiments.cans.choose`, row by
     row: the same field whichever protocol asks).
     """
     row = {c: i for i, c in enumerate(configs)}
@@ -269,11 +274,12 @@ def table_one_on_replays(
 
 
 def bound_by_repeats(replays, configs, cases, throwable) -> dict[str, list[float]]:
-    """How many throws per pair a chooser that knows the simulator needs: per protocol, the
-    exact fraction when each case's field is the one that succeeded most often on the
-    first ``m`` replays of every throwable field (``m = 1 .. repeats // 2``), scored on the
-    second half of the replays (:func:`experiments.physics_bounds.held_out_best` at
-    ``m`` = half). Choosing with ``m`` throws of every pair costs ``m`` throws per pair.
+    """How many throws per pair a chooser that knows the simulator needs.
+
+    Per protocol, the exact fraction when each case's field is the one that succeeded most often on
+    the first ``m`` replays of every throwable field (``m = 1 .. repeats // 2``), scored on the
+    second half of the replays (:func:`experiments.physics_bounds.held_out_best` at ``m`` = half).
+    Choosing with ``m`` throws of every pair costs ``m`` throws per pair.
     """
     half = replays.shape[-1] // 2
     out = {}
@@ -288,11 +294,12 @@ def bound_by_repeats(replays, configs, cases, throwable) -> dict[str, list[float
 
 
 def _replay_success(replays, configs, start, desired, fields) -> tuple[np.ndarray, np.ndarray]:
-    """``(success, case)``: per distinct (start, desired count) of the cases ``(start
-    masks, desired counts)``, whether each replay of each of ``fields`` reached the desired
-    count, ``(distinct, fields, repeats)`` bool; and each case's distinct row. Many cases
-    share a start and a desired count: every per-row figure of ``success`` indexed by
-    ``case`` is the per-case figure, element for element.
+    """``(success, case)``: whether each replay reached the desired count, and each case's row.
+
+    Per distinct (start, desired count) of the cases ``(start masks, desired counts)``, whether each
+    replay of each of ``fields`` reached the desired count, ``(distinct, fields, repeats)`` bool;
+    and each case's distinct row. Many cases share a start and a desired count: every per-row figure
+    of ``success`` indexed by ``case`` is the per-case figure, element for element.
     """
     row = {c: i for i, c in enumerate(configs)}
     pairs = np.stack([np.asarray(start), np.asarray(desired)], 1).astype(np.int64)
@@ -302,9 +309,10 @@ def _replay_success(replays, configs, start, desired, fields) -> tuple[np.ndarra
 
 
 def cases_seen(rows, cases) -> float:
-    """The fraction of cases ``(start state indices, desired counts)`` whose desired count
-    some row of ``rows`` reached from the case's start: without such a row the network
-    can only guess a field for the case.
+    """The fraction of cases whose desired count some row of ``rows`` reached from the case's start.
+
+    Cases are ``(start state indices, desired counts)``; without such a row the network can only
+    guess a field for the case.
     """
     played = set(zip(rows["initial.config"].tolist(), rows["end.count"].tolist(), strict=True))
     start, desired = cases
@@ -329,11 +337,12 @@ def scoring_network(net: EffectNetwork) -> EffectNetwork:
 
 
 def _model(net, rows, pool, throwable, pooling=None) -> CanModel:
-    """The can model fitted on ``rows``: plainly, or pooled with ``pooling = (kernel,
-    strength)``; the start and field priors are the pool's (design-free:
-    :func:`inference.design.active.with_pool_prior`). Pooled, only the end count's table
-    is pooled: the one Table I's query reads. ``net`` is :func:`scoring_network`'s (the
-    end configuration's table, read by no score, is not fitted).
+    """The can model fitted on ``rows``: plainly, or pooled with ``pooling = (kernel, strength)``.
+
+    The start and field priors are the pool's (design-free:
+    :func:`inference.design.active.with_pool_prior`). Pooled, only the end count's table is pooled:
+    the one Table I's query reads. ``net`` is :func:`scoring_network`'s (the end configuration's
+    table, read by no score, is not fitted).
     """
     if pooling is None:
         params = fit(net, rows).params
@@ -345,8 +354,9 @@ def _model(net, rows, pool, throwable, pooling=None) -> CanModel:
 
 
 def _scores(net, rows, pool, throwable, pooling, cases, replays, configs) -> dict:
-    """``{protocol: {score: exact fraction}}`` for every one of ``SCORES`` (``net``:
-    :func:`scoring_network`'s).
+    """``{protocol: {score: exact fraction}}`` for every one of ``SCORES``.
+
+    ``net``: :func:`scoring_network`'s.
     """
     plain = table_one_on_replays(_model(net, rows, pool, throwable), cases, replays, configs)
     pooled = table_one_on_replays(
@@ -398,21 +408,25 @@ class ActiveResult(Result):
     settings: dict
 
     def to_markdown(self) -> str:
-        """Per protocol and rule, each learner's exact fraction at every budget
-        (:func:`experiments.active_report.markdown`).
+        """Per protocol and rule, each learner's exact fraction at every budget.
+
+        See :func:`experiments.active_report.markdown`.
         """
         from experiments.active_report import markdown
 
         return markdown(self)
 
     def figures(self, out: Path) -> list[Path]:
+        """Draw the learning curves, ``active.png``, into the folder ``out``; its path."""
         from experiments.active_report import plot_curves
 
         return [plot_curves(self, out / "active.png")]
 
     def summary_rows(self, results) -> list[str]:
-        """Per protocol, each learner at the budget nearest ``GOAL_FRACTION`` of the full
-        data's throws (plain fit with tie-break ``aim``, and pooled), beside the bound.
+        """Per protocol, each learner at the budget nearest its goal.
+
+        The goal is ``GOAL_FRACTION`` of the full data's throws; plain fit with tie-break ``aim``,
+        and pooled, beside the bound.
         """
         k = min(range(len(self.fractions)), key=lambda i: abs(self.fractions[i] - GOAL_FRACTION))
         rows = []

@@ -1,5 +1,6 @@
-"""The active-exploration experiment's report: its Markdown and its figure
-(:mod:`experiments.active`).
+"""The active-exploration experiment's report: its Markdown and its figure.
+
+See :mod:`experiments.active`.
 """
 
 from __future__ import annotations
@@ -94,10 +95,11 @@ def markdown(r: ActiveResult) -> str:
 
 
 def plot_curves(result: ActiveResult, path) -> Path:
-    """Exact fraction against throws used, one panel per protocol: per learner the pooled
-    fit solid, the plain fit with tie-break ``aim`` dashed and ``index`` dotted; the full
-    data's three as black lines of the same styles, the band within one point of its best,
-    the physics bound grey; saved to ``path``.
+    """Exact fraction against throws used, one panel per protocol; saved to ``path``.
+
+    Per learner the pooled fit solid, the plain fit with tie-break ``aim`` dashed and ``index``
+    dotted; the full data's three as black lines of the same styles, the band within one point of
+    its best, the physics bound grey.
     """
     from matplotlib.figure import Figure
 

@@ -176,8 +176,9 @@ class AdaptiveThrowConfig:
 
 
 def adaptive_throw_network(bins) -> EffectNetwork:
-    """The throw network (:func:`models.throw_network.throw_network`) with adaptive
-    target clusters seeded by the ``bins`` grid.
+    """The throw network with adaptive target clusters seeded by the ``bins`` grid.
+
+    See :func:`models.throw_network.throw_network`.
     """
     net = throw_network(bins)
     target = dataclasses.replace(net.parameters[0], layout="adaptive")
@@ -185,8 +186,10 @@ def adaptive_throw_network(bins) -> EffectNetwork:
 
 
 def _fit(layout, k, train, config):
-    """Fit one layout with ``k x k`` clusters: ``(model, seconds, EM curve)`` per EM
-    checkpoint (one for the grid); the seconds and the curve accumulate.
+    """Fit one layout with ``k x k`` clusters.
+
+    ``(model, seconds, EM curve)`` per EM checkpoint (one for the grid); the seconds and the curve
+    accumulate.
     """
     targets, hits = train
     start = time.perf_counter()
@@ -214,8 +217,9 @@ def _fit(layout, k, train, config):
 
 
 def _query(model, desired, window, query="posterior"):
-    """The inferred aims ``(n, 2)`` for the desired hits, clipped into the area, and for
-    the inverse model every cluster's candidate ``(n, C, 2)``, clipped (None for the
+    """The inferred aims ``(n, 2)`` for the desired hits, clipped into the area.
+
+    And for the inverse model every cluster's candidate ``(n, C, 2)``, clipped (None for the
     posterior query).
     """
     net, params = model
@@ -235,8 +239,9 @@ def _aims(model, desired, window, query="posterior"):
 
 
 def _best_candidate(candidates, desired):
-    """Errors ``(n, 2)`` of re-throwing at the candidate that the throw itself says misses
-    least: how well a perfect choice among the model's per-cluster answers would do.
+    """Errors ``(n, 2)`` of re-throwing at the candidate that the throw itself says misses least.
+
+    How well a perfect choice among the model's per-cluster answers would do.
     """
     n, c, _ = candidates.shape
     hits = throw(candidates.reshape(n * c, 2)).hit.reshape(n, c, 2)
@@ -250,10 +255,11 @@ def _rethrow(model, desired, window, rng=None, noise=None, query="posterior"):
 
 
 def plane_residuals(targets, hits, bins, use=None):
-    """Residuals ``(n, 2)`` of one least-squares plane ``hit ~ A target + b`` per
-    equidistant cell of the target area (``bins x bins``, the throw network's grid),
-    fitted to the rows ``use`` (default: all) of each cell; NaN for the other rows and
-    for cells with fewer than four rows to fit.
+    """Residuals ``(n, 2)`` of one least-squares plane ``hit ~ A target + b`` per cell.
+
+    Per equidistant cell of the target area (``bins x bins``, the throw network's grid), fitted to
+    the rows ``use`` (default: all) of each cell; NaN for the other rows and for cells with fewer
+    than four rows to fit.
 
     An inverse that answers with one linear piece's solution re-throws with exactly that
     piece's residual at the aim (the piece maps the aim onto the desired hit; the throw
@@ -286,8 +292,9 @@ def plane_residuals(targets, hits, bins, use=None):
 
 
 def _noisy_spread(aims, desired, repeats, rng, noise) -> dict[str, float]:
-    """RMS per axis of ``repeats`` noisy re-throws at ``aims`` against the desired hits,
-    and of the same throws about their noise-free hits (the noise's own scatter).
+    """RMS per axis of ``repeats`` noisy re-throws at ``aims`` against the desired hits.
+
+    And of the same throws about their noise-free hits (the noise's own scatter).
     """
     clean = throw(aims).hit
     hits = np.concatenate([throw(aims, rng=rng, noise=noise).hit for _ in range(repeats)])
@@ -309,12 +316,12 @@ def _window(*hits):
 
 
 def local_inverse(train_targets, train_hits, desired, start, neighbours, iterations=4):
-    """Aims ``(n, 2)`` by damped Newton steps on a local quadratic forward model: per
-    desired hit, from ``start``, fit ``hit ~ quadratic(target - aim)`` to the
-    ``neighbours`` training throws nearest the aim, step towards the target its model
-    says hits the desired point (least squares, so a clamped, flat direction takes no
-    step; at most the neighbourhood's radius), and keep the aim whose local model misses
-    least. Only the training throws are used.
+    """Aims ``(n, 2)`` by damped Newton steps on a local quadratic forward model.
+
+    Per desired hit, from ``start``, fit ``hit ~ quadratic(target - aim)`` to the ``neighbours``
+    training throws nearest the aim, step towards the target its model says hits the desired point
+    (least squares, so a clamped, flat direction takes no step; at most the neighbourhood's radius),
+    and keep the aim whose local model misses least. Only the training throws are used.
     """
     aims = np.clip(np.array(start, dtype=np.float64), TARGET_AREA.low, TARGET_AREA.high)
     # the squared distances as two columns' sum: the same additions as ``.sum(-1)`` over
@@ -433,27 +440,29 @@ class AdaptiveThrowResult(Result):
     goals: dict[str, bool]
 
     def to_markdown(self) -> str:
-        """Both layouts side by side, the references, the active curves and the goals, in
-        cm (:func:`experiments.adaptive_throw_report.markdown`).
+        """Both layouts side by side, the references, the active curves and the goals, in cm.
+
+        See :func:`experiments.adaptive_throw_report.markdown`.
         """
         from experiments.adaptive_throw_report import markdown
 
         return markdown(self)
 
     def figures(self, out: Path) -> list[Path]:
+        """Draw the comparison, ``adaptive_throw.png``, into the folder ``out``; its path."""
         from experiments.adaptive_throw_report import plot_adaptive_throw
 
         return [plot_adaptive_throw(self, out / "adaptive_throw.png")]
 
     def summary_rows(self, results) -> list[str]:
+        """The results table's rows of both layouts (see ``Result.summary_rows``)."""
         from experiments.adaptive_throw_report import summary_rows
 
         return summary_rows(self)
 
 
 def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
-    """Both layouts per grid size, the noisy comparison, the references and the active curves.
-    """
+    """Both layouts per grid size, the noisy comparison, the references and the active curves."""
     n = config.n_train + config.n_test
     seeds = np.random.SeedSequence(config.seed).spawn(5)
     exact = get_data(n, np.random.default_rng(seeds[0]), None)

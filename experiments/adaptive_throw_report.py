@@ -1,5 +1,6 @@
-"""The adaptive-throw experiment's report: its Markdown, its figure and its rows of the
-results table (:mod:`experiments.adaptive_throw`).
+"""The adaptive-throw experiment's report.
+
+Its Markdown, its figure and its rows of the results table (:mod:`experiments.adaptive_throw`).
 """
 
 from __future__ import annotations
@@ -104,11 +105,12 @@ def markdown(result: AdaptiveThrowResult) -> str:
 
 
 def summary_rows(t: AdaptiveThrowResult) -> list[str]:
-    """Beyond the paper: grid vs adaptive (EM) clusters, each by the inverse model and by
-    the paper's posterior query, and active throw targets. The adaptive layout is shown
-    at its best EM checkpoint fitted in under 2 s (the goal's), else its last; the noisy
-    comparison at its own cluster count. A layout with no inverse-model row (``query``
-    ``"effect"``) is shown by its posterior query.
+    """Beyond the paper: grid vs adaptive (EM) clusters, and active throw targets.
+
+    Each layout by the inverse model and by the paper's posterior query. The adaptive layout is
+    shown at its best EM checkpoint fitted in under 2 s (the goal's), else its last; the noisy
+    comparison at its own cluster count. A layout with no inverse-model row (``query`` ``"effect"``)
+    is shown by its posterior query.
     """
     k = max(row["n_clusters"] for row in t.layouts)
     k_noisy = max((row.get("n_clusters", k) for row in t.noisy), default=k)

@@ -89,8 +89,9 @@ BOUNDARY_SPREADS = ("jitter", "none")  # how sharp the aim heights' bins are, se
 
 @dataclass(frozen=True)
 class AllGoalsConfig(SimulationSettings):
-    """Settings of :func:`run_all_goals`; every field is checked on construction (where
-    the simulations are saved and run: :class:`experiments.cans.SimulationSettings`).
+    """Settings of :func:`run_all_goals`; every field is checked on construction.
+
+    Where the simulations are saved and run: :class:`experiments.cans.SimulationSettings`.
 
     Attributes
     ----------
@@ -194,6 +195,7 @@ class AllGoalsResult(Result):
     seconds: float
 
     def to_markdown(self) -> str:
+        """The experiment's report, in Markdown (:meth:`~experiments.config.Result.to_markdown`)."""
         c = self.settings
         lines = [
             f"**Every reachable goal** (within {c['horizon']} throws; bound: the best plan on "
@@ -233,6 +235,7 @@ class AllGoalsResult(Result):
         return "\n".join(lines) + "\n"
 
     def figures(self, out: Path) -> list[Path]:
+        """Draw the goals' figure, ``all_goals.png``, into the folder ``out``; its path."""
         plot(self, out / "all_goals.png")
         return [out / "all_goals.png"]
 
@@ -467,8 +470,9 @@ def run_all_goals(config: AllGoalsConfig) -> AllGoalsResult:
 
 
 def plot(result: AllGoalsResult, path) -> None:
-    """Per goal and table height: the bound, the exact planner (measured and predicted) and
-    the paper planner, goals ordered by their bound.
+    """Per goal and table height: the bound, the exact planner and the paper planner.
+
+    The exact planner measured and predicted; goals ordered by their bound.
     """
     import matplotlib
 

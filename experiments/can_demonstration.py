@@ -1,5 +1,6 @@
-"""Can-world demonstrations read back as fields (beyond the paper: programming by
-demonstration with the can network).
+"""Can-world demonstrations read back as fields.
+
+Beyond the paper: programming by demonstration with the can network.
 
 The can network (Fig. 2: configuration and count before and after, the field) is fitted
 on the 0° throws of the can data set (:mod:`experiments.cans`). A demonstrator then
@@ -72,8 +73,9 @@ MAX_STARTS = 20
 
 @dataclass(frozen=True)
 class CanDemonstrationConfig(CanDataSettings):
-    """Settings of :func:`run_can_demonstration`; every field is checked on construction
-    (the can data set's: :class:`experiments.cans.CanDataSettings`).
+    """Settings of :func:`run_can_demonstration`; every field is checked on construction.
+
+    The can data set's: :class:`experiments.cans.CanDataSettings`.
 
     Attributes
     ----------
@@ -118,8 +120,9 @@ def play_demonstrations(
     jitter: float,
     seed: int,
 ) -> list[tuple[list[int], list[int]]]:
-    """``n`` demonstrations thrown in the simulated world: per demonstration its
-    configurations (masks, one more than throws) and its fields.
+    """``n`` demonstrations thrown in the simulated world.
+
+    Per demonstration its configurations (masks, one more than throws) and its fields.
 
     Each starts from a configuration of ``trained`` (the configurations the network was
     fitted to throw from) with a can standing; each throw's field is drawn uniformly
@@ -196,8 +199,7 @@ def read_demonstrations(
 
 @simulation
 def throw_again(start: np.ndarray, fields: np.ndarray, jitter: float, seeds) -> np.ndarray:
-    """``(n,)`` end configurations of the 0° throws ``(start[i], fields[i])`` with seeded jitter.
-    """
+    """``(n,)`` end configurations of the 0° throws ``(start[i], fields[i])`` with seeded jitter."""
     return np.array(
         [
             field_throws.throw_at_field(
@@ -239,6 +241,7 @@ class CanDemonstrationResult(Result):
     shown: dict
 
     def to_markdown(self) -> str:
+        """The experiment's report, in Markdown (:meth:`~experiments.config.Result.to_markdown`)."""
         t, q, s = self.throws, self.sequences, self.shown
         lengths = ", ".join(
             f"{v} of {k} throw{'' if k == '1' else 's'}" for k, v in self.lengths.items()
@@ -295,9 +298,11 @@ class CanDemonstrationResult(Result):
         )
 
     def figures(self, out: Path) -> list[Path]:
+        """Draw the shown demonstration, ``can_demonstration.png``, into ``out``; its path."""
         return [plot_shown(self, Path(out) / "can_demonstration.png")]
 
     def summary_rows(self, results) -> list[str]:
+        """The results table's row of the can-world demonstrations."""
         t = self.throws
         return [
             f"| can-world demonstrations read as fields (explain; beyond the paper) | — | "
@@ -388,9 +393,10 @@ def run_can_demonstration(config: CanDemonstrationConfig) -> CanDemonstrationRes
 
 
 def plot_shown(result: CanDemonstrationResult, path) -> Path:
-    """The shown demonstration, one panel per throw: the cans standing before it (a
-    hidden configuration dashed), the posterior over the fields as a heat map on the
-    field grid, the thrown field (x) and the read one (o); saved to ``path``.
+    """The shown demonstration, one panel per throw; saved to ``path``.
+
+    The cans standing before it (a hidden configuration dashed), the posterior over the fields as a
+    heat map on the field grid, the thrown field (x) and the read one (o).
     """
     from matplotlib.figure import Figure
     from matplotlib.patches import Rectangle

@@ -85,8 +85,9 @@ MAX_AIM_ERROR = geometry.PYRAMID_HEIGHT / 2
 
 @dataclass(frozen=True)
 class CanTossingConfig(CanDataSettings):
-    """Settings of :func:`run_can_tossing`; every field is checked on construction (the
-    can data set's: :class:`experiments.cans.CanDataSettings`).
+    """Settings of :func:`run_can_tossing`; every field is checked on construction.
+
+    The can data set's: :class:`experiments.cans.CanDataSettings`.
 
     Attributes
     ----------
@@ -178,8 +179,9 @@ def start_evidence(model: CanModel, start: np.ndarray) -> dict:
 
 
 def field_throw_ends(start, fields, seeds, jitter: float) -> np.ndarray:
-    """``(n,)`` end configurations of the 0° throws ``(start[i], fields[i])`` with seeded
-    jitter (an executor task: arrays in, an array out).
+    """``(n,)`` end configurations of the 0° throws ``(start[i], fields[i])`` with seeded jitter.
+
+    An executor task: arrays in, an array out.
     """
     return np.array(
         [
@@ -193,7 +195,8 @@ def field_throw_ends(start, fields, seeds, jitter: float) -> np.ndarray:
 
 
 def ball_ends(start, positions, velocities) -> np.ndarray:
-    """``(n,)`` end configurations of the ball states ``(positions[i], velocities[i])``
+    """``(n,)`` end configurations of the ball states ``(positions[i], velocities[i])``.
+
     ``(n, 2)`` each, m and m/s at the entry line, played into ``start[i]`` (an executor task).
     """
     return np.array(
@@ -207,9 +210,9 @@ def ball_ends(start, positions, velocities) -> np.ndarray:
 
 @simulation
 def _in_chunks(task, columns, extra, desc: str, progress: bool, executor) -> np.ndarray:
-    """``task(*columns, *extra)`` over the rows of ``columns``, in chunks of ``CHUNK`` rows on
-    ``executor`` (None: here, row by row); the results in row order, the same on every
-    executor.
+    """``task(*columns, *extra)`` over the rows of ``columns``, in chunks of ``CHUNK`` rows.
+
+    On ``executor`` (None: here, row by row); the results in row order, the same on every executor.
     """
     n = len(columns[0])
     if executor is None:
@@ -227,8 +230,9 @@ def _in_chunks(task, columns, extra, desc: str, progress: bool, executor) -> np.
 def play(
     start, fields, jitter: float, seeds, desc: str, progress: bool = True, executor=None
 ) -> np.ndarray:
-    """End configurations of the 0° throws ``(start[i], fields[i])`` with seeded jitter,
-    simulated on ``executor`` (an object with ``submit``; None: in this process).
+    """End configurations of the 0° throws ``(start[i], fields[i])`` with seeded jitter.
+
+    Simulated on ``executor`` (an object with ``submit``; None: in this process).
     """
     columns = [np.asarray(start), np.asarray(fields), np.asarray(seeds)]
     return _in_chunks(field_throw_ends, columns, (jitter,), desc, progress, executor)
@@ -244,8 +248,10 @@ def play_table_one(
     progress: bool = True,
     executor=None,
 ) -> dict[str, np.ndarray]:
-    """Table I's cases played: per case ``start``, ``desired``, ``field``, ``seed``,
-    ``achieved`` (count) and ``reachable`` (some 0° training throw reached ``desired``).
+    """Table I's cases played.
+
+    Per case ``start``, ``desired``, ``field``, ``seed``, ``achieved`` (count) and ``reachable``
+    (some 0° training throw reached ``desired``).
     """
     start, desired = table_one_cases(data, mode)
     sel = (data.angle == ANGLE) & data.throwable
@@ -391,10 +397,11 @@ def perturbed_throws(
 
 
 def pooled_surprise(model: CanModel, throws: dict, sigma: float, tables: dict) -> np.ndarray:
-    """``(n,)`` surprise of each observed end configuration under the intended field's
-    predictive pooled over an aim error of ``sigma`` fields; an end configuration the
-    network has no state for was never seen: 1. ``tables`` caches
-    ``model.end_config_probs`` per start configuration.
+    """``(n,)`` surprise of each observed end configuration under the intended field's predictive.
+
+    The predictive is pooled over an aim error of ``sigma`` fields; an end configuration the network
+    has no state for was never seen: 1. ``tables`` caches ``model.end_config_probs`` per start
+    configuration.
     """
     start, observed = throws["start"], throws["observed"]
     surprise = np.ones(len(start))
@@ -528,16 +535,18 @@ class CanTossingResult(Result):
     imitation: dict
 
     def to_markdown(self) -> str:
-        """Table I under both protocols and rules beside the paper's, emulation and
-        imitation (:func:`experiments.can_tossing_report.markdown`).
+        """Table I under both protocols and rules beside the paper's, emulation and imitation.
+
+        See :func:`experiments.can_tossing_report.markdown`.
         """
         from experiments.can_tossing_report import markdown
 
         return markdown(self)
 
     def figures(self, out: Path) -> list[Path]:
-        """``can_tossing_table1.png`` and (when the imitation has both classes)
-        ``can_tossing_roc.png``.
+        """``can_tossing_table1.png`` and ``can_tossing_roc.png``.
+
+        The second when the imitation has both classes.
         """
         from experiments.can_tossing_report import plot_roc, plot_table_one
 

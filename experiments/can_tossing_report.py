@@ -1,5 +1,6 @@
-"""The can-tossing experiment's report: its Markdown, its figures and its rows of the
-results table (:mod:`experiments.can_tossing`).
+"""The can-tossing experiment's report.
+
+Its Markdown, its figures and its rows of the results table (:mod:`experiments.can_tossing`).
 """
 
 from __future__ import annotations
@@ -34,8 +35,9 @@ TABLE_I_PROTOCOLS = {
 
 
 def markdown(r: CanTossingResult) -> str:
-    """The report: Table I under both protocols and rules beside the paper's, emulation and
-    imitation.
+    """The report.
+
+    Table I under both protocols and rules beside the paper's, emulation and imitation.
     """
     tabs = r.table_one
     cols = [(m, rule) for m in ("counts", "actions") for rule in ("index", "aim")]
@@ -162,8 +164,9 @@ def plot_roc(result: dict, path) -> Path:
 
 
 def table_one_rows(c: CanTossingResult | None, b: PhysicsBoundsResult | None) -> list[str]:
-    """Table I under both protocols, ours (``c``) beside the physics bound (``b``); either
-    may be missing.
+    """Table I under both protocols, ours (``c``) beside the physics bound (``b``).
+
+    Either may be missing.
     """
     if c is None and b is None:
         return []

@@ -51,8 +51,9 @@ SCALES = {
 
 
 def default_data_dir() -> Path:
-    """Where generated data is saved unless a folder is named: ``data`` in the cache folder
-    (``$EFFECT_NETWORKS_CACHE``, else ``~/.cache/effect-networks``).
+    """Where generated data is saved unless a folder is named.
+
+    ``data`` in the cache folder (``$EFFECT_NETWORKS_CACHE``, else ``~/.cache/effect-networks``).
     """
     return cache_dir() / "data"
 
@@ -175,6 +176,7 @@ class CanModel:
 
     @property
     def states(self) -> tuple[int, ...]:
+        """The end configurations the network has states for (masks), in state order."""
         return tuple(int(s) for s in self.net.feature("config").states)
 
 

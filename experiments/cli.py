@@ -42,8 +42,10 @@ def _plain(text: str) -> str:
 
 
 def field_help(config: type) -> dict[str, str]:
-    """Each field's description: ``field(metadata={"help": ...})``, else its entry in the
-    docstring's numpydoc ``Attributes`` section (``a, b : type`` then indented lines).
+    """Each field's description.
+
+    ``field(metadata={"help": ...})``, else its entry in the docstring's numpydoc ``Attributes``
+    section (``a, b : type`` then indented lines).
     """
     entries: dict[str, str] = {}
     for cls in reversed(config.__mro__):  # a subclass's entry wins over its base's
@@ -89,8 +91,10 @@ def _flag(name: str) -> str:
 
 
 def _add_field(parser: argparse.ArgumentParser, f: dataclasses.Field, hint, help_text: str):
-    """One field's flag; its default is left out of the namespace (``SUPPRESS``) so that
-    only the flags given override the Config's defaults and the quick settings.
+    """One field's flag.
+
+    Its default is left out of the namespace (``SUPPRESS``) so that only the flags given override
+    the Config's defaults and the quick settings.
     """
     default = f.default if f.default is not dataclasses.MISSING else f.default_factory()
     origin, args = typing.get_origin(hint), typing.get_args(hint)
@@ -149,9 +153,10 @@ def make_parser(exp: Experiment, description: str | None = None) -> argparse.Arg
 def parse_args(
     name: str | Experiment, argv=None, description: str | None = None
 ) -> argparse.Namespace:
-    """The command line of experiment ``name`` (or of the declaration itself):
-    ``experiment``, ``config`` (its checked settings), ``out``, ``threads``; a bad value
-    exits with a usage error naming the flag.
+    """The command line of experiment ``name`` (or of the declaration itself).
+
+    ``experiment``, ``config`` (its checked settings), ``out``, ``threads``; a bad value exits with
+    a usage error naming the flag.
     """
     exp = name if isinstance(name, Experiment) else experiment(name)
     parser = make_parser(exp, description)
@@ -182,7 +187,8 @@ def _perform(args: argparse.Namespace):
 
 
 def main(name: str | Experiment, description: str | None = None, argv=None):
-    """Run experiment ``name`` from the command line (``argv``, default ``sys.argv``) and
-    exit (:func:`experiments.config.run_script`).
+    """Run experiment ``name`` from the command line and exit.
+
+    ``argv`` defaults to ``sys.argv`` (:func:`experiments.config.run_script`).
     """
     run_script(_perform, parse_args(name, argv, description))

@@ -80,8 +80,9 @@ BOUNDARY_SPREADS = ("measured", "none")  # how sharp the fields' boundaries are,
 
 @dataclass(frozen=True)
 class CombinedConfig(CanDataSettings):
-    """Settings of :func:`run_combined`; every field is checked on construction (the can
-    data set's: :class:`experiments.cans.CanDataSettings`).
+    """Settings of :func:`run_combined`; every field is checked on construction.
+
+    The can data set's: :class:`experiments.cans.CanDataSettings`.
 
     Attributes
     ----------
@@ -163,6 +164,7 @@ class Robot:
     rng: np.random.Generator
 
     def aim(self, hits: np.ndarray) -> np.ndarray:
+        """The throw network's aims ``(n, 2)`` for the desired ``hits``, clipped into the area."""
         aims = self.queries.infer_parameter(TARGET, {"end.hit": torch.as_tensor(hits)}).mean.numpy()
         return np.clip(aims, TARGET_AREA.low, TARGET_AREA.high)
 
@@ -188,8 +190,10 @@ class World:
     _heights: dict = field(default_factory=dict)
 
     def heights(self, state: int) -> np.ndarray:
-        """``(195,)`` near-face heights (can frame) to hit so that the robot's ball meets the
-        cans of ``state`` where the training throw through each field does (NaN: unthrowable).
+        """``(195,)`` near-face heights (can frame) to hit.
+
+        So that the robot's ball meets the cans of ``state`` where the training throw through each
+        field does (NaN: unthrowable).
 
         Solved with the robot's own forward kinematics: a few fixed-point steps of
         "aim, read the velocity at the plane, run it back from the contact point".
@@ -261,9 +265,10 @@ def build_world(config: CombinedConfig, data) -> tuple[World, dict]:
 
 
 def face_height_spread(data, angle: int) -> float:
-    """How far from its field's height the can data set's throws at ``angle`` crossed the
-    near face: the root mean square, over the throwable throws, of the crossing height's
-    offset from the jitter-free throw's (m).
+    """How far from its field's height the can data set's throws at ``angle`` crossed the near face.
+
+    The root mean square, over the throwable throws, of the crossing height's offset from the
+    jitter-free throw's (m).
 
     A throw "at field f" in the data set passes ``field centre + offset``, the offset its
     aim jitter (:func:`sim2d.field_throws.aim_offset`, read back from the throw's recorded
@@ -295,9 +300,10 @@ def face_height_spread(data, angle: int) -> float:
 def hit_gaussians(
     robot: Robot, aims: np.ndarray, table_z: float, boundary_sd: float = 0.0
 ) -> GaussianMixture:
-    """The throw network's predicted hit for each aim as one Gaussian a row, in the can
-    frame (lateral, height above the table), its two coordinates taken as independent:
-    the can band is read across and the fields' slices up, one coordinate each.
+    """The throw network's predicted hit for each aim as one Gaussian a row, in the can frame.
+
+    Lateral, height above the table; its two coordinates taken as independent: the can band is read
+    across and the fields' slices up, one coordinate each.
 
     ``boundary_sd`` (m) widens the height's sd in quadrature: the boundaries between the
     can network's actions, read as moved together by a normal offset of that sd (equally:
@@ -325,10 +331,11 @@ def hit_gaussians(
 
 
 def field_link(heights: np.ndarray, fields: np.ndarray) -> tuple[BoxPartition, np.ndarray]:
-    """A hit in the can band read as the field whose near-face height is nearest: each of
-    ``fields`` owns the heights between the midpoints to its neighbours (the lowest and
-    highest open-ended); a hit beside the band hits nothing. Returns the partition (the
-    can network's actions: every field) and ``fields`` ordered by height.
+    """A hit in the can band read as the field whose near-face height is nearest.
+
+    Each of ``fields`` owns the heights between the midpoints to its neighbours (the lowest and
+    highest open-ended); a hit beside the band hits nothing. Returns the partition (the can
+    network's actions: every field) and ``fields`` ordered by height.
     """
     order = fields[np.argsort(heights[fields])]
     edges = np.concatenate([[-np.inf], (heights[order][1:] + heights[order][:-1]) / 2, [np.inf]])
@@ -477,6 +484,7 @@ class CombinedResult(Result):
     seconds: float
 
     def to_markdown(self) -> str:
+        """The experiment's report, in Markdown (:meth:`~experiments.config.Result.to_markdown`)."""
         tables = [table_markdown(n, s) for n, s in self.scenarios.items()]
         why = self.angle_choice
         lines = [

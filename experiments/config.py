@@ -189,14 +189,16 @@ class Result:
         return []
 
     def summary_rows(self, results: Mapping[str, Result]) -> list[str]:
-        """Rows of the results table (``| experiment | paper | ours | bound |``), given every
-        result of the run by experiment name; none by default.
+        """Rows of the results table (``| experiment | paper | ours | bound |``).
+
+        Given every result of the run by experiment name; none by default.
         """
         return []
 
     def save(self, out) -> list[Path]:
-        """Write ``<name>.json``, ``<name>.md`` and the figures to the folder ``out``
-        (made if absent); the paths written.
+        """Write ``<name>.json``, ``<name>.md`` and the figures to the folder ``out``.
+
+        The folder is made if absent; returns the paths written.
         """
         name = self.experiment_name
         assert name, f"{type(self).__name__} names no experiment"
@@ -218,8 +220,10 @@ class Result:
 
     @classmethod
     def from_json(cls: type[T], text: str) -> T:
-        """The result :meth:`to_json` wrote; ``ValueError`` for a file of another
-        experiment, or one that is not JSON (truncated, nested too deep) or not an object.
+        """The result :meth:`to_json` wrote.
+
+        ``ValueError`` for a file of another experiment, or one that is not JSON (truncated, nested
+        too deep) or not an object.
         """
         try:
             data = json.loads(text)

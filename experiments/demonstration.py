@@ -96,8 +96,9 @@ def door_network() -> EffectNetwork:
 
 
 def door_rows(n: int, seed: int) -> dict[str, np.ndarray]:
-    """``n`` training rows by site (labels, ``(n,)`` each): random scenes, a uniform
-    action, the end state by the door world's rules.
+    """``n`` training rows by site (labels, ``(n,)`` each).
+
+    Random scenes, a uniform action, the end state by the door world's rules.
     """
     rng = np.random.default_rng(seed)
     door = rng.choice(STATES["door"], n)
@@ -141,6 +142,7 @@ class DemonstrationResult(Result):
     drawn: dict
 
     def to_markdown(self) -> str:
+        """The experiment's report, in Markdown (:meth:`~experiments.config.Result.to_markdown`)."""
         s, d = self.shown, self.drawn
         header = " | ".join(self.actions)
         lines = [
@@ -168,9 +170,11 @@ class DemonstrationResult(Result):
         return "\n".join(lines)
 
     def figures(self, out: Path) -> list[Path]:
+        """Draw the shown demonstration, ``demonstration.png``, into ``out``; its path."""
         return [plot_shown(self, out / "demonstration.png")]
 
     def summary_rows(self, results) -> list[str]:
+        """The results table's row of the demonstrations."""
         d = self.drawn
         return [
             f"| demonstrations read as actions (explain; beyond the paper) | — | most "
@@ -229,8 +233,7 @@ def drawn_list(probs) -> list[list[float]]:
 
 
 def plot_shown(result: DemonstrationResult, path) -> Path:
-    """The shown demonstration's per-step action posterior as a heat map; saved to ``path``.
-    """
+    """The shown demonstration's per-step action posterior as a heat map; saved to ``path``."""
     from matplotlib.figure import Figure
 
     fig = Figure(figsize=(6.5, 3.6))

@@ -65,9 +65,10 @@ BOUND_SEED = 1  # the training data set uses seed 0: these throws are fresh
 
 @dataclass(frozen=True)
 class PhysicsBoundsConfig(CanDataSettings):
-    """Settings of :func:`run_physics_bounds`; every field is checked on construction (the
-    can data set's: :class:`experiments.cans.CanDataSettings`; the bounds' own simulations
-    are saved beside it and run on the same executor).
+    """Settings of :func:`run_physics_bounds`; every field is checked on construction.
+
+    The can data set's: :class:`experiments.cans.CanDataSettings`; the bounds' own simulations are
+    saved beside it and run on the same executor.
 
     Attributes
     ----------
@@ -111,8 +112,10 @@ class PhysicsBoundsConfig(CanDataSettings):
 
 
 def held_out_best(success: np.ndarray) -> np.ndarray:
-    """``success (cases, actions, repeats)`` bool -> per case, the held-out rate of the action
-    that succeeded most often on the first half of the repeats (ties: the lowest index).
+    """Per case, the held-out rate of the action that succeeded most often on the first half.
+
+    ``success (cases, actions, repeats)`` bool; the action chosen on the first half of the repeats
+    (ties: the lowest index).
     """
     half = success.shape[-1] // 2
     chosen = success[..., :half].mean(-1).argmax(-1)
@@ -171,8 +174,9 @@ def robot_throws(
     executor=None,
     progress: bool = True,
 ) -> dict[int, np.ndarray]:
-    """The robot's exact throws at every face height from every state reachable from the
-    full pyramid within ``horizon - 1`` throws (:func:`sim2d.combined.reachable_throws`).
+    """The robot's exact throws at every face height from every state reachable from the pyramid.
+
+    From the full pyramid within ``horizon - 1`` throws (:func:`sim2d.combined.reachable_throws`).
 
     Saved under ``data_dir`` in a folder named by the arguments, so every experiment that
     asks for the same throws (the combined bound here, :mod:`experiments.all_goals`)
@@ -189,8 +193,9 @@ def robot_throws(
 def empirical_transition(
     states: list[int], outcomes: dict[int, np.ndarray], cols: slice
 ) -> torch.Tensor:
-    """``T[s, a, s']`` counted from the simulated outcomes' repeats ``cols``; a state
-    without outcomes (never reached, or no cans) stays where it is.
+    """``T[s, a, s']`` counted from the simulated outcomes' repeats ``cols``.
+
+    A state without outcomes (never reached, or no cans) stays where it is.
     """
     index = {s: i for i, s in enumerate(states)}
     n_a = next(iter(outcomes.values())).shape[0]
@@ -211,9 +216,10 @@ def empirical_transition(
 def cross_fitted_values(
     halves: tuple[torch.Tensor, torch.Tensor], goal: int, horizon: int
 ) -> tuple[torch.Tensor, torch.Tensor]:
-    """``(held_out, in_sample)``, each ``(horizon + 1, S)``: the best plan made on one half
-    of the simulations scored on the other, both ways round and averaged; and the plans'
-    own values on the halves they were made on, averaged.
+    """``(held_out, in_sample)``, each ``(horizon + 1, S)``.
+
+    The best plan made on one half of the simulations scored on the other, both ways round and
+    averaged; and the plans' own values on the halves they were made on, averaged.
 
     The held-out figure is low by the luck the plan's choice fitted in its half, the
     in-sample one high by the same luck; the true best lies between them.
@@ -237,8 +243,9 @@ def cross_fitted_bound(
 def combined_bound(
     config: PhysicsBoundsConfig, table_z: float, jitter: float, executor=None
 ) -> dict:
-    """Per scenario: the best plan's success over the robot's exact throws, held out
-    (cross-fitted) and in sample, within ``horizon`` throws and in one throw.
+    """Per scenario: the best plan's success over the robot's exact throws.
+
+    Held out (cross-fitted) and in sample, within ``horizon`` throws and in one throw.
     """
     outcomes = robot_throws(
         config.data_dir, table_z=table_z, step=config.step, repeats=config.combined_repeats,
@@ -284,6 +291,7 @@ class PhysicsBoundsResult(Result):
     seconds: float
 
     def to_markdown(self) -> str:
+        """The experiment's report, in Markdown (:meth:`~experiments.config.Result.to_markdown`)."""
         lines = [
             "**Table I, best field found by simulation** (jittered repeats per field, chosen "
             "on half, scored on the other half):",
@@ -315,8 +323,10 @@ class PhysicsBoundsResult(Result):
         return "\n".join(lines) + "\n"
 
     def summary_rows(self, results) -> list[str]:
-        """Table I's bounds, when the can-tossing result (which shows them beside its own
-        figures) is missing; the combined bounds are the combined result's rows.
+        """Table I's bounds, when the can-tossing result is missing.
+
+        The can-tossing result shows them beside its own figures; the combined bounds are the
+        combined result's rows.
         """
         if "can_tossing" in results:
             return []

@@ -104,6 +104,7 @@ class CanWorldPictures(Result):
     files: dict[str, str]
 
     def to_markdown(self) -> str:
+        """The experiment's report, in Markdown (:meth:`~experiments.config.Result.to_markdown`)."""
         return "\n".join([self.outcome, *(f"- {k}: {v}" for k, v in self.files.items())]) + "\n"
 
     def figures(self, out: Path) -> list[Path]:
@@ -171,8 +172,10 @@ class ThrowKinematicsConfig:
 
 @dataclass
 class ThrowKinematicsResult(Result):
-    """The throw's numbers: shares in [0, 1], the time of ``n`` throws (s), the release
-    noise's scatter at the plane (m, sd per axis), and the figures' paths.
+    """The throw's numbers and the figures' paths.
+
+    Shares in [0, 1], the time of ``n`` throws (s), the release noise's scatter at the plane (m, sd
+    per axis), and the figures' paths.
     """
 
     experiment_name: ClassVar[str] = "throw_kinematics"
@@ -186,6 +189,7 @@ class ThrowKinematicsResult(Result):
     files: dict[str, str]
 
     def to_markdown(self) -> str:
+        """The experiment's report, in Markdown (:meth:`~experiments.config.Result.to_markdown`)."""
         return (
             f"- {self.n} throws in {1e3 * self.seconds:.1f} ms\n"
             f"- clamped by the joint limits: {self.clamped_share:.1%} of uniform targets\n"

@@ -74,6 +74,7 @@ class Experiment:
 
     @property
     def name(self) -> str:
+        """The experiment's name: its result's ``experiment_name``."""
         return self.result.experiment_name
 
     @property

@@ -33,9 +33,11 @@ STEP_RECORD_ENV = "EFFECT_NETWORKS_STEP_RECORD"
 
 @dataclass(frozen=True)
 class StepMeasure:
-    """``simulation_seconds``: wall time spent simulating; ``peak_bytes``: peak resident
-    memory of the step's process; ``children_peak_bytes``: that of the largest process it
-    started and waited for (0: none).
+    """What one step measured about itself.
+
+    ``simulation_seconds``: wall time spent simulating; ``peak_bytes``: peak resident memory of the
+    step's process; ``children_peak_bytes``: that of the largest process it started and waited for
+    (0: none).
     """
 
     simulation_seconds: float
@@ -55,10 +57,11 @@ def max_rss_bytes(who: int) -> int:
 
 
 def own_peak_bytes() -> int:
-    """This process's peak resident memory: ``VmHWM`` of ``/proc/self/status`` where there
-    is one (Linux), else ``ru_maxrss``. (On Linux ``ru_maxrss`` also keeps the peak of the
-    process that started this one, up to the moment it started the program: a step
-    started by a large process would seem as large.)
+    """The peak resident memory of the running process.
+
+    ``VmHWM`` of ``/proc/self/status`` where there is one (Linux), else ``ru_maxrss``. (On Linux
+    ``ru_maxrss`` also keeps the peak of the process that started this one, up to the moment it
+    started the program: a step started by a large process would seem as large.)
     """
     try:
         for line in Path("/proc/self/status").read_text().splitlines():
@@ -70,7 +73,7 @@ def own_peak_bytes() -> int:
 
 
 def measure() -> StepMeasure:
-    """This process's measures so far."""
+    """The running process's measures so far."""
     return StepMeasure(
         simulation_seconds(), own_peak_bytes(), max_rss_bytes(resource.RUSAGE_CHILDREN)
     )

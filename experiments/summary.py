@@ -54,13 +54,14 @@ MEMORY_GOAL_BYTES = 2 * 10**9
 
 @dataclass
 class RunRecord(Result):
-    """One run of the main job: ``scale``, ``commit`` (short hash, ``+`` when the work tree
-    had uncommitted changes), ``date`` (UTC, ISO 8601), ``machine`` (words),
-    ``step_seconds`` (wall time per step run, in order), ``total_seconds``,
-    ``simulation_seconds`` (per step, the wall time spent simulating:
-    :mod:`sim2d.clock`) and ``peak_bytes`` (per step, the peak resident memory of its
-    largest process: :mod:`experiments.steps`). A record written before the last two
-    were measured loads with them empty.
+    """One run of the main job.
+
+    ``scale``, ``commit`` (short hash, ``+`` when the work tree had uncommitted changes), ``date``
+    (UTC, ISO 8601), ``machine`` (words), ``step_seconds`` (wall time per step run, in order),
+    ``total_seconds``, ``simulation_seconds`` (per step, the wall time spent simulating:
+    :mod:`sim2d.clock`) and ``peak_bytes`` (per step, the peak resident memory of its largest
+    process: :mod:`experiments.steps`). A record written before the last two were measured loads
+    with them empty.
     """
 
     scale: str
@@ -74,6 +75,7 @@ class RunRecord(Result):
 
     @classmethod
     def from_json(cls, text: str) -> RunRecord:
+        """The record :meth:`to_json` wrote; older records load without the measures they lack."""
         try:
             data = json.loads(text)
         except (ValueError, RecursionError):
@@ -84,6 +86,7 @@ class RunRecord(Result):
         return super().from_json(text)
 
     def save(self, out) -> Path:
+        """Write the record into the folder ``out`` as ``run.json``; its path."""
         path = Path(out) / RUN_FILE
         path.write_text(self.to_json())
         return path
@@ -138,8 +141,9 @@ def run_record(
     peak_bytes: Mapping[str, int] | None = None,
     root=None,
 ) -> RunRecord:
-    """The record of a run that just ended, in the git work tree ``root`` (default: this
-    package's repository).
+    """The record of a run that just ended, in the git work tree ``root``.
+
+    ``root`` defaults to this package's repository.
     """
     root = Path(root) if root is not None else Path(__file__).resolve().parents[1]
     commit = _git(root, "rev-parse", "--short", "HEAD") or "unknown"
@@ -158,8 +162,9 @@ def run_record(
 
 
 def load_results(folder) -> dict[str, Result]:
-    """Every experiment's result saved below the results folder ``folder``, by name, in
-    order (:func:`experiments.registry.experiments`); an experiment that has not run is
+    """Every experiment's result saved below the results folder ``folder``, by name, in order.
+
+    In the order of :func:`experiments.registry.experiments`; an experiment that has not run is
     missing. A file of another shape raises a ``ValueError`` naming it.
     """
     found = {}
@@ -195,8 +200,10 @@ def summary_markdown(folder) -> str:
 
 
 def step_table(run: RunRecord) -> list[str]:
-    """Per step: wall time, the part spent simulating, the rest, and the peak memory of
-    its largest process; then the total and the goals beside the measured figures.
+    """Per step: wall time, the part spent simulating, the rest, and the peak memory.
+
+    The peak memory of its largest process; then the total and the goals beside the measured
+    figures.
     """
     lines = [
         "| step | wall time (s) | simulation (s) | rest (s) | peak memory (MB) |",

@@ -127,6 +127,7 @@ class TapAndRemoveResult(Result):
     test: dict
 
     def to_markdown(self) -> str:
+        """The experiment's report, in Markdown (:meth:`~experiments.config.Result.to_markdown`)."""
         r = self.remove
         lines = [
             f"# Tap and remove ({self.n_train} training rows)",
@@ -143,9 +144,11 @@ class TapAndRemoveResult(Result):
         return "\n".join(lines)
 
     def figures(self, out: Path) -> list[Path]:
+        """Draw the taps, ``tap_and_remove.png``, into the folder ``out``; its path."""
         return [plot_taps(self, out / "tap_and_remove.png")]
 
     def summary_rows(self, results) -> list[str]:
+        """The results table's row of the tap (:meth:`~experiments.config.Result.summary_rows`)."""
         cells = "; ".join(f"{label} {rms:.4f} m" for label, rms in self.rms_m.items())
         return [f"| §III tap: RMS prediction of the end position | qualitative | {cells} | |"]
 

@@ -236,9 +236,11 @@ class ThrowingResult(Result):
         return "\n".join(lines)
 
     def figures(self, out: Path) -> list[Path]:
+        """Draw the re-throw errors, ``throwing_errors.png``, into the folder ``out``; its path."""
         return [plot_errors(self, out / "throwing_errors.png")]
 
     def summary_rows(self, results) -> list[str]:
+        """The results table's row of the throw, beside the paper's."""
         return [
             f"| §IV-B throw: re-thrown RMS y / z (m) | {self.paper_rms_y_m:.4f} / "
             f"{self.paper_rms_z_m:.4f} | {self.rms_y_m:.4f} / {self.rms_z_m:.4f} "
