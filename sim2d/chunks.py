@@ -120,8 +120,9 @@ _READ_ONLY_ERRNOS = frozenset({errno.EROFS, errno.EACCES, errno.EPERM})
 
 
 def write_failure(error: BaseException) -> str | None:
-    """One line saying which write failed and why, for an ``OSError`` of
-    :data:`WRITE_ERRNOS`; None for any other error.
+    """One line saying which write failed and why, for an ``OSError`` of :data:`WRITE_ERRNOS`.
+
+    None for any other error.
     """
     if not isinstance(error, OSError) or error.errno not in WRITE_ERRNOS:
         return None

@@ -1,5 +1,6 @@
-"""The wall time this process spends simulating, so that a run can say what share of it
-is the physics and what share everything else.
+"""The wall time this process spends simulating.
+
+So that a run can say what share of it is the physics and what share everything else.
 
 Every entry point that simulates (generating a data set, playing throws, settling
 configurations) runs under :func:`simulating`, directly or through the :func:`simulation`
@@ -56,8 +57,9 @@ def simulation(fn: F) -> F:
 
 
 def simulation_seconds() -> float:
-    """Seconds of wall time this process has spent simulating so far (an interval still
-    open counts up to now).
+    """Seconds of wall time this process has spent simulating so far.
+
+    An interval still open counts up to now.
     """
     with _lock:
         running = time.perf_counter() - _started if _depth else 0.0

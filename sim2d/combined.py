@@ -199,8 +199,9 @@ def reachable_throws(
     executor=None,
     progress: bool = True,
 ) -> dict[int, np.ndarray]:
-    """:func:`throws_from` for every state that these throws reach from ``start`` within
-    ``depth - 1`` throws: the states a plan of ``depth`` throws may act in.
+    """:func:`throws_from` for every state that these throws reach from ``start``.
+
+    Within ``depth - 1`` throws: the states a plan of ``depth`` throws may act in.
 
     Breadth first: layer 0 is ``start``; layer k + 1 holds the states that layer k's
     throws produced and no earlier layer holds (the empty state has nothing to throw at).

@@ -78,7 +78,7 @@ def fully_supported(mask: int) -> bool:
 
 @simulation
 def settles(mask: int, *, stepping: materials.Stepping = materials.STEPPING) -> bool:
-    """Simulate one configuration for ``SETTLE_TIME``: does no can move more than 1 cm?
+    """Simulate one configuration for ``SETTLE_TIME``: whether no can moves more than 1 cm.
 
     Parameters
     ----------
@@ -185,8 +185,9 @@ def stable_configurations(
 
 
 def _read_cache(file: Path) -> tuple[int, ...] | None:
-    """The configurations cached in ``file``; None if it is missing, of other constants,
-    or damaged in any way (unreadable, not JSON, JSON of another shape): recompute.
+    """The configurations cached in ``file``; None if missing, of other constants, or damaged.
+
+    Damaged in any way (unreadable, not JSON, JSON of another shape): recompute.
     """
     try:
         data = json.loads(file.read_text())

@@ -126,6 +126,7 @@ class RayExecutor:
         self._remote: dict = {}
 
     def submit(self, fn, *args) -> concurrent.futures.Future:
+        """Run ``fn(*args)`` as a Ray task; its future."""
         if fn not in self._remote:
             self._remote[fn] = self._ray.remote(fn)
         return self._remote[fn].remote(*args).future()

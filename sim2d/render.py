@@ -154,8 +154,9 @@ def _ball_patch(xz, colour=_BALL_COLOUR, alpha: float = 1.0):
 
 
 def _legend(ax, *, path: bool = False) -> None:
-    """The throw pictures' key: ball, cans thrown off, cans kept (and the ball's path and
-    aimed field centre when ``path``).
+    """The throw pictures' key: ball, cans thrown off, cans kept.
+
+    And the ball's path and aimed field centre when ``path``.
     """
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
@@ -217,8 +218,9 @@ def plot_throw(path, recording: ThrowRecording, field: int, angle: int) -> Path:
 def animate_throw(
     path, recording: ThrowRecording, field: int, angle: int, *, fps: int = 25
 ) -> Path:
-    """An animated GIF of a recorded throw (one frame per recorded instant, ``fps`` frames a
-    second), with the legend of :func:`plot_throw`.
+    """An animated GIF of a recorded throw, with the legend of :func:`plot_throw`.
+
+    One frame per recorded instant, ``fps`` frames a second.
     """
     from matplotlib.animation import PillowWriter
 
