@@ -164,7 +164,18 @@ class Robot:
     rng: np.random.Generator
 
     def aim(self, hits: np.ndarray) -> np.ndarray:
-        """The throw network's aims ``(n, 2)`` for the desired ``hits``, clipped into the area."""
+        """The throw network's aims for the desired ``hits``, clipped into the target area.
+
+        Parameters
+        ----------
+        hits : (n, 2) float
+            The points the ball should hit.
+
+        Returns
+        -------
+        (n, 2) float
+            The parameter posterior's mean for each hit, clipped into ``TARGET_AREA``.
+        """
         aims = self.queries.infer_parameter(TARGET, {"end.hit": torch.as_tensor(hits)}).mean.numpy()
         return np.clip(aims, TARGET_AREA.low, TARGET_AREA.high)
 

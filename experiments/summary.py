@@ -75,7 +75,14 @@ class RunRecord(Result):
 
     @classmethod
     def from_json(cls, text: str) -> RunRecord:
-        """The record :meth:`to_json` wrote; older records load without the measures they lack."""
+        """The record :meth:`to_json` wrote.
+
+        Parameters
+        ----------
+        text
+            The JSON text; a record written before the measures were added loads with
+            ``simulation_seconds`` and ``peak_bytes`` empty.
+        """
         try:
             data = json.loads(text)
         except (ValueError, RecursionError):
@@ -86,7 +93,18 @@ class RunRecord(Result):
         return super().from_json(text)
 
     def save(self, out) -> Path:
-        """Write the record into the folder ``out`` as ``run.json``; its path."""
+        """Write the record into a folder.
+
+        Parameters
+        ----------
+        out
+            The folder; the record is written to ``run.json`` there.
+
+        Returns
+        -------
+        Path
+            The path written.
+        """
         path = Path(out) / RUN_FILE
         path.write_text(self.to_json())
         return path

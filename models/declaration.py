@@ -156,7 +156,18 @@ class EffectNetwork:
         return tuple(self._sites.values())
 
     def site(self, name: str) -> SiteSpec:
-        """The site named ``name``; an unknown name is a ``KeyError`` naming the sites."""
+        """The site named ``name``.
+
+        Parameters
+        ----------
+        name
+            A site's name, such as ``"initial.f"``, ``"action"`` or ``"end.f"``.
+
+        Raises
+        ------
+        KeyError
+            The network has no site of that name (the message names its sites).
+        """
         try:
             return self._sites[name]
         except KeyError:
@@ -188,7 +199,18 @@ class EffectNetwork:
         return tuple(m for m in self._mixtures.values() if site in m.continuous)
 
     def feature(self, name: str) -> Feature:
-        """The feature named ``name``; an unknown name is a ``KeyError`` naming the features."""
+        """The declared feature named ``name``.
+
+        Parameters
+        ----------
+        name
+            The feature's name, without a role prefix.
+
+        Raises
+        ------
+        KeyError
+            No feature of that name is declared (the message names the features).
+        """
         for f in self.features:
             if f.name == name:
                 return f
@@ -227,7 +249,18 @@ class EffectNetwork:
         return self._mixtures[parameter.name].uses.clone()
 
     def action_index(self, action: str) -> int:
-        """The index of ``action``; an unknown one is a ``ValueError`` naming the actions."""
+        """The index of ``action`` among the network's actions.
+
+        Parameters
+        ----------
+        action
+            An action's label.
+
+        Raises
+        ------
+        ValueError
+            ``action`` is not one of the network's actions (the message names them).
+        """
         try:
             return self.actions.index(action)
         except ValueError:
