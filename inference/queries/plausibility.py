@@ -58,7 +58,7 @@ class OutsideTrainingData(UserWarning):
 
 @dataclass(frozen=True)
 class Plausibility:
-    """How plausible the observed end states are under the model.
+    """How plausible the observed end and initial states are under the model.
 
     ``discrete`` ``(n,)``: p(observed discrete end state | the rest of the evidence); ``tail``
     ``(n,)``: chi-square tail probability of the observed continuous end state under its closest
