@@ -161,8 +161,7 @@ class _Plan:
 class _Answers:
     """The posterior per observed configuration, for a pattern with the action latent.
 
-    The pattern's latent sites include the action: a query then gathers its answer instead of
-    computing it per row.
+    A query then gathers its answer instead of computing it per row.
 
     Each is computed over the plan's table exactly as :meth:`CompiledNetwork.infer_action`
     computes it over gathered rows (row by row the same operations): with the action the
@@ -261,10 +260,7 @@ class _RowSums:
 
 
 def _lazy_plan(net, order, observed, kept, misses) -> _Plan | None:
-    """The plan of ``observed`` with its table and unseen indicator as :class:`_RowSums`.
-
-    Where the table would exceed ``PLAN_BUDGET`` elements; None where it would not.
-    """
+    """The plan of ``observed`` as :class:`_RowSums`, where its table exceeds ``PLAN_BUDGET``."""
     sizes = [net.site(s).size for s in order]
     shape = torch.broadcast_shapes(*(t.shape for t in kept))
     shape = [sizes[a] if s == ACTION else shape[a] for a, s in enumerate(order)]
@@ -540,10 +536,7 @@ class CompiledNetwork:
         return torch.from_numpy(np.array([flag]))
 
     def _evidence_below(self, enc: Evidence, log_evidence: torch.Tensor | float, below: float):
-        """``(n,)`` bool: p(observed end sites | the rest of the evidence) below ``below``.
-
-        ``log_evidence``: ``(n,)``, or a float for one row.
-        """
+        """``(n,)`` bool: p(observed end sites | the rest of the evidence) below ``below``."""
         ends = {end_site(f.name) for f in self.net.features}
         given = frozenset(s for s in enc if s not in ends)
         if len(given) == len(enc):
