@@ -65,7 +65,7 @@ def test_the_guide_lists_its_pages_in_the_running_order():
 def test_readme_and_the_guide_have_snippets():
     files = [path for path, _ in snippets()]
     assert files.count(README) >= 3
-    for page in ("network", "evidence", "fitting", "compiled", "pyro", "interop", "pictures"):
+    for page in ("network", "evidence", "parameters", "fitting", "compiled", "pyro", "interop"):
         assert DOCS / f"{page}.md" in files, page
 
 
@@ -100,6 +100,10 @@ def test_readme_snippets_run(tmp_path, monkeypatch):
     assert math.isfinite(namespace["score"])
     assert namespace["parents"] == ("initial.visible", "action")
     assert namespace["better"]
+    assert namespace["drift"] < 0.05  # simulate's clusters, fitted back
+    curve = namespace["em"].log_likelihoods
+    assert namespace["em"].converged and namespace["gain"] > 0
+    assert all(b >= a for a, b in zip(curve, curve[1:], strict=False))  # pseudo_count=0
     assert namespace["gap"] < 1e-12  # the compiled parameter posterior, the traced one's
     assert namespace["draws"]["param.force"].shape == (100, 5, 1)
     assert set(namespace["draws"]) == {site.name for site in namespace["net"].sites}
