@@ -159,3 +159,13 @@ def assert_loss_is_exact(namespace):
                     lambda: None,
                 )
             assert abs(loss + exact) < 1e-9
+
+
+def test_the_links_of_readme_and_the_guide_lead_to_files():
+    # the site's strict build checks the pages' links; README's own (LICENSE, the figure,
+    # docs/*.md as GitHub shows them) are checked here, with the guide's
+    for path in (README, DOCS / "guide.md", *GUIDE_PAGES, EXPERIMENTS):
+        for target in re.findall(r"\]\(([^)\s]+)\)", path.read_text()):
+            if re.match(r"[a-z]+:", target) or target.startswith("#"):
+                continue  # a web address or an anchor on the page itself
+            assert (path.parent / target.split("#")[0]).exists(), f"{path.name}: {target}"
