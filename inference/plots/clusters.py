@@ -1,225 +1,19 @@
-"""Pictures of a network and its fitted numbers, drawn into the caller's axes.
-
-Each function takes ``ax=None`` (a new figure is made when it is ``None``) and returns the
-:class:`matplotlib.axes.Axes` it drew on, so pictures compose into the caller's own
-figures; nothing is shown or saved here. matplotlib is imported when a function runs,
-so importing this module costs nothing.
-
-* :func:`plot_network` -- the graph of a declaration (matplotlib only, no graphviz):
-  initial sites on the left, the action and each parameter's cluster and value in the
-  middle, end sites on the right; discrete sites in square boxes, continuous ones in
-  round boxes, one arrow per parent link.
-* :func:`plot_table` -- a table site's probabilities as a heat map, one row per parent
-  configuration and one column per state, both by their labels.
-* :func:`plot_clusters` -- a parameter's clusters as their Gaussians: ellipses over the
-  value (two dimensions of it) or over the value and an affected feature, intervals for
-  a one-dimensional value, over the training rows when given.
-* :func:`plot_action_posterior` -- an :class:`~inference.queries.ActionPosterior` row as
-  bars by action name.
-* :func:`plot_demonstration` -- an :class:`~inference.queries.explain.Explanation` row:
-  the per-step action posterior as a heat map, the most probable sequence marked.
-"""
+"""A parameter's clusters as their Gaussians: ellipses over the value (or over the value
+and an affected feature), intervals for a one-dimensional value, over the training rows."""
 
 from __future__ import annotations
 
-import itertools
 import math
 from collections.abc import Mapping, Sequence
 
 import numpy as np
 import torch
 
+from inference.plots._common import new_axes
 from models.declaration import ACTION, EffectNetwork
 from models.params import NetworkParams, check_params
 
-#: Column of each role in :func:`plot_network` (end sites with end parents move right).
-_COLUMN = {"initial": 0.0, "action": 1.0, "cluster": 1.0, "param": 1.0, "end": 2.0}
 
-
-def _axes(ax):
-    if ax is None:
-        import matplotlib.pyplot as plt
-
-        _, ax = plt.subplots()
-    return ax
-
-
-def _check_site(net: EffectNetwork, site: str) -> None:
-    if site not in {s.name for s in net.sites}:
-        raise ValueError(
-            f"site {site!r} does not exist in this network; its sites are "
-            f"{[s.name for s in net.sites]}"
-        )
-
-
-def site_parents(net: EffectNetwork, site: str) -> tuple[str, ...]:
-    """Every parent of ``site``: its discrete parents, then its continuous inputs."""
-    cpd = net.cpd(site)
-    return cpd.parents + cpd.inputs
-
-
-def state_labels(net: EffectNetwork, site: str) -> tuple:
-    """The labels of a discrete site's states: a feature's states, the action names, or
-    a cluster's numbers ``0 .. C-1``."""
-    spec = net.site(site)
-    if not spec.discrete:
-        raise ValueError(f"site {site!r} is continuous; it has no state labels")
-    if spec.role == "action":
-        return net.actions
-    if spec.role == "cluster":
-        return tuple(range(spec.size))
-    return net.feature(spec.feature).states
-
-
-# ------------------------------------------------------------------------------ the graph
-def _positions(net: EffectNetwork) -> dict[str, tuple[float, float]]:
-    """Where each site sits: a column per role, end sites shifted right by their depth
-    among end sites; the middle column (the action, the parameters' sites) above the
-    rows of the initial and end sites."""
-    column: dict[str, float] = {}
-    for spec in net.sites:  # parents before children
-        x = _COLUMN[spec.role]
-        if spec.role == "end":
-            ends = [column[p] for p in site_parents(net, spec.name) if net.site(p).role == "end"]
-            x = max([x, *(c + 0.8 for c in ends)])
-        column[spec.name] = x
-    where = {}
-    for x in sorted(set(column.values())):
-        names = [s for s, c in column.items() if c == x]
-        for i, name in enumerate(names):
-            # The middle column stands above the others, so that no link from an initial
-            # to an end site passes through its boxes, as a staircase down to the left,
-            # so that the links leaving a box run down to the right clear of those below.
-            if x == _COLUMN["action"]:
-                where[name] = (2 * x - 0.3 * i, len(names) - i)
-            else:
-                where[name] = (2 * x, -i)
-    return where
-
-
-def plot_network(net: EffectNetwork, ax=None):
-    """Draw the network's graph: its sites and one arrow per parent link.
-
-    Parameters
-    ----------
-    net : EffectNetwork
-        The declaration to draw (its fitted numbers play no part).
-    ax : matplotlib.axes.Axes, optional
-        Where to draw; a new figure when ``None``.
-
-    Returns
-    -------
-    matplotlib.axes.Axes
-        The axes, with one text per site (its name; discrete sites in square boxes,
-        continuous ones in round boxes) and one
-        :class:`~matplotlib.patches.FancyArrowPatch` per parent link, whose ``gid`` is
-        ``"<parent>-><site>"``.
-    """
-    from matplotlib.patches import FancyArrowPatch
-
-    ax = _axes(ax)
-    where = _positions(net)
-    boxes = {}
-    for spec in net.sites:
-        style = "square,pad=0.4" if spec.discrete else "round,pad=0.4"
-        colour = "#dbe8f5" if spec.discrete else "#f5e6d3"
-        boxes[spec.name] = ax.text(
-            *where[spec.name],
-            spec.name,
-            ha="center",
-            va="center",
-            fontsize=9,
-            bbox={"boxstyle": style, "facecolor": colour, "edgecolor": "0.3"},
-            zorder=3,
-        )
-    for spec in net.sites:
-        for parent in site_parents(net, spec.name):
-            (x0, y0), (x1, y1) = where[parent], where[spec.name]
-            # a link past boxes of its own column curves around them
-            bend = 0.4 if abs(y1 - y0) > 1 and abs(x1 - x0) < 1 else 0.0
-            ax.add_patch(
-                FancyArrowPatch(
-                    (x0, y0),
-                    (x1, y1),
-                    arrowstyle="-|>",
-                    mutation_scale=10,
-                    connectionstyle=f"arc3,rad={bend}",
-                    patchA=boxes[parent].get_bbox_patch(),
-                    patchB=boxes[spec.name].get_bbox_patch(),
-                    color="0.35",
-                    linewidth=0.8,
-                    zorder=4,  # after the boxes, which place themselves as they are drawn
-                    gid=f"{parent}->{spec.name}",
-                )
-            )
-    xs = [x for x, _ in where.values()]
-    ys = [y for _, y in where.values()]
-    ax.set_xlim(min(xs) - 0.9, max(xs) + 0.9)
-    ax.set_ylim(min(ys) - 0.8, max(ys) + 0.8)
-    ax.set_axis_off()
-    return ax
-
-
-# ------------------------------------------------------------------------------ a table
-def plot_table(net: EffectNetwork, params: NetworkParams, site: str, ax=None, *, annotate=None):
-    """Draw a table site's probabilities as a heat map.
-
-    Parameters
-    ----------
-    net : EffectNetwork
-        The declaration ``params`` were fitted for.
-    params : NetworkParams
-        Fitted numbers; ``params[site]`` must be a
-        :class:`~models.cpds.table.TableParams`.
-    site : str
-        A discrete site whose kind is ``"table"`` (a cluster's table too).
-    ax : matplotlib.axes.Axes, optional
-        Where to draw; a new figure when ``None``.
-    annotate : bool, optional
-        Write each probability in its cell; by default when the table has at most 120
-        cells.
-
-    Returns
-    -------
-    matplotlib.axes.Axes
-        Rows: the parents' configurations (row-major, labelled by their states, the
-        y-axis named by the parent sites), columns: the site's states. Each row sums to 1.
-
-    Raises
-    ------
-    ValueError
-        If ``site`` is not a site of ``net`` or not a table site, or ``params`` do not
-        fit ``net`` (:func:`models.params.check_params`).
-    """
-    check_params(net, params)
-    _check_site(net, site)
-    cpd = net.cpd(site)
-    if not cpd.tabular:
-        tables = [s.name for s in net.sites if net.cpd(s.name).tabular]
-        raise ValueError(
-            f"site {site!r} has kind {cpd.name!r}, not a table; plot_table draws the table "
-            f"sites {tables}"
-        )
-    probs = np.asarray(params[site].probs.detach().cpu(), dtype=float).reshape(-1, cpd.size)
-    rows = [
-        ", ".join(map(str, config))
-        for config in itertools.product(*(state_labels(net, p) for p in cpd.parents))
-    ]
-    ax = _axes(ax)
-    image = ax.imshow(probs, vmin=0.0, vmax=1.0, cmap="viridis", aspect="auto")
-    ax.figure.colorbar(image, ax=ax, label="probability")
-    ax.set_xticks(range(cpd.size), [str(s) for s in state_labels(net, site)])
-    ax.set_yticks(range(len(rows)), rows if cpd.parents else ["(no parents)"])
-    ax.set_xlabel(site)
-    ax.set_ylabel(", ".join(cpd.parents))
-    if annotate if annotate is not None else probs.size <= 120:
-        for (i, j), p in np.ndenumerate(probs):
-            colour = "black" if p > 0.5 else "white"
-            ax.text(j, i, f"{p:.2f}", ha="center", va="center", fontsize=7, color=colour)
-    return ax
-
-
-# ------------------------------------------------------------------------------ clusters
 def _ellipse(mean, cov, sigma: float, **style):
     """The ``sigma``-contour of a 2-D Gaussian as an Ellipse patch."""
     from matplotlib.patches import Ellipse
@@ -415,7 +209,7 @@ def plot_clusters(
     if feature is None and given is not None:
         raise ValueError("given names the parents of an affected feature; pass it with feature=")
     if feature is None and p.dim == 1:
-        ax = _intervals(_axes(ax), m, means[:, 0], np.sqrt(covs[:, 0, 0]), data, sigmas, dashed)
+        ax = _intervals(new_axes(ax), m, means[:, 0], np.sqrt(covs[:, 0, 0]), data, sigmas, dashed)
         cells = (edges[0], ())
     elif feature is None:
         dims = (0, 1) if dims is None else dims
@@ -423,7 +217,7 @@ def plot_clusters(
         i, j = dims
         gaussians = [(means[c, [i, j]], covs[c][np.ix_([i, j], [i, j])]) for c in range(len(means))]
         points = None if data is None else [_column(data, m.value.site, d) for d in dims]
-        ax = _ellipses(_axes(ax), gaussians, points, sigmas, dashed)
+        ax = _ellipses(new_axes(ax), gaussians, points, sigmas, dashed)
         ax.set_xlabel(f"{m.value.site}[{i}]")
         ax.set_ylabel(f"{m.value.site}[{j}]")
         cells = (edges[i], edges[j])
@@ -440,7 +234,7 @@ def plot_clusters(
         points = None
         if data is not None:
             points = _feature_rows(net, params, m, feature, data, index, dims, slopes, x_given)
-        ax = _ellipses(_axes(ax), gaussians, points, sigmas, dashed)
+        ax = _ellipses(new_axes(ax), gaussians, points, sigmas, dashed)
         ax.set_xlabel(f"{m.value.site}[{dims[0]}]")
         ax.set_ylabel(f"{site}[{dims[1]}]")
         ax.set_title(f"{m.cluster.site} given action = {net.actions[index[ACTION]]}", fontsize=9)
@@ -505,82 +299,3 @@ def _check_dims(parameter: str, dims, sizes: tuple[int, int], feature: str | Non
             raise ValueError(f"dims {tuple(dims)}: {name} has dimensions 0..{size - 1}")
     if feature is None and dims[0] == dims[1]:
         raise ValueError(f"dims {tuple(dims)}: name two different dimensions of {names[0]}")
-
-
-# ------------------------------------------------------------------------------ actions
-def plot_action_posterior(posterior, ax=None, actions: Sequence[str] | None = None, row: int = 0):
-    """Draw one row of an action posterior as bars, one per action.
-
-    Parameters
-    ----------
-    posterior : ActionPosterior
-        What :func:`inference.infer_action` (or its compiled method) returned.
-    ax : matplotlib.axes.Axes, optional
-        Where to draw; a new figure when ``None``.
-    actions : sequence of str, optional
-        The actions to draw, in this order; all of them by default.
-    row : int
-        The evidence row to draw.
-
-    Returns
-    -------
-    matplotlib.axes.Axes
-        One bar per action, its height the action's posterior probability; the row's
-        best action drawn darker.
-
-    Raises
-    ------
-    ValueError
-        If ``row`` or an action is not in the posterior.
-    """
-    names = tuple(posterior.actions)
-    n = posterior.probs.shape[0]
-    if not -n <= row < n:
-        raise ValueError(f"row {row} is not a row of this posterior, which has {n} rows")
-    chosen = names if actions is None else tuple(actions)
-    unknown = [a for a in chosen if a not in names]
-    if unknown:
-        raise ValueError(f"unknown actions {unknown}; the posterior's actions are {list(names)}")
-    probs = posterior.probs[row].detach().cpu().double().numpy()
-    heights = [float(probs[names.index(a)]) for a in chosen]
-    best = posterior.best_names[row]
-    ax = _axes(ax)
-    ax.bar(range(len(chosen)), heights, color=["C0" if a == best else "#9ecae1" for a in chosen])
-    ax.set_xticks(range(len(chosen)), list(chosen))
-    ax.set_ylim(0.0, 1.0)
-    ax.set_ylabel("P(action | evidence)")
-    return ax
-
-
-def plot_demonstration(explanation, ax=None, row: int = 0):
-    """Draw one demonstration's per-step action posterior as a heat map.
-
-    Parameters
-    ----------
-    explanation : Explanation
-        What :func:`inference.explain` returned.
-    ax : matplotlib.axes.Axes, optional
-        Where to draw; a new figure when ``None``.
-    row : int
-        The demonstration to draw.
-
-    Returns
-    -------
-    matplotlib.axes.Axes
-        One column per step and one row per action, the cell's shade the action's
-        posterior probability at that step (0 white, 1 dark); a dot marks each step's
-        action in the most probable sequence.
-    """
-    n = explanation.probs.shape[0]
-    if not -n <= row < n:
-        raise ValueError(f"row {row} is not a demonstration of this explanation, which has {n}")
-    probs = explanation.probs[row].detach().cpu().double().numpy().T  # (A, T)
-    ax = _axes(ax)
-    ax.imshow(probs, cmap="Blues", vmin=0.0, vmax=1.0, aspect="auto", origin="upper")
-    steps = np.arange(probs.shape[1])
-    ax.plot(steps, explanation.best[row].numpy(), "o", color="C1", label="most probable sequence")
-    ax.set_xticks(steps, [f"{t} → {t + 1}" for t in steps])
-    ax.set_yticks(range(len(explanation.actions)), list(explanation.actions))
-    ax.set_xlabel("step (state → state)")
-    ax.set_ylabel("P(action | demonstration)")
-    return ax
