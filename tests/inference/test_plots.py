@@ -1,7 +1,6 @@
 """Pictures of fitted networks: each renders to a PNG and shows what the numbers say."""
 
 import math
-import runpy
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -442,21 +441,6 @@ def test_the_package_offers_the_module_and_no_names_of_it():
         [sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True
     )
     assert out.stdout.strip() == "False"
-
-
-def test_the_tutorial_runs_at_a_tiny_scale(tmp_path, monkeypatch):
-    out = tmp_path / "figure.png"
-    script = ROOT / "docs" / "tutorials" / "plots.py"
-    monkeypatch.setattr(sys, "argv", [str(script), "--out", str(out), "--rows", "200"])
-    runpy.run_path(str(script), run_name="__main__")
-    assert out.stat().st_size > 0
-    plt.close("all")
-
-
-def test_every_tutorial_cell_is_marked():
-    for script in (ROOT / "docs" / "tutorials").glob("*.py"):
-        text = script.read_text()
-        assert text.startswith("# %%") and text.count("# %%") >= 4, script
 
 
 def test_demonstration_heat_map_shows_the_posterior_and_the_sequence(tmp_path):
