@@ -245,7 +245,7 @@ def table_one_on_replays(
 
     ``cases``: ``{protocol: (start masks, desired counts)}``; ``replays``: as
     :func:`replay_counts` returns. A field is chosen once per distinct (start, desired
-    count) of all the protocols' cases (:func:`experiments.can_tossing.choose`, row by
+    count) of all the protocols' cases (:func:`experiments.cans.choose`, row by
     row: the same field whichever protocol asks).
     """
     row = {c: i for i, c in enumerate(configs)}
