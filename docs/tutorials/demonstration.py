@@ -90,14 +90,16 @@ print(f"actions read back: {share:.0%} of {drawn.size}")
 # %% [markdown]
 # The demonstration above as a heat map: one column per step, one row per action, the
 # shade the action's posterior probability, a dot on each step's action in the most
-# probable sequence; beside it the first drawn demonstration, its drawn actions in the
-# title.
+# probable sequence; beside it the first drawn demonstration with a tap in it, its drawn
+# actions in the title.
 
 # %%
+tapped = np.flatnonzero((drawn == "tap").any(axis=1))
+row = int(tapped[0]) if tapped.size else 0
 fig, (left, right) = plt.subplots(1, 2, figsize=(12, 4))
 plot_demonstration(story, ax=left)
 left.set_title("the demonstration above")
-plot_demonstration(read, ax=right, row=0)
-right.set_title(f"drawn: {', '.join(drawn[0])}")
+plot_demonstration(read, ax=right, row=row)
+right.set_title(f"drawn demonstration {row}: {', '.join(drawn[row])}")
 fig.tight_layout()
 plt.show()
