@@ -3,8 +3,9 @@ strict (a warning or a broken cross-reference fails the build).
 
 The tutorials (docs/tutorials/*.py, percent-format scripts) are pages of their own: MyST-NB
 reads each through jupytext, runs it in a Jupyter kernel at a tiny scale (the environment
-variable ``EFFECT_NETWORKS_TUTORIALS=tiny``, which every tutorial reads) and renders its
-cells with their printed output and figures; a tutorial that raises fails the build."""
+variable ``EFFECT_NETWORKS_TUTORIALS=tiny``, which every tutorial reads; set it to ``full``
+for a reader's scale) and renders its cells with their printed output and figures; a
+tutorial that raises fails the build."""
 
 import os
 import sys
@@ -44,7 +45,7 @@ nb_merge_streams = True
 # the kernel inherits this process's environment: the tutorials' scale, this checkout's
 # packages (not an installed copy's), and matplotlib's inline backend (not a file-only one
 # set for the tests), so that each figure a cell makes is rendered below it
-os.environ["EFFECT_NETWORKS_TUTORIALS"] = "tiny"
+os.environ.setdefault("EFFECT_NETWORKS_TUTORIALS", "tiny")  # "full": as a reader runs them
 os.environ["PYTHONPATH"] = os.pathsep.join(
     [str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])]
 )

@@ -428,6 +428,13 @@ def test_every_function_draws_into_the_axes_it_is_given(tmp_path):
     assert plot_clusters(net, params, "force", ax=axes[2]) is axes[2]
     assert plot_action_posterior(posterior, ax=axes[3]) is axes[3]
     rendered(axes[0], tmp_path)
+    from inference.plots import plot_plan
+
+    fig, axes = plt.subplots(1, 2)
+    route = door_plan(horizon=2)
+    assert plot_plan(route, ax=axes[0]) is axes[0]
+    assert plot_plan(route, ax=axes[1], show="path") is axes[1]
+    rendered(axes[0], tmp_path)
 
 
 def test_the_package_offers_the_module_and_no_names_of_it():
@@ -435,6 +442,12 @@ def test_the_package_offers_the_module_and_no_names_of_it():
     import subprocess
 
     assert inference.plots.plot_network is plot_network
+    # the package re-exports each picture from its module
+    from inference.plots import graph, plans, posteriors, tables
+
+    assert inference.plots.plot_plan is plans.plot_plan
+    assert inference.plots.plot_demonstration is posteriors.plot_demonstration
+    assert inference.plots.plot_table is tables.plot_table and graph.plot_network is plot_network
     assert not {"plot_network", "plot_table", "plot_clusters"} & set(inference.__all__)
     code = "import sys, inference; print('matplotlib' in sys.modules)"
     out = subprocess.run(
