@@ -147,13 +147,13 @@ def test_every_name_of_the_face_resolves_without_a_warning():
 
 
 def test_the_face_exports_what_the_readme_and_the_guide_teach():
-    """Every name imported from ``inference`` in the README and the guide, and every
-    ``inference.<name>`` they write that is not a module, is on the face."""
+    """Every name imported from ``inference`` in the README and the guide's pages, and
+    every ``inference.<name>`` they write that is not a module, is on the face."""
     import re
-    from pathlib import Path
 
-    root = Path(inference.__file__).parents[1]
-    text = (root / "README.md").read_text() + (root / "docs" / "guide.md").read_text()
+    from tests.test_readme import guide_text
+
+    text = guide_text()
     imported = set()
     lists = re.findall(r"from inference import \(([^)]*)\)", text)
     lists += re.findall(r"from inference import ([\w, ]+)$", text, re.M)
