@@ -42,6 +42,8 @@ nb_execution_raise_on_error = False
 nb_execution_show_tb = True
 nb_execution_timeout = 300
 nb_merge_streams = True
+# a warning a tutorial prints is a defect of the page: the strict build fails on it
+nb_output_stderr = "warn"
 # the kernel inherits this process's environment: the tutorials' scale, this checkout's
 # packages (not an installed copy's), and matplotlib's inline backend (not a file-only one
 # set for the tests), so that each figure a cell makes is rendered below it
@@ -50,6 +52,10 @@ os.environ["PYTHONPATH"] = os.pathsep.join(
     [str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])]
 )
 os.environ.pop("MPLBACKEND", None)
+# tqdm.auto, in a kernel without ipywidgets, falls back to the text bar with a warning
+os.environ["PYTHONWARNINGS"] = ",".join(
+    filter(None, [os.environ.get("PYTHONWARNINGS"), "ignore:IProgress not found"])
+)
 
 autodoc_member_order = "bysource"
 autodoc_default_options = {"members": True, "show-inheritance": False}
