@@ -30,8 +30,10 @@ def site_parents(net: EffectNetwork, site: str) -> tuple[str, ...]:
 
 
 def state_labels(net: EffectNetwork, site: str) -> tuple:
-    """The labels of a discrete site's states: a feature's states, the action names, or
-    a cluster's numbers ``0 .. C-1``."""
+    """The labels of a discrete site's states.
+
+    A feature's states, the action names, or a cluster's numbers ``0 .. C-1``.
+    """
     spec = net.site(site)
     if not spec.discrete:
         raise ValueError(f"site {site!r} is continuous; it has no state labels")

@@ -1,5 +1,8 @@
-"""A parameter's clusters as their Gaussians: ellipses over the value (or over the value
-and an affected feature), intervals for a one-dimensional value, over the training rows."""
+"""A parameter's clusters drawn as their Gaussians.
+
+Ellipses over the value (or over the value and an affected feature), intervals for a
+one-dimensional value, over the training rows.
+"""
 
 from __future__ import annotations
 
@@ -34,10 +37,13 @@ def _column(data: Mapping, site: str, dim: int) -> np.ndarray:
 
 
 def _joint(net, params, m, feature: str, given: Mapping, dims: tuple[int, int]):
-    """Per cluster, the joint Gaussian of the value's dimension ``dims[0]`` and the
-    feature's dimension ``dims[1]``, the feature's other parents fixed at ``given``:
-    ``theta ~ N(m_c, S_c)``, ``y = W_x x + W_p theta + b + e``, so the cross covariance
-    is ``W_p S_c`` and ``y``'s covariance ``R + W_p S_c W_p^T``."""
+    """Per cluster, the joint Gaussian of a value's dimension and a feature's.
+
+    The value's dimension ``dims[0]`` and the feature's dimension ``dims[1]``, the
+    feature's other parents fixed at ``given``: ``theta ~ N(m_c, S_c)``,
+    ``y = W_x x + W_p theta + b + e``, so the cross covariance is ``W_p S_c`` and ``y``'s
+    covariance ``R + W_p S_c W_p^T``.
+    """
     site = f"end.{feature}"
     if net.acting_on(site) != (m,):
         raise ValueError(
@@ -98,11 +104,13 @@ def _joint(net, params, m, feature: str, given: Mapping, dims: tuple[int, int]):
 
 
 def _feature_rows(net, params, m, feature, data, index, dims, slopes, x_given):
-    """The rows of ``data`` whose action and discrete parents have the states ``index``:
-    the value's dimension ``dims[0]`` and the feature's ``dims[1]``, the latter moved to
+    """The rows of ``data`` whose action and discrete parents have the states ``index``.
+
+    The value's dimension ``dims[0]`` and the feature's ``dims[1]``, the latter moved to
     the given continuous inputs along the fitted slope of the row's cluster,
     ``y + W_x (x_given - x)`` (the row's cluster: from ``data``, else the value's cell
-    under the grid layout, else the cluster most probable for the value)."""
+    under the grid layout, else the cluster most probable for the value).
+    """
     site = f"end.{feature}"
     rows = np.ones(len(_column(data, m.value.site, 0)), dtype=bool)
     for s, state in index.items():
@@ -269,8 +277,10 @@ def _ellipses(ax, gaussians, points, sigmas, dashed):
 
 
 def _intervals(ax, m, means, sds, data, sigmas, dashed):
-    """One interval ``mean +- sigma * sd`` per cluster and sigma, a row per cluster, the
-    rows' values as a rug in a row below."""
+    """One interval ``mean +- sigma * sd`` per cluster and sigma, a row per cluster.
+
+    The rows' values are drawn as a rug in a row below.
+    """
     from matplotlib.patches import Rectangle
 
     for c, (mean, sd) in enumerate(zip(means, sds, strict=True)):

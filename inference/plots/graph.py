@@ -1,5 +1,7 @@
-"""The network's graph drawn with matplotlib (no graphviz): sites in columns by role,
-one arrow per parent link."""
+"""The network's graph drawn with matplotlib (no graphviz).
+
+Sites in columns by role, one arrow per parent link.
+"""
 
 from __future__ import annotations
 
@@ -12,9 +14,12 @@ _COLUMN = {"initial": 0.0, "action": 1.0, "cluster": 1.0, "param": 1.0, "end": 2
 
 # ------------------------------------------------------------------------------ the graph
 def _positions(net: EffectNetwork) -> dict[str, tuple[float, float]]:
-    """Where each site sits: a column per role, end sites shifted right by their depth
-    among end sites; the middle column (the action, the parameters' sites) above the
-    rows of the initial and end sites."""
+    """Where each site sits.
+
+    A column per role, end sites shifted right by their depth among end sites; the middle
+    column (the action, the parameters' sites) above the rows of the initial and end
+    sites.
+    """
     column: dict[str, float] = {}
     for spec in net.sites:  # parents before children
         x = _COLUMN[spec.role]

@@ -1,5 +1,8 @@
-"""A plan drawn by its states: the policy as a grid (state x actions left) of the chosen
-actions, or the most likely path to the goal as a line through the states."""
+"""A plan drawn by its states.
+
+The policy as a grid (state x actions left) of the chosen actions, or the most likely path
+to the goal as a line through the states.
+"""
 
 from __future__ import annotations
 
@@ -14,8 +17,10 @@ SHOWS = ("policy", "path")
 
 
 def _labels(plan, states: Sequence | None, actions: Sequence[str] | None):
-    """The state and action labels, and the name of the states' axis: a
-    :class:`~inference.queries.planner.Plan`'s own, or those given (default: indices)."""
+    """The state and action labels, and the name of the states' axis.
+
+    A :class:`~inference.queries.planner.Plan`'s own, or those given (default: indices).
+    """
     model = getattr(plan, "model", None)
     s = plan.value.shape[1]
     if model is not None:

@@ -1,5 +1,7 @@
-"""Posteriors over actions: one evidence row's as bars, a demonstration's per step as a
-heat map."""
+"""Posteriors over actions.
+
+One evidence row's as bars, a demonstration's per step as a heat map.
+"""
 
 from __future__ import annotations
 
