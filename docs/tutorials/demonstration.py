@@ -78,8 +78,8 @@ print("steps the network cannot explain:", story.implausible[0].tolist())
 
 # %% [markdown]
 # Demonstrations drawn from the fitted model itself, with the actions that drew them:
-# how often does `explain` read the drawn action back? `look` and a `tap` of almost no
-# force look alike (neither moves the can), so not always.
+# how often does `explain` read the drawn action back? Not always: once the can is gone,
+# `look` and `remove` look alike, and so do `look` and a `tap` of almost no force.
 
 # %%
 states, drawn = simulate_demonstrations(net, params, DEMOS, 3, seed=1)

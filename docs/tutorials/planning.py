@@ -67,8 +67,8 @@ print({state: round(p, 3) for state, p in after_push.items()})
 
 # %% [markdown]
 # The plan: from a closed, locked door, open it within three actions. With three
-# actions left the door can be unlocked and pushed (and pushed again if the push
-# failed); the success probability sums every way that can go.
+# actions left the door is unlocked, then pushed, with one action to spare to repeat the
+# one that failed; the success probability sums every way that can go.
 
 # %%
 route = plan(net, params, ("closed", "locked"), {"door": "open"}, horizon=3)
