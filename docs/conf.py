@@ -1,8 +1,13 @@
 """Sphinx configuration: the site is built from docs/ by ``bin/build-docs``, offline and
-strict (a warning or a broken cross-reference fails the build)."""
+strict (a warning or a broken cross-reference fails the build).
+
+The tutorials (docs/tutorials/*.py, percent-format scripts) are pages of their own: MyST-NB
+reads each through jupytext, runs it in a Jupyter kernel at a tiny scale (the environment
+variable ``EFFECT_NETWORKS_TUTORIALS=tiny``, which every tutorial reads; set it to ``full``
+for a reader's scale) and renders its cells with their printed output and figures; a
+tutorial that raises fails the build."""
 
 import os
-import subprocess
 import sys
 from pathlib import Path
 
@@ -15,19 +20,42 @@ author = "The effect-networks authors"
 copyright = "The effect-networks authors"  # noqa: A001
 
 extensions = [
-    "myst_parser",
+    "myst_nb",  # MyST Markdown pages, and the tutorials executed
     "sphinx.ext.autodoc",
     "sphinx.ext.napoleon",
     "sphinx.ext.mathjax",
     "sphinx.ext.viewcode",
 ]
 
-source_suffix = {".rst": "restructuredtext", ".md": "markdown"}
-exclude_patterns = ["_build"]
+exclude_patterns = ["_build", "conf.py"]
 root_doc = "index"
 
 myst_enable_extensions = ["dollarmath"]
 myst_heading_anchors = 3
+
+# -- the tutorials: percent-format scripts, executed on every build -------------------
+nb_custom_formats = {".py": ["jupytext.reads", {"fmt": "py:percent"}]}
+nb_execution_mode = "force"  # never a cached output: the pages show what the code does now
+# a cell that raises is a warning with its traceback (the strict build fails on it, and
+# --keep-going still reports every tutorial's)
+nb_execution_raise_on_error = False
+nb_execution_show_tb = True
+nb_execution_timeout = 300
+nb_merge_streams = True
+# a warning a tutorial prints is a defect of the page: the strict build fails on it
+nb_output_stderr = "warn"
+# the kernel inherits this process's environment: the tutorials' scale, this checkout's
+# packages (not an installed copy's), and matplotlib's inline backend (not a file-only one
+# set for the tests), so that each figure a cell makes is rendered below it
+os.environ.setdefault("EFFECT_NETWORKS_TUTORIALS", "tiny")  # "full": as a reader runs them
+os.environ["PYTHONPATH"] = os.pathsep.join(
+    [str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])]
+)
+os.environ.pop("MPLBACKEND", None)
+# tqdm.auto, in a kernel without ipywidgets, falls back to the text bar with a warning
+os.environ["PYTHONWARNINGS"] = ",".join(
+    filter(None, [os.environ.get("PYTHONWARNINGS"), "ignore:IProgress not found"])
+)
 
 autodoc_member_order = "bysource"
 autodoc_default_options = {"members": True, "show-inheritance": False}
@@ -62,7 +90,7 @@ PACKAGES = ("models", "inference", "experiments", "sim2d")
 # the faces whose names README and the guides import; a name is documented once, under
 # the first face here that exports it (its defining module's name still resolves: autodoc
 # records it as the canonical name)
-FACES = ("models", "inference", "inference.fitting", "inference.queries")
+FACES = ("models", "inference", "inference.fitting", "inference.queries", "inference.plots")
 # old import paths kept for one release: they forward with a DeprecationWarning
 DEPRECATED = {
     f"inference.{name}"
@@ -167,20 +195,6 @@ def _write_api_pages() -> None:
 _write_api_pages()
 
 
-def _tutorial_figure(app) -> None:
-    """Run the plots tutorial at a small scale so that its page shows the figure it makes."""
-    out = DOCS / "_generated" / "plots.png"
-    out.parent.mkdir(exist_ok=True)
-    env = dict(os.environ, PYTHONPATH=str(ROOT), MPLBACKEND="Agg")
-    subprocess.run(
-        [sys.executable, str(DOCS / "tutorials" / "plots.py"), "--rows", "400", "--out", str(out)],
-        check=True,
-        cwd=ROOT,
-        env=env,
-        stdout=subprocess.DEVNULL,
-    )
-
-
 def _lookup(target: str):
     """The object a dotted name imports to, or None."""
     import importlib
@@ -267,7 +281,6 @@ def _readme_links(app, docname, source):
 
 def setup(app):
     app.connect("source-read", _readme_links)
-    app.connect("builder-inited", _tutorial_figure)
     app.connect("missing-reference", _short_name)
     app.connect("autodoc-process-docstring", _keep_prose, priority=400)
     app.connect("autodoc-process-docstring", _restore_prose, priority=600)

@@ -1,8 +1,10 @@
-"""The documentation site's sources: every Markdown page of docs/ is reached from the
-index's table of contents (no orphan page), every tutorial script has its page, and (slow)
-the site builds strictly, as ``bin/build-docs`` builds it."""
+"""The documentation site's sources: every Markdown page of docs/ and every tutorial script
+(a page of its own, executed by the build) is reached from the index's table of contents
+(no orphan page), and (slow) the site builds strictly, as ``bin/build-docs`` builds it,
+every tutorial rendered with its outputs and figures."""
 
 import re
+import runpy
 import subprocess
 import sys
 from pathlib import Path
@@ -15,12 +17,17 @@ SKIP = {"_build", "_generated", "api"}  # build output and the generated API pag
 
 
 def pages(root: Path = DOCS) -> set[str]:
-    """Every Markdown page under ``root``, as a toctree names it (relative, no suffix)."""
+    """Every Markdown page and tutorial script under ``root``, as a toctree names it
+    (relative, no suffix)."""
     return {
         path.relative_to(root).with_suffix("").as_posix()
-        for path in root.rglob("*.md")
+        for path in [*root.rglob("*.md"), *(root / "tutorials").glob("*.py")]
         if not SKIP & set(path.relative_to(root).parts)
     }
+
+
+def tutorials() -> list[Path]:
+    return sorted((DOCS / "tutorials").glob("*.py"))
 
 
 def toctree_entries(page: Path, root: Path = DOCS) -> set[str]:
@@ -58,11 +65,41 @@ def test_every_page_is_in_the_table_of_contents():
     assert not missing, f"toctree entries with no page: {sorted(missing)}"
 
 
-def test_every_tutorial_script_has_its_page():
-    for script in (DOCS / "tutorials").glob("*.py"):
-        page = script.with_suffix(".md")
-        assert page.exists(), f"{script.name} has no page {page.name}"
-        assert re.search(rf"```{{literalinclude}} {re.escape(script.name)}\n", page.read_text())
+def test_every_tutorial_is_a_page_of_percent_cells():
+    entries = reached()
+    assert len(tutorials()) >= 5
+    for script in tutorials():
+        name = script.relative_to(DOCS).with_suffix("").as_posix()
+        assert name in entries, f"{script.name} is in no toctree"
+        assert not script.with_suffix(".md").exists(), f"{script.name} and its .md: one page"
+        text = script.read_text()
+        # a title cell, then code and Markdown cells as jupytext's percent format has them
+        assert text.startswith("# %% [markdown]\n# # "), script.name
+        assert text.count("\n# %%\n") >= 2 and text.count("# %% [markdown]") >= 2, script.name
+        assert "EFFECT_NETWORKS_TUTORIALS" in text, f"{script.name} reads no tiny scale"
+
+
+@pytest.mark.parametrize("script", tutorials(), ids=lambda p: p.stem)
+def test_every_tutorial_runs_at_a_tiny_scale_and_draws(script, tmp_path, monkeypatch):
+    """As the site's build runs it: at the tiny scale, in a folder of its own; each figure
+    it leaves open (a script's ``plt.show()`` does not close it under Agg) renders."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    plt.close("all")
+    monkeypatch.setenv("EFFECT_NETWORKS_TUTORIALS", "tiny")
+    monkeypatch.setattr(sys, "argv", [str(script)])
+    monkeypatch.chdir(tmp_path)
+    runpy.run_path(str(script), run_name="__main__")
+    figures = [plt.figure(n) for n in plt.get_fignums()]
+    assert figures, f"{script.name} drew no figure"
+    for i, figure in enumerate(figures):
+        figure.savefig(tmp_path / f"{i}.png")
+        assert any(ax.has_data() or ax.patches or ax.texts for ax in figure.axes)
+        assert (tmp_path / f"{i}.png").stat().st_size > 5_000
+    plt.close("all")
 
 
 def test_the_check_sees_an_orphan_and_a_nested_page(tmp_path):
@@ -88,4 +125,10 @@ def test_site_builds_strictly(tmp_path):
     assert (out / "index.html").exists() and (out / "search.html").exists()
     api = (out / "api" / "inference.html").read_text()
     assert 'id="inference.fit"' in api and 'id="inference.infer_action"' in api
-    assert (out / "_images" / "plots.png").stat().st_size > 10_000
+    for script in tutorials():
+        page = (out / "tutorials" / script.with_suffix(".html").name).read_text()
+        # executed: each tutorial's page holds its cells' outputs and at least one figure
+        assert "cell_output" in page, script.name
+        images = re.findall(r'<img [^>]*src="\.\./_images/([^"]+\.png)"', page)
+        assert images, f"{script.name} rendered no figure"
+        assert all((out / "_images" / image).stat().st_size > 5_000 for image in images)

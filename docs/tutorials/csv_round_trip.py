@@ -2,29 +2,35 @@
 # # Rows through a CSV file
 #
 # Logged trials usually arrive as a table. Here rows are drawn from a known model
-# (`inference.simulate`, straight into a pandas `DataFrame`), written to a CSV file, read
-# back with pandas, and the network is fitted on the frame as it was read. A few trials
-# whose action was not logged are then asked for it, and the answer is a frame too:
-# one probability column per action, labels rather than indices.
+# ({func}`inference.simulate`, straight into a pandas `DataFrame` with
+# `as_frame=True`), written to a CSV file, read back with pandas, and the network is
+# fitted on the frame as it was read. A few trials whose action was not logged are then
+# asked for it, and the answer is a frame too: one probability column per action, labels
+# rather than indices. The column convention is on the page [Data frames](../frames.md).
 #
-# Run it as a script: `python docs/tutorials/csv_round_trip.py --out rows.csv` (`--rows`
-# sets the training rows; the file goes to a temporary folder by default). It needs
-# pandas, the `data` extra.
+# This page is a script, {download}`csv_round_trip.py <csv_round_trip.py>`, run when the
+# site is built: `python docs/tutorials/csv_round_trip.py --out rows.csv` (`--rows` sets
+# the training rows; the file goes to a temporary folder by default). It needs pandas,
+# the `data` extra. The site runs it small (`EFFECT_NETWORKS_TUTORIALS=tiny`).
 
 # %%
 import argparse
+import os
 import tempfile
 from pathlib import Path
 
+import matplotlib.pyplot as plt
 import pandas as pd
 
 from inference import fit, infer_action, simulate
+from inference.plots import plot_action_posterior
 from models import Continuous, Discrete, EffectNetwork, Parameter, random_params
 
-parser = argparse.ArgumentParser(description=__doc__)
+parser = argparse.ArgumentParser(description="Rows through a CSV file.")
 parser.add_argument("--out", type=Path, default=Path(tempfile.mkdtemp()) / "rows.csv")
-parser.add_argument("--rows", type=int, default=2000)
-args, _ = parser.parse_known_args()  # a notebook's own arguments are left alone
+tiny = os.environ.get("EFFECT_NETWORKS_TUTORIALS") == "tiny"
+parser.add_argument("--rows", type=int, default=300 if tiny else 2000)
+args, _ = parser.parse_known_args()  # a notebook kernel's own arguments are left alone
 
 # %% [markdown]
 # A can that is visible or not, lying at a 2-d position; `tap` pushes it with a force
@@ -68,3 +74,11 @@ params = fit(net, rows).params
 trials = rows.drop(columns=["action", "param.force", "cluster.force"]).head(3)
 posterior = infer_action(net, params, trials)
 print(posterior.to_frame(index=trials.index).round(3).to_string())
+
+# %% [markdown]
+# The first of them drawn: the posterior over its action, the most probable one darker.
+
+# %%
+ax = plot_action_posterior(posterior, row=0)
+ax.set_title(f"trial {trials.index[0]}: which action?")
+plt.show()

@@ -2,38 +2,28 @@
 # # Pictures of a fitted network
 #
 # Declare a small network, draw training rows from a known model
-# (`inference.simulate`), fit the network on them, and draw what was fitted with
-# `inference.plots`: the graph, a table, the parameter's clusters over the rows, and the
-# posterior over actions for one observed change. Every plot function draws into an
+# ({func}`inference.simulate`), fit the network on them, and draw what was fitted with
+# {mod}`inference.plots`: the graph, a table, the parameter's clusters over the rows, and
+# the posterior over actions for one observed change. Every plot function draws into an
 # axes it is given (or a new figure) and returns it, so the four pictures share one
 # figure here.
 #
-# Run it as a script: `python docs/tutorials/plots.py --out figure.png` (`--rows` sets
-# the training rows; the figure goes to a temporary folder by default).
+# This page is a script, {download}`plots.py <plots.py>`, run when the site is built:
+# `python docs/tutorials/plots.py` runs it (a window shows the figure), an editor runs it
+# cell by cell. The site runs it small (`EFFECT_NETWORKS_TUTORIALS=tiny`: fewer training
+# rows), so its numbers are rougher than a full run's.
 
 # %%
-import argparse
-import tempfile
-from pathlib import Path
+import os
 
-import matplotlib
+import matplotlib.pyplot as plt
 
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
+from inference import fit, infer_action, simulate
+from inference.plots import plot_action_posterior, plot_clusters, plot_network, plot_table
+from models import Continuous, Discrete, EffectNetwork, Parameter, random_params
 
-from inference import fit, infer_action, simulate  # noqa: E402
-from inference.plots import (  # noqa: E402
-    plot_action_posterior,
-    plot_clusters,
-    plot_network,
-    plot_table,
-)
-from models import Continuous, Discrete, EffectNetwork, Parameter, random_params  # noqa: E402
-
-parser = argparse.ArgumentParser(description=__doc__)
-parser.add_argument("--out", type=Path, default=Path(tempfile.mkdtemp()) / "plots.png")
-parser.add_argument("--rows", type=int, default=2000)
-args, _ = parser.parse_known_args()  # a notebook's own arguments are left alone
+TINY = os.environ.get("EFFECT_NETWORKS_TUTORIALS") == "tiny"
+ROWS = 400 if TINY else 2000  # training rows
 
 # %% [markdown]
 # A can that is visible or not; `tap` pushes it with a force whose range is cut into
@@ -56,7 +46,7 @@ net = EffectNetwork(
 
 # %%
 truth = random_params(net, seed=3)
-rows = simulate(net, truth, args.rows, seed=2)
+rows = simulate(net, truth, ROWS, seed=2)
 params = fit(net, rows).params
 
 # %% [markdown]
@@ -69,6 +59,7 @@ posterior = infer_action(
     params,
     {"initial.visible": True, "end.visible": True, "end.displacement": [0.5]},
 )
+print(dict(zip(posterior.actions, posterior.probs[0].tolist(), strict=True)))
 
 # %% [markdown]
 # The four pictures. The clusters are drawn over the force and the displacement: one
@@ -82,7 +73,4 @@ plot_table(net, params, "end.visible", ax=axes[0, 1])
 plot_clusters(net, params, "force", rows, ax=axes[1, 0], feature="displacement")
 plot_action_posterior(posterior, ax=axes[1, 1])
 fig.tight_layout()
-args.out.parent.mkdir(parents=True, exist_ok=True)
-fig.savefig(args.out, dpi=100)
-plt.close(fig)
-print(f"wrote {args.out}")
+plt.show()

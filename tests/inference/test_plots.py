@@ -1,7 +1,6 @@
 """Pictures of fitted networks: each renders to a PNG and shows what the numbers say."""
 
 import math
-import runpy
 import sys
 from dataclasses import replace
 from pathlib import Path
@@ -429,6 +428,13 @@ def test_every_function_draws_into_the_axes_it_is_given(tmp_path):
     assert plot_clusters(net, params, "force", ax=axes[2]) is axes[2]
     assert plot_action_posterior(posterior, ax=axes[3]) is axes[3]
     rendered(axes[0], tmp_path)
+    from inference.plots import plot_plan
+
+    fig, axes = plt.subplots(1, 2)
+    route = door_plan(horizon=2)
+    assert plot_plan(route, ax=axes[0]) is axes[0]
+    assert plot_plan(route, ax=axes[1], show="path") is axes[1]
+    rendered(axes[0], tmp_path)
 
 
 def test_the_package_offers_the_module_and_no_names_of_it():
@@ -436,27 +442,18 @@ def test_the_package_offers_the_module_and_no_names_of_it():
     import subprocess
 
     assert inference.plots.plot_network is plot_network
+    # the package re-exports each picture from its module
+    from inference.plots import graph, plans, posteriors, tables
+
+    assert inference.plots.plot_plan is plans.plot_plan
+    assert inference.plots.plot_demonstration is posteriors.plot_demonstration
+    assert inference.plots.plot_table is tables.plot_table and graph.plot_network is plot_network
     assert not {"plot_network", "plot_table", "plot_clusters"} & set(inference.__all__)
     code = "import sys, inference; print('matplotlib' in sys.modules)"
     out = subprocess.run(
         [sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True, check=True
     )
     assert out.stdout.strip() == "False"
-
-
-def test_the_tutorial_runs_at_a_tiny_scale(tmp_path, monkeypatch):
-    out = tmp_path / "figure.png"
-    script = ROOT / "docs" / "tutorials" / "plots.py"
-    monkeypatch.setattr(sys, "argv", [str(script), "--out", str(out), "--rows", "200"])
-    runpy.run_path(str(script), run_name="__main__")
-    assert out.stat().st_size > 0
-    plt.close("all")
-
-
-def test_every_tutorial_cell_is_marked():
-    for script in (ROOT / "docs" / "tutorials").glob("*.py"):
-        text = script.read_text()
-        assert text.startswith("# %%") and text.count("# %%") >= 4, script
 
 
 def test_demonstration_heat_map_shows_the_posterior_and_the_sequence(tmp_path):
@@ -475,3 +472,87 @@ def test_demonstration_heat_map_shows_the_posterior_and_the_sequence(tmp_path):
     assert [t.get_text() for t in ax.get_yticklabels()] == list(net.actions)
     with pytest.raises(ValueError, match="row 1 is not a demonstration"):
         plot_demonstration(result, row=1)
+
+
+# ------------------------------------------------------------------------------ a plan
+def door_plan(horizon=3):
+    """The door world of docs/planning.md: unlock, then push, opens a locked door."""
+    from inference import plan
+
+    net = EffectNetwork(
+        (Discrete("door", ("closed", "open")), Discrete("lock", ("locked", "unlocked"))),
+        ("unlock", "push", "wait"),
+    )
+    rows = {k: [] for k in ("initial.door", "initial.lock", "action", "end.door", "end.lock")}
+    for door in ("closed", "open"):
+        for lock in ("locked", "unlocked"):
+            for action in net.actions:
+                end_lock = "unlocked" if action == "unlock" else lock
+                opens = action == "push" and door == "closed" and lock == "unlocked"
+                end = (door, lock, action, "open" if opens else door, end_lock)
+                for key, value in zip(rows, end, strict=True):
+                    rows[key] += [value] * 5
+    params = fit(net, rows).params
+    return plan(net, params, ("closed", "locked"), {"door": "open"}, horizon=horizon)
+
+
+def test_the_policy_grid_shows_each_states_action_and_chance(tmp_path):
+    from inference.plots import plot_plan
+
+    route = door_plan(horizon=3)
+    ax = rendered(plot_plan(route), tmp_path)
+    space = route.model.space
+    assert ax.get_xlabel() == "actions left" and ax.get_ylabel() == "door, lock"
+    assert [t.get_text() for t in ax.get_xticklabels()] == ["3", "2", "1"]
+    assert [t.get_text() for t in ax.get_yticklabels()] == [", ".join(s) for s in space.states]
+    texts = {
+        (round(t.get_position()[1]), round(t.get_position()[0])): t.get_text() for t in ax.texts
+    }
+    assert len(ax.texts) == len(space) * 3 == len(texts)
+    image = np.ma.asarray(ax.get_images()[0].get_array())
+    for i, state in enumerate(space.states):
+        for j, left in enumerate((3, 2, 1)):
+            action = route.action(state, left)
+            if state[0] == "open":  # the goal
+                assert texts[i, j] == "goal" and image.mask[i, j]
+            else:
+                chance = route.probability(state, left)
+                assert texts[i, j] == f"{action}\n{chance:.2f}"
+                assert route.model.actions[int(image[i, j])] == action
+    # the locked door needs both actions: with one left it cannot open
+    assert texts[space.index_of(("closed", "locked")), 2].endswith("0.00")
+
+
+def test_the_path_marks_each_state_and_names_each_action(tmp_path):
+    from inference.plots import plot_plan
+
+    route = door_plan(horizon=3)
+    ax = rendered(plot_plan(route, show="path"), tmp_path)
+    assert route.path[1::2] == ("unlock", "push")
+    (line,) = ax.get_lines()
+    space = route.model.space
+    assert list(line.get_ydata()) == [space.index_of(s) for s in route.path[::2]]
+    assert list(line.get_xdata()) == [0, 1, 2]
+    assert [t.get_text() for t in ax.texts] == ["unlock", "push"]
+    assert ax.get_xlabel() == "step" and f"{route.path_probability:.3g}" in ax.get_title()
+
+
+def test_an_exact_plan_is_drawn_by_the_labels_given(tmp_path):
+    from inference.plots import plot_plan
+    from inference.queries.planning import exact_plan
+
+    # two states, one action that moves 0 -> 1 surely; the goal is state 1
+    probs = torch.tensor([[[0.0, 1.0]], [[0.0, 1.0]]], dtype=DTYPE)
+    solved = exact_plan(probs, 1, horizon=2)
+    ax = rendered(plot_plan(solved, states=["far", "near"], actions=["step"]), tmp_path)
+    assert [t.get_text() for t in ax.get_yticklabels()] == ["far", "near"]
+    assert ax.get_ylabel() == "state"
+    # an ExactPlan knows no goal: every cell shows the action and its chance
+    assert [t.get_text() for t in ax.texts] == ["step\n1.00"] * 4
+    with pytest.raises(ValueError, match="ExactPlan has no path"):
+        plot_plan(solved, show="path")
+    with pytest.raises(ValueError, match="states names 3 states; the plan has 2"):
+        plot_plan(solved, states=["a", "b", "c"])
+    with pytest.raises(ValueError, match="show must be one of"):
+        plot_plan(door_plan(), show="grid")
+    plt.close("all")
