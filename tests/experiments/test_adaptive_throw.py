@@ -125,8 +125,9 @@ def test_the_local_inverse_is_exact_on_a_quadratic_map():
 
 
 def test_the_local_inverse_neighbours_are_the_nearest_by_the_pairs_sum():
-    """The aims equal, bit for bit, those of the same Newton steps with each training
-    throw's squared distance summed over the pair by numpy (``.sum(-1)``)."""
+    """The aims equal, bit for bit, those of the same Newton steps one aim at a time with
+    each training throw's squared distance summed over the pair by numpy (``.sum(-1)``),
+    whatever the chunk of aims whose neighbours are found together."""
 
     def reference(targets, hits, desired, start, neighbours, iterations=4):
         aims = np.clip(np.array(start, dtype=np.float64), TARGET_AREA.low, TARGET_AREA.high)
@@ -158,8 +159,10 @@ def test_the_local_inverse_neighbours_are_the_nearest_by_the_pairs_sum():
     hits = np.column_stack([np.sin(targets[:, 0]) + targets[:, 1] ** 2, targets.prod(-1)])
     desired = hits[:15] + rng.normal(0, 0.01, (15, 2))
     start = targets[:15] + rng.normal(0, 0.05, (15, 2))
-    got = local_inverse(targets, hits, desired, start, 12)
-    assert np.array_equal(got, reference(targets, hits, desired, start, 12))
+    want = reference(targets, hits, desired, start, 12)
+    for chunk in (1, 4, 64):  # the aims' neighbours found a chunk at a time: the same aims
+        got = local_inverse(targets, hits, desired, start, 12, chunk=chunk)
+        assert np.array_equal(got, want), chunk
 
 
 @pytest.mark.parametrize(
