@@ -303,42 +303,38 @@ def _window(*hits):
     return every.min(0) - HIT_MARGIN_M, every.max(0) + HIT_MARGIN_M
 
 
-def local_inverse(train_targets, train_hits, desired, start, neighbours, iterations=4, chunk=64):
+def local_inverse(train_targets, train_hits, desired, start, neighbours, iterations=4):
     """Aims ``(n, 2)`` by damped Newton steps on a local quadratic forward model: per
     desired hit, from ``start``, fit ``hit ~ quadratic(target - aim)`` to the
     ``neighbours`` training throws nearest the aim, step towards the target its model
     says hits the desired point (least squares, so a clamped, flat direction takes no
     step; at most the neighbourhood's radius), and keep the aim whose local model misses
-    least. Only the training throws are used. The neighbours of ``chunk`` aims at a time
-    are found together (``chunk`` rows of squared distances to every training throw)."""
+    least. Only the training throws are used."""
     aims = np.clip(np.array(start, dtype=np.float64), TARGET_AREA.low, TARGET_AREA.high)
     # the squared distances as two columns' sum: the same additions as ``.sum(-1)`` over
     # the pair, without numpy's slow reduction over a short last axis
     y, z = (np.ascontiguousarray(c) for c in np.asarray(train_targets).T)
-    current, best_miss = aims.copy(), np.full(len(aims), np.inf)
-    for _ in range(iterations + 1):
-        for first in range(0, len(aims), chunk):
-            part = current[first : first + chunk]
-            d2 = (y - part[:, :1]) ** 2 + (z - part[:, 1:]) ** 2  # (chunk, n_train)
-            nearest = np.argpartition(d2, neighbours - 1, axis=1)[:, :neighbours]
-            for j, rows in enumerate(nearest):
-                i = first + j
-                aim, goal = current[i], desired[i]
-                u = train_targets[rows] - aim
-                design = np.column_stack(
-                    [np.ones(len(u)), u, u[:, 0] ** 2, u[:, 0] * u[:, 1], u[:, 1] ** 2]
-                )
-                coef = np.linalg.lstsq(design, train_hits[rows], rcond=None)[0]  # (6, 2)
-                miss = float(np.linalg.norm(goal - coef[0]))
-                if miss < best_miss[i]:
-                    aims[i], best_miss[i] = aim, miss
-                jacobian = coef[1:3].T  # d hit / d target at the aim
-                step = np.linalg.lstsq(jacobian, goal - coef[0], rcond=1e-3)[0]
-                radius = float(np.sqrt(d2[j, rows].max()))
-                norm = float(np.linalg.norm(step))
-                if norm > radius:
-                    step *= radius / norm
-                current[i] = np.clip(aim + step, TARGET_AREA.low, TARGET_AREA.high)
+    for i, goal in enumerate(desired):
+        aim, best, best_miss = aims[i].copy(), aims[i].copy(), np.inf
+        for _ in range(iterations + 1):
+            d2 = (y - aim[0]) ** 2 + (z - aim[1]) ** 2
+            rows = np.argpartition(d2, neighbours - 1)[:neighbours]
+            u = train_targets[rows] - aim
+            design = np.column_stack(
+                [np.ones(len(u)), u, u[:, 0] ** 2, u[:, 0] * u[:, 1], u[:, 1] ** 2]
+            )
+            coef = np.linalg.lstsq(design, train_hits[rows], rcond=None)[0]  # (6, 2)
+            miss = float(np.linalg.norm(goal - coef[0]))
+            if miss < best_miss:
+                best, best_miss = aim.copy(), miss
+            jacobian = coef[1:3].T  # d hit / d target at the aim
+            step = np.linalg.lstsq(jacobian, goal - coef[0], rcond=1e-3)[0]
+            radius = float(np.sqrt(d2[rows].max()))
+            norm = float(np.linalg.norm(step))
+            if norm > radius:
+                step *= radius / norm
+            aim = np.clip(aim + step, TARGET_AREA.low, TARGET_AREA.high)
+        aims[i] = best
     return aims
 
 

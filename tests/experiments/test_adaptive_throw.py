@@ -14,6 +14,7 @@ from experiments.adaptive_throw import (
     run_adaptive_throw,
 )
 from experiments.config import ConfigError
+from inference import infer_parameter
 from sim2d.throw import TARGET_AREA
 
 TINY = {
@@ -125,9 +126,8 @@ def test_the_local_inverse_is_exact_on_a_quadratic_map():
 
 
 def test_the_local_inverse_neighbours_are_the_nearest_by_the_pairs_sum():
-    """The aims equal, bit for bit, those of the same Newton steps one aim at a time with
-    each training throw's squared distance summed over the pair by numpy (``.sum(-1)``),
-    whatever the chunk of aims whose neighbours are found together."""
+    """The aims equal, bit for bit, those of the same Newton steps with each training
+    throw's squared distance summed over the pair by numpy (``.sum(-1)``)."""
 
     def reference(targets, hits, desired, start, neighbours, iterations=4):
         aims = np.clip(np.array(start, dtype=np.float64), TARGET_AREA.low, TARGET_AREA.high)
@@ -159,10 +159,8 @@ def test_the_local_inverse_neighbours_are_the_nearest_by_the_pairs_sum():
     hits = np.column_stack([np.sin(targets[:, 0]) + targets[:, 1] ** 2, targets.prod(-1)])
     desired = hits[:15] + rng.normal(0, 0.01, (15, 2))
     start = targets[:15] + rng.normal(0, 0.05, (15, 2))
-    want = reference(targets, hits, desired, start, 12)
-    for chunk in (1, 4, 64):  # the aims' neighbours found a chunk at a time: the same aims
-        got = local_inverse(targets, hits, desired, start, 12, chunk=chunk)
-        assert np.array_equal(got, want), chunk
+    got = local_inverse(targets, hits, desired, start, 12)
+    assert np.array_equal(got, reference(targets, hits, desired, start, 12))
 
 
 @pytest.mark.parametrize(
@@ -211,3 +209,22 @@ def test_every_fit_takes_the_configured_pseudo_count(layout):
     for site in ("param.target", "end.hit"):
         assert torch.allclose(params[site].bias, want[site].bias)
         assert torch.allclose(params[site].covariance, want[site].covariance)
+
+
+def test_each_posterior_answer_is_computed_once(monkeypatch):
+    """The local fit starts from the largest grid's posterior answers of its row: one
+    posterior query per posterior row of the tables and per point of the active curves,
+    none repeated."""
+    from experiments import adaptive_throw
+
+    calls = []
+
+    def counted(*args, **kwargs):
+        calls.append(args[0])
+        return infer_parameter(*args, **kwargs)
+
+    monkeypatch.setattr(adaptive_throw, "infer_parameter", counted)
+    result = run_adaptive_throw(AdaptiveThrowConfig(**TINY, seed=2))
+    rows = [r for r in result.layouts + result.noisy if r["query"] == "posterior"]
+    points = sum(len(curve) for curve in result.active.values())
+    assert len(calls) == len(rows) + points
