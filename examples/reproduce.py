@@ -24,6 +24,7 @@ step also refreshes the results block of README.md.
 from __future__ import annotations
 
 import argparse
+import atexit
 import contextlib
 import importlib
 import multiprocessing
@@ -86,13 +87,18 @@ class StepRun(NamedTuple):
 
 def _run_script(script: str, argv: list[str], record: str) -> None:
     """In the forked child: the script as ``python script argv...`` runs it, its
-    measures written to ``record``."""
+    measures written to ``record``, and the exit handlers (``atexit``) it registers run
+    as it ends (not those inherited from this process: they clean up after it)."""
     signal.signal(signal.SIGTERM, signal.SIG_DFL)
     signal.signal(signal.SIGINT, signal.default_int_handler)
     signal.pthread_sigmask(signal.SIG_UNBLOCK, STOPS)  # one that came while forking: now
     os.environ[STEP_RECORD_ENV] = record
     sys.argv = [script, *argv]
-    runpy.run_path(script, run_name="__main__")
+    atexit._clear()
+    try:
+        runpy.run_path(script, run_name="__main__")
+    finally:
+        atexit._run_exitfuncs()
 
 
 STOPS = (signal.SIGTERM, signal.SIGINT)

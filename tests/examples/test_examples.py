@@ -422,14 +422,16 @@ def test_reproduce_isolates_a_failing_step(tmp_path):
 
 def test_reproduce_runs_its_steps_forked_after_one_import(tmp_path, monkeypatch, capsys):
     """The main job imports once and forks each step from itself: a step finds the
-    modules already imported; a failing step is reported and the next one still runs,
+    modules already imported and ends as a script does (its exit handlers run); a failing step is reported and the next one still runs,
     both are left out of the record, and the start-up counts in the total."""
     reproduce = load_example("reproduce")
     seen = tmp_path / "seen"
     step = f"import sys; open({str(seen)!r}, 'a').write(str('colorsys' in sys.modules))\n"
     (tmp_path / "a.py").write_text(step + "sys.exit(4)\n")
     (tmp_path / "b.py").write_text(
-        step + "from experiments.config import run_script\nrun_script(lambda args: 0, None)\n"
+        step
+        + f"import atexit; atexit.register(lambda: open({str(seen)!r}, 'a').write(' exit'))\n"
+        + "from experiments.config import run_script\nrun_script(lambda args: 0, None)\n"
     )
     monkeypatch.setattr(reproduce, "HERE", tmp_path)
     monkeypatch.setattr(reproduce, "PRELOAD", ("colorsys",))
@@ -440,7 +442,8 @@ def test_reproduce_runs_its_steps_forked_after_one_import(tmp_path, monkeypatch,
     assert reproduce.main(args) == 4
     captured = capsys.readouterr()
     assert "a failed with exit code 4" in captured.err
-    assert seen.read_text() == "TrueTrue"  # both steps ran, each with it imported
+    # both steps ran, each with it imported; b's exit handler ran as it ended
+    assert seen.read_text() == "TrueTrue exit"
     record = json.loads((out / "run.json").read_text())
     assert list(record["step_seconds"]) == ["b"] and record["startup_seconds"] > 0
     assert record["total_seconds"] == pytest.approx(
