@@ -12,9 +12,10 @@ docs/data.md) and reused. The modules every step imports are imported once; each
 then runs as its own process forked from this one (a step that fails is reported and
 the others still run) and is measured: its wall time, the part of it spent simulating,
 and the peak resident memory of its largest process. Then writes ``run.json`` (scale,
-commit, date, machine, the one-time start-up, those measures per step) and ``summary.md`` (the paper's numbers beside ours and the bounds, and the steps'
-measures beside their goals: :mod:`experiments.summary`); a full-scale run of every
-step also refreshes the results block of README.md.
+commit, date, machine, the one-time start-up, those measures per step) and
+``summary.md`` (the paper's numbers beside ours and the bounds, and the steps' measures
+beside their goals: :mod:`experiments.summary`); a full-scale run of every step also
+refreshes the results block of README.md.
 
     ./reproduce              # full scale
     ./reproduce --quick      # a first look in a few minutes
@@ -85,6 +86,10 @@ class StepRun(NamedTuple):
     measure: StepMeasure | None
 
 
+#: The signals that stop the main job (see :func:`run_step`).
+STOPS = (signal.SIGTERM, signal.SIGINT)
+
+
 def _run_script(script: str, argv: list[str], record: str) -> None:
     """In the forked child: the script as ``python script argv...`` runs it, its
     measures written to ``record``, and the exit handlers (``atexit``) it registers run
@@ -99,9 +104,6 @@ def _run_script(script: str, argv: list[str], record: str) -> None:
         runpy.run_path(script, run_name="__main__")
     finally:
         atexit._run_exitfuncs()
-
-
-STOPS = (signal.SIGTERM, signal.SIGINT)
 
 
 def run_step(script, argv=()) -> StepRun:
