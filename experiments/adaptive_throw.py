@@ -472,12 +472,14 @@ def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
     test = [(t[config.n_train :], h[config.n_train :]) for t, h in (exact, noisy)]
     window = [_window(tr[1], te[1]) for tr, te in zip(train, test, strict=True)]
 
-    layouts, curve, grid_model = [], [], None
+    layouts, curve, grid_aims = [], [], None
     runs = [(k, layout) for k in config.bins for layout in ("grid", "adaptive")]
     for k, layout in tqdm(runs, desc="layouts", disable=not config.progress):
         for model, seconds, ll in _fit(layout, k, train[0], config):
             for query in QUERIES:
                 aims, candidates = _query(model, test[0][1], window[0], query)
+                if (layout, query, k) == ("grid", "posterior", config.bins[-1]):
+                    grid_aims = aims  # the local fit's start below
                 row = {
                     "layout": layout,
                     "query": query,
@@ -491,7 +493,6 @@ def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
                     row |= {"best_rms_y_m": float(best[0]), "best_rms_z_m": float(best[1])}
                 layouts.append(row)
             curve = ll if layout == "adaptive" and k == config.bins[-1] else curve
-            grid_model = model if layout == "grid" and k == config.bins[-1] else grid_model
     k = config.noisy_bins
     noisy_rows, start = [], None
     for layout in ("grid", "adaptive"):
@@ -515,8 +516,8 @@ def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
         "miss_p90_m": float(np.quantile(reach, 0.9)),
     }
 
-    start = _aims(grid_model, test[0][1], window[0])  # Newton from the grid's answers
-    aims = local_inverse(*train[0], test[0][1], start, config.neighbours)
+    # Newton from the largest grid's posterior answers
+    aims = local_inverse(*train[0], test[0][1], grid_aims, config.neighbours)
     floor = {"neighbours": config.neighbours} | _spread(throw(aims).hit - test[0][1])
     free = ~throw(train[0][0]).clamped  # where the map is smooth
     pieces = []

@@ -72,6 +72,8 @@ class RunRecord(Result):
     total_seconds: float
     simulation_seconds: dict[str, float] = field(default_factory=dict)
     peak_bytes: dict[str, int] = field(default_factory=dict)
+    #: Wall time of the imports done once before the steps (counted in the total).
+    startup_seconds: float = 0.0
 
     @classmethod
     def from_json(cls, text: str) -> RunRecord:
@@ -88,7 +90,7 @@ class RunRecord(Result):
         except (ValueError, RecursionError):
             data = None
         if isinstance(data, dict):  # the measures came later: absent in older records
-            data = {"simulation_seconds": {}, "peak_bytes": {}} | data
+            data = {"simulation_seconds": {}, "peak_bytes": {}, "startup_seconds": 0.0} | data
             text = json.dumps(data)
         return super().from_json(text)
 
@@ -157,11 +159,13 @@ def run_record(
     step_seconds: Mapping[str, float],
     simulation_seconds: Mapping[str, float] | None = None,
     peak_bytes: Mapping[str, int] | None = None,
+    startup_seconds: float = 0.0,
     root=None,
 ) -> RunRecord:
     """The record of a run that just ended, in the git work tree ``root``.
 
-    ``root`` defaults to this package's repository.
+    ``root`` defaults to this package's repository; ``startup_seconds``, the imports
+    done once before the steps, counts in the total.
     """
     root = Path(root) if root is not None else Path(__file__).resolve().parents[1]
     commit = _git(root, "rev-parse", "--short", "HEAD") or "unknown"
@@ -173,9 +177,10 @@ def run_record(
         date=datetime.datetime.now(datetime.UTC).strftime("%Y-%m-%d %H:%M UTC"),
         machine=machine_description(),
         step_seconds={k: float(v) for k, v in step_seconds.items()},
-        total_seconds=float(sum(step_seconds.values())),
+        total_seconds=float(sum(step_seconds.values()) + startup_seconds),
         simulation_seconds={k: float(v) for k, v in (simulation_seconds or {}).items()},
         peak_bytes={k: int(v) for k, v in (peak_bytes or {}).items()},
+        startup_seconds=float(startup_seconds),
     )
 
 
@@ -234,6 +239,8 @@ def step_table(run: RunRecord) -> list[str]:
         peak_text = "-" if peak is None else f"{peak / 1e6:,.0f}"
         return f"| {name} | {wall:.1f} | {sim_text} | {rest_text} | {peak_text} |"
 
+    if run.startup_seconds > 0:  # the imports every step shares, done once
+        lines.append(row("start-up (imports, once)", run.startup_seconds, 0.0, None))
     for name, wall in run.step_seconds.items():
         lines.append(row(name, wall, run.simulation_seconds.get(name), run.peak_bytes.get(name)))
     known = [s for s in run.simulation_seconds.values() if not math.isnan(s)]

@@ -14,6 +14,7 @@ from experiments.adaptive_throw import (
     run_adaptive_throw,
 )
 from experiments.config import ConfigError
+from inference import infer_parameter
 from sim2d.throw import TARGET_AREA
 
 TINY = {
@@ -208,3 +209,22 @@ def test_every_fit_takes_the_configured_pseudo_count(layout):
     for site in ("param.target", "end.hit"):
         assert torch.allclose(params[site].bias, want[site].bias)
         assert torch.allclose(params[site].covariance, want[site].covariance)
+
+
+def test_each_posterior_answer_is_computed_once(monkeypatch):
+    """The local fit starts from the largest grid's posterior answers of its row: one
+    posterior query per posterior row of the tables and per point of the active curves,
+    none repeated."""
+    from experiments import adaptive_throw
+
+    calls = []
+
+    def counted(*args, **kwargs):
+        calls.append(args[0])
+        return infer_parameter(*args, **kwargs)
+
+    monkeypatch.setattr(adaptive_throw, "infer_parameter", counted)
+    result = run_adaptive_throw(AdaptiveThrowConfig(**TINY, seed=2))
+    rows = [r for r in result.layouts + result.noisy if r["query"] == "posterior"]
+    points = sum(len(curve) for curve in result.active.values())
+    assert len(calls) == len(rows) + points

@@ -391,3 +391,20 @@ def test_a_run_record_without_the_measures_loads_with_them_empty(tmp_path):
     (tmp_path / "run.json").write_text(json.dumps(old))
     record = summary.RunRecord.load(tmp_path / "run.json")
     assert record.simulation_seconds == {} and record.peak_bytes == {}
+
+
+def test_the_one_time_start_up_is_a_row_and_counts_in_the_total(tmp_path):
+    """Imports done once before the steps: their own row (no simulation), in the total
+    and in the rest; an older record without them loads with none."""
+    record = summary.run_record("quick", {"a": 10.0}, {"a": 9.0}, {"a": 10**8}, 2.0)
+    assert record.total_seconds == 12.0 and record.startup_seconds == 2.0
+    record.save(tmp_path)
+    assert summary.RunRecord.load(tmp_path / "run.json") == record
+    text = summary.summary_markdown(tmp_path)
+    assert "| start-up (imports, once) | 2.0 | 0.0 | 2.0 | - |" in text
+    assert "| total | 12.0 | 9.0 | 3.0 | 100 |" in text
+    assert "at most 10 % of the total: 25.0 % (not met)" in text  # 3 / 12
+    old = json.loads((tmp_path / "run.json").read_text())
+    del old["startup_seconds"]
+    (tmp_path / "run.json").write_text(json.dumps(old))
+    assert summary.RunRecord.load(tmp_path / "run.json").startup_seconds == 0.0
