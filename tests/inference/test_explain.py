@@ -244,6 +244,22 @@ def step_log_prob(net, params, enc):
     return over_row_chunks(net, params, enc, (), lambda e, *_: e.log_evidence, contracted=True)
 
 
+def check_two_steps_against_paths(net, result: Explanation, paths: dict, latent: str) -> None:
+    """A two-step demonstration's answers against the brute force's ``paths``: (action
+    sequence, middle label of ``latent``) -> log p(demonstration, path)."""
+    log_likelihood = np.logaddexp.reduce(list(paths.values()))
+    assert float(result.log_likelihood[0]) == pytest.approx(log_likelihood, abs=1e-9)
+    for t in range(2):
+        for i, name in enumerate(net.actions):
+            want = sum(
+                math.exp(lp - log_likelihood) for (acts, _), lp in paths.items() if acts[t] == name
+            )
+            assert float(result.probs[0, t, i]) == pytest.approx(want, abs=1e-9)
+    (actions, middle), _ = max(paths.items(), key=lambda kv: kv[1])
+    assert result.best_names[0] == actions
+    assert result.path_labels(0)[1] == {latent: middle}
+
+
 @pytest.mark.filterwarnings("ignore::inference.OutsideTrainingData")
 def test_continuous_latent_path_matches_brute_force():
     """The visible flag latent in the middle state; the oracle enumerates every path and
@@ -273,18 +289,7 @@ def test_continuous_latent_path_matches_brute_force():
                 total += float(step_log_prob(net, params, net.encode(full)))
                 total -= float(step_log_prob(net, params, net.encode(given)))
             paths[(actions, middle)] = total
-    logs = np.array(list(paths.values()))
-    log_likelihood = np.logaddexp.reduce(logs)
-    assert float(result.log_likelihood[0]) == pytest.approx(log_likelihood, abs=1e-9)
-    for t in range(2):
-        for i, name in enumerate(net.actions):
-            want = sum(
-                math.exp(lp - log_likelihood) for (acts, _), lp in paths.items() if acts[t] == name
-            )
-            assert float(result.probs[0, t, i]) == pytest.approx(want, abs=1e-9)
-    (actions, middle), _ = max(paths.items(), key=lambda kv: kv[1])
-    assert result.best_names[0] == actions
-    assert result.path_labels(0)[1] == {"visible": middle}
+    check_two_steps_against_paths(net, result, paths, "visible")
 
 
 def test_a_batch_answers_each_demonstration_as_alone():
@@ -461,17 +466,7 @@ def test_a_continuous_outcome_seen_at_some_steps_matches_brute_force():
                 total += float(step_log_prob(net, params, net.encode(full)))
                 total -= float(step_log_prob(net, params, net.encode(given)))
             paths[(actions, middle)] = total
-    log_likelihood = np.logaddexp.reduce(list(paths.values()))
-    assert float(result.log_likelihood[0]) == pytest.approx(log_likelihood, abs=1e-9)
-    for t in range(2):
-        for i, name in enumerate(net.actions):
-            want = sum(
-                math.exp(lp - log_likelihood) for (acts, _), lp in paths.items() if acts[t] == name
-            )
-            assert float(result.probs[0, t, i]) == pytest.approx(want, abs=1e-9)
-    (actions, middle), _ = max(paths.items(), key=lambda kv: kv[1])
-    assert result.best_names[0] == actions
-    assert result.path_labels(0)[1] == {"door": middle}
+    check_two_steps_against_paths(net, result, paths, "door")
 
 
 def test_a_named_state_space_matches_brute_force_over_it():
