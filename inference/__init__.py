@@ -68,11 +68,11 @@ from inference.queries import (
     plan,
     predict,
     predict_joint,
-    transitions,
 )
 from inference.queries.explain import Explanation, explain
 from inference.queries.plausibility import OutsideTrainingData
 from inference.queries.simulate import simulate
+from inference.queries.transitions import transitions
 from models.deprecation import moved
 
 __all__ = [

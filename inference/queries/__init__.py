@@ -15,8 +15,10 @@ exists, its compiled answer (tables read once off the same model) side by side.
   the value under which a desired effect is most likely.
 * :mod:`~inference.queries.joint` -- :func:`predict_joint`: the joint of the discrete end
   features (not only each one's marginal).
-* :mod:`~inference.queries.transitions` -- :func:`transitions`: ``P(next state | state,
-  action)`` over a network's states (:mod:`~inference.queries.states`), from its tables.
+* :mod:`~inference.queries.transitions` -- :func:`inference.transitions`: ``P(next
+  state | state, action)`` over a network's states (:mod:`~inference.queries.states`),
+  from its tables (exported on the :mod:`inference` face only, so that the module keeps
+  its name here).
 * :mod:`~inference.queries.planner` -- :func:`~inference.queries.planner.plan`: the policy that reaches a goal
   within a horizon with the highest probability, by exact dynamic programming.
 * :mod:`~inference.queries.explain` -- :func:`inference.explain`: a demonstration (a
@@ -68,7 +70,7 @@ from inference.queries.results import (
     Prediction,
 )
 from inference.queries.states import StateSpace
-from inference.queries.transitions import Transitions, transitions
+from inference.queries.transitions import Transitions
 
 __all__ = [
     "ActionPosterior",
@@ -95,5 +97,4 @@ __all__ = [
     "plan",
     "predict",
     "predict_joint",
-    "transitions",
 ]
