@@ -248,3 +248,29 @@ def quadratic_features(y: torch.Tensor) -> torch.Tensor:
     """``(n, F)``: ``y_i y_j`` for ``i <= j`` (row-major), ``y_i``, and 1, of ``y`` ``(n, d)``."""
     i, j = torch.triu_indices(y.shape[-1], y.shape[-1])
     return torch.cat([y[:, i] * y[:, j], y, torch.ones_like(y[:, :1])], -1)
+
+
+def lstsq_rows(design: torch.Tensor, rhs: torch.Tensor) -> torch.Tensor:
+    """Minimum-norm least-squares solutions ``z`` ``(n, ..., k)`` of ``design z = rhs``, per row.
+
+    ``design`` ``(n, ..., D, k)`` and ``rhs`` ``(n, ..., D)``, the first axis the rows. Rows whose
+    designs are equal bit for bit (a query's rows under one action, say) share one factorisation:
+    their right-hand sides are solved together as columns (``gelsd``, the SVD solver, which treats
+    each column alone), instead of one small problem per row and batch entry.
+    """
+    n, shape = design.shape[0], design.shape[1:]
+    if n <= 1 or design.stride(0) == 0:  # one design for every row
+        groups = [(design[0], torch.arange(n))] if n else []
+    else:
+        bits = {8: torch.int64, 4: torch.int32, 2: torch.int16}[design.element_size()]
+        flat = design.reshape(n, -1).contiguous().view(bits)
+        _, inverse = torch.unique(flat, dim=0, return_inverse=True)
+        order = torch.argsort(inverse, stable=True)
+        counts = torch.bincount(inverse).tolist()
+        groups = [(design[rows[0]], rows) for rows in order.split(counts)]
+    out = rhs.new_empty(n, *shape[:-2], shape[-1])
+    for a, rows in groups:
+        columns = rhs[rows].movedim(0, -1)  # (..., D, m): the rows as right-hand sides
+        z = torch.linalg.lstsq(a, columns, driver="gelsd").solution
+        out[rows] = z.movedim(-1, 0)
+    return out

@@ -305,7 +305,7 @@ def _e_step(net, params, enc, mixtures, buffers=None) -> tuple[list[torch.Tensor
                 cpd, params[site], group, _inputs(enc, cpd, m), enc[site], out=log, add=True
             )
         # normalise in place: log-sum-exp over the clusters, then the posterior
-        top = log.max(0).values
+        top = log.amax(0)  # the same values as max(0), without the indices
         log.sub_(top).clamp_min_(LOG_FLOOR).exp_()
         mass = log.sum(0)
         log.div_(mass)

@@ -50,7 +50,12 @@ from models.cpds.linear_gaussian import LinearGaussianCPD, LinearGaussianParams,
 from models.cpds.table import TableCPD
 from models.dtype import DTYPE
 from models.features import Parameter
-from models.gaussian import condition_linear_gaussian, mask_unobserved, residual_of
+from models.gaussian import (
+    condition_linear_gaussian,
+    lstsq_rows,
+    mask_unobserved,
+    residual_of,
+)
 
 
 @dataclass(frozen=True)
@@ -412,7 +417,10 @@ class ParameterMixture:
         lead = torch.broadcast_shapes(slope.shape[:-2], tril.shape[:-2], target.shape[:-1])
         design = (slope @ tril).expand(*lead, *slope.shape[-2:])
         rest = (target - (slope @ mean[..., None])[..., 0]).expand(*lead, target.shape[-1])
-        z = torch.linalg.lstsq(design, rest[..., None], driver="gelsd").solution
+        if design.dim() > 2:  # per row: rows with one design solved together
+            z = lstsq_rows(design, rest)[..., None]
+        else:
+            z = torch.linalg.lstsq(design, rest[..., None], driver="gelsd").solution
         value = mean[..., None] + tril @ z
         miss = (target - (slope @ value)[..., 0]).square().sum(-1)
         return value[..., 0], miss

@@ -9,7 +9,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from models.declaration import DTYPE
-from models.gaussian import affine_pair, two_product, two_sum
+import numpy as np
+
+from models.gaussian import affine_pair, lstsq_rows, two_product, two_sum
 
 #: float64 numbers over the magnitudes the toolkit accepts, zero and subnormal-free
 magnitudes = st.floats(-1e150, 1e150, allow_nan=False, allow_subnormal=False).filter(
@@ -68,3 +70,43 @@ def test_affine_pair_keeps_what_is_not_finite():
     hi, lo = affine_pair(weight, x, torch.ones(3, 1, dtype=DTYPE))
     assert hi[0, 0] == torch.inf and torch.isnan(hi[1, 0]) and hi[2, 0] == 1e305
     assert (lo == 0).all()
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    n=st.integers(0, 12),
+    batch=st.integers(1, 5),
+    d=st.integers(1, 3),
+    k=st.integers(1, 3),
+    designs=st.integers(1, 4),
+    free=st.booleans(),
+    seed=st.integers(0, 2**16),
+)
+def test_lstsq_rows_is_each_rows_minimum_norm_solution(n, batch, d, k, designs, free, seed):
+    """Rows sharing a design (a few distinct ones among them) solved together equal numpy's
+    pseudo-inverse solution of each problem alone, and LAPACK's one problem at a time bit for
+    bit; a direction no row constrains (a zero column) stays at 0."""
+    g = torch.Generator().manual_seed(seed)
+    distinct = torch.randn(designs, batch, d, k, generator=g, dtype=DTYPE)
+    if free:
+        distinct[..., -1] = 0.0
+    pick = torch.randint(designs, (n,), generator=g)
+    design = distinct[pick]
+    rhs = torch.randn(n, batch, d, generator=g, dtype=DTYPE)
+    z = lstsq_rows(design, rhs)
+    assert z.shape == (n, batch, k)
+    reference = np.einsum("...kd,...d->...k", np.linalg.pinv(design.numpy()), rhs.numpy())
+    np.testing.assert_allclose(z.numpy(), reference, rtol=1e-9, atol=1e-9)
+    alone = torch.linalg.lstsq(design, rhs[..., None], driver="gelsd").solution[..., 0]
+    assert torch.equal(z, alone)
+    if free and n:
+        assert bool((z[..., -1] == 0).all())
+
+
+def test_lstsq_rows_takes_one_design_broadcast_over_the_rows():
+    """A design expanded over the rows (stride 0) is solved once, with every row as a column."""
+    g = torch.Generator().manual_seed(3)
+    design = torch.randn(1, 4, 2, 2, generator=g, dtype=DTYPE).expand(50, -1, -1, -1)
+    rhs = torch.randn(50, 4, 2, generator=g, dtype=DTYPE)
+    z = lstsq_rows(design, rhs)
+    assert torch.allclose(design @ z[..., None], rhs[..., None], rtol=1e-12, atol=1e-12)
