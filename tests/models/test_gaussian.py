@@ -4,13 +4,12 @@ products are known."""
 
 from fractions import Fraction
 
+import numpy as np
 import torch
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from models.declaration import DTYPE
-import numpy as np
-
 from models.gaussian import affine_pair, lstsq_rows, two_product, two_sum
 
 #: float64 numbers over the magnitudes the toolkit accepts, zero and subnormal-free
