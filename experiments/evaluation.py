@@ -168,10 +168,16 @@ def aim_robust_best(
     score = probs.masked_fill(~allowed, -1.0)
     top = score.max(-1, keepdim=True).values
     tied = allowed & (score >= top - rtol * top.abs())
+    best = tied.to(torch.int8).argmax(-1)
     if sigma <= 0:
-        return tied.to(torch.int8).argmax(-1)
-    smooth = _grid_average(probs, allowed.to(probs.dtype), grid_shape, sigma)
-    return smooth.masked_fill(~tied, -1.0).argmax(-1)
+        return best
+    # a row with one tied action needs no tie-break: only the others are averaged (each
+    # row's average is its own, so the subset's values are those of the whole batch)
+    rows = torch.nonzero(tied.sum(-1) > 1)[:, 0]
+    if len(rows):
+        smooth = _grid_average(probs[rows], allowed[rows].to(probs.dtype), grid_shape, sigma)
+        best[rows] = smooth.masked_fill(~tied[rows], -1.0).argmax(-1)
+    return best
 
 
 def _grid_average(values, weights, grid_shape, sigma) -> torch.Tensor:

@@ -92,14 +92,24 @@ def test_aim_robust_best_prefers_the_interior_of_a_tied_region():
     assert int(aim_robust_best(p.reshape(1, -1), (5, 7))) == 34
 
 
-def test_aim_robust_best_respects_allowed_and_matches_hand_average():
-    gen = torch.Generator().manual_seed(0)
-    probs = torch.rand(4, 12, generator=gen, dtype=torch.float64).round(decimals=1)
-    allowed = torch.rand(4, 12, generator=gen) > 0.3
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_aim_robust_best_respects_allowed_and_matches_hand_average(seed):
+    """Rows with one tied action, with several and with all of them, each answered as the hand
+    average says, and as the row alone is answered."""
+    gen = torch.Generator().manual_seed(seed)
+    n = 40
+    probs = torch.rand(n, 12, generator=gen, dtype=torch.float64).round(decimals=1)
+    probs[:5] = 0.5  # every action tied
+    allowed = torch.rand(n, 12, generator=gen) > 0.3
     allowed[:, 0] = True
     sigma = 0.8
     best = aim_robust_best(probs, (3, 4), allowed=allowed, sigma=sigma)
-    for row in range(4):
+    alone = [
+        int(aim_robust_best(probs[r : r + 1], (3, 4), allowed=allowed[r], sigma=sigma))
+        for r in range(n)
+    ]
+    assert best.tolist() == alone
+    for row in range(n):
         score = probs[row].masked_fill(~allowed[row], -1)
         tied = [a for a in range(12) if allowed[row, a] and score[a] >= score.max() * (1 - 1e-9)]
 
