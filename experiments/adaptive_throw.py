@@ -51,6 +51,7 @@ import torch
 from tqdm.auto import tqdm
 
 from experiments.config import ConfigError, Result, check_float, check_int
+from experiments.parallel import run_tasks
 from experiments.registry import Experiment
 from experiments.throwing import HIT_MARGIN_M, get_data, rms
 from inference import fit, fit_em, infer_parameter, parameter_for_effect
@@ -127,6 +128,10 @@ class AdaptiveThrowConfig:
     noise_repeats : int
         Re-throws per desired hit with release noise (>= 1): the noisy RMS and scatter
         average over them.
+    workers : int
+        Processes for the model work (the fits and queries of each grid size, the noisy
+        comparison, the active curves: :func:`experiments.parallel.run_tasks`); 0: one per
+        core. The results do not depend on it.
     progress : bool
         Progress bars.
     """
@@ -144,6 +149,7 @@ class AdaptiveThrowConfig:
     batch: int = 50
     pool: int = 2_000
     noise_repeats: int = 10
+    workers: int = 0
     progress: bool = True
 
     def __post_init__(self):
@@ -158,6 +164,7 @@ class AdaptiveThrowConfig:
         check_int("batch", self.batch, 1)
         check_int("pool", self.pool, self.batch)
         check_int("noise_repeats", self.noise_repeats, 1)
+        check_int("workers", self.workers, 0)
         for name in ("bins", "budgets", "em_steps"):
             object.__setattr__(self, name, tuple(getattr(self, name)))
             if not getattr(self, name):
@@ -461,6 +468,65 @@ class AdaptiveThrowResult(Result):
         return summary_rows(self)
 
 
+def _layout_rows(k, layout, train, test_hits, window, config):
+    """One grid size's rows of one layout: each checkpoint's fit scored by both queries.
+
+    ``(rows, EM curve of the last checkpoint, floor aims)``: the floor aims (the local Newton
+    inverse from this fit's posterior answers, :func:`local_inverse`) for the grid layout at the
+    largest grid size only, else None.
+    """
+    rows, curve, floor = [], [], None
+    for model, seconds, ll in _fit(layout, k, train, config):
+        for query in QUERIES:
+            aims, candidates = _query(model, test_hits, window, query)
+            if (layout, query, k) == ("grid", "posterior", config.bins[-1]):
+                floor = local_inverse(*train, test_hits, aims, config.neighbours)
+            row = {
+                "layout": layout,
+                "query": query,
+                "bins": k,
+                "n_clusters": k * k,
+                "fit_s": seconds,
+                "em_steps": max(0, len(ll) - 1),
+            } | _spread(throw(aims).hit - test_hits)
+            if candidates is not None:
+                best = rms(_best_candidate(candidates, test_hits))
+                row |= {"best_rms_y_m": float(best[0]), "best_rms_z_m": float(best[1])}
+            rows.append(row)
+        curve = ll
+    return rows, curve, floor
+
+
+def _noisy_aims(layout, train, test_hits, window, config):
+    """The noisy comparison's fit of one layout and its aims per query.
+
+    ``(fit seconds, {query: aims}, bound aims)``: for the grid layout the bound's aims (the
+    noise-free throws inverted from this fit's posterior answers, :func:`local_inverse`), else None.
+    """
+    model, seconds, _ = _fit(layout, config.noisy_bins, train[1], config)[-1]
+    aims = {query: _aims(model, test_hits, window, query) for query in QUERIES}
+    bound = None
+    if layout == "grid":
+        bound = local_inverse(*train[0], test_hits, aims["posterior"], config.neighbours)
+    return seconds, aims, bound
+
+
+def _task_cost(config):
+    """A task's rough cost, to start the longest first: EM and the inverse query over C^2."""
+
+    def cost(key):
+        if key[0] == "active":
+            return config.budgets[-1] / 1e3
+        k = key[1] if key[0] == "layout" else config.noisy_bins
+        layout = key[-1]
+        size = config.n_train / 1e4
+        if layout == "adaptive":
+            return size * (k**2 * max(config.em_steps) / 50 + len(config.em_steps) * k**4 / 1e4)
+        return size * (1 + k**2 / 100)
+
+    return cost
+
+
 def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
     """Both layouts per grid size, the noisy comparison, the references and the active curves."""
     n = config.n_train + config.n_test
@@ -472,41 +538,58 @@ def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
     test = [(t[config.n_train :], h[config.n_train :]) for t, h in (exact, noisy)]
     window = [_window(tr[1], te[1]) for tr, te in zip(train, test, strict=True)]
 
-    layouts, curve, grid_aims = [], [], None
-    runs = [(k, layout) for k in config.bins for layout in ("grid", "adaptive")]
-    for k, layout in tqdm(runs, desc="layouts", disable=not config.progress):
-        for model, seconds, ll in _fit(layout, k, train[0], config):
-            for query in QUERIES:
-                aims, candidates = _query(model, test[0][1], window[0], query)
-                if (layout, query, k) == ("grid", "posterior", config.bins[-1]):
-                    grid_aims = aims  # the local fit's start below
-                row = {
-                    "layout": layout,
-                    "query": query,
-                    "bins": k,
-                    "n_clusters": k * k,
-                    "fit_s": seconds,
-                    "em_steps": max(0, len(ll) - 1),
-                } | _spread(throw(aims).hit - test[0][1])
-                if candidates is not None:
-                    best = rms(_best_candidate(candidates, test[0][1]))
-                    row |= {"best_rms_y_m": float(best[0]), "best_rms_z_m": float(best[1])}
-                layouts.append(row)
+    # the model work: independent tasks (longest first), on every core (workers); the
+    # release noise is drawn here afterwards, in the order of the rows
+    def layout_task(k, layout):
+        return lambda: _layout_rows(k, layout, train[0], test[0][1], window[0], config)
+
+    def noisy_task(layout):
+        return lambda: _noisy_aims(layout, train, test[1][1], window[1], config)
+
+    def active_task(i, strategy):
+        rng = np.random.default_rng(seeds[3 + i])
+        return lambda: _active_curve(strategy, config, test[0][1], window[0], rng)
+
+    strategies = ("random", "information")
+    tasks = {
+        ("layout", k, layout): layout_task(k, layout)
+        for k in config.bins
+        for layout in ("grid", "adaptive")
+    }
+    tasks |= {("noisy", layout): noisy_task(layout) for layout in ("grid", "adaptive")}
+    tasks |= {("active", s): active_task(i, s) for i, s in enumerate(strategies)}
+    order = sorted(tasks, key=_task_cost(config), reverse=True)
+    done = dict(
+        zip(
+            order,
+            run_tasks(
+                [tasks[key] for key in order],
+                config.workers,
+                desc="adaptive_throw",
+                progress=config.progress,
+            ),
+            strict=True,
+        )
+    )
+
+    layouts, curve = [], []
+    for k in config.bins:
+        for layout in ("grid", "adaptive"):
+            rows, ll, _ = done["layout", k, layout]
+            layouts += rows
             curve = ll if layout == "adaptive" and k == config.bins[-1] else curve
-    k = config.noisy_bins
-    noisy_rows, start = [], None
+    floor_aims = done["layout", config.bins[-1], "grid"][2]
+    noisy_rows = []
     for layout in ("grid", "adaptive"):
-        model, seconds, _ = _fit(layout, k, train[1], config)[-1]
+        seconds, aims, _ = done["noisy", layout]
         for query in QUERIES:
-            aims = _aims(model, test[1][1], window[1], query)
-            start = aims if start is None else start  # the grid's posterior answers
             noisy_rows.append(
-                {"layout": layout, "query": query, "bins": k, "n_clusters": k * k}
-                | {"fit_s": seconds}
-                | _noisy_spread(aims, test[1][1], config.noise_repeats, noise_rng, noise)
+                {"layout": layout, "query": query, "bins": config.noisy_bins}
+                | {"n_clusters": config.noisy_bins**2, "fit_s": seconds}
+                | _noisy_spread(aims[query], test[1][1], config.noise_repeats, noise_rng, noise)
             )
     # the physics' bound: the noise-free throw inverted (to ~0.1 cm) at each desired hit
-    aims = local_inverse(*train[0], test[1][1], start, config.neighbours)
+    aims = done["noisy", "grid"][2]
     reach = np.linalg.norm(throw(aims).hit - test[1][1], axis=1)  # beyond the arm's reach
     bound = {"repeats": config.noise_repeats} | _noisy_spread(
         aims, test[1][1], config.noise_repeats, noise_rng, noise
@@ -517,8 +600,7 @@ def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
     }
 
     # Newton from the largest grid's posterior answers
-    aims = local_inverse(*train[0], test[0][1], grid_aims, config.neighbours)
-    floor = {"neighbours": config.neighbours} | _spread(throw(aims).hit - test[0][1])
+    floor = {"neighbours": config.neighbours} | _spread(throw(floor_aims).hit - test[0][1])
     free = ~throw(train[0][0]).clamped  # where the map is smooth
     pieces = []
     for k in config.bins:
@@ -526,12 +608,7 @@ def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
         y, z = rms(residual[~np.isnan(residual[:, 0])])
         pieces.append({"bins": k, "n_clusters": k * k, "rms_y_m": float(y), "rms_z_m": float(z)})
 
-    active = {
-        strategy: _active_curve(
-            strategy, config, test[0][1], window[0], np.random.default_rng(seeds[3 + i])
-        )
-        for i, strategy in enumerate(("random", "information"))
-    }
+    active = {strategy: done["active", strategy] for strategy in strategies}
     adaptive = [r for r in layouts if r["layout"] == "adaptive"]
     worst_axis = [max(r["rms_y_m"], r["rms_z_m"]) for r in adaptive]
     fast = [e for e, r in zip(worst_axis, adaptive, strict=True) if r["fit_s"] < GOAL_FIT_S]

@@ -27,6 +27,7 @@ TINY = {
     "batch": 20,
     "pool": 60,
     "noise_repeats": 2,
+    "workers": 1,  # in this process, so that a test can count calls (test_parallel.py: 2)
     "progress": False,
 }
 
