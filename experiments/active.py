@@ -75,6 +75,7 @@ from experiments.config import (
     check_int,
     percent,
 )
+from experiments.parallel import resolve_workers, run_tasks
 from experiments.physics_bounds import BOUND_SEED, held_out_best
 from experiments.registry import Experiment
 from inference import compile as compile_queries
@@ -152,6 +153,10 @@ class ActiveConfig(CanDataSettings):
     checkpoint_dir : Path or None
         Where each learner's state is saved after every batch (and resumed from); None:
         not saved.
+    workers : int
+        Processes for the learners (each learner and seed one task, its choices and its
+        curve's fits: :func:`experiments.parallel.run_tasks`); 0: one per core. The results
+        do not depend on it.
     progress : bool
         Progress bars.
     """
@@ -167,6 +172,7 @@ class ActiveConfig(CanDataSettings):
     seed: int = 0
     n_seeds: int = 1
     checkpoint_dir: Path | None = None
+    workers: int = 0
     progress: bool = True
 
     def __post_init__(self):
@@ -195,6 +201,7 @@ class ActiveConfig(CanDataSettings):
             check_choice("sites", s, ("end.count", "end.config"))
         check_int("seed", self.seed, 0)
         check_int("n_seeds", self.n_seeds, 1)
+        check_int("workers", self.workers, 0)
         if self.checkpoint_dir is not None:
             object.__setattr__(self, "checkpoint_dir", Path(self.checkpoint_dir))
 
@@ -487,11 +494,17 @@ def run_active(config: ActiveConfig) -> ActiveResult:
         p: (config_index(net, start), torch.as_tensor(desired))
         for p, (start, desired) in cases.items()
     }
-    for name in config.learners:
-        strategy, shared = LEARNERS[name]
-        runs, seen_runs, covered[name], seconds[name] = [], [], [], 0.0
-        point_times = []
-        for seed in range(config.seed, config.seed + config.n_seeds):
+
+    def learner_task(name: str, seed: int):
+        """One learner's run with one seed, as a task.
+
+        Its choosing time, its curve points and their evaluation times, the pairs it covered
+        and the cases it saw, per budget.
+        """
+
+        def task():
+            strategy, shared = LEARNERS[name]
+            alone = config.progress and workers == 1  # bars of forked workers would mix
             checkpoint = None
             if config.checkpoint_dir is not None:
                 checkpoint = config.checkpoint_dir / f"active_{config.scale}_{name}_{seed}.pt"
@@ -507,26 +520,54 @@ def run_active(config: ActiveConfig) -> ActiveResult:
                 sites=config.sites,
                 seed=seed,
                 checkpoint=checkpoint,
-                progress=config.progress,
+                progress=alone,
             )
-            seconds[name] += time.process_time() - start_time
+            seconds = time.process_time() - start_time
             points, times = [], []
-            for b in tqdm(budgets, desc=f"Table I ({name})", disable=not config.progress):
+            for b in tqdm(budgets, desc=f"Table I ({name})", disable=not alone):
                 start_time = time.process_time()
                 chosen = learned.rows.rows(slice(0, b))
                 points.append(
                     _scores(scoring, chosen, pool, throwable, pooling, cases, replays, configs)
                 )
                 times.append(time.process_time() - start_time)
+            covered = [len(np.unique(pair[learned.chosen[:b]])) for b in budgets]
+            seen = {
+                p: [cases_seen(learned.rows.rows(slice(0, b)), c) for b in budgets]
+                for p, c in cases_rows.items()
+            }
+            return seconds, points, times, covered, seen
+
+        return task
+
+    # every learner and seed is a task of its own, on every core (workers)
+    workers = min(resolve_workers(config.workers), len(config.learners) * config.n_seeds)
+    keys = [
+        (name, seed)
+        for name in config.learners
+        for seed in range(config.seed, config.seed + config.n_seeds)
+    ]
+    done = dict(
+        zip(
+            keys,
+            run_tasks(
+                [learner_task(*key) for key in keys],
+                workers,
+                desc="learners",
+                progress=config.progress and workers > 1,
+            ),
+            strict=True,
+        )
+    )
+    for name in config.learners:
+        runs, seen_runs, covered[name], seconds[name], point_times = [], [], [], 0.0, []
+        for seed in range(config.seed, config.seed + config.n_seeds):
+            spent, points, times, pairs, seen_run = done[name, seed]
+            seconds[name] += spent
             runs.append(points)
             point_times.append(times)
-            covered[name].append([len(np.unique(pair[learned.chosen[:b]])) for b in budgets])
-            seen_runs.append(
-                {
-                    p: [cases_seen(learned.rows.rows(slice(0, b)), c) for b in budgets]
-                    for p, c in cases_rows.items()
-                }
-            )
+            covered[name].append(pairs)
+            seen_runs.append(seen_run)
         by_seed[name] = {
             p: {rule: [[pt[p][rule] for pt in points] for points in runs] for rule in SCORES}
             for p in PROTOCOLS
@@ -555,9 +596,10 @@ def run_active(config: ActiveConfig) -> ActiveResult:
         }
         for name in curves
     }
-    settings = {
+    settings = {  # but the workers: how the work is spread, not what it computes
         k: (str(v) if isinstance(v, Path) else list(v) if isinstance(v, tuple) else v)
         for k, v in vars(config).items()
+        if k != "workers"
     }
     return ActiveResult(
         scale=config.scale,

@@ -1,6 +1,8 @@
 """experiments.active: the pool and its oracle are the data set's 0° throws, the whole
 pool's learner is the full-data network, a tiny run end to end, and the settings' checks."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -128,6 +130,17 @@ def test_a_tiny_run_end_to_end(tiny_run, tiny_data_dir, tmp_path):
     text = (tmp_path / "active.md").read_text()
     assert "| eig |" in text and "Physics bound (counts)" in text
     assert "Table I per budget point (CPU s" in text
+
+
+def test_the_learners_give_the_same_results_in_turn_as_on_every_core(tiny_run):
+    """Each learner and seed is a task (experiments.parallel): the fixture's run on every core
+    and the same run in this process agree bit for bit but for the times."""
+    from experiments.compare import compare_values
+
+    config, result = tiny_run
+    alone = ex.run_active(dataclasses.replace(config, workers=1))
+    assert compare_values(result.to_dict(), alone.to_dict(), "active") == []
+    assert "workers" not in alone.settings
 
 
 def test_the_choice_is_scored_on_the_replays_of_the_chosen_field(tiny_run, tiny_data_dir):
