@@ -51,7 +51,7 @@ import torch
 from tqdm.auto import tqdm
 
 from experiments.config import ConfigError, Result, check_float, check_int
-from experiments.parallel import run_tasks
+from experiments.parallel import resolve_workers, run_tasks
 from experiments.registry import Experiment
 from experiments.throwing import HIT_MARGIN_M, get_data, rms
 from inference import fit, fit_em, infer_parameter, parameter_for_effect
@@ -529,7 +529,7 @@ def _task_cost(config):
 
 def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
     """Both layouts per grid size, the noisy comparison, the references and the active curves."""
-    n = config.n_train + config.n_test
+    n, progress = config.n_train + config.n_test, config.progress
     seeds = np.random.SeedSequence(config.seed).spawn(5)
     exact = get_data(n, np.random.default_rng(seeds[0]), None)
     noise, noise_rng = ReleaseNoise(), np.random.default_rng(seeds[1])
@@ -539,7 +539,11 @@ def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
     window = [_window(tr[1], te[1]) for tr, te in zip(train, test, strict=True)]
 
     # the model work: independent tasks (longest first), on every core (workers); the
-    # release noise is drawn here afterwards, in the order of the rows
+    # release noise is drawn here afterwards, in the order of the rows. Forked workers'
+    # bars would mix: one bar over the tasks instead
+    alone = resolve_workers(config.workers) == 1
+    config = config if alone else dataclasses.replace(config, progress=False)
+
     def layout_task(k, layout):
         return lambda: _layout_rows(k, layout, train[0], test[0][1], window[0], config)
 
@@ -566,7 +570,7 @@ def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
                 [tasks[key] for key in order],
                 config.workers,
                 desc="adaptive_throw",
-                progress=config.progress,
+                progress=progress and not alone,
             ),
             strict=True,
         )
