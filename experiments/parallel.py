@@ -90,7 +90,7 @@ def run_tasks(
         cancelled or finish first).
     """
     global _TASKS
-    tasks = list(tasks)
+    tasks, previous = list(tasks), _TASKS  # previous: a task of an outer call runs this one
     count = min(resolve_workers(workers), len(tasks))
     bar = tqdm(total=len(tasks), desc=desc, disable=not progress)
     try:
@@ -116,5 +116,5 @@ def run_tasks(
                 raise
             return [future.result() for future in futures]
     finally:
-        _TASKS = ()
+        _TASKS = previous
         bar.close()

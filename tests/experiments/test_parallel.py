@@ -60,3 +60,12 @@ def test_adaptive_throw_gives_the_same_results_on_one_and_on_two_workers():
     two = run_adaptive_throw(AdaptiveThrowConfig(**TINY | {"workers": 2}, seed=1)).to_dict()
     assert compare_values(one, two, "adaptive_throw") == []
     assert np.isfinite(two["floor"]["rms_y_m"])
+
+
+def _inner(x):
+    return lambda: sum(run_tasks([lambda: x, lambda: 10 * x], workers=1))
+
+
+def test_a_task_may_run_tasks_of_its_own():
+    """A worker that runs an inner call still finds the outer call's next tasks."""
+    assert run_tasks([_inner(x) for x in range(5)], workers=2) == [11 * x for x in range(5)]
