@@ -75,7 +75,7 @@ from experiments.config import (
     check_int,
     percent,
 )
-from experiments.parallel import resolve_workers, run_tasks
+from experiments.parallel import forks, run_tasks
 from experiments.physics_bounds import BOUND_SEED, held_out_best
 from experiments.registry import Experiment
 from inference import compile as compile_queries
@@ -494,6 +494,15 @@ def run_active(config: ActiveConfig) -> ActiveResult:
         p: (config_index(net, start), torch.as_tensor(desired))
         for p, (start, desired) in cases.items()
     }
+    # every learner and seed is a task of its own, on every core (workers); forked
+    # workers' bars would mix: one bar over the tasks instead
+    keys = [
+        (name, seed)
+        for name in config.learners
+        for seed in range(config.seed, config.seed + config.n_seeds)
+    ]
+    forked = forks(config.workers, len(keys))
+    alone = config.progress and not forked
 
     def learner_task(name: str, seed: int):
         """One learner's run with one seed, as a task.
@@ -504,7 +513,6 @@ def run_active(config: ActiveConfig) -> ActiveResult:
 
         def task():
             strategy, shared = LEARNERS[name]
-            alone = config.progress and workers == 1  # bars of forked workers would mix
             checkpoint = None
             if config.checkpoint_dir is not None:
                 checkpoint = config.checkpoint_dir / f"active_{config.scale}_{name}_{seed}.pt"
@@ -540,21 +548,14 @@ def run_active(config: ActiveConfig) -> ActiveResult:
 
         return task
 
-    # every learner and seed is a task of its own, on every core (workers)
-    workers = min(resolve_workers(config.workers), len(config.learners) * config.n_seeds)
-    keys = [
-        (name, seed)
-        for name in config.learners
-        for seed in range(config.seed, config.seed + config.n_seeds)
-    ]
     done = dict(
         zip(
             keys,
             run_tasks(
                 [learner_task(*key) for key in keys],
-                workers,
+                config.workers,
                 desc="learners",
-                progress=config.progress and workers > 1,
+                progress=config.progress and forked,
             ),
             strict=True,
         )

@@ -51,7 +51,7 @@ import torch
 from tqdm.auto import tqdm
 
 from experiments.config import ConfigError, Result, check_float, check_int
-from experiments.parallel import resolve_workers, run_tasks
+from experiments.parallel import forks, run_tasks
 from experiments.registry import Experiment
 from experiments.throwing import HIT_MARGIN_M, get_data, rms
 from inference import fit, fit_em, infer_parameter, parameter_for_effect
@@ -511,25 +511,25 @@ def _noisy_aims(layout, train, test_hits, window, config):
     return seconds, aims, bound
 
 
-def _task_cost(config):
-    """A task's rough cost, to start the longest first: EM and the inverse query over C^2."""
+def _longest_first(config):
+    """A task key's sort key, for the longest task first.
 
-    def cost(key):
-        if key[0] == "active":
-            return config.budgets[-1] / 1e3
-        k = key[1] if key[0] == "layout" else config.noisy_bins
-        layout = key[-1]
-        size = config.n_train / 1e4
-        if layout == "adaptive":
-            return size * (k**2 * max(config.em_steps) / 50 + len(config.em_steps) * k**4 / 1e4)
-        return size * (1 + k**2 / 100)
+    The adaptive fits first (EM and the inverse query grow with the clusters), the most clusters
+    first, then the rest.
+    """
 
-    return cost
+    def key(task):
+        if task[0] == "active":
+            return (False, 0)
+        k = task[1] if task[0] == "layout" else config.noisy_bins
+        return (task[-1] == "adaptive", k)
+
+    return key
 
 
 def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
     """Both layouts per grid size, the noisy comparison, the references and the active curves."""
-    n, progress = config.n_train + config.n_test, config.progress
+    n = config.n_train + config.n_test
     seeds = np.random.SeedSequence(config.seed).spawn(5)
     exact = get_data(n, np.random.default_rng(seeds[0]), None)
     noise, noise_rng = ReleaseNoise(), np.random.default_rng(seeds[1])
@@ -539,30 +539,28 @@ def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
     window = [_window(tr[1], te[1]) for tr, te in zip(train, test, strict=True)]
 
     # the model work: independent tasks (longest first), on every core (workers); the
-    # release noise is drawn here afterwards, in the order of the rows. Forked workers'
-    # bars would mix: one bar over the tasks instead
-    alone = resolve_workers(config.workers) == 1
-    config = config if alone else dataclasses.replace(config, progress=False)
+    # release noise is drawn here afterwards, in the order of the rows
+    strategies = ("random", "information")
+    keys = [("layout", k, layout) for k in config.bins for layout in ("grid", "adaptive")]
+    keys += [("noisy", layout) for layout in ("grid", "adaptive")]
+    keys += [("active", strategy) for strategy in strategies]
+    forked = forks(config.workers, len(keys))
+    # forked workers' bars would mix: one bar over the tasks instead
+    quiet = dataclasses.replace(config, progress=False) if forked else config
 
     def layout_task(k, layout):
-        return lambda: _layout_rows(k, layout, train[0], test[0][1], window[0], config)
+        return lambda: _layout_rows(k, layout, train[0], test[0][1], window[0], quiet)
 
     def noisy_task(layout):
-        return lambda: _noisy_aims(layout, train, test[1][1], window[1], config)
+        return lambda: _noisy_aims(layout, train, test[1][1], window[1], quiet)
 
-    def active_task(i, strategy):
-        rng = np.random.default_rng(seeds[3 + i])
-        return lambda: _active_curve(strategy, config, test[0][1], window[0], rng)
+    def active_task(strategy):
+        rng = np.random.default_rng(seeds[3 + strategies.index(strategy)])
+        return lambda: _active_curve(strategy, quiet, test[0][1], window[0], rng)
 
-    strategies = ("random", "information")
-    tasks = {
-        ("layout", k, layout): layout_task(k, layout)
-        for k in config.bins
-        for layout in ("grid", "adaptive")
-    }
-    tasks |= {("noisy", layout): noisy_task(layout) for layout in ("grid", "adaptive")}
-    tasks |= {("active", s): active_task(i, s) for i, s in enumerate(strategies)}
-    order = sorted(tasks, key=_task_cost(config), reverse=True)
+    make = {"layout": layout_task, "noisy": noisy_task, "active": active_task}
+    tasks = {key: make[key[0]](*key[1:]) for key in keys}
+    order = sorted(keys, key=_longest_first(config), reverse=True)
     done = dict(
         zip(
             order,
@@ -570,7 +568,7 @@ def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
                 [tasks[key] for key in order],
                 config.workers,
                 desc="adaptive_throw",
-                progress=progress and not alone,
+                progress=config.progress and forked,
             ),
             strict=True,
         )

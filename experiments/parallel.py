@@ -29,7 +29,7 @@ from typing import TypeVar
 
 from tqdm.auto import tqdm
 
-__all__ = ["available_cores", "resolve_workers", "run_tasks"]
+__all__ = ["available_cores", "forks", "resolve_workers", "run_tasks"]
 
 T = TypeVar("T")
 
@@ -53,6 +53,16 @@ def resolve_workers(workers: int) -> int:
     if isinstance(workers, bool) or not isinstance(workers, int) or workers < 0:
         raise ValueError(f"workers={workers!r}: expected an int >= 0 (0: one per core)")
     return workers or available_cores()
+
+
+def forks(workers: int, n_tasks: int) -> bool:
+    """Whether :func:`run_tasks` runs ``n_tasks`` tasks on ``workers`` in forked processes.
+
+    Not with one worker or one task, nor where processes cannot be forked: then they run in the
+    caller, in turn (and may show progress bars of their own).
+    """
+    count = min(resolve_workers(workers), n_tasks)
+    return count > 1 and "fork" in multiprocessing.get_all_start_methods()
 
 
 def _one_thread() -> None:
@@ -91,10 +101,9 @@ def run_tasks(
     """
     global _TASKS
     tasks, previous = list(tasks), _TASKS  # previous: a task of an outer call runs this one
-    count = min(resolve_workers(workers), len(tasks))
     bar = tqdm(total=len(tasks), desc=desc, disable=not progress)
     try:
-        if count <= 1 or "fork" not in multiprocessing.get_all_start_methods():
+        if not forks(workers, len(tasks)):
             results = []
             for task in tasks:
                 results.append(task())
@@ -103,7 +112,7 @@ def run_tasks(
         _TASKS = tasks
         context = multiprocessing.get_context("fork")
         with concurrent.futures.ProcessPoolExecutor(
-            count, mp_context=context, initializer=_one_thread
+            min(resolve_workers(workers), len(tasks)), mp_context=context, initializer=_one_thread
         ) as pool:
             futures = [pool.submit(_run, i) for i in range(len(tasks))]
             try:

@@ -8,7 +8,7 @@ import torch
 
 from experiments.adaptive_throw import AdaptiveThrowConfig, run_adaptive_throw
 from experiments.compare import compare_values
-from experiments.parallel import available_cores, resolve_workers, run_tasks
+from experiments.parallel import available_cores, forks, resolve_workers, run_tasks
 from tests.experiments.test_adaptive_throw import TINY
 
 
@@ -69,3 +69,8 @@ def _inner(x):
 def test_a_task_may_run_tasks_of_its_own():
     """A worker that runs an inner call still finds the outer call's next tasks."""
     assert run_tasks([_inner(x) for x in range(5)], workers=2) == [11 * x for x in range(5)]
+
+
+def test_forks_says_where_the_tasks_run():
+    assert forks(2, 3) and forks(0, 5) == (available_cores() > 1)
+    assert not forks(1, 3) and not forks(2, 1) and not forks(2, 0)
