@@ -21,7 +21,6 @@ import json
 import math
 import numbers
 import operator
-import os
 import sys
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass, fields
@@ -30,7 +29,7 @@ from typing import Any, ClassVar, TypeVar
 
 from experiments.steps import write_step_record
 from sim2d.chunks import write_failure, write_text
-from sim2d.executors import ExecutorUnavailable, parse_spec
+from sim2d.executors import ExecutorUnavailable, available_cores, parse_spec
 
 __all__ = [
     "ConfigError",
@@ -87,11 +86,7 @@ def check_float(
 
 def check_threads(field: str, value) -> int:
     """A number of torch threads: an int from 1 to the CPU cores this process may use."""
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        cores = os.cpu_count() or 1
-    return check_int(field, value, 1, cores)
+    return check_int(field, value, 1, available_cores())
 
 
 def check_choice(field: str, value: T, choices: Iterable[T]) -> T:

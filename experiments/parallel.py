@@ -23,26 +23,19 @@ from __future__ import annotations
 
 import concurrent.futures
 import multiprocessing
-import os
 from collections.abc import Callable, Sequence
 from typing import TypeVar
 
 from tqdm.auto import tqdm
 
-__all__ = ["available_cores", "forks", "resolve_workers", "run_tasks"]
+from sim2d.executors import available_cores
+
+__all__ = ["forks", "resolve_workers", "run_tasks"]
 
 T = TypeVar("T")
 
 #: The tasks of the :func:`run_tasks` call in progress, read by the forked workers.
 _TASKS: Sequence[Callable[[], object]] = ()
-
-
-def available_cores() -> int:
-    """The CPU cores this process may use."""
-    try:
-        return len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        return os.cpu_count() or 1
 
 
 def resolve_workers(workers: int) -> int:

@@ -29,6 +29,7 @@ from pathlib import Path
 
 from experiments.config import Result
 from experiments.registry import experiments
+from sim2d.executors import available_cores
 
 __all__ = [
     "BEGIN",
@@ -126,11 +127,7 @@ def machine_description() -> str:
     """CPU cores usable here, memory, CPU model, OS, Python and torch."""
     import torch
 
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        cores = os.cpu_count() or 1
-    parts = [f"{cores} cores"]
+    parts = [f"{available_cores()} cores"]
     try:
         memory = os.sysconf("SC_PAGE_SIZE") * os.sysconf("SC_PHYS_PAGES")
         parts.append(f"{memory / 2**30:.0f} GiB")

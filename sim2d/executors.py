@@ -39,6 +39,7 @@ __all__ = [
     "ExecutorUnavailable",
     "RayExecutor",
     "as_finished",
+    "available_cores",
     "default_spec",
     "open_executor",
     "parse_spec",
@@ -56,13 +57,17 @@ class ExecutorUnavailable(RuntimeError):
     """An executor specification names a cluster that cannot be reached."""
 
 
+def available_cores() -> int:
+    """The number of CPU cores this process may use."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # not on Linux
+        return os.cpu_count() or 1
+
+
 def default_spec() -> str:
     """``process:N`` with N the number of CPU cores this process may use."""
-    try:
-        cores = len(os.sched_getaffinity(0))
-    except AttributeError:  # not on Linux
-        cores = os.cpu_count() or 1
-    return f"process:{cores}"
+    return f"process:{available_cores()}"
 
 
 def parse_spec(spec: str) -> tuple[str, int | str | None]:

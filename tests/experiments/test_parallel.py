@@ -8,7 +8,8 @@ import torch
 
 from experiments.adaptive_throw import AdaptiveThrowConfig, run_adaptive_throw
 from experiments.compare import compare_values
-from experiments.parallel import available_cores, forks, resolve_workers, run_tasks
+from experiments.parallel import forks, resolve_workers, run_tasks
+from sim2d.executors import available_cores
 from tests.experiments.test_adaptive_throw import TINY
 
 
