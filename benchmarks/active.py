@@ -22,13 +22,12 @@ import argparse
 import time
 
 import torch
-
-from experiments import active as ex
-from experiments.can_tossing import ANGLE, PROTOCOLS, table_one_cases
-from experiments.cans import can_dataset, default_data_dir
-from inference import grid_kernel
-from inference.design.active import explore
-from sim2d import field_throws, geometry
+from effect_networks.experiments import active as ex
+from effect_networks.experiments.can_tossing import ANGLE, PROTOCOLS, table_one_cases
+from effect_networks.experiments.cans import can_dataset, default_data_dir
+from effect_networks.inference import grid_kernel
+from effect_networks.inference.design.active import explore
+from effect_networks.sim2d import field_throws, geometry
 
 
 def timed(fn):

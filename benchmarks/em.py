@@ -17,13 +17,12 @@ import argparse
 
 import numpy as np
 import torch
+from effect_networks.experiments.adaptive_throw import adaptive_throw_network
+from effect_networks.inference import fit, fit_em
+from effect_networks.models.throw_network import throw_data, throw_network
+from effect_networks.sim2d.throw import sample_targets, throw
 from throw import machine  # benchmarks/throw.py, beside this script
 from timing import median_seconds
-
-from experiments.adaptive_throw import adaptive_throw_network
-from inference import fit, fit_em
-from models.throw_network import throw_data, throw_network
-from sim2d.throw import sample_targets, throw
 
 GOAL_S = 2.0
 

@@ -27,12 +27,11 @@ import time
 import warnings
 
 import numpy as np
+from effect_networks.inference import OutsideTrainingData, fit, simulate
+from effect_networks.inference.queries.demonstration import simulate_demonstrations
+from effect_networks.inference.queries.explain import explain
+from effect_networks.models import Continuous, Discrete, EffectNetwork, random_params
 from timing import median_seconds  # benchmarks/timing.py, beside this script
-
-from inference import OutsideTrainingData, fit, simulate
-from inference.queries.demonstration import simulate_demonstrations
-from inference.queries.explain import explain
-from models import Continuous, Discrete, EffectNetwork, random_params
 
 GOAL_S = 1.0
 STATES = {"door": ("locked", "shut", "open"), "drawer": ("shut", "open"), "switch": ("off", "on")}

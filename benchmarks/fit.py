@@ -30,12 +30,11 @@ import warnings
 
 import numpy as np
 import torch
+from effect_networks.inference import fit, fit_gradient, fit_statistics, params_from_statistics
+from effect_networks.models import Continuous, Discrete, EffectNetwork
+from effect_networks.models.params import NetworkParams
 from throw import machine  # benchmarks/throw.py, beside this script
 from timing import median_seconds
-
-from inference import fit, fit_gradient, fit_statistics, params_from_statistics
-from models import Continuous, Discrete, EffectNetwork
-from models.params import NetworkParams
 
 SOFTMAX_GOAL_S = 0.2
 EM_GOAL_S = 2.0

@@ -21,12 +21,11 @@ from dataclasses import replace
 
 import numpy as np
 import torch
+from effect_networks.inference import fit, simulate
+from effect_networks.models import Continuous, Discrete, EffectNetwork, random_params
+from effect_networks.models.params import NetworkParams
 from throw import machine  # benchmarks/throw.py, beside this script
 from timing import median_seconds
-
-from inference import fit, simulate
-from models import Continuous, Discrete, EffectNetwork, random_params
-from models.params import NetworkParams
 
 GOAL_S = 2.0
 

@@ -43,14 +43,21 @@ import time
 
 import numpy as np
 import torch
+from effect_networks.inference import fit, imitation_check, infer_action
+from effect_networks.models import (
+    Continuous,
+    Discrete,
+    EffectNetwork,
+    Evidence,
+    Parameter,
+    random_params,
+)
+from effect_networks.models.can_network import can_network
+from effect_networks.models.declaration import DTYPE
 from scipy import stats
 from timing import median_seconds  # benchmarks/timing.py, beside this script
 
-import inference
-from inference import fit, imitation_check, infer_action
-from models import Continuous, Discrete, EffectNetwork, Evidence, Parameter, random_params
-from models.can_network import can_network
-from models.declaration import DTYPE
+from effect_networks import inference
 
 # evidence sites per pattern, and the rows timed (fewer where a query costs more)
 PATTERNS = {
@@ -108,9 +115,8 @@ def pgmpy_network(params):
 def patterns(args: argparse.Namespace) -> list[tuple[str, float, float, float, float, float]]:
     """Per pattern: (name, traced us/query, compiled us/query, the compiled pattern's
     one-off build in s, pgmpy us/query, max diff)."""
+    from effect_networks.models.interop import to_pgmpy
     from pgmpy.inference import VariableElimination
-
-    from models.interop import to_pgmpy
 
     net = can_network(range(42))
     g = torch.Generator().manual_seed(2)
@@ -166,9 +172,8 @@ def scaling(batch: int, pgmpy_queries: int) -> list[tuple[int, float, float, flo
     """Per k: (k, ours us/query batched, ours us for one query, the compiled tables' us
     for one query (``inference.compile(net, params).infer_action``, after a first call
     that builds the pattern's plan), pgmpy us/query, largest difference from pgmpy)."""
+    from effect_networks.models.interop import to_pgmpy
     from pgmpy.inference import VariableElimination
-
-    from models.interop import to_pgmpy
 
     out = []
     for k in SCALING_K:
@@ -410,9 +415,8 @@ def _tap_network() -> EffectNetwork:
 def _print_predictive() -> dict[str, float]:
     """Seconds of ``Predictive(effect_model, num_samples=100)`` on 5 rows, one run per
     draw and vectorised (``parallel=True``)."""
+    from effect_networks.models import effect_model
     from pyro.infer import Predictive
-
-    from models import effect_model
 
     net = _tap_network()
     params = random_params(net, 0)

@@ -20,11 +20,10 @@ import argparse
 import time
 
 import numpy as np
-
-from experiments.throwing import BIN_CANDIDATES, get_data, select_bins
-from inference import select_clusters
-from models.throw_network import THROW, throw_network
-from sim2d.throw import ReleaseNoise
+from effect_networks.experiments.throwing import BIN_CANDIDATES, get_data, select_bins
+from effect_networks.inference import select_clusters
+from effect_networks.models.throw_network import THROW, throw_network
+from effect_networks.sim2d.throw import ReleaseNoise
 
 
 def compare(n_train, bins, *, noise=True, folds=5, seed=0, tolerance=0.05):

@@ -41,12 +41,17 @@ import time
 from pathlib import Path
 
 import numpy as np
-
-from sim2d import can_dataset, materials
-from sim2d.configurations import stable_configurations
-from sim2d.executors import default_spec
-from sim2d.field_throws import aim_offset, aim_seed, is_throwable, launch_state, outcome_of
-from sim2d.world import run_ball
+from effect_networks.sim2d import can_dataset, materials
+from effect_networks.sim2d.configurations import stable_configurations
+from effect_networks.sim2d.executors import default_spec
+from effect_networks.sim2d.field_throws import (
+    aim_offset,
+    aim_seed,
+    is_throwable,
+    launch_state,
+    outcome_of,
+)
+from effect_networks.sim2d.world import run_ball
 
 GOAL_SPEEDUP = 3.0
 GOAL_FULL_SECONDS = 90.0  # on 2 cores

@@ -23,11 +23,10 @@ import logging
 import numpy as np
 import pandas as pd
 import torch
+from effect_networks.inference import learn_structure, simulate
+from effect_networks.models import Continuous, Discrete, EffectNetwork, random_params
 from throw import machine  # benchmarks/throw.py, beside this script
 from timing import median_seconds
-
-from inference import learn_structure, simulate
-from models import Continuous, Discrete, EffectNetwork, random_params
 
 GOAL_S = 10.0
 ACTIONS = ("grasp", "tap", "touch")

@@ -28,13 +28,13 @@ from unittest import mock
 import numpy as np
 import pyro
 import torch
+from effect_networks.experiments.adaptive_throw import adaptive_throw_network
+from effect_networks.inference import fit, fit_em, infer_parameter, parameter_for_effect
+from effect_networks.models.throw_network import TARGET, throw_data, throw_network
+from effect_networks.sim2d.throw import sample_targets, throw
 from timing import median_seconds  # benchmarks/timing.py, beside this script
 
-import inference
-from experiments.adaptive_throw import adaptive_throw_network
-from inference import fit, fit_em, infer_parameter, parameter_for_effect
-from models.throw_network import TARGET, throw_data, throw_network
-from sim2d.throw import sample_targets, throw
+from effect_networks import inference
 
 GOALS_S = {"fit": 50e-3, "batched": 5e-6, "single": 100e-6}
 
@@ -91,7 +91,9 @@ def measure_effect_adaptive(net, targets, hits, rows, repeats: int) -> dict[str,
     params = fit_em(adaptive, throw_data(adaptive, targets, hits), steps=5).params
     n = len(rows["end.hit"])
     seconds = median_seconds(lambda: parameter_for_effect(adaptive, params, TARGET, rows), repeats)
-    with mock.patch("inference.queries.inverse._candidate_scores", return_value=None):
+    with mock.patch(
+        "effect_networks.inference.queries.inverse._candidate_scores", return_value=None
+    ):
         peer = median_seconds(lambda: parameter_for_effect(adaptive, params, TARGET, rows), 1)
     print(
         f"inverse model on the same clusters made adaptive (5 EM steps), per query: "

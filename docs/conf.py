@@ -8,12 +8,10 @@ for a reader's scale) and renders its cells with their printed output and figure
 tutorial that raises fails the build."""
 
 import os
-import sys
 from pathlib import Path
 
 DOCS = Path(__file__).resolve().parent
 ROOT = DOCS.parent
-sys.path.insert(0, str(ROOT))
 
 project = "effect-networks"
 author = "The effect-networks authors"
@@ -44,13 +42,10 @@ nb_execution_timeout = 300
 nb_merge_streams = True
 # a warning a tutorial prints is a defect of the page: the strict build fails on it
 nb_output_stderr = "warn"
-# the kernel inherits this process's environment: the tutorials' scale, this checkout's
-# packages (not an installed copy's), and matplotlib's inline backend (not a file-only one
-# set for the tests), so that each figure a cell makes is rendered below it
+# the kernel inherits this process's environment: the tutorials' scale (the package is the
+# installed effect_networks), and matplotlib's inline backend (not a file-only one set for
+# the tests), so that each figure a cell makes is rendered below it
 os.environ.setdefault("EFFECT_NETWORKS_TUTORIALS", "tiny")  # "full": as a reader runs them
-os.environ["PYTHONPATH"] = os.pathsep.join(
-    [str(ROOT), *filter(None, [os.environ.get("PYTHONPATH")])]
-)
 os.environ.pop("MPLBACKEND", None)
 # tqdm.auto, in a kernel without ipywidgets, falls back to the text bar with a warning
 os.environ["PYTHONWARNINGS"] = ",".join(
@@ -86,33 +81,20 @@ html_static_path: list[str] = []
 
 
 # -- the API reference: one page per module, generated here ---------------------------
-PACKAGES = ("models", "inference", "experiments", "sim2d")
+TOP = "effect_networks"
+PACKAGES = tuple(f"{TOP}.{p}" for p in ("models", "inference", "experiments", "sim2d"))
 # the faces whose names README and the guides import; a name is documented once, under
 # the first face here that exports it (its defining module's name still resolves: autodoc
 # records it as the canonical name)
-FACES = ("models", "inference", "inference.fitting", "inference.queries", "inference.plots")
-# old import paths kept for one release: they forward with a DeprecationWarning
-DEPRECATED = {
-    f"inference.{name}"
-    for name in (
-        "active",
-        "active_gaussian",
-        "compiled",
-        "em",
-        "enumeration",
-        "evaluation",
-        "planning",
-        "plausibility",
-        "pooling",
-        "statistics",
-        "surprise",
-    )
-}
+FACES = tuple(
+    f"{TOP}.{p}"
+    for p in ("models", "inference", "inference.fitting", "inference.queries", "inference.plots")
+)
 GROUPS = {
-    "models": "declaring a network, its parameters and distributions",
-    "inference": "fitting, exact questions, active exploration, pictures",
-    "experiments": "the paper's experiments as a library",
-    "sim2d": "the simulated can world and the robot's throw",
+    f"{TOP}.models": "declaring a network, its parameters and distributions",
+    f"{TOP}.inference": "fitting, exact questions, active exploration, pictures",
+    f"{TOP}.experiments": "the paper's experiments as a library",
+    f"{TOP}.sim2d": "the simulated can world and the robot's throw",
 }
 
 
@@ -120,12 +102,12 @@ def _modules() -> list[str]:
     import importlib
     import pkgutil
 
-    names = []
+    names = [TOP]
     for package in PACKAGES:
         module = importlib.import_module(package)
         names.append(package)
         for info in pkgutil.walk_packages(module.__path__, package + "."):
-            if info.name not in DEPRECATED and not info.name.rsplit(".", 1)[-1].startswith("_"):
+            if not info.name.rsplit(".", 1)[-1].startswith("_"):
                 names.append(info.name)
     return sorted(names)
 
@@ -177,9 +159,21 @@ def _write_api_pages() -> None:
     index = ["API reference", "=============", ""]
     index += [
         "Every module, one page each. The names README and the guides import are documented",
-        "under the face that exports them (:mod:`models`, :mod:`inference`,",
-        ":mod:`inference.fitting`, :mod:`inference.queries`); the module that defines one",
+        "under the face that exports them (:mod:`effect_networks.models`,",
+        ":mod:`effect_networks.inference`, :mod:`effect_networks.inference.fitting`,",
+        ":mod:`effect_networks.inference.queries`); the module that defines one",
         "links to it there.",
+        "",
+    ]
+    heading = f"``{TOP}``: the package and its face"
+    index += [
+        heading,
+        "-" * len(heading),
+        "",
+        ".. toctree::",
+        "   :maxdepth: 1",
+        "",
+        f"   {TOP}",
         "",
     ]
     for package in PACKAGES:
@@ -216,7 +210,10 @@ def _lookup(target: str):
 
 def _face_name(target: str) -> str | None:
     """``target`` (a defining module's path, or a package's re-export) spelled by the face
-    that documents it: ``inference.queries.forward.predict`` -> ``inference.predict``."""
+    that documents it: ``inference.queries.forward.predict`` ->
+    ``effect_networks.inference.predict`` (a docstring may leave out the package's name)."""
+    if f"{TOP}.{target.split('.')[0]}" in PACKAGES:
+        target = f"{TOP}.{target}"
     parts = target.split(".")
     for cut in range(len(parts), 1, -1):
         value = _lookup(".".join(parts[:cut]))

@@ -38,10 +38,10 @@ import time
 from pathlib import Path
 from typing import NamedTuple
 
-from experiments.config import check_executor, config_or_exit, run_script
-from experiments.registry import experiments
-from experiments.steps import STEP_RECORD_ENV, StepMeasure, read_step_record
-from experiments.summary import refresh_readme, run_record, summary_markdown
+from effect_networks.experiments.config import check_executor, config_or_exit, run_script
+from effect_networks.experiments.registry import experiments
+from effect_networks.experiments.steps import STEP_RECORD_ENV, StepMeasure, read_step_record
+from effect_networks.experiments.summary import refresh_readme, run_record, summary_markdown
 
 HERE = Path(__file__).resolve().parent
 README = HERE.parent / "README.md"

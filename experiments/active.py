@@ -55,9 +55,7 @@ from typing import ClassVar
 
 import numpy as np
 import torch
-from tqdm.auto import tqdm
-
-from experiments.can_tossing import (
+from effect_networks.experiments.can_tossing import (
     ANGLE,
     PROTOCOLS,
     RULES,
@@ -65,9 +63,15 @@ from experiments.can_tossing import (
     start_evidence,
     table_one_cases,
 )
-from experiments.can_tossing_report import TABLE_I_PROTOCOLS
-from experiments.cans import SCALES, CanDataSettings, CanModel, can_dataset, start_configurations
-from experiments.config import (
+from effect_networks.experiments.can_tossing_report import TABLE_I_PROTOCOLS
+from effect_networks.experiments.cans import (
+    SCALES,
+    CanDataSettings,
+    CanModel,
+    can_dataset,
+    start_configurations,
+)
+from effect_networks.experiments.config import (
     ConfigError,
     Result,
     check_choice,
@@ -75,17 +79,18 @@ from experiments.config import (
     check_int,
     percent,
 )
-from experiments.parallel import forks, run_tasks
-from experiments.physics_bounds import BOUND_SEED, held_out_best
-from experiments.registry import Experiment
-from inference import compile as compile_queries
-from inference import fit, fit_pooled, grid_kernel
-from inference.design.active import explore, with_pool_prior
-from models.can_network import can_network, can_rows, config_index
-from models.declaration import EffectNetwork
-from sim2d import field_throws, geometry
-from sim2d.can_dataset import generate_dataset, load_dataset
-from sim2d.executors import open_executor
+from effect_networks.experiments.parallel import forks, run_tasks
+from effect_networks.experiments.physics_bounds import BOUND_SEED, held_out_best
+from effect_networks.experiments.registry import Experiment
+from effect_networks.inference import compile as compile_queries
+from effect_networks.inference import fit, fit_pooled, grid_kernel
+from effect_networks.inference.design.active import explore, with_pool_prior
+from effect_networks.models.can_network import can_network, can_rows, config_index
+from effect_networks.models.declaration import EffectNetwork
+from effect_networks.sim2d import field_throws, geometry
+from effect_networks.sim2d.can_dataset import generate_dataset, load_dataset
+from effect_networks.sim2d.executors import open_executor
+from tqdm.auto import tqdm
 
 __all__ = [
     "LEARNERS",
@@ -419,13 +424,13 @@ class ActiveResult(Result):
 
         See :func:`experiments.active_report.markdown`.
         """
-        from experiments.active_report import markdown
+        from effect_networks.experiments.active_report import markdown
 
         return markdown(self)
 
     def figures(self, out: Path) -> list[Path]:
         """Draw the learning curves, ``active.png``, into the folder ``out``; its path."""
-        from experiments.active_report import plot_curves
+        from effect_networks.experiments.active_report import plot_curves
 
         return [plot_curves(self, out / "active.png")]
 

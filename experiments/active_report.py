@@ -9,12 +9,11 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-
-from experiments.active import GOAL_FRACTION, GOAL_POINTS, POINT_GOAL_S, SCORES
-from experiments.can_tossing import PROTOCOLS
+from effect_networks.experiments.active import GOAL_FRACTION, GOAL_POINTS, POINT_GOAL_S, SCORES
+from effect_networks.experiments.can_tossing import PROTOCOLS
 
 if TYPE_CHECKING:
-    from experiments.active import ActiveResult
+    from effect_networks.experiments.active import ActiveResult
 
 __all__ = ["markdown", "plot_curves"]
 

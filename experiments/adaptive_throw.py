@@ -48,17 +48,16 @@ from typing import ClassVar
 
 import numpy as np
 import torch
+from effect_networks.experiments.config import ConfigError, Result, check_float, check_int
+from effect_networks.experiments.parallel import forks, run_tasks
+from effect_networks.experiments.registry import Experiment
+from effect_networks.experiments.throwing import HIT_MARGIN_M, get_data, rms
+from effect_networks.inference import fit, fit_em, infer_parameter, parameter_for_effect
+from effect_networks.inference.design.active_gaussian import select_by_information
+from effect_networks.models.declaration import EffectNetwork
+from effect_networks.models.throw_network import TARGET, hit_evidence, throw_data, throw_network
+from effect_networks.sim2d.throw import TARGET_AREA, ReleaseNoise, sample_targets, throw
 from tqdm.auto import tqdm
-
-from experiments.config import ConfigError, Result, check_float, check_int
-from experiments.parallel import forks, run_tasks
-from experiments.registry import Experiment
-from experiments.throwing import HIT_MARGIN_M, get_data, rms
-from inference import fit, fit_em, infer_parameter, parameter_for_effect
-from inference.design.active_gaussian import select_by_information
-from models.declaration import EffectNetwork
-from models.throw_network import TARGET, hit_evidence, throw_data, throw_network
-from sim2d.throw import TARGET_AREA, ReleaseNoise, sample_targets, throw
 
 __all__ = [
     "QUERIES",
@@ -451,19 +450,19 @@ class AdaptiveThrowResult(Result):
 
         See :func:`experiments.adaptive_throw_report.markdown`.
         """
-        from experiments.adaptive_throw_report import markdown
+        from effect_networks.experiments.adaptive_throw_report import markdown
 
         return markdown(self)
 
     def figures(self, out: Path) -> list[Path]:
         """Draw the comparison, ``adaptive_throw.png``, into the folder ``out``; its path."""
-        from experiments.adaptive_throw_report import plot_adaptive_throw
+        from effect_networks.experiments.adaptive_throw_report import plot_adaptive_throw
 
         return [plot_adaptive_throw(self, out / "adaptive_throw.png")]
 
     def summary_rows(self, results) -> list[str]:
         """The results table's rows of both layouts (see ``Result.summary_rows``)."""
-        from experiments.adaptive_throw_report import summary_rows
+        from effect_networks.experiments.adaptive_throw_report import summary_rows
 
         return summary_rows(self)
 

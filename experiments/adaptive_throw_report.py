@@ -8,10 +8,10 @@ from __future__ import annotations
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from experiments.adaptive_throw import GOAL_FIT_S, GOAL_RMS_M, QUERIES
+from effect_networks.experiments.adaptive_throw import GOAL_FIT_S, GOAL_RMS_M, QUERIES
 
 if TYPE_CHECKING:
-    from experiments.adaptive_throw import AdaptiveThrowResult
+    from effect_networks.experiments.adaptive_throw import AdaptiveThrowResult
 
 __all__ = ["markdown", "plot_adaptive_throw", "summary_rows"]
 

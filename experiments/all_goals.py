@@ -39,10 +39,9 @@ from typing import ClassVar
 
 import numpy as np
 import torch
-
-from experiments.cans import SimulationSettings
-from experiments.combined import Robot, hit_gaussians
-from experiments.config import (
+from effect_networks.experiments.cans import SimulationSettings
+from effect_networks.experiments.combined import Robot, hit_gaussians
+from effect_networks.experiments.config import (
     ConfigError,
     Result,
     check_choice,
@@ -50,25 +49,31 @@ from experiments.config import (
     check_int,
     percent,
 )
-from experiments.physics_bounds import (
+from effect_networks.experiments.physics_bounds import (
     BOUND_SEED,
     cross_fitted_bound,
     empirical_transition,
     robot_throws,
 )
-from experiments.registry import Experiment
-from experiments.throwing import MAX_BINS, fit_throws, get_data
-from inference import compile as compile_queries
-from inference import fit, predict
-from inference.queries.chaining import BoxPartition, chain, link_probabilities
-from inference.queries.planning import exact_plan, paper_planner
-from models.can_network import can_network, can_rows
-from sim2d import geometry
-from sim2d.clock import simulating
-from sim2d.combined import CAN_BAND, TABLE_TOP_Z, exact_throws, play_policy, play_throw
-from sim2d.configurations import stable_configurations
-from sim2d.executors import open_executor
-from sim2d.throw import TARGET_AREA, ReleaseNoise, throw
+from effect_networks.experiments.registry import Experiment
+from effect_networks.experiments.throwing import MAX_BINS, fit_throws, get_data
+from effect_networks.inference import compile as compile_queries
+from effect_networks.inference import fit, predict
+from effect_networks.inference.queries.chaining import BoxPartition, chain, link_probabilities
+from effect_networks.inference.queries.planning import exact_plan, paper_planner
+from effect_networks.models.can_network import can_network, can_rows
+from effect_networks.sim2d import geometry
+from effect_networks.sim2d.clock import simulating
+from effect_networks.sim2d.combined import (
+    CAN_BAND,
+    TABLE_TOP_Z,
+    exact_throws,
+    play_policy,
+    play_throw,
+)
+from effect_networks.sim2d.configurations import stable_configurations
+from effect_networks.sim2d.executors import open_executor
+from effect_networks.sim2d.throw import TARGET_AREA, ReleaseNoise, throw
 
 __all__ = [
     "AllGoalsConfig",

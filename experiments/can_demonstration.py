@@ -47,14 +47,13 @@ from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
-
-from experiments.cans import CanDataSettings, CanModel, can_dataset, fit_can_network
-from experiments.config import Result, check_float, check_int
-from experiments.registry import Experiment
-from inference import explain
-from models.can_network import n_cans
-from sim2d import field_throws, geometry
-from sim2d.clock import simulation
+from effect_networks.experiments.cans import CanDataSettings, CanModel, can_dataset, fit_can_network
+from effect_networks.experiments.config import Result, check_float, check_int
+from effect_networks.experiments.registry import Experiment
+from effect_networks.inference import explain
+from effect_networks.models.can_network import n_cans
+from effect_networks.sim2d import field_throws, geometry
+from effect_networks.sim2d.clock import simulation
 
 __all__ = [
     "CanDemonstrationConfig",

@@ -42,23 +42,28 @@ from typing import ClassVar
 
 import numpy as np
 import torch
-from tqdm.auto import tqdm
-
-from experiments.cans import CanDataSettings, CanModel, can_dataset, choose, fit_can_network
-from experiments.config import Result, check_choice, check_float, check_int
-from experiments.evaluation import (
+from effect_networks.experiments.cans import (
+    CanDataSettings,
+    CanModel,
+    can_dataset,
+    choose,
+    fit_can_network,
+)
+from effect_networks.experiments.config import Result, check_choice, check_float, check_int
+from effect_networks.experiments.evaluation import (
     ACCURACY_BINS,
     accuracy_histogram,
     aim_pooled,
     roc_auc,
     tail_surprise,
 )
-from experiments.registry import Experiment
-from inference import imitation_check
-from models.can_network import config_index, n_cans
-from sim2d import field_throws, geometry, materials
-from sim2d.clock import simulation
-from sim2d.executors import open_executor
+from effect_networks.experiments.registry import Experiment
+from effect_networks.inference import imitation_check
+from effect_networks.models.can_network import config_index, n_cans
+from effect_networks.sim2d import field_throws, geometry, materials
+from effect_networks.sim2d.clock import simulation
+from effect_networks.sim2d.executors import open_executor
+from tqdm.auto import tqdm
 
 __all__ = [
     "CanTossingConfig",
@@ -539,7 +544,7 @@ class CanTossingResult(Result):
 
         See :func:`experiments.can_tossing_report.markdown`.
         """
-        from experiments.can_tossing_report import markdown
+        from effect_networks.experiments.can_tossing_report import markdown
 
         return markdown(self)
 
@@ -548,7 +553,7 @@ class CanTossingResult(Result):
 
         The second when the imitation has both classes.
         """
-        from experiments.can_tossing_report import plot_roc, plot_table_one
+        from effect_networks.experiments.can_tossing_report import plot_roc, plot_table_one
 
         files = [plot_table_one(self, out / "can_tossing_table1.png")]
         if self.imitation["auc"] is not None:
@@ -557,7 +562,7 @@ class CanTossingResult(Result):
 
     def summary_rows(self, results) -> list[str]:
         """Table I under both protocols beside the physics bound, emulation, imitation."""
-        from experiments.can_tossing_report import can_rows, table_one_rows
+        from effect_networks.experiments.can_tossing_report import can_rows, table_one_rows
 
         return table_one_rows(self, results.get("physics_bounds")) + can_rows(self)
 

@@ -9,14 +9,13 @@ from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-
-from experiments.can_tossing import PAPER_CASES, PAPER_PERCENT, PAPER_TABLE_I
-from experiments.config import percent
-from experiments.evaluation import ACCURACY_BINS, roc_curve
+from effect_networks.experiments.can_tossing import PAPER_CASES, PAPER_PERCENT, PAPER_TABLE_I
+from effect_networks.experiments.config import percent
+from effect_networks.experiments.evaluation import ACCURACY_BINS, roc_curve
 
 if TYPE_CHECKING:
-    from experiments.can_tossing import CanTossingResult
-    from experiments.physics_bounds import PhysicsBoundsResult
+    from effect_networks.experiments.can_tossing import CanTossingResult
+    from effect_networks.experiments.physics_bounds import PhysicsBoundsResult
 
 __all__ = [
     "TABLE_I_PROTOCOLS",

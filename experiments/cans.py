@@ -19,16 +19,15 @@ from pathlib import Path
 
 import numpy as np
 import torch
-
-from experiments.config import check_choice, check_executor
-from experiments.evaluation import aim_robust_best
-from inference import CompiledQueries, fit, predict
-from inference import compile as compile_queries
-from models import EffectNetwork, NetworkParams
-from models.can_network import can_network, can_rows
-from sim2d import field_throws, geometry
-from sim2d.can_dataset import CanDataset, generate_dataset, load_dataset
-from sim2d.configurations import cache_dir, stable_configurations
+from effect_networks.experiments.config import check_choice, check_executor
+from effect_networks.experiments.evaluation import aim_robust_best
+from effect_networks.inference import CompiledQueries, fit, predict
+from effect_networks.inference import compile as compile_queries
+from effect_networks.models import EffectNetwork, NetworkParams
+from effect_networks.models.can_network import can_network, can_rows
+from effect_networks.sim2d import field_throws, geometry
+from effect_networks.sim2d.can_dataset import CanDataset, generate_dataset, load_dataset
+from effect_networks.sim2d.configurations import cache_dir, stable_configurations
 
 __all__ = [
     "SCALES",

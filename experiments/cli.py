@@ -25,8 +25,8 @@ import types
 import typing
 from pathlib import Path
 
-from experiments.config import check_threads, config_or_exit, run_script
-from experiments.registry import Experiment, experiment
+from effect_networks.experiments.config import check_threads, config_or_exit, run_script
+from effect_networks.experiments.registry import Experiment, experiment
 
 __all__ = ["field_help", "main", "make_parser", "parse_args"]
 

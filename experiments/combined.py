@@ -32,28 +32,27 @@ from typing import ClassVar
 
 import numpy as np
 import torch
-from tqdm.auto import tqdm
-
-from experiments.cans import CanDataSettings, CanModel, can_dataset, fit_can_network
-from experiments.config import (
+from effect_networks.experiments.cans import CanDataSettings, CanModel, can_dataset, fit_can_network
+from effect_networks.experiments.config import (
     Result,
     check_choice,
     check_float,
     check_int,
     percent,
 )
-from experiments.registry import Experiment
-from experiments.throwing import MAX_BINS, fit_throws, get_data
-from inference import GaussianMixture, predict
-from inference import compile as compile_queries
-from inference.queries.chaining import BoxPartition, chain, link_probabilities
-from inference.queries.planning import exact_plan, paper_planner
-from models.throw_network import TARGET
-from sim2d import geometry, materials
-from sim2d.combined import CAN_BAND, TABLE_TOP_Z, first_contact, play_throw, settle
-from sim2d.configurations import stable_configurations
-from sim2d.field_throws import aim_offset, launch_state
-from sim2d.throw import TARGET_AREA, ReleaseNoise, throw
+from effect_networks.experiments.registry import Experiment
+from effect_networks.experiments.throwing import MAX_BINS, fit_throws, get_data
+from effect_networks.inference import GaussianMixture, predict
+from effect_networks.inference import compile as compile_queries
+from effect_networks.inference.queries.chaining import BoxPartition, chain, link_probabilities
+from effect_networks.inference.queries.planning import exact_plan, paper_planner
+from effect_networks.models.throw_network import TARGET
+from effect_networks.sim2d import geometry, materials
+from effect_networks.sim2d.combined import CAN_BAND, TABLE_TOP_Z, first_contact, play_throw, settle
+from effect_networks.sim2d.configurations import stable_configurations
+from effect_networks.sim2d.field_throws import aim_offset, launch_state
+from effect_networks.sim2d.throw import TARGET_AREA, ReleaseNoise, throw
+from tqdm.auto import tqdm
 
 __all__ = [
     "CombinedConfig",

@@ -27,9 +27,9 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, ClassVar, TypeVar
 
-from experiments.steps import write_step_record
-from sim2d.chunks import write_failure, write_text
-from sim2d.executors import ExecutorUnavailable, available_cores, parse_spec
+from effect_networks.experiments.steps import write_step_record
+from effect_networks.sim2d.chunks import write_failure, write_text
+from effect_networks.sim2d.executors import ExecutorUnavailable, available_cores, parse_spec
 
 __all__ = [
     "ConfigError",

@@ -24,12 +24,11 @@ from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
-
-from experiments.config import Result, check_float, check_int
-from experiments.registry import Experiment
-from inference import explain, fit
-from inference.queries.demonstration import simulate_demonstrations
-from models import Discrete, EffectNetwork
+from effect_networks.experiments.config import Result, check_float, check_int
+from effect_networks.experiments.registry import Experiment
+from effect_networks.inference import explain, fit
+from effect_networks.inference.queries.demonstration import simulate_demonstrations
+from effect_networks.models import Discrete, EffectNetwork
 
 __all__ = [
     "DemonstrationConfig",

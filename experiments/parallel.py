@@ -26,9 +26,8 @@ import multiprocessing
 from collections.abc import Callable, Sequence
 from typing import TypeVar
 
+from effect_networks.sim2d.executors import available_cores
 from tqdm.auto import tqdm
-
-from sim2d.executors import available_cores
 
 __all__ = ["forks", "resolve_workers", "run_tasks"]
 

@@ -28,24 +28,28 @@ from typing import ClassVar
 
 import numpy as np
 import torch
-
-from experiments.can_tossing import ANGLE, PROTOCOLS, table_one_cases
-from experiments.cans import SCALES, CanDataSettings, can_dataset, start_configurations
-from experiments.combined import MAX_HORIZON, SCENARIOS
-from experiments.config import (
+from effect_networks.experiments.can_tossing import ANGLE, PROTOCOLS, table_one_cases
+from effect_networks.experiments.cans import (
+    SCALES,
+    CanDataSettings,
+    can_dataset,
+    start_configurations,
+)
+from effect_networks.experiments.combined import MAX_HORIZON, SCENARIOS
+from effect_networks.experiments.config import (
     ConfigError,
     Result,
     check_float,
     check_int,
 )
-from experiments.registry import Experiment
-from inference.queries.planning import exact_plan, policy_value
-from sim2d import field_throws, geometry
-from sim2d.can_dataset import generate_dataset, load_dataset
-from sim2d.combined import TABLE_TOP_Z, reachable_throws
-from sim2d.configurations import stable_configurations
-from sim2d.executors import open_executor
-from sim2d.throw import TARGET_AREA
+from effect_networks.experiments.registry import Experiment
+from effect_networks.inference.queries.planning import exact_plan, policy_value
+from effect_networks.sim2d import field_throws, geometry
+from effect_networks.sim2d.can_dataset import generate_dataset, load_dataset
+from effect_networks.sim2d.combined import TABLE_TOP_Z, reachable_throws
+from effect_networks.sim2d.configurations import stable_configurations
+from effect_networks.sim2d.executors import open_executor
+from effect_networks.sim2d.throw import TARGET_AREA
 
 __all__ = [
     "PhysicsBoundsConfig",
@@ -330,7 +334,7 @@ class PhysicsBoundsResult(Result):
         """
         if "can_tossing" in results:
             return []
-        from experiments.can_tossing_report import table_one_rows
+        from effect_networks.experiments.can_tossing_report import table_one_rows
 
         return table_one_rows(None, self)
 

@@ -16,14 +16,19 @@ from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
-
-from experiments.config import ConfigError, Result, check_float, check_int
-from experiments.registry import Experiment
-from sim2d import geometry, recording, render
-from sim2d.configurations import check_config
-from sim2d.field_throws import check_throwable
-from sim2d.throw import TARGET_AREA, ReleaseNoise, is_reachable_hit, sample_targets, throw
-from sim2d.throw_plot import plot_flight_paths, plot_target_to_hit
+from effect_networks.experiments.config import ConfigError, Result, check_float, check_int
+from effect_networks.experiments.registry import Experiment
+from effect_networks.sim2d import geometry, recording, render
+from effect_networks.sim2d.configurations import check_config
+from effect_networks.sim2d.field_throws import check_throwable
+from effect_networks.sim2d.throw import (
+    TARGET_AREA,
+    ReleaseNoise,
+    is_reachable_hit,
+    sample_targets,
+    throw,
+)
+from effect_networks.sim2d.throw_plot import plot_flight_paths, plot_target_to_hit
 
 __all__ = [
     "CanWorldConfig",

@@ -22,7 +22,7 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
-from experiments.config import Result
+from effect_networks.experiments.config import Result
 
 __all__ = ["Experiment", "experiment", "experiments"]
 
@@ -99,11 +99,13 @@ class Experiment:
 
 @functools.cache
 def _registry() -> Mapping[str, Experiment]:
-    import experiments as package
+    from effect_networks import experiments as package
 
     found: list[Experiment] = []
     for module in pkgutil.iter_modules(package.__path__):
-        found += getattr(importlib.import_module(f"experiments.{module.name}"), "EXPERIMENTS", ())
+        found += getattr(
+            importlib.import_module(f"effect_networks.experiments.{module.name}"), "EXPERIMENTS", ()
+        )
     found.sort(key=lambda e: e.order)
     names = [e.name for e in found]
     assert len(set(names)) == len(names), f"experiments declared twice: {names}"

@@ -17,7 +17,7 @@ import sys
 from dataclasses import asdict, dataclass
 from pathlib import Path
 
-from sim2d.clock import simulation_seconds
+from effect_networks.sim2d.clock import simulation_seconds
 
 __all__ = [
     "STEP_RECORD_ENV",

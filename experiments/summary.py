@@ -27,9 +27,9 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from experiments.config import Result
-from experiments.registry import experiments
-from sim2d.executors import available_cores
+from effect_networks.experiments.config import Result
+from effect_networks.experiments.registry import experiments
+from effect_networks.sim2d.executors import available_cores
 
 __all__ = [
     "BEGIN",

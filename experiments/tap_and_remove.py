@@ -19,11 +19,10 @@ from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
-
-from experiments.config import Result, check_int
-from experiments.registry import Experiment
-from inference import fit, imitation_check, infer_action, predict
-from models import Continuous, Discrete, EffectNetwork, Parameter
+from effect_networks.experiments.config import Result, check_int
+from effect_networks.experiments.registry import Experiment
+from effect_networks.inference import fit, imitation_check, infer_action, predict
+from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter
 
 __all__ = [
     "TapAndRemoveConfig",

@@ -28,13 +28,11 @@ from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
-from tqdm.auto import tqdm
-
-from experiments.config import ConfigError, Result, check_int
-from experiments.registry import Experiment
-from inference import fit, infer_parameter
-from models.throw_network import TARGET, hit_evidence, throw_data, throw_network
-from sim2d.throw import (
+from effect_networks.experiments.config import ConfigError, Result, check_int
+from effect_networks.experiments.registry import Experiment
+from effect_networks.inference import fit, infer_parameter
+from effect_networks.models.throw_network import TARGET, hit_evidence, throw_data, throw_network
+from effect_networks.sim2d.throw import (
     TARGET_AREA,
     ReleaseNoise,
     is_reachable_hit,
@@ -42,6 +40,7 @@ from sim2d.throw import (
     sample_targets,
     throw,
 )
+from tqdm.auto import tqdm
 
 __all__ = [
     "QUICK",

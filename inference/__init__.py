@@ -22,16 +22,21 @@ as another's actions. Active exploration
 numbers (matplotlib, drawn into the caller's axes): the module :mod:`inference.plots`.
 
 Lower-level names live in their modules (:mod:`inference.queries.enumeration`,
-:mod:`inference.fitting.statistics`, ...); the ones this face used to export still
-resolve here for one release, with a ``DeprecationWarning``.
+:mod:`inference.fitting.statistics`, ...).
 """
 
-from inference import plots as plots  # the module only: its names stay off the face
-from inference.design.active import explore
-from inference.fitting.em import EMResult, fit_em
-from inference.fitting.fit import ConvergenceWarning, FitResult, fit, fit_gradient, fit_statistics
-from inference.fitting.pooling import fit_pooled, grid_kernel
-from inference.fitting.scores import (
+from effect_networks.inference import plots as plots  # the module only: its names stay off the face
+from effect_networks.inference.design.active import explore
+from effect_networks.inference.fitting.em import EMResult, fit_em
+from effect_networks.inference.fitting.fit import (
+    ConvergenceWarning,
+    FitResult,
+    fit,
+    fit_gradient,
+    fit_statistics,
+)
+from effect_networks.inference.fitting.pooling import fit_pooled, grid_kernel
+from effect_networks.inference.fitting.scores import (
     CrossValidation,
     LogLikelihood,
     aic,
@@ -40,10 +45,10 @@ from inference.fitting.scores import (
     log_likelihood,
     n_parameters,
 )
-from inference.fitting.selection import ClusterSelection, select_clusters
-from inference.fitting.statistics import params_from_statistics
-from inference.fitting.structure import learn_structure
-from inference.queries import (
+from effect_networks.inference.fitting.selection import ClusterSelection, select_clusters
+from effect_networks.inference.fitting.statistics import params_from_statistics
+from effect_networks.inference.fitting.structure import learn_structure
+from effect_networks.inference.queries import (
     ActionPosterior,
     BoxPartition,
     CompiledQueries,
@@ -69,11 +74,10 @@ from inference.queries import (
     predict,
     predict_joint,
 )
-from inference.queries.explain import Explanation, explain
-from inference.queries.plausibility import OutsideTrainingData
-from inference.queries.simulate import simulate
-from inference.queries.transitions import transitions
-from models.deprecation import moved
+from effect_networks.inference.queries.explain import Explanation, explain
+from effect_networks.inference.queries.plausibility import OutsideTrainingData
+from effect_networks.inference.queries.simulate import simulate
+from effect_networks.inference.queries.transitions import transitions
 
 __all__ = [
     "ActionPosterior",
@@ -127,17 +131,3 @@ __all__ = [
     "simulate",
     "transitions",
 ]
-
-#: Lower-level names this face used to export -> the module that holds them.
-DEPRECATED = {
-    "Enumerated": "inference.queries.enumeration",
-    "enumerate_model": "inference.queries.enumeration",
-    "Statistics": "inference.fitting.statistics",
-}
-
-
-__getattr__ = moved(
-    __name__,
-    DEPRECATED,
-    "inference.{name} is deprecated at the package face: import it from {home}",
-)

@@ -1,6 +1,6 @@
 """Effect networks as Pyro models: declarations, fitted parameters, the model function."""
 
-from models.cpds import (
+from effect_networks.models.cpds import (
     CPD,
     KINDS,
     LinearGaussianCPD,
@@ -11,7 +11,7 @@ from models.cpds import (
     TableCPD,
     TableParams,
 )
-from models.declaration import (
+from effect_networks.models.declaration import (
     ACTION,
     Continuous,
     Discrete,
@@ -22,18 +22,11 @@ from models.declaration import (
     initial_site,
     param_site,
 )
-from models.deprecation import renamed
-from models.evidence import Evidence, Partial
-from models.frames import from_frame, to_frame
-from models.interop import PgmpyNetwork, from_pgmpy, read_bif, to_pgmpy, write_bif
-from models.model import effect_model
-from models.params import NetworkParams, load, random_params, save
-
-#: The containers' names before they were named for their kinds, for one release.
-__getattr__ = renamed(
-    __name__,
-    {"Table": "TableParams", "Softmax": "SoftmaxParams", "LinearGaussian": "LinearGaussianParams"},
-)
+from effect_networks.models.evidence import Evidence, Partial
+from effect_networks.models.frames import from_frame, to_frame
+from effect_networks.models.interop import PgmpyNetwork, from_pgmpy, read_bif, to_pgmpy, write_bif
+from effect_networks.models.model import effect_model
+from effect_networks.models.params import NetworkParams, load, random_params, save
 
 __all__ = [
     "ACTION",

@@ -23,10 +23,8 @@ from collections.abc import Sequence
 
 import numpy as np
 import torch
-
-from models.declaration import Discrete, EffectNetwork
-from models.deprecation import renamed
-from models.evidence import Evidence
+from effect_networks.models.declaration import Discrete, EffectNetwork
+from effect_networks.models.evidence import Evidence
 
 N_FIELDS = 195
 N_CANS = 10
@@ -94,8 +92,3 @@ def n_cans(masks: np.ndarray) -> np.ndarray:
     return np.array([bin(int(m)).count("1") for m in masks.reshape(-1)], dtype=np.int64).reshape(
         masks.shape
     )
-
-
-__getattr__ = renamed(
-    __name__, {"count": "n_cans"}, "count is the network's feature; n_cans the function"
-)

@@ -32,14 +32,27 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass, field
 
 import torch
-
-from models.cpds import CPD, KINDS, ParameterMixture
-from models.dtype import DTYPE
-from models.evidence import Evidence, decode, encode
-from models.features import LAYOUTS, Continuous, Discrete, Feature, FeatureKind, Parameter
-from models.frames import as_data
-from models.sites import ACTION, SiteSpec, cluster_site, end_site, initial_site, param_site
-from models.structure import (
+from effect_networks.models.cpds import CPD, KINDS, ParameterMixture
+from effect_networks.models.dtype import DTYPE
+from effect_networks.models.evidence import Evidence, decode, encode
+from effect_networks.models.features import (
+    LAYOUTS,
+    Continuous,
+    Discrete,
+    Feature,
+    FeatureKind,
+    Parameter,
+)
+from effect_networks.models.frames import as_data
+from effect_networks.models.sites import (
+    ACTION,
+    SiteSpec,
+    cluster_site,
+    end_site,
+    initial_site,
+    param_site,
+)
+from effect_networks.models.structure import (
     MAX_CPD_ENTRIES,
     build_cpds,
     check_declaration,

@@ -40,10 +40,9 @@ from typing import Protocol
 
 import numpy as np
 import torch
-
-from models.dtype import DTYPE, MAX_MAGNITUDE
-from models.features import Feature
-from models.sites import SiteSpec
+from effect_networks.models.dtype import DTYPE, MAX_MAGNITUDE
+from effect_networks.models.features import Feature
+from effect_networks.models.sites import SiteSpec
 
 __all__ = [
     "DTYPE",

@@ -15,8 +15,7 @@ from typing import Literal
 
 import numpy as np
 import torch
-
-from models.dtype import DTYPE
+from effect_networks.models.dtype import DTYPE
 
 FeatureKind = Literal["object", "meta", "world"]
 _KINDS = ("object", "meta", "world")

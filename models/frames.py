@@ -48,9 +48,8 @@ from typing import Any, Literal
 
 import numpy as np
 import torch
-
-from models.evidence import Evidence, Network, Partial, labels
-from models.sites import SiteSpec
+from effect_networks.models.evidence import Evidence, Network, Partial, labels
+from effect_networks.models.sites import SiteSpec
 
 __all__ = ["as_data", "columns", "from_frame", "is_frame", "require_pandas", "to_frame"]
 

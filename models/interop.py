@@ -41,8 +41,7 @@ from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 import torch
-
-from models.declaration import (
+from effect_networks.models.declaration import (
     ACTION,
     DTYPE,
     Discrete,
@@ -51,7 +50,7 @@ from models.declaration import (
     end_site,
     initial_site,
 )
-from models.params import NetworkParams, TableParams, check_params
+from effect_networks.models.params import NetworkParams, TableParams, check_params
 
 if TYPE_CHECKING:
     from pgmpy.models import DiscreteBayesianNetwork

@@ -72,15 +72,14 @@ from collections.abc import Collection, Mapping
 import pyro
 import pyro.distributions as dist
 import torch
+from effect_networks.models.cpds import ParameterMixture, concat_inputs
+from effect_networks.models.cpds.mixture import affected_gaussian
+from effect_networks.models.declaration import EffectNetwork
+from effect_networks.models.dtype import DTYPE
+from effect_networks.models.evidence import Evidence, is_partial
+from effect_networks.models.gaussian import partial_log_density
+from effect_networks.models.params import NetworkParams, check_bound
 from pyro import poutine
-
-from models.cpds import ParameterMixture, concat_inputs
-from models.cpds.mixture import affected_gaussian
-from models.declaration import EffectNetwork
-from models.dtype import DTYPE
-from models.evidence import Evidence, is_partial
-from models.gaussian import partial_log_density
-from models.params import NetworkParams, check_bound
 
 ENUM = {"enumerate": "parallel"}
 

@@ -23,11 +23,14 @@ from pathlib import Path
 
 import numpy as np
 import torch
-
-from models.cpds import CPD as KindCPD
-from models.cpds import LinearGaussianParams, SoftmaxParams, TableParams, map_tensors
-from models.declaration import EffectNetwork
-from models.deprecation import renamed
+from effect_networks.models.cpds import CPD as KindCPD
+from effect_networks.models.cpds import (
+    LinearGaussianParams,
+    SoftmaxParams,
+    TableParams,
+    map_tensors,
+)
+from effect_networks.models.declaration import EffectNetwork
 
 FORMAT = "effect-networks"
 #: Version 2 added the content checksum (``sha256``); files of other versions are refused.
@@ -51,18 +54,6 @@ SAVED_NAMES: dict[type, str] = {
     SoftmaxParams: "Softmax",
     LinearGaussianParams: "LinearGaussian",
 }
-
-#: Names before the rename, for one release (``CPD`` was this module's name for
-#: :data:`SiteParams`, which :class:`models.cpds.CPD`, the kind, shares).
-__getattr__ = renamed(
-    __name__,
-    {
-        "Table": "TableParams",
-        "Softmax": "SoftmaxParams",
-        "LinearGaussian": "LinearGaussianParams",
-        "CPD": "SiteParams",
-    },
-)
 
 
 def saved_name(container: type) -> str:

@@ -18,8 +18,7 @@ from collections.abc import Iterable, Mapping
 from typing import Literal
 
 import torch
-
-from models.cpds import (
+from effect_networks.models.cpds import (
     CPD,
     KINDS,
     LinearGaussianCPD,
@@ -27,8 +26,15 @@ from models.cpds import (
     TableCPD,
     default_kind,
 )
-from models.features import Continuous, Discrete, Feature, Parameter
-from models.sites import ACTION, SiteSpec, cluster_site, end_site, initial_site, param_site
+from effect_networks.models.features import Continuous, Discrete, Feature, Parameter
+from effect_networks.models.sites import (
+    ACTION,
+    SiteSpec,
+    cluster_site,
+    end_site,
+    initial_site,
+    param_site,
+)
 
 #: The most numbers one site's conditional distribution may hold, all its tensors
 #: together (a table: parent configurations x states; a linear Gaussian: configurations x

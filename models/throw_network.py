@@ -29,8 +29,7 @@ from collections.abc import Sequence
 
 import numpy as np
 import torch
-
-from models.declaration import (
+from effect_networks.models.declaration import (
     ACTION,
     DTYPE,
     Continuous,

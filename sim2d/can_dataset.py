@@ -58,9 +58,8 @@ from dataclasses import field as dataclass_field
 from pathlib import Path
 
 import numpy as np
-
-from sim2d import geometry, materials
-from sim2d.chunks import (
+from effect_networks.sim2d import geometry, materials
+from effect_networks.sim2d.chunks import (
     ChunkWarning,
     locked,
     read_npz,
@@ -68,11 +67,21 @@ from sim2d.chunks import (
     run_chunks,
     save_npz,
 )
-from sim2d.configurations import SETTLE_TIME, STABLE_TOLERANCE, stable_configurations
-from sim2d.executors import parse_spec
-from sim2d.field_throws import aim_offset, aim_seed, is_throwable, launch_state, outcome_of
-from sim2d.validation import as_int, check_index
-from sim2d.world import run_ball
+from effect_networks.sim2d.configurations import (
+    SETTLE_TIME,
+    STABLE_TOLERANCE,
+    stable_configurations,
+)
+from effect_networks.sim2d.executors import parse_spec
+from effect_networks.sim2d.field_throws import (
+    aim_offset,
+    aim_seed,
+    is_throwable,
+    launch_state,
+    outcome_of,
+)
+from effect_networks.sim2d.validation import as_int, check_index
+from effect_networks.sim2d.world import run_ball
 
 __all__ = ["FORMAT_VERSION", "CanDataset", "generate_dataset", "load_dataset"]
 

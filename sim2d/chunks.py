@@ -43,9 +43,8 @@ from collections.abc import Callable, Iterator, Sequence
 from pathlib import Path
 
 import numpy as np
-
-from sim2d.clock import simulating
-from sim2d.executors import as_finished, open_executor
+from effect_networks.sim2d.clock import simulating
+from effect_networks.sim2d.executors import as_finished, open_executor
 
 __all__ = [
     "WRITE_ERRNOS",

@@ -21,12 +21,11 @@ from collections.abc import Iterable, Sequence
 from pathlib import Path
 
 import numpy as np
-
-from sim2d import geometry, materials
-from sim2d.chunks import locked, read_npz, run_chunks
-from sim2d.configurations import stable_configurations
-from sim2d.field_throws import aim_offset, launch_state, play_ball
-from sim2d.throw import ReleaseNoise, exact_target_for_hit, is_reachable_hit, throw
+from effect_networks.sim2d import geometry, materials
+from effect_networks.sim2d.chunks import locked, read_npz, run_chunks
+from effect_networks.sim2d.configurations import stable_configurations
+from effect_networks.sim2d.field_throws import aim_offset, launch_state, play_ball
+from effect_networks.sim2d.throw import ReleaseNoise, exact_target_for_hit, is_reachable_hit, throw
 
 #: m, the table top above the robot's floor: a standard table. The pyramid then spans
 #: 0.75-1.39 m, inside the throw's reachable hits (0.35-1.63 m near y = 0).

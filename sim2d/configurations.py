@@ -30,10 +30,10 @@ import warnings
 from functools import lru_cache
 from pathlib import Path
 
-from sim2d import geometry, materials, world
-from sim2d.chunks import write_text
-from sim2d.clock import simulating, simulation
-from sim2d.executors import open_executor
+from effect_networks.sim2d import geometry, materials, world
+from effect_networks.sim2d.chunks import write_text
+from effect_networks.sim2d.clock import simulating, simulation
+from effect_networks.sim2d.executors import open_executor
 
 __all__ = [
     "SETTLE_TIME",

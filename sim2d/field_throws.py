@@ -23,10 +23,9 @@ import math
 from dataclasses import dataclass
 
 import numpy as np
-
-from sim2d import materials as m
-from sim2d.configurations import check_config
-from sim2d.geometry import (
+from effect_networks.sim2d import materials as m
+from effect_networks.sim2d.configurations import check_config
+from effect_networks.sim2d.geometry import (
     ANGLES,
     CAN_HEIGHT,
     CAN_WIDTH,
@@ -38,8 +37,8 @@ from sim2d.geometry import (
     field_centres,
     mask_to_cans,
 )
-from sim2d.validation import as_int, check_index, check_vector
-from sim2d.world import Run, run_ball
+from effect_networks.sim2d.validation import as_int, check_index, check_vector
+from effect_networks.sim2d.world import Run, run_ball
 
 __all__ = [
     "ThrowOutcome",

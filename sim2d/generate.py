@@ -1,10 +1,10 @@
 """Generate the can data set from the command line, on any executor.
 
-    python -m sim2d.generate data/can_dataset.npz                       # every core here
-    python -m sim2d.generate data/can_dataset.npz --executor dask-local:8
-    python -m sim2d.generate data/can_dataset.npz --executor dask://scheduler:8786
-    python -m sim2d.generate data/can_dataset.npz --executor ray
-    python -m sim2d.generate small.npz --configs 15 1023 --angles 0 --repeats 1
+    python -m effect_networks.sim2d.generate data/can_dataset.npz                       # every core here
+    python -m effect_networks.sim2d.generate data/can_dataset.npz --executor dask-local:8
+    python -m effect_networks.sim2d.generate data/can_dataset.npz --executor dask://scheduler:8786
+    python -m effect_networks.sim2d.generate data/can_dataset.npz --executor ray
+    python -m effect_networks.sim2d.generate small.npz --configs 15 1023 --angles 0 --repeats 1
 
 Defaults give the full data set (every stable configuration x 195 fields x 3 angles x 3
 repeats). An interrupted run resumes where it stopped when started again with the same
@@ -19,9 +19,9 @@ import argparse
 import sys
 import time
 
-from sim2d.can_dataset import generate_dataset, load_dataset
-from sim2d.chunks import write_failure
-from sim2d.executors import default_spec, parse_spec
+from effect_networks.sim2d.can_dataset import generate_dataset, load_dataset
+from effect_networks.sim2d.chunks import write_failure
+from effect_networks.sim2d.executors import default_spec, parse_spec
 
 __all__ = ["main"]
 
@@ -37,7 +37,7 @@ def _executor(text: str) -> str:
 def main(argv=None) -> int:
     """Run the command line; returns the exit status."""
     parser = argparse.ArgumentParser(
-        prog="python -m sim2d.generate",
+        prog="python -m effect_networks.sim2d.generate",
         description=__doc__.splitlines()[0],
         formatter_class=argparse.RawDescriptionHelpFormatter,
         epilog="\n".join(__doc__.splitlines()[2:8]),

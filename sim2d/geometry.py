@@ -44,8 +44,7 @@ from __future__ import annotations
 from functools import lru_cache
 
 import numpy as np
-
-from sim2d.validation import check_index
+from effect_networks.sim2d.validation import check_index
 
 __all__ = [
     "ANGLES",

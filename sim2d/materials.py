@@ -18,8 +18,7 @@ import math
 from dataclasses import dataclass
 
 import pymunk
-
-from sim2d import geometry
+from effect_networks.sim2d import geometry
 
 __all__ = [
     "BALL_ELASTICITY_SHAPE",

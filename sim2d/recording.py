@@ -10,10 +10,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
-from sim2d import materials as m
-from sim2d.field_throws import ThrowOutcome, field_launch, outcome_of
-from sim2d.world import run_ball
+from effect_networks.sim2d import materials as m
+from effect_networks.sim2d.field_throws import ThrowOutcome, field_launch, outcome_of
+from effect_networks.sim2d.world import run_ball
 
 __all__ = ["ThrowRecording", "record_throw"]
 

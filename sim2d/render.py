@@ -9,12 +9,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-
-from sim2d import geometry as g
-from sim2d import materials as m
-from sim2d.field_throws import is_throwable, launch_state
-from sim2d.geometry import mask_to_cans
-from sim2d.recording import ThrowRecording
+from effect_networks.sim2d import geometry as g
+from effect_networks.sim2d import materials as m
+from effect_networks.sim2d.field_throws import is_throwable, launch_state
+from effect_networks.sim2d.geometry import mask_to_cans
+from effect_networks.sim2d.recording import ThrowRecording
 
 __all__ = ["animate_throw", "plot_pyramid", "plot_throw"]
 

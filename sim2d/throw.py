@@ -60,9 +60,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-
-from sim2d.clock import simulation
-from sim2d.materials import GRAVITY
+from effect_networks.sim2d.clock import simulation
+from effect_networks.sim2d.materials import GRAVITY
 
 __all__ = [
     "FOREARM_LENGTH",

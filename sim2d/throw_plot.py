@@ -9,9 +9,8 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-
-from sim2d.materials import GRAVITY
-from sim2d.throw import (
+from effect_networks.sim2d.materials import GRAVITY
+from effect_networks.sim2d.throw import (
     PITCH_LIMITS_DEG,
     SHOULDER,
     TARGET_AREA,

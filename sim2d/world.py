@@ -41,14 +41,9 @@ from dataclasses import dataclass
 
 import numpy as np
 import pymunk
-
-# pymunk's cffi binding of Chipmunk: the C step and body getters without the Python
-# wrappers' bookkeeping (see the module docstring; tested equal to the public API).
-from pymunk._chipmunk import lib as _cp
-
-from sim2d import materials as m
-from sim2d.clock import simulation
-from sim2d.geometry import (
+from effect_networks.sim2d import materials as m
+from effect_networks.sim2d.clock import simulation
+from effect_networks.sim2d.geometry import (
     CAN_HEIGHT,
     CAN_WIDTH,
     N_CANS,
@@ -57,6 +52,10 @@ from sim2d.geometry import (
     can_positions,
     mask_to_cans,
 )
+
+# pymunk's cffi binding of Chipmunk: the C step and body getters without the Python
+# wrappers' bookkeeping (see the module docstring; tested equal to the public API).
+from pymunk._chipmunk import lib as _cp
 
 __all__ = [
     "BALL_TYPE",

@@ -15,7 +15,7 @@ torch.set_num_threads(1)
 def tiny_data_dir(tmp_path_factory):
     """A data folder holding the tiny can data set (3 configurations, one repeat), made once
     for the session and shared by the experiments' and the examples' tests."""
-    from experiments.cans import can_dataset
+    from effect_networks.experiments.cans import can_dataset
 
     folder = tmp_path_factory.mktemp("data")
     can_dataset(folder, "tiny", progress=False)

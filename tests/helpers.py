@@ -8,11 +8,10 @@ from concurrent.futures import Future
 from pathlib import Path
 
 import torch
-
-from models import Continuous, Discrete, EffectNetwork, Parameter, random_params
-from models.cpds import LinearGaussianParams, TableParams
-from models.declaration import DTYPE
-from models.params import NetworkParams
+from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter, random_params
+from effect_networks.models.cpds import LinearGaussianParams, TableParams
+from effect_networks.models.declaration import DTYPE
+from effect_networks.models.params import NetworkParams
 
 EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
 

@@ -21,7 +21,7 @@ def test_wheel_installs_and_runs_the_readme_snippet():
         [str(ROOT / ".ci" / "wheel-check")], env=env, capture_output=True, text=True
     )
     assert done.returncode == 0, done.stdout + done.stderr
-    assert "installs and runs README's first snippet" in done.stdout
+    assert "installs and runs README's snippets" in done.stdout
 
 
 def project() -> dict:
@@ -51,7 +51,7 @@ def test_extras_by_purpose_and_dev_installs_them_all():
 
 
 def test_a_missing_pgmpy_names_the_interop_extra(monkeypatch):
-    from models import interop
+    from effect_networks.models import interop
 
     monkeypatch.setitem(sys.modules, "pgmpy", None)  # import pgmpy now raises ImportError
     monkeypatch.setitem(sys.modules, "pgmpy.models", None)
@@ -65,7 +65,7 @@ def test_a_missing_pgmpy_names_the_interop_extra(monkeypatch):
 
 @pytest.mark.parametrize(("spec", "module"), [("dask-local:1", "distributed"), ("ray", "ray")])
 def test_a_missing_cluster_library_names_the_cluster_extra(monkeypatch, spec, module):
-    from sim2d.executors import open_executor
+    from effect_networks.sim2d.executors import open_executor
 
     monkeypatch.setitem(sys.modules, module, None)
     with pytest.raises(ImportError, match=r"effect-networks\[cluster\]"):

@@ -21,10 +21,9 @@ from pathlib import Path
 
 import matplotlib.pyplot as plt
 import pandas as pd
-
-from inference import fit, infer_action, simulate
-from inference.plots import plot_action_posterior
-from models import Continuous, Discrete, EffectNetwork, Parameter, random_params
+from effect_networks.inference import fit, infer_action, simulate
+from effect_networks.inference.plots import plot_action_posterior
+from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter, random_params
 
 parser = argparse.ArgumentParser(description="Rows through a CSV file.")
 parser.add_argument("--out", type=Path, default=Path(tempfile.mkdtemp()) / "rows.csv")

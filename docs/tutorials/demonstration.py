@@ -18,11 +18,10 @@ import os
 
 import matplotlib.pyplot as plt
 import numpy as np
-
-from inference import explain, fit
-from inference.plots import plot_demonstration
-from inference.queries.demonstration import simulate_demonstrations
-from models import Continuous, Discrete, EffectNetwork, Parameter
+from effect_networks.inference import explain, fit
+from effect_networks.inference.plots import plot_demonstration
+from effect_networks.inference.queries.demonstration import simulate_demonstrations
+from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter
 
 TINY = os.environ.get("EFFECT_NETWORKS_TUTORIALS") == "tiny"
 ROWS = 500 if TINY else 2000  # training rows

@@ -20,10 +20,9 @@ import os
 
 import matplotlib.pyplot as plt
 import numpy as np
-
-from inference import bic, cross_validate, fit, learn_structure
-from inference.plots import plot_network
-from models import Continuous, Discrete, EffectNetwork, Parameter, to_frame
+from effect_networks.inference import bic, cross_validate, fit, learn_structure
+from effect_networks.inference.plots import plot_network
+from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter, to_frame
 
 TINY = os.environ.get("EFFECT_NETWORKS_TUTORIALS") == "tiny"
 TRIALS = 400 if TINY else 2000

@@ -18,10 +18,9 @@ import os
 
 import matplotlib.pyplot as plt
 import numpy as np
-
-from inference import fit, plan, transitions
-from inference.plots import plot_plan
-from models import Discrete, EffectNetwork
+from effect_networks.inference import fit, plan, transitions
+from effect_networks.inference.plots import plot_plan
+from effect_networks.models import Discrete, EffectNetwork
 
 TINY = os.environ.get("EFFECT_NETWORKS_TUTORIALS") == "tiny"
 TRIALS = 600 if TINY else 5000  # logged trials

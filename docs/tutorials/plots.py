@@ -17,10 +17,14 @@
 import os
 
 import matplotlib.pyplot as plt
-
-from inference import fit, infer_action, simulate
-from inference.plots import plot_action_posterior, plot_clusters, plot_network, plot_table
-from models import Continuous, Discrete, EffectNetwork, Parameter, random_params
+from effect_networks.inference import fit, infer_action, simulate
+from effect_networks.inference.plots import (
+    plot_action_posterior,
+    plot_clusters,
+    plot_network,
+    plot_table,
+)
+from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter, random_params
 
 TINY = os.environ.get("EFFECT_NETWORKS_TUTORIALS") == "tiny"
 ROWS = 400 if TINY else 2000  # training rows

@@ -63,13 +63,12 @@ from pathlib import Path
 
 import numpy as np
 import torch
+from effect_networks.inference.fitting.rows import check_settings
+from effect_networks.models.cpds.table import TableCPD, normalised
+from effect_networks.models.declaration import ACTION, EffectNetwork
+from effect_networks.models.evidence import DTYPE, Evidence
+from effect_networks.models.params import NetworkParams, check_params
 from tqdm.auto import tqdm
-
-from inference.fitting.rows import check_settings
-from models.cpds.table import TableCPD, normalised
-from models.declaration import ACTION, EffectNetwork
-from models.evidence import DTYPE, Evidence
-from models.params import NetworkParams, check_params
 
 __all__ = [
     "STRATEGIES",

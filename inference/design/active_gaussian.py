@@ -21,11 +21,10 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 import torch
-
-from inference.fitting.rows import training_rows
-from inference.fitting.statistics import statistics
-from models.declaration import ACTION, EffectNetwork
-from models.evidence import DTYPE
+from effect_networks.inference.fitting.rows import training_rows
+from effect_networks.inference.fitting.statistics import statistics
+from effect_networks.models.declaration import ACTION, EffectNetwork
+from effect_networks.models.evidence import DTYPE
 
 __all__ = ["regression_information", "select_by_information"]
 

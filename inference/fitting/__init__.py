@@ -11,17 +11,17 @@ masks with the same rules (:mod:`inference.fitting.rows`) and returns a
 (:mod:`inference.fitting.structure`, the families' scores in :mod:`inference.fitting.family`).
 """
 
-from inference.fitting.em import EMResult, fit_em
-from inference.fitting.family import family_scores
-from inference.fitting.fit import (
+from effect_networks.inference.fitting.em import EMResult, fit_em
+from effect_networks.inference.fitting.family import family_scores
+from effect_networks.inference.fitting.fit import (
     ConvergenceWarning,
     FitResult,
     fit,
     fit_gradient,
     fit_statistics,
 )
-from inference.fitting.pooling import fit_pooled, grid_kernel
-from inference.fitting.scores import (
+from effect_networks.inference.fitting.pooling import fit_pooled, grid_kernel
+from effect_networks.inference.fitting.scores import (
     CrossValidation,
     LogLikelihood,
     aic,
@@ -30,9 +30,9 @@ from inference.fitting.scores import (
     log_likelihood,
     n_parameters,
 )
-from inference.fitting.selection import ClusterSelection, select_clusters
-from inference.fitting.statistics import Statistics, params_from_statistics
-from inference.fitting.structure import learn_structure
+from effect_networks.inference.fitting.selection import ClusterSelection, select_clusters
+from effect_networks.inference.fitting.statistics import Statistics, params_from_statistics
+from effect_networks.inference.fitting.structure import learn_structure
 
 __all__ = [
     "ClusterSelection",

@@ -53,17 +53,22 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 
 import torch
+from effect_networks.inference.fitting.missing import fit_missing, missing_log_likelihood
+from effect_networks.inference.fitting.rows import check_settings, training_rows
+from effect_networks.inference.fitting.statistics import params_from_statistics, statistics
+from effect_networks.models.cpds import (
+    Counts,
+    LinearGaussianCPD,
+    Moments,
+    ParameterMixture,
+    TableCPD,
+)
+from effect_networks.models.declaration import ACTION, EffectNetwork
+from effect_networks.models.evidence import DTYPE, Evidence
+from effect_networks.models.frames import as_data
+from effect_networks.models.gaussian import quadratic_features
+from effect_networks.models.params import NetworkParams, check_params
 from tqdm.auto import tqdm
-
-from inference.fitting.missing import fit_missing, missing_log_likelihood
-from inference.fitting.rows import check_settings, training_rows
-from inference.fitting.statistics import params_from_statistics, statistics
-from models.cpds import Counts, LinearGaussianCPD, Moments, ParameterMixture, TableCPD
-from models.declaration import ACTION, EffectNetwork
-from models.evidence import DTYPE, Evidence
-from models.frames import as_data
-from models.gaussian import quadratic_features
-from models.params import NetworkParams, check_params
 
 __all__ = [  # fit_missing and missing_log_likelihood live in inference.fitting.missing
     "EMResult",

@@ -42,13 +42,23 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
 import torch
-
-from inference.fitting.rows import check_settings, refuse_adaptive, split_missing, training_rows
-from models.cpds import Counts, LinearGaussianCPD, LinearGaussianParams, SoftmaxCPD, SoftmaxParams
-from models.cpds.linear_gaussian import floor_variance
-from models.declaration import ACTION, DTYPE, MAX_CPD_ENTRIES, EffectNetwork
-from models.frames import as_data
-from models.sites import SiteSpec
+from effect_networks.inference.fitting.rows import (
+    check_settings,
+    refuse_adaptive,
+    split_missing,
+    training_rows,
+)
+from effect_networks.models.cpds import (
+    Counts,
+    LinearGaussianCPD,
+    LinearGaussianParams,
+    SoftmaxCPD,
+    SoftmaxParams,
+)
+from effect_networks.models.cpds.linear_gaussian import floor_variance
+from effect_networks.models.declaration import ACTION, DTYPE, MAX_CPD_ENTRIES, EffectNetwork
+from effect_networks.models.frames import as_data
+from effect_networks.models.sites import SiteSpec
 
 __all__ = ["SCORES", "Families", "family_scores"]
 

@@ -47,30 +47,29 @@ from collections.abc import Iterable, Mapping
 
 import pyro
 import torch
-from pyro.infer import TraceEnum_ELBO
-from tqdm.auto import tqdm
-
-from inference.fitting.gaussian_gaps import continuous_gaps
-from inference.fitting.missing import available_case_start, fit_missing
-from inference.fitting.result import ConvergenceWarning, FitResult
-from inference.fitting.rows import (
+from effect_networks.inference.fitting.gaussian_gaps import continuous_gaps
+from effect_networks.inference.fitting.missing import available_case_start, fit_missing
+from effect_networks.inference.fitting.result import ConvergenceWarning, FitResult
+from effect_networks.inference.fitting.rows import (
     check_settings,
     refuse_adaptive,
     row_masks,
     rows_with_gaps,
     training_rows,
 )
-from inference.fitting.statistics import (
+from effect_networks.inference.fitting.statistics import (
     Statistics,
     maximise_site,
     params_from_statistics,
     statistics,
 )
-from models.declaration import EffectNetwork
-from models.evidence import Evidence
-from models.frames import as_data
-from models.model import effect_model
-from models.params import NetworkParams, check_params, initial_params
+from effect_networks.models.declaration import EffectNetwork
+from effect_networks.models.evidence import Evidence
+from effect_networks.models.frames import as_data
+from effect_networks.models.model import effect_model
+from effect_networks.models.params import NetworkParams, check_params, initial_params
+from pyro.infer import TraceEnum_ELBO
+from tqdm.auto import tqdm
 
 __all__ = [  # FitResult and ConvergenceWarning live in inference.fitting.result
     "ConvergenceWarning",

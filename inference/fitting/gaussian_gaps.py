@@ -28,13 +28,12 @@ from __future__ import annotations
 import math
 
 import torch
-
-from inference.fitting.statistics import flat_index
-from models.cpds import LinearGaussianCPD, Moments
-from models.declaration import ACTION, EffectNetwork
-from models.dtype import DTYPE
-from models.evidence import Evidence
-from models.params import NetworkParams
+from effect_networks.inference.fitting.statistics import flat_index
+from effect_networks.models.cpds import LinearGaussianCPD, Moments
+from effect_networks.models.declaration import ACTION, EffectNetwork
+from effect_networks.models.dtype import DTYPE
+from effect_networks.models.evidence import Evidence
+from effect_networks.models.params import NetworkParams
 
 __all__ = [
     "condition",

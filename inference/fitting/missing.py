@@ -50,9 +50,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 
 import torch
-from tqdm.auto import tqdm
-
-from inference.fitting.gaussian_gaps import (
+from effect_networks.inference.fitting.gaussian_gaps import (
     condition,
     continuous_gaps,
     continuous_sites,
@@ -60,18 +58,19 @@ from inference.fitting.gaussian_gaps import (
     joint_gaussian,
     refuse_open_forms,
 )
-from inference.fitting.result import ConvergenceWarning, FitResult
-from inference.fitting.rows import check_settings, missing_masks, rows_with_gaps
-from inference.fitting.statistics import (
+from effect_networks.inference.fitting.result import ConvergenceWarning, FitResult
+from effect_networks.inference.fitting.rows import check_settings, missing_masks, rows_with_gaps
+from effect_networks.inference.fitting.statistics import (
     Statistics,
     maximise_site,
     params_from_statistics,
     statistics,
 )
-from inference.queries.enumeration import Enumerated, enumerate_model, row_chunks
-from models.declaration import ACTION, EffectNetwork
-from models.evidence import DTYPE, Evidence
-from models.params import NetworkParams, check_params
+from effect_networks.inference.queries.enumeration import Enumerated, enumerate_model, row_chunks
+from effect_networks.models.declaration import ACTION, EffectNetwork
+from effect_networks.models.evidence import DTYPE, Evidence
+from effect_networks.models.params import NetworkParams, check_params
+from tqdm.auto import tqdm
 
 __all__ = [
     "actions_allowed",

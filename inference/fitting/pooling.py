@@ -32,15 +32,14 @@ import math
 from collections.abc import Iterable, Mapping
 
 import torch
-
-from inference.fitting.fit import fit_statistics
-from inference.fitting.result import FitResult
-from inference.fitting.rows import check_settings
-from models.cpds.table import TableCPD, TableParams
-from models.declaration import ACTION, EffectNetwork
-from models.evidence import DTYPE
-from models.frames import as_data
-from models.params import NetworkParams
+from effect_networks.inference.fitting.fit import fit_statistics
+from effect_networks.inference.fitting.result import FitResult
+from effect_networks.inference.fitting.rows import check_settings
+from effect_networks.models.cpds.table import TableCPD, TableParams
+from effect_networks.models.declaration import ACTION, EffectNetwork
+from effect_networks.models.evidence import DTYPE
+from effect_networks.models.frames import as_data
+from effect_networks.models.params import NetworkParams
 
 __all__ = ["fit_pooled", "grid_kernel"]
 

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from models.params import NetworkParams
+from effect_networks.models.params import NetworkParams
 
 __all__ = ["ConvergenceWarning", "FitResult"]
 

@@ -26,9 +26,8 @@ from collections.abc import Mapping
 
 import numpy as np
 import torch
-
-from models.declaration import ACTION, EffectNetwork, cluster_site, param_site
-from models.evidence import Evidence, Partial, check_magnitude, is_partial
+from effect_networks.models.declaration import ACTION, EffectNetwork, cluster_site, param_site
+from effect_networks.models.evidence import Evidence, Partial, check_magnitude, is_partial
 
 __all__ = [
     "check_settings",

@@ -76,23 +76,22 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-
-from inference.fitting.em import fit_em
-from inference.fitting.fit import fit
-from inference.fitting.gaussian_gaps import continuous_gaps, refuse_open_forms
-from inference.fitting.missing import actions_allowed, gaussian_row_log_likelihoods
-from inference.fitting.rows import mask_values, rows_with_gaps, split_missing
-from inference.queries.enumeration import (
+from effect_networks.inference.fitting.em import fit_em
+from effect_networks.inference.fitting.fit import fit
+from effect_networks.inference.fitting.gaussian_gaps import continuous_gaps, refuse_open_forms
+from effect_networks.inference.fitting.missing import actions_allowed, gaussian_row_log_likelihoods
+from effect_networks.inference.fitting.rows import mask_values, rows_with_gaps, split_missing
+from effect_networks.inference.queries.enumeration import (
     Enumerated,
     enumerate_model,
     enumeration_size,
     row_chunks,
 )
-from models.declaration import ACTION, EffectNetwork
-from models.dtype import DTYPE
-from models.evidence import Evidence
-from models.frames import as_data
-from models.params import NetworkParams, check_params
+from effect_networks.models.declaration import ACTION, EffectNetwork
+from effect_networks.models.dtype import DTYPE
+from effect_networks.models.evidence import Evidence
+from effect_networks.models.frames import as_data
+from effect_networks.models.params import NetworkParams, check_params
 
 __all__ = [
     "CrossValidation",

@@ -17,11 +17,11 @@ import dataclasses
 from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
-from inference.fitting.em import fit_em
-from inference.fitting.fit import fit
-from inference.fitting.scores import cross_validate, log_likelihood, n_parameters
-from models.declaration import LAYOUTS, EffectNetwork, cluster_site
-from models.evidence import Evidence
+from effect_networks.inference.fitting.em import fit_em
+from effect_networks.inference.fitting.fit import fit
+from effect_networks.inference.fitting.scores import cross_validate, log_likelihood, n_parameters
+from effect_networks.models.declaration import LAYOUTS, EffectNetwork, cluster_site
+from effect_networks.models.evidence import Evidence
 
 __all__ = ["ClusterScore", "ClusterSelection", "SCORES", "select_clusters"]
 

@@ -32,10 +32,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import torch
-
-from models.cpds import Counts, Moments
-from models.declaration import EffectNetwork
-from models.evidence import Evidence
+from effect_networks.models.cpds import Counts, Moments
+from effect_networks.models.declaration import EffectNetwork
+from effect_networks.models.evidence import Evidence
 
 
 @dataclass(frozen=True)

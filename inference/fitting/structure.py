@@ -30,10 +30,9 @@ import math
 from collections.abc import Iterable, Mapping
 
 import numpy as np
-
-from inference.fitting.family import Families, Family
-from models.declaration import ACTION, EffectNetwork, Feature, Parameter
-from models.sites import end_site
+from effect_networks.inference.fitting.family import Families, Family
+from effect_networks.models.declaration import ACTION, EffectNetwork, Feature, Parameter
+from effect_networks.models.sites import end_site
 
 __all__ = ["EXHAUSTIVE_COST", "EXHAUSTIVE_ENDS", "SOFTMAX_COST", "learn_structure"]
 

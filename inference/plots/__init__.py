@@ -26,12 +26,12 @@ so importing this package costs nothing.
   path to the goal.
 """
 
-from inference.plots._common import site_parents, state_labels
-from inference.plots.clusters import plot_clusters
-from inference.plots.graph import plot_network
-from inference.plots.plans import plot_plan
-from inference.plots.posteriors import plot_action_posterior, plot_demonstration
-from inference.plots.tables import plot_table
+from effect_networks.inference.plots._common import site_parents, state_labels
+from effect_networks.inference.plots.clusters import plot_clusters
+from effect_networks.inference.plots.graph import plot_network
+from effect_networks.inference.plots.plans import plot_plan
+from effect_networks.inference.plots.posteriors import plot_action_posterior, plot_demonstration
+from effect_networks.inference.plots.tables import plot_table
 
 __all__ = [
     "plot_network",

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from models.declaration import EffectNetwork
+from effect_networks.models.declaration import EffectNetwork
 
 
 def new_axes(ax):

@@ -11,10 +11,9 @@ from collections.abc import Mapping, Sequence
 
 import numpy as np
 import torch
-
-from inference.plots._common import new_axes
-from models.declaration import ACTION, EffectNetwork
-from models.params import NetworkParams, check_params
+from effect_networks.inference.plots._common import new_axes
+from effect_networks.models.declaration import ACTION, EffectNetwork
+from effect_networks.models.params import NetworkParams, check_params
 
 
 def _ellipse(mean, cov, sigma: float, **style):

@@ -5,8 +5,8 @@ Sites in columns by role, one arrow per parent link.
 
 from __future__ import annotations
 
-from inference.plots._common import new_axes, site_parents
-from models.declaration import EffectNetwork
+from effect_networks.inference.plots._common import new_axes, site_parents
+from effect_networks.models.declaration import EffectNetwork
 
 #: Column of each role in :func:`plot_network` (end sites with end parents move right).
 _COLUMN = {"initial": 0.0, "action": 1.0, "cluster": 1.0, "param": 1.0, "end": 2.0}

@@ -9,8 +9,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
-
-from inference.plots._common import new_axes
+from effect_networks.inference.plots._common import new_axes
 
 #: what ``show=`` accepts
 SHOWS = ("policy", "path")

@@ -8,8 +8,7 @@ from __future__ import annotations
 from collections.abc import Sequence
 
 import numpy as np
-
-from inference.plots._common import new_axes
+from effect_networks.inference.plots._common import new_axes
 
 
 def plot_action_posterior(posterior, ax=None, actions: Sequence[str] | None = None, row: int = 0):

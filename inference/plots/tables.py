@@ -5,10 +5,9 @@ from __future__ import annotations
 import itertools
 
 import numpy as np
-
-from inference.plots._common import check_site, new_axes, state_labels
-from models.declaration import EffectNetwork
-from models.params import NetworkParams, check_params
+from effect_networks.inference.plots._common import check_site, new_axes, state_labels
+from effect_networks.models.declaration import EffectNetwork
+from effect_networks.models.params import NetworkParams, check_params
 
 
 def plot_table(net: EffectNetwork, params: NetworkParams, site: str, ax=None, *, annotate=None):

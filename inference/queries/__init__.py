@@ -47,21 +47,21 @@ sites, numbers for continuous ones; a parameter row of NaN is unknown and integr
 for that row. Empty evidence rows (``n = 0``) give empty results of the right shapes.
 """
 
-from inference.queries.action import infer_action
-from inference.queries.chaining import (
+from effect_networks.inference.queries.action import infer_action
+from effect_networks.inference.queries.chaining import (
     BoxPartition,
     FunctionLink,
     LinkProbabilities,
     chain,
     link_probabilities,
 )
-from inference.queries.compiled import CompiledQueries, compile
-from inference.queries.forward import imitation_check, predict
-from inference.queries.inverse import parameter_for_effect
-from inference.queries.joint import JointPrediction, predict_joint
-from inference.queries.parameter import infer_parameter
-from inference.queries.planner import Plan, plan
-from inference.queries.results import (
+from effect_networks.inference.queries.compiled import CompiledQueries, compile
+from effect_networks.inference.queries.forward import imitation_check, predict
+from effect_networks.inference.queries.inverse import parameter_for_effect
+from effect_networks.inference.queries.joint import JointPrediction, predict_joint
+from effect_networks.inference.queries.parameter import infer_parameter
+from effect_networks.inference.queries.planner import Plan, plan
+from effect_networks.inference.queries.results import (
     ActionPosterior,
     GaussianMixture,
     ImitationCheck,
@@ -69,8 +69,8 @@ from inference.queries.results import (
     ParameterPosterior,
     Prediction,
 )
-from inference.queries.states import StateSpace
-from inference.queries.transitions import Transitions
+from effect_networks.inference.queries.states import StateSpace
+from effect_networks.inference.queries.transitions import Transitions
 
 __all__ = [
     "ActionPosterior",

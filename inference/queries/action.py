@@ -27,9 +27,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
-from pyro import poutine
-
-from inference.queries.batching import (
+from effect_networks.inference.queries.batching import (
     allowed_actions,
     first_best,
     no_rows,
@@ -38,29 +36,30 @@ from inference.queries.batching import (
     unseen_indicator,
     unseen_mass,
 )
-from inference.queries.enumeration import (
+from effect_networks.inference.queries.enumeration import (
     Enumerated,
     over_row_chunks,
 )
-from inference.queries.factored import FactoredPlan
-from inference.queries.plausibility import (
+from effect_networks.inference.queries.factored import FactoredPlan
+from effect_networks.inference.queries.plausibility import (
     IMPLAUSIBLE_BELOW,
     check_threshold,
     plausibility,
 )
-from inference.queries.results import (
+from effect_networks.inference.queries.results import (
     ActionPosterior,
 )
-from models.cpds.table import broadcast_shapes
-from models.declaration import (
+from effect_networks.models.cpds.table import broadcast_shapes
+from effect_networks.models.declaration import (
     ACTION,
     DTYPE,
     EffectNetwork,
     end_site,
 )
-from models.evidence import Evidence
-from models.model import effect_model
-from models.params import NetworkParams, check_params
+from effect_networks.models.evidence import Evidence
+from effect_networks.models.model import effect_model
+from effect_networks.models.params import NetworkParams, check_params
+from pyro import poutine
 
 
 def infer_action(

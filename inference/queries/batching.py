@@ -17,20 +17,19 @@ from dataclasses import fields, is_dataclass, replace
 
 import numpy as np
 import torch
-
-from inference.queries.enumeration import (
+from effect_networks.inference.queries.enumeration import (
     Enumerated,
 )
-from models.cpds.table import gather
-from models.declaration import (
+from effect_networks.models.cpds.table import gather
+from effect_networks.models.declaration import (
     ACTION,
     DTYPE,
     EffectNetwork,
     cluster_site,
     param_site,
 )
-from models.evidence import Evidence
-from models.params import NetworkParams, check_params
+from effect_networks.models.evidence import Evidence
+from effect_networks.models.params import NetworkParams, check_params
 
 #: relative: scores this close to the maximum count as tied
 TIE_TOLERANCE = 1e-9

@@ -38,8 +38,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-
-from inference.queries.results import GaussianMixture
+from effect_networks.inference.queries.results import GaussianMixture
 
 __all__ = [
     "BoxPartition",

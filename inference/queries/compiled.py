@@ -15,10 +15,6 @@ tables are built on first use and kept:
 * ``predict``, ``imitation_check``, ``parameter_for_effect``: the traced queries;
 * ``transitions`` and ``plan``: the model's tables traced once per context (the
   continuous initial features' values; :func:`~inference.queries.transitions.model_tables`).
-
-The building blocks' former names here (``compile_discrete``, ``compile_parameter_query``,
-``CompiledNetwork``, ``CompiledParameterQuery``, ``CompiledJointParameterQuery``,
-``ANSWERS_BUDGET``, ``ANSWERS_CHUNK``) still resolve, with a ``DeprecationWarning``.
 """
 
 from __future__ import annotations
@@ -28,33 +24,33 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import torch
-
-from inference.queries.action import compile_discrete as _compile_discrete
-from inference.queries.action import infer_action
-from inference.queries.forward import imitation_check, predict
-from inference.queries.inverse import parameter_for_effect
-from inference.queries.parameter import compile_parameter_query as _compile_parameter_query
-from inference.queries.parameter import infer_parameter, shared_features
-from inference.queries.planner import Plan, plan_on
-from inference.queries.plausibility import IMPLAUSIBLE_BELOW
-from inference.queries.results import (
+from effect_networks.inference.queries.action import compile_discrete as _compile_discrete
+from effect_networks.inference.queries.action import infer_action
+from effect_networks.inference.queries.forward import imitation_check, predict
+from effect_networks.inference.queries.inverse import parameter_for_effect
+from effect_networks.inference.queries.parameter import (
+    compile_parameter_query as _compile_parameter_query,
+)
+from effect_networks.inference.queries.parameter import infer_parameter, shared_features
+from effect_networks.inference.queries.planner import Plan, plan_on
+from effect_networks.inference.queries.plausibility import IMPLAUSIBLE_BELOW
+from effect_networks.inference.queries.results import (
     ActionPosterior,
     ImitationCheck,
     ParameterForEffect,
     ParameterPosterior,
     Prediction,
 )
-from inference.queries.surprise import QUADRATURE_POINTS
-from inference.queries.transitions import Transitions, model_tables, transitions
-from models.declaration import EffectNetwork
-from models.deprecation import moved
-from models.frames import as_data
-from models.params import NetworkParams, check_params
+from effect_networks.inference.queries.surprise import QUADRATURE_POINTS
+from effect_networks.inference.queries.transitions import Transitions, model_tables, transitions
+from effect_networks.models.declaration import EffectNetwork
+from effect_networks.models.frames import as_data
+from effect_networks.models.params import NetworkParams, check_params
 
-if TYPE_CHECKING:  # the building blocks' names stay deprecated at runtime (see __getattr__)
-    from inference.queries.action import CompiledNetwork
-    from inference.queries.parameter import CompiledJointParameterQuery
-    from inference.queries.parameter_tables import CompiledParameterQuery
+if TYPE_CHECKING:  # annotations only
+    from effect_networks.inference.queries.action import CompiledNetwork
+    from effect_networks.inference.queries.parameter import CompiledJointParameterQuery
+    from effect_networks.inference.queries.parameter_tables import CompiledParameterQuery
 
 
 def compile(net: EffectNetwork, params: NetworkParams) -> CompiledQueries:
@@ -255,23 +251,3 @@ def _context_key(given: Mapping[str, object] | None) -> tuple:
         (k, tuple(torch.as_tensor(v, dtype=torch.float64).reshape(-1).tolist()))
         for k, v in sorted(given.items())
     )
-
-
-#: The building blocks' former names here -> the module that holds them now.
-_MOVED = {
-    "compile_discrete": "inference.queries.action",
-    "CompiledNetwork": "inference.queries.action",
-    "ANSWERS_BUDGET": "inference.queries.action",
-    "ANSWERS_CHUNK": "inference.queries.action",
-    "compile_parameter_query": "inference.queries.parameter",
-    "CompiledJointParameterQuery": "inference.queries.parameter",
-    "CompiledParameterQuery": "inference.queries.parameter_tables",
-}
-
-
-__getattr__ = moved(
-    __name__,
-    _MOVED,
-    "inference.queries.compiled.{name} is deprecated: ask inference.compile(net, params) "
-    "(the building block lives in {home})",
-)

@@ -20,13 +20,12 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
-
-from inference.queries.simulate import simulate
-from inference.queries.states import StateSpace
-from models.cpds import TableParams
-from models.declaration import ACTION, DTYPE, Continuous, Discrete, EffectNetwork
-from models.params import NetworkParams
-from models.sites import end_site, initial_site
+from effect_networks.inference.queries.simulate import simulate
+from effect_networks.inference.queries.states import StateSpace
+from effect_networks.models.cpds import TableParams
+from effect_networks.models.declaration import ACTION, DTYPE, Continuous, Discrete, EffectNetwork
+from effect_networks.models.params import NetworkParams
+from effect_networks.models.sites import end_site, initial_site
 
 
 @dataclass(frozen=True)

@@ -23,9 +23,7 @@ from functools import cached_property
 
 import pyro
 import torch
-from pyro import poutine
-
-from inference.queries.elimination import (
+from effect_networks.inference.queries.elimination import (
     contract,
     contract_size,
     dense_enough,
@@ -33,11 +31,12 @@ from inference.queries.elimination import (
     sample,
     value_at,
 )
-from models.cpds.table import broadcast_shapes
-from models.declaration import EffectNetwork
-from models.evidence import Evidence
-from models.model import effect_model
-from models.params import NetworkParams
+from effect_networks.models.cpds.table import broadcast_shapes
+from effect_networks.models.declaration import EffectNetwork
+from effect_networks.models.evidence import Evidence
+from effect_networks.models.model import effect_model
+from effect_networks.models.params import NetworkParams
+from pyro import poutine
 
 
 @dataclass(frozen=True)
@@ -291,7 +290,7 @@ def enumerate_model(
         if s.role == "initial" and not s.discrete and s.name not in evidence
     ]
     if missing_initial:  # integrated out in closed form, or refused naming the site
-        from inference.queries.unknown_initial import enumerate_unknown_initial
+        from effect_networks.inference.queries.unknown_initial import enumerate_unknown_initial
 
         return enumerate_unknown_initial(
             net, params, evidence, missing_initial, keep=keep, trace_only=trace_only, masks=masks

@@ -39,21 +39,24 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-
-from inference.queries.demonstration import Demonstrations, key_columns, with_action_prior
-from inference.queries.enumeration import conditional_log_evidence, over_row_chunks
-from inference.queries.paths import LogTables, log_matvec, max_matvec
-from inference.queries.plausibility import (
+from effect_networks.inference.queries.demonstration import (
+    Demonstrations,
+    key_columns,
+    with_action_prior,
+)
+from effect_networks.inference.queries.enumeration import conditional_log_evidence, over_row_chunks
+from effect_networks.inference.queries.paths import LogTables, log_matvec, max_matvec
+from effect_networks.inference.queries.plausibility import (
     IMPLAUSIBLE_BELOW,
     OutsideTrainingData,
     check_threshold,
     plausibility,
 )
-from inference.queries.states import StateSpace
-from models.declaration import ACTION, DTYPE, EffectNetwork
-from models.evidence import Evidence
-from models.params import NetworkParams, check_params
-from models.sites import end_site, initial_site
+from effect_networks.inference.queries.states import StateSpace
+from effect_networks.models.declaration import ACTION, DTYPE, EffectNetwork
+from effect_networks.models.evidence import Evidence
+from effect_networks.models.params import NetworkParams, check_params
+from effect_networks.models.sites import end_site, initial_site
 
 #: Largest step table (states x actions x states) :func:`explain` builds.
 MAX_STEP_TABLE = 1 << 22

@@ -16,10 +16,9 @@ import math
 from dataclasses import dataclass, replace
 
 import torch
-
-from inference.queries.elimination import contract, contract_size
-from models.declaration import ACTION
-from models.evidence import Evidence
+from effect_networks.inference.queries.elimination import contract, contract_size
+from effect_networks.models.declaration import ACTION
+from effect_networks.models.evidence import Evidence
 
 #: A pattern whose summed table (observed configurations times the latent joint) holds
 #: at most this many values keeps that table: its answers are then computed once per

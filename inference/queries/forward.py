@@ -20,40 +20,39 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 import torch
-
-from inference.queries.batching import (
+from effect_networks.inference.queries.batching import (
     no_rows,
     placeholder_row,
     prepare,
     unseen_indicator,
     unseen_mass,
 )
-from inference.queries.enumeration import (
+from effect_networks.inference.queries.enumeration import (
     Enumerated,
     conditional_log_evidence,
     over_row_chunks,
 )
-from inference.queries.plausibility import (
+from effect_networks.inference.queries.plausibility import (
     IMPLAUSIBLE_BELOW,
     check_threshold,
     plausibility,
 )
-from inference.queries.results import (
+from effect_networks.inference.queries.results import (
     GaussianMixture,
     ImitationCheck,
     Prediction,
 )
-from inference.queries.surprise import QUADRATURE_POINTS, continuous_surprise
-from models.declaration import (
+from effect_networks.inference.queries.surprise import QUADRATURE_POINTS, continuous_surprise
+from effect_networks.models.declaration import (
     ACTION,
     EffectNetwork,
     end_site,
 )
-from models.evidence import Evidence, is_partial
-from models.gaussian import (
+from effect_networks.models.evidence import Evidence, is_partial
+from effect_networks.models.gaussian import (
     condition_on_observed,
 )
-from models.params import NetworkParams
+from effect_networks.models.params import NetworkParams
 
 
 def predict(

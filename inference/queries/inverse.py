@@ -16,8 +16,7 @@ import math
 from collections.abc import Mapping
 
 import torch
-
-from inference.queries.batching import (
+from effect_networks.inference.queries.batching import (
     check_parameter_evidence,
     first_best,
     given_other_parameters,
@@ -25,19 +24,19 @@ from inference.queries.batching import (
     parameter_placeholder,
     prepare,
 )
-from inference.queries.enumeration import (
+from effect_networks.inference.queries.enumeration import (
     over_row_chunks,
 )
-from inference.queries.results import (
+from effect_networks.inference.queries.results import (
     ParameterForEffect,
     outside_range,
 )
-from models.declaration import (
+from effect_networks.models.declaration import (
     ACTION,
     EffectNetwork,
 )
-from models.evidence import Evidence
-from models.params import NetworkParams
+from effect_networks.models.evidence import Evidence
+from effect_networks.models.params import NetworkParams
 
 LOG_2PI = math.log(2 * math.pi)
 

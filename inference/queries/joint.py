@@ -18,12 +18,15 @@ from collections.abc import Hashable, Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import torch
-
-from inference.queries.batching import placeholder_row, prepare, unseen_mass
-from inference.queries.enumeration import over_row_chunks
-from inference.queries.plausibility import IMPLAUSIBLE_BELOW, check_threshold, plausibility
-from models.declaration import Discrete, EffectNetwork, end_site
-from models.params import NetworkParams
+from effect_networks.inference.queries.batching import placeholder_row, prepare, unseen_mass
+from effect_networks.inference.queries.enumeration import over_row_chunks
+from effect_networks.inference.queries.plausibility import (
+    IMPLAUSIBLE_BELOW,
+    check_threshold,
+    plausibility,
+)
+from effect_networks.models.declaration import Discrete, EffectNetwork, end_site
+from effect_networks.models.params import NetworkParams
 
 
 @dataclass(frozen=True)

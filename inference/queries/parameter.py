@@ -24,8 +24,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 
 import torch
-
-from inference.queries.batching import (
+from effect_networks.inference.queries.batching import (
     check_parameter_evidence,
     given_other_parameters,
     no_rows,
@@ -35,42 +34,41 @@ from inference.queries.batching import (
     unseen_indicator,
     unseen_mass,
 )
-from inference.queries.enumeration import (
+from effect_networks.inference.queries.enumeration import (
     Enumerated,
     over_row_chunks,
 )
-from inference.queries.parameter_tables import (
+from effect_networks.inference.queries.parameter_tables import (
     CompiledParameterQuery,
-    InferRenamed,
     refuse_impossible,
 )
-from inference.queries.plausibility import (
+from effect_networks.inference.queries.plausibility import (
     IMPLAUSIBLE_BELOW,
     check_threshold,
     initial_tails,
     outside_training,
     plausibility,
 )
-from inference.queries.results import (
+from effect_networks.inference.queries.results import (
     GaussianMixture,
     ParameterPosterior,
     outside_range,
 )
-from models.cpds import concat_inputs
-from models.declaration import (
+from effect_networks.models.cpds import concat_inputs
+from effect_networks.models.declaration import (
     ACTION,
     DTYPE,
     EffectNetwork,
     Parameter,
     cluster_site,
 )
-from models.evidence import is_partial
-from models.gaussian import (
+from effect_networks.models.evidence import is_partial
+from effect_networks.models.gaussian import (
     mask_unobserved,
     partial_log_density,
     residual_of,
 )
-from models.params import NetworkParams, check_params
+from effect_networks.models.params import NetworkParams, check_params
 
 
 def infer_parameter(
@@ -217,7 +215,7 @@ def _parameter_from_cluster(net, params, m, enc, observed, mixture) -> Parameter
 
 
 @dataclass(frozen=True)
-class CompiledJointParameterQuery(InferRenamed):
+class CompiledJointParameterQuery:
     """The parameter posterior of a parameter acting on several features, without tracing.
 
     The observed continuous features it acts on are jointly Gaussian given its cluster

@@ -10,57 +10,41 @@ one Gaussian log-density per cluster and one matrix-vector product. Built by
 from __future__ import annotations
 
 import math
-import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field
 
 import numpy as np
 import torch
-
-from inference.queries.plausibility import (
+from effect_networks.inference.queries.plausibility import (
     IMPLAUSIBLE_BELOW,
     check_threshold,
     initial_tails,
     outside_training,
 )
-from inference.queries.results import (
+from effect_networks.inference.queries.results import (
     GaussianMixture,
     ParameterPosterior,
     outside_range,
 )
-from models.declaration import (
+from effect_networks.models.declaration import (
     ACTION,
     DTYPE,
     EffectNetwork,
     Parameter,
     end_site,
 )
-from models.evidence import MAX_MAGNITUDE, Evidence, is_partial
-from models.gaussian import (
+from effect_networks.models.evidence import MAX_MAGNITUDE, Evidence, is_partial
+from effect_networks.models.gaussian import (
     affine_pair,
     chi_square_tail,
     mask_unobserved,
     sum_rounds_off,
 )
-from models.params import NetworkParams
-
-
-class InferRenamed:
-    """The compiled parameter queries' former ``infer``, kept for one release."""
-
-    def infer(self, evidence: Mapping[str, object], **kwargs) -> ParameterPosterior:
-        """Deprecated: ``infer_parameter`` (reached through :func:`inference.compile`)."""
-        warnings.warn(
-            "the compiled query's infer is now infer_parameter; use "
-            "inference.compile(net, params).infer_parameter(parameter, evidence)",
-            DeprecationWarning,
-            stacklevel=2,
-        )
-        return self.infer_parameter(evidence, **kwargs)
+from effect_networks.models.params import NetworkParams
 
 
 @dataclass(frozen=True)
-class CompiledParameterQuery(InferRenamed):
+class CompiledParameterQuery:
     """The parameter posterior with its Gaussian tables precomputed.
 
     Built by :meth:`models.cpds.ParameterMixture.query_tables` from the marginal of the

@@ -25,12 +25,11 @@ from collections.abc import Hashable, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import torch
-
-from inference.queries.planning import exact_plan
-from inference.queries.states import Selection, StateLike
-from inference.queries.transitions import Transitions, transitions
-from models.declaration import DTYPE, EffectNetwork
-from models.params import NetworkParams
+from effect_networks.inference.queries.planning import exact_plan
+from effect_networks.inference.queries.states import Selection, StateLike
+from effect_networks.inference.queries.transitions import Transitions, transitions
+from effect_networks.models.declaration import DTYPE, EffectNetwork
+from effect_networks.models.params import NetworkParams
 
 
 @dataclass(frozen=True)

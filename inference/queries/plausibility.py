@@ -32,17 +32,16 @@ import warnings
 from dataclasses import dataclass, field
 
 import torch
-
-from inference.queries.elimination import maximum
-from inference.queries.enumeration import (
+from effect_networks.inference.queries.elimination import maximum
+from effect_networks.inference.queries.enumeration import (
     conditional_log_evidence,
     over_row_chunks,
 )
-from models.cpds import concat_inputs
-from models.declaration import DTYPE, EffectNetwork, end_site
-from models.evidence import Evidence, observed_dims
-from models.gaussian import mahalanobis
-from models.params import NetworkParams
+from effect_networks.models.cpds import concat_inputs
+from effect_networks.models.declaration import DTYPE, EffectNetwork, end_site
+from effect_networks.models.evidence import Evidence, observed_dims
+from effect_networks.models.gaussian import mahalanobis
+from effect_networks.models.params import NetworkParams
 
 IMPLAUSIBLE_BELOW = 1e-4
 """Default threshold: evidence the model gives less than 1 in 10,000 is flagged (a

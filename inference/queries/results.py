@@ -25,9 +25,8 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import torch
-
-from models.declaration import Parameter, end_site
-from models.frames import require_pandas
+from effect_networks.models.declaration import Parameter, end_site
+from effect_networks.models.frames import require_pandas
 
 
 @dataclass(frozen=True)

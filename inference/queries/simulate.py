@@ -25,16 +25,15 @@ from collections.abc import Mapping
 
 import numpy as np
 import torch
+from effect_networks.inference.queries.enumeration import enumerate_model
+from effect_networks.models.cpds import ParameterMixture
+from effect_networks.models.declaration import ACTION, DTYPE, EffectNetwork
+from effect_networks.models.evidence import Evidence, is_partial
+from effect_networks.models.frames import to_frame
+from effect_networks.models.gaussian import condition_on_observed
+from effect_networks.models.model import effect_model
+from effect_networks.models.params import NetworkParams, check_params, check_seed
 from pyro import poutine
-
-from inference.queries.enumeration import enumerate_model
-from models.cpds import ParameterMixture
-from models.declaration import ACTION, DTYPE, EffectNetwork
-from models.evidence import Evidence, is_partial
-from models.frames import to_frame
-from models.gaussian import condition_on_observed
-from models.model import effect_model
-from models.params import NetworkParams, check_params, check_seed
 
 
 def simulate(

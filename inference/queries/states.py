@@ -24,8 +24,7 @@ from collections.abc import Callable, Hashable, Iterable, Iterator, Mapping, Seq
 from dataclasses import dataclass, field
 
 import torch
-
-from models.declaration import DTYPE, Discrete, EffectNetwork
+from effect_networks.models.declaration import DTYPE, Discrete, EffectNetwork
 
 #: The most states a space enumerates from the product of its features' states; past it
 #: the caller names the states it needs (``states=``).

@@ -51,18 +51,17 @@ from __future__ import annotations
 import math
 
 import torch
-
-from inference.queries.enumeration import (
+from effect_networks.inference.queries.enumeration import (
     Enumerated,
     enumerate_model,
     log_ratio,
     over_row_chunks,
     row_chunks,
 )
-from models.declaration import DTYPE, EffectNetwork
-from models.evidence import Evidence, observed_dims
-from models.gaussian import mahalanobis, mask_unobserved
-from models.params import NetworkParams
+from effect_networks.models.declaration import DTYPE, EffectNetwork
+from effect_networks.models.evidence import Evidence, observed_dims
+from effect_networks.models.gaussian import mahalanobis, mask_unobserved
+from effect_networks.models.params import NetworkParams
 
 LOG_2PI = math.log(2 * math.pi)
 

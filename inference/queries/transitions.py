@@ -35,15 +35,25 @@ from collections.abc import Collection, Iterable, Mapping
 from dataclasses import dataclass, field, replace
 
 import torch
+from effect_networks.inference.queries.elimination import contract
+from effect_networks.inference.queries.plausibility import (
+    IMPLAUSIBLE_BELOW,
+    initial_tails,
+    outside_training,
+)
+from effect_networks.inference.queries.states import StateLike, StateSpace
+from effect_networks.models.cpds.table import gather
+from effect_networks.models.declaration import (
+    ACTION,
+    DTYPE,
+    Continuous,
+    EffectNetwork,
+    end_site,
+    initial_site,
+)
+from effect_networks.models.model import effect_model
+from effect_networks.models.params import NetworkParams, check_params
 from pyro import poutine
-
-from inference.queries.elimination import contract
-from inference.queries.plausibility import IMPLAUSIBLE_BELOW, initial_tails, outside_training
-from inference.queries.states import StateLike, StateSpace
-from models.cpds.table import gather
-from models.declaration import ACTION, DTYPE, Continuous, EffectNetwork, end_site, initial_site
-from models.model import effect_model
-from models.params import NetworkParams, check_params
 
 #: ``parameter_values=`` choices: integrate an unknown parameter out, or offer an
 #: action using it once per cluster.

@@ -26,11 +26,10 @@ from __future__ import annotations
 
 import pyro.distributions as dist
 import torch
-
-from models.declaration import ACTION, EffectNetwork
-from models.dtype import DTYPE
-from models.evidence import Evidence
-from models.params import NetworkParams
+from effect_networks.models.declaration import ACTION, EffectNetwork
+from effect_networks.models.dtype import DTYPE
+from effect_networks.models.evidence import Evidence
+from effect_networks.models.params import NetworkParams
 
 __all__ = ["enumerate_unknown_initial"]
 
@@ -49,8 +48,12 @@ def enumerate_unknown_initial(
 
     For evidence that leaves the continuous initial sites ``unknown`` out (see the module).
     """
-    from inference.fitting.gaussian_gaps import condition, continuous_sites, joint_gaussian
-    from inference.queries.enumeration import Enumerated, enumerate_model
+    from effect_networks.inference.fitting.gaussian_gaps import (
+        condition,
+        continuous_sites,
+        joint_gaussian,
+    )
+    from effect_networks.inference.queries.enumeration import Enumerated, enumerate_model
 
     _refuse_open_forms(net, evidence, unknown)
     layout = continuous_sites(net, parameters=True)
@@ -118,8 +121,8 @@ def enumerate_unknown_initial(
 
 def _refuse_open_forms(net: EffectNetwork, evidence: Evidence, unknown: list[str]) -> None:
     """Refuse what has no closed-form integral over the unknown initial values."""
-    from inference.fitting.gaussian_gaps import continuous_sites
-    from models.cpds import LinearGaussianCPD
+    from effect_networks.inference.fitting.gaussian_gaps import continuous_sites
+    from effect_networks.models.cpds import LinearGaussianCPD
 
     for spec in net.sites:
         cpd = net.cpd(spec.name) if spec.role in ("initial", "end") else None

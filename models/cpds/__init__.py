@@ -19,12 +19,15 @@ to the toolkit is one module here plus its entry in :data:`KINDS`; a user's own 
 a subclass of :class:`CPD` (or of a built-in kind) passed to the declaration.
 """
 
-from models.cpds.base import CPD, concat_inputs, map_tensors
-from models.cpds.linear_gaussian import LinearGaussianCPD, LinearGaussianParams, Moments
-from models.cpds.mixture import ParameterMixture
-from models.cpds.softmax import SoftmaxCPD, SoftmaxParams
-from models.cpds.table import Counts, TableCPD, TableParams
-from models.deprecation import renamed
+from effect_networks.models.cpds.base import CPD, concat_inputs, map_tensors
+from effect_networks.models.cpds.linear_gaussian import (
+    LinearGaussianCPD,
+    LinearGaussianParams,
+    Moments,
+)
+from effect_networks.models.cpds.mixture import ParameterMixture
+from effect_networks.models.cpds.softmax import SoftmaxCPD, SoftmaxParams
+from effect_networks.models.cpds.table import Counts, TableCPD, TableParams
 
 #: The toolkit's kinds, in the order a site's default kind is chosen.
 KINDS: tuple[type[CPD], ...] = (TableCPD, SoftmaxCPD, LinearGaussianCPD)
@@ -34,12 +37,6 @@ def default_kind(discrete: bool, width: int) -> type[CPD]:
     """The first kind of :data:`KINDS` that models such a site."""
     return next(k for k in KINDS if k.refuses(discrete, width) is None)
 
-
-#: The containers' names before they were named for their kinds, for one release.
-__getattr__ = renamed(
-    __name__,
-    {"Table": "TableParams", "Softmax": "SoftmaxParams", "LinearGaussian": "LinearGaussianParams"},
-)
 
 __all__ = [
     "CPD",

@@ -40,8 +40,7 @@ from dataclasses import dataclass, fields
 from typing import ClassVar
 
 import torch
-
-from models.dtype import DTYPE
+from effect_networks.models.dtype import DTYPE
 
 
 @dataclass(frozen=True)

@@ -23,15 +23,10 @@ from functools import cached_property
 
 import pyro.distributions as dist
 import torch
+from effect_networks.models.cpds.base import CPD
+from effect_networks.models.dtype import DTYPE
+from effect_networks.models.gaussian import affine_pair, mahalanobis, sum_rounds_off
 from pyro.ops.indexing import Vindex
-
-from models.cpds.base import CPD
-from models.deprecation import renamed
-from models.dtype import DTYPE
-from models.gaussian import affine_pair, mahalanobis, sum_rounds_off
-
-#: The name of :class:`LinearGaussianParams` before the rename, for one release.
-__getattr__ = renamed(__name__, {"LinearGaussian": "LinearGaussianParams"})
 
 
 @dataclass(frozen=True)

@@ -43,19 +43,22 @@ from dataclasses import dataclass, field
 
 import pyro.distributions as dist
 import torch
-from pyro.ops.indexing import Vindex
-
-from models.cpds.base import concat_inputs
-from models.cpds.linear_gaussian import LinearGaussianCPD, LinearGaussianParams, gaussian_of
-from models.cpds.table import TableCPD
-from models.dtype import DTYPE
-from models.features import Parameter
-from models.gaussian import (
+from effect_networks.models.cpds.base import concat_inputs
+from effect_networks.models.cpds.linear_gaussian import (
+    LinearGaussianCPD,
+    LinearGaussianParams,
+    gaussian_of,
+)
+from effect_networks.models.cpds.table import TableCPD
+from effect_networks.models.dtype import DTYPE
+from effect_networks.models.features import Parameter
+from effect_networks.models.gaussian import (
     condition_linear_gaussian,
     lstsq_rows,
     mask_unobserved,
     residual_of,
 )
+from pyro.ops.indexing import Vindex
 
 
 @dataclass(frozen=True)

@@ -23,15 +23,10 @@ from dataclasses import dataclass
 
 import pyro.distributions as dist
 import torch
+from effect_networks.models.cpds.base import CPD
+from effect_networks.models.cpds.table import Counts, counts, normalised
+from effect_networks.models.dtype import DTYPE
 from pyro.ops.indexing import Vindex
-
-from models.cpds.base import CPD
-from models.cpds.table import Counts, counts, normalised
-from models.deprecation import renamed
-from models.dtype import DTYPE
-
-#: The name of :class:`SoftmaxParams` before the rename, for one release.
-__getattr__ = renamed(__name__, {"Softmax": "SoftmaxParams"})
 
 
 @dataclass(frozen=True)

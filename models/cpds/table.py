@@ -13,15 +13,10 @@ from dataclasses import dataclass, field
 
 import pyro.distributions as dist
 import torch
+from effect_networks.models.cpds.base import CPD
+from effect_networks.models.dtype import DTYPE
 from pyro.ops.indexing import Vindex
 from torch.utils.weak import WeakIdKeyDictionary
-
-from models.cpds.base import CPD
-from models.deprecation import renamed
-from models.dtype import DTYPE
-
-#: The name of :class:`TableParams` before the rename, for one release.
-__getattr__ = renamed(__name__, {"Table": "TableParams"})
 
 
 @dataclass(frozen=True)

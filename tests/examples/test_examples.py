@@ -16,10 +16,10 @@ import time
 from pathlib import Path
 
 import pytest
+from effect_networks.experiments import cli
+from effect_networks.experiments.registry import experiment, experiments
+from effect_networks.sim2d.chunks import locked
 
-from experiments import cli
-from experiments.registry import experiment, experiments
-from sim2d.chunks import locked
 from tests.helpers import load_example
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -194,7 +194,7 @@ def test_an_example_s_defaults_are_its_experiment_s(name):
 
 
 def test_help_text_comes_from_the_settings_docstring():
-    from experiments.combined import CombinedConfig
+    from effect_networks.experiments.combined import CombinedConfig
 
     helps = cli.field_help(CombinedConfig)
     assert helps["horizon"] == "Throws the exact planner may use, 1..MAX_HORIZON."
@@ -221,7 +221,7 @@ def _wait_for(condition, seconds: float, what: str) -> None:
 
 HOLDS_THE_LOCK = """
 import sys, time
-from sim2d.chunks import locked
+from effect_networks.sim2d.chunks import locked
 with locked(sys.argv[1]):
     open(sys.argv[2], "w").close()
     time.sleep(120)
@@ -332,8 +332,8 @@ def test_every_option_takes_junk_with_a_usage_error_or_a_value(name, capsys):
 ALLOCATES_AND_SIMULATES = """
 import argparse, time
 import numpy as np
-from experiments.config import run_script
-from sim2d.clock import simulating
+from effect_networks.experiments.config import run_script
+from effect_networks.sim2d.clock import simulating
 
 def main(args):
     block = np.ones(50_000_000)  # 400 MB, every page touched
@@ -396,7 +396,7 @@ def test_reproduce_measures_a_step_s_simulation_time_and_peak_memory(tmp_path):
 
 FAILS = """
 import sys
-from experiments.config import run_script
+from effect_networks.experiments.config import run_script
 def main(args):
     raise RuntimeError("step broke")
 run_script(main, None)

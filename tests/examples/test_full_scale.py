@@ -6,8 +6,7 @@ import sys
 from pathlib import Path
 
 import pytest
-
-from experiments.throwing import ThrowingConfig, run_throwing
+from effect_networks.experiments.throwing import ThrowingConfig, run_throwing
 
 ROOT = Path(__file__).resolve().parents[2]
 

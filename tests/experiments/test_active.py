@@ -6,15 +6,14 @@ import dataclasses
 import numpy as np
 import pytest
 import torch
-
-from experiments import active as ex
-from experiments.can_tossing import PROTOCOLS, RULES, table_one_cases
-from experiments.cans import CanModel, can_dataset, fit_can_network
-from experiments.config import ConfigError
-from inference import compile as compile_queries
-from inference import fit_pooled, grid_kernel
-from models.can_network import config_index
-from sim2d import geometry
+from effect_networks.experiments import active as ex
+from effect_networks.experiments.can_tossing import PROTOCOLS, RULES, table_one_cases
+from effect_networks.experiments.cans import CanModel, can_dataset, fit_can_network
+from effect_networks.experiments.config import ConfigError
+from effect_networks.inference import compile as compile_queries
+from effect_networks.inference import fit_pooled, grid_kernel
+from effect_networks.models.can_network import config_index
+from effect_networks.sim2d import geometry
 
 
 @pytest.fixture(scope="module")
@@ -45,7 +44,7 @@ def test_the_pool_is_table_one_s_training_throws_and_the_oracle_replays_them(tin
     # the network and its fit on the whole pool are Table I's own
     full = fit_can_network(data, 0)
     assert net == full.net
-    from inference import fit
+    from effect_networks.inference import fit
 
     params = fit(net, rows).params
     for site in params.cpds:
@@ -135,7 +134,7 @@ def test_a_tiny_run_end_to_end(tiny_run, tiny_data_dir, tmp_path):
 def test_the_learners_give_the_same_results_in_turn_as_on_every_core(tiny_run):
     """Each learner and seed is a task (experiments.parallel): the fixture's run on every core
     and the same run in this process agree bit for bit but for the times."""
-    from experiments.compare import compare_values
+    from effect_networks.experiments.compare import compare_values
 
     config, result = tiny_run
     alone = ex.run_active(dataclasses.replace(config, workers=1))
@@ -151,7 +150,7 @@ def test_the_choice_is_scored_on_the_replays_of_the_chosen_field(tiny_run, tiny_
     replays, configs = ex.replay_counts(config)
     cases = {p: table_one_cases(data, p) for p in PROTOCOLS}
     got = ex.table_one_on_replays(model, cases, replays, configs)
-    from experiments.can_tossing import choose, start_evidence
+    from effect_networks.experiments.can_tossing import choose, start_evidence
 
     for p, (start, desired) in cases.items():
         for rule in RULES:

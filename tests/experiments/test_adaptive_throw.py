@@ -5,17 +5,16 @@ import json
 import numpy as np
 import pytest
 import torch
-
-from experiments.adaptive_throw import (
+from effect_networks.experiments.adaptive_throw import (
     AdaptiveThrowConfig,
     AdaptiveThrowResult,
     local_inverse,
     plane_residuals,
     run_adaptive_throw,
 )
-from experiments.config import ConfigError
-from inference import infer_parameter
-from sim2d.throw import TARGET_AREA
+from effect_networks.experiments.config import ConfigError
+from effect_networks.inference import infer_parameter
+from effect_networks.sim2d.throw import TARGET_AREA
 
 TINY = {
     "n_train": 400,
@@ -191,10 +190,10 @@ def test_config_names_the_field_at_fault(field, value):
 @pytest.mark.parametrize("layout", ["grid", "adaptive"])
 def test_every_fit_takes_the_configured_pseudo_count(layout):
     """The fits are the library's with the config's pseudo-count, not its default."""
-    from experiments.adaptive_throw import _fit, adaptive_throw_network
-    from inference import fit, fit_em
-    from models.throw_network import throw_data, throw_network
-    from sim2d.throw import sample_targets, throw
+    from effect_networks.experiments.adaptive_throw import _fit, adaptive_throw_network
+    from effect_networks.inference import fit, fit_em
+    from effect_networks.models.throw_network import throw_data, throw_network
+    from effect_networks.sim2d.throw import sample_targets, throw
 
     targets = sample_targets(300, np.random.default_rng(0))
     train = (targets, throw(targets).hit)
@@ -216,7 +215,7 @@ def test_each_posterior_answer_is_computed_once(monkeypatch):
     """The local fit starts from the largest grid's posterior answers of its row: one
     posterior query per posterior row of the tables and per point of the active curves,
     none repeated."""
-    from experiments import adaptive_throw
+    from effect_networks.experiments import adaptive_throw
 
     calls = []
 

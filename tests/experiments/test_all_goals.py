@@ -5,14 +5,13 @@ import json
 import numpy as np
 import pytest
 import torch
+from effect_networks.experiments import all_goals
+from effect_networks.experiments import physics_bounds as pb
+from effect_networks.experiments.all_goals import AllGoalsConfig, AllGoalsResult
+from effect_networks.experiments.config import ConfigError
+from effect_networks.sim2d import geometry
+from effect_networks.sim2d.combined import CAN_BAND, TABLE_TOP_Z, exact_throws
 from scipy import stats
-
-from experiments import all_goals
-from experiments import physics_bounds as pb
-from experiments.all_goals import AllGoalsConfig, AllGoalsResult
-from experiments.config import ConfigError
-from sim2d import geometry
-from sim2d.combined import CAN_BAND, TABLE_TOP_Z, exact_throws
 
 
 @pytest.fixture(scope="module")

@@ -5,14 +5,13 @@ to the network's configurations, the whole experiment at the tiny scale, its set
 import numpy as np
 import pytest
 import torch
-
-from experiments import can_demonstration as cd
-from experiments.cans import CanModel, can_dataset, fit_can_network
-from experiments.config import ConfigError
-from inference import compile as compile_queries
-from inference import fit
-from models.can_network import can_network, can_rows, n_cans
-from sim2d import field_throws, geometry
+from effect_networks.experiments import can_demonstration as cd
+from effect_networks.experiments.cans import CanModel, can_dataset, fit_can_network
+from effect_networks.experiments.config import ConfigError
+from effect_networks.inference import compile as compile_queries
+from effect_networks.inference import fit
+from effect_networks.models.can_network import can_network, can_rows, n_cans
+from effect_networks.sim2d import field_throws, geometry
 
 # A three-can world: 7 (cans 0, 1, 2) -> 3 (cans 0, 1) or 5 (cans 0, 2), both of two
 # cans; only 3 -> 1 (can 0); 5 -> 0. Each rule is one field; every other field changes

@@ -6,12 +6,12 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import torch
+from effect_networks.experiments import can_tossing as ct
+from effect_networks.experiments.cans import can_dataset, fit_can_network
+from effect_networks.experiments.config import ConfigError
+from effect_networks.experiments.evaluation import ACCURACY_BINS, roc_auc
+from effect_networks.sim2d import field_throws
 
-from experiments import can_tossing as ct
-from experiments.cans import can_dataset, fit_can_network
-from experiments.config import ConfigError
-from experiments.evaluation import ACCURACY_BINS, roc_auc
-from sim2d import field_throws
 from tests.helpers import InlineExecutor
 
 

@@ -6,9 +6,13 @@ import dataclasses
 import numpy as np
 import pytest
 import torch
-
-from experiments import cans
-from experiments.can_tossing import PROTOCOLS, RULES, start_evidence, table_one_cases
+from effect_networks.experiments import cans
+from effect_networks.experiments.can_tossing import (
+    PROTOCOLS,
+    RULES,
+    start_evidence,
+    table_one_cases,
+)
 
 
 @pytest.mark.parametrize("rule", RULES)

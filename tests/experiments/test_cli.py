@@ -6,10 +6,9 @@ from pathlib import Path
 from typing import ClassVar
 
 import pytest
-
-from experiments import cli
-from experiments.config import Result, check_float, check_int
-from experiments.registry import Experiment
+from effect_networks.experiments import cli
+from effect_networks.experiments.config import Result, check_float, check_int
+from effect_networks.experiments.registry import Experiment
 
 
 @dataclass(frozen=True)

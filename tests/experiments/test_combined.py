@@ -5,9 +5,8 @@ from dataclasses import replace
 
 import numpy as np
 import pytest
-
-from experiments.cans import can_dataset
-from experiments.combined import (
+from effect_networks.experiments.cans import can_dataset
+from effect_networks.experiments.combined import (
     SCENARIOS,
     CombinedConfig,
     CombinedResult,
@@ -16,11 +15,11 @@ from experiments.combined import (
     hit_gaussians,
     run_combined,
 )
-from experiments.config import ConfigError
-from inference.queries.chaining import link_probabilities
-from sim2d import geometry, materials
-from sim2d.combined import CAN_BAND
-from sim2d.field_throws import aim_offset, launch_state
+from effect_networks.experiments.config import ConfigError
+from effect_networks.inference.queries.chaining import link_probabilities
+from effect_networks.sim2d import geometry, materials
+from effect_networks.sim2d.combined import CAN_BAND
+from effect_networks.sim2d.field_throws import aim_offset, launch_state
 
 
 def test_tiny_run_end_to_end(tiny_data_dir, tmp_path):

@@ -4,8 +4,7 @@ import json
 import math
 
 import pytest
-
-from experiments.compare import compare_folders, main
+from effect_networks.experiments.compare import compare_folders, main
 
 
 def write(folder, name, value):

@@ -9,8 +9,7 @@ from typing import ClassVar
 
 import numpy as np
 import pytest
-
-from experiments.config import (
+from effect_networks.experiments.config import (
     ConfigError,
     Result,
     check_choice,
@@ -21,8 +20,8 @@ from experiments.config import (
     config_or_exit,
     run_script,
 )
-from sim2d.chunks import write_text
-from sim2d.executors import ExecutorUnavailable
+from effect_networks.sim2d.chunks import write_text
+from effect_networks.sim2d.executors import ExecutorUnavailable
 
 
 @pytest.mark.parametrize(

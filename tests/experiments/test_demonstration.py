@@ -2,9 +2,8 @@
 
 import numpy as np
 import pytest
-
-from experiments.config import ConfigError
-from experiments.demonstration import (
+from effect_networks.experiments.config import ConfigError
+from effect_networks.experiments.demonstration import (
     SHOWN,
     DemonstrationConfig,
     DemonstrationResult,
@@ -12,7 +11,7 @@ from experiments.demonstration import (
     door_rows,
     run_demonstration,
 )
-from inference import explain, fit
+from effect_networks.inference import explain, fit
 
 
 def test_the_shown_demonstration_follows_the_rules(tmp_path):

@@ -6,10 +6,7 @@ import itertools
 import numpy as np
 import pytest
 import torch
-from hypothesis import given, settings
-from hypothesis import strategies as st
-
-from experiments.evaluation import (
+from effect_networks.experiments.evaluation import (
     ACCURACY_BINS,
     accuracy_histogram,
     aim_pooled,
@@ -18,7 +15,10 @@ from experiments.evaluation import (
     roc_curve,
     tail_surprise,
 )
-from inference.queries import imitation_check, predict
+from effect_networks.inference.queries import imitation_check, predict
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
 from tests.helpers import discrete_network, random_params
 
 

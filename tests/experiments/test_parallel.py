@@ -5,11 +5,11 @@ import os
 import numpy as np
 import pytest
 import torch
+from effect_networks.experiments.adaptive_throw import AdaptiveThrowConfig, run_adaptive_throw
+from effect_networks.experiments.compare import compare_values
+from effect_networks.experiments.parallel import forks, resolve_workers, run_tasks
+from effect_networks.sim2d.executors import available_cores
 
-from experiments.adaptive_throw import AdaptiveThrowConfig, run_adaptive_throw
-from experiments.compare import compare_values
-from experiments.parallel import forks, resolve_workers, run_tasks
-from sim2d.executors import available_cores
 from tests.experiments.test_adaptive_throw import TINY
 
 

@@ -4,11 +4,11 @@ protocols on the same throws, a tiny run end to end, and resuming the combined b
 import numpy as np
 import pytest
 import torch
+from effect_networks.experiments import physics_bounds as pb
+from effect_networks.experiments.can_tossing import PROTOCOLS, table_one_cases
+from effect_networks.experiments.cans import can_dataset
+from effect_networks.experiments.config import ConfigError
 
-from experiments import physics_bounds as pb
-from experiments.can_tossing import PROTOCOLS, table_one_cases
-from experiments.cans import can_dataset
-from experiments.config import ConfigError
 from tests.helpers import InlineExecutor
 
 

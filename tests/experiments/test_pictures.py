@@ -1,9 +1,8 @@
 """experiments.pictures: the can world's and the throw's figures with tiny settings."""
 
 import pytest
-
-from experiments.config import ConfigError
-from experiments.pictures import (
+from effect_networks.experiments.config import ConfigError
+from effect_networks.experiments.pictures import (
     CanWorldConfig,
     ThrowKinematicsConfig,
     draw_can_world,

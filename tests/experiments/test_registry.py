@@ -5,10 +5,9 @@ import dataclasses
 from pathlib import Path
 
 import pytest
-
-from experiments.cans import CanDataSettings, SimulationSettings, default_data_dir
-from experiments.config import ConfigError, Result
-from experiments.registry import experiment, experiments
+from effect_networks.experiments.cans import CanDataSettings, SimulationSettings, default_data_dir
+from effect_networks.experiments.config import ConfigError, Result
+from effect_networks.experiments.registry import experiment, experiments
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -53,7 +52,7 @@ def test_every_experiment_in_the_paper_s_order():
 
 @pytest.mark.parametrize("name", list(HAND_WRITTEN_QUICK))
 def test_quick_settings_are_those_reproduce_used(name):
-    from experiments import cli
+    from effect_networks.experiments import cli
 
     by_hand = cli.parse_args(name, HAND_WRITTEN_QUICK[name]).config
     assert experiment(name).config(**experiment(name).quick) == by_hand

@@ -5,9 +5,8 @@ import dataclasses
 import json
 
 import pytest
-
-from experiments import summary
-from experiments.registry import experiment
+from effect_networks.experiments import summary
+from effect_networks.experiments.registry import experiment
 
 
 def write_result(folder, name: str, content: dict) -> None:

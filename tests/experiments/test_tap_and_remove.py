@@ -1,9 +1,8 @@
 """experiments.tap_and_remove shows what the paper's §III says it shows."""
 
 import pytest
-
-from experiments.config import ConfigError
-from experiments.tap_and_remove import (
+from effect_networks.experiments.config import ConfigError
+from effect_networks.experiments.tap_and_remove import (
     TapAndRemoveConfig,
     TapAndRemoveResult,
     run_tap_and_remove,

@@ -3,9 +3,8 @@
 import json
 
 import pytest
-
-from experiments.config import ConfigError
-from experiments.throwing import ThrowingConfig, ThrowingResult, run_throwing
+from effect_networks.experiments.config import ConfigError
+from effect_networks.experiments.throwing import ThrowingConfig, ThrowingResult, run_throwing
 
 
 def test_throwing_runs_and_writes_its_results(tmp_path):

@@ -5,9 +5,8 @@ from __future__ import annotations
 
 import dataclasses
 
+import effect_networks.inference.queries.compiled as surface
 import torch
-
-import inference.queries.compiled as surface
 
 #: Compiled and traced answers agree to this (absolute and relative), every field.
 TOLERANCE = 1e-12

@@ -7,12 +7,8 @@ import math
 import numpy as np
 import pytest
 import torch
-from hypothesis import given, settings
-from hypothesis import strategies as st
-from scipy import integrate, stats
-
-from inference import fit, infer_action
-from inference.design.active import (
+from effect_networks.inference import fit, infer_action
+from effect_networks.inference.design.active import (
     STRATEGIES,
     ExplorationState,
     dirichlet_eig,
@@ -20,7 +16,11 @@ from inference.design.active import (
     predictive_entropy,
     with_pool_prior,
 )
-from models import Continuous, Discrete, EffectNetwork
+from effect_networks.models import Continuous, Discrete, EffectNetwork
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy import integrate, stats
+
 from tests.helpers import discrete_network
 
 

@@ -4,10 +4,12 @@ import math
 
 import pytest
 import torch
-
-from inference.design.active_gaussian import regression_information, select_by_information
-from models import Continuous, EffectNetwork, Parameter
-from models.declaration import DTYPE
+from effect_networks.inference.design.active_gaussian import (
+    regression_information,
+    select_by_information,
+)
+from effect_networks.models import Continuous, EffectNetwork, Parameter
+from effect_networks.models.declaration import DTYPE
 
 NET = EffectNetwork(
     (Continuous("y", 2, initial=False),),

@@ -15,11 +15,7 @@ import warnings
 import numpy as np
 import pytest
 import torch
-from hypothesis import given, settings
-from hypothesis import strategies as st
-
-import inference
-from inference import (
+from effect_networks.inference import (
     fit,
     imitation_check,
     infer_action,
@@ -28,11 +24,23 @@ from inference import (
     predict,
     simulate,
 )
-from inference.fitting.em import fit_em
-from inference.fitting.fit import fit_statistics
-from inference.fitting.statistics import Counts
-from models import Continuous, Discrete, EffectNetwork, Parameter, load, random_params, save
-from models.params import initial_params
+from effect_networks.inference.fitting.em import fit_em
+from effect_networks.inference.fitting.fit import fit_statistics
+from effect_networks.inference.fitting.statistics import Counts
+from effect_networks.models import (
+    Continuous,
+    Discrete,
+    EffectNetwork,
+    Parameter,
+    load,
+    random_params,
+    save,
+)
+from effect_networks.models.params import initial_params
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from effect_networks import inference
 
 SUM_TOL = 1e-12
 

@@ -7,18 +7,17 @@ import math
 import numpy as np
 import pytest
 import torch
-from hypothesis import given, settings
-from hypothesis import strategies as st
-from scipy import integrate, stats
-
-from inference.queries.chaining import (
+from effect_networks.inference.queries.chaining import (
     BoxPartition,
     FunctionLink,
     LinkProbabilities,
     chain,
     link_probabilities,
 )
-from inference.queries.results import GaussianMixture
+from effect_networks.inference.queries.results import GaussianMixture
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from scipy import integrate, stats
 
 INF = math.inf
 

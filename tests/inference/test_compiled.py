@@ -7,13 +7,13 @@ import mpmath
 import numpy as np
 import pytest
 import torch
+from effect_networks.inference import infer_action
+from effect_networks.inference.queries.action import compile_discrete
+from effect_networks.models import Continuous, EffectNetwork
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-import inference
-from inference import infer_action
-from inference.queries.action import compile_discrete
-from models import Continuous, EffectNetwork
+from effect_networks import inference
 from tests.helpers import discrete_network, random_params
 
 
@@ -54,7 +54,8 @@ def test_compile_refuses_continuous_networks():
 
 
 def test_compiled_parameter_query_equals_traced():
-    from inference import infer_parameter
+    from effect_networks.inference import infer_parameter
+
     from tests.inference.test_queries_mixed import NET
 
     params = random_params(NET, 21, unseen=0.2)
@@ -78,7 +79,8 @@ def test_compiled_parameter_query_equals_traced():
 
 
 def test_compiled_parameter_query_with_one_shared_configuration():
-    from inference import infer_parameter
+    from effect_networks.inference import infer_parameter
+
     from tests.inference.test_queries_mixed import NET
 
     params = random_params(NET, 4)
@@ -142,7 +144,7 @@ def test_answers_with_latent_initial_sites_equal_the_answers_per_row(
     observed configuration (the others summed out, in chunks of any size) are those
     computed row by row, and the traced model's: posterior, evidence, unseen mass, best
     action (with and without allowed actions and the unseen rule) and the flag."""
-    import inference.queries.action as action_module
+    import effect_networks.inference.queries.action as action_module
 
     chunk = action_module.ANSWERS_CHUNK if chunk is None else chunk  # 40: small chunks
     with mock.patch.object(action_module, "ANSWERS_CHUNK", chunk):
@@ -231,9 +233,10 @@ def assert_same_answer(a, b):
 @given(seed=st.integers(0, 1000), which=st.sampled_from(["both", "land", "roll", "partial"]))
 def test_compiled_query_of_a_parameter_on_two_continuous_features(seed, which):
     """One aim acting on end.land (2-D) and end.roll: their joint Gaussian per cluster."""
-    from inference import infer_parameter
-    from inference.queries.parameter import CompiledJointParameterQuery
-    from models import Partial
+    from effect_networks.inference import infer_parameter
+    from effect_networks.inference.queries.parameter import CompiledJointParameterQuery
+    from effect_networks.models import Partial
+
     from tests.inference.test_parameter_effects import throwing
 
     net, _ = throwing()
@@ -263,8 +266,8 @@ def test_compiled_query_of_a_parameter_on_two_continuous_features(seed, which):
 
 
 def test_compiled_query_of_a_parameter_on_a_continuous_and_a_discrete_feature():
-    from inference import infer_parameter
-    from models import Continuous, Discrete, Parameter
+    from effect_networks.inference import infer_parameter
+    from effect_networks.models import Continuous, Discrete, Parameter
 
     force = Parameter("force", 0.0, 6.0, 3, ("push",), ("pos", "upright"))
     net = EffectNetwork(
@@ -299,7 +302,8 @@ def test_compiled_query_of_a_parameter_on_a_continuous_and_a_discrete_feature():
 
 
 def test_compiled_query_refuses_a_feature_shared_by_two_parameters():
-    from inference.queries.parameter import compile_parameter_query
+    from effect_networks.inference.queries.parameter import compile_parameter_query
+
     from tests.inference.test_parameter_effects import sliding
 
     net, params = sliding()
@@ -310,8 +314,8 @@ def test_compiled_query_refuses_a_feature_shared_by_two_parameters():
 def test_compiled_query_without_other_inputs_answers_as_the_traced_model():
     """A feature whose only continuous input is the parameter (the throw's hit): every
     cluster's mean is fixed; the same answers as the traced model."""
-    from inference import infer_parameter
-    from models import Continuous, Parameter
+    from effect_networks.inference import infer_parameter
+    from effect_networks.models import Continuous, Parameter
 
     target = Parameter("target", (0.0, 0.0), (1.0, 2.0), (3, 4), ("throw", "lob"), "hit")
     net = EffectNetwork((Continuous("hit", 2, initial=False),), ("throw", "lob"), (target,))
@@ -329,7 +333,7 @@ def test_compiled_query_without_other_inputs_answers_as_the_traced_model():
 
 
 def _one_row_network(dim: int = 2):
-    from models import Parameter
+    from effect_networks.models import Parameter
 
     low, high = (0.0,) * dim, (1.0, 2.0, 1.5)[:dim]
     target = Parameter("target", low, high, (3, 4, 2)[:dim], ("throw", "lob"), "hit")
@@ -349,7 +353,7 @@ def test_one_row_queries_answer_as_the_batched_query_and_the_traced_model(
     """One hit at a time (read with numpy from per-action tables) gives, row by row, the
     batched query's answers and the traced model's, flags and mixture included, for
     every way of giving one row."""
-    from inference import infer_parameter
+    from effect_networks.inference import infer_parameter
 
     net = _one_row_network(dim)
     params = random_params(net, seed, unseen=0.3)
@@ -399,7 +403,7 @@ def test_one_row_queries_answer_as_the_batched_query_and_the_traced_model(
 def test_one_row_query_with_an_impossible_cluster_and_the_default_action():
     """A cluster the action never takes is left out of the closest-cluster distance; with
     one action using the parameter, the action may be left out of the evidence."""
-    from models import Parameter
+    from effect_networks.models import Parameter
 
     target = Parameter("target", (0.0, 0.0), (1.0, 2.0), (3, 4), ("throw",), "hit")
     net = EffectNetwork((Continuous("hit", 2, initial=False),), ("throw", "lob"), (target,))
@@ -420,7 +424,7 @@ def test_one_row_query_with_an_impossible_cluster_and_the_default_action():
 
 
 def test_one_row_query_reports_bad_evidence_as_before():
-    from models import Partial
+    from effect_networks.models import Partial
 
     net = _one_row_network()
     params = random_params(net, 1)
@@ -449,8 +453,7 @@ def test_chi_square_tail_is_the_regularised_upper_gamma(dof, x):
     """Against mpmath's regularised upper incomplete gamma at 40 digits (torch's
     gammaincc, which the traced queries use, is within about 1e-10 of it)."""
     import mpmath
-
-    from models.gaussian import chi_square_tail
+    from effect_networks.models.gaussian import chi_square_tail
 
     with mpmath.workdps(40):
         expected = float(mpmath.gammainc(dof / 2, x / 2, mpmath.inf, regularized=True))
@@ -503,8 +506,8 @@ def test_compiled_parameter_query_keeps_every_digit_with_a_small_fitted_noise(la
     """Throw-like data with noise 1e-4 or 1e-5 (large cluster precisions): the compiled
     query's cluster posterior agrees with the traced model's to 1e-12, batched and one
     row at a time, picks the same best cluster, and matches a 50-digit oracle."""
-    from inference import fit, fit_em, infer_parameter
-    from models.throw_network import throw_data, throw_network
+    from effect_networks.inference import fit, fit_em, infer_parameter
+    from effect_networks.models.throw_network import throw_data, throw_network
 
     net = throw_network((8, 8))
     if layout == "adaptive":
@@ -538,8 +541,8 @@ def test_compiled_parameter_query_refuses_a_hit_with_no_probability_in_float64()
     """A hit ~1e156 standard deviations from every cluster (within the magnitude limit):
     its density underflows under every cluster; the compiled query, batched and one row,
     refuses the row by name as the traced one does, instead of answering NaN."""
-    from inference import infer_parameter
-    from models.params import NetworkParams
+    from effect_networks.inference import infer_parameter
+    from effect_networks.models.params import NetworkParams
 
     net = _one_row_network()
     params = random_params(net, 0)
@@ -582,53 +585,3 @@ def test_one_row_query_refuses_complex_and_huge_hits_as_encode_does(hit, match):
         warnings.simplefilter("error")
         with pytest.raises(ValueError, match=match):
             query.infer_parameter({"end.hit": hit, "action": "throw"})
-
-
-#: The compiled building blocks' former names in inference.queries.compiled -> their home.
-FORMER_NAMES = {
-    "compile_discrete": "inference.queries.action",
-    "CompiledNetwork": "inference.queries.action",
-    "ANSWERS_BUDGET": "inference.queries.action",
-    "ANSWERS_CHUNK": "inference.queries.action",
-    "compile_parameter_query": "inference.queries.parameter",
-    "CompiledJointParameterQuery": "inference.queries.parameter",
-    "CompiledParameterQuery": "inference.queries.parameter_tables",
-}
-
-
-@pytest.mark.parametrize("name", sorted(FORMER_NAMES))
-def test_the_building_blocks_former_names_warn_and_resolve(name):
-    import importlib
-
-    import inference.queries.compiled as compiled
-
-    with pytest.warns(DeprecationWarning, match=f"{name} is deprecated: ask inference.compile"):
-        old = getattr(compiled, name)
-    assert old is getattr(importlib.import_module(FORMER_NAMES[name]), name)
-    with pytest.raises(AttributeError, match="no attribute 'compile_everything'"):
-        compiled.compile_everything  # noqa: B018
-
-
-@pytest.mark.parametrize("parameter", ["force", "aim"])
-def test_the_compiled_parameter_querys_infer_warns_and_answers_as_infer_parameter(parameter):
-    """``infer`` (the former name, on both compiled parameter queries) still answers,
-    with a DeprecationWarning, what ``infer_parameter`` answers."""
-    from tests.inference.test_parameter_effects import throwing
-    from tests.inference.test_queries_mixed import NET
-
-    net = NET if parameter == "force" else throwing()[0]
-    params = random_params(net, 3, unseen=0.2)
-    g = torch.Generator().manual_seed(3)
-    ev = {"action": ["tap" if parameter == "force" else "throw"] * 5}
-    for site in net.sites:
-        if site.role == "initial" or site.name in ("end.pos", "end.land"):
-            shape = (5,) if site.discrete else (5, site.size)
-            draw = torch.randint(0, 2, shape, generator=g) if site.discrete else torch.randn(*shape)
-            ev[site.name] = draw.to(torch.float64) if not site.discrete else draw
-    ev = net.encode_indices({k: v for k, v in ev.items() if k != "action"}) | net.encode(
-        {"action": ev["action"]}
-    )
-    query = inference.compile(net, params).parameter_query(parameter)
-    with pytest.warns(DeprecationWarning, match="infer is now infer_parameter"):
-        old = query.infer(ev, mixture=True)
-    assert_same_answer(old, query.infer_parameter(ev, mixture=True))

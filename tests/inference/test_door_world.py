@@ -18,8 +18,7 @@ import time
 import numpy as np
 import pytest
 import torch
-
-from models import Continuous, Discrete, EffectNetwork
+from effect_networks.models import Continuous, Discrete, EffectNetwork
 
 ACTIONS = ("press", "pull", "turn", "wait")
 STATES = {
@@ -178,7 +177,7 @@ def numpy_kkt(net, params, rows, l2):
 @pytest.mark.parametrize("parents", [OWN, None], ids=["own", "default"])
 @pytest.mark.parametrize("l2", [0.01, 1.0])
 def test_softmax_fit_meets_the_kkt_conditions_quickly(parents, l2):
-    from inference import fit
+    from effect_networks.inference import fit
 
     net = door_world(parents)
     assert net.cpd("end.door").name == "softmax"
@@ -202,7 +201,7 @@ def test_softmax_fit_meets_the_kkt_conditions_quickly(parents, l2):
 
 def test_softmax_fit_at_large_angles():
     # angles in milli-radians far from 1: the same optimality conditions
-    from inference import fit
+    from effect_networks.inference import fit
 
     net = door_world()
     rows = door_rows(1000, seed=2)
@@ -221,8 +220,8 @@ def masked(rows, seed, sites=("end.door", "initial.drawer", "action", "end.switc
 
 
 def test_missing_values_em_never_lowers_the_likelihood_and_is_fast():
-    from inference import fit
-    from inference.fitting.missing import missing_log_likelihood
+    from effect_networks.inference import fit
+    from effect_networks.inference.fitting.missing import missing_log_likelihood
 
     net = door_world()
     rows = door_rows(1000, seed=3)
@@ -255,8 +254,8 @@ def test_missing_values_em_never_lowers_the_likelihood_and_is_fast():
 
 def test_a_missing_value_is_ignored_whatever_stands_in_its_place():
     # None, NaN or a label the site does not have where masks say missing: the same fit
-    from inference import fit
-    from inference.fitting.missing import missing_log_likelihood
+    from effect_networks.inference import fit
+    from effect_networks.inference.fitting.missing import missing_log_likelihood
 
     net = door_world()
     rows = door_rows(300, seed=15)
@@ -287,7 +286,7 @@ def test_a_missing_value_is_ignored_whatever_stands_in_its_place():
     ],
 )
 def test_bad_masks_are_value_errors_naming_the_site(masks, words):
-    from inference import fit
+    from effect_networks.inference import fit
 
     with pytest.raises(ValueError, match=words):
         fit(door_world(), door_rows(50), masks=masks)
@@ -322,9 +321,8 @@ def tiny_rows(n, seed):
 def test_missing_values_em_reaches_scipy_s_maximum_of_the_observed_likelihood():
     # the observed-data likelihood written by hand in torch (missing action and end
     # state summed out), maximised by scipy over unconstrained parameters
+    from effect_networks.inference import fit
     from scipy.optimize import minimize
-
-    from inference import fit
 
     net = tiny_world()
     n, l2 = 80, 0.01
@@ -441,10 +439,10 @@ EVIDENCE_PATTERNS = [
 
 @pytest.mark.parametrize("pattern", EVIDENCE_PATTERNS, ids=lambda p: "+".join(p))
 def test_discrete_queries_equal_pgmpy_variable_elimination(pattern):
+    from effect_networks.inference import fit, infer_action, predict
     from pgmpy.inference import VariableElimination
 
-    import inference
-    from inference import fit, infer_action, predict
+    from effect_networks import inference
 
     net = door_world(None, handle=False)
     params = fit(net, door_rows(400, seed=7, handle=False)).params
@@ -474,7 +472,7 @@ def test_discrete_queries_equal_pgmpy_variable_elimination(pattern):
 
 def test_mixed_queries_equal_the_brute_force_joint():
     # the continuous world: infer_action's posterior and evidence, predict's door
-    from inference import fit, infer_action, predict
+    from effect_networks.inference import fit, infer_action, predict
 
     net = door_world()
     params = fit(net, door_rows(1500, seed=9)).params
@@ -499,7 +497,7 @@ def test_mixed_queries_equal_the_brute_force_joint():
 # ---------------------------------------------------------------- README's Pyro idioms
 @pytest.fixture(scope="module")
 def fitted():
-    from inference import fit
+    from effect_networks.inference import fit
 
     net = door_world()
     return net, fit(net, door_rows(2000, seed=11)).params
@@ -507,9 +505,8 @@ def fitted():
 
 def test_predictive_in_parallel_draws_from_the_tables(fitted):
     import pyro
+    from effect_networks.models import effect_model
     from pyro.infer import Predictive
-
-    from models import effect_model
 
     net, params = fitted
     sites = [site.name for site in net.sites]
@@ -575,9 +572,8 @@ EVIDENCE_FOR_ELBO = [
 
 @pytest.mark.parametrize("observed", EVIDENCE_FOR_ELBO, ids=lambda p: "+".join(p))
 def test_trace_enum_elbo_is_minus_log_evidence_exactly(fitted, observed):
+    from effect_networks.models import effect_model
     from pyro.infer import TraceEnum_ELBO
-
-    from models import effect_model
 
     net, params = fitted
     rows = door_rows(7, seed=12)
@@ -603,9 +599,8 @@ def test_trace_enum_elbo_is_minus_log_evidence_exactly(fitted, observed):
 
 def test_infer_discrete_draws_the_exact_posterior(fitted):
     import pyro
+    from effect_networks.models import effect_model
     from pyro.infer import infer_discrete
-
-    from models import effect_model
 
     net, params = fitted
     rows = door_rows(1, seed=13)
@@ -635,9 +630,8 @@ def test_infer_discrete_draws_the_exact_posterior(fitted):
 def test_imitation_surprise_equals_the_closed_form(fitted, observed):
     # surprise = P(p(O | E) > p(o* | E)): per discrete outcome d, the Gaussian's share
     # of angles whose density exceeds p(o*) / p(d), erf(r / sqrt 2) at radius r
+    from effect_networks.inference import imitation_check
     from scipy.special import erf
-
-    from inference import imitation_check
 
     net, params = fitted
     rows = door_rows(6, seed=14)
@@ -676,11 +670,10 @@ def test_an_unknown_torque_integrated_out_equals_numerical_integration():
     # "turn" takes a torque (4 cells on [0, 2]) that moves the handle; the torque is
     # unknown: the collapsed model's ELBO and infer_action against the joint summed over
     # actions and clusters, the torque integrated on a fine grid
+    from effect_networks.inference import fit, infer_action
+    from effect_networks.models import Parameter, effect_model
     from pyro.infer import TraceEnum_ELBO
     from scipy.stats import norm
-
-    from inference import fit, infer_action
-    from models import Parameter, effect_model
 
     net = EffectNetwork(
         features=(Discrete("door", STATES["door"]), Continuous("handle_angle", 1)),

@@ -3,15 +3,20 @@ force, and a sparse network whose joint could never be built, against its closed
 
 from __future__ import annotations
 
+import effect_networks.inference.queries.elimination as elimination
 import pytest
 import torch
-
-import inference.queries.elimination as elimination
-from inference import imitation_check, infer_action, predict, simulate
-from inference.queries.elimination import contract, max_config, maximum, sample, value_at
-from inference.queries.enumeration import enumerate_model
-from models import Continuous, Discrete, EffectNetwork, random_params
-from models.declaration import DTYPE
+from effect_networks.inference import imitation_check, infer_action, predict, simulate
+from effect_networks.inference.queries.elimination import (
+    contract,
+    max_config,
+    maximum,
+    sample,
+    value_at,
+)
+from effect_networks.inference.queries.enumeration import enumerate_model
+from effect_networks.models import Continuous, Discrete, EffectNetwork, random_params
+from effect_networks.models.declaration import DTYPE
 
 TOL = 1e-12
 

@@ -5,22 +5,22 @@ from dataclasses import replace
 
 import pytest
 import torch
-from hypothesis import given, settings
-from hypothesis import strategies as st
-
-import inference
-from inference import (
+from effect_networks.inference import (
     fit,
     fit_em,
     fit_gradient,
     infer_parameter,
     predict,
 )
-from inference.fitting.em import em_step, mixture_log_likelihood, responsibilities
-from inference.queries.enumeration import enumerate_model
-from models import Continuous, Discrete, EffectNetwork, Parameter
-from models.declaration import DTYPE
-from models.params import load, save
+from effect_networks.inference.fitting.em import em_step, mixture_log_likelihood, responsibilities
+from effect_networks.inference.queries.enumeration import enumerate_model
+from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter
+from effect_networks.models.declaration import DTYPE
+from effect_networks.models.params import load, save
+from hypothesis import given, settings
+from hypothesis import strategies as st
+
+from effect_networks import inference
 
 
 def tap_net(bins=3, affects="pos", layout="adaptive"):

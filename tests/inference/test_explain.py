@@ -16,17 +16,17 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import torch
+from effect_networks.inference import fit, infer_action
+from effect_networks.inference.queries.demonstration import simulate_demonstrations
+from effect_networks.inference.queries.enumeration import over_row_chunks
+from effect_networks.inference.queries.explain import Explanation, explain
+from effect_networks.models import Continuous, Discrete, EffectNetwork, random_params
+from effect_networks.models.can_network import can_network
+from effect_networks.models.cpds import TableParams
+from effect_networks.models.declaration import DTYPE
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from inference import fit, infer_action
-from inference.queries.demonstration import simulate_demonstrations
-from inference.queries.enumeration import over_row_chunks
-from inference.queries.explain import Explanation, explain
-from models import Continuous, Discrete, EffectNetwork, random_params
-from models.can_network import can_network
-from models.cpds import TableParams
-from models.declaration import DTYPE
 from tests.helpers import discrete_network
 from tests.inference.test_queries_mixed import README_NET
 
@@ -217,7 +217,7 @@ def test_fully_observed_states_are_per_step_emulation():
     assert result.path_labels(0) == [{"door": x["door"], "light": x["light"]} for x in demo]
 
 
-@pytest.mark.filterwarnings("ignore::inference.OutsideTrainingData")
+@pytest.mark.filterwarnings("ignore::effect_networks.inference.OutsideTrainingData")
 def test_continuous_features_and_a_parameter_reduce_to_emulation():
     """README's network: the position observed at every time, the tap's force never;
     each fully observed step is infer_action's question (the force integrated out)."""
@@ -260,7 +260,7 @@ def check_two_steps_against_paths(net, result: Explanation, paths: dict, latent:
     assert result.path_labels(0)[1] == {latent: middle}
 
 
-@pytest.mark.filterwarnings("ignore::inference.OutsideTrainingData")
+@pytest.mark.filterwarnings("ignore::effect_networks.inference.OutsideTrainingData")
 def test_continuous_latent_path_matches_brute_force():
     """The visible flag latent in the middle state; the oracle enumerates every path and
     action sequence, each step's log p(end, a | start) read off the traced model with
@@ -364,10 +364,10 @@ def test_errors_name_what_is_wrong():
         explain(README_NET, random_params(README_NET, 0), [{"visible": True}, {}])
 
 
-@pytest.mark.filterwarnings("ignore::inference.OutsideTrainingData")
+@pytest.mark.filterwarnings("ignore::effect_networks.inference.OutsideTrainingData")
 def test_parts_and_chunks_answer_as_one_batch(monkeypatch):
     """Step tables built part by part and paths summed chunk by chunk: the same answers."""
-    import inference.queries.explain as module
+    import effect_networks.inference.queries.explain as module
 
     net, params = README_NET, random_params(README_NET, 6)
     states, _ = simulate_demonstrations(net, params, 7, 3, seed=2)
@@ -407,7 +407,7 @@ def test_simulated_demonstrations_are_read_back():
     assert float(result.probs.max(-1).values[torch.from_numpy(~idle)].min()) > 0.9
 
 
-@pytest.mark.filterwarnings("ignore::inference.OutsideTrainingData")
+@pytest.mark.filterwarnings("ignore::effect_networks.inference.OutsideTrainingData")
 def test_the_demonstrations_page_runs_and_says_what_its_comments_say():
     """docs/demonstrations.md continues README's quick start: both run, in order."""
     import re
@@ -437,7 +437,7 @@ def test_no_demonstrations_give_empty_answers():
     assert tuple(result.state_probs.shape) == (0, 4, 6)
 
 
-@pytest.mark.filterwarnings("ignore::inference.OutsideTrainingData")
+@pytest.mark.filterwarnings("ignore::effect_networks.inference.OutsideTrainingData")
 def test_a_continuous_outcome_seen_at_some_steps_matches_brute_force():
     """An outcome feature (initial=False) observed after the first step, not after the
     second, and the door latent in between: every path and sequence enumerated, each

@@ -7,15 +7,14 @@ import math
 import numpy as np
 import pandas as pd
 import pytest
+from effect_networks.inference import fit, log_likelihood, simulate
+from effect_networks.inference.fitting import family_scores
+from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter, random_params
+from effect_networks.models.cpds import TableCPD
+from effect_networks.models.model import effect_model
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from pyro import poutine
-
-from inference import fit, log_likelihood, simulate
-from inference.fitting import family_scores
-from models import Continuous, Discrete, EffectNetwork, Parameter, random_params
-from models.cpds import TableCPD
-from models.model import effect_model
 
 logging.getLogger("pgmpy").setLevel(logging.ERROR)
 
@@ -249,7 +248,7 @@ def test_family_bics_add_up_to_the_networks_bic_score(declarations, seed):
 
 
 def test_a_data_frame_scores_as_its_rows():
-    from models.frames import to_frame
+    from effect_networks.models.frames import to_frame
 
     net = EffectNetwork(FEATURES, ACTIONS, (FORCE,))
     rows = simulate(net, random_params(net, 2), 300, seed=2)

@@ -2,10 +2,9 @@
 
 import pytest
 import torch
-
-from inference import fit, fit_gradient
-from models import Continuous, Discrete, EffectNetwork, Parameter
-from models.declaration import DTYPE
+from effect_networks.inference import fit, fit_gradient
+from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter
+from effect_networks.models.declaration import DTYPE
 
 
 def tap_data(net, n=400, seed=0):
@@ -169,7 +168,9 @@ def test_fit_rejects_bad_data():
         fit(net, tap)
 
 
-@pytest.mark.filterwarnings("ignore::inference.fitting.fit.ConvergenceWarning")  # 5 steps only
+@pytest.mark.filterwarnings(
+    "ignore::effect_networks.inference.fitting.fit.ConvergenceWarning"
+)  # 5 steps only
 def test_fitting_leaves_pyros_param_store_alone():
     import pyro
 
@@ -260,7 +261,7 @@ def threshold_world(n=2000, seed=0):
 
 
 def test_softmax_fit_settles_on_a_real_dependence():
-    from inference import predict
+    from effect_networks.inference import predict
 
     net, data = threshold_world()
     result = fit(net, data)
@@ -294,7 +295,7 @@ def test_softmax_fit_is_the_penalised_optimum():
 
 
 def test_an_unsettled_softmax_fit_warns_and_names_the_cpd():
-    from inference import ConvergenceWarning
+    from effect_networks.inference import ConvergenceWarning
 
     net, data = threshold_world(n=300)
     with pytest.warns(ConvergenceWarning, match=r"\['end.on_table'\] did not settle in 2 steps"):
@@ -467,9 +468,9 @@ def noisy_threshold_world(n=300, seed=0):
 def test_softmax_fit_reaches_the_gradient_routes_optimum():
     # the traced Pyro model minimised by L-BFGS (the route that differentiates the
     # model itself) finds the same optimum
-    from inference import params_from_statistics
-    from inference.fitting.statistics import statistics
-    from models.params import NetworkParams
+    from effect_networks.inference import params_from_statistics
+    from effect_networks.inference.fitting.statistics import statistics
+    from effect_networks.models.params import NetworkParams
 
     net, data = noisy_threshold_world()
     newton = fit(net, data, pseudo_count=0.0).params["end.on_table"]

@@ -10,8 +10,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import torch
-
-from inference import (
+from effect_networks.inference import (
     compile,
     fit,
     fit_em,
@@ -24,8 +23,9 @@ from inference import (
     predict,
     simulate,
 )
-from models import Continuous, Discrete, EffectNetwork, Parameter, random_params
-from models.frames import from_frame, to_frame
+from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter, random_params
+from effect_networks.models.frames import from_frame, to_frame
+
 from tests.inference.questions import TracedCalls, assert_same_answer
 
 ROOT = Path(__file__).resolve().parents[2]

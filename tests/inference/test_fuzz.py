@@ -14,12 +14,12 @@ import math
 import numpy as np
 import pytest
 import torch
+from effect_networks.inference import fit, imitation_check, infer_action, predict
+from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter, random_params
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-import inference
-from inference import fit, imitation_check, infer_action, predict
-from models import Continuous, Discrete, EffectNetwork, Parameter, random_params
+from effect_networks import inference
 
 STATE_KINDS = {
     "int": lambda k: tuple(range(10, 10 + k)),
@@ -258,8 +258,8 @@ def test_every_distribution_sums_to_one_at_every_accepted_magnitude(
     NaN, or the query refuses the row by name (a density below float64's range)."""
     import warnings
 
-    from inference import infer_parameter
-    from inference.queries.plausibility import OutsideTrainingData
+    from effect_networks.inference import infer_parameter
+    from effect_networks.inference.queries.plausibility import OutsideTrainingData
 
     params = random_params(net, seed)
     big = sign * 10.0**exponent

@@ -5,10 +5,10 @@ from __future__ import annotations
 
 import numpy as np
 import torch
+from effect_networks.inference import fit, predict
+from effect_networks.inference.queries.joint import predict_joint
+from effect_networks.inference.queries.transitions import transitions
 
-from inference import fit, predict
-from inference.queries.joint import predict_joint
-from inference.queries.transitions import transitions
 from tests.inference.test_transitions import rich_net, rich_rows
 
 

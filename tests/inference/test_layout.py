@@ -1,27 +1,26 @@
 """The inference package's place in the layers: imports point down (experiments ->
-inference -> models), so no inference module imports the experiments, except the
-deprecated re-export of the scoring that moved there."""
+inference -> models), so no inference module imports the experiments."""
 
 import ast
 from pathlib import Path
 
 import pytest
 
-import inference
+from effect_networks import inference
 
 PACKAGE = Path(inference.__file__).parent
-DEPRECATED_REEXPORTS = {PACKAGE / "evaluation.py"}
 
 
 def imported_packages(tree: ast.Module) -> set[str]:
-    """The top-level package of every absolute import in ``tree``."""
-    out = set()
+    """The package of every absolute import in ``tree``: the subpackage of
+    ``effect_networks`` for the project's own, the top-level name for any other."""
+    names = set()
     for node in ast.walk(tree):
         if isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
-            out.add(node.module.split(".")[0])
+            names.add(node.module)
         elif isinstance(node, ast.Import):
-            out |= {a.name.split(".")[0] for a in node.names}
-    return out
+            names |= {a.name for a in node.names}
+    return {n.split(".")[1] if n.startswith("effect_networks.") else n.split(".")[0] for n in names}
 
 
 def test_no_inference_module_imports_experiments():
@@ -30,51 +29,18 @@ def test_no_inference_module_imports_experiments():
     offenders = [
         str(p.relative_to(PACKAGE))
         for p in modules
-        if p not in DEPRECATED_REEXPORTS
-        and "experiments" in imported_packages(ast.parse(p.read_text()))
+        if "experiments" in imported_packages(ast.parse(p.read_text()))
     ]
     assert offenders == []
 
 
-def test_the_deprecated_reexport_is_the_only_upward_import():
-    (shim,) = DEPRECATED_REEXPORTS
-    assert imported_packages(ast.parse(shim.read_text())) == {"experiments", "warnings"}
-
-
-#: Old flat module -> where it lives now (the old path forwards there with a warning).
-MOVED = {
-    "em": "inference.fitting.em",
-    "pooling": "inference.fitting.pooling",
-    "statistics": "inference.fitting.statistics",
-    "compiled": "inference.queries.compiled",
-    "enumeration": "inference.queries.enumeration",
-    "plausibility": "inference.queries.plausibility",
-    "surprise": "inference.queries.surprise",
-    "planning": "inference.queries.planning",
-    "active": "inference.design.active",
-    "active_gaussian": "inference.design.active_gaussian",
-}
-
-
-@pytest.mark.parametrize("old", sorted(MOVED))
-def test_old_flat_paths_forward_with_a_warning(old):
-    import importlib
-    import sys
-
-    sys.modules.pop(f"inference.{old}", None)
-    with pytest.warns(DeprecationWarning, match=MOVED[old]):
-        shim = importlib.import_module(f"inference.{old}")
-    new = importlib.import_module(MOVED[old])
-    public = [n for n in dir(new) if not n.startswith("_") and not n.startswith("__")]
-    assert public, MOVED[old]
-    for name in public:
-        assert getattr(shim, name) is getattr(new, name)
-
-
 def test_the_package_face_keeps_its_functions():
     """``inference.fit`` and ``inference.simulate`` are the functions, not modules."""
-    assert callable(inference.fit) and inference.fit.__module__ == "inference.fitting.fit"
-    assert inference.simulate.__module__ == "inference.queries.simulate"
+    assert (
+        callable(inference.fit)
+        and inference.fit.__module__ == "effect_networks.inference.fitting.fit"
+    )
+    assert inference.simulate.__module__ == "effect_networks.inference.queries.simulate"
 
 
 #: Folders whose modules may still import another module's private name: none.
@@ -87,16 +53,17 @@ def private_imports(tree: ast.AST) -> list[str]:
         f"{node.module}.{alias.name}"
         for node in ast.walk(tree)
         if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module
-        if node.module.split(".")[0] == "inference"
+        if node.module.startswith("effect_networks.inference")
         for alias in node.names
         if alias.name.startswith("_")
     ]
 
 
 def test_private_imports_are_found():
-    tree = ast.parse("def f():\n    from inference.fitting.fit import _x, y\n")
-    assert private_imports(tree) == ["inference.fitting.fit._x"]
-    assert private_imports(ast.parse("from models.params import _x\nimport inference")) == []
+    tree = ast.parse("def f():\n    from effect_networks.inference.fitting.fit import _x, y\n")
+    assert private_imports(tree) == ["effect_networks.inference.fitting.fit._x"]
+    source = "from effect_networks.models.params import _x\nfrom effect_networks import inference"
+    assert private_imports(ast.parse(source)) == []
 
 
 def test_no_inference_module_imports_another_modules_private_name():
@@ -142,48 +109,32 @@ def test_every_name_of_the_face_resolves_without_a_warning():
         for name in inference.__all__:
             assert getattr(inference, name) is not None, name
     assert (
-        callable(inference.compile) and inference.compile.__module__ == "inference.queries.compiled"
+        callable(inference.compile)
+        and inference.compile.__module__ == "effect_networks.inference.queries.compiled"
     )
 
 
 def test_the_face_exports_what_the_readme_and_the_guide_teach():
-    """Every name imported from ``inference`` in the README and the guide's pages, and
-    every ``inference.<name>`` they write that is not a module, is on the face."""
+    """Every name imported from ``effect_networks`` or ``effect_networks.inference`` in the
+    README and the guide's pages, and every ``inference.<name>`` they write that is not a
+    module, is on a face (the package's own or the inference face)."""
     import re
 
+    import effect_networks
     from tests.test_readme import guide_text
 
     text = guide_text()
     imported = set()
-    lists = re.findall(r"from inference import \(([^)]*)\)", text)
-    lists += re.findall(r"from inference import ([\w, ]+)$", text, re.M)
+    lists = re.findall(r"from effect_networks(?:\.inference)? import \(([^)]*)\)", text)
+    lists += re.findall(r"from effect_networks(?:\.inference)? import ([\w, ]+)$", text, re.M)
     for names in lists:
         imported |= {n.strip() for n in names.split(",") if n.strip()}
     written = set(re.findall(r"\binference\.(\w+)\b(?!\.)", text))
     submodules = {p.stem for p in PACKAGE.iterdir() if p.suffix == ".py" or p.is_dir()}
     taught = imported | (written - submodules)
     assert {"compile", "fit", "predict", "simulate"} <= taught  # the parse found them
-    assert taught <= set(inference.__all__), taught - set(inference.__all__)
-
-
-#: Lower-level names the face used to export -> where they live.
-DEPRECATED_AT_THE_FACE = {
-    "Enumerated": "inference.queries.enumeration",
-    "enumerate_model": "inference.queries.enumeration",
-    "Statistics": "inference.fitting.statistics",
-}
-
-
-@pytest.mark.parametrize("name", sorted(DEPRECATED_AT_THE_FACE))
-def test_lower_level_names_at_the_face_warn_and_resolve(name):
-    import importlib
-
-    assert name not in inference.__all__
-    with pytest.warns(DeprecationWarning, match=DEPRECATED_AT_THE_FACE[name]):
-        old = getattr(inference, name)
-    assert old is getattr(importlib.import_module(DEPRECATED_AT_THE_FACE[name]), name)
-    with pytest.raises(AttributeError, match="no attribute 'infer_everything'"):
-        inference.infer_everything  # noqa: B018
+    faces = set(inference.__all__) | set(effect_networks.__all__) | set(effect_networks.SUBPACKAGES)
+    assert taught <= faces, taught - faces
 
 
 QUERIES = PACKAGE / "queries"
@@ -207,10 +158,10 @@ def test_no_query_module_imports_another_modules_private_names():
 def test_each_question_keeps_its_traced_and_compiled_answers_side_by_side():
     """The action query beside its discrete tables, the parameter posterior beside its
     compiled query; the package face offers the questions and the compiled surface."""
-    from inference.queries import action, parameter
+    from effect_networks.inference.queries import action, parameter
 
     assert {"infer_action", "CompiledNetwork", "compile_discrete"} <= set(vars(action))
     assert {"infer_parameter", "compile_parameter_query"} <= set(vars(parameter))
-    import inference.queries as queries
+    import effect_networks.inference.queries as queries
 
     assert set(queries.__all__) >= {"compile", "infer_action", "infer_parameter", "predict"}

@@ -5,13 +5,14 @@ import math
 
 import pytest
 import torch
+from effect_networks.inference import ConvergenceWarning, fit
+from effect_networks.inference.fitting import em, missing
+from effect_networks.inference.queries.enumeration import enumerate_model
+from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter
+from effect_networks.models.declaration import DTYPE
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from inference import ConvergenceWarning, enumerate_model, fit
-from inference.fitting import em, missing
-from models import Continuous, Discrete, EffectNetwork, Parameter
-from models.declaration import DTYPE
 from tests.inference.test_em import tap_data, tap_net
 
 
@@ -133,7 +134,7 @@ def test_missing_values_em_reaches_the_brute_force_maximum():
     mine = score(result.params)
     assert mine >= best - 1e-7
     assert mine == pytest.approx(-result.losses[-1] * rows.n_rows, rel=1e-12)
-    from inference.fitting.missing import missing_log_likelihood
+    from effect_networks.inference.fitting.missing import missing_log_likelihood
 
     assert missing_log_likelihood(SMALL, result.params, rows, masks) == pytest.approx(
         mine, rel=1e-12
@@ -149,10 +150,9 @@ def marginal_loss(net, params, rows, masks, l2=0.01, presence=False):
     over the actions that use exactly the parameters the row gives: each action given in
     turn (the model enumerated by the queries' machinery), their likelihoods summed."""
     import pyro
+    from effect_networks.models.model import effect_model
+    from effect_networks.models.params import NetworkParams
     from pyro.infer import TraceEnum_ELBO
-
-    from models.model import effect_model
-    from models.params import NetworkParams
 
     free = {
         s: {k: t.detach().clone().requires_grad_() for k, t in net.cpd(s).free(params[s]).items()}
@@ -331,13 +331,15 @@ def test_missing_values_the_em_cannot_fill_are_refused():
         fit(net, rows, masks=masks)
 
 
-@pytest.mark.filterwarnings("ignore::inference.fitting.result.ConvergenceWarning")  # 5 steps only
+@pytest.mark.filterwarnings(
+    "ignore::effect_networks.inference.fitting.result.ConvergenceWarning"
+)  # 5 steps only
 def test_missing_values_e_step_in_row_chunks_is_the_same(monkeypatch):
-    import inference.queries.enumeration
+    import effect_networks.inference.queries.enumeration as enumeration_module
 
     rows, masks = small_rows(n=200)
     whole = fit(SMALL, rows, masks=masks, steps=5, tol=1e-300)
-    monkeypatch.setattr(inference.queries.enumeration, "CHUNK_ELEMENTS", 100)  # 100 / 12: 8 rows
+    monkeypatch.setattr(enumeration_module, "CHUNK_ELEMENTS", 100)  # 100 / 12: 8 rows
     chunked = fit(SMALL, rows, masks=masks, steps=5, tol=1e-300)
     torch.testing.assert_close(
         torch.tensor(chunked.losses), torch.tensor(whole.losses), rtol=1e-13, atol=0
@@ -349,7 +351,7 @@ def test_missing_values_e_step_in_row_chunks_is_the_same(monkeypatch):
 
 
 @pytest.mark.filterwarnings(
-    "ignore::inference.fitting.result.ConvergenceWarning"
+    "ignore::effect_networks.inference.fitting.result.ConvergenceWarning"
 )  # 20 steps at most
 @settings(max_examples=15, deadline=None)
 @given(

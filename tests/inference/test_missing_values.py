@@ -10,13 +10,13 @@ from dataclasses import fields, replace
 import numpy as np
 import pytest
 import torch
+from effect_networks.inference import ConvergenceWarning, fit, simulate
+from effect_networks.inference.fitting.missing import missing_log_likelihood
+from effect_networks.models import Continuous, Discrete, EffectNetwork, Partial, random_params
+from effect_networks.models.params import NetworkParams
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from inference import ConvergenceWarning, fit, simulate
-from inference.fitting.missing import missing_log_likelihood
-from models import Continuous, Discrete, EffectNetwork, Partial, random_params
-from models.params import NetworkParams
 from tests.inference.test_fuzz import mixed_networks
 
 SHAPES, ACTIONS = ("box", "ball"), ("push", "lift")
@@ -429,7 +429,8 @@ def test_missing_continuous_values_beside_missing_actions_with_a_parameter():
     # using exactly the parameters the row gives), end.pos in 25 %. The oracle: Pyro's
     # enumeration of the model, which reads a NaN end value as unobserved (the leaf's
     # factor integrates to one), and its gradient over every CPD, zero at EM's optimum
-    from models.evidence import Evidence
+    from effect_networks.models.evidence import Evidence
+
     from tests.inference.test_missing import marginal_loss, tap3_rows
 
     net, rows, masks = tap3_rows(n=300, seed=1)
@@ -452,8 +453,8 @@ def test_the_closed_form_e_step_scores_rows_as_pyro_enumerates_them(net, seed, s
     # random mixed networks (softmax, parameters, 2-D features): rows missing discrete
     # labels and end dimensions scored by the joint-Gaussian E-step equal the model's
     # own enumeration, which reads a NaN end dimension as unobserved
-    from inference.queries.enumeration import enumerate_model
-    from models.evidence import Evidence
+    from effect_networks.inference.queries.enumeration import enumerate_model
+    from effect_networks.models.evidence import Evidence
 
     params = random_params(net, seed)
     rows = net.encode(simulate(net, params, 25, seed=seed))

@@ -27,25 +27,25 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import torch
-from hypothesis import HealthCheck, assume, given, settings
-from hypothesis import strategies as st
-from mpmath import mp, mpf
-
-import inference
-from inference import (
+from effect_networks.inference import (
     imitation_check,
     infer_action,
     infer_parameter,
     parameter_for_effect,
     predict,
 )
-from inference.queries.plausibility import IMPLAUSIBLE_BELOW
-from models import Continuous, Discrete, EffectNetwork, Parameter, random_params
-from models.cpds.linear_gaussian import LinearGaussianParams
-from models.cpds.softmax import SoftmaxParams
-from models.cpds.table import TableParams
-from models.evidence import MAX_MAGNITUDE
-from models.params import NetworkParams
+from effect_networks.inference.queries.plausibility import IMPLAUSIBLE_BELOW
+from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter, random_params
+from effect_networks.models.cpds.linear_gaussian import LinearGaussianParams
+from effect_networks.models.cpds.softmax import SoftmaxParams
+from effect_networks.models.cpds.table import TableParams
+from effect_networks.models.evidence import MAX_MAGNITUDE
+from effect_networks.models.params import NetworkParams
+from hypothesis import HealthCheck, assume, given, settings
+from hypothesis import strategies as st
+from mpmath import mp, mpf
+
+from effect_networks import inference
 
 #: The largest magnitude of a continuous evidence value the tests draw: the accepted
 #: limit (``models.evidence.MAX_MAGNITUDE``); beyond it evidence is refused.

@@ -10,10 +10,24 @@ import math
 import numpy as np
 import pytest
 import torch
-
-from inference import fit, imitation_check, infer_action, infer_parameter, predict, simulate
-from inference.queries.parameter import compile_parameter_query
-from models import Continuous, Discrete, EffectNetwork, Parameter, load, random_params, save
+from effect_networks.inference import (
+    fit,
+    imitation_check,
+    infer_action,
+    infer_parameter,
+    predict,
+    simulate,
+)
+from effect_networks.inference.queries.parameter import compile_parameter_query
+from effect_networks.models import (
+    Continuous,
+    Discrete,
+    EffectNetwork,
+    Parameter,
+    load,
+    random_params,
+    save,
+)
 
 ACTIONS = ("push", "wait")
 

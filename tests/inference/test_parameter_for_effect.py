@@ -4,12 +4,11 @@ import math
 
 import pytest
 import torch
+from effect_networks.inference import fit, fit_em, infer_parameter, parameter_for_effect, predict
+from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter, Partial
+from effect_networks.models.declaration import DTYPE
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-from inference import fit, fit_em, infer_parameter, parameter_for_effect, predict
-from models import Continuous, Discrete, EffectNetwork, Parameter, Partial
-from models.declaration import DTYPE
 
 
 def one_d_net(bins=1, layout="grid"):
@@ -350,7 +349,7 @@ def test_partial_evidence_counts_its_observed_dimensions():
 
 def _throw_case(layout):
     """The throw network (a 2-D target acting on a 2-D hit) on a curved map."""
-    from models.throw_network import throw_data, throw_network
+    from effect_networks.models.throw_network import throw_data, throw_network
 
     net = throw_network((3, 3))
     if layout == "adaptive":
@@ -465,7 +464,7 @@ CASES = {
 def test_closed_form_scores_equal_the_models_own(case, monkeypatch):
     """The candidates' scores in closed form (the mixture's terms, shifted by one model
     evaluation per row) equal the model's log p(value, evidence) at every candidate."""
-    import inference.queries.inverse as queries
+    import effect_networks.inference.queries.inverse as queries
 
     net, params, p, evidence = CASES[case]()
     m = net.mixture(p)
@@ -492,8 +491,8 @@ def test_closed_form_scores_equal_the_models_own(case, monkeypatch):
 
 
 def test_a_discrete_effect_of_the_cluster_is_scored_by_the_model():
-    import inference.queries.inverse as queries
-    from inference.queries.batching import prepare
+    import effect_networks.inference.queries.inverse as queries
+    from effect_networks.inference.queries.batching import prepare
 
     net, params, p, evidence = _discrete_effect_case()
     answer = parameter_for_effect(net, params, p, evidence)

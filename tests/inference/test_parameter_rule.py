@@ -9,10 +9,9 @@ import math
 import numpy as np
 import pytest
 import torch
-
-from inference import fit, imitation_check, infer_action, predict
-from models import Continuous, Discrete, EffectNetwork, Parameter, random_params
-from models.declaration import DTYPE
+from effect_networks.inference import fit, imitation_check, infer_action, predict
+from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter, random_params
+from effect_networks.models.declaration import DTYPE
 
 PUSH = EffectNetwork(
     (Discrete("contact", ("no", "yes")), Continuous("pos", 1)),

@@ -12,16 +12,23 @@ import math
 import numpy as np
 import pytest
 import torch
+from effect_networks.inference import (
+    fit,
+    imitation_check,
+    infer_action,
+    infer_parameter,
+    predict,
+    simulate,
+)
+from effect_networks.inference.queries.plausibility import plausibility
+from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter, Partial
+from effect_networks.models.declaration import DTYPE
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import stats
 from torch.distributions import MultivariateNormal
 
-import inference
-from inference import fit, imitation_check, infer_action, infer_parameter, predict, simulate
-from inference.queries.plausibility import plausibility
-from models import Continuous, Discrete, EffectNetwork, Parameter, Partial
-from models.declaration import DTYPE
+from effect_networks import inference
 from tests.helpers import random_params
 
 NET = EffectNetwork(

@@ -2,11 +2,10 @@
 
 import pytest
 import torch
+from effect_networks.inference.queries.paths import GROUPED_KEYS, LogTables, log_matvec, max_matvec
+from effect_networks.models.declaration import DTYPE
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-from inference.queries.paths import GROUPED_KEYS, LogTables, log_matvec, max_matvec
-from models.declaration import DTYPE
 
 
 def dense(left, tables, key):

@@ -8,14 +8,13 @@ import itertools
 
 import pytest
 import torch
+from effect_networks.inference import fit
+from effect_networks.inference.queries.planner import plan, plan_on
+from effect_networks.inference.queries.planning import policy_value
+from effect_networks.inference.queries.transitions import transitions
+from effect_networks.models import Discrete, EffectNetwork, random_params
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
-
-from inference import fit
-from inference.queries.planner import plan, plan_on
-from inference.queries.planning import policy_value
-from inference.queries.transitions import transitions
-from models import Discrete, EffectNetwork, random_params
 
 
 def forward(probs, goal, start, choose, horizon):
@@ -288,8 +287,7 @@ def test_planning_on_the_readme_network():
     """The quick start's network (visible, position; look, remove, tap with a force on the
     position): its one state feature is visible, the position is the given context."""
     import numpy as np
-
-    from models import Continuous, Parameter
+    from effect_networks.models import Continuous, Parameter
 
     net = EffectNetwork(
         features=(Discrete("visible", (False, True)), Continuous("position", 1)),

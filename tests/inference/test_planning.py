@@ -4,8 +4,7 @@ import itertools
 
 import pytest
 import torch
-
-from inference.queries.planning import (
+from effect_networks.inference.queries.planning import (
     INTERMEDIATE,
     NO_HIT,
     SUCCESS,

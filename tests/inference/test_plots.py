@@ -12,20 +12,20 @@ import torch
 
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
-from matplotlib.patches import Ellipse, FancyArrowPatch, Rectangle  # noqa: E402
-
-import inference  # noqa: E402
-from inference import fit, fit_em, infer_action, simulate  # noqa: E402
-from inference.plots import (  # noqa: E402
+from effect_networks.inference import fit, fit_em, infer_action, simulate  # noqa: E402
+from effect_networks.inference.plots import (  # noqa: E402
     plot_action_posterior,
     plot_clusters,
     plot_network,
     plot_table,
 )
-from models import Continuous, Discrete, EffectNetwork, Parameter, random_params  # noqa: E402
-from models.cpds import TableParams  # noqa: E402
-from models.declaration import DTYPE  # noqa: E402
-from models.params import NetworkParams  # noqa: E402
+from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter, random_params  # noqa: E402
+from effect_networks.models.cpds import TableParams  # noqa: E402
+from effect_networks.models.declaration import DTYPE  # noqa: E402
+from effect_networks.models.params import NetworkParams  # noqa: E402
+from matplotlib.patches import Ellipse, FancyArrowPatch, Rectangle  # noqa: E402
+
+from effect_networks import inference  # noqa: E402
 
 ROOT = Path(__file__).parents[2]
 
@@ -428,7 +428,7 @@ def test_every_function_draws_into_the_axes_it_is_given(tmp_path):
     assert plot_clusters(net, params, "force", ax=axes[2]) is axes[2]
     assert plot_action_posterior(posterior, ax=axes[3]) is axes[3]
     rendered(axes[0], tmp_path)
-    from inference.plots import plot_plan
+    from effect_networks.inference.plots import plot_plan
 
     fig, axes = plt.subplots(1, 2)
     route = door_plan(horizon=2)
@@ -443,7 +443,7 @@ def test_the_package_offers_the_module_and_no_names_of_it():
 
     assert inference.plots.plot_network is plot_network
     # the package re-exports each picture from its module
-    from inference.plots import graph, plans, posteriors, tables
+    from effect_networks.inference.plots import graph, plans, posteriors, tables
 
     assert inference.plots.plot_plan is plans.plot_plan
     assert inference.plots.plot_demonstration is posteriors.plot_demonstration
@@ -457,8 +457,8 @@ def test_the_package_offers_the_module_and_no_names_of_it():
 
 
 def test_demonstration_heat_map_shows_the_posterior_and_the_sequence(tmp_path):
-    from inference import explain
-    from inference.plots import plot_demonstration
+    from effect_networks.inference import explain
+    from effect_networks.inference.plots import plot_demonstration
 
     net = tap_net()
     params = random_params(net, 3)
@@ -477,7 +477,7 @@ def test_demonstration_heat_map_shows_the_posterior_and_the_sequence(tmp_path):
 # ------------------------------------------------------------------------------ a plan
 def door_plan(horizon=3):
     """The door world of docs/planning.md: unlock, then push, opens a locked door."""
-    from inference import plan
+    from effect_networks.inference import plan
 
     net = EffectNetwork(
         (Discrete("door", ("closed", "open")), Discrete("lock", ("locked", "unlocked"))),
@@ -497,7 +497,7 @@ def door_plan(horizon=3):
 
 
 def test_the_policy_grid_shows_each_states_action_and_chance(tmp_path):
-    from inference.plots import plot_plan
+    from effect_networks.inference.plots import plot_plan
 
     route = door_plan(horizon=3)
     ax = rendered(plot_plan(route), tmp_path)
@@ -524,7 +524,7 @@ def test_the_policy_grid_shows_each_states_action_and_chance(tmp_path):
 
 
 def test_the_path_marks_each_state_and_names_each_action(tmp_path):
-    from inference.plots import plot_plan
+    from effect_networks.inference.plots import plot_plan
 
     route = door_plan(horizon=3)
     ax = rendered(plot_plan(route, show="path"), tmp_path)
@@ -538,8 +538,8 @@ def test_the_path_marks_each_state_and_names_each_action(tmp_path):
 
 
 def test_an_exact_plan_is_drawn_by_the_labels_given(tmp_path):
-    from inference.plots import plot_plan
-    from inference.queries.planning import exact_plan
+    from effect_networks.inference.plots import plot_plan
+    from effect_networks.inference.queries.planning import exact_plan
 
     # two states, one action that moves 0 -> 1 surely; the goal is state 1
     probs = torch.tensor([[[0.0, 1.0]], [[0.0, 1.0]]], dtype=DTYPE)

@@ -7,11 +7,11 @@ from unittest import mock
 import numpy as np
 import pytest
 import torch
+from effect_networks.inference import fit, fit_pooled, grid_kernel, infer_action
+from effect_networks.inference.fitting import pooling
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from inference import fit, fit_pooled, grid_kernel, infer_action
-from inference.fitting import pooling
 from tests.helpers import brute_joint, discrete_network
 
 NET = discrete_network([3, 2], 4)  # features f0 (3 states), f1 (2), four actions

@@ -4,12 +4,12 @@ import itertools
 
 import pytest
 import torch
+from effect_networks.inference import imitation_check, infer_action, predict
+from effect_networks.models import Discrete, EffectNetwork
+from effect_networks.models.declaration import DTYPE
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from inference import imitation_check, infer_action, predict
-from models import Discrete, EffectNetwork
-from models.declaration import DTYPE
 from tests.helpers import brute_joint, discrete_network, random_params
 
 
@@ -163,7 +163,7 @@ def test_unseen_configuration_is_reported():
 
 
 def test_ties_go_to_the_lowest_index_whatever_the_rounding():
-    from inference.queries.batching import first_best
+    from effect_networks.inference.queries.batching import first_best
 
     score = torch.tensor(
         [[0.2, 0.4, 0.4 * (1 + 1e-12), 0.1], [0.5, 0.5 * (1 - 1e-12), 0.0, 0.0]], dtype=DTYPE
@@ -173,7 +173,7 @@ def test_ties_go_to_the_lowest_index_whatever_the_rounding():
 
 
 def test_allowed_actions_by_name_and_mask():
-    import inference
+    from effect_networks import inference
 
     net = discrete_network([2], 3)
     params = random_params(net, 4)
@@ -198,8 +198,9 @@ def test_allowed_actions_by_name_and_mask():
 
 
 def test_empty_batches_give_empty_results():
-    import inference
-    from inference import infer_parameter
+    from effect_networks.inference import infer_parameter
+
+    from effect_networks import inference
     from tests.inference.test_queries_mixed import NET
 
     net = discrete_network([2, 3], 4)
@@ -250,7 +251,7 @@ def test_answers_do_not_depend_on_the_row_chunks(seed, zero_n, data):
     same answers (posterior, evidence, unseen mass, best, flags) as one chunk of all."""
     from unittest import mock
 
-    import inference.queries.enumeration as enumeration
+    import effect_networks.inference.queries.enumeration as enumeration
 
     net = discrete_network([3, 2], 4)
     params = random_params(net, seed, unseen=zero_n)

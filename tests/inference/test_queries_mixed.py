@@ -5,13 +5,13 @@ import math
 import mpmath
 import pytest
 import torch
+from effect_networks.inference import imitation_check, infer_action, infer_parameter, predict
+from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter
+from effect_networks.models.declaration import DTYPE
+from effect_networks.models.gaussian import condition_linear_gaussian
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
-from inference import imitation_check, infer_action, infer_parameter, predict
-from models import Continuous, Discrete, EffectNetwork, Parameter
-from models.declaration import DTYPE
-from models.gaussian import condition_linear_gaussian
 from tests.helpers import random_params
 
 NET = EffectNetwork(
@@ -172,7 +172,7 @@ def test_joint_surprise_of_discrete_and_continuous_end_features():
 
 
 def test_full_parameter_posterior_is_the_integral_over_the_force():
-    import inference
+    from effect_networks import inference
 
     params = random_params(NET, 6)
     vis0, action = 1, 2  # push
@@ -328,7 +328,7 @@ def test_evidence_with_no_probability_in_float64_is_refused_not_nan():
     the queries say so, naming the row and the site, instead of answering NaN."""
     import dataclasses
 
-    from models.params import NetworkParams
+    from effect_networks.models.params import NetworkParams
 
     net = EffectNetwork((Continuous("x"),), ("a", "b"))
     params = random_params(net, 0)

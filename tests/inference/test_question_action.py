@@ -3,10 +3,10 @@
 
 import pytest
 import torch
+from effect_networks.inference import infer_action
+from effect_networks.models.declaration import DTYPE
 
-import inference
-from inference import infer_action
-from models.declaration import DTYPE
+from effect_networks import inference
 from tests.helpers import discrete_network, random_params
 from tests.inference.questions import TracedCalls, assert_same_answer
 from tests.inference.test_queries_mixed import NET
@@ -100,7 +100,7 @@ def test_the_tables_refuse_what_the_traced_query_refuses_in_the_same_words():
 def test_patterns_summed_per_row_answer_bit_for_bit_as_the_summed_table(name, monkeypatch):
     """With the plan budget at 0 every pattern with an observed end site keeps its factors
     and sums them per queried row: the same bits as the table summed once."""
-    from inference.queries import action
+    from effect_networks.inference.queries import action
 
     evidence, kwargs = CASES[name]
     whole = inference.compile(DISCRETE, PARAMS).infer_action(evidence, **kwargs)
@@ -121,7 +121,7 @@ def test_a_pattern_whose_table_exceeds_the_budget_is_never_built():
     """Every site observed but the action on two 30-state features and 50 actions: the
     summed table would hold 30**4 * 50 = 40.5 million values (324 MB); the plan holds no
     tensor above the budget and answers as the traced query."""
-    from inference.queries import action
+    from effect_networks.inference.queries import action
 
     net = discrete_network([30, 30], 50)
     params = random_params(net, 7, unseen=0.3)
@@ -148,7 +148,8 @@ def test_sparse_networks_compiled_by_elimination_equal_traced_and_closed_form(k,
     action, the initial state unknown: the compiled tables answer as the traced query
     and the closed form (to 1e-12), one row or many, and above a few features never
     build a table over the joint of the initial state (2^40 values at k = 40)."""
-    from inference.queries.factored import FactoredPlan
+    from effect_networks.inference.queries.factored import FactoredPlan
+
     from tests.inference.test_elimination import closed_form, sparse_network
 
     net = sparse_network(k)
@@ -200,7 +201,7 @@ def test_a_table_pattern_whose_prior_is_summed_by_elimination(n, monkeypatch):
     every initial one: its joint does not split) keeps its summed table and answers,
     while the prior of the implausible flag (the initial features and the action,
     independent) is summed per row by elimination: the same answers as traced."""
-    from inference.queries import elimination, factored
+    from effect_networks.inference.queries import elimination, factored
 
     monkeypatch.setattr(factored, "SUMMED_TABLE", 0)
     monkeypatch.setattr(elimination, "DENSE_CONFIGURATIONS", 0)

@@ -3,17 +3,17 @@ tables for them yet and answers with the traced query, on the same cases."""
 
 import pytest
 import torch
+from effect_networks.inference import imitation_check, predict
+from effect_networks.models.declaration import DTYPE
+from effect_networks.models.evidence import Evidence
 
-import inference
-from inference import imitation_check, predict
-from models.declaration import DTYPE
-from models.evidence import Evidence
+from effect_networks import inference
 from tests.helpers import discrete_network, random_params
 from tests.inference.questions import TracedCalls, assert_same_answer
 from tests.inference.test_queries_mixed import NET
 
 pytestmark = pytest.mark.filterwarnings(
-    "ignore::inference.queries.plausibility.OutsideTrainingData"
+    "ignore::effect_networks.inference.queries.plausibility.OutsideTrainingData"
 )
 
 DISCRETE = discrete_network([3, 2], 4)

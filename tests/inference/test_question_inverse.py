@@ -3,10 +3,10 @@ traced query (its candidates scored in closed form where it can), on the same ca
 
 import pytest
 import torch
+from effect_networks.inference import parameter_for_effect
+from effect_networks.models.declaration import DTYPE
 
-import inference
-from inference import parameter_for_effect
-from models.declaration import DTYPE
+from effect_networks import inference
 from tests.helpers import random_params
 from tests.inference.questions import TracedCalls, assert_same_answer
 from tests.inference.test_parameter_effects import throwing

@@ -6,18 +6,18 @@ import re
 
 import pytest
 import torch
+from effect_networks.inference import infer_parameter
+from effect_networks.models import Continuous, EffectNetwork, Parameter, Partial
+from effect_networks.models.declaration import DTYPE
 
-import inference
-from inference import infer_parameter
-from models import Continuous, EffectNetwork, Parameter, Partial
-from models.declaration import DTYPE
+from effect_networks import inference
 from tests.helpers import random_params
 from tests.inference.questions import TracedCalls, assert_same_answer
 from tests.inference.test_parameter_effects import sliding, throwing
 from tests.inference.test_queries_mixed import NET
 
 pytestmark = pytest.mark.filterwarnings(
-    "ignore::inference.queries.plausibility.OutsideTrainingData"
+    "ignore::effect_networks.inference.queries.plausibility.OutsideTrainingData"
 )
 
 PARAMS = random_params(NET, 11, unseen=0.3)

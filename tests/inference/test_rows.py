@@ -5,8 +5,7 @@ import re
 import numpy as np
 import pytest
 import torch
-
-from inference.fitting.rows import (
+from effect_networks.inference.fitting.rows import (
     check_settings,
     ignore_missing,
     mask_values,
@@ -15,7 +14,7 @@ from inference.fitting.rows import (
     row_masks,
     training_rows,
 )
-from models import Continuous, Discrete, EffectNetwork, Parameter
+from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter
 
 TAP = EffectNetwork(
     (Discrete("visible", (0, 1)), Continuous("pos", 1)),

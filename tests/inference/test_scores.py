@@ -9,15 +9,9 @@ import numpy as np
 import pandas as pd
 import pytest
 import torch
-from hypothesis import given, settings
-from hypothesis import strategies as st
-from pgmpy.structure_score import BIC, LogLikelihood
-from scipy.special import log_softmax, logsumexp
-from scipy.stats import multivariate_normal
-
-from inference import fit, fit_em
-from inference.fitting.missing import missing_log_likelihood
-from inference.fitting.scores import (
+from effect_networks.inference import fit, fit_em
+from effect_networks.inference.fitting.missing import missing_log_likelihood
+from effect_networks.inference.fitting.scores import (
     aic,
     bic,
     cross_validate,
@@ -26,10 +20,23 @@ from inference.fitting.scores import (
     n_parameters,
     take_rows,
 )
-from inference.queries.simulate import simulate
-from models import Continuous, Discrete, EffectNetwork, Parameter, random_params, to_frame
-from models.declaration import ACTION
-from models.interop import to_pgmpy
+from effect_networks.inference.queries.simulate import simulate
+from effect_networks.models import (
+    Continuous,
+    Discrete,
+    EffectNetwork,
+    Parameter,
+    random_params,
+    to_frame,
+)
+from effect_networks.models.declaration import ACTION
+from effect_networks.models.interop import to_pgmpy
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from pgmpy.structure_score import BIC, LogLikelihood
+from scipy.special import log_softmax, logsumexp
+from scipy.stats import multivariate_normal
+
 from tests.helpers import brute_joint, discrete_network
 
 # ------------------------------------------------------------------------ discrete: pgmpy
@@ -296,7 +303,7 @@ def test_free_parameters_counted_by_hand():
 
 
 def test_a_kind_without_a_count_is_named():
-    from models.cpds import LinearGaussianCPD
+    from effect_networks.models.cpds import LinearGaussianCPD
 
     class Plain(LinearGaussianCPD):
         name = "plain"

@@ -3,11 +3,10 @@ quarter, the scores prefer the four cells that resolve the steps, and not more."
 
 import numpy as np
 import pytest
-
-from inference import fit
-from inference.fitting.scores import cross_validate, log_likelihood, n_parameters
-from inference.fitting.selection import select_clusters
-from models import Continuous, EffectNetwork, Parameter
+from effect_networks.inference import fit
+from effect_networks.inference.fitting.scores import cross_validate, log_likelihood, n_parameters
+from effect_networks.inference.fitting.selection import select_clusters
+from effect_networks.models import Continuous, EffectNetwork, Parameter
 
 
 def step_network(bins=(1,), layout="grid"):

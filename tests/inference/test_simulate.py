@@ -6,12 +6,12 @@ import math
 import numpy as np
 import pytest
 import torch
+from effect_networks.inference import fit, infer_action, infer_parameter, simulate
+from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter, random_params
+from effect_networks.models.cpds import LinearGaussianParams, TableParams
+from effect_networks.models.declaration import DTYPE
+from effect_networks.models.params import NetworkParams, check_params
 
-from inference import fit, infer_action, infer_parameter, simulate
-from models import Continuous, Discrete, EffectNetwork, Parameter, random_params
-from models.cpds import LinearGaussianParams, TableParams
-from models.declaration import DTYPE
-from models.params import NetworkParams, check_params
 from tests.helpers import spilling_network
 
 NET = EffectNetwork(

@@ -6,9 +6,8 @@ import itertools
 
 import pytest
 import torch
-
-from inference.queries.states import StateSpace, state_features
-from models import Continuous, Discrete, EffectNetwork
+from effect_networks.inference.queries.states import StateSpace, state_features
+from effect_networks.models import Continuous, Discrete, EffectNetwork
 
 
 def door_net() -> EffectNetwork:

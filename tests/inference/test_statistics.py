@@ -3,11 +3,11 @@
 import numpy as np
 import pytest
 import torch
+from effect_networks.inference import fit, fit_statistics, params_from_statistics, simulate
+from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter, random_params
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from inference import fit, fit_statistics, params_from_statistics, simulate
-from models import Continuous, Discrete, EffectNetwork, Parameter, random_params
 from tests.helpers import discrete_network
 
 THROW = EffectNetwork(  # closed form throughout: no discrete child of a continuous parent
@@ -105,8 +105,8 @@ def test_chunk_limits_are_named():
 def test_weighted_rows_count_as_repeated_rows(seed):
     # the statistics an EM step gives: a row of weight k is the row k times, for every
     # kind (tables, linear Gaussians, a parameter's cluster table and Gaussians)
-    from inference.fitting.rows import training_rows
-    from inference.fitting.statistics import statistics
+    from effect_networks.inference.fitting.rows import training_rows
+    from effect_networks.inference.fitting.statistics import statistics
 
     rows = training_rows(THROW, simulate(THROW, random_params(THROW, seed), 300, seed=seed))
     k = torch.as_tensor(np.random.default_rng(seed).integers(0, 4, rows.n_rows))

@@ -13,12 +13,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 import pytest
+from effect_networks.inference import fit, learn_structure, log_likelihood, simulate
+from effect_networks.inference.fitting import family_scores
+from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter, random_params
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-from inference import fit, learn_structure, log_likelihood, simulate
-from inference.fitting import family_scores
-from models import Continuous, Discrete, EffectNetwork, Parameter, random_params
 
 logging.getLogger("pgmpy").setLevel(logging.ERROR)
 
@@ -359,7 +358,7 @@ def split(rows: dict, n_train: int) -> tuple[dict, dict]:
 
 
 # the fits' Newton steps crawl where a configuration never shows a state: harmless here
-@pytest.mark.filterwarnings("ignore::inference.fitting.result.ConvergenceWarning")
+@pytest.mark.filterwarnings("ignore::effect_networks.inference.fitting.result.ConvergenceWarning")
 def test_affordance_world_drops_colour_and_beats_fig1_on_held_out_rows():
     train, test = split(affordance_rows(3000, 0), 2000)
     net = learn_structure(train, AFFORDANCE, GESTURES)

@@ -17,11 +17,7 @@ import math
 import numpy as np
 import pytest
 import torch
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
-
-import inference
-from inference import (
+from effect_networks.inference import (
     fit,
     fit_em,
     imitation_check,
@@ -31,9 +27,20 @@ from inference import (
     predict,
     simulate,
 )
-from inference.queries.action import compile_discrete
-from inference.queries.parameter import compile_parameter_query
-from models import Continuous, Discrete, EffectNetwork, Parameter, Partial, random_params
+from effect_networks.inference.queries.action import compile_discrete
+from effect_networks.inference.queries.parameter import compile_parameter_query
+from effect_networks.models import (
+    Continuous,
+    Discrete,
+    EffectNetwork,
+    Parameter,
+    Partial,
+    random_params,
+)
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from effect_networks import inference
 
 ACTIONS = ("push", "lift", "wait")
 
@@ -250,7 +257,9 @@ def fields_of(result, name="") -> dict:
     return out
 
 
-@pytest.mark.filterwarnings("ignore::inference.queries.plausibility.OutsideTrainingData")
+@pytest.mark.filterwarnings(
+    "ignore::effect_networks.inference.queries.plausibility.OutsideTrainingData"
+)
 def test_every_row_answers_alike_in_batches_of_0_1_and_10000():
     net, params, _ = shelf_world()
     rows = simulate(net, params, 10_000, seed=5)
@@ -343,7 +352,9 @@ def slide_oracle(params, row, action, observed):
     return np.exp(logs - np.logaddexp.reduce(logs)), np.array(means), np.array(variances)
 
 
-@pytest.mark.filterwarnings("ignore::inference.queries.plausibility.OutsideTrainingData")
+@pytest.mark.filterwarnings(
+    "ignore::effect_networks.inference.queries.plausibility.OutsideTrainingData"
+)
 def test_a_parameter_on_two_features_one_in_part_traced_compiled_and_by_hand():
     net, params = slide_world()
     rows = simulate(net, params, 12, seed=3)
@@ -468,7 +479,9 @@ def assert_distribution(probs, what):
 magnitudes = st.floats(-150.0, 150.0).map(lambda e: 10.0**e)
 
 
-@pytest.mark.filterwarnings("ignore::inference.queries.plausibility.OutsideTrainingData")
+@pytest.mark.filterwarnings(
+    "ignore::effect_networks.inference.queries.plausibility.OutsideTrainingData"
+)
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(
     st.lists(st.tuples(st.sampled_from([-1.0, 1.0]), magnitudes), min_size=5, max_size=5),
@@ -657,7 +670,9 @@ def test_a_parameter_on_a_discrete_feature_only_against_the_tables():
 
 
 # ---------------------------------------------------------------- compiled: one row and many
-@pytest.mark.filterwarnings("ignore::inference.queries.plausibility.OutsideTrainingData")
+@pytest.mark.filterwarnings(
+    "ignore::effect_networks.inference.queries.plausibility.OutsideTrainingData"
+)
 def test_compiled_parameter_query_one_row_in_every_form_equals_its_row_in_10000():
     """A 2-D force whose feature's only parents are the action and the cluster (user
     parents): the single-row path in every documented form, the batched path and the
@@ -699,7 +714,9 @@ def test_compiled_parameter_query_one_row_in_every_form_equals_its_row_in_10000(
         assert empty[key].shape == (0, *value.shape[1:]), key
 
 
-@pytest.mark.filterwarnings("ignore::inference.queries.plausibility.OutsideTrainingData")
+@pytest.mark.filterwarnings(
+    "ignore::effect_networks.inference.queries.plausibility.OutsideTrainingData"
+)
 def test_adaptive_compiled_equals_traced_from_ordinary_values_to_the_limit():
     net, params = adaptive_push_world()
     values = np.concatenate([np.linspace(-1.0, 2.0, 301), [1e3, -1e3, 1e10, 1e50, 1e150, -1e150]])
@@ -789,7 +806,9 @@ def test_predict_integrates_the_unknown_height_by_hand():
     assert abs(float(got.continuous["tilt"].mean[0, 0]) - want) < 1e-12
 
 
-@pytest.mark.filterwarnings("ignore::inference.queries.plausibility.OutsideTrainingData")
+@pytest.mark.filterwarnings(
+    "ignore::effect_networks.inference.queries.plausibility.OutsideTrainingData"
+)
 def test_slide_with_per_row_masks_answers_alike_in_batches_and_forms():
     """10,000 rows with their own masks of the 2-D position: the compiled and traced
     parameter posteriors agree to 1e-12, and a row alone gets its row's answer from both and

@@ -13,13 +13,19 @@ from dataclasses import replace
 import numpy as np
 import pytest
 import torch
+from effect_networks.inference import imitation_check, predict
+from effect_networks.inference.queries.plausibility import OutsideTrainingData
+from effect_networks.inference.queries.surprise import _joint_gaussians
+from effect_networks.models import (
+    Continuous,
+    Discrete,
+    EffectNetwork,
+    Parameter,
+    Partial,
+    random_params,
+)
+from effect_networks.models.declaration import DTYPE
 from scipy import stats
-
-from inference import imitation_check, predict
-from inference.queries.plausibility import OutsideTrainingData
-from inference.queries.surprise import _joint_gaussians
-from models import Continuous, Discrete, EffectNetwork, Parameter, Partial, random_params
-from models.declaration import DTYPE
 
 TAP = EffectNetwork(  # README's network
     features=(Discrete("visible", (False, True)), Continuous("position", 1)),

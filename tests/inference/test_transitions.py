@@ -13,15 +13,14 @@ import itertools
 import numpy as np
 import pytest
 import torch
+from effect_networks.inference import fit
+from effect_networks.inference.queries.states import StateSpace
+from effect_networks.inference.queries.transitions import model_tables, transitions
+from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter, random_params
+from effect_networks.models.model import effect_model
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from pyro import poutine
-
-from inference import fit
-from inference.queries.states import StateSpace
-from inference.queries.transitions import model_tables, transitions
-from models import Continuous, Discrete, EffectNetwork, Parameter, random_params
-from models.model import effect_model
 
 DOOR = ("shut", "open")
 LOCK = ("off", "on")
@@ -197,7 +196,7 @@ def test_a_continuous_initial_feature_must_be_given(fitted):
 
 
 def test_the_door_changes_with_the_given_context(fitted):
-    from inference import OutsideTrainingData
+    from effect_networks.inference import OutsideTrainingData
 
     net, params = fitted
     with pytest.warns(OutsideTrainingData, match="initial.x"):
@@ -254,9 +253,8 @@ def test_transitions_equal_pgmpy_variable_elimination():
     """An all-discrete network with an end -> end parent and an end-only feature, beside
     pgmpy's VariableElimination on the same tables (no Pyro model involved)."""
     pytest.importorskip("pgmpy")
+    from effect_networks.models.interop import to_pgmpy
     from pgmpy.inference import VariableElimination
-
-    from models.interop import to_pgmpy
 
     net = EffectNetwork(
         features=(
@@ -287,7 +285,7 @@ def test_transitions_equal_pgmpy_variable_elimination():
 
 
 def test_the_compiled_transitions_and_plan_keep_their_tables(fitted):
-    import inference
+    from effect_networks import inference
 
     net, params = fitted
     compiled = inference.compile(net, params)

@@ -7,10 +7,9 @@ import math
 import numpy as np
 import pytest
 import torch
+from effect_networks.inference import infer_action, predict
+from effect_networks.models import Continuous, Discrete, EffectNetwork, random_params
 from scipy import integrate
-
-from inference import infer_action, predict
-from models import Continuous, Discrete, EffectNetwork, random_params
 
 # initial.x (1-D, a Gaussian prior) is read by end.x and the 2-D end.y
 NET = EffectNetwork(
@@ -123,7 +122,7 @@ def test_known_initial_values_give_the_same_answers_as_before():
 def test_queries_that_read_each_density_alone_still_need_the_initial_state():
     # simulate given an end state would draw x from its prior, ignoring that state;
     # imitation_check's surprise reads each observed feature's own density
-    from inference import imitation_check, simulate
+    from effect_networks.inference import imitation_check, simulate
 
     ev = {"initial.shape": ["box"], "end.x": [[0.1]]}
     with pytest.raises(ValueError, match=r"simulate .*\['initial.x'\]"):
@@ -137,7 +136,7 @@ def test_queries_that_read_each_density_alone_still_need_the_initial_state():
 def test_an_unknown_parameter_beside_it_is_integrated_out_too():
     # tap's force (two clusters) acts on end.pos; initial.pos and the force unknown: the
     # posterior over actions by a double integral over both
-    from models import Parameter
+    from effect_networks.models import Parameter
 
     net = EffectNetwork(
         (Discrete("visible", (0, 1)), Continuous("pos", 1)),
@@ -187,9 +186,8 @@ def test_an_unknown_parameter_beside_it_is_integrated_out_too():
 def test_plausibility_measures_the_joint_distance_of_the_observed_end_state():
     # end.x and end.y observed, x unknown: they are dependent through x, and the squared
     # Mahalanobis distance the flag reads is that of their joint Gaussian (by hand)
+    from effect_networks.inference.queries.plausibility import plausibility
     from scipy import stats
-
-    from inference.queries.plausibility import plausibility
 
     ex, ey = [0.9], [2.0, -1.5]
     evidence = NET.encode(

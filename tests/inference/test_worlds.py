@@ -27,14 +27,7 @@ import time
 import numpy as np
 import pytest
 import torch
-from hypothesis import HealthCheck, given, settings
-from hypothesis import strategies as st
-from mpmath import mp, mpf
-from scipy.optimize import brentq
-from scipy.stats import chi2, norm
-
-import inference
-from inference import (
+from effect_networks.inference import (
     fit,
     imitation_check,
     infer_action,
@@ -43,8 +36,24 @@ from inference import (
     predict,
     simulate,
 )
-from models import Continuous, Discrete, EffectNetwork, Parameter, Partial, load, save, to_pgmpy
-from models.evidence import MAX_MAGNITUDE
+from effect_networks.models import (
+    Continuous,
+    Discrete,
+    EffectNetwork,
+    Parameter,
+    Partial,
+    load,
+    save,
+    to_pgmpy,
+)
+from effect_networks.models.evidence import MAX_MAGNITUDE
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+from mpmath import mp, mpf
+from scipy.optimize import brentq
+from scipy.stats import chi2, norm
+
+from effect_networks import inference
 
 SUM_TOL = 1e-12
 PROB_TOL = 1e-8
@@ -389,7 +398,9 @@ def test_wait_scores_as_without_the_force():
 magnitudes = st.floats(-3.0, math.log10(MAX_MAGNITUDE)).map(lambda e: 10.0**e)
 
 
-@pytest.mark.filterwarnings("ignore::inference.queries.plausibility.OutsideTrainingData")
+@pytest.mark.filterwarnings(
+    "ignore::effect_networks.inference.queries.plausibility.OutsideTrainingData"
+)
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(
     scale=magnitudes,
@@ -981,9 +992,8 @@ def test_infer_parameter_with_the_initial_state_unknown():
 def test_trace_enum_elbo_loss_is_the_log_evidence():
     """README's ``TraceEnum_ELBO(...).loss`` on the collapsed model: ``-log p(evidence)``,
     the force and the initial ``moved`` where unknown summed out, ``end.moved`` left out."""
+    from effect_networks.models import effect_model
     from pyro.infer import TraceEnum_ELBO
-
-    from models import effect_model
 
     net, params = push_world()
     mp.dps = 30
@@ -1028,7 +1038,9 @@ def affordance_oracle(params, size, end_size, shape, colour, end_shape) -> list:
     return [float(mp.exp(t - total)) for t in logs]
 
 
-@pytest.mark.filterwarnings("ignore::inference.queries.plausibility.OutsideTrainingData")
+@pytest.mark.filterwarnings(
+    "ignore::effect_networks.inference.queries.plausibility.OutsideTrainingData"
+)
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(
     scale=magnitudes,

@@ -5,10 +5,10 @@ import warnings
 
 import pytest
 import torch
+from effect_networks.inference import fit, infer_action
+from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter, load, save
+from effect_networks.models.params import FORMAT_VERSION
 
-from inference import fit, infer_action
-from models import Continuous, Discrete, EffectNetwork, Parameter, load, save
-from models.params import FORMAT_VERSION
 from tests.helpers import random_params
 
 NET = EffectNetwork(
@@ -149,7 +149,7 @@ def test_actions_given_as_one_string_are_refused(actions):
 
 
 def test_networks_beyond_the_size_limit_are_refused_at_declaration():
-    from models.declaration import MAX_CPD_ENTRIES
+    from effect_networks.models.declaration import MAX_CPD_ENTRIES
 
     # 10**9 cells: the cluster table alone is 2 x 10**9 numbers (it used to be allocated)
     with pytest.raises(ValueError, match=r"site 'cluster.f' would hold 2e\+09 numbers"):
@@ -167,23 +167,26 @@ def test_networks_beyond_the_size_limit_are_refused_at_declaration():
 #: Names callers import from models.declaration and models.evidence, and the leaf
 #: modules that hold them now.
 MOVED = {
-    "models.declaration": {
-        "ACTION": "models.sites",
-        "SiteSpec": "models.sites",
-        "cluster_site": "models.sites",
-        "end_site": "models.sites",
-        "initial_site": "models.sites",
-        "param_site": "models.sites",
-        "Continuous": "models.features",
-        "Discrete": "models.features",
-        "Feature": "models.features",
-        "FeatureKind": "models.features",
-        "LAYOUTS": "models.features",
-        "Parameter": "models.features",
-        "DTYPE": "models.dtype",
-        "MAX_CPD_ENTRIES": "models.structure",
+    "effect_networks.models.declaration": {
+        "ACTION": "effect_networks.models.sites",
+        "SiteSpec": "effect_networks.models.sites",
+        "cluster_site": "effect_networks.models.sites",
+        "end_site": "effect_networks.models.sites",
+        "initial_site": "effect_networks.models.sites",
+        "param_site": "effect_networks.models.sites",
+        "Continuous": "effect_networks.models.features",
+        "Discrete": "effect_networks.models.features",
+        "Feature": "effect_networks.models.features",
+        "FeatureKind": "effect_networks.models.features",
+        "LAYOUTS": "effect_networks.models.features",
+        "Parameter": "effect_networks.models.features",
+        "DTYPE": "effect_networks.models.dtype",
+        "MAX_CPD_ENTRIES": "effect_networks.models.structure",
     },
-    "models.evidence": {"DTYPE": "models.dtype", "MAX_MAGNITUDE": "models.dtype"},
+    "effect_networks.models.evidence": {
+        "DTYPE": "effect_networks.models.dtype",
+        "MAX_MAGNITUDE": "effect_networks.models.dtype",
+    },
 }
 
 

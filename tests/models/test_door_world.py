@@ -11,14 +11,14 @@ import time
 import numpy as np
 import pytest
 import torch
+from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter, load, save
 
-from models import Continuous, Discrete, EffectNetwork, Parameter, load, save
 from tests.inference.test_door_world import ACTIONS, OWN, STATES, door_rows, door_world
 
 
 @pytest.fixture(scope="module")
 def door():
-    from inference import fit
+    from effect_networks.inference import fit
 
     net = door_world()
     return net, fit(net, door_rows(600, seed=21)).params
@@ -33,7 +33,7 @@ def same(a, b) -> bool:
 
 
 def test_a_failing_save_leaves_the_previous_file(door, tmp_path, monkeypatch):
-    from inference import fit
+    from effect_networks.inference import fit
 
     net, params = door
     path = save(tmp_path / "door.pt", net, params)
@@ -84,7 +84,7 @@ def reordered() -> EffectNetwork:
 
 
 def test_loaded_parameters_refuse_a_declaration_with_states_reordered(door, tmp_path):
-    from inference import infer_action, predict
+    from effect_networks.inference import infer_action, predict
 
     net, params = door
     _, loaded = load(save(tmp_path / "door.pt", net, params))
@@ -162,9 +162,8 @@ def test_states_or_actions_given_as_a_set_are_refused():
 )
 def test_end_sites_that_would_leave_the_model_silently_are_refused(door, end_sites, words):
     # a string's letters, or a misspelt name, used to drop every end site without a word
+    from effect_networks.models import effect_model
     from pyro.infer import TraceEnum_ELBO
-
-    from models import effect_model
 
     net, params = door
     evidence = net.encode({"initial.handle_angle": [[0.2]], "end.door": ["open"]})

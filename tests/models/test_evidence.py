@@ -5,11 +5,8 @@ import warnings
 import numpy as np
 import pytest
 import torch
-from hypothesis import given, settings
-from hypothesis import strategies as st
-
-from inference import predict
-from models import (
+from effect_networks.inference import predict
+from effect_networks.models import (
     Continuous,
     Discrete,
     EffectNetwork,
@@ -20,7 +17,9 @@ from models import (
     random_params,
     save,
 )
-from models.evidence import MAX_MAGNITUDE
+from effect_networks.models.evidence import MAX_MAGNITUDE
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 NET = EffectNetwork((Discrete("level", (1, 2, 3)), Discrete("mood", ("calm", "wild"))), ("a", "b"))
 

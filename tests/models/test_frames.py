@@ -10,12 +10,18 @@ import numpy as np
 import pandas as pd
 import pytest
 import torch
+from effect_networks.inference import simulate
+from effect_networks.models import (
+    Continuous,
+    Discrete,
+    EffectNetwork,
+    Parameter,
+    Partial,
+    random_params,
+)
+from effect_networks.models.frames import as_data, columns, from_frame, is_frame, to_frame
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-from inference import simulate
-from models import Continuous, Discrete, EffectNetwork, Parameter, Partial, random_params
-from models.frames import as_data, columns, from_frame, is_frame, to_frame
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -271,7 +277,7 @@ def test_the_data_extra_holds_pandas_and_dev_installs_it():
 
 
 def test_without_pandas_a_frame_call_names_the_extra(monkeypatch):
-    from inference.queries.results import ImitationCheck
+    from effect_networks.inference.queries.results import ImitationCheck
 
     monkeypatch.setitem(sys.modules, "pandas", None)  # import pandas now raises ImportError
     check = ImitationCheck(torch.zeros(1), torch.zeros(1), torch.zeros(1))

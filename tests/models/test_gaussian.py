@@ -6,11 +6,10 @@ from fractions import Fraction
 
 import numpy as np
 import torch
+from effect_networks.models.declaration import DTYPE
+from effect_networks.models.gaussian import affine_pair, lstsq_rows, two_product, two_sum
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-from models.declaration import DTYPE
-from models.gaussian import affine_pair, lstsq_rows, two_product, two_sum
 
 #: float64 numbers over the magnitudes the toolkit accepts, zero and subnormal-free
 magnitudes = st.floats(-1e150, 1e150, allow_nan=False, allow_subnormal=False).filter(
@@ -83,8 +82,9 @@ def test_affine_pair_keeps_what_is_not_finite():
 )
 def test_lstsq_rows_is_each_rows_minimum_norm_solution(n, batch, d, k, designs, free, seed):
     """Rows sharing a design (a few distinct ones among them) solved together equal numpy's
-    pseudo-inverse solution of each problem alone, and LAPACK's one problem at a time bit for
-    bit; a direction no row constrains (a zero column) stays at 0."""
+    pseudo-inverse solution of each problem alone, and LAPACK's one problem at a time to
+    rounding (the blocked solver with several right-hand sides may round differently from
+    one at a time); a direction no row constrains (a zero column) stays at 0."""
     g = torch.Generator().manual_seed(seed)
     distinct = torch.randn(designs, batch, d, k, generator=g, dtype=DTYPE)
     if free:
@@ -97,7 +97,7 @@ def test_lstsq_rows_is_each_rows_minimum_norm_solution(n, batch, d, k, designs, 
     reference = np.einsum("...kd,...d->...k", np.linalg.pinv(design.numpy()), rhs.numpy())
     np.testing.assert_allclose(z.numpy(), reference, rtol=1e-9, atol=1e-9)
     alone = torch.linalg.lstsq(design, rhs[..., None], driver="gelsd").solution[..., 0]
-    assert torch.equal(z, alone)
+    torch.testing.assert_close(z, alone, rtol=1e-12, atol=1e-12)
     if free and n:
         assert bool((z[..., -1] == 0).all())
 

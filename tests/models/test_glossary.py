@@ -60,6 +60,6 @@ def test_a_name_in_the_glossary_exists(name):
     "word", ["TableParams", "SoftmaxParams", "LinearGaussianParams", "ParameterMixture"]
 )
 def test_the_glossary_uses_the_current_names(word):
-    from models import cpds
+    from effect_networks.models import cpds
 
     assert f"`{word}`" in glossary() and hasattr(cpds, word)

@@ -7,11 +7,8 @@ import sys
 import numpy as np
 import pytest
 import torch
-from hypothesis import given, settings
-from hypothesis import strategies as st
-
-from inference import infer_action, predict
-from models import (
+from effect_networks.inference import infer_action, predict
+from effect_networks.models import (
     Continuous,
     Discrete,
     EffectNetwork,
@@ -22,7 +19,9 @@ from models import (
     to_pgmpy,
     write_bif,
 )
-from models.declaration import DTYPE
+from effect_networks.models.declaration import DTYPE
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 pytest.importorskip("pgmpy")
 from pgmpy.factors.discrete import TabularCPD  # noqa: E402

@@ -5,13 +5,12 @@ from the origin, moved a little)."""
 import math
 
 import torch
+from effect_networks.models.cpds.linear_gaussian import LinearGaussianCPD, LinearGaussianParams
+from effect_networks.models.declaration import DTYPE
+from effect_networks.models.evidence import MAX_MAGNITUDE
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from mpmath import mp, mpf
-
-from models.cpds.linear_gaussian import LinearGaussianCPD, LinearGaussianParams
-from models.declaration import DTYPE
-from models.evidence import MAX_MAGNITUDE
 
 
 def exact_log_density(params: LinearGaussianParams, g: int, x, y) -> float:

@@ -6,12 +6,9 @@ import numpy as np
 import pyro
 import pytest
 import torch
-from pyro import poutine
-from pyro.infer import Predictive, TraceEnum_ELBO, infer_discrete
-
-from inference import infer_action, predict
-from inference.queries.enumeration import enumerate_model
-from models import (
+from effect_networks.inference import infer_action, predict
+from effect_networks.inference.queries.enumeration import enumerate_model
+from effect_networks.models import (
     Continuous,
     Discrete,
     EffectNetwork,
@@ -19,7 +16,10 @@ from models import (
     effect_model,
     random_params,
 )
-from models.declaration import DTYPE
+from effect_networks.models.declaration import DTYPE
+from pyro import poutine
+from pyro.infer import Predictive, TraceEnum_ELBO, infer_discrete
+
 from tests.helpers import spilling_network
 
 NET = EffectNetwork(

@@ -10,13 +10,20 @@ import zipfile
 import numpy as np
 import pytest
 import torch
+from effect_networks.inference import fit, fit_gradient, infer_action, predict
+from effect_networks.models import (
+    Continuous,
+    Discrete,
+    EffectNetwork,
+    Parameter,
+    effect_model,
+    load,
+    save,
+)
+from effect_networks.models.params import NetworkParams, check_params, random_params
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from pyro import poutine
-
-from inference import fit, fit_gradient, infer_action, predict
-from models import Continuous, Discrete, EffectNetwork, Parameter, effect_model, load, save
-from models.params import NetworkParams, check_params, random_params
 
 
 def visible_network(states, *, kind="object", actions=("look", "remove")):
@@ -346,7 +353,7 @@ def old_cpds() -> dict:
 
 
 def test_a_file_saved_before_the_rename_loads_and_saves_alike(tmp_path):
-    from models.cpds import LinearGaussianParams, SoftmaxParams, TableParams
+    from effect_networks.models.cpds import LinearGaussianParams, SoftmaxParams, TableParams
 
     payload = {
         "format": "effect-networks",

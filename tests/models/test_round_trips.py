@@ -8,11 +8,19 @@ import itertools
 
 import pytest
 import torch
+from effect_networks.inference import infer_action, predict
+from effect_networks.models import (
+    Discrete,
+    EffectNetwork,
+    from_pgmpy,
+    random_params,
+    read_bif,
+    to_pgmpy,
+    write_bif,
+)
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from inference import infer_action, predict
-from models import Discrete, EffectNetwork, from_pgmpy, random_params, read_bif, to_pgmpy, write_bif
 from tests.models.test_interop import counts_of, declared_networks, pgmpy_marginal
 
 pytest.importorskip("pgmpy")

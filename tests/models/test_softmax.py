@@ -2,11 +2,10 @@
 
 import numpy as np
 import torch
+from effect_networks.models.cpds import SoftmaxCPD
+from effect_networks.models.declaration import DTYPE
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-from models.cpds import SoftmaxCPD
-from models.declaration import DTYPE
 
 
 def numpy_gradient(weight, bias, index, x, y, w, l2):

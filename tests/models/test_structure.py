@@ -11,14 +11,9 @@ import math
 import numpy as np
 import pytest
 import torch
-from hypothesis import given, settings
-from hypothesis import strategies as st
-from pyro.infer.inspect import get_dependencies
-
-import inference
-from inference import fit, infer_action, predict, simulate
-from inference.queries.plausibility import OutsideTrainingData
-from models import (
+from effect_networks.inference import fit, infer_action, predict, simulate
+from effect_networks.inference.queries.plausibility import OutsideTrainingData
+from effect_networks.models import (
     Continuous,
     Discrete,
     EffectNetwork,
@@ -29,7 +24,12 @@ from models import (
     save,
     to_pgmpy,
 )
-from models.declaration import DTYPE
+from effect_networks.models.declaration import DTYPE
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from pyro.infer.inspect import get_dependencies
+
+from effect_networks import inference
 
 FEATURES = (Discrete("a", (0, 1)), Discrete("b", ("x", "y", "z")), Continuous("pos", 1))
 

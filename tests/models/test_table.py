@@ -3,11 +3,10 @@
 import pyro.distributions as dist
 import pytest
 import torch
+from effect_networks.models.cpds.table import GatheredCategorical, broadcast_shapes, gather
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from pyro.ops.indexing import Vindex
-
-from models.cpds.table import GatheredCategorical, broadcast_shapes, gather
 
 
 @st.composite
@@ -70,9 +69,8 @@ def test_gathered_categorical_is_the_categorical_of_the_gathered_rows():
 def test_the_log_table_is_torch_s_logits_of_the_normalised_table(seed, zeros):
     """Bit for bit ``probs_to_logits(probs / probs.sum(-1))``, zeros and unnormalised rows
     included, computed without a temporary per step."""
+    from effect_networks.models.cpds.table import _logits
     from torch.distributions.utils import probs_to_logits
-
-    from models.cpds.table import _logits
 
     g = torch.Generator().manual_seed(seed)
     probs = torch.rand(3, 4, 5, generator=g, dtype=torch.float64) * 3

@@ -3,10 +3,8 @@
 import numpy as np
 import pytest
 import torch
-from scipy.stats import multivariate_normal
-
-from inference import fit, infer_parameter, predict
-from models.throw_network import (
+from effect_networks.inference import fit, infer_parameter, predict
+from effect_networks.models.throw_network import (
     HIT,
     PAPER_AREA_HIGH,
     PAPER_AREA_LOW,
@@ -16,7 +14,8 @@ from models.throw_network import (
     throw_data,
     throw_network,
 )
-from sim2d.throw import TARGET_AREA, sample_targets, throw
+from effect_networks.sim2d.throw import TARGET_AREA, sample_targets, throw
+from scipy.stats import multivariate_normal
 
 BINS = (4, 5)
 
@@ -182,6 +181,6 @@ def test_bad_training_rows_say_what_is_wrong():
 
 
 def _other_network():
-    from models import Continuous, EffectNetwork
+    from effect_networks.models import Continuous, EffectNetwork
 
     return EffectNetwork((Continuous("x", 2),), ("push",))

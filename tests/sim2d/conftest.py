@@ -7,7 +7,7 @@ import pytest
 def dask_executor():
     """An executor on a Dask LocalCluster of 2 single-threaded worker processes."""
     pytest.importorskip("distributed")
-    from sim2d.executors import open_executor
+    from effect_networks.sim2d.executors import open_executor
 
     with open_executor("dask-local:2") as executor:
         yield executor

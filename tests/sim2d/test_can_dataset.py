@@ -15,11 +15,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from sim2d import can_dataset, chunks, executors, field_throws, geometry, materials
-from sim2d.can_dataset import generate_dataset, load_dataset
-from sim2d.chunks import ChunkWarning, locked, read_npz, save_npz
-from sim2d.generate import main as generate_main
+from effect_networks.sim2d import can_dataset, chunks, executors, field_throws, geometry, materials
+from effect_networks.sim2d.can_dataset import generate_dataset, load_dataset
+from effect_networks.sim2d.chunks import ChunkWarning, locked, read_npz, save_npz
+from effect_networks.sim2d.generate import main as generate_main
 
 BOTTOM_ROW = geometry.cans_to_mask([0, 1, 2, 3])
 SMALL = {"configs": [BOTTOM_ROW, 0], "angles": (0, 2), "repeats": 2, "chunk_size": 97}
@@ -468,7 +467,7 @@ def test_a_finished_data_set_in_a_read_only_folder_is_used(tmp_path, small, monk
 
 KILLED_IN_THE_MERGE = """
 import concurrent.futures, os, signal, sys
-from sim2d.can_dataset import generate_dataset
+from effect_networks.sim2d.can_dataset import generate_dataset
 
 real = os.replace
 
@@ -604,7 +603,7 @@ def test_the_command_line_says_a_full_disk_in_two_lines_and_a_rerun_resumes(
     lines = capsys.readouterr().err.splitlines()
     assert len(lines) == 2, lines
     assert re.fullmatch(
-        r"python -m sim2d\.generate: error: could not write \S+d\.npz\.parts/chunk-\d+\.npz: "
+        r"python -m effect_networks\.sim2d\.generate: error: could not write \S+d\.npz\.parts/chunk-\d+\.npz: "
         r"No space left on device",
         lines[0],
     )
@@ -639,7 +638,7 @@ def test_the_command_line_says_a_path_it_cannot_write_in_two_lines(tmp_path, cap
     assert exited.value.code == 1
     lines = capsys.readouterr().err.splitlines()
     assert len(lines) == 2, lines
-    assert lines[0].startswith("python -m sim2d.generate: error: could not write ")
+    assert lines[0].startswith("python -m effect_networks.sim2d.generate: error: could not write ")
     assert "stands where" in lines[0] and "run it again" in lines[1]
 
 
@@ -684,7 +683,7 @@ def test_sigterm_to_the_generator_s_process_group_ends_it_in_one_line(tmp_path):
         err = proc.communicate(timeout=60)[1]
         assert proc.returncode == 130, err
         assert err.strip().splitlines() == [
-            "python -m sim2d.generate: interrupted; run it again to resume"
+            "python -m effect_networks.sim2d.generate: interrupted; run it again to resume"
         ], err
 
 

@@ -3,9 +3,8 @@
 import time
 
 import numpy as np
-
-from sim2d import clock
-from sim2d.throw import throw
+from effect_networks.sim2d import clock
+from effect_networks.sim2d.throw import throw
 
 
 def test_nested_intervals_count_once_and_time_outside_does_not_count():
@@ -42,7 +41,8 @@ def slow_chunk(seconds: float) -> dict:
 def test_chunks_computed_count_and_chunks_read_back_do_not(tmp_path):
     """The wait on an executor's chunks counts as simulation; reading finished chunks
     back does not."""
-    from sim2d.chunks import run_chunks
+    from effect_networks.sim2d.chunks import run_chunks
+
     from tests.helpers import InlineExecutor
 
     run = dict(executor=InlineExecutor(), progress=False)

@@ -6,9 +6,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-
-from sim2d import geometry, materials
-from sim2d.combined import (
+from effect_networks.sim2d import geometry, materials
+from effect_networks.sim2d.combined import (
     CAN_BAND,
     TABLE_TOP_Z,
     entry_state,
@@ -17,8 +16,9 @@ from sim2d.combined import (
     play_throw,
     settle,
 )
-from sim2d.configurations import stable_configurations
-from sim2d.throw import exact_target_for_hit, throw
+from effect_networks.sim2d.configurations import stable_configurations
+from effect_networks.sim2d.throw import exact_target_for_hit, throw
+
 from tests.helpers import InlineExecutor
 
 
@@ -80,7 +80,7 @@ def test_exact_throws_hit_the_heights_they_aim_at():
 
 
 def test_explore_covers_every_state_its_throws_reach_and_resumes(tmp_path):
-    from sim2d.combined import reachable_throws, throws_from
+    from effect_networks.sim2d.combined import reachable_throws, throws_from
 
     kw = dict(depth=2, step=0.05, repeats=2, jitter=0.003, seed=5)
     serial = InlineExecutor()
@@ -121,7 +121,7 @@ def test_explore_covers_every_state_its_throws_reach_and_resumes(tmp_path):
 
 
 def test_explore_refuses_bad_arguments(tmp_path):
-    from sim2d.combined import reachable_throws
+    from effect_networks.sim2d.combined import reachable_throws
 
     with pytest.raises(ValueError, match="depth"):
         reachable_throws(tmp_path, geometry.FULL_PYRAMID, depth=0)
@@ -130,7 +130,7 @@ def test_explore_refuses_bad_arguments(tmp_path):
 
 
 def test_play_policy_stops_at_the_goal_and_replays_with_its_seed():
-    from sim2d.combined import play_policy
+    from effect_networks.sim2d.combined import play_policy
 
     states = sorted(stable_configurations())
     full = geometry.FULL_PYRAMID

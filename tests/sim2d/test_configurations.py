@@ -9,9 +9,8 @@ from concurrent.futures import Future, ProcessPoolExecutor
 from pathlib import Path
 
 import pytest
-
-from sim2d import configurations, geometry, materials
-from sim2d.configurations import settles, stable_configurations
+from effect_networks.sim2d import configurations, geometry, materials
+from effect_networks.sim2d.configurations import settles, stable_configurations
 
 # Written out by hand from the pyramid sketch, not taken from the code under test.
 RESTS_ON = {4: (0, 1), 5: (1, 2), 6: (2, 3), 7: (4, 5), 8: (5, 6), 9: (7, 8)}

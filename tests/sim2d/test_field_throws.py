@@ -4,11 +4,10 @@ import math
 
 import numpy as np
 import pytest
+from effect_networks.sim2d import field_throws, geometry, materials
+from effect_networks.sim2d.configurations import stable_configurations
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-from sim2d import field_throws, geometry, materials
-from sim2d.configurations import stable_configurations
 
 FULL = geometry.FULL_PYRAMID
 BOTTOM_ROW = geometry.cans_to_mask([0, 1, 2, 3])

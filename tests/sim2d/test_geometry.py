@@ -3,10 +3,9 @@
 import math
 
 import numpy as np
+from effect_networks.sim2d import geometry, materials
 from hypothesis import given
 from hypothesis import strategies as st
-
-from sim2d import geometry, materials
 
 
 def field(row: int, column: int) -> int:

@@ -4,7 +4,7 @@ private name, and each concept has one home."""
 import ast
 from pathlib import Path
 
-import sim2d
+from effect_networks import sim2d
 
 PACKAGE = Path(sim2d.__file__).parent
 MODULES = {p.stem: ast.parse(p.read_text()) for p in PACKAGE.glob("*.py") if p.stem != "__init__"}

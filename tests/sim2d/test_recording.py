@@ -1,10 +1,9 @@
 """Tests of recorded throws (sim2d/recording.py) and the pictures made of them."""
 
 import pytest
-
-from sim2d import geometry, render
-from sim2d.field_throws import throw_at_field
-from sim2d.recording import record_throw
+from effect_networks.sim2d import geometry, render
+from effect_networks.sim2d.field_throws import throw_at_field
+from effect_networks.sim2d.recording import record_throw
 
 
 def test_a_recorded_throw_ends_as_the_unrecorded_one():

@@ -8,12 +8,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from hypothesis import given, settings
-from hypothesis import strategies as st
-from hypothesis.extra.numpy import arrays
-
-from sim2d.materials import GRAVITY
-from sim2d.throw import (
+from effect_networks.sim2d.materials import GRAVITY
+from effect_networks.sim2d.throw import (
     FOREARM_LENGTH,
     HAND_SPEED,
     PITCH_LIMITS_DEG,
@@ -30,6 +26,9 @@ from sim2d.throw import (
     sample_targets,
     throw,
 )
+from hypothesis import given, settings
+from hypothesis import strategies as st
+from hypothesis.extra.numpy import arrays
 
 ROOT = Path(__file__).resolve().parents[2]
 

@@ -5,12 +5,11 @@ import sys
 
 import numpy as np
 import pytest
+from effect_networks.sim2d import field_throws, geometry, materials, recording
+from effect_networks.sim2d.configurations import stable_configurations
+from effect_networks.sim2d.world import clear_miss, run_ball
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
-from sim2d import field_throws, geometry, materials, recording
-from sim2d.configurations import stable_configurations
-from sim2d.world import clear_miss, run_ball
 
 #: The current step and solver iterations with the cans asleep until touched.
 ASLEEP = materials.Stepping(materials.TIME_STEP, materials.SOLVER_ITERATIONS, start_asleep=True)
