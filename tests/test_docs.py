@@ -3,6 +3,7 @@
 (no orphan page), and (slow) the site builds strictly, as ``bin/build-docs`` builds it,
 every tutorial rendered with its outputs and figures."""
 
+import ast
 import re
 import runpy
 import subprocess
@@ -132,3 +133,55 @@ def test_site_builds_strictly(tmp_path):
         images = re.findall(r'<img [^>]*src="\.\./_images/([^"]+\.png)"', page)
         assert images, f"{script.name} rendered no figure"
         assert all((out / "_images" / image).stat().st_size > 5_000 for image in images)
+
+
+#: The layers docs/design.md states: each package and the project's packages it may import.
+LAYERS = {
+    "sim2d": set(),
+    "models": set(),
+    "inference": {"models"},
+    "experiments": {"inference", "models", "sim2d"},
+}
+
+
+def project_imports(path: Path) -> set[str]:
+    """The project's subpackages a module imports, wherever the import stands (at the top,
+    inside a function, under ``if TYPE_CHECKING``)."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            names = [node.module, *(f"{node.module}.{a.name}" for a in node.names)]
+        elif isinstance(node, ast.Import):
+            names = [a.name for a in node.names]
+        else:
+            continue
+        found |= {n.split(".")[1] for n in names if n.startswith("effect_networks.")}
+    return found
+
+
+@pytest.mark.parametrize("package", sorted(LAYERS))
+def test_the_design_pages_layers_hold(package):
+    modules = sorted((ROOT / package).rglob("*.py"))
+    assert modules, package
+    wrong = {
+        str(p.relative_to(ROOT)): sorted(above)
+        for p in modules
+        if (above := (project_imports(p) & set(LAYERS)) - LAYERS[package] - {package})
+    }
+    assert not wrong, f"{package} imports above its layer: {wrong}"
+
+
+def test_the_layer_walk_sees_a_function_local_import(tmp_path):
+    module = tmp_path / "m.py"
+    module.write_text("def f():\n    from effect_networks.experiments.cli import main\n")
+    assert project_imports(module) == {"experiments"}
+
+
+def test_the_compiled_page_names_every_method():
+    from effect_networks.inference.queries.compiled import CompiledQueries
+
+    methods = {n for n in vars(CompiledQueries) if not n.startswith("_")}
+    assert len(methods) >= 9, methods
+    text = (DOCS / "compiled.md").read_text()
+    missing = {n for n in methods if f"`{n}`" not in text}
+    assert not missing, f"docs/compiled.md does not name {sorted(missing)}"
