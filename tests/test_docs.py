@@ -185,3 +185,37 @@ def test_the_compiled_page_names_every_method():
     text = (DOCS / "compiled.md").read_text()
     missing = {n for n in methods if f"`{n}`" not in text}
     assert not missing, f"docs/compiled.md does not name {sorted(missing)}"
+
+
+#: A measured figure: a decimal, a percentage, or a number with a unit of time, length,
+#: memory or speed-up.
+MEASURED = re.compile(
+    r"\d+\.\d+|\d\s?%|\d\s?(?:cm|mm|ms|us|s|MB|GB|MiB|GiB|x|throws/s)\b", re.IGNORECASE
+)
+#: The settings docs/results.md names (the table heights a command takes), not measured.
+SETTINGS = {"0.75", "0.35"}
+
+
+def measured_figures(text: str) -> list[str]:
+    """The measured-looking figures of a Markdown text, outside its ``{include}`` blocks
+    (the generated block comes in through one)."""
+    text = re.sub(r"^```\{include\}.*?^```", "", text, flags=re.S | re.M)
+    return [m.group(0) for m in MEASURED.finditer(text) if m.group(0) not in SETTINGS]
+
+
+def test_the_results_page_includes_the_generated_block_and_copies_no_figure():
+    from effect_networks.experiments.summary import BEGIN, END
+
+    text = (DOCS / "results.md").read_text()
+    include = f"```{{include}} ../README.md\n:start-after: {BEGIN}\n:end-before: {END}\n```"
+    assert include in text
+    readme = (ROOT / "README.md").read_text()
+    assert readme.count(BEGIN) == 1 and readme.count(END) == 1
+    assert measured_figures(text) == [], "docs/results.md: cite the generated block"
+
+
+def test_the_figure_check_sees_a_copied_figure():
+    page = "A.\n\n```{include} ../README.md\n| 1.36 | 95.7 % |\n```\n\nthe 400-cluster fit"
+    assert measured_figures(page) == []
+    for copied in ("fit in 1.36 s", "re-throws at 0.0078 cm", "95.73 %", "12 ms", "3x faster"):
+        assert measured_figures(f"{page} {copied}."), copied
