@@ -28,6 +28,7 @@ from effect_networks.experiments.cans import can_dataset, default_data_dir
 from effect_networks.inference import grid_kernel
 from effect_networks.inference.design.active import explore
 from effect_networks.sim2d import field_throws, geometry
+from timing import add_out, print_also_to  # benchmarks/timing.py, beside this script
 
 
 def timed(fn):
@@ -45,7 +46,9 @@ def main() -> None:
     parser.add_argument("--data-dir", default=None)
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--old", action="store_true", help="also time the can network itself")
+    add_out(parser)
     args = parser.parse_args()
+    print_also_to(args.out, __file__)
     torch.set_num_threads(args.threads)
 
     settings = dict(ex.QUICK) if args.scale == "quick" else {"scale": args.scale}

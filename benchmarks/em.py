@@ -22,7 +22,7 @@ from effect_networks.inference import fit, fit_em
 from effect_networks.models.throw_network import throw_data, throw_network
 from effect_networks.sim2d.throw import sample_targets, throw
 from throw import machine  # benchmarks/throw.py, beside this script
-from timing import median_seconds
+from timing import add_out, median_seconds, print_also_to
 
 GOAL_S = 2.0
 
@@ -36,7 +36,9 @@ def main(argv: list[str] | None = None) -> dict[int, dict[str, float]]:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
+    add_out(parser)
     args = parser.parse_args(argv)
+    print_also_to(args.out, __file__)
     threads = torch.get_num_threads()
     torch.set_num_threads(args.threads)
     try:

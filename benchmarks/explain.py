@@ -31,7 +31,11 @@ from effect_networks.inference import OutsideTrainingData, fit, simulate
 from effect_networks.inference.queries.demonstration import simulate_demonstrations
 from effect_networks.inference.queries.explain import explain
 from effect_networks.models import Continuous, Discrete, EffectNetwork, random_params
-from timing import median_seconds  # benchmarks/timing.py, beside this script
+from timing import (  # benchmarks/timing.py, beside this script
+    add_out,
+    median_seconds,
+    print_also_to,
+)
 
 GOAL_S = 1.0
 STATES = {"door": ("locked", "shut", "open"), "drawer": ("shut", "open"), "switch": ("off", "on")}
@@ -118,7 +122,9 @@ def main() -> None:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--handle", action="store_true", help="also the continuous handle world")
     parser.add_argument("--handle-n", type=int, default=1_000)
+    add_out(parser)
     args = parser.parse_args()
+    print_also_to(args.out, __file__)
     print(f"python {platform.python_version()}, {platform.machine()}")
     net, params = door_world()
     states, _ = simulate_demonstrations(net, params, args.n, args.steps, seed=2)

@@ -34,7 +34,7 @@ from effect_networks.inference import fit, fit_gradient, fit_statistics, params_
 from effect_networks.models import Continuous, Discrete, EffectNetwork
 from effect_networks.models.params import NetworkParams
 from throw import machine  # benchmarks/throw.py, beside this script
-from timing import median_seconds
+from timing import add_out, median_seconds, print_also_to
 
 SOFTMAX_GOAL_S = 0.2
 EM_GOAL_S = 2.0
@@ -107,7 +107,9 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
     parser.add_argument("--no-old", action="store_true", help="skip the old routes")
+    add_out(parser)
     args = parser.parse_args(argv)
+    print_also_to(args.out, __file__)
     threads = torch.get_num_threads()
     torch.set_num_threads(args.threads)
     out: dict[str, float] = {}

@@ -27,6 +27,8 @@ import sys
 import time
 from pathlib import Path
 
+from timing import add_out, print_also_to  # benchmarks/timing.py, beside this script
+
 ROWS_PER_DATA_SET = 187_785
 N_CONFIGS = 107
 
@@ -87,7 +89,9 @@ def main(argv: list[str] | None = None) -> dict:
     parser.add_argument("--copies", type=int, default=10)
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--child", choices=["baseline", "chunks", "one-pass"])
+    add_out(parser)
     args = parser.parse_args(argv)
+    print_also_to(args.out, __file__)
     if args.copies < 1 or args.threads < 1:
         parser.error("--copies and --threads must be positive")
     if args.child:

@@ -25,7 +25,7 @@ from effect_networks.inference import fit, simulate
 from effect_networks.models import Continuous, Discrete, EffectNetwork, random_params
 from effect_networks.models.params import NetworkParams
 from throw import machine  # benchmarks/throw.py, beside this script
-from timing import median_seconds
+from timing import add_out, median_seconds, print_also_to
 
 GOAL_S = 2.0
 
@@ -77,7 +77,9 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
+    add_out(parser)
     args = parser.parse_args(argv)
+    print_also_to(args.out, __file__)
     threads = torch.get_num_threads()
     torch.set_num_threads(args.threads)
     try:

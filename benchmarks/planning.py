@@ -37,7 +37,11 @@ from effect_networks.inference.queries.planner import plan_on
 from effect_networks.inference.queries.planning import exact_plan
 from effect_networks.models.can_network import can_network, can_rows, n_cans
 from effect_networks.sim2d.configurations import stable_configurations
-from timing import median_seconds  # benchmarks/timing.py, beside this script
+from timing import (  # benchmarks/timing.py, beside this script
+    add_out,
+    median_seconds,
+    print_also_to,
+)
 
 from effect_networks import inference
 
@@ -125,8 +129,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--repeats", type=int, default=5, help="timed calls (median)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
+    add_out(parser)
     return parser.parse_args(argv)
 
 
 if __name__ == "__main__":
-    main(parse_args())
+    args = parse_args()
+    print_also_to(args.out, __file__)
+    main(args)

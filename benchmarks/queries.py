@@ -55,7 +55,11 @@ from effect_networks.models import (
 from effect_networks.models.can_network import can_network
 from effect_networks.models.declaration import DTYPE
 from scipy import stats
-from timing import median_seconds  # benchmarks/timing.py, beside this script
+from timing import (  # benchmarks/timing.py, beside this script
+    add_out,
+    median_seconds,
+    print_also_to,
+)
 
 from effect_networks import inference
 
@@ -477,8 +481,11 @@ def parse_args(argv=None) -> argparse.Namespace:
     parser.add_argument(
         "--scaling-pgmpy-queries", type=int, default=50, help="pgmpy queries timed per k"
     )
+    add_out(parser)
     return parser.parse_args(argv)
 
 
 if __name__ == "__main__":
-    main(parse_args())
+    args = parse_args()
+    print_also_to(args.out, __file__)
+    main(args)

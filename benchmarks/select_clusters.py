@@ -24,6 +24,7 @@ from effect_networks.experiments.throwing import BIN_CANDIDATES, get_data, selec
 from effect_networks.inference import select_clusters
 from effect_networks.models.throw_network import THROW, throw_network
 from effect_networks.sim2d.throw import ReleaseNoise
+from timing import add_out, print_also_to  # benchmarks/timing.py, beside this script
 
 
 def compare(n_train, bins, *, noise=True, folds=5, seed=0, tolerance=0.05):
@@ -94,7 +95,9 @@ def main() -> None:
     parser.add_argument("--folds", type=int, default=5)
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--tolerance", type=float, default=0.05)
+    add_out(parser)
     args = parser.parse_args()
+    print_also_to(args.out, __file__)
     result = compare(
         args.n_train,
         args.bins,

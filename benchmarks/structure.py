@@ -26,7 +26,7 @@ import torch
 from effect_networks.inference import learn_structure, simulate
 from effect_networks.models import Continuous, Discrete, EffectNetwork, random_params
 from throw import machine  # benchmarks/throw.py, beside this script
-from timing import median_seconds
+from timing import add_out, median_seconds, print_also_to
 
 GOAL_S = 10.0
 ACTIONS = ("grasp", "tap", "touch")
@@ -98,7 +98,9 @@ def main(argv: list[str] | None = None) -> dict[str, dict[str, float]]:
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
     parser.add_argument("--no-pgmpy", action="store_true", help="time learn_structure only")
+    add_out(parser)
     args = parser.parse_args(argv)
+    print_also_to(args.out, __file__)
     logging.getLogger("pgmpy").setLevel(logging.ERROR)
     threads = torch.get_num_threads()
     torch.set_num_threads(args.threads)

@@ -32,7 +32,11 @@ from effect_networks.experiments.adaptive_throw import adaptive_throw_network
 from effect_networks.inference import fit, fit_em, infer_parameter, parameter_for_effect
 from effect_networks.models.throw_network import TARGET, throw_data, throw_network
 from effect_networks.sim2d.throw import sample_targets, throw
-from timing import median_seconds  # benchmarks/timing.py, beside this script
+from timing import (  # benchmarks/timing.py, beside this script
+    add_out,
+    median_seconds,
+    print_also_to,
+)
 
 from effect_networks import inference
 
@@ -170,7 +174,9 @@ def main(argv: list[str] | None = None) -> dict[str, float]:
     parser.add_argument(
         "--effect-rows", type=int, default=200, help="hits per parameter_for_effect timing"
     )
+    add_out(parser)
     args = parser.parse_args(argv)
+    print_also_to(args.out, __file__)
 
     threads = torch.get_num_threads()
     torch.set_num_threads(args.threads)

@@ -219,3 +219,14 @@ def test_the_figure_check_sees_a_copied_figure():
     assert measured_figures(page) == []
     for copied in ("fit in 1.36 s", "re-throws at 0.0078 cm", "95.73 %", "12 ms", "3x faster"):
         assert measured_figures(f"{page} {copied}."), copied
+
+
+def test_the_benchmarks_page_names_every_script_and_logs_no_measurement():
+    text = (DOCS / "benchmarks.md").read_text()
+    for script in sorted((ROOT / "benchmarks").glob("*.py")):
+        assert f"`{script.name}`" in text, f"docs/benchmarks.md does not name {script.name}"
+        takes_out = "add_out(parser)" in script.read_text()
+        assert takes_out or script.stem in {"sim", "timing"}, f"{script.name} takes no --out"
+    assert not re.findall(r"\b20\d\d-\d\d-\d\d\b", text), "a dated measurement"
+    assert not re.findall(r"\b[0-9a-f]{7,40}\b", text), "a measurement keyed by commit"
+    assert measured_figures(text) == [], "figures go to the scripts' output (--out)"
