@@ -25,7 +25,7 @@ extensions = [
     "sphinx.ext.viewcode",
 ]
 
-exclude_patterns = ["_build", "conf.py"]
+exclude_patterns = ["_build", "conf.py", "guide_setup.py"]  # a module the guide imports
 root_doc = "index"
 
 myst_enable_extensions = ["dollarmath"]

@@ -1,22 +1,23 @@
-"""Every Python snippet in README.md and then in the user guide's pages, which continue
-its quick start, runs in order and says what its comments say; so does the runnable
-snippet of the experiments page.
-
-The order is the guide's own (docs/guide.md lists the pages in it): each page's snippets
-may use the names that README's and the earlier pages' snippets define."""
+"""README.md's Python snippets run in order, as its reader runs them, and say what their
+comments say; each page of the user guide runs alone, in a fresh namespace and folder
+(its first snippet imports what it uses, the quick start's objects from
+docs/guide_setup.py), and says what its comments say; so does the runnable snippet of
+the experiments page."""
 
 import math
 import os
 import re
+import sys
 import warnings
 from pathlib import Path
 
+import numpy as np
 import pytest
 import torch
 
 README = Path(__file__).resolve().parents[1] / "README.md"
 DOCS = README.parent / "docs"
-#: the user guide's pages, in the order docs/guide.md gives and the snippets run
+#: the user guide's pages, in the order docs/guide.md lists them
 GUIDE_PAGES = tuple(
     DOCS / f"{name}.md"
     for name in (
@@ -47,9 +48,9 @@ def blocks(text: str) -> list[str]:
     return out
 
 
-def snippets() -> list[tuple[Path, str]]:
-    """README's snippets, then each guide page's, as (file, code) in running order."""
-    return [(path, code) for path in (README, *GUIDE_PAGES) for code in blocks(path.read_text())]
+def snippets(path: Path = README) -> list[str]:
+    """A Markdown file's snippets, in order."""
+    return blocks(path.read_text())
 
 
 def guide_text() -> str:
@@ -57,39 +58,34 @@ def guide_text() -> str:
     return "\n".join(path.read_text() for path in (README, *GUIDE_PAGES))
 
 
-def test_the_guide_lists_its_pages_in_the_running_order():
+def test_the_guide_lists_its_pages():
     linked = re.findall(r"^\d+\. \[[^]]+\]\(([\w/]+)\.md\)", (DOCS / "guide.md").read_text(), re.M)
     assert tuple(DOCS / f"{name}.md" for name in linked) == GUIDE_PAGES
 
 
 def test_readme_and_the_guide_have_snippets():
-    files = [path for path, _ in snippets()]
-    assert files.count(README) >= 3
+    assert len(snippets(README)) >= 3
     for page in ("network", "evidence", "parameters", "fitting", "compiled", "pyro", "interop"):
-        assert DOCS / f"{page}.md" in files, page
+        assert snippets(DOCS / f"{page}.md"), page
 
 
-@pytest.mark.timeout(600)
-@pytest.mark.filterwarnings(
-    "ignore::effect_networks.inference.OutsideTrainingData"
-)  # network.md says so
-def test_readme_snippets_run(tmp_path, monkeypatch):
-    monkeypatch.chdir(tmp_path)  # the snippets write nothing into the current folder
+def run_snippets(path: Path) -> dict:
+    """Run a Markdown file's snippets in order in one fresh namespace; return it."""
     namespace: dict = {}
     with torch.random.fork_rng():
         torch.manual_seed(0)
-        for path, code in snippets():
+        for code in snippets(path):
             exec(compile(code, str(path), "exec"), namespace)  # noqa: S102
+    return namespace
+
+
+@pytest.mark.timeout(300)
+def test_readme_snippets_run_in_sequence(tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # the snippets write nothing into the current folder
+    namespace = run_snippets(README)
     assert namespace["path"].exists() and not tmp_path.joinpath("net.pt").exists()
     assert abs(float(namespace["where"][0, 0]) - 0.35) < 0.02
     assert namespace["best"] == ("remove",)
-    assert namespace["kind"] == "table"
-    assert float(namespace["still"][0]) > 0.99
-    assert float(namespace["diagonal"]) == 0.0
-    assert namespace["plane"].cpd("end.xy").name == "diagonal_gaussian"
-    assert abs(float(namespace["which"].sum()) - 1) < 1e-12
-    assert float(namespace["rest"].cov[0, 0, 0]) == 0.0
-    assert float(namespace["rest"].mean[0, 0]) == 0.4 and torch.isfinite(namespace["y_given_x"])
     assert float(namespace["gone"][0]) > 0.99
     assert float(namespace["surprise"][0]) > 0.99
     assert abs(float(namespace["force_needed"][0, 0]) - 10.0) < 0.5
@@ -102,21 +98,86 @@ def test_readme_snippets_run(tmp_path, monkeypatch):
     assert math.isfinite(namespace["score"])
     assert namespace["parents"] == ("initial.visible", "action")
     assert namespace["better"]
-    assert namespace["drift"] < 0.05  # simulate's clusters, fitted back
-    curve = namespace["em"].log_likelihoods
-    assert namespace["em"].converged and namespace["gain"] > 0
+    # the guide's shared set-up builds what the quick start builds
+    monkeypatch.syspath_prepend(str(DOCS))
+    monkeypatch.delitem(sys.modules, "guide_setup", raising=False)
+    import guide_setup
+
+    assert guide_setup.net == namespace["net"] and guide_setup.ev == namespace["ev"]
+    assert set(guide_setup.data) == set(namespace["data"])
+    for site, values in namespace["data"].items():
+        same = np.array_equal(guide_setup.data[site], values, equal_nan=values.dtype.kind == "f")
+        assert same, site
+    # the same rows fitted the same: the same parameter posterior, to the bit
+    assert torch.equal(guide_setup.aim.mean, namespace["aim"].mean)
+
+
+def check_network(ns):
+    assert ns["kind"] == "table"
+    assert float(ns["still"][0]) > 0.99
+    assert float(ns["diagonal"]) == 0.0
+    assert ns["plane"].cpd("end.xy").name == "diagonal_gaussian"
+
+
+def check_evidence(ns):
+    assert abs(float(ns["which"].sum()) - 1) < 1e-12
+    assert float(ns["rest"].cov[0, 0, 0]) == 0.0
+    assert float(ns["rest"].mean[0, 0]) == 0.4 and torch.isfinite(ns["y_given_x"])
+
+
+def check_parameters(ns):
+    assert ns["drift"] < 0.05  # simulate's clusters, fitted back
+    curve = ns["em"].log_likelihoods
+    assert ns["em"].converged and ns["gain"] > 0
     assert all(b >= a for a, b in zip(curve, curve[1:], strict=False))  # pseudo_count=0
-    assert namespace["gap"] < 1e-12  # the compiled parameter posterior, the traced one's
-    assert namespace["draws"]["param.force"].shape == (100, 5, 1)
-    assert set(namespace["draws"]) == {site.name for site in namespace["net"].sites}
-    assert math.isfinite(namespace["loss"])
-    assert_loss_is_exact(namespace)
+
+
+def check_compiled(ns):
+    assert ns["gap"] < 1e-12  # the compiled parameter posterior, the traced one's
+
+
+def check_pyro(ns):
+    assert ns["draws"]["param.force"].shape == (100, 5, 1)
+    assert set(ns["draws"]) == {site.name for site in ns["net"].sites}
+    assert math.isfinite(ns["loss"])
+    assert_loss_is_exact(ns)
     # 10 N lies on the edge of cells 3 and 4 (of 8 over 0..20 N): a handler conditions the
     # model itself, where the cluster's posterior is the mixture's responsibility
-    assert int(namespace["cluster"]) in (3, 4)
-    assert '"param.force" -> "end.position"' in namespace["graph"].source
-    assert len(namespace["rows"]["action"]) == 500
-    assert os.path.getsize("pictures.png") > 0  # the guide's plots
+    assert int(ns["cluster"]) in (3, 4)
+    assert '"param.force" -> "end.position"' in ns["graph"].source
+    assert len(ns["rows"]["action"]) == 500
+
+
+def check_pictures(ns):
+    assert os.path.getsize("pictures.png") > 0
+
+
+#: What each guide page's comments promise, checked after the page runs alone.
+CHECKS = {
+    "network": check_network,
+    "evidence": check_evidence,
+    "parameters": check_parameters,
+    "compiled": check_compiled,
+    "pyro": check_pyro,
+    "pictures": check_pictures,
+}
+
+
+@pytest.mark.timeout(300)
+@pytest.mark.filterwarnings(
+    "ignore::effect_networks.inference.OutsideTrainingData"
+)  # network.md says so
+@pytest.mark.parametrize("page", GUIDE_PAGES, ids=lambda p: p.stem)
+def test_each_guide_page_runs_alone(page, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)  # a page writes only into its reader's folder
+    monkeypatch.syspath_prepend(str(DOCS))  # where guide_setup lives
+    monkeypatch.delitem(sys.modules, "guide_setup", raising=False)  # a fresh set-up
+    namespace = run_snippets(page)
+    CHECKS.get(page.stem, lambda ns: None)(namespace)
+
+
+def test_every_check_names_a_guide_page():
+    assert set(CHECKS) <= {page.stem for page in GUIDE_PAGES}
 
 
 def test_the_experiments_page_snippet_runs(tmp_path, monkeypatch):
