@@ -293,8 +293,9 @@ def _checksum(payload: dict) -> str:
         for name in sorted(cpds[site]):
             value = cpds[site][name]
             if isinstance(value, torch.Tensor):
-                flat = value.detach().cpu().contiguous().reshape(-1)
-                h.update(flat.view(torch.uint8).numpy().data if flat.numel() else b"")
+                # numpy's bytes in C order, whatever the strides: a fitted tensor may be a
+                # view whose size-1 dimensions have any stride, which torch's byte view refuses
+                h.update(np.ascontiguousarray(value.detach().cpu().numpy()).tobytes())
     return h.hexdigest()
 
 
