@@ -244,6 +244,12 @@ def _as_array(spec: SiteSpec, value: object) -> np.ndarray:
         return value.detach().cpu().numpy()
     if isinstance(value, str | bytes):
         return np.array([value], dtype=object)
+    if isinstance(value, list | tuple) and len({_label_kind(v) for v in value}) > 1:
+        # labels of several types stay as they are: numpy would spell [0, "many"] as
+        # ["0", "many"] and [True, 2] as [1, 2]
+        array = np.empty(len(value), dtype=object)
+        array[:] = list(value)
+        return array
     try:
         array = np.asarray(value)
     except (TypeError, ValueError):  # ragged or odd containers: keep the Python objects
@@ -256,6 +262,17 @@ def _as_array(spec: SiteSpec, value: object) -> np.ndarray:
             f"site {spec.name!r}: expected one label per row, shape (n,), got shape {array.shape}"
         )
     return array
+
+
+def _label_kind(value: object) -> str:
+    """A label's kind as numpy would merge them: numbers (bool apart), text, or other."""
+    if isinstance(value, bool | np.bool_):
+        return "bool"
+    if isinstance(value, int | float | np.number):
+        return "number"
+    if isinstance(value, str | np.str_):
+        return "str"
+    return type(value).__name__
 
 
 def _encode_labels(net: Network, spec: SiteSpec, value: object) -> torch.Tensor:
@@ -274,30 +291,46 @@ def _encode_labels(net: Network, spec: SiteSpec, value: object) -> torch.Tensor:
         except TypeError:
             unique = None
         if unique is not None:
-            mapped = np.array([_look_up(spec, states, lookup, u.item()) for u in unique])
-            return torch.as_tensor(mapped[inverse.reshape(-1)], dtype=torch.long)
-    return torch.tensor(
-        [_look_up(spec, states, lookup, _python(v)) for v in array], dtype=torch.long
-    )
+            mapped = np.array([lookup.get(_hashable(u.item()), -1) for u in unique])
+            index = mapped[inverse.reshape(-1)]
+            bad = np.flatnonzero(index < 0)
+            if bad.size:
+                _refuse(spec, states, array[bad[0]].item(), int(bad[0]))
+            return torch.as_tensor(index, dtype=torch.long)
+    index = []
+    for row, v in enumerate(array):
+        i = lookup.get(_hashable(_python(v)), -1)
+        if i < 0:
+            _refuse(spec, states, _python(v), row)
+        index.append(i)
+    return torch.tensor(index, dtype=torch.long)
+
+
+def _hashable(v: object) -> object:
+    """``v``, or a key no state has when it cannot be hashed (a list where a label goes)."""
+    try:
+        hash(v)
+    except TypeError:
+        return _UNHASHABLE
+    return v
+
+
+_UNHASHABLE = object()
 
 
 def _python(v: object) -> object:
     return v.item() if isinstance(v, np.generic | torch.Tensor) else v
 
 
-def _look_up(spec: SiteSpec, states: tuple, lookup: dict, v: object) -> int:
-    try:
-        return lookup[v]
-    except (KeyError, TypeError):
-        shown = (
-            list(states) if len(states) <= 12 else f"{list(states[:12])} ... ({len(states)} states)"
-        )
-        hint = ""
-        if isinstance(v, int) and not isinstance(v, bool) and 0 <= v < len(states):
-            hint = " (values are state labels; to give state indices use net.encode_indices({...}))"
-        raise ValueError(
-            f"site {spec.name!r}: value {v!r} is not one of its states {shown}{hint}"
-        ) from None
+def _refuse(spec: SiteSpec, states: tuple, v: object, row: int) -> None:
+    """Raise the error for the first row whose value is not a state: the value, its row."""
+    shown = list(states) if len(states) <= 12 else f"{list(states[:12])} ... ({len(states)} states)"
+    hint = ""
+    if isinstance(v, int) and not isinstance(v, bool) and 0 <= v < len(states):
+        hint = " (values are state labels; to give state indices use net.encode_indices({...}))"
+    raise ValueError(
+        f"site {spec.name!r}: value {v!r} is not one of its states {shown} (row {row}){hint}"
+    )
 
 
 def _encode_indices(spec: SiteSpec, value: object) -> torch.Tensor:

@@ -12,7 +12,9 @@ alone (uniform table, pooled Gaussian) and which queries report as unseen.
 
 from __future__ import annotations
 
+import errno
 import hashlib
+import io
 import json
 import os
 import secrets
@@ -173,14 +175,28 @@ def save(path: str | Path, net: EffectNetwork, params: NetworkParams) -> Path:
     payload["sha256"] = _checksum(payload)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp")
+    # the archive is built in memory (a model's numbers are small), so that a disk that
+    # fills is Python's OSError on our write, not an error deep inside torch's zip writer
+    content = io.BytesIO()
+    torch.save(payload, content)
     try:
         # O_EXCL: a fresh file of our own; mode 0o666 minus the umask, as open() gives
         fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
         with os.fdopen(fd, "wb") as f:
-            torch.save(payload, f)
+            f.write(content.getbuffer())
             f.flush()
             os.fsync(f.fileno())
         os.replace(tmp, path)
+    except OSError as exc:
+        tmp.unlink(missing_ok=True)
+        if exc.errno == errno.ENOSPC:
+            raise OSError(
+                exc.errno,
+                f"No space left on device: cannot save {path} ({len(content.getbuffer())} "
+                "bytes); the file that was there is kept. Free some space or save elsewhere",
+                str(path),
+            ) from exc
+        raise
     except BaseException:
         tmp.unlink(missing_ok=True)
         raise
@@ -198,8 +214,9 @@ def load(
     inflated before it is known: the file's members must be stored uncompressed, as
     :func:`save` writes them, its pickled structure at most :data:`MAX_STRUCTURE_BYTES`;
     its numbers are mapped, not read, until the payload holds exactly
-    :data:`PAYLOAD_KEYS`, a CPD of the declared shape for every site and nothing else.
-    Then the content's checksum is verified and the numbers are copied into memory.
+    :data:`PAYLOAD_KEYS`. Then the content's checksum is verified, before the declaration
+    is parsed or any CPD built; then every site must hold a CPD of its declared shape and
+    nothing else, and the numbers are copied into memory.
 
     Raises
     ------
@@ -232,6 +249,17 @@ def load(
             f"{sorted(PAYLOAD_KEYS)}"
         )
     try:
+        verified = payload.get("sha256") == _checksum(payload)
+    except (AttributeError, KeyError, TypeError, ValueError) as exc:  # not the saved layout
+        raise ValueError(
+            f"{path} is a damaged effect-network file ({type(exc).__name__}: {exc})"
+        ) from exc
+    if not verified:
+        raise ValueError(
+            f"{path} is damaged: its content does not match the sha256 checksum saved with it "
+            "(a changed byte); re-save the network from its source"
+        )
+    try:
         net = EffectNetwork.from_dict(json.loads(payload["declaration"]), kinds)
         cpds = {}
         for site, entry in payload["cpds"].items():
@@ -250,16 +278,11 @@ def load(
             cpds[site] = cls(**entry)
         params = NetworkParams(cpds, float(payload["pseudo_count"]), net)
         check_params(net, params)  # shapes only: nothing has been read yet
-    except (KeyError, TypeError, ValueError, json.JSONDecodeError) as exc:
+    except (KeyError, TypeError, ValueError, RecursionError) as exc:
+        # RecursionError: a declaration nested deeper than any network's (a crafted file)
         raise ValueError(
             f"{path} is a damaged effect-network file ({type(exc).__name__}: {exc})"
         ) from exc
-    saved = payload.get("sha256")
-    if not isinstance(saved, str) or saved != _checksum(payload):
-        raise ValueError(
-            f"{path} is damaged: its content does not match the sha256 checksum saved with it "
-            "(a changed byte); re-save the network from its source"
-        )
     return net, params.map(lambda t: t.clone())  # off the mapped file
 
 
@@ -293,8 +316,9 @@ def _checksum(payload: dict) -> str:
         for name in sorted(cpds[site]):
             value = cpds[site][name]
             if isinstance(value, torch.Tensor):
-                flat = value.detach().cpu().contiguous().reshape(-1)
-                h.update(flat.view(torch.uint8).numpy().data if flat.numel() else b"")
+                # numpy's bytes in C order, whatever the strides: a fitted tensor may be a
+                # view whose size-1 dimensions have any stride, which torch's byte view refuses
+                h.update(np.ascontiguousarray(value.detach().cpu().numpy()).tobytes())
     return h.hexdigest()
 
 

@@ -7,7 +7,7 @@ import pytest
 import torch
 from effect_networks.inference import fit, infer_action
 from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter, load, save
-from effect_networks.models.params import FORMAT_VERSION
+from effect_networks.models.params import FORMAT_VERSION, _checksum
 
 from tests.helpers import random_params
 
@@ -112,6 +112,7 @@ def test_load_refuses_corrupt_and_incompatible_files(tmp_path):
         load(tmp_path / "v99.pt")
     payload["version"] = FORMAT_VERSION
     payload["cpds"]["end.pos"]["bias"] = torch.zeros(3)
+    payload["sha256"] = _checksum(payload)  # resealed: the shape check is what refuses it
     torch.save(payload, tmp_path / "shape.pt")
     with pytest.raises(ValueError, match="end.pos"):
         load(tmp_path / "shape.pt")

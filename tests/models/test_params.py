@@ -3,6 +3,8 @@
 import collections
 import errno
 import io
+import json
+import os
 import pickle
 import random
 import zipfile
@@ -20,7 +22,7 @@ from effect_networks.models import (
     load,
     save,
 )
-from effect_networks.models.params import NetworkParams, check_params, random_params
+from effect_networks.models.params import NetworkParams, _checksum, check_params, random_params
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from pyro import poutine
@@ -302,10 +304,11 @@ def test_an_unknown_entry_is_refused(tmp_path):
     with pytest.raises(ValueError, match=r"holds unknown entries \['extra'\]"):
         load(tmp_path / "extra.pt")
     entry = payload["cpds"]["end.pos"]
-    torch.save(
-        payload | {"cpds": payload["cpds"] | {"end.pos": entry | {"spare": torch.zeros(9)}}},
-        tmp_path / "spare.pt",
-    )
+    spare = payload | {"cpds": payload["cpds"] | {"end.pos": entry | {"spare": torch.zeros(9)}}}
+    torch.save(spare, tmp_path / "spare.pt")
+    with pytest.raises(ValueError, match="does not match the sha256 checksum"):
+        load(tmp_path / "spare.pt")
+    torch.save(spare | {"sha256": _checksum(spare)}, tmp_path / "spare.pt")  # resealed
     with pytest.raises(ValueError, match=r"site 'end.pos': its LinearGaussianParams holds"):
         load(tmp_path / "spare.pt")
 
@@ -376,3 +379,54 @@ def test_a_file_saved_before_the_rename_loads_and_saves_alike(tmp_path):
         s: e["type"] for s, e in payload["cpds"].items()
     }
     assert again["sha256"] == OLD_SHA256
+
+
+def test_the_checksum_is_verified_before_the_declaration_is_parsed(tmp_path, monkeypatch):
+    valid = save(tmp_path / "net.pt", NET, random_params(NET, 0))
+    payload = torch.load(valid, weights_only=True)
+    deep = "[" * 100_000 + "]" * 100_000  # deeper than json.loads can recurse
+    torch.save(payload | {"declaration": deep}, tmp_path / "deep.pt")
+    parsed = []
+    monkeypatch.setattr(json, "loads", lambda *a, **k: parsed.append(a) or {})
+    with pytest.raises(ValueError, match="does not match the sha256 checksum"):
+        load(tmp_path / "deep.pt")
+    assert parsed == []  # refused before anything in it was parsed
+    monkeypatch.undo()
+    resealed = payload | {"declaration": deep}
+    torch.save(resealed | {"sha256": _checksum(resealed)}, tmp_path / "deep.pt")
+    with pytest.raises(ValueError, match="damaged effect-network file .*RecursionError"):
+        load(tmp_path / "deep.pt")
+
+
+def test_a_disk_that_fills_during_save_is_an_oserror_naming_the_file(tmp_path, monkeypatch):
+    """Wherever the disk fills, save raises OSError(ENOSPC) naming the file, and the
+    previous file stays whole."""
+    old = random_params(NET, 1)
+    path = save(tmp_path / "net.pt", NET, old)
+    real_fdopen = os.fdopen
+
+    class FillingFile:
+        def __init__(self, f):
+            self.f = f
+
+        def __enter__(self):
+            return self
+
+        def __exit__(self, *exc):
+            self.f.close()
+
+        def write(self, data):
+            self.f.write(bytes(data)[:100])
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+        def __getattr__(self, name):
+            return getattr(self.f, name)
+
+    monkeypatch.setattr(os, "fdopen", lambda fd, mode: FillingFile(real_fdopen(fd, mode)))
+    with pytest.raises(OSError, match=r"No space left on device: cannot save .*net\.pt") as caught:
+        save(path, NET, random_params(NET, 2))
+    assert caught.value.errno == errno.ENOSPC and caught.value.filename == str(path)
+    monkeypatch.undo()
+    net2, params2 = load(path)
+    assert net2 == NET and same_numbers(params2, old)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["net.pt"]
