@@ -1,6 +1,6 @@
 """Reproduce the paper's experiments end to end and write ``results/``.
 
-Runs the script of every experiment in :func:`experiments.registry.experiments` in
+Runs the script of every experiment in :func:`experiments.harness.registry.experiments` in
 turn (each can also be run alone; ``--quick`` gives each its quick settings): the §III
 illustration, the worlds' pictures, throwing (§IV-B) and beyond the paper its adaptive
 clusters and active throw targets, can tossing (§IV-A, Table I), the combined system
@@ -14,7 +14,7 @@ the others still run) and is measured: its wall time, the part of it spent simul
 and the peak resident memory of its largest process. Then writes ``run.json`` (scale,
 commit, date, machine, the one-time start-up, those measures per step) and
 ``summary.md`` (the paper's numbers beside ours and the bounds, and the steps' measures
-beside their goals: :mod:`experiments.summary`); a full-scale run of every step also
+beside their goals: :mod:`experiments.harness.summary`); a full-scale run of every step also
 refreshes the results block of README.md.
 
     ./reproduce              # full scale
@@ -38,10 +38,10 @@ import time
 from pathlib import Path
 from typing import NamedTuple
 
-from effect_networks.experiments.config import check_executor, config_or_exit, run_script
-from effect_networks.experiments.registry import experiments
-from effect_networks.experiments.steps import STEP_RECORD_ENV, StepMeasure, read_step_record
-from effect_networks.experiments.summary import refresh_readme, run_record, summary_markdown
+from effect_networks.experiments.harness.config import check_executor, config_or_exit, run_script
+from effect_networks.experiments.harness.registry import experiments
+from effect_networks.experiments.harness.steps import STEP_RECORD_ENV, StepMeasure, read_step_record
+from effect_networks.experiments.harness.summary import refresh_readme, run_record, summary_markdown
 
 HERE = Path(__file__).resolve().parent
 README = HERE.parent / "README.md"
@@ -49,7 +49,7 @@ README = HERE.parent / "README.md"
 
 def steps(args: argparse.Namespace) -> list[tuple[str, list[str]]]:
     """``(script name, its arguments)`` for every experiment, in order
-    (:func:`experiments.registry.experiments`)."""
+    (:func:`experiments.harness.registry.experiments`)."""
     result = []
     for name, exp in experiments().items():
         argv = ["--out", str(exp.out(args.out))] + (["--quick"] if args.quick else [])
@@ -79,7 +79,7 @@ class StepRun(NamedTuple):
     """One step's run: ``code`` its exit status (``-N``: killed by signal ``N``),
     ``stopped`` the signal that stopped us (or None), and ``measure`` what it measured
     about itself as it exited (its simulation time and peak memory:
-    :mod:`experiments.steps`; None where it wrote nothing)."""
+    :mod:`experiments.harness.steps`; None where it wrote nothing)."""
 
     code: int
     stopped: signal.Signals | None

@@ -2,9 +2,9 @@
 
 Each experiment is a function of a frozen, checked settings dataclass that returns a
 result dataclass (``to_json``, ``from_json``/``load``, ``to_markdown``, ``figures``,
-``summary_rows``, ``save``), and declares itself once (:mod:`.registry`); the larger
+``summary_rows``, ``save``), and declares itself once (:mod:`.harness.registry`); the larger
 ones keep their report beside them (``*_report``). The scripts in ``examples/`` call
-:func:`.cli.main`, which parses a command line into the settings, runs the experiment
+:func:`.harness.cli.main`, which parses a command line into the settings, runs the experiment
 and saves the result.
 
 ========================  ==============================================================
@@ -17,10 +17,7 @@ and saves the result.
 :mod:`.active`            beyond the paper: Table I from a fraction of the throws
 :mod:`.pictures`          figures of the can world and of the robot's throw
 :mod:`.cans`              the can data set at a scale and the can network on it
-:mod:`.config`            checks of settings, and the results' base (JSON, report, files)
-:mod:`.registry`          every experiment's declaration (``EXPERIMENTS`` in its module)
-:mod:`.cli`               an experiment's command line, derived from its settings
+:mod:`.harness`           the harness: settings' checks, registry, command lines, summary
 :mod:`.evaluation`        scoring: Table I's bins, ROC, aim-robust choice, aim pooling
-:mod:`.summary`           the results table from the saved results, for README.md
 ========================  ==============================================================
 """

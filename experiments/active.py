@@ -71,7 +71,7 @@ from effect_networks.experiments.cans import (
     can_dataset,
     start_configurations,
 )
-from effect_networks.experiments.config import (
+from effect_networks.experiments.harness.config import (
     ConfigError,
     Result,
     check_choice,
@@ -79,9 +79,9 @@ from effect_networks.experiments.config import (
     check_int,
     percent,
 )
-from effect_networks.experiments.parallel import forks, run_tasks
+from effect_networks.experiments.harness.parallel import forks, run_tasks
+from effect_networks.experiments.harness.registry import Experiment
 from effect_networks.experiments.physics_bounds import BOUND_SEED, held_out_best
-from effect_networks.experiments.registry import Experiment
 from effect_networks.inference import compile as compile_queries
 from effect_networks.inference import fit, fit_pooled, grid_kernel
 from effect_networks.inference.design.active import explore, with_pool_prior
@@ -160,7 +160,7 @@ class ActiveConfig(CanDataSettings):
         not saved.
     workers : int
         Processes for the learners (each learner and seed one task, its choices and its
-        curve's fits: :func:`experiments.parallel.run_tasks`); 0: one per core. The results
+        curve's fits: :func:`experiments.harness.parallel.run_tasks`); 0: one per core. The results
         do not depend on it.
     progress : bool
         Progress bars.

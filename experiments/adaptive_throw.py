@@ -48,9 +48,9 @@ from typing import ClassVar
 
 import numpy as np
 import torch
-from effect_networks.experiments.config import ConfigError, Result, check_float, check_int
-from effect_networks.experiments.parallel import forks, run_tasks
-from effect_networks.experiments.registry import Experiment
+from effect_networks.experiments.harness.config import ConfigError, Result, check_float, check_int
+from effect_networks.experiments.harness.parallel import forks, run_tasks
+from effect_networks.experiments.harness.registry import Experiment
 from effect_networks.experiments.throwing import HIT_MARGIN_M, get_data, rms
 from effect_networks.inference import fit, fit_em, infer_parameter, parameter_for_effect
 from effect_networks.inference.design.active_gaussian import select_by_information
@@ -129,7 +129,7 @@ class AdaptiveThrowConfig:
         average over them.
     workers : int
         Processes for the model work (the fits and queries of each grid size, the noisy
-        comparison, the active curves: :func:`experiments.parallel.run_tasks`); 0: one per
+        comparison, the active curves: :func:`experiments.harness.parallel.run_tasks`); 0: one per
         core. The results do not depend on it.
     progress : bool
         Progress bars.

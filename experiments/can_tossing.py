@@ -49,7 +49,6 @@ from effect_networks.experiments.cans import (
     choose,
     fit_can_network,
 )
-from effect_networks.experiments.config import Result, check_choice, check_float, check_int
 from effect_networks.experiments.evaluation import (
     ACCURACY_BINS,
     accuracy_histogram,
@@ -57,7 +56,8 @@ from effect_networks.experiments.evaluation import (
     roc_auc,
     tail_surprise,
 )
-from effect_networks.experiments.registry import Experiment
+from effect_networks.experiments.harness.config import Result, check_choice, check_float, check_int
+from effect_networks.experiments.harness.registry import Experiment
 from effect_networks.inference import imitation_check
 from effect_networks.models.can_network import config_index, n_cans
 from effect_networks.sim2d import field_throws, geometry, materials

@@ -10,8 +10,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 from effect_networks.experiments.can_tossing import PAPER_CASES, PAPER_PERCENT, PAPER_TABLE_I
-from effect_networks.experiments.config import percent
 from effect_networks.experiments.evaluation import ACCURACY_BINS, roc_curve
+from effect_networks.experiments.harness.config import percent
 
 if TYPE_CHECKING:
     from effect_networks.experiments.can_tossing import CanTossingResult

@@ -33,14 +33,14 @@ from typing import ClassVar
 import numpy as np
 import torch
 from effect_networks.experiments.cans import CanDataSettings, CanModel, can_dataset, fit_can_network
-from effect_networks.experiments.config import (
+from effect_networks.experiments.harness.config import (
     Result,
     check_choice,
     check_float,
     check_int,
     percent,
 )
-from effect_networks.experiments.registry import Experiment
+from effect_networks.experiments.harness.registry import Experiment
 from effect_networks.experiments.throwing import MAX_BINS, fit_throws, get_data
 from effect_networks.inference import GaussianMixture, predict
 from effect_networks.inference import compile as compile_queries
@@ -494,7 +494,7 @@ class CombinedResult(Result):
     seconds: float
 
     def to_markdown(self) -> str:
-        """The experiment's report, in Markdown (:meth:`~experiments.config.Result.to_markdown`)."""
+        """The experiment's report, in Markdown (:meth:`~experiments.harness.config.Result.to_markdown`)."""
         tables = [table_markdown(n, s) for n, s in self.scenarios.items()]
         why = self.angle_choice
         lines = [

@@ -36,13 +36,13 @@ from effect_networks.experiments.cans import (
     start_configurations,
 )
 from effect_networks.experiments.combined import MAX_HORIZON, SCENARIOS
-from effect_networks.experiments.config import (
+from effect_networks.experiments.harness.config import (
     ConfigError,
     Result,
     check_float,
     check_int,
 )
-from effect_networks.experiments.registry import Experiment
+from effect_networks.experiments.harness.registry import Experiment
 from effect_networks.inference.queries.planning import exact_plan, policy_value
 from effect_networks.sim2d import field_throws, geometry
 from effect_networks.sim2d.can_dataset import generate_dataset, load_dataset
@@ -295,7 +295,7 @@ class PhysicsBoundsResult(Result):
     seconds: float
 
     def to_markdown(self) -> str:
-        """The experiment's report, in Markdown (:meth:`~experiments.config.Result.to_markdown`)."""
+        """The experiment's report, in Markdown (:meth:`~experiments.harness.config.Result.to_markdown`)."""
         lines = [
             "**Table I, best field found by simulation** (jittered repeats per field, chosen "
             "on half, scored on the other half):",

@@ -1,7 +1,7 @@
 """Every example runs with its experiment's tiny settings; bad numbers are usage errors.
 
 The experiments themselves are tested in tests/experiments; here each script's command
-line (:mod:`experiments.cli`, derived from its settings) is run in this process with the
+line (:mod:`experiments.harness.cli`, derived from its settings) is run in this process with the
 tiny settings the experiment declares, reproduce runs a script the way a user does (a
 subprocess in the repository root), and every command line is checked.
 """
@@ -16,8 +16,8 @@ import time
 from pathlib import Path
 
 import pytest
-from effect_networks.experiments import cli
-from effect_networks.experiments.registry import experiment, experiments
+from effect_networks.experiments.harness import cli
+from effect_networks.experiments.harness.registry import experiment, experiments
 from effect_networks.sim2d.chunks import locked
 
 from tests.helpers import load_example
@@ -332,7 +332,7 @@ def test_every_option_takes_junk_with_a_usage_error_or_a_value(name, capsys):
 ALLOCATES_AND_SIMULATES = """
 import argparse, time
 import numpy as np
-from effect_networks.experiments.config import run_script
+from effect_networks.experiments.harness.config import run_script
 from effect_networks.sim2d.clock import simulating
 
 def main(args):
@@ -396,7 +396,7 @@ def test_reproduce_measures_a_step_s_simulation_time_and_peak_memory(tmp_path):
 
 FAILS = """
 import sys
-from effect_networks.experiments.config import run_script
+from effect_networks.experiments.harness.config import run_script
 def main(args):
     raise RuntimeError("step broke")
 run_script(main, None)
@@ -431,7 +431,7 @@ def test_reproduce_runs_its_steps_forked_after_one_import(tmp_path, monkeypatch,
     (tmp_path / "b.py").write_text(
         step
         + f"import atexit; atexit.register(lambda: open({str(seen)!r}, 'a').write(' exit'))\n"
-        + "from experiments.config import run_script\nrun_script(lambda args: 0, None)\n"
+        + "from experiments.harness.config import run_script\nrun_script(lambda args: 0, None)\n"
     )
     monkeypatch.setattr(reproduce, "HERE", tmp_path)
     monkeypatch.setattr(reproduce, "PRELOAD", ("colorsys",))

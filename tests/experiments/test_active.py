@@ -9,7 +9,7 @@ import torch
 from effect_networks.experiments import active as ex
 from effect_networks.experiments.can_tossing import PROTOCOLS, RULES, table_one_cases
 from effect_networks.experiments.cans import CanModel, can_dataset, fit_can_network
-from effect_networks.experiments.config import ConfigError
+from effect_networks.experiments.harness.config import ConfigError
 from effect_networks.inference import compile as compile_queries
 from effect_networks.inference import fit_pooled, grid_kernel
 from effect_networks.models.can_network import config_index
@@ -132,9 +132,9 @@ def test_a_tiny_run_end_to_end(tiny_run, tiny_data_dir, tmp_path):
 
 
 def test_the_learners_give_the_same_results_in_turn_as_on_every_core(tiny_run):
-    """Each learner and seed is a task (experiments.parallel): the fixture's run on every core
+    """Each learner and seed is a task (experiments.harness.parallel): the fixture's run on every core
     and the same run in this process agree bit for bit but for the times."""
-    from effect_networks.experiments.compare import compare_values
+    from effect_networks.experiments.harness.compare import compare_values
 
     config, result = tiny_run
     alone = ex.run_active(dataclasses.replace(config, workers=1))

@@ -12,7 +12,7 @@ from effect_networks.experiments.adaptive_throw import (
     plane_residuals,
     run_adaptive_throw,
 )
-from effect_networks.experiments.config import ConfigError
+from effect_networks.experiments.harness.config import ConfigError
 from effect_networks.inference import infer_parameter
 from effect_networks.sim2d.throw import TARGET_AREA
 

@@ -8,8 +8,8 @@ import pytest
 import torch
 from effect_networks.experiments import can_tossing as ct
 from effect_networks.experiments.cans import can_dataset, fit_can_network
-from effect_networks.experiments.config import ConfigError
 from effect_networks.experiments.evaluation import ACCURACY_BINS, roc_auc
+from effect_networks.experiments.harness.config import ConfigError
 from effect_networks.sim2d import field_throws
 
 from tests.helpers import InlineExecutor

@@ -6,7 +6,7 @@ files and its script ``examples/<name>.py``), the settings of a run in seconds f
 tests (``tiny``) and of ``./reproduce --quick`` (``quick``), where its files go below
 the results folder, and its place in the paper's order. :func:`experiments` finds every
 declaration in the package; ``./reproduce``, the results table
-(:mod:`experiments.summary`), the scripts' command lines (:mod:`experiments.cli`) and
+(:mod:`experiments.harness.summary`), the scripts' command lines (:mod:`experiments.harness.cli`) and
 the tests iterate over it, so a new experiment is its module, its script and its test.
 """
 
@@ -22,7 +22,7 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
-from effect_networks.experiments.config import Result
+from effect_networks.experiments.harness.config import Result
 
 __all__ = ["Experiment", "experiment", "experiments"]
 
@@ -40,7 +40,7 @@ class Experiment:
         ``run(config)`` returns the result; with ``draws``, ``run(config, out)`` draws
         into the folder ``out`` while it runs.
     result : type
-        Its :class:`experiments.config.Result` subclass; its ``experiment_name`` is the
+        Its :class:`experiments.harness.config.Result` subclass; its ``experiment_name`` is the
         experiment's name.
     order : int
         Its place in ``./reproduce`` and in the results table (the paper's order; a step

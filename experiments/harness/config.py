@@ -10,7 +10,7 @@ traceback). A result dataclass derives from
 :class:`Result`: ``to_json`` / ``from_json`` / ``load`` round-trip its fields (plain
 JSON values: numbers, strings, lists, dicts with string keys), ``to_markdown`` is its
 report, ``figures(out)`` draws its figures, ``summary_rows`` are its rows of the results
-table (:mod:`experiments.summary`), and ``save(out)`` writes them all as
+table (:mod:`experiments.harness.summary`), and ``save(out)`` writes them all as
 ``<experiment_name>.json``, ``.md`` and the figures' files.
 """
 
@@ -27,7 +27,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, ClassVar, TypeVar
 
-from effect_networks.experiments.steps import write_step_record
+from effect_networks.experiments.harness.steps import write_step_record
 from effect_networks.sim2d.chunks import write_failure, write_text
 from effect_networks.sim2d.executors import ExecutorUnavailable, available_cores, parse_spec
 
@@ -128,7 +128,7 @@ def run_script(main: Callable[[argparse.Namespace], object], args: argparse.Name
     1), an executor that cannot be reached (2), an interrupt (Ctrl-C, or SIGTERM while a
     data set is generated; 130). A data set being generated keeps its finished chunks,
     so running the script again resumes it. Run as a step of ``./reproduce``, it writes its
-    simulation time and peak memory as it exits (:mod:`experiments.steps`).
+    simulation time and peak memory as it exits (:mod:`experiments.harness.steps`).
     """
     try:
         _run(main, args)
