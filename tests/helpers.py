@@ -2,26 +2,14 @@
 
 from __future__ import annotations
 
-import importlib.util
 import itertools
 from concurrent.futures import Future
-from pathlib import Path
 
 import torch
 from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter, random_params
 from effect_networks.models.cpds import LinearGaussianParams, TableParams
 from effect_networks.models.declaration import DTYPE
 from effect_networks.models.params import NetworkParams
-
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
-
-
-def load_example(name: str):
-    """Import ``examples/<name>.py`` as a module named ``example_<name>`` (no sys.path edit)."""
-    spec = importlib.util.spec_from_file_location(f"example_{name}", EXAMPLES / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
 
 
 def discrete_network(cards: list[int], n_actions: int) -> EffectNetwork:
@@ -34,7 +22,6 @@ __all__ = [
     "InlineExecutor",
     "brute_joint",
     "discrete_network",
-    "load_example",
     "random_params",
     "spilling_network",
 ]
