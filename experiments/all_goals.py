@@ -56,11 +56,12 @@ from effect_networks.experiments.physics_bounds import (
     empirical_transition,
     robot_throws,
 )
+from effect_networks.experiments.round_planner import paper_planner
 from effect_networks.experiments.throwing import MAX_BINS, fit_throws, get_data
 from effect_networks.inference import compile as compile_queries
 from effect_networks.inference import fit, predict
 from effect_networks.inference.queries.chaining import BoxPartition, chain, link_probabilities
-from effect_networks.inference.queries.planning import exact_plan, paper_planner
+from effect_networks.inference.queries.planning import exact_plan
 from effect_networks.models.can_network import can_network, can_rows
 from effect_networks.sim2d import geometry
 from effect_networks.sim2d.clock import simulating

@@ -1,4 +1,4 @@
-"""Random networks for tests, and a loader for example scripts."""
+"""Random networks and executors for tests."""
 
 from __future__ import annotations
 
