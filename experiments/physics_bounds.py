@@ -4,7 +4,7 @@ A learned model can at best pick the action that the simulator itself shows to w
 often. This measures that best, with no learning at all, so the experiments' figures can
 be read against it:
 
-* **Table I**, under both protocols of :func:`experiments.can_tossing.table_one_cases`.
+* **Table I**, under both protocols of :func:`experiments.can_tossing.run.table_one_cases`.
   Every 0° field is thrown ``repeats`` more times from every start (the data set's
   jitter, fresh seeds; :func:`sim2d.can_dataset.generate_dataset`). For each case the
   field is chosen by its success on the first half of the repeats and scored on the
@@ -28,7 +28,9 @@ from typing import ClassVar
 
 import numpy as np
 import torch
-from effect_networks.experiments.can_tossing import ANGLE, PROTOCOLS, table_one_cases
+from effect_networks.experiments.can_tossing.report import table_one_rows
+from effect_networks.experiments.can_tossing.run import table_one_cases
+from effect_networks.experiments.can_tossing.settings import ANGLE, PROTOCOLS
 from effect_networks.experiments.cans import (
     SCALES,
     CanDataSettings,
@@ -132,7 +134,7 @@ def table_one_bound(config: PhysicsBoundsConfig, executor=None) -> dict[str, dic
 
     Returns ``{protocol: {n_cases, repeats, exact_fraction_bound (held out),
     exact_fraction_in_sample, n_cases_never_reached}}`` for every protocol of
-    :func:`experiments.can_tossing.table_one_cases`; both score the same throws.
+    :func:`experiments.can_tossing.run.table_one_cases`; both score the same throws.
     """
     progress = config.progress
     data = can_dataset(config.data_dir, config.scale, progress=progress, executor=executor)
@@ -334,8 +336,6 @@ class PhysicsBoundsResult(Result):
         """
         if "can_tossing" in results:
             return []
-        from effect_networks.experiments.can_tossing_report import table_one_rows
-
         return table_one_rows(None, self)
 
 

@@ -182,7 +182,7 @@ def _perform(args: argparse.Namespace):
         result = args.experiment.perform(args.config, args.out)
     finally:
         torch.set_num_threads(threads)
-    print(result.to_markdown())
+    print(args.experiment.report(result))
     return result
 
 

@@ -42,6 +42,7 @@ __all__ = [
     "config_or_exit",
     "percent",
     "run_script",
+    "write_result",
 ]
 
 T = TypeVar("T")
@@ -163,6 +164,24 @@ def percent(x: float | None, digits: int = 2) -> str:
     return "n/a" if x is None else f"{100 * x:.{digits}f} %"
 
 
+def write_result(
+    result: Result, out, markdown: str, figures: Callable[[Path], Iterable[Path]]
+) -> list[Path]:
+    """Write ``<name>.json``, ``<name>.md`` (``markdown``) and ``figures(out)`` to the folder ``out``.
+
+    The folder is made if absent; returns the paths written.
+    """
+    name = result.experiment_name
+    assert name, f"{type(result).__name__} names no experiment"
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    files = [
+        write_text(out / f"{name}.json", result.to_json()),
+        write_text(out / f"{name}.md", markdown),
+    ]
+    return files + list(figures(out))
+
+
 @dataclass
 class Result:
     """Base of the experiments' results: JSON round trip of the dataclass's fields, and their files.
@@ -170,7 +189,9 @@ class Result:
     A subclass names its experiment in the class variable ``experiment_name`` (its files
     are ``<experiment_name>.json`` and ``.md``), writes its report in :meth:`to_markdown`, and may
     draw figures (:meth:`figures`) and give rows of the results table
-    (:meth:`summary_rows`).
+    (:meth:`summary_rows`). An experiment whose report is a module of its own (a layer above
+    its run) leaves these out and declares the report's functions instead
+    (:class:`experiments.harness.registry.Experiment`).
     """
 
     experiment_name: ClassVar[str] = ""
@@ -195,15 +216,7 @@ class Result:
 
         The folder is made if absent; returns the paths written.
         """
-        name = self.experiment_name
-        assert name, f"{type(self).__name__} names no experiment"
-        out = Path(out)
-        out.mkdir(parents=True, exist_ok=True)
-        files = [
-            write_text(out / f"{name}.json", self.to_json()),
-            write_text(out / f"{name}.md", self.to_markdown()),
-        ]
-        return files + list(self.figures(out))
+        return write_result(self, out, self.to_markdown(), self.figures)
 
     def to_dict(self) -> dict[str, Any]:
         """The fields by name (values are shared, not copied)."""

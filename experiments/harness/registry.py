@@ -22,7 +22,7 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
-from effect_networks.experiments.harness.config import Result
+from effect_networks.experiments.harness.config import Result, write_result
 
 __all__ = ["Experiment", "experiment", "experiments"]
 
@@ -52,6 +52,10 @@ class Experiment:
         Its files' folder below the results folder ("": the results folder itself).
     draws : bool
         ``run`` takes the output folder.
+    markdown, figures, summary_rows : callable or None
+        The report as functions of a result, for an experiment whose report is a module
+        of its own: ``markdown(result)``, ``figures(result, out)`` and
+        ``summary_rows(result, results)``; None: the result's own methods.
     """
 
     config: type
@@ -62,6 +66,9 @@ class Experiment:
     quick: Mapping[str, Any] = field(default_factory=dict)
     folder: str = ""
     draws: bool = False
+    markdown: Callable[[Result], str] | None = None
+    figures: Callable[[Result, Path], list[Path]] | None = None
+    summary_rows: Callable[[Result, Mapping[str, Result]], list[str]] | None = None
 
     def __post_init__(self):
         assert dataclasses.is_dataclass(self.config), self.config
@@ -90,10 +97,28 @@ class Experiment:
         """Its JSON file below the results folder ``results``."""
         return self.out(results) / f"{self.name}.json"
 
+    def report(self, result: Result) -> str:
+        """The report of its result ``result``, in Markdown."""
+        return self.markdown(result) if self.markdown else result.to_markdown()
+
+    def draw(self, result: Result, out: Path) -> list[Path]:
+        """Draw the figures of ``result`` into the folder ``out``; their paths."""
+        return self.figures(result, out) if self.figures else result.figures(out)
+
+    def rows(self, result: Result, results: Mapping[str, Result]) -> list[str]:
+        """The rows of ``result`` in the results table, given every result by name."""
+        if self.summary_rows:
+            return self.summary_rows(result, results)
+        return result.summary_rows(results)
+
+    def save(self, result: Result, out) -> list[Path]:
+        """Write the JSON, the report and the figures of ``result`` to the folder ``out``."""
+        return write_result(result, out, self.report(result), lambda at: self.draw(result, at))
+
     def perform(self, config, out) -> Result:
         """Run it with the settings ``config`` and save its files to the folder ``out``."""
         result = self.run(config, out) if self.draws else self.run(config)
-        result.save(out)
+        self.save(result, out)
         return result
 
 

@@ -10,8 +10,8 @@ and the physics' own bound (the best action found by simulation,
 that text between the markers ``<!-- results:begin -->`` and ``<!-- results:end -->`` of
 README.md.
 
-The table is the concatenation of each saved result's own rows
-(:meth:`experiments.harness.config.Result.summary_rows`), in the registry's order
+The table is the concatenation of each saved result's rows
+(:meth:`experiments.harness.registry.Experiment.rows`), in the registry's order
 (:mod:`experiments.harness.registry`); an experiment that has not run has none.
 """
 
@@ -212,8 +212,9 @@ def summary_markdown(folder) -> str:
         "| experiment | paper | ours | physics bound (best action found by simulation) |",
         "|---|---|---|---|",
     ]
-    for result in results.values():
-        lines += result.summary_rows(results)
+    declared = experiments()
+    for name, result in results.items():
+        lines += declared[name].rows(result, results)
     if run is not None:
         lines += ["", *step_table(run)]
     return "\n".join(lines) + "\n"

@@ -77,9 +77,9 @@ def test_example_runs_with_its_tiny_settings(name, tmp_path, tiny_data_dir, caps
     assert exited.value.code == 0
     exp = experiment(name)
     result = exp.result.load(out / f"{name}.json")
-    assert capsys.readouterr().out.strip() == result.to_markdown().strip()
-    assert (out / f"{name}.md").read_text() == result.to_markdown()
-    for row in result.summary_rows({name: result}):
+    assert capsys.readouterr().out.strip() == exp.report(result).strip()
+    assert (out / f"{name}.md").read_text() == exp.report(result)
+    for row in exp.rows(result, {name: result}):
         assert row.startswith("| ") and row.endswith("|"), row
 
 
@@ -88,8 +88,8 @@ def test_example_runs_with_its_tiny_settings(name, tmp_path, tiny_data_dir, caps
 def test_every_script_runs_as_a_user_runs_it(name, tmp_path, tiny_data_dir):
     out = tmp_path / "out"
     done = run(name, *tiny_arguments(name, out, tiny_data_dir))
-    result = experiment(name).result.load(out / f"{name}.json")
-    assert result.to_markdown().strip() in done.stdout
+    exp = experiment(name)
+    assert exp.report(exp.result.load(out / f"{name}.json")).strip() in done.stdout
 
 
 def test_reproduce_runs_a_step_as_a_script(tmp_path, tiny_data_dir):

@@ -5,7 +5,8 @@ import os
 import numpy as np
 import pytest
 import torch
-from effect_networks.experiments.adaptive_throw import AdaptiveThrowConfig, run_adaptive_throw
+from effect_networks.experiments.adaptive_throw.run import run_adaptive_throw
+from effect_networks.experiments.adaptive_throw.settings import AdaptiveThrowConfig
 from effect_networks.experiments.harness.compare import compare_values
 from effect_networks.experiments.harness.parallel import forks, resolve_workers, run_tasks
 from effect_networks.sim2d.executors import available_cores
