@@ -187,7 +187,7 @@ def scoring_network(net: EffectNetwork) -> EffectNetwork:
     million at full scale), and fitting, tracing and compiling it was most of a curve
     point's cost. Declared parentless it has ``configurations`` values; fitted on the
     same rows, every table the query reads is the same, and so is every answer, bit for
-    bit (tests/experiments/test_active.py).
+    bit (tests/experiments/active/test_active.py).
     """
     parents = dict(net.parents) | {"end.config": ()}
     return EffectNetwork(net.features, net.actions, net.parameters, parents, net.kinds)
