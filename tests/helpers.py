@@ -1,4 +1,4 @@
-"""Random networks and executors for tests."""
+"""Random networks, executors and shared settings for tests."""
 
 from __future__ import annotations
 
@@ -11,6 +11,21 @@ from effect_networks.models.cpds import LinearGaussianParams, TableParams
 from effect_networks.models.declaration import DTYPE
 from effect_networks.models.params import NetworkParams
 
+#: The adaptive-throw experiment's settings of a run in seconds (its tests, test_parallel).
+ADAPTIVE_THROW_TINY = {
+    "n_train": 400,
+    "n_test": 40,
+    "bins": (2, 3),
+    "noisy_bins": 2,
+    "em_steps": (1, 3),
+    "budgets": (40, 80),
+    "batch": 20,
+    "pool": 60,
+    "noise_repeats": 2,
+    "workers": 1,  # in this process, so that a test can count calls (its test_parallel: 2)
+    "progress": False,
+}
+
 
 def discrete_network(cards: list[int], n_actions: int) -> EffectNetwork:
     feats = tuple(Discrete(f"f{i}", tuple(range(k))) for i, k in enumerate(cards))
@@ -18,6 +33,7 @@ def discrete_network(cards: list[int], n_actions: int) -> EffectNetwork:
 
 
 __all__ = [
+    "ADAPTIVE_THROW_TINY",
     "Continuous",
     "InlineExecutor",
     "brute_joint",

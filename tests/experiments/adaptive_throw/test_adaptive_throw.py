@@ -17,19 +17,7 @@ from effect_networks.experiments.harness.registry import experiment
 from effect_networks.inference import infer_parameter
 from effect_networks.sim2d.throw import TARGET_AREA
 
-TINY = {
-    "n_train": 400,
-    "n_test": 40,
-    "bins": (2, 3),
-    "noisy_bins": 2,
-    "em_steps": (1, 3),
-    "budgets": (40, 80),
-    "batch": 20,
-    "pool": 60,
-    "noise_repeats": 2,
-    "workers": 1,  # in this process, so that a test can count calls (test_parallel.py: 2)
-    "progress": False,
-}
+from tests.helpers import ADAPTIVE_THROW_TINY as TINY
 
 
 def test_runs_and_writes_its_results(tmp_path):

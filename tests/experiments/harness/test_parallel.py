@@ -11,7 +11,7 @@ from effect_networks.experiments.harness.compare import compare_values
 from effect_networks.experiments.harness.parallel import forks, resolve_workers, run_tasks
 from effect_networks.sim2d.executors import available_cores
 
-from tests.experiments.test_adaptive_throw import TINY
+from tests.helpers import ADAPTIVE_THROW_TINY as TINY
 
 
 def _square(x):
