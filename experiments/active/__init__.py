@@ -15,7 +15,7 @@ the network fitted on every throw.
   full-data network is fitted on exactly the same throws, so the curves and the
   full-data figure share one source and no simulation noise between them.
 * **Scoring on held-out replays.** Table I's cases
-  (:func:`experiments.can_tossing.table_one_cases`, both protocols, from the full data
+  (:func:`experiments.can_tossing.run.table_one_cases`, both protocols, from the full data
   set so that every curve point answers the same cases) get their best field from the learned network exactly as
   Table I does (:func:`experiments.cans.choose`, both tie-break rules). The field
   is scored on ``repeats`` fresh throws of (start, field) that no network was fitted on
