@@ -22,8 +22,10 @@ import argparse
 import time
 
 import torch
-from effect_networks.experiments import active as ex
-from effect_networks.experiments.can_tossing import ANGLE, PROTOCOLS, table_one_cases
+from effect_networks.experiments.active import run as ex
+from effect_networks.experiments.active import settings as exs
+from effect_networks.experiments.can_tossing.run import table_one_cases
+from effect_networks.experiments.can_tossing.settings import ANGLE, PROTOCOLS
 from effect_networks.experiments.cans import can_dataset, default_data_dir
 from effect_networks.inference import grid_kernel
 from effect_networks.inference.design.active import explore
@@ -41,7 +43,7 @@ def timed(fn):
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--scale", default="quick", choices=("tiny", "quick", "full"))
-    parser.add_argument("--learner", default="random", choices=tuple(ex.LEARNERS))
+    parser.add_argument("--learner", default="random", choices=tuple(exs.LEARNERS))
     parser.add_argument("--fractions", type=float, nargs="+", default=None)
     parser.add_argument("--data-dir", default=None)
     parser.add_argument("--threads", type=int, default=1)
@@ -51,11 +53,11 @@ def main() -> None:
     print_also_to(args.out, __file__)
     torch.set_num_threads(args.threads)
 
-    settings = dict(ex.QUICK) if args.scale == "quick" else {"scale": args.scale}
+    settings = dict(exs.QUICK) if args.scale == "quick" else {"scale": args.scale}
     if args.fractions is not None:
         settings["fractions"] = tuple(args.fractions)
     data_dir = default_data_dir() if args.data_dir is None else args.data_dir
-    config = ex.ActiveConfig(**settings, data_dir=data_dir, progress=False)
+    config = exs.ActiveConfig(**settings, data_dir=data_dir, progress=False)
     data = can_dataset(config.data_dir, config.scale, progress=False)
     replays, configs = ex.replay_counts(config)
     net, pool, oracle, rows = ex.can_pool(data)
@@ -68,7 +70,7 @@ def main() -> None:
         grid_kernel((geometry.N_ROWS, geometry.N_COLUMNS), config.pool_sigma),
         config.pool_strength,
     )
-    strategy, shared = ex.LEARNERS[args.learner]
+    strategy, shared = exs.LEARNERS[args.learner]
     learned, cpu, wall = timed(
         lambda: explore(
             net,
@@ -94,7 +96,7 @@ def main() -> None:
     head = "| throws | Table I, CPU s | wall s |"
     if args.old:
         head += " can network, CPU s | wall s | scores equal |"
-    print(f"\nTable I per budget point (goal: under {ex.POINT_GOAL_S:g} s)\n\n{head}")
+    print(f"\nTable I per budget point (goal: under {exs.POINT_GOAL_S:g} s)\n\n{head}")
     print("|---:" * (head.count("|") - 1) + "|")
     for b in budgets:
         chosen = learned.rows.rows(slice(0, b))

@@ -17,7 +17,7 @@ import argparse
 
 import numpy as np
 import torch
-from effect_networks.experiments.adaptive_throw import adaptive_throw_network
+from effect_networks.experiments.adaptive_throw.run import adaptive_throw_network
 from effect_networks.inference import fit, fit_em
 from effect_networks.models.throw_network import throw_data, throw_network
 from effect_networks.sim2d.throw import sample_targets, throw

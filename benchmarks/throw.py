@@ -28,7 +28,7 @@ from unittest import mock
 import numpy as np
 import pyro
 import torch
-from effect_networks.experiments.adaptive_throw import adaptive_throw_network
+from effect_networks.experiments.adaptive_throw.run import adaptive_throw_network
 from effect_networks.inference import fit, fit_em, infer_parameter, parameter_for_effect
 from effect_networks.models.throw_network import TARGET, throw_data, throw_network
 from effect_networks.sim2d.throw import sample_targets, throw

@@ -11,7 +11,7 @@ fields (:func:`inference.fit_pooled`). Writes ``active.json``, ``active.md`` and
     .venv/bin/python examples/active.py --quick          # the quick data set, about a minute
 """
 
-from effect_networks.experiments.cli import main
+from effect_networks.experiments.harness.cli import main
 
 if __name__ == "__main__":
     main("active", __doc__)

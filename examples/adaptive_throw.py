@@ -14,7 +14,7 @@ throws for actively chosen and random targets. Writes
     .venv/bin/python examples/adaptive_throw.py --quick          # small sizes, seconds
 """
 
-from effect_networks.experiments.cli import main
+from effect_networks.experiments.harness.cli import main
 
 if __name__ == "__main__":
     main("adaptive_throw", __doc__)

@@ -12,7 +12,7 @@ sub-configuration that the bound reaches within ``--horizon`` throws
 Writes all_goals.json, all_goals.md and all_goals.png to ``--out``.
 """
 
-from effect_networks.experiments.cli import main
+from effect_networks.experiments.harness.cli import main
 
 if __name__ == "__main__":
     main("all_goals", __doc__)

@@ -7,7 +7,7 @@ fields and thrown again (:mod:`experiments.can_demonstration`). Writes
     .venv/bin/python examples/can_demonstration.py --quick --out results/demonstration
 """
 
-from effect_networks.experiments.cli import main
+from effect_networks.experiments.harness.cli import main
 
 if __name__ == "__main__":
     main("can_demonstration", __doc__)

@@ -10,7 +10,7 @@ and both tie-breaks, emulation of demonstrated throws, and the imitation surpris
     .venv/bin/python examples/can_tossing.py --scale tiny --n-demos 30 --out /tmp/cans
 """
 
-from effect_networks.experiments.cli import main
+from effect_networks.experiments.harness.cli import main
 
 if __name__ == "__main__":
     main("can_tossing", __doc__)

@@ -6,7 +6,7 @@ throw's outcome (:func:`experiments.pictures.draw_can_world`)::
     .venv/bin/python examples/can_world.py --field 15 --angle 0   # low, flat, at the near can
 """
 
-from effect_networks.experiments.cli import main
+from effect_networks.experiments.harness.cli import main
 
 if __name__ == "__main__":
     main("can_world", __doc__)

@@ -9,7 +9,7 @@ Trains the throw network on the robot's throws and the can network on the can da
         [--proposals can|combined] [--table-z 0.75] [--jitter 0.003]
 """
 
-from effect_networks.experiments.cli import main
+from effect_networks.experiments.harness.cli import main
 
 if __name__ == "__main__":
     main("combined", __doc__)

@@ -7,7 +7,7 @@ often drawn demonstrations are read right (:mod:`experiments.demonstration`). Wr
     .venv/bin/python examples/demonstration.py --n-demos 1000 --out results/demonstration
 """
 
-from effect_networks.experiments.cli import main
+from effect_networks.experiments.harness.cli import main
 
 if __name__ == "__main__":
     main("demonstration", __doc__)

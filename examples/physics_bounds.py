@@ -9,7 +9,7 @@ under ``--data-dir`` as they finish and resumed when interrupted. Writes
         [--table-z 0.75 0.35 ...] [--executor process:N | dask-local:N | dask://HOST:PORT | ray]
 """
 
-from effect_networks.experiments.cli import main
+from effect_networks.experiments.harness.cli import main
 
 if __name__ == "__main__":
     main("physics_bounds", __doc__)

@@ -8,7 +8,7 @@ parameter site, with one cluster and with ``--bins`` force clusters
     .venv/bin/python examples/tap_and_remove.py --n 2000 --out results/tap_and_remove
 """
 
-from effect_networks.experiments.cli import main
+from effect_networks.experiments.harness.cli import main
 
 if __name__ == "__main__":
     main("tap_and_remove", __doc__)

@@ -10,7 +10,7 @@ time for ``--n`` throws and the scatter release noise adds
     .venv/bin/python examples/throw_kinematics.py [--out results/throw] [--grid 15] [--n 30000]
 """
 
-from effect_networks.experiments.cli import main
+from effect_networks.experiments.harness.cli import main
 
 if __name__ == "__main__":
     main("throw_kinematics", __doc__)

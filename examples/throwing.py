@@ -9,7 +9,7 @@ without and with release noise (:mod:`experiments.throwing`). Writes ``throwing.
     .venv/bin/python examples/throwing.py --quick          # small sizes, seconds
 """
 
-from effect_networks.experiments.cli import main
+from effect_networks.experiments.harness.cli import main
 
 if __name__ == "__main__":
     main("throwing", __doc__)

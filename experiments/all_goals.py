@@ -41,7 +41,7 @@ import numpy as np
 import torch
 from effect_networks.experiments.cans import SimulationSettings
 from effect_networks.experiments.combined import Robot, hit_gaussians
-from effect_networks.experiments.config import (
+from effect_networks.experiments.harness.config import (
     ConfigError,
     Result,
     check_choice,
@@ -49,18 +49,19 @@ from effect_networks.experiments.config import (
     check_int,
     percent,
 )
+from effect_networks.experiments.harness.registry import Experiment
 from effect_networks.experiments.physics_bounds import (
     BOUND_SEED,
     cross_fitted_bound,
     empirical_transition,
     robot_throws,
 )
-from effect_networks.experiments.registry import Experiment
+from effect_networks.experiments.round_planner import paper_planner
 from effect_networks.experiments.throwing import MAX_BINS, fit_throws, get_data
 from effect_networks.inference import compile as compile_queries
 from effect_networks.inference import fit, predict
 from effect_networks.inference.queries.chaining import BoxPartition, chain, link_probabilities
-from effect_networks.inference.queries.planning import exact_plan, paper_planner
+from effect_networks.inference.queries.planning import exact_plan
 from effect_networks.models.can_network import can_network, can_rows
 from effect_networks.sim2d import geometry
 from effect_networks.sim2d.clock import simulating
@@ -200,7 +201,7 @@ class AllGoalsResult(Result):
     seconds: float
 
     def to_markdown(self) -> str:
-        """The experiment's report, in Markdown (:meth:`~experiments.config.Result.to_markdown`)."""
+        """The experiment's report, in Markdown (:meth:`~experiments.harness.config.Result.to_markdown`)."""
         c = self.settings
         lines = [
             f"**Every reachable goal** (within {c['horizon']} throws; bound: the best plan on "

@@ -48,8 +48,8 @@ from typing import ClassVar
 
 import numpy as np
 from effect_networks.experiments.cans import CanDataSettings, CanModel, can_dataset, fit_can_network
-from effect_networks.experiments.config import Result, check_float, check_int
-from effect_networks.experiments.registry import Experiment
+from effect_networks.experiments.harness.config import Result, check_float, check_int
+from effect_networks.experiments.harness.registry import Experiment
 from effect_networks.inference import explain
 from effect_networks.models.can_network import n_cans
 from effect_networks.sim2d import field_throws, geometry
@@ -240,7 +240,7 @@ class CanDemonstrationResult(Result):
     shown: dict
 
     def to_markdown(self) -> str:
-        """The experiment's report, in Markdown (:meth:`~experiments.config.Result.to_markdown`)."""
+        """The experiment's report, in Markdown (:meth:`~experiments.harness.config.Result.to_markdown`)."""
         t, q, s = self.throws, self.sequences, self.shown
         lengths = ", ".join(
             f"{v} of {k} throw{'' if k == '1' else 's'}" for k, v in self.lengths.items()

@@ -19,8 +19,8 @@ from pathlib import Path
 
 import numpy as np
 import torch
-from effect_networks.experiments.config import check_choice, check_executor
 from effect_networks.experiments.evaluation import aim_robust_best
+from effect_networks.experiments.harness.config import check_choice, check_executor
 from effect_networks.inference import CompiledQueries, fit, predict
 from effect_networks.inference import compile as compile_queries
 from effect_networks.models import EffectNetwork, NetworkParams

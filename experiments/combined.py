@@ -14,13 +14,14 @@ where the can network's training throw through that field first meets the cans (
 network was trained on that angle's parabolas). The can network is trained on the angle
 whose direction is closest to the robot's measured impact direction.
 
-Planners (:mod:`inference.queries.planning`): the paper's round planner, whose actions in a round
-are the fields whose most probable end configuration is the (intermediate) goal; and an
-exact planner that maximises the probability of reaching the goal within ``horizon``
-throws under the learned models, with the throw's uncertainty (the throw network's
-predicted hit Gaussian) included and the hit read among fields whose boundaries are as
-uncertain as the can data's throws were spread about them (:func:`hit_gaussians`); its
-success rate is measured by playing its policy ``episodes`` times.
+Planners: the paper's round planner (:mod:`experiments.round_planner`), whose actions in
+a round are the fields whose most probable end configuration is the (intermediate) goal;
+and an exact planner (:mod:`inference.queries.planning`) that maximises the probability
+of reaching the goal within ``horizon`` throws under the learned models, with the
+throw's uncertainty (the throw network's predicted hit Gaussian) included and the hit
+read among fields whose boundaries are as uncertain as the can data's throws were spread
+about them (:func:`hit_gaussians`); its success rate is measured by playing its policy
+``episodes`` times.
 """
 
 from __future__ import annotations
@@ -33,19 +34,20 @@ from typing import ClassVar
 import numpy as np
 import torch
 from effect_networks.experiments.cans import CanDataSettings, CanModel, can_dataset, fit_can_network
-from effect_networks.experiments.config import (
+from effect_networks.experiments.harness.config import (
     Result,
     check_choice,
     check_float,
     check_int,
     percent,
 )
-from effect_networks.experiments.registry import Experiment
+from effect_networks.experiments.harness.registry import Experiment
+from effect_networks.experiments.round_planner import paper_planner
 from effect_networks.experiments.throwing import MAX_BINS, fit_throws, get_data
 from effect_networks.inference import GaussianMixture, predict
 from effect_networks.inference import compile as compile_queries
 from effect_networks.inference.queries.chaining import BoxPartition, chain, link_probabilities
-from effect_networks.inference.queries.planning import exact_plan, paper_planner
+from effect_networks.inference.queries.planning import exact_plan
 from effect_networks.models.throw_network import TARGET
 from effect_networks.sim2d import geometry, materials
 from effect_networks.sim2d.combined import CAN_BAND, TABLE_TOP_Z, first_contact, play_throw, settle
@@ -494,7 +496,7 @@ class CombinedResult(Result):
     seconds: float
 
     def to_markdown(self) -> str:
-        """The experiment's report, in Markdown (:meth:`~experiments.config.Result.to_markdown`)."""
+        """The experiment's report, in Markdown (:meth:`~experiments.harness.config.Result.to_markdown`)."""
         tables = [table_markdown(n, s) for n, s in self.scenarios.items()]
         why = self.angle_choice
         lines = [

@@ -24,8 +24,8 @@ from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
-from effect_networks.experiments.config import Result, check_float, check_int
-from effect_networks.experiments.registry import Experiment
+from effect_networks.experiments.harness.config import Result, check_float, check_int
+from effect_networks.experiments.harness.registry import Experiment
 from effect_networks.inference import explain, fit
 from effect_networks.inference.queries.demonstration import simulate_demonstrations
 from effect_networks.models import Discrete, EffectNetwork
@@ -141,7 +141,7 @@ class DemonstrationResult(Result):
     drawn: dict
 
     def to_markdown(self) -> str:
-        """The experiment's report, in Markdown (:meth:`~experiments.config.Result.to_markdown`)."""
+        """The experiment's report, in Markdown (:meth:`~experiments.harness.config.Result.to_markdown`)."""
         s, d = self.shown, self.drawn
         header = " | ".join(self.actions)
         lines = [

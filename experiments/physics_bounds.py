@@ -4,7 +4,7 @@ A learned model can at best pick the action that the simulator itself shows to w
 often. This measures that best, with no learning at all, so the experiments' figures can
 be read against it:
 
-* **Table I**, under both protocols of :func:`experiments.can_tossing.table_one_cases`.
+* **Table I**, under both protocols of :func:`experiments.can_tossing.run.table_one_cases`.
   Every 0° field is thrown ``repeats`` more times from every start (the data set's
   jitter, fresh seeds; :func:`sim2d.can_dataset.generate_dataset`). For each case the
   field is chosen by its success on the first half of the repeats and scored on the
@@ -28,7 +28,9 @@ from typing import ClassVar
 
 import numpy as np
 import torch
-from effect_networks.experiments.can_tossing import ANGLE, PROTOCOLS, table_one_cases
+from effect_networks.experiments.can_tossing.report import table_one_rows
+from effect_networks.experiments.can_tossing.run import table_one_cases
+from effect_networks.experiments.can_tossing.settings import ANGLE, PROTOCOLS
 from effect_networks.experiments.cans import (
     SCALES,
     CanDataSettings,
@@ -36,13 +38,13 @@ from effect_networks.experiments.cans import (
     start_configurations,
 )
 from effect_networks.experiments.combined import MAX_HORIZON, SCENARIOS
-from effect_networks.experiments.config import (
+from effect_networks.experiments.harness.config import (
     ConfigError,
     Result,
     check_float,
     check_int,
 )
-from effect_networks.experiments.registry import Experiment
+from effect_networks.experiments.harness.registry import Experiment
 from effect_networks.inference.queries.planning import exact_plan, policy_value
 from effect_networks.sim2d import field_throws, geometry
 from effect_networks.sim2d.can_dataset import generate_dataset, load_dataset
@@ -132,7 +134,7 @@ def table_one_bound(config: PhysicsBoundsConfig, executor=None) -> dict[str, dic
 
     Returns ``{protocol: {n_cases, repeats, exact_fraction_bound (held out),
     exact_fraction_in_sample, n_cases_never_reached}}`` for every protocol of
-    :func:`experiments.can_tossing.table_one_cases`; both score the same throws.
+    :func:`experiments.can_tossing.run.table_one_cases`; both score the same throws.
     """
     progress = config.progress
     data = can_dataset(config.data_dir, config.scale, progress=progress, executor=executor)
@@ -295,7 +297,7 @@ class PhysicsBoundsResult(Result):
     seconds: float
 
     def to_markdown(self) -> str:
-        """The experiment's report, in Markdown (:meth:`~experiments.config.Result.to_markdown`)."""
+        """The experiment's report, in Markdown (:meth:`~experiments.harness.config.Result.to_markdown`)."""
         lines = [
             "**Table I, best field found by simulation** (jittered repeats per field, chosen "
             "on half, scored on the other half):",
@@ -334,8 +336,6 @@ class PhysicsBoundsResult(Result):
         """
         if "can_tossing" in results:
             return []
-        from effect_networks.experiments.can_tossing_report import table_one_rows
-
         return table_one_rows(None, self)
 
 

@@ -16,8 +16,8 @@ from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
-from effect_networks.experiments.config import ConfigError, Result, check_float, check_int
-from effect_networks.experiments.registry import Experiment
+from effect_networks.experiments.harness.config import ConfigError, Result, check_float, check_int
+from effect_networks.experiments.harness.registry import Experiment
 from effect_networks.sim2d import geometry, recording, render
 from effect_networks.sim2d.configurations import check_config
 from effect_networks.sim2d.field_throws import check_throwable
@@ -109,7 +109,7 @@ class CanWorldPictures(Result):
     files: dict[str, str]
 
     def to_markdown(self) -> str:
-        """The experiment's report, in Markdown (:meth:`~experiments.config.Result.to_markdown`)."""
+        """The experiment's report, in Markdown (:meth:`~experiments.harness.config.Result.to_markdown`)."""
         return "\n".join([self.outcome, *(f"- {k}: {v}" for k, v in self.files.items())]) + "\n"
 
     def figures(self, out: Path) -> list[Path]:
@@ -194,7 +194,7 @@ class ThrowKinematicsResult(Result):
     files: dict[str, str]
 
     def to_markdown(self) -> str:
-        """The experiment's report, in Markdown (:meth:`~experiments.config.Result.to_markdown`)."""
+        """The experiment's report, in Markdown (:meth:`~experiments.harness.config.Result.to_markdown`)."""
         return (
             f"- {self.n} throws in {1e3 * self.seconds:.1f} ms\n"
             f"- clamped by the joint limits: {self.clamped_share:.1%} of uniform targets\n"

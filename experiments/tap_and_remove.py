@@ -19,8 +19,8 @@ from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
-from effect_networks.experiments.config import Result, check_int
-from effect_networks.experiments.registry import Experiment
+from effect_networks.experiments.harness.config import Result, check_int
+from effect_networks.experiments.harness.registry import Experiment
 from effect_networks.inference import fit, imitation_check, infer_action, predict
 from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter
 
@@ -126,7 +126,7 @@ class TapAndRemoveResult(Result):
     test: dict
 
     def to_markdown(self) -> str:
-        """The experiment's report, in Markdown (:meth:`~experiments.config.Result.to_markdown`)."""
+        """The experiment's report, in Markdown (:meth:`~experiments.harness.config.Result.to_markdown`)."""
         r = self.remove
         lines = [
             f"# Tap and remove ({self.n_train} training rows)",
@@ -147,7 +147,7 @@ class TapAndRemoveResult(Result):
         return [plot_taps(self, out / "tap_and_remove.png")]
 
     def summary_rows(self, results) -> list[str]:
-        """The results table's row of the tap (:meth:`~experiments.config.Result.summary_rows`)."""
+        """The results table's row of the tap (:meth:`~experiments.harness.config.Result.summary_rows`)."""
         cells = "; ".join(f"{label} {rms:.4f} m" for label, rms in self.rms_m.items())
         return [f"| §III tap: RMS prediction of the end position | qualitative | {cells} | |"]
 

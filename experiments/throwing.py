@@ -28,8 +28,8 @@ from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
-from effect_networks.experiments.config import ConfigError, Result, check_int
-from effect_networks.experiments.registry import Experiment
+from effect_networks.experiments.harness.config import ConfigError, Result, check_int
+from effect_networks.experiments.harness.registry import Experiment
 from effect_networks.inference import fit, infer_parameter
 from effect_networks.models.throw_network import TARGET, hit_evidence, throw_data, throw_network
 from effect_networks.sim2d.throw import (

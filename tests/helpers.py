@@ -1,11 +1,9 @@
-"""Random networks for tests, and a loader for example scripts."""
+"""Random networks, executors and shared settings for tests."""
 
 from __future__ import annotations
 
-import importlib.util
 import itertools
 from concurrent.futures import Future
-from pathlib import Path
 
 import torch
 from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter, random_params
@@ -13,15 +11,20 @@ from effect_networks.models.cpds import LinearGaussianParams, TableParams
 from effect_networks.models.declaration import DTYPE
 from effect_networks.models.params import NetworkParams
 
-EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
-
-
-def load_example(name: str):
-    """Import ``examples/<name>.py`` as a module named ``example_<name>`` (no sys.path edit)."""
-    spec = importlib.util.spec_from_file_location(f"example_{name}", EXAMPLES / f"{name}.py")
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+#: The adaptive-throw experiment's settings of a run in seconds (its tests, test_parallel).
+ADAPTIVE_THROW_TINY = {
+    "n_train": 400,
+    "n_test": 40,
+    "bins": (2, 3),
+    "noisy_bins": 2,
+    "em_steps": (1, 3),
+    "budgets": (40, 80),
+    "batch": 20,
+    "pool": 60,
+    "noise_repeats": 2,
+    "workers": 1,  # in this process, so that a test can count calls (its test_parallel: 2)
+    "progress": False,
+}
 
 
 def discrete_network(cards: list[int], n_actions: int) -> EffectNetwork:
@@ -30,11 +33,11 @@ def discrete_network(cards: list[int], n_actions: int) -> EffectNetwork:
 
 
 __all__ = [
+    "ADAPTIVE_THROW_TINY",
     "Continuous",
     "InlineExecutor",
     "brute_joint",
     "discrete_network",
-    "load_example",
     "random_params",
     "spilling_network",
 ]

@@ -8,7 +8,7 @@ import torch
 from effect_networks.experiments import all_goals
 from effect_networks.experiments import physics_bounds as pb
 from effect_networks.experiments.all_goals import AllGoalsConfig, AllGoalsResult
-from effect_networks.experiments.config import ConfigError
+from effect_networks.experiments.harness.config import ConfigError
 from effect_networks.sim2d import geometry
 from effect_networks.sim2d.combined import CAN_BAND, TABLE_TOP_Z, exact_throws
 from scipy import stats

@@ -7,7 +7,7 @@ import pytest
 import torch
 from effect_networks.experiments import can_demonstration as cd
 from effect_networks.experiments.cans import CanModel, can_dataset, fit_can_network
-from effect_networks.experiments.config import ConfigError
+from effect_networks.experiments.harness.config import ConfigError
 from effect_networks.inference import compile as compile_queries
 from effect_networks.inference import fit
 from effect_networks.models.can_network import can_network, can_rows, n_cans

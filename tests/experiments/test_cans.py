@@ -7,12 +7,8 @@ import numpy as np
 import pytest
 import torch
 from effect_networks.experiments import cans
-from effect_networks.experiments.can_tossing import (
-    PROTOCOLS,
-    RULES,
-    start_evidence,
-    table_one_cases,
-)
+from effect_networks.experiments.can_tossing.run import start_evidence, table_one_cases
+from effect_networks.experiments.can_tossing.settings import PROTOCOLS, RULES
 
 
 @pytest.mark.parametrize("rule", RULES)

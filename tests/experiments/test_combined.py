@@ -15,7 +15,7 @@ from effect_networks.experiments.combined import (
     hit_gaussians,
     run_combined,
 )
-from effect_networks.experiments.config import ConfigError
+from effect_networks.experiments.harness.config import ConfigError
 from effect_networks.inference.queries.chaining import link_probabilities
 from effect_networks.sim2d import geometry, materials
 from effect_networks.sim2d.combined import CAN_BAND

@@ -2,7 +2,6 @@
 
 import numpy as np
 import pytest
-from effect_networks.experiments.config import ConfigError
 from effect_networks.experiments.demonstration import (
     SHOWN,
     DemonstrationConfig,
@@ -11,6 +10,7 @@ from effect_networks.experiments.demonstration import (
     door_rows,
     run_demonstration,
 )
+from effect_networks.experiments.harness.config import ConfigError
 from effect_networks.inference import explain, fit
 
 

@@ -5,9 +5,10 @@ import numpy as np
 import pytest
 import torch
 from effect_networks.experiments import physics_bounds as pb
-from effect_networks.experiments.can_tossing import PROTOCOLS, table_one_cases
+from effect_networks.experiments.can_tossing.run import table_one_cases
+from effect_networks.experiments.can_tossing.settings import PROTOCOLS
 from effect_networks.experiments.cans import can_dataset
-from effect_networks.experiments.config import ConfigError
+from effect_networks.experiments.harness.config import ConfigError
 
 from tests.helpers import InlineExecutor
 

@@ -1,7 +1,7 @@
 """experiments.pictures: the can world's and the throw's figures with tiny settings."""
 
 import pytest
-from effect_networks.experiments.config import ConfigError
+from effect_networks.experiments.harness.config import ConfigError
 from effect_networks.experiments.pictures import (
     CanWorldConfig,
     ThrowKinematicsConfig,

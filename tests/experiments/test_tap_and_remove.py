@@ -1,7 +1,7 @@
 """experiments.tap_and_remove shows what the paper's §III says it shows."""
 
 import pytest
-from effect_networks.experiments.config import ConfigError
+from effect_networks.experiments.harness.config import ConfigError
 from effect_networks.experiments.tap_and_remove import (
     TapAndRemoveConfig,
     TapAndRemoveResult,

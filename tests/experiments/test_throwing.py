@@ -3,7 +3,7 @@
 import json
 
 import pytest
-from effect_networks.experiments.config import ConfigError
+from effect_networks.experiments.harness.config import ConfigError
 from effect_networks.experiments.throwing import ThrowingConfig, ThrowingResult, run_throwing
 
 

@@ -1,12 +1,12 @@
-"""experiments.summary builds the results table from small fake results, and refreshes
+"""experiments.harness.summary builds the results table from small fake results, and refreshes
 the README block between its markers only."""
 
 import dataclasses
 import json
 
 import pytest
-from effect_networks.experiments import summary
-from effect_networks.experiments.registry import experiment
+from effect_networks.experiments.harness import summary
+from effect_networks.experiments.harness.registry import experiment
 
 
 def write_result(folder, name: str, content: dict) -> None:

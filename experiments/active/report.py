@@ -1,21 +1,28 @@
 """The active-exploration experiment's report: its Markdown and its figure.
 
-See :mod:`experiments.active`.
+Its Markdown, its figure and its rows of the results table (:mod:`experiments.active`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-from effect_networks.experiments.active import GOAL_FRACTION, GOAL_POINTS, POINT_GOAL_S, SCORES
-from effect_networks.experiments.can_tossing import PROTOCOLS
+from effect_networks.experiments.active.settings import (
+    GOAL_FRACTION,
+    GOAL_POINTS,
+    POINT_GOAL_S,
+    SCORES,
+)
+from effect_networks.experiments.can_tossing.settings import PROTOCOLS, TABLE_I_PROTOCOLS
+from effect_networks.experiments.harness.config import Result, percent
 
 if TYPE_CHECKING:
-    from effect_networks.experiments.active import ActiveResult
+    from effect_networks.experiments.active.run import ActiveResult
 
-__all__ = ["markdown", "plot_curves"]
+__all__ = ["figures", "markdown", "plot_curves", "summary_rows"]
 
 
 def markdown(r: ActiveResult) -> str:
@@ -142,3 +149,39 @@ def plot_curves(result: ActiveResult, path) -> Path:
     axes[0].legend(fontsize=8, loc="lower right")
     fig.savefig(path, dpi=120)
     return Path(path)
+
+
+def figures(r: ActiveResult, out: Path) -> list[Path]:
+    """Draw the learning curves, ``active.png``, into the folder ``out``; its path."""
+    return [plot_curves(r, out / "active.png")]
+
+
+def summary_rows(r: ActiveResult, results: Mapping[str, Result]) -> list[str]:
+    """Per protocol, each learner at the budget nearest its goal.
+
+    The goal is ``GOAL_FRACTION`` of the full data's throws; plain fit with tie-break ``aim``,
+    and pooled, beside the bound.
+    """
+    k = min(range(len(r.fractions)), key=lambda i: abs(r.fractions[i] - GOAL_FRACTION))
+    rows = []
+    for protocol, words in TABLE_I_PROTOCOLS.items():
+        learners = ", ".join(
+            f"{name} {percent(c[protocol]['aim'][k])} (pooled {percent(c[protocol]['pooled'][k])})"
+            for name, c in r.curves.items()
+        )
+        reached = [
+            name
+            for name, g in r.goal.items()
+            if any(v is not None and v <= r.budgets[k] for v in g[protocol].values())
+        ]
+        full = r.full[protocol]
+        rows.append(
+            f"| cans, beyond the paper: Table I ({words}) learned by active exploration "
+            f"from {percent(r.fractions[k], 0)} of the {r.n_pool:,} 0° throws, exact "
+            f"on {r.repeats} held-out replays | - | {learners}; full data "
+            f"{percent(full['aim'])} (pooled {percent(full['pooled'])}) (goal: within 1 "
+            "point of the full data's best: "
+            + (", ".join(reached) if reached else "not reached")
+            + f") | {percent(r.bound[protocol])} held out |"
+        )
+    return rows

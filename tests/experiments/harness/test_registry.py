@@ -1,4 +1,4 @@
-"""experiments.registry: every experiment declared once, in order, with settings that
+"""experiments.harness.registry: every experiment declared once, in order, with settings that
 make valid Configs; the shared can-data settings and the one home of generated data."""
 
 import dataclasses
@@ -6,10 +6,10 @@ from pathlib import Path
 
 import pytest
 from effect_networks.experiments.cans import CanDataSettings, SimulationSettings, default_data_dir
-from effect_networks.experiments.config import ConfigError, Result
-from effect_networks.experiments.registry import experiment, experiments
+from effect_networks.experiments.harness.config import ConfigError, Result
+from effect_networks.experiments.harness.registry import experiment, experiments
 
-ROOT = Path(__file__).resolve().parents[2]
+ROOT = Path(__file__).resolve().parents[3]
 
 #: ``./reproduce --quick`` as it was written by hand, step by step: the registry's quick
 #: settings must give the same settings (an oracle the registry did not produce).
@@ -52,7 +52,7 @@ def test_every_experiment_in_the_paper_s_order():
 
 @pytest.mark.parametrize("name", list(HAND_WRITTEN_QUICK))
 def test_quick_settings_are_those_reproduce_used(name):
-    from effect_networks.experiments import cli
+    from effect_networks.experiments.harness import cli
 
     by_hand = cli.parse_args(name, HAND_WRITTEN_QUICK[name]).config
     assert experiment(name).config(**experiment(name).quick) == by_hand

@@ -5,35 +5,24 @@ import json
 import numpy as np
 import pytest
 import torch
-from effect_networks.experiments.adaptive_throw import (
-    AdaptiveThrowConfig,
+from effect_networks.experiments.adaptive_throw.run import (
     AdaptiveThrowResult,
     local_inverse,
     plane_residuals,
     run_adaptive_throw,
 )
-from effect_networks.experiments.config import ConfigError
+from effect_networks.experiments.adaptive_throw.settings import AdaptiveThrowConfig
+from effect_networks.experiments.harness.config import ConfigError
+from effect_networks.experiments.harness.registry import experiment
 from effect_networks.inference import infer_parameter
 from effect_networks.sim2d.throw import TARGET_AREA
 
-TINY = {
-    "n_train": 400,
-    "n_test": 40,
-    "bins": (2, 3),
-    "noisy_bins": 2,
-    "em_steps": (1, 3),
-    "budgets": (40, 80),
-    "batch": 20,
-    "pool": 60,
-    "noise_repeats": 2,
-    "workers": 1,  # in this process, so that a test can count calls (test_parallel.py: 2)
-    "progress": False,
-}
+from tests.helpers import ADAPTIVE_THROW_TINY as TINY
 
 
 def test_runs_and_writes_its_results(tmp_path):
     result = run_adaptive_throw(AdaptiveThrowConfig(**TINY, seed=2))
-    result.save(tmp_path)
+    experiment("adaptive_throw").save(result, tmp_path)
     saved = json.loads((tmp_path / "adaptive_throw.json").read_text())
     assert saved["pseudo_count"] == 0.0
     assert AdaptiveThrowResult.load(tmp_path / "adaptive_throw.json").to_json() == result.to_json()
@@ -190,7 +179,7 @@ def test_config_names_the_field_at_fault(field, value):
 @pytest.mark.parametrize("layout", ["grid", "adaptive"])
 def test_every_fit_takes_the_configured_pseudo_count(layout):
     """The fits are the library's with the config's pseudo-count, not its default."""
-    from effect_networks.experiments.adaptive_throw import _fit, adaptive_throw_network
+    from effect_networks.experiments.adaptive_throw.run import _fit, adaptive_throw_network
     from effect_networks.inference import fit, fit_em
     from effect_networks.models.throw_network import throw_data, throw_network
     from effect_networks.sim2d.throw import sample_targets, throw
@@ -215,7 +204,7 @@ def test_each_posterior_answer_is_computed_once(monkeypatch):
     """The local fit starts from the largest grid's posterior answers of its row: one
     posterior query per posterior row of the tables and per point of the active curves,
     none repeated."""
-    from effect_networks.experiments import adaptive_throw
+    from effect_networks.experiments.adaptive_throw import run as adaptive_run
 
     calls = []
 
@@ -223,7 +212,7 @@ def test_each_posterior_answer_is_computed_once(monkeypatch):
         calls.append(args[0])
         return infer_parameter(*args, **kwargs)
 
-    monkeypatch.setattr(adaptive_throw, "infer_parameter", counted)
+    monkeypatch.setattr(adaptive_run, "infer_parameter", counted)
     result = run_adaptive_throw(AdaptiveThrowConfig(**TINY, seed=2))
     rows = [r for r in result.layouts + result.noisy if r["query"] == "posterior"]
     points = sum(len(curve) for curve in result.active.values())

@@ -1,6 +1,6 @@
 """Two runs' results compared: every JSON value equal, timings and paths aside.
 
-``python -m effect_networks.experiments.compare BEFORE AFTER`` walks both results folders (as
+``python -m effect_networks.experiments.harness.compare BEFORE AFTER`` walks both results folders (as
 ``./reproduce --out`` or an example's ``--out`` leave them), pairs their ``*.json`` files
 by relative path and reports every value that differs, every file or key found on one
 side only, and the count. What legitimately changes between two runs of the same code is

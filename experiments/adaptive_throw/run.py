@@ -1,40 +1,6 @@
-"""Adaptive clusters and active throw targets on the throwing experiment.
+"""The adaptive-throw experiment's run: both layouts, the noisy rows, the active curves.
 
-Two questions beyond the paper's §IV-B, on the same throws (:mod:`experiments.throwing`:
-uniform targets on the 2 m x 2 m area, their hits, re-throw RMS per axis ``y``, ``z``):
-
-* **Layouts.** The paper's grid of target clusters (each cluster *is* its cell, fitted
-  in closed form by :func:`inference.fit`) against adaptive clusters
-  (``Parameter(layout="adaptive")``) refined from the same cells by
-  expectation-maximisation over target and hit jointly (:func:`inference.fit_em`). For
-  each grid size in ``bins``: cluster count, fit time and the noise-free re-throw RMS of
-  both, each queried two ways (``QUERIES``): ``"posterior"``, the paper's inverse
-  (:func:`inference.infer_parameter`: the best cluster's posterior mean of the target given
-  the hit), and ``"effect"``, the inverse model (:func:`inference.parameter_for_effect`:
-  the target under which the hit is most likely). At ``noisy_bins``, also trained and
-  re-thrown with release noise, each desired hit re-thrown ``noise_repeats`` times, beside
-  the noise's own scatter (the same throws about their noise-free hits) and beside the
-  physics' bound: the noise-free throw inverted (:func:`local_inverse` on the noise-free
-  training throws, within about 0.1 cm of exact at full scale), which no model of the noisy
-  throws can beat by more than that. As a reference for
-  the noise-free rows (the result's ``floor``), what a local fit makes of the training
-  throws: per test hit,
-  Newton's method on a local quadratic forward model fitted to the ``neighbours``
-  training throws nearest the current aim (:func:`local_inverse`). Two measurements say
-  where the inverse model's error comes from: per row, the best of its candidates (the
-  cluster answer that the throw itself says misses least: the error a perfect choice
-  would leave), and per grid size, what the best linear pieces leave of the map's
-  curvature (one least-squares plane per equidistant cell through the unclamped training
-  throws, :func:`plane_residuals`).
-* **Active throw targets.** Learning the grid network from few throws, each batch of
-  targets chosen among a pool of random candidates by the expected information gain
-  about the clusters' regressions (:func:`inference.design.active_gaussian.select_by_information`)
-  against random targets; re-throw RMS against the number of throws. The grid size
-  follows the data: ``clamp(round(sqrt(n / 30)), 2, 16)`` clusters per axis for ``n``
-  throws (about 30 throws per cluster), the same for both strategies.
-
-Timings are wall-clock seconds of the fit alone, in the calling process (the example
-runs it on one torch thread).
+The experiment is described in :mod:`experiments.adaptive_throw`.
 """
 
 from __future__ import annotations
@@ -43,14 +9,20 @@ import dataclasses
 import math
 import time
 from dataclasses import dataclass
-from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
 import torch
-from effect_networks.experiments.config import ConfigError, Result, check_float, check_int
-from effect_networks.experiments.parallel import forks, run_tasks
-from effect_networks.experiments.registry import Experiment
+from effect_networks.experiments.adaptive_throw.settings import (
+    GOAL_FIT_S,
+    GOAL_NOISE_RATIO,
+    GOAL_RMS_M,
+    QUERIES,
+    ROWS_PER_CLUSTER,
+    AdaptiveThrowConfig,
+)
+from effect_networks.experiments.harness.config import Result
+from effect_networks.experiments.harness.parallel import forks, run_tasks
 from effect_networks.experiments.throwing import HIT_MARGIN_M, get_data, rms
 from effect_networks.inference import fit, fit_em, infer_parameter, parameter_for_effect
 from effect_networks.inference.design.active_gaussian import select_by_information
@@ -60,125 +32,12 @@ from effect_networks.sim2d.throw import TARGET_AREA, ReleaseNoise, sample_target
 from tqdm.auto import tqdm
 
 __all__ = [
-    "QUERIES",
-    "QUICK",
-    "AdaptiveThrowConfig",
     "AdaptiveThrowResult",
     "adaptive_throw_network",
     "local_inverse",
     "plane_residuals",
     "run_adaptive_throw",
 ]
-
-GOAL_RMS_M = 0.0001  # 0.01 cm on both axes, noise-free
-GOAL_FIT_S = 2.0  # one core
-GOAL_NOISE_RATIO = 1.05  # within 5 % of the noise's own scatter
-ROWS_PER_CLUSTER = 30  # the active curves' grid rule
-#: The two inverse queries every layout is scored with (see the module).
-QUERIES = ("posterior", "effect")
-#: A first look in seconds.
-QUICK = {
-    "n_train": 2_000,
-    "n_test": 200,
-    "bins": (2, 4),
-    "noisy_bins": 4,
-    "em_steps": (2, 5),
-    "budgets": (120, 240, 480),
-    "batch": 40,
-    "pool": 400,
-    "noise_repeats": 3,
-}
-
-
-@dataclass(frozen=True)
-class AdaptiveThrowConfig:
-    """Settings of :func:`run_adaptive_throw`; every field is checked on construction.
-
-    Attributes
-    ----------
-    n_train, n_test : int
-        Training throws and test hits (noise-free and, at ``noisy_bins``, noisy).
-    seed : int
-        Seeds targets, release noise and the active runs (>= 0).
-    bins : tuple of int
-        Grid sizes (clusters per axis, each 1..50) for both layouts, noise-free.
-    noisy_bins : int
-        Grid size (clusters per axis, 1..50) of the comparison with release noise. Noisy
-        throws support fewer clusters than noise-free ones: 20 x 20 clusters fit the
-        noise (about 72 throws each) and re-throw 1-3 % worse than 16 x 16 (measured).
-    em_steps : tuple of int
-        Checkpoints of each adaptive fit (increasing): its error and fit time are measured
-        after this many EM steps each (fewer if EM settles first).
-    tol : float
-        EM stops when a step gains less mean per-row log-likelihood (> 0).
-    pseudo_count : float
-        Every fit's pseudo-count (>= 0; see :func:`inference.fit`). Default 0: the
-        library's 0.01 pseudo-rows of the pooled statistics carry the whole area's spread,
-        which against a cluster a few centimetres wide weighs like a couple of rows and
-        tilts its regression towards the pooled one (measured in README). With thousands
-        of noise-free throws no cluster needs them.
-    neighbours : int
-        Training throws per local quadratic fit of the reference (>= 6).
-    budgets : tuple of int
-        Throw counts at which the active and random curves are measured (increasing;
-        the first is thrown at random targets by both).
-    batch, pool : int
-        Targets chosen per round, among ``pool`` random candidates (``batch <= pool``).
-    noise_repeats : int
-        Re-throws per desired hit with release noise (>= 1): the noisy RMS and scatter
-        average over them.
-    workers : int
-        Processes for the model work (the fits and queries of each grid size, the noisy
-        comparison, the active curves: :func:`experiments.parallel.run_tasks`); 0: one per
-        core. The results do not depend on it.
-    progress : bool
-        Progress bars.
-    """
-
-    n_train: int = 29_000
-    n_test: int = 1_000
-    seed: int = 0
-    bins: tuple[int, ...] = (4, 8, 12, 16, 20)
-    noisy_bins: int = 16
-    em_steps: tuple[int, ...] = (5, 20)
-    tol: float = 1e-6
-    pseudo_count: float = 0.0
-    neighbours: int = 40
-    budgets: tuple[int, ...] = (250, 500, 1_000, 2_000, 4_000)
-    batch: int = 50
-    pool: int = 2_000
-    noise_repeats: int = 10
-    workers: int = 0
-    progress: bool = True
-
-    def __post_init__(self):
-        check_int("n_train", self.n_train, 50)
-        check_int("n_test", self.n_test, 1)
-        check_int("seed", self.seed, 0)
-        check_float("tol", self.tol, 0.0, 1.0, low_open=True)
-        check_float("pseudo_count", self.pseudo_count, 0.0, 1e6)
-        check_int("neighbours", self.neighbours, 6)
-        if self.neighbours > self.n_train:
-            raise ConfigError("neighbours", f"{self.neighbours} exceeds n_train={self.n_train}")
-        check_int("batch", self.batch, 1)
-        check_int("pool", self.pool, self.batch)
-        check_int("noise_repeats", self.noise_repeats, 1)
-        check_int("workers", self.workers, 0)
-        for name in ("bins", "budgets", "em_steps"):
-            object.__setattr__(self, name, tuple(getattr(self, name)))
-            if not getattr(self, name):
-                raise ConfigError(name, "empty; expected at least one value")
-        for k in self.bins:
-            check_int("bins", k, 1, 50)
-        check_int("noisy_bins", self.noisy_bins, 1, 50)
-        for b in self.budgets:
-            check_int("budgets", b, 10)
-        for steps in self.em_steps:
-            check_int("em_steps", steps, 1)
-        for name in ("budgets", "em_steps"):
-            v = getattr(self, name)
-            if any(b >= c for b, c in zip(v, v[1:], strict=False)):
-                raise ConfigError(name, f"{v} must increase")
 
 
 def adaptive_throw_network(bins) -> EffectNetwork:
@@ -445,27 +304,6 @@ class AdaptiveThrowResult(Result):
     active: dict[str, list[dict]]
     goals: dict[str, bool]
 
-    def to_markdown(self) -> str:
-        """Both layouts side by side, the references, the active curves and the goals, in cm.
-
-        See :func:`experiments.adaptive_throw_report.markdown`.
-        """
-        from effect_networks.experiments.adaptive_throw_report import markdown
-
-        return markdown(self)
-
-    def figures(self, out: Path) -> list[Path]:
-        """Draw the comparison, ``adaptive_throw.png``, into the folder ``out``; its path."""
-        from effect_networks.experiments.adaptive_throw_report import plot_adaptive_throw
-
-        return [plot_adaptive_throw(self, out / "adaptive_throw.png")]
-
-    def summary_rows(self, results) -> list[str]:
-        """The results table's rows of both layouts (see ``Result.summary_rows``)."""
-        from effect_networks.experiments.adaptive_throw_report import summary_rows
-
-        return summary_rows(self)
-
 
 def _layout_rows(k, layout, train, test_hits, window, config):
     """One grid size's rows of one layout: each checkpoint's fit scored by both queries.
@@ -637,23 +475,3 @@ def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
         active=active,
         goals={name: bool(ok) for name, ok in goals.items()},
     )
-
-
-EXPERIMENTS = (
-    Experiment(
-        AdaptiveThrowConfig,
-        run_adaptive_throw,
-        AdaptiveThrowResult,
-        order=50,
-        tiny={
-            "n_train": 300,
-            "n_test": 20,
-            "bins": (2,),
-            "em_steps": (1, 2),
-            "budgets": (40, 80),
-            "batch": 20,
-            "pool": 60,
-        },
-        quick=QUICK,
-    ),
-)

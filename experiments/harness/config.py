@@ -10,7 +10,7 @@ traceback). A result dataclass derives from
 :class:`Result`: ``to_json`` / ``from_json`` / ``load`` round-trip its fields (plain
 JSON values: numbers, strings, lists, dicts with string keys), ``to_markdown`` is its
 report, ``figures(out)`` draws its figures, ``summary_rows`` are its rows of the results
-table (:mod:`experiments.summary`), and ``save(out)`` writes them all as
+table (:mod:`experiments.harness.summary`), and ``save(out)`` writes them all as
 ``<experiment_name>.json``, ``.md`` and the figures' files.
 """
 
@@ -27,7 +27,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, ClassVar, TypeVar
 
-from effect_networks.experiments.steps import write_step_record
+from effect_networks.experiments.harness.steps import write_step_record
 from effect_networks.sim2d.chunks import write_failure, write_text
 from effect_networks.sim2d.executors import ExecutorUnavailable, available_cores, parse_spec
 
@@ -42,6 +42,7 @@ __all__ = [
     "config_or_exit",
     "percent",
     "run_script",
+    "write_result",
 ]
 
 T = TypeVar("T")
@@ -128,7 +129,7 @@ def run_script(main: Callable[[argparse.Namespace], object], args: argparse.Name
     1), an executor that cannot be reached (2), an interrupt (Ctrl-C, or SIGTERM while a
     data set is generated; 130). A data set being generated keeps its finished chunks,
     so running the script again resumes it. Run as a step of ``./reproduce``, it writes its
-    simulation time and peak memory as it exits (:mod:`experiments.steps`).
+    simulation time and peak memory as it exits (:mod:`experiments.harness.steps`).
     """
     try:
         _run(main, args)
@@ -163,6 +164,24 @@ def percent(x: float | None, digits: int = 2) -> str:
     return "n/a" if x is None else f"{100 * x:.{digits}f} %"
 
 
+def write_result(
+    result: Result, out, markdown: str, figures: Callable[[Path], Iterable[Path]]
+) -> list[Path]:
+    """Write ``<name>.json``, ``<name>.md`` (``markdown``) and ``figures(out)`` to the folder ``out``.
+
+    The folder is made if absent; returns the paths written.
+    """
+    name = result.experiment_name
+    assert name, f"{type(result).__name__} names no experiment"
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    files = [
+        write_text(out / f"{name}.json", result.to_json()),
+        write_text(out / f"{name}.md", markdown),
+    ]
+    return files + list(figures(out))
+
+
 @dataclass
 class Result:
     """Base of the experiments' results: JSON round trip of the dataclass's fields, and their files.
@@ -170,7 +189,9 @@ class Result:
     A subclass names its experiment in the class variable ``experiment_name`` (its files
     are ``<experiment_name>.json`` and ``.md``), writes its report in :meth:`to_markdown`, and may
     draw figures (:meth:`figures`) and give rows of the results table
-    (:meth:`summary_rows`).
+    (:meth:`summary_rows`). An experiment whose report is a module of its own (a layer above
+    its run) leaves these out and declares the report's functions instead
+    (:class:`experiments.harness.registry.Experiment`).
     """
 
     experiment_name: ClassVar[str] = ""
@@ -195,15 +216,7 @@ class Result:
 
         The folder is made if absent; returns the paths written.
         """
-        name = self.experiment_name
-        assert name, f"{type(self).__name__} names no experiment"
-        out = Path(out)
-        out.mkdir(parents=True, exist_ok=True)
-        files = [
-            write_text(out / f"{name}.json", self.to_json()),
-            write_text(out / f"{name}.md", self.to_markdown()),
-        ]
-        return files + list(self.figures(out))
+        return write_result(self, out, self.to_markdown(), self.figures)
 
     def to_dict(self) -> dict[str, Any]:
         """The fields by name (values are shared, not copied)."""

@@ -10,9 +10,9 @@ and the physics' own bound (the best action found by simulation,
 that text between the markers ``<!-- results:begin -->`` and ``<!-- results:end -->`` of
 README.md.
 
-The table is the concatenation of each saved result's own rows
-(:meth:`experiments.config.Result.summary_rows`), in the registry's order
-(:mod:`experiments.registry`); an experiment that has not run has none.
+The table is the concatenation of each saved result's rows
+(:meth:`experiments.harness.registry.Experiment.rows`), in the registry's order
+(:mod:`experiments.harness.registry`); an experiment that has not run has none.
 """
 
 from __future__ import annotations
@@ -27,8 +27,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field
 from pathlib import Path
 
-from effect_networks.experiments.config import Result
-from effect_networks.experiments.registry import experiments
+from effect_networks.experiments.harness.config import Result
+from effect_networks.experiments.harness.registry import experiments
 from effect_networks.sim2d.executors import available_cores
 
 __all__ = [
@@ -61,7 +61,7 @@ class RunRecord(Result):
     (UTC, ISO 8601), ``machine`` (words), ``step_seconds`` (wall time per step run, in order),
     ``total_seconds``, ``simulation_seconds`` (per step, the wall time spent simulating:
     :mod:`sim2d.clock`) and ``peak_bytes`` (per step, the peak resident memory of its largest
-    process: :mod:`experiments.steps`). A record written before the last two were measured loads
+    process: :mod:`experiments.harness.steps`). A record written before the last two were measured loads
     with them empty.
     """
 
@@ -164,7 +164,7 @@ def run_record(
     ``root`` defaults to this package's repository; ``startup_seconds``, the imports
     done once before the steps, counts in the total.
     """
-    root = Path(root) if root is not None else Path(__file__).resolve().parents[1]
+    root = Path(root) if root is not None else Path(__file__).resolve().parents[2]
     commit = _git(root, "rev-parse", "--short", "HEAD") or "unknown"
     if commit != "unknown" and _git(root, "status", "--porcelain", "--untracked-files=no"):
         commit += "+"
@@ -184,7 +184,7 @@ def run_record(
 def load_results(folder) -> dict[str, Result]:
     """Every experiment's result saved below the results folder ``folder``, by name, in order.
 
-    In the order of :func:`experiments.registry.experiments`; an experiment that has not run is
+    In the order of :func:`experiments.harness.registry.experiments`; an experiment that has not run is
     missing. A file of another shape raises a ``ValueError`` naming it.
     """
     found = {}
@@ -212,8 +212,9 @@ def summary_markdown(folder) -> str:
         "| experiment | paper | ours | physics bound (best action found by simulation) |",
         "|---|---|---|---|",
     ]
-    for result in results.values():
-        lines += result.summary_rows(results)
+    declared = experiments()
+    for name, result in results.items():
+        lines += declared[name].rows(result, results)
     if run is not None:
         lines += ["", *step_table(run)]
     return "\n".join(lines) + "\n"

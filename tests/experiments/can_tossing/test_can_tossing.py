@@ -6,10 +6,12 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 import torch
-from effect_networks.experiments import can_tossing as ct
+from effect_networks.experiments.can_tossing import run as ct
+from effect_networks.experiments.can_tossing import settings as cts
 from effect_networks.experiments.cans import can_dataset, fit_can_network
-from effect_networks.experiments.config import ConfigError
 from effect_networks.experiments.evaluation import ACCURACY_BINS, roc_auc
+from effect_networks.experiments.harness.config import ConfigError
+from effect_networks.experiments.harness.registry import experiment
 from effect_networks.sim2d import field_throws
 
 from tests.helpers import InlineExecutor
@@ -102,7 +104,7 @@ def test_plays_in_chunks_on_an_executor_equal_the_plays_here(tiny, monkeypatch):
     data, _ = tiny
     start, desired = ct.table_one_cases(data, "counts")
     fields = np.full(len(start), 7 * 15 + 7)  # the middle field: throwable at 0deg
-    seeds = ct.fresh_seeds(3, ct.TABLE_I, len(start))
+    seeds = ct.fresh_seeds(3, cts.TABLE_I, len(start))
     here = ct.play(start, fields, 0.003, seeds, "here", progress=False)
     monkeypatch.setattr(ct, "CHUNK", 4)
     executor = InlineExecutor()
@@ -123,21 +125,21 @@ def test_best_field_of_a_deterministic_case(tiny):
             fields = np.unique(data.field[sel][(start == s) & (count == c)])
             if len(fields) == 1:
                 ev = ct.start_evidence(model, np.array([s])) | {"end.count": torch.as_tensor([c])}
-                for rule in ct.RULES:
+                for rule in cts.RULES:
                     assert int(ct.choose(model, ev, rule)[0]) == int(fields[0])
                 return
     pytest.skip("no desired count reached by a single field in the tiny data set")
 
 
 def test_run_at_tiny_scale(tiny_data_dir, tmp_path):
-    config = ct.CanTossingConfig(scale="tiny", data_dir=tiny_data_dir, n_demos=30, progress=False)
+    config = cts.CanTossingConfig(scale="tiny", data_dir=tiny_data_dir, n_demos=30, progress=False)
     result = ct.run_can_tossing(config)
     assert result.n_cases > 0
     assert tuple(result.histogram) == ACCURACY_BINS
     assert sum(result.histogram.values()) == result.n_cases
     assert 0.0 <= result.exact_fraction <= 1.0
     assert result.paper["n_cases"] == 8603
-    assert set(result.table_one) == set(ct.PROTOCOLS)
+    assert set(result.table_one) == set(cts.PROTOCOLS)
     assert result.table_one["counts"]["aim"]["n_cases"] == result.n_cases  # the headline
     assert 0.0 <= result.emulation["same_end_config"] <= 1.0
     imitation = result.imitation
@@ -146,9 +148,9 @@ def test_run_at_tiny_scale(tiny_data_dir, tmp_path):
     assert not np.any(np.array(imitation["failed_ordinary"]) & ~np.array(imitation["failed"]))
     # the pooled surprise: its aim error chosen on the validation draw, scores in [0, 1]
     validation = imitation["validation"]
-    assert [v["sigma"] for v in validation["by_sigma"]] == list(ct.AIM_SIGMAS)
+    assert [v["sigma"] for v in validation["by_sigma"]] == list(cts.AIM_SIGMAS)
     scored = [v for v in validation["by_sigma"] if v["auc_ordinary"] is not None]
-    best = max(scored, key=lambda v: v["auc_ordinary"])["sigma"] if scored else ct.AIM_SIGMAS[0]
+    best = max(scored, key=lambda v: v["auc_ordinary"])["sigma"] if scored else cts.AIM_SIGMAS[0]
     assert imitation["aim_sigma"] == best
     pooled = np.array(imitation["pooled_surprise"])
     assert len(pooled) == 30 and np.all((pooled >= 0) & (pooled <= 1 + 1e-12))
@@ -159,7 +161,7 @@ def test_run_at_tiny_scale(tiny_data_dir, tmp_path):
         else:
             assert imitation[key] is None
 
-    files = result.save(tmp_path)
+    files = experiment("can_tossing").save(result, tmp_path)
     assert {f.name for f in files} >= {"can_tossing.json", "can_tossing.md"}
     again = ct.CanTossingResult.load(tmp_path / "can_tossing.json")
     assert again.to_json() == result.to_json()
@@ -184,5 +186,5 @@ def test_run_at_tiny_scale(tiny_data_dir, tmp_path):
 )
 def test_config_names_the_field_at_fault(field, value, words):
     with pytest.raises(ConfigError, match=field) as raised:
-        ct.CanTossingConfig(**{field: value})
+        cts.CanTossingConfig(**{field: value})
     assert raised.value.field == field and words in str(raised.value)

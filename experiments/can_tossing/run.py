@@ -1,63 +1,45 @@
-"""Can tossing (the paper's §IV-A): Table I, emulation and imitation with the can network.
+"""Can tossing's run: Table I, emulation and imitation measured, and their result.
 
-The can network (Fig. 2: initial configuration and count, field, end configuration and
-count) is fitted by maximum likelihood on the 0° throws of the can data set only
-(:mod:`experiments.cans`), then judged by throwing again in the simulated world:
-
-* **Table I.** For each case ``(start configuration, desired count)`` the best field
-  given (configuration, count, desired count) is thrown at 0° with the data set's aim
-  jitter and a fresh seed; desired minus achieved count is tallied in the paper's bins.
-  Two protocols (:func:`table_one_cases`): ``counts``, one case per start and desired
-  count some 0° training throw reached from it, plus the unchanged count; ``actions``,
-  the paper's wording ("one action that leaves the setup unchanged and all actions that
-  somehow change the number of cans"), one case per (start, field) whose first training
-  throw changed the count, plus one unchanged case per start. Two ways to pick among
-  fields tied in the exact posterior: ``index`` (the query's argmax, lowest index) and
-  ``aim`` (the tied field whose neighbours also succeed under the model:
-  :func:`experiments.evaluation.aim_robust_best`). All four are measured on the same
-  seeds; the settings name the headline.
-* **Emulation.** A demonstrated throw's observed end configuration is the evidence; the
-  best field for it is thrown, and we count how often it reproduces the demonstrated end
-  configuration (and count). The demonstrated field re-thrown with a fresh seed is the
-  reference: how often the world reproduces its own effect.
-* **Imitation.** Throws with a large aim error (``aim_error`` m per axis); a throw failed
-  when its end configuration differs from the unperturbed intended throw's. The
-  surprise of the observed end state under the intended field
-  (:func:`inference.imitation_check`) should separate the two: ROC AUC. The network's
-  table for one (configuration, field) rests on a few jittered throws and misses
-  outcomes the field produces now and then; the pooled surprise scores the observed end
-  configuration under the intended field's predictive averaged over an aim error of
-  ``sigma`` fields (:func:`experiments.evaluation.aim_pooled`), ``sigma`` chosen on a
-  separate validation draw of perturbed throws.
-
-Every evaluation throw draws its aim jitter from ``SeedSequence([seed, purpose])``, never
-from the data set's per-throw seeds.
+The experiment is described in :mod:`experiments.can_tossing`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from pathlib import Path
 from typing import ClassVar
 
 import numpy as np
 import torch
+from effect_networks.experiments.can_tossing.settings import (
+    AIM_SIGMAS,
+    ANGLE,
+    CHUNK,
+    DEMO,
+    PAPER_CASES,
+    PAPER_PERCENT,
+    PAPER_TABLE_I,
+    PERTURB,
+    PICK,
+    PROTOCOLS,
+    REPLAY,
+    RULES,
+    TABLE_I,
+    VALIDATE,
+    CanTossingConfig,
+)
 from effect_networks.experiments.cans import (
-    CanDataSettings,
     CanModel,
     can_dataset,
     choose,
     fit_can_network,
 )
-from effect_networks.experiments.config import Result, check_choice, check_float, check_int
 from effect_networks.experiments.evaluation import (
-    ACCURACY_BINS,
     accuracy_histogram,
     aim_pooled,
     roc_auc,
     tail_surprise,
 )
-from effect_networks.experiments.registry import Experiment
+from effect_networks.experiments.harness.config import Result, check_choice
 from effect_networks.inference import imitation_check
 from effect_networks.models.can_network import config_index, n_cans
 from effect_networks.sim2d import field_throws, geometry, materials
@@ -66,81 +48,26 @@ from effect_networks.sim2d.executors import open_executor
 from tqdm.auto import tqdm
 
 __all__ = [
-    "CanTossingConfig",
     "CanTossingResult",
-    "PROTOCOLS",
-    "RULES",
+    "PAPER",
+    "auc_or_none",
+    "ball_ends",
+    "demonstrations",
     "emulation",
+    "field_throw_ends",
+    "fresh_seeds",
     "imitation",
+    "perturbed_aims",
+    "perturbed_throws",
+    "play",
     "play_table_one",
+    "pooled_surprise",
     "run_can_tossing",
+    "start_evidence",
     "summarise",
     "table_one",
     "table_one_cases",
 ]
-
-#: Table I's cases, see :func:`table_one_cases`
-PROTOCOLS = ("counts", "actions")
-#: tie-breaks among fields of equal posterior
-RULES = ("index", "aim")
-#: The largest imitation aim error, m per axis: half the pyramid's height. Beyond it most
-#: perturbed throws miss the cans altogether and the ROC would measure only that.
-MAX_AIM_ERROR = geometry.PYRAMID_HEIGHT / 2
-
-
-@dataclass(frozen=True)
-class CanTossingConfig(CanDataSettings):
-    """Settings of :func:`run_can_tossing`; every field is checked on construction.
-
-    The can data set's: :class:`experiments.cans.CanDataSettings`.
-
-    Attributes
-    ----------
-    seed : int
-        Seeds every evaluation throw (>= 0).
-    rule, cases : str
-        The headline's tie-break (``RULES``) and protocol (``PROTOCOLS``); all four are
-        measured either way.
-    n_demos : int
-        Emulation demonstrations, and imitation throws (each of the test and the
-        validation draw).
-    aim_error : float
-        Imitation's aim error, m per axis, in ``(0, MAX_AIM_ERROR]``.
-    n_ordinary : int
-        Imitation: ordinary (jittered) throws of the intended field that tell its usual
-        outcomes.
-    progress : bool
-        Progress bars.
-    """
-
-    seed: int = 0
-    rule: str = "aim"
-    cases: str = "counts"
-    n_demos: int = 300
-    aim_error: float = 0.03
-    n_ordinary: int = 8
-    progress: bool = True
-
-    def __post_init__(self):
-        super().__post_init__()
-        check_int("seed", self.seed, 0)
-        check_choice("rule", self.rule, RULES)
-        check_choice("cases", self.cases, PROTOCOLS)
-        check_int("n_demos", self.n_demos, 1)
-        check_float("aim_error", self.aim_error, 0.0, MAX_AIM_ERROR, low_open=True, unit="m")
-        check_int("n_ordinary", self.n_ordinary, 1)
-
-
-ANGLE = 0  # the paper trains and evaluates at 0°
-PAPER_TABLE_I = dict(zip(ACCURACY_BINS, (36, 63, 309, 7780, 269, 113, 33), strict=True))
-PAPER_PERCENT = dict(zip(ACCURACY_BINS, (0.41, 0.73, 3.59, 90.43, 3.12, 1.31, 0.38), strict=True))
-PAPER_CASES = 8603
-# Seed purposes: every evaluation throw draws its aim jitter from SeedSequence([seed,
-# purpose]), never from the data set's per-throw seeds (SeedSequence of five numbers).
-TABLE_I, DEMO, REPLAY, PERTURB, PICK, VALIDATE = 1, 2, 3, 4, 5, 6
-CHUNK = 100  # throws per executor task
-#: Aim errors (in fields) the pooled imitation surprise chooses among; 0: no pooling.
-AIM_SIGMAS = (0.0, 0.25, 0.5, 0.75, 1.0, 1.5)
 
 
 def fresh_seeds(seed: int, purpose: int, n: int) -> np.ndarray:
@@ -539,33 +466,6 @@ class CanTossingResult(Result):
     emulation: dict
     imitation: dict
 
-    def to_markdown(self) -> str:
-        """Table I under both protocols and rules beside the paper's, emulation and imitation.
-
-        See :func:`experiments.can_tossing_report.markdown`.
-        """
-        from effect_networks.experiments.can_tossing_report import markdown
-
-        return markdown(self)
-
-    def figures(self, out: Path) -> list[Path]:
-        """``can_tossing_table1.png`` and ``can_tossing_roc.png``.
-
-        The second when the imitation has both classes.
-        """
-        from effect_networks.experiments.can_tossing_report import plot_roc, plot_table_one
-
-        files = [plot_table_one(self, out / "can_tossing_table1.png")]
-        if self.imitation["auc"] is not None:
-            files.append(plot_roc(self.imitation, out / "can_tossing_roc.png"))
-        return files
-
-    def summary_rows(self, results) -> list[str]:
-        """Table I under both protocols beside the physics bound, emulation, imitation."""
-        from effect_networks.experiments.can_tossing_report import can_rows, table_one_rows
-
-        return table_one_rows(self, results.get("physics_bounds")) + can_rows(self)
-
 
 def run_can_tossing(config: CanTossingConfig) -> CanTossingResult:
     """Fit the can network on the 0° throws and measure Table I, emulation and imitation.
@@ -593,15 +493,3 @@ def run_can_tossing(config: CanTossingConfig) -> CanTossingResult:
         emulation=emulated,
         imitation=imitated,
     )
-
-
-EXPERIMENTS = (
-    Experiment(
-        CanTossingConfig,
-        run_can_tossing,
-        CanTossingResult,
-        order=60,
-        tiny={"scale": "tiny", "n_demos": 2},
-        quick={"scale": "quick", "n_demos": 100},
-    ),
-)

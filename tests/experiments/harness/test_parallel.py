@@ -1,16 +1,17 @@
-"""experiments.parallel: tasks forked onto several cores give what they give in turn, in order."""
+"""experiments.harness.parallel: tasks forked onto several cores give what they give in turn, in order."""
 
 import os
 
 import numpy as np
 import pytest
 import torch
-from effect_networks.experiments.adaptive_throw import AdaptiveThrowConfig, run_adaptive_throw
-from effect_networks.experiments.compare import compare_values
-from effect_networks.experiments.parallel import forks, resolve_workers, run_tasks
+from effect_networks.experiments.adaptive_throw.run import run_adaptive_throw
+from effect_networks.experiments.adaptive_throw.settings import AdaptiveThrowConfig
+from effect_networks.experiments.harness.compare import compare_values
+from effect_networks.experiments.harness.parallel import forks, resolve_workers, run_tasks
 from effect_networks.sim2d.executors import available_cores
 
-from tests.experiments.test_adaptive_throw import TINY
+from tests.helpers import ADAPTIVE_THROW_TINY as TINY
 
 
 def _square(x):

@@ -6,7 +6,7 @@ files and its script ``examples/<name>.py``), the settings of a run in seconds f
 tests (``tiny``) and of ``./reproduce --quick`` (``quick``), where its files go below
 the results folder, and its place in the paper's order. :func:`experiments` finds every
 declaration in the package; ``./reproduce``, the results table
-(:mod:`experiments.summary`), the scripts' command lines (:mod:`experiments.cli`) and
+(:mod:`experiments.harness.summary`), the scripts' command lines (:mod:`experiments.harness.cli`) and
 the tests iterate over it, so a new experiment is its module, its script and its test.
 """
 
@@ -22,7 +22,7 @@ from pathlib import Path
 from types import MappingProxyType
 from typing import Any
 
-from effect_networks.experiments.config import Result
+from effect_networks.experiments.harness.config import Result, write_result
 
 __all__ = ["Experiment", "experiment", "experiments"]
 
@@ -40,7 +40,7 @@ class Experiment:
         ``run(config)`` returns the result; with ``draws``, ``run(config, out)`` draws
         into the folder ``out`` while it runs.
     result : type
-        Its :class:`experiments.config.Result` subclass; its ``experiment_name`` is the
+        Its :class:`experiments.harness.config.Result` subclass; its ``experiment_name`` is the
         experiment's name.
     order : int
         Its place in ``./reproduce`` and in the results table (the paper's order; a step
@@ -52,6 +52,10 @@ class Experiment:
         Its files' folder below the results folder ("": the results folder itself).
     draws : bool
         ``run`` takes the output folder.
+    markdown, figures, summary_rows : callable or None
+        The report as functions of a result, for an experiment whose report is a module
+        of its own: ``markdown(result)``, ``figures(result, out)`` and
+        ``summary_rows(result, results)``; None: the result's own methods.
     """
 
     config: type
@@ -62,6 +66,9 @@ class Experiment:
     quick: Mapping[str, Any] = field(default_factory=dict)
     folder: str = ""
     draws: bool = False
+    markdown: Callable[[Result], str] | None = None
+    figures: Callable[[Result, Path], list[Path]] | None = None
+    summary_rows: Callable[[Result, Mapping[str, Result]], list[str]] | None = None
 
     def __post_init__(self):
         assert dataclasses.is_dataclass(self.config), self.config
@@ -90,10 +97,28 @@ class Experiment:
         """Its JSON file below the results folder ``results``."""
         return self.out(results) / f"{self.name}.json"
 
+    def report(self, result: Result) -> str:
+        """The report of its result ``result``, in Markdown."""
+        return self.markdown(result) if self.markdown else result.to_markdown()
+
+    def draw(self, result: Result, out: Path) -> list[Path]:
+        """Draw the figures of ``result`` into the folder ``out``; their paths."""
+        return self.figures(result, out) if self.figures else result.figures(out)
+
+    def rows(self, result: Result, results: Mapping[str, Result]) -> list[str]:
+        """The rows of ``result`` in the results table, given every result by name."""
+        if self.summary_rows:
+            return self.summary_rows(result, results)
+        return result.summary_rows(results)
+
+    def save(self, result: Result, out) -> list[Path]:
+        """Write the JSON, the report and the figures of ``result`` to the folder ``out``."""
+        return write_result(result, out, self.report(result), lambda at: self.draw(result, at))
+
     def perform(self, config, out) -> Result:
         """Run it with the settings ``config`` and save its files to the folder ``out``."""
         result = self.run(config, out) if self.draws else self.run(config)
-        result.save(out)
+        self.save(result, out)
         return result
 
 

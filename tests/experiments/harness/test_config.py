@@ -1,4 +1,4 @@
-"""experiments.config: the checks name the field, the value and what was expected; a
+"""experiments.harness.config: the checks name the field, the value and what was expected; a
 script turns them into a usage error naming the option; results round-trip through JSON."""
 
 import argparse
@@ -9,7 +9,7 @@ from typing import ClassVar
 
 import numpy as np
 import pytest
-from effect_networks.experiments.config import (
+from effect_networks.experiments.harness.config import (
     ConfigError,
     Result,
     check_choice,

@@ -5,7 +5,7 @@ by the field's annotation (``int``, ``float``, ``str``, ``Path``, ``bool`` a swi
 ``tuple[int, ...]`` one or more values, ``X | None`` an ``X``), its help the field's
 entry in the class docstring's ``Attributes`` section (or ``field(metadata={"help":
 ...})``), its default the field's. The values are checked by the Config itself
-(:func:`experiments.config.config_or_exit`: a bad value is a usage error naming the
+(:func:`experiments.harness.config.config_or_exit`: a bad value is a usage error naming the
 flag). Every script also takes:
 
 ``--out``      the folder for its files;
@@ -25,8 +25,8 @@ import types
 import typing
 from pathlib import Path
 
-from effect_networks.experiments.config import check_threads, config_or_exit, run_script
-from effect_networks.experiments.registry import Experiment, experiment
+from effect_networks.experiments.harness.config import check_threads, config_or_exit, run_script
+from effect_networks.experiments.harness.registry import Experiment, experiment
 
 __all__ = ["field_help", "main", "make_parser", "parse_args"]
 
@@ -182,13 +182,13 @@ def _perform(args: argparse.Namespace):
         result = args.experiment.perform(args.config, args.out)
     finally:
         torch.set_num_threads(threads)
-    print(result.to_markdown())
+    print(args.experiment.report(result))
     return result
 
 
 def main(name: str | Experiment, description: str | None = None, argv=None):
     """Run experiment ``name`` from the command line and exit.
 
-    ``argv`` defaults to ``sys.argv`` (:func:`experiments.config.run_script`).
+    ``argv`` defaults to ``sys.argv`` (:func:`experiments.harness.config.run_script`).
     """
     run_script(_perform, parse_args(name, argv, description))

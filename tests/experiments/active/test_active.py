@@ -6,10 +6,13 @@ import dataclasses
 import numpy as np
 import pytest
 import torch
-from effect_networks.experiments import active as ex
-from effect_networks.experiments.can_tossing import PROTOCOLS, RULES, table_one_cases
+from effect_networks.experiments.active import run as ex
+from effect_networks.experiments.active import settings as exs
+from effect_networks.experiments.can_tossing.run import table_one_cases
+from effect_networks.experiments.can_tossing.settings import PROTOCOLS, RULES
 from effect_networks.experiments.cans import CanModel, can_dataset, fit_can_network
-from effect_networks.experiments.config import ConfigError
+from effect_networks.experiments.harness.config import ConfigError
+from effect_networks.experiments.harness.registry import experiment
 from effect_networks.inference import compile as compile_queries
 from effect_networks.inference import fit_pooled, grid_kernel
 from effect_networks.models.can_network import config_index
@@ -18,7 +21,7 @@ from effect_networks.sim2d import geometry
 
 @pytest.fixture(scope="module")
 def tiny_run(tiny_data_dir):
-    config = ex.ActiveConfig(
+    config = exs.ActiveConfig(
         scale="tiny",
         data_dir=tiny_data_dir,
         repeats=2,
@@ -96,7 +99,7 @@ def test_a_tiny_run_end_to_end(tiny_run, tiny_data_dir, tmp_path):
     data = can_dataset(tiny_data_dir, "tiny", progress=False)
     assert r.n_pool == int(((data.angle == 0) & data.throwable).sum())
     assert r.budgets == [round(f * r.n_pool) for f in config.fractions]
-    assert set(r.curves) == set(ex.LEARNERS)
+    assert set(r.curves) == set(exs.LEARNERS)
     net, _, _, rows = ex.can_pool(data)
     seen_by_all = {}
     for p in PROTOCOLS:
@@ -109,7 +112,7 @@ def test_a_tiny_run_end_to_end(tiny_run, tiny_data_dir, tmp_path):
         assert 0 <= r.bound[p] <= 1
         assert r.bound_by_repeats[p] == [pytest.approx(r.bound[p])]  # 2 replays: m = 1 only
         for name, c in r.curves.items():
-            for rule in ex.SCORES:
+            for rule in exs.SCORES:
                 assert len(c[p][rule]) == len(r.budgets)
                 assert all(0 <= v <= 1 for v in c[p][rule])
                 per_seed = np.asarray(r.curves_by_seed[name][p][rule])
@@ -123,7 +126,7 @@ def test_a_tiny_run_end_to_end(tiny_run, tiny_data_dir, tmp_path):
     for name in r.curves:  # CPU seconds of each budget point's Table I evaluation
         assert len(r.point_time_s[name]) == len(r.budgets)
         assert all(t >= 0 for t in r.point_time_s[name])
-    files = r.save(tmp_path)
+    files = experiment("active").save(r, tmp_path)
     assert [f.name for f in files] == ["active.json", "active.md", "active.png"]
     assert ex.ActiveResult.load(tmp_path / "active.json").to_json() == r.to_json()
     text = (tmp_path / "active.md").read_text()
@@ -132,9 +135,9 @@ def test_a_tiny_run_end_to_end(tiny_run, tiny_data_dir, tmp_path):
 
 
 def test_the_learners_give_the_same_results_in_turn_as_on_every_core(tiny_run):
-    """Each learner and seed is a task (experiments.parallel): the fixture's run on every core
+    """Each learner and seed is a task (experiments.harness.parallel): the fixture's run on every core
     and the same run in this process agree bit for bit but for the times."""
-    from effect_networks.experiments.compare import compare_values
+    from effect_networks.experiments.harness.compare import compare_values
 
     config, result = tiny_run
     alone = ex.run_active(dataclasses.replace(config, workers=1))
@@ -150,7 +153,8 @@ def test_the_choice_is_scored_on_the_replays_of_the_chosen_field(tiny_run, tiny_
     replays, configs = ex.replay_counts(config)
     cases = {p: table_one_cases(data, p) for p in PROTOCOLS}
     got = ex.table_one_on_replays(model, cases, replays, configs)
-    from effect_networks.experiments.can_tossing import choose, start_evidence
+    from effect_networks.experiments.can_tossing.run import start_evidence
+    from effect_networks.experiments.cans import choose
 
     for p, (start, desired) in cases.items():
         for rule in RULES:
@@ -181,12 +185,12 @@ def test_the_pooled_score_is_table_one_on_the_pooled_fit(tiny_run, tiny_data_dir
         assert r.full[p]["pooled"] == pytest.approx(got[p]["aim"])
         best = max(r.full[p].values())
         for name in r.curves:
-            for rule in ex.SCORES:
+            for rule in exs.SCORES:
                 first = next(
                     (
                         b
                         for b, v in zip(r.budgets, r.curves[name][p][rule], strict=True)
-                        if v >= best - ex.GOAL_POINTS
+                        if v >= best - exs.GOAL_POINTS
                     ),
                     None,
                 )
@@ -194,7 +198,7 @@ def test_the_pooled_score_is_table_one_on_the_pooled_fit(tiny_run, tiny_data_dir
 
 
 def test_the_scoring_network_answers_table_one_as_the_can_network_does(tiny_data_dir):
-    """The curve points fit and query :func:`experiments.active.scoring_network` (the end
+    """The curve points fit and query :func:`experiments.active.run.scoring_network` (the end
     configuration parentless); the can network itself, fitted on the same rows, gives the
     same tables where the query reads them and the same answers and scores, bit for bit."""
     data = can_dataset(tiny_data_dir, "tiny", progress=False)
@@ -202,7 +206,7 @@ def test_the_scoring_network_answers_table_one_as_the_can_network_does(tiny_data
     scoring = ex.scoring_network(net)
     assert scoring.cpd("end.config").parents == ()
     assert scoring.cpd("end.count").parents == net.cpd("end.count").parents
-    config = ex.ActiveConfig(scale="tiny", data_dir=tiny_data_dir, repeats=2, progress=False)
+    config = exs.ActiveConfig(scale="tiny", data_dir=tiny_data_dir, repeats=2, progress=False)
     replays, configs = ex.replay_counts(config)
     cases = {p: table_one_cases(data, p) for p in PROTOCOLS}
     throwable = fit_can_network(data, 0).throwable
@@ -251,5 +255,5 @@ def test_the_scoring_network_answers_table_one_as_the_can_network_does(tiny_data
 )
 def test_settings_are_checked(field, value):
     with pytest.raises(ConfigError) as error:
-        ex.ActiveConfig(**{field: value})
+        exs.ActiveConfig(**{field: value})
     assert error.value.field == field

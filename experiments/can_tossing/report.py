@@ -5,32 +5,32 @@ Its Markdown, its figures and its rows of the results table (:mod:`experiments.c
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
-from effect_networks.experiments.can_tossing import PAPER_CASES, PAPER_PERCENT, PAPER_TABLE_I
-from effect_networks.experiments.config import percent
+from effect_networks.experiments.can_tossing.settings import (
+    PAPER_CASES,
+    PAPER_PERCENT,
+    PAPER_TABLE_I,
+    TABLE_I_PROTOCOLS,
+)
 from effect_networks.experiments.evaluation import ACCURACY_BINS, roc_curve
+from effect_networks.experiments.harness.config import Result, percent
 
 if TYPE_CHECKING:
-    from effect_networks.experiments.can_tossing import CanTossingResult
-    from effect_networks.experiments.physics_bounds import PhysicsBoundsResult
+    from effect_networks.experiments.can_tossing.run import CanTossingResult
 
 __all__ = [
-    "TABLE_I_PROTOCOLS",
     "can_rows",
+    "figures",
     "markdown",
     "plot_roc",
     "plot_table_one",
+    "summary_rows",
     "table_one_rows",
 ]
-
-#: Table I's protocols (:data:`experiments.can_tossing.PROTOCOLS`) in the results table's words.
-TABLE_I_PROTOCOLS = {
-    "counts": "one case per reachable desired count",
-    "actions": "one case per count-changing action, the paper's wording",
-}
 
 
 def markdown(r: CanTossingResult) -> str:
@@ -98,6 +98,17 @@ def _auc_text(auc: float | None) -> str:
     return "n/a" if auc is None else f"{auc:.3f}"
 
 
+def figures(result: CanTossingResult, out: Path) -> list[Path]:
+    """``can_tossing_table1.png`` and ``can_tossing_roc.png``, drawn into the folder ``out``.
+
+    The second when the imitation has both classes.
+    """
+    files = [plot_table_one(result, out / "can_tossing_table1.png")]
+    if result.imitation["auc"] is not None:
+        files.append(plot_roc(result.imitation, out / "can_tossing_roc.png"))
+    return files
+
+
 def plot_table_one(result: CanTossingResult, path) -> Path:
     """Bar chart of Table I's bins: each protocol and rule beside the paper; saved to ``path``."""
     from matplotlib.figure import Figure
@@ -162,10 +173,11 @@ def plot_roc(result: dict, path) -> Path:
     return Path(path)
 
 
-def table_one_rows(c: CanTossingResult | None, b: PhysicsBoundsResult | None) -> list[str]:
+def table_one_rows(c: CanTossingResult | None, b: Result | None) -> list[str]:
     """Table I under both protocols, ours (``c``) beside the physics bound (``b``).
 
-    Either may be missing.
+    Either may be missing; ``b`` is the physics bounds' result
+    (:class:`experiments.physics_bounds.PhysicsBoundsResult`), of which its ``table_one`` is read.
     """
     if c is None and b is None:
         return []
@@ -206,3 +218,8 @@ def can_rows(c: CanTossingResult) -> list[str]:
         f"{auc(i['auc_ordinary'])}; aim-pooled ({i['aim_sigma']:g} fields): "
         f"{auc(i['auc_pooled'])} / {auc(i['auc_ordinary_pooled'])} ({i['n_throws']} throws) | |",
     ]
+
+
+def summary_rows(result: CanTossingResult, results: Mapping[str, Result]) -> list[str]:
+    """Table I under both protocols beside the physics bound, emulation, imitation."""
+    return table_one_rows(result, results.get("physics_bounds")) + can_rows(result)

@@ -5,15 +5,17 @@ Its Markdown, its figure and its rows of the results table (:mod:`experiments.ad
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from effect_networks.experiments.adaptive_throw import GOAL_FIT_S, GOAL_RMS_M, QUERIES
+from effect_networks.experiments.adaptive_throw.settings import GOAL_FIT_S, GOAL_RMS_M, QUERIES
+from effect_networks.experiments.harness.config import Result
 
 if TYPE_CHECKING:
-    from effect_networks.experiments.adaptive_throw import AdaptiveThrowResult
+    from effect_networks.experiments.adaptive_throw.run import AdaptiveThrowResult
 
-__all__ = ["markdown", "plot_adaptive_throw", "summary_rows"]
+__all__ = ["figures", "markdown", "plot_adaptive_throw", "summary_rows"]
 
 
 def markdown(result: AdaptiveThrowResult) -> str:
@@ -104,7 +106,7 @@ def markdown(result: AdaptiveThrowResult) -> str:
     return "\n".join(lines) + "\n"
 
 
-def summary_rows(t: AdaptiveThrowResult) -> list[str]:
+def summary_rows(t: AdaptiveThrowResult, results: Mapping[str, Result]) -> list[str]:
     """Beyond the paper: grid vs adaptive (EM) clusters, and active throw targets.
 
     Each layout by the inverse model and by the paper's posterior query. The adaptive layout is
@@ -184,6 +186,11 @@ def summary_rows(t: AdaptiveThrowResult) -> list[str]:
         f"random, re-thrown RMS y / z after {active['n']} throws | - | active {cm(active)}, "
         f"random {cm(random)} | |",
     ]
+
+
+def figures(result: AdaptiveThrowResult, out: Path) -> list[Path]:
+    """Draw the comparison, ``adaptive_throw.png``, into the folder ``out``; its path."""
+    return [plot_adaptive_throw(result, out / "adaptive_throw.png")]
 
 
 def plot_adaptive_throw(result: AdaptiveThrowResult, path) -> Path:

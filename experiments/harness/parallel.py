@@ -7,7 +7,7 @@ into tasks that share nothing (one grid size's fits and queries, one learner's c
 with everything the caller has imported and computed, runs its task on one torch thread
 and sends back the task's result. Each task computes what it would compute in the caller,
 in the same order, so the results do not depend on the number of workers, bit for bit
-(tests/experiments/test_parallel.py); only timings measured inside a task may grow a
+(tests/experiments/harness/test_parallel.py); only timings measured inside a task may grow a
 little when workers share the memory bus.
 
 The tasks are plain callables, closures included: a forked worker finds them in its copy

@@ -1,4 +1,4 @@
-"""experiments.cli: a toy experiment's command line, derived from its settings: flags,
+"""experiments.harness.cli: a toy experiment's command line, derived from its settings: flags,
 types, defaults, help, checks, --quick and the shared flags."""
 
 from dataclasses import dataclass, field
@@ -6,9 +6,9 @@ from pathlib import Path
 from typing import ClassVar
 
 import pytest
-from effect_networks.experiments import cli
-from effect_networks.experiments.config import Result, check_float, check_int
-from effect_networks.experiments.registry import Experiment
+from effect_networks.experiments.harness import cli
+from effect_networks.experiments.harness.config import Result, check_float, check_int
+from effect_networks.experiments.harness.registry import Experiment
 
 
 @dataclass(frozen=True)

@@ -1,7 +1,7 @@
 """What one step of the main job measured about itself: its simulation time and its peak memory.
 
 ``./reproduce`` runs each step as a child process and names a file in the environment
-variable ``STEP_RECORD_ENV``; the step's script (:func:`experiments.config.run_script`)
+variable ``STEP_RECORD_ENV``; the step's script (:func:`experiments.harness.config.run_script`)
 writes its :class:`StepMeasure` there as it exits: the wall time it spent simulating
 (:func:`sim2d.clock.simulation_seconds`) and the peak resident memory of its own process
 (:func:`own_peak_bytes`) and of the largest process it started and waited for

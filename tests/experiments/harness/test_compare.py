@@ -1,10 +1,10 @@
-"""experiments.compare: two results folders, timings and paths aside."""
+"""experiments.harness.compare: two results folders, timings and paths aside."""
 
 import json
 import math
 
 import pytest
-from effect_networks.experiments.compare import compare_folders, main
+from effect_networks.experiments.harness.compare import compare_folders, main
 
 
 def write(folder, name, value):

@@ -1,49 +1,6 @@
-"""Beyond the paper: learn the can network from a fraction of the throws (active exploration).
+"""The active-exploration experiment's run: the pool, the learners' curves, the bound.
 
-Table I's can network is fitted on every 0° throw of the can data set (every stable
-configuration x every throwable field x its repeats). Here a learner chooses which
-throws to make (:func:`inference.design.active.explore`) and the learning curve of Table I's
-exact fraction against the number of throws used is measured for each strategy, beside
-the network fitted on every throw.
-
-* **Pool and oracle.** The pool is the 0° throwable throws
-  :func:`experiments.cans.fit_can_network` fits on: one candidate per recorded throw,
-  so each (configuration, field) pair is listed once per recorded repeat and can be played at most that often.
-  Playing candidate ``i`` returns the end configuration and count that recorded throw
-  reached. The oracle is fair: every recorded throw is an independent draw of the world
-  (its own seeded aim jitter), the learner sees only the throws it asks for, and the
-  full-data network is fitted on exactly the same throws, so the curves and the
-  full-data figure share one source and no simulation noise between them.
-* **Scoring on held-out replays.** Table I's cases
-  (:func:`experiments.can_tossing.table_one_cases`, both protocols, from the full data
-  set so that every curve point answers the same cases) get their best field from the learned network exactly as
-  Table I does (:func:`experiments.cans.choose`, both tie-break rules). The field
-  is scored on ``repeats`` fresh throws of (start, field) that no network was fitted on
-  (the physics bound's replays, :mod:`experiments.physics_bounds`, seed
-  ``BOUND_SEED``): the case's success is the fraction of replays that reach the desired
-  count, its expectation over the aim jitter rather than one throw's luck. The simulator's
-  own best field, chosen on half of the replays and scored on the other half, is the
-  bound (:func:`experiments.physics_bounds.held_out_best`).
-* **Fits.** Every curve point's network is fitted on the chosen throws twice: plainly
-  (:func:`inference.fit`, scored with both tie-break rules) and with each row's prior
-  pooled from the neighbouring fields' throws (:func:`inference.fit_pooled`, kernel
-  width ``pool_sigma`` fields, ``pool_strength`` pseudo-throws; score ``pooled``). Either
-  way the start and field priors are the pool's
-  (:func:`inference.design.active.with_pool_prior`), not the learner's play
-  frequencies, which would otherwise steer the choice towards often-played fields. The full data is fitted the same two ways, and the
-  goal is measured against its best score. The fits are of :func:`scoring_network`, the
-  can network with the end configuration parentless (its large table, which no score
-  reads, is never fitted; the same answers, bit for bit, at a fraction of the cost); the compiled tables of each fit
-  answer both protocols, one field per distinct (start, desired count). Each budget's
-  evaluation time is in the result (``point_time_s``; goal under ``POINT_GOAL_S``).
-* **Strategies.** ``eig`` (plain Dirichlet information gain with the fit's pseudo-count
-  as prior), ``eig_shared`` (the same with a prior shared by a start configuration's
-  fields, weight ``prior_strength``), ``uncertainty`` (predictive entropy) and
-  ``random``; every gain is about ``sites`` (default ``end.count``, the site Table I's
-  query reads).
-
-The goal: within one point of the full data's exact fraction with at most 10 % of its
-throws (the 0° throws Table I fits on).
+The experiment is described in :mod:`experiments.active`.
 """
 
 from __future__ import annotations
@@ -55,33 +12,28 @@ from typing import ClassVar
 
 import numpy as np
 import torch
-from effect_networks.experiments.can_tossing import (
+from effect_networks.experiments.active.settings import (
+    GOAL_POINTS,
+    LEARNERS,
+    SCORES,
+    ActiveConfig,
+)
+from effect_networks.experiments.can_tossing.run import start_evidence, table_one_cases
+from effect_networks.experiments.can_tossing.settings import (
     ANGLE,
     PROTOCOLS,
     RULES,
-    choose,
-    start_evidence,
-    table_one_cases,
 )
-from effect_networks.experiments.can_tossing_report import TABLE_I_PROTOCOLS
 from effect_networks.experiments.cans import (
     SCALES,
-    CanDataSettings,
     CanModel,
     can_dataset,
+    choose,
     start_configurations,
 )
-from effect_networks.experiments.config import (
-    ConfigError,
-    Result,
-    check_choice,
-    check_float,
-    check_int,
-    percent,
-)
-from effect_networks.experiments.parallel import forks, run_tasks
+from effect_networks.experiments.harness.config import Result
+from effect_networks.experiments.harness.parallel import forks, run_tasks
 from effect_networks.experiments.physics_bounds import BOUND_SEED, held_out_best
-from effect_networks.experiments.registry import Experiment
 from effect_networks.inference import compile as compile_queries
 from effect_networks.inference import fit, fit_pooled, grid_kernel
 from effect_networks.inference.design.active import explore, with_pool_prior
@@ -93,122 +45,15 @@ from effect_networks.sim2d.executors import open_executor
 from tqdm.auto import tqdm
 
 __all__ = [
-    "LEARNERS",
-    "QUICK",
-    "SCORES",
-    "ActiveConfig",
     "ActiveResult",
-    "can_pool",
     "bound_by_repeats",
+    "can_pool",
     "cases_seen",
     "replay_counts",
     "run_active",
     "scoring_network",
     "table_one_on_replays",
 ]
-
-#: The strategies compared: ``{name: (inference.design.active strategy, shared prior?)}``.
-LEARNERS = {
-    "eig": ("eig", False),
-    "eig_shared": ("eig", True),
-    "uncertainty": ("uncertainty", False),
-    "random": ("random", False),
-}
-#: How each curve point's network is fitted and its field chosen: the plain fit with the
-#: ``aim`` or ``index`` tie-break (:data:`experiments.can_tossing.RULES`), or the tables
-#: pooled over neighbouring fields (:func:`inference.fit_pooled`) with the ``aim`` rule.
-SCORES = ("aim", "index", "pooled")
-GOAL_FRACTION = 0.10  # of the full data's throws
-GOAL_POINTS = 0.01  # within one point of the full data's exact fraction
-#: Goal of one budget point's Table I evaluation (fits and scores), CPU seconds.
-POINT_GOAL_S = 1.0
-#: The quick scale's settings (examples/active.py --quick).
-QUICK = {"scale": "quick", "repeats": 8, "fractions": (0.05, 0.1, 0.2, 0.5), "batch_size": 20}
-
-
-@dataclass(frozen=True)
-class ActiveConfig(CanDataSettings):
-    """Settings of :func:`run_active`; every field is checked on construction.
-
-    The can data set's, and where the replays are simulated if they are not under ``data_dir`` yet:
-    :class:`experiments.cans.CanDataSettings`.
-
-    Attributes
-    ----------
-    repeats : int
-        Held-out replays per (start, field), >= 2 (the physics bound's file at this
-        count is reused).
-    fractions : tuple of float
-        Budgets, as fractions of the pool (the 0° throws), each in ``(0, 1]``; increasing.
-    learners : tuple of str
-        Keys of ``LEARNERS``.
-    batch_size : int
-        Throws chosen before they are played.
-    prior_strength : float
-        Weight of the shared prior of ``eig_shared`` (> 0).
-    pool_sigma, pool_strength : float
-        The ``pooled`` score's fit (:func:`inference.fit_pooled`): Gaussian weights between
-        fields ``pool_sigma`` cells apart (> 0) and ``pool_strength`` pseudo-throws of the
-        neighbouring fields' outcomes in each row's prior (> 0).
-    sites : tuple of str
-        End sites the gains are about: ``end.count``, ``end.config`` or both.
-    seed, n_seeds : int
-        The learners run with seeds ``seed .. seed + n_seeds - 1`` (ties, random
-        choices); the curves are their means.
-    checkpoint_dir : Path or None
-        Where each learner's state is saved after every batch (and resumed from); None:
-        not saved.
-    workers : int
-        Processes for the learners (each learner and seed one task, its choices and its
-        curve's fits: :func:`experiments.parallel.run_tasks`); 0: one per core. The results
-        do not depend on it.
-    progress : bool
-        Progress bars.
-    """
-
-    repeats: int = 16
-    fractions: tuple[float, ...] = (0.02, 0.05, 0.1, 0.2, 0.5)
-    learners: tuple[str, ...] = tuple(LEARNERS)
-    batch_size: int = 100
-    prior_strength: float = 1.0
-    pool_sigma: float = 0.7
-    pool_strength: float = 0.5
-    sites: tuple[str, ...] = ("end.count",)
-    seed: int = 0
-    n_seeds: int = 1
-    checkpoint_dir: Path | None = None
-    workers: int = 0
-    progress: bool = True
-
-    def __post_init__(self):
-        super().__post_init__()
-        check_int("repeats", self.repeats, 2)
-        object.__setattr__(self, "fractions", tuple(self.fractions))
-        if not self.fractions:
-            raise ConfigError("fractions", "no budget given; expected at least one")
-        for f in self.fractions:
-            check_float("fractions", f, 0.0, 1.0, low_open=True)
-        if list(self.fractions) != sorted(set(self.fractions)):
-            raise ConfigError("fractions", f"{self.fractions} must increase strictly")
-        object.__setattr__(self, "learners", tuple(self.learners))
-        if not self.learners:
-            raise ConfigError("learners", "no learner given; expected at least one")
-        for name in self.learners:
-            check_choice("learners", name, LEARNERS)
-        check_int("batch_size", self.batch_size, 1)
-        check_float("prior_strength", self.prior_strength, 0.0, 1e6, low_open=True)
-        check_float("pool_sigma", self.pool_sigma, 0.0, 1e3, low_open=True)
-        check_float("pool_strength", self.pool_strength, 0.0, 1e6, low_open=True)
-        object.__setattr__(self, "sites", tuple(self.sites))
-        if not self.sites:
-            raise ConfigError("sites", "no site given; expected end.count and/or end.config")
-        for s in self.sites:
-            check_choice("sites", s, ("end.count", "end.config"))
-        check_int("seed", self.seed, 0)
-        check_int("n_seeds", self.n_seeds, 1)
-        check_int("workers", self.workers, 0)
-        if self.checkpoint_dir is not None:
-            object.__setattr__(self, "checkpoint_dir", Path(self.checkpoint_dir))
 
 
 def can_pool(data):
@@ -342,7 +187,7 @@ def scoring_network(net: EffectNetwork) -> EffectNetwork:
     million at full scale), and fitting, tracing and compiling it was most of a curve
     point's cost. Declared parentless it has ``configurations`` values; fitted on the
     same rows, every table the query reads is the same, and so is every answer, bit for
-    bit (tests/experiments/test_active.py).
+    bit (tests/experiments/active/test_active.py).
     """
     parents = dict(net.parents) | {"end.config": ()}
     return EffectNetwork(net.features, net.actions, net.parameters, parents, net.kinds)
@@ -418,52 +263,6 @@ class ActiveResult(Result):
     seconds: dict
     point_time_s: dict
     settings: dict
-
-    def to_markdown(self) -> str:
-        """Per protocol and rule, each learner's exact fraction at every budget.
-
-        See :func:`experiments.active_report.markdown`.
-        """
-        from effect_networks.experiments.active_report import markdown
-
-        return markdown(self)
-
-    def figures(self, out: Path) -> list[Path]:
-        """Draw the learning curves, ``active.png``, into the folder ``out``; its path."""
-        from effect_networks.experiments.active_report import plot_curves
-
-        return [plot_curves(self, out / "active.png")]
-
-    def summary_rows(self, results) -> list[str]:
-        """Per protocol, each learner at the budget nearest its goal.
-
-        The goal is ``GOAL_FRACTION`` of the full data's throws; plain fit with tie-break ``aim``,
-        and pooled, beside the bound.
-        """
-        k = min(range(len(self.fractions)), key=lambda i: abs(self.fractions[i] - GOAL_FRACTION))
-        rows = []
-        for protocol, words in TABLE_I_PROTOCOLS.items():
-            learners = ", ".join(
-                f"{name} {percent(c[protocol]['aim'][k])} "
-                f"(pooled {percent(c[protocol]['pooled'][k])})"
-                for name, c in self.curves.items()
-            )
-            reached = [
-                name
-                for name, g in self.goal.items()
-                if any(v is not None and v <= self.budgets[k] for v in g[protocol].values())
-            ]
-            full = self.full[protocol]
-            rows.append(
-                f"| cans, beyond the paper: Table I ({words}) learned by active exploration "
-                f"from {percent(self.fractions[k], 0)} of the {self.n_pool:,} 0° throws, exact "
-                f"on {self.repeats} held-out replays | - | {learners}; full data "
-                f"{percent(full['aim'])} (pooled {percent(full['pooled'])}) (goal: within 1 "
-                "point of the full data's best: "
-                + (", ".join(reached) if reached else "not reached")
-                + f") | {percent(self.bound[protocol])} held out |"
-            )
-        return rows
 
 
 def run_active(config: ActiveConfig) -> ActiveResult:
@@ -628,15 +427,3 @@ def run_active(config: ActiveConfig) -> ActiveResult:
         point_time_s=point_time,
         settings=settings,
     )
-
-
-EXPERIMENTS = (
-    Experiment(
-        ActiveConfig,
-        run_active,
-        ActiveResult,
-        order=100,
-        tiny={"scale": "tiny", "repeats": 2, "fractions": (0.3, 1.0), "batch_size": 20},
-        quick=QUICK,
-    ),
-)
