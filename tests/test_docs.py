@@ -204,7 +204,7 @@ def measured_figures(text: str) -> list[str]:
 
 
 def test_the_results_page_includes_the_generated_block_and_copies_no_figure():
-    from effect_networks.experiments.summary import BEGIN, END
+    from effect_networks.experiments.harness.summary import BEGIN, END
 
     text = (DOCS / "results.md").read_text()
     include = f"```{{include}} ../README.md\n:start-after: {BEGIN}\n:end-before: {END}\n```"
