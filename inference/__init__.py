@@ -21,7 +21,7 @@ as another's actions. Active exploration
 (:mod:`inference.design`): :func:`explore`. Pictures of a network and its fitted
 numbers (matplotlib, drawn into the caller's axes): the module :mod:`inference.plots`.
 
-Lower-level names live in their modules (:mod:`inference.queries.enumeration`,
+Lower-level names live in their modules (:mod:`inference.exact.enumeration`,
 :mod:`inference.fitting.statistics`, ...).
 """
 

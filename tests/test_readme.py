@@ -133,7 +133,7 @@ def test_the_experiments_page_snippet_runs(tmp_path, monkeypatch):
 def assert_loss_is_exact(namespace):
     """The README's ``TraceEnum_ELBO`` idiom is -log p(evidence), against the model summed
     by enumeration, also where a continuous end site is left out of the evidence."""
-    from effect_networks.inference.queries.enumeration import enumerate_model
+    from effect_networks.inference.exact.enumeration import enumerate_model
     from pyro.infer import TraceEnum_ELBO
 
     net, params, pushed = namespace["net"], namespace["params"], namespace["pushed"]

@@ -32,7 +32,7 @@ exists, its compiled answer (tables read once off the same model) side by side.
 
 Beside them: :mod:`~inference.queries.results` (the result types),
 :mod:`~inference.queries.batching` (evidence checks and row handling),
-:mod:`~inference.queries.enumeration`, :mod:`~inference.queries.plausibility`,
+:mod:`~inference.exact.enumeration`, :mod:`~inference.queries.plausibility`,
 :mod:`~inference.queries.surprise`, :mod:`~inference.queries.simulate` and
 :mod:`~inference.queries.planning`.
 

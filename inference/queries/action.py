@@ -27,6 +27,9 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
+from effect_networks.inference.exact.enumeration import over_row_chunks
+from effect_networks.inference.exact.factored import FactoredPlan
+from effect_networks.inference.exact.traced import Enumerated
 from effect_networks.inference.queries.batching import (
     allowed_actions,
     first_best,
@@ -36,11 +39,6 @@ from effect_networks.inference.queries.batching import (
     unseen_indicator,
     unseen_mass,
 )
-from effect_networks.inference.queries.enumeration import (
-    Enumerated,
-    over_row_chunks,
-)
-from effect_networks.inference.queries.factored import FactoredPlan
 from effect_networks.inference.queries.plausibility import (
     IMPLAUSIBLE_BELOW,
     check_threshold,
@@ -294,7 +292,7 @@ class CompiledNetwork:
     observed) the kept factors are summed once into a single table, cached in ``plans``;
     where that table would be large and the latent sites' joint splits (sparse
     parents), the pattern keeps its factors and sums each row by elimination instead
-    (:class:`~inference.queries.factored.FactoredPlan`).
+    (:class:`~inference.exact.factored.FactoredPlan`).
     """
 
     net: EffectNetwork

@@ -16,7 +16,7 @@ shows, and whose step ``t`` is the action drawn from a prior (uniform unless giv
 the network's ``p(H_{t+1}, x_{t+1} | H_t, x_t, a_t)``: the end state given the initial
 one, the action and the continuous features observed at both ends. Everything else the
 network holds is summed or integrated out inside a step, exactly, by the model itself
-(:mod:`inference.queries.enumeration`): an action parameter is not observed in a
+(:mod:`inference.exact.enumeration`): an action parameter is not observed in a
 demonstration, so each parameterised action counts as the mixture of its parameter's
 clusters (the parameter integrated out in closed form); outcome features
 (``initial=False``) that a state does not show are summed out.
@@ -39,13 +39,13 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from effect_networks.inference.exact.enumeration import conditional_log_evidence, over_row_chunks
+from effect_networks.inference.exact.paths import LogTables, log_matvec, max_matvec
 from effect_networks.inference.queries.demonstration import (
     Demonstrations,
     key_columns,
     with_action_prior,
 )
-from effect_networks.inference.queries.enumeration import conditional_log_evidence, over_row_chunks
-from effect_networks.inference.queries.paths import LogTables, log_matvec, max_matvec
 from effect_networks.inference.queries.plausibility import (
     IMPLAUSIBLE_BELOW,
     OutsideTrainingData,

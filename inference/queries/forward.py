@@ -20,17 +20,14 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 import torch
+from effect_networks.inference.exact.enumeration import conditional_log_evidence, over_row_chunks
+from effect_networks.inference.exact.traced import Enumerated
 from effect_networks.inference.queries.batching import (
     no_rows,
     placeholder_row,
     prepare,
     unseen_indicator,
     unseen_mass,
-)
-from effect_networks.inference.queries.enumeration import (
-    Enumerated,
-    conditional_log_evidence,
-    over_row_chunks,
 )
 from effect_networks.inference.queries.plausibility import (
     IMPLAUSIBLE_BELOW,

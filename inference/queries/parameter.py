@@ -24,6 +24,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 
 import torch
+from effect_networks.inference.exact.enumeration import over_row_chunks
+from effect_networks.inference.exact.traced import Enumerated
 from effect_networks.inference.queries.batching import (
     check_parameter_evidence,
     given_other_parameters,
@@ -33,10 +35,6 @@ from effect_networks.inference.queries.batching import (
     prepare,
     unseen_indicator,
     unseen_mass,
-)
-from effect_networks.inference.queries.enumeration import (
-    Enumerated,
-    over_row_chunks,
 )
 from effect_networks.inference.queries.parameter_tables import (
     CompiledParameterQuery,

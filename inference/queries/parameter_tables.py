@@ -394,7 +394,7 @@ class CompiledParameterQuery:
 def refuse_impossible(log_post: torch.Tensor) -> None:
     """Refuse rows ``(n, C)`` whose every cluster has probability 0 (in float64).
 
-    No posterior exists (as :class:`inference.queries.enumeration.Enumerated` refuses them).
+    No posterior exists (as :class:`inference.exact.traced.Enumerated` refuses them).
     """
     top = log_post.amax(-1)
     if not bool((top > -torch.inf).all()):

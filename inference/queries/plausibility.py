@@ -32,8 +32,8 @@ import warnings
 from dataclasses import dataclass, field
 
 import torch
-from effect_networks.inference.queries.elimination import maximum
-from effect_networks.inference.queries.enumeration import (
+from effect_networks.inference.exact.elimination import maximum
+from effect_networks.inference.exact.enumeration import (
     conditional_log_evidence,
     over_row_chunks,
 )

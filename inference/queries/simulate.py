@@ -25,7 +25,7 @@ from collections.abc import Mapping
 
 import numpy as np
 import torch
-from effect_networks.inference.queries.enumeration import enumerate_model
+from effect_networks.inference.exact.enumeration import enumerate_model
 from effect_networks.models.cpds import ParameterMixture
 from effect_networks.models.declaration import ACTION, DTYPE, EffectNetwork
 from effect_networks.models.evidence import Evidence, is_partial

@@ -17,7 +17,7 @@ parameter cluster are correlated. The model is traced once with every discrete s
 enumerated (:func:`model_tables`); each end site's log table is then read at every
 ``(state, action, next state)`` and the sites that belong to none of them (clusters,
 end-only discrete features an end state feature depends on) are summed out by
-elimination (:func:`inference.queries.elimination.contract`). Continuous end features
+elimination (:func:`inference.exact.elimination.contract`). Continuous end features
 have no discrete child, so they integrate to one and are left out; a continuous initial
 feature is part of the step's context and must be given (``given=``).
 
@@ -35,7 +35,7 @@ from collections.abc import Collection, Iterable, Mapping
 from dataclasses import dataclass, field, replace
 
 import torch
-from effect_networks.inference.queries.elimination import contract
+from effect_networks.inference.exact.elimination import contract
 from effect_networks.inference.queries.plausibility import (
     IMPLAUSIBLE_BELOW,
     initial_tails,
@@ -452,7 +452,7 @@ def _read(table, order, index, latent, shape) -> torch.Tensor:
     """``table`` (one axis per site of ``order``) at the fixed sites' indices.
 
     A tensor ``(S|1, A|1, S'|1, latent sizes..., 1)`` (the trailing 1 is the rows' dim that
-    :func:`~inference.queries.elimination.contract` expects).
+    :func:`~inference.exact.elimination.contract` expects).
     """
     fixed = [i for i, q in enumerate(order) if q in index]
     rest = [order.index(q) for q in latent]

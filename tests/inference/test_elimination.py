@@ -3,18 +3,18 @@ force, and a sparse network whose joint could never be built, against its closed
 
 from __future__ import annotations
 
-import effect_networks.inference.queries.elimination as elimination
+import effect_networks.inference.exact.elimination as elimination
 import pytest
 import torch
 from effect_networks.inference import imitation_check, infer_action, predict, simulate
-from effect_networks.inference.queries.elimination import (
+from effect_networks.inference.exact.elimination import (
     contract,
     max_config,
     maximum,
     sample,
     value_at,
 )
-from effect_networks.inference.queries.enumeration import enumerate_model
+from effect_networks.inference.exact.enumeration import enumerate_model
 from effect_networks.models import Continuous, Discrete, EffectNetwork, random_params
 from effect_networks.models.declaration import DTYPE
 

@@ -12,8 +12,8 @@ from effect_networks.inference import (
     infer_parameter,
     predict,
 )
+from effect_networks.inference.exact.enumeration import enumerate_model
 from effect_networks.inference.fitting.em import em_step, mixture_log_likelihood, responsibilities
-from effect_networks.inference.queries.enumeration import enumerate_model
 from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter
 from effect_networks.models.declaration import DTYPE
 from effect_networks.models.params import load, save

@@ -17,8 +17,8 @@ import numpy as np
 import pytest
 import torch
 from effect_networks.inference import fit, infer_action
+from effect_networks.inference.exact.enumeration import over_row_chunks
 from effect_networks.inference.queries.demonstration import simulate_demonstrations
-from effect_networks.inference.queries.enumeration import over_row_chunks
 from effect_networks.inference.queries.explain import Explanation, explain
 from effect_networks.models import Continuous, Discrete, EffectNetwork, random_params
 from effect_networks.models.can_network import can_network

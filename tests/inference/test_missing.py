@@ -6,8 +6,8 @@ import math
 import pytest
 import torch
 from effect_networks.inference import ConvergenceWarning, fit
+from effect_networks.inference.exact.enumeration import enumerate_model
 from effect_networks.inference.fitting import em, missing
-from effect_networks.inference.queries.enumeration import enumerate_model
 from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter
 from effect_networks.models.declaration import DTYPE
 from hypothesis import given, settings
@@ -335,7 +335,7 @@ def test_missing_values_the_em_cannot_fill_are_refused():
     "ignore::effect_networks.inference.fitting.result.ConvergenceWarning"
 )  # 5 steps only
 def test_missing_values_e_step_in_row_chunks_is_the_same(monkeypatch):
-    import effect_networks.inference.queries.enumeration as enumeration_module
+    import effect_networks.inference.exact.enumeration as enumeration_module
 
     rows, masks = small_rows(n=200)
     whole = fit(SMALL, rows, masks=masks, steps=5, tol=1e-300)

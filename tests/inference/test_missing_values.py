@@ -453,7 +453,7 @@ def test_the_closed_form_e_step_scores_rows_as_pyro_enumerates_them(net, seed, s
     # random mixed networks (softmax, parameters, 2-D features): rows missing discrete
     # labels and end dimensions scored by the joint-Gaussian E-step equal the model's
     # own enumeration, which reads a NaN end dimension as unobserved
-    from effect_networks.inference.queries.enumeration import enumerate_model
+    from effect_networks.inference.exact.enumeration import enumerate_model
     from effect_networks.models.evidence import Evidence
 
     params = random_params(net, seed)

@@ -2,7 +2,7 @@
 
 import pytest
 import torch
-from effect_networks.inference.queries.paths import GROUPED_KEYS, LogTables, log_matvec, max_matvec
+from effect_networks.inference.exact.paths import GROUPED_KEYS, LogTables, log_matvec, max_matvec
 from effect_networks.models.declaration import DTYPE
 from hypothesis import given, settings
 from hypothesis import strategies as st

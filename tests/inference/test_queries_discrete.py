@@ -251,7 +251,7 @@ def test_answers_do_not_depend_on_the_row_chunks(seed, zero_n, data):
     same answers (posterior, evidence, unseen mass, best, flags) as one chunk of all."""
     from unittest import mock
 
-    import effect_networks.inference.queries.enumeration as enumeration
+    import effect_networks.inference.exact.enumeration as enumeration
 
     net = discrete_network([3, 2], 4)
     params = random_params(net, seed, unseen=zero_n)

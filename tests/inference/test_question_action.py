@@ -148,7 +148,7 @@ def test_sparse_networks_compiled_by_elimination_equal_traced_and_closed_form(k,
     action, the initial state unknown: the compiled tables answer as the traced query
     and the closed form (to 1e-12), one row or many, and above a few features never
     build a table over the joint of the initial state (2^40 values at k = 40)."""
-    from effect_networks.inference.queries.factored import FactoredPlan
+    from effect_networks.inference.exact.factored import FactoredPlan
 
     from tests.inference.test_elimination import closed_form, sparse_network
 

@@ -5,7 +5,7 @@ joint (sparse parents), summing the pattern's factor tables into one table would
 the joint: ``2^k`` configurations for ``k`` unknown binary initial values. Instead each
 factor table is indexed at a row's observed states, which leaves a factor over the
 latent sites it spans, and the latent sites are summed out one at a time
-(:func:`inference.queries.elimination.contract`): the cost follows the largest factor
+(:func:`inference.exact.elimination.contract`): the cost follows the largest factor
 the elimination builds, not the joint. The factors are the tables the traced model's
 log-probabilities are read from (:func:`inference.queries.action.compile_discrete`).
 """
@@ -16,7 +16,7 @@ import math
 from dataclasses import dataclass, replace
 
 import torch
-from effect_networks.inference.queries.elimination import contract, contract_size
+from effect_networks.inference.exact.elimination import contract, contract_size
 from effect_networks.models.declaration import ACTION
 from effect_networks.models.evidence import Evidence
 
@@ -96,7 +96,7 @@ class FactoredPlan:
 
         Where the summed table would exceed ``SUMMED_TABLE`` values and the latent sites' joint is
         larger than the elimination's steps by far (the rule
-        :func:`~inference.queries.elimination.contract_size` applies); ``None`` where the table is
+        :func:`~inference.exact.elimination.contract_size` applies); ``None`` where the table is
         small or the joint does not split, and one summed table serves better.
         """
         spanned = {s for t in kept for a, s in enumerate(order) if t.shape[a] > 1}
@@ -168,5 +168,5 @@ class FactoredPlan:
 
 
 def _scope(shape: tuple[int, ...]) -> frozenset[tuple[int, int]]:
-    """:func:`~inference.queries.elimination.scope` of a part laid out in ``shape`` (rows last)."""
+    """:func:`~inference.exact.elimination.scope` of a part laid out in ``shape`` (rows last)."""
     return frozenset((i - len(shape) - 1, k) for i, k in enumerate(shape) if k > 1)

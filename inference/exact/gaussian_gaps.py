@@ -28,8 +28,8 @@ from __future__ import annotations
 import math
 
 import torch
-from effect_networks.inference.fitting.statistics import flat_index
 from effect_networks.models.cpds import LinearGaussianCPD, Moments
+from effect_networks.models.cpds.table import flat_index
 from effect_networks.models.declaration import ACTION, EffectNetwork
 from effect_networks.models.dtype import DTYPE
 from effect_networks.models.evidence import Evidence

@@ -1,4 +1,4 @@
-"""Exact sums over the discrete sites of an effect network's Pyro model.
+"""The model traced under enumeration, and its factors summed: :class:`Enumerated`.
 
 The model is traced once under ``poutine.enum`` with the evidence as observations: every
 latent discrete site gets an enumeration dim (-2, -3, ... to the left of the rows plate)
@@ -6,7 +6,7 @@ and every site's ``log_prob`` broadcasts over the dims of the sites it depends o
 Adding the log-probabilities gives the joint log-weight of all enumerated values per row;
 ``logsumexp`` over dims gives evidence and marginals. A small joint is summed so, as one
 tensor; a larger one whose structure splits (sparse parents) is summed by elimination,
-one site at a time (:mod:`inference.queries.elimination`), and never built unless a
+one site at a time (:mod:`inference.exact.elimination`), and never built unless a
 query reads it. Unobserved end sites that are not
 asked for, and that no observed or asked-for end site depends on, are left out: summing
 them out contributes exactly 1.
@@ -16,16 +16,14 @@ closed form. Nothing here samples.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 
 import pyro
 import torch
-from effect_networks.inference.queries.elimination import (
+from effect_networks.inference.exact.elimination import (
     contract,
-    contract_size,
     dense_enough,
     max_config,
     sample,
@@ -47,7 +45,7 @@ class Enumerated:
     enumerated site (its number of states, or 1 where the factor does not depend on it)
     then the rows. ``dims[site]`` is the (negative) dim of an enumerated site. One factor
     is the joint itself (a small joint is summed once, as a dense tensor); several are
-    summed by contraction (:mod:`inference.queries.elimination`), one site at a time in
+    summed by contraction (:mod:`inference.exact.elimination`), one site at a time in
     an order that keeps every intermediate small, so that sums and marginals never build
     the joint where the structure allows less.
 
@@ -254,7 +252,7 @@ def _states(trace: poutine.Trace, site: str) -> int:
     return int(trace.nodes[site]["fn"].enumerate_support(expand=False).shape[0])
 
 
-def enumerate_model(
+def enumerate_traced(
     net: EffectNetwork,
     params: NetworkParams,
     evidence: Evidence,
@@ -265,8 +263,9 @@ def enumerate_model(
 ) -> Enumerated:
     """Trace the model with ``evidence`` and sum every observed or structural factor.
 
-    The model runs in its collapsed form (unknown parameters integrated out), so every
-    latent site is discrete and enumerated.
+    The evidence gives every continuous initial value (:func:`~inference.exact.enumeration.enumerate_model`
+    takes any evidence). The model runs in its collapsed form (unknown parameters
+    integrated out), so every latent site is discrete and enumerated.
 
     Parameters
     ----------
@@ -284,17 +283,6 @@ def enumerate_model(
     keep = set(keep)
     trace_only = set(trace_only)
     n = evidence.n_rows
-    missing_initial = [
-        s.name
-        for s in net.sites
-        if s.role == "initial" and not s.discrete and s.name not in evidence
-    ]
-    if missing_initial:  # integrated out in closed form, or refused naming the site
-        from effect_networks.inference.queries.unknown_initial import enumerate_unknown_initial
-
-        return enumerate_unknown_initial(
-            net, params, evidence, missing_initial, keep=keep, trace_only=trace_only, masks=masks
-        )
     # Pyro's checks of every site's value and log-probability repeat, per call, what the
     # evidence's encoding and the parameters' check have settled once
     with pyro.validation_enabled(False):
@@ -343,7 +331,7 @@ def enumerate_model(
     top = _row_max(total)
     best = None
     for _ in range(_RECENTRINGS):
-        if not unbounded or not bool((top.abs() > _CENTRED).any()):
+        if not unbounded or not bool((top.abs() > CENTRED).any()):
             break
         argmax = total.reshape(-1, n).argmax(0)  # (n,) each row's most probable configuration
         if best is not None and bool((argmax == best).all()):
@@ -355,7 +343,7 @@ def enumerate_model(
             offsets[name] = torch.where(torch.isfinite(at_best), at_best, offsets[name])
         total = _centred_sum(bounded, unbounded, offsets, dims, n)
         top = _row_max(total)
-    if bool((top.abs() > _CENTRED).any()):  # the factors' optima still disagree by far
+    if bool((top.abs() > CENTRED).any()):  # the factors' optima still disagree by far
         total = total - top
         offsets[""] = top.reshape(-1)
     return Enumerated((total,), dims, trace, offsets)
@@ -370,7 +358,7 @@ def _contracted(bounded, unbounded, offsets, dims, trace, n) -> Enumerated:
     factors = bounded + [lp - offsets[name] for name, lp in unbounded.items()]
     if unbounded:
         top, best = max_config(factors, list(dims.values()), n)
-        if bool((top.abs() > _CENTRED).any()):
+        if bool((top.abs() > CENTRED).any()):
             for name, lp in unbounded.items():
                 at_best = value_at(lp, best, n)
                 offsets[name] = torch.where(torch.isfinite(at_best), at_best, offsets[name])
@@ -423,55 +411,11 @@ def _full(
     return total
 
 
-def log_ratio(a: Enumerated, b: Enumerated) -> torch.Tensor:
-    """``(n,)`` ``log p(a's evidence) - log p(b's evidence)`` for the same rows.
-
-    The factors both share (a continuous initial state's density, say) cancel exactly, at any
-    magnitude; the difference of the two ``log_evidence`` loses what such a factor's size hides.
-    """
-    ratio = a.log_norm - b.log_norm
-    for name in a.offsets.keys() | b.offsets.keys():
-        ratio = ratio + (a.offsets.get(name, 0.0) - b.offsets.get(name, 0.0))
-    return ratio
-
-
-def conditional_log_evidence(
-    net: EffectNetwork,
-    params: NetworkParams,
-    evidence: Evidence,
-    given: Evidence,
-    log_joint: torch.Tensor,
-    log_given: torch.Tensor,
-) -> torch.Tensor:
-    """``(n,)`` ``log p(evidence | given) = log_joint - log_given``.
-
-    ``given``: some of the evidence's sites, ``log_joint`` and ``log_given`` their ``log_evidence``;
-    recomputed by :func:`log_ratio` in the rows where either is large enough that the subtraction
-    would lose digits (a density far in its tail).
-    """
-    ratio = log_joint - log_given
-    far = (log_joint.abs() > _CENTRED) | (log_given.abs() > _CENTRED)
-    if not bool(far.any()):
-        return ratio
-    rows = far.nonzero().squeeze(-1)
-    joint, part = evidence.rows(rows), given.rows(rows)
-    size = max(
-        enumeration_size(net, joint, contracted=True), enumeration_size(net, part, contracted=True)
-    )
-    exact = [
-        log_ratio(
-            enumerate_model(net, params, joint.rows(s)), enumerate_model(net, params, part.rows(s))
-        )
-        for s in row_chunks(len(rows), size)
-    ]
-    return ratio.index_put((rows,), torch.cat(exact))
-
-
 #: Largest row maximum of a joint left uncentred: its rounding, 1e3 * 2^-52, is below 1e-12.
-_CENTRED = 1e3
+CENTRED = 1e3
 
 #: Most centrings on a configuration: each tells apart what the last one's rounding, 2^-52
-#: of its sum, hid; twenty take float64's largest numbers to below ``_CENTRED``.
+#: of its sum, hid; twenty take float64's largest numbers to below ``CENTRED``.
 _RECENTRINGS = 24
 
 
@@ -495,77 +439,3 @@ def _row_max(lp: torch.Tensor) -> torch.Tensor:
     """
     top = lp.amax(tuple(range(lp.dim() - 1)), keepdim=True) if lp.dim() > 1 else lp
     return torch.where(torch.isfinite(top), top, 0.0)
-
-
-def over_row_chunks(
-    net: EffectNetwork,
-    params: NetworkParams,
-    evidence: Evidence,
-    keep: Iterable[str],
-    fn,
-    trace_only: Iterable[str] = (),
-    *,
-    contracted: bool = False,
-):
-    """``fn(enumerated, chunk, rows)`` over row chunks of encoded ``evidence``.
-
-    ``chunk`` holds its rows ``rows``, a slice; ``enumerated`` is the model summed on them with
-    ``keep`` and ``trace_only`` as :func:`enumerate_model` takes them. The results are concatenated
-    along the rows (a tuple element by element). ``contracted``: ``fn`` reads sums and marginals
-    only, never the joint (``log_weight``, ``posterior``), so chunks are sized by the contraction's
-    largest intermediate (:func:`enumeration_size`).
-    """
-    size = enumeration_size(net, evidence, keep, contracted=contracted)
-    outs = []
-    for rows in row_chunks(evidence.n_rows, size):
-        chunk = evidence.rows(rows)
-        enumerated = enumerate_model(net, params, chunk, keep=keep, trace_only=trace_only)
-        outs.append(fn(enumerated, chunk, rows))
-    if isinstance(outs[0], tuple):
-        return tuple(torch.cat(parts, 0) for parts in zip(*outs, strict=True))
-    return torch.cat(outs, 0)
-
-
-# Elements of one chunk's joint tensor (8 MiB of float64). Larger chunks cost more than
-# they save: each joint-sized tensor of a chunk is fresh memory, and glibc hands blocks of
-# tens of MiB back to the system when they are freed, so every call pays page faults on
-# them again (the can network's latent query: 1.9-2.0 ms per row with 2**23, 1.0-1.1
-# with 2**20, 1.35-1.4 with 2**19, where the trace's fixed cost per chunk starts to show).
-CHUNK_ELEMENTS = 1 << 20
-
-
-def row_chunks(n: int, enum_size: int, budget: int | None = None) -> list[slice]:
-    """Row slices so that one chunk's joint tensor stays below ``budget`` elements.
-
-    ``budget`` defaults to ``CHUNK_ELEMENTS``.
-    """
-    budget = CHUNK_ELEMENTS if budget is None else budget
-    step = max(1, budget // max(1, enum_size))
-    return [slice(i, min(n, i + step)) for i in range(0, n, step)] or [slice(0, 0)]
-
-
-def enumeration_size(
-    net: EffectNetwork, evidence: Evidence, keep: Iterable[str] = (), *, contracted: bool = False
-) -> int:
-    """Upper bound on the configurations per row that one sum over the enumerated sites builds.
-
-    For this evidence: the product of the sites' sizes (the joint), or with ``contracted`` (the
-    query sums by :meth:`Enumerated.log_sum` and marginals, never reading the joint) the largest
-    intermediate of the contraction, from the declared parents (the joint's where parameters'
-    clusters take part), or the kept sites' joint where larger.
-    """
-    ends = net.end_sites_needed({*evidence, *keep})
-    latent = {
-        s.name: s.size
-        for s in net.sites
-        if s.discrete and s.name not in evidence and (s.role != "end" or s.name in ends)
-    }
-    if not contracted or net.mixtures:
-        return math.prod(latent.values())
-    scopes = tuple(
-        frozenset((q, latent[q]) for q in (s.name, *net.cpd(s.name).parents) if q in latent)
-        for s in net.sites
-        if s.role != "end" or s.name in ends
-    )
-    kept = math.prod(latent[s] for s in keep if s in latent)  # a joint over kept sites
-    return max(contract_size(scopes), kept)

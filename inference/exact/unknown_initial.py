@@ -4,7 +4,7 @@ A continuous initial site has a density in every network (a linear Gaussian of i
 initial parents; by default a Gaussian prior). Given every discrete value of a row (the
 evidence's, and one configuration of the enumerated sites), the continuous initial and
 end sites form a linear-Gaussian network, hence one joint Gaussian
-(:func:`inference.fitting.gaussian_gaps.joint_gaussian`); the unknown initial values and
+(:func:`inference.exact.gaussian_gaps.joint_gaussian`); the unknown initial values and
 the unobserved end dimensions are integrated out of it exactly. So the model is traced
 as for any query, the unknown initial values filled with a placeholder and every
 continuous initial and end site's own factor left out, and one factor takes their place:
@@ -26,6 +26,13 @@ from __future__ import annotations
 
 import pyro.distributions as dist
 import torch
+from effect_networks.inference.exact.gaussian_gaps import (
+    condition,
+    continuous_sites,
+    joint_gaussian,
+)
+from effect_networks.inference.exact.traced import Enumerated, enumerate_traced
+from effect_networks.models.cpds import LinearGaussianCPD
 from effect_networks.models.declaration import ACTION, EffectNetwork
 from effect_networks.models.dtype import DTYPE
 from effect_networks.models.evidence import Evidence
@@ -44,17 +51,10 @@ def enumerate_unknown_initial(
     trace_only: set[str],
     masks,
 ):
-    """:func:`inference.queries.enumeration.enumerate_model` without the continuous initial sites.
+    """:func:`~inference.exact.traced.enumerate_traced` without the continuous initial sites.
 
     For evidence that leaves the continuous initial sites ``unknown`` out (see the module).
     """
-    from effect_networks.inference.fitting.gaussian_gaps import (
-        condition,
-        continuous_sites,
-        joint_gaussian,
-    )
-    from effect_networks.inference.queries.enumeration import Enumerated, enumerate_model
-
     _refuse_open_forms(net, evidence, unknown)
     layout = continuous_sites(net, parameters=True)
     n = evidence.n_rows
@@ -62,7 +62,7 @@ def enumerate_unknown_initial(
     filled = evidence | Evidence(net, placeholder, n)
     # their own factors are the joint Gaussian's (a parameter's value is always traced)
     own = {s for s in layout if s in filled or s in trace_only or net.site(s).role == "param"}
-    e = enumerate_model(net, params, filled, keep=keep, trace_only=trace_only | own, masks=masks)
+    e = enumerate_traced(net, params, filled, keep=keep, trace_only=trace_only | own, masks=masks)
     # the configurations of the enumerated sites the continuous ones depend on
     parents = {q for s in layout for q in net.cpd(s).parents}
     if net.mixtures:  # whether a parameter counts: its action
@@ -121,9 +121,6 @@ def enumerate_unknown_initial(
 
 def _refuse_open_forms(net: EffectNetwork, evidence: Evidence, unknown: list[str]) -> None:
     """Refuse what has no closed-form integral over the unknown initial values."""
-    from effect_networks.inference.fitting.gaussian_gaps import continuous_sites
-    from effect_networks.models.cpds import LinearGaussianCPD
-
     for spec in net.sites:
         cpd = net.cpd(spec.name) if spec.role in ("initial", "end") else None
         if cpd is None:
