@@ -33,8 +33,8 @@ import time
 import numpy as np
 import torch
 from effect_networks.inference import fit
-from effect_networks.inference.queries.planner import plan_on
 from effect_networks.inference.queries.planning import exact_plan
+from effect_networks.inference.sequences.planner import plan_on
 from effect_networks.models.can_network import can_network, can_rows, n_cans
 from effect_networks.sim2d.configurations import stable_configurations
 from timing import median_seconds  # benchmarks/timing.py, beside this script

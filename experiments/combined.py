@@ -44,8 +44,8 @@ from effect_networks.experiments.registry import Experiment
 from effect_networks.experiments.throwing import MAX_BINS, fit_throws, get_data
 from effect_networks.inference import GaussianMixture, predict
 from effect_networks.inference import compile as compile_queries
-from effect_networks.inference.queries.chaining import BoxPartition, chain, link_probabilities
 from effect_networks.inference.queries.planning import exact_plan, paper_planner
+from effect_networks.inference.sequences.chaining import BoxPartition, chain, link_probabilities
 from effect_networks.models.throw_network import TARGET
 from effect_networks.sim2d import geometry, materials
 from effect_networks.sim2d.combined import CAN_BAND, TABLE_TOP_Z, first_contact, play_throw, settle
@@ -362,7 +362,7 @@ def field_link(heights: np.ndarray, fields: np.ndarray) -> tuple[BoxPartition, n
 def transition_model(world: World, states: list[int]) -> torch.Tensor:
     """``T[s, f, s']``: the learned chance that aiming at field ``f`` from ``s`` gives ``s'``.
 
-    The two networks chained (:func:`inference.queries.chaining.chain`): the throw
+    The two networks chained (:func:`inference.sequences.chaining.chain`): the throw
     network's predicted hit (:func:`hit_gaussians`, widened by the fields' boundary
     spread ``World.boundary_sd``) read through each state's :func:`field_link` (the
     fields' matched near-face heights, :meth:`World.heights`),

@@ -13,7 +13,7 @@ Two answers side by side, tested equal on the same cases:
   enumerated site). A query then indexes the tables at the evidence (one gather per
   factor), adds them and normalises: the same numbers, read from the same model, without
   re-tracing. It reports ``implausible`` as the traced query does
-  (:mod:`inference.queries.plausibility`), from the evidence probability against the
+  (:mod:`inference.queries.implausibility`), from the evidence probability against the
   same query's table with the end sites left out.
 
 Users reach the tables through :func:`inference.compile` (its ``infer_action``).
@@ -39,7 +39,7 @@ from effect_networks.inference.queries.batching import (
     unseen_indicator,
     unseen_mass,
 )
-from effect_networks.inference.queries.plausibility import (
+from effect_networks.inference.queries.implausibility import (
     IMPLAUSIBLE_BELOW,
     check_threshold,
     plausibility,
@@ -81,7 +81,7 @@ def infer_action(
         (its likelihood is the uniform prior's), unless every allowed action is unseen.
     implausible_below
         ``implausible`` flags rows whose observed end state has a probability below this
-        under the model, every action summed out (:mod:`inference.queries.plausibility`); such a
+        under the model, every action summed out (:mod:`inference.queries.implausibility`); such a
         row still gets its posterior and ``best``.
     """
     below = check_threshold(implausible_below)

@@ -20,7 +20,7 @@ from dataclasses import dataclass, replace
 import torch
 from effect_networks.inference.exact.enumeration import over_row_chunks
 from effect_networks.inference.queries.batching import placeholder_row, prepare, unseen_mass
-from effect_networks.inference.queries.plausibility import (
+from effect_networks.inference.queries.implausibility import (
     IMPLAUSIBLE_BELOW,
     check_threshold,
     plausibility,
@@ -39,7 +39,7 @@ class JointPrediction:
 
     ``unseen`` ``(n,)``: the probability that the prediction rests on a parent
     configuration no training row reached; ``implausible`` ``(n,)`` bool: the observed end
-    features (if any) have almost no probability (:mod:`inference.queries.plausibility`).
+    features (if any) have almost no probability (:mod:`inference.queries.implausibility`).
     """
 
     features: tuple[str, ...]

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
-from effect_networks.inference.queries.plausibility import (
+from effect_networks.inference.queries.implausibility import (
     IMPLAUSIBLE_BELOW,
     check_threshold,
     initial_tails,
@@ -68,7 +68,7 @@ class CompiledParameterQuery:
     prior_mean: torch.Tensor  # (C, k)
     post_cov: torch.Tensor  # (P..., k, k)
     seen: torch.Tensor  # (P...) bool
-    # for the initial states' plausibility (inference.queries.plausibility.initial_tails)
+    # for the initial states' plausibility (inference.queries.implausibility.initial_tails)
     params: NetworkParams | None = field(default=None, repr=False, compare=False)
     # Built on first use: the one-row tables (:meth:`_one_row`), the largest entries
     # :meth:`_rounds_off` reads.

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import dataclasses
 
-import effect_networks.inference.queries.compiled as surface
+import effect_networks.inference.compiled as surface
 import torch
 
 #: Compiled and traced answers agree to this (absolute and relative), every field.

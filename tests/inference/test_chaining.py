@@ -7,14 +7,14 @@ import math
 import numpy as np
 import pytest
 import torch
-from effect_networks.inference.queries.chaining import (
+from effect_networks.inference.queries.results import GaussianMixture
+from effect_networks.inference.sequences.chaining import (
     BoxPartition,
     FunctionLink,
     LinkProbabilities,
     chain,
     link_probabilities,
 )
-from effect_networks.inference.queries.results import GaussianMixture
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from scipy import integrate, stats

@@ -18,8 +18,8 @@ import pytest
 import torch
 from effect_networks.inference import fit, infer_action
 from effect_networks.inference.exact.enumeration import over_row_chunks
-from effect_networks.inference.queries.demonstration import simulate_demonstrations
-from effect_networks.inference.queries.explain import Explanation, explain
+from effect_networks.inference.sequences.demonstration import simulate_demonstrations
+from effect_networks.inference.sequences.explanation import Explanation, explain
 from effect_networks.models import Continuous, Discrete, EffectNetwork, random_params
 from effect_networks.models.can_network import can_network
 from effect_networks.models.cpds import TableParams
@@ -367,7 +367,7 @@ def test_errors_name_what_is_wrong():
 @pytest.mark.filterwarnings("ignore::effect_networks.inference.OutsideTrainingData")
 def test_parts_and_chunks_answer_as_one_batch(monkeypatch):
     """Step tables built part by part and paths summed chunk by chunk: the same answers."""
-    import effect_networks.inference.queries.explain as module
+    import effect_networks.inference.sequences.explanation as module
 
     net, params = README_NET, random_params(README_NET, 6)
     states, _ = simulate_demonstrations(net, params, 7, 3, seed=2)

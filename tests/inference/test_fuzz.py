@@ -259,7 +259,7 @@ def test_every_distribution_sums_to_one_at_every_accepted_magnitude(
     import warnings
 
     from effect_networks.inference import infer_parameter
-    from effect_networks.inference.queries.plausibility import OutsideTrainingData
+    from effect_networks.inference.queries.implausibility import OutsideTrainingData
 
     params = random_params(net, seed)
     big = sign * 10.0**exponent

@@ -7,7 +7,7 @@ import numpy as np
 import torch
 from effect_networks.inference import fit, predict
 from effect_networks.inference.queries.joint import predict_joint
-from effect_networks.inference.queries.transitions import transitions
+from effect_networks.inference.sequences.transition_tables import transitions
 
 from tests.inference.test_transitions import rich_net, rich_rows
 

@@ -20,7 +20,7 @@ from effect_networks.inference import (
     predict,
     simulate,
 )
-from effect_networks.inference.queries.plausibility import plausibility
+from effect_networks.inference.queries.implausibility import plausibility
 from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter, Partial
 from effect_networks.models.declaration import DTYPE
 from hypothesis import given, settings

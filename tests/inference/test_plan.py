@@ -9,9 +9,9 @@ import itertools
 import pytest
 import torch
 from effect_networks.inference import fit
-from effect_networks.inference.queries.planner import plan, plan_on
 from effect_networks.inference.queries.planning import policy_value
-from effect_networks.inference.queries.transitions import transitions
+from effect_networks.inference.sequences.planner import plan, plan_on
+from effect_networks.inference.sequences.transition_tables import transitions
 from effect_networks.models import Discrete, EffectNetwork, random_params
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 from effect_networks.inference import fit, imitation_check, infer_action, infer_parameter, predict
-from effect_networks.inference.queries.plausibility import IMPLAUSIBLE_BELOW, plausibility
+from effect_networks.inference.queries.implausibility import IMPLAUSIBLE_BELOW, plausibility
 from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter
 from effect_networks.models.declaration import DTYPE
 from hypothesis import given, settings
@@ -253,7 +253,7 @@ def test_an_initial_state_far_outside_the_training_data_is_flagged_by_name():
     """A distance of 1e6 m where training covered 0.1-1.2 m: every query flags the row
     and names the field; inside the range nothing is flagged. The tail is the chi-square
     tail of the value under the training rows' own mean and spread."""
-    from effect_networks.inference.queries.plausibility import OutsideTrainingData
+    from effect_networks.inference.queries.implausibility import OutsideTrainingData
 
     net, params, trained = _distance_world()
     rows = {"initial.distance": [[0.6], [1e6], [1.3]], "initial.pos": [[0.0]] * 3}
@@ -286,7 +286,7 @@ def test_the_discrete_flag_and_the_imitation_likelihood_hold_at_a_large_initial_
     position's Gaussian density, computed by hand in 50 digits."""
     import warnings
 
-    from effect_networks.inference.queries.plausibility import OutsideTrainingData
+    from effect_networks.inference.queries.implausibility import OutsideTrainingData
 
     net, params, _ = _distance_world()
     x = 1e8

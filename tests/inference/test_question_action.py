@@ -201,7 +201,7 @@ def test_a_table_pattern_whose_prior_is_summed_by_elimination(n, monkeypatch):
     every initial one: its joint does not split) keeps its summed table and answers,
     while the prior of the implausible flag (the initial features and the action,
     independent) is summed per row by elimination: the same answers as traced."""
-    from effect_networks.inference.queries import elimination, factored
+    from effect_networks.inference.exact import elimination, factored
 
     monkeypatch.setattr(factored, "SUMMED_TABLE", 0)
     monkeypatch.setattr(elimination, "DENSE_CONFIGURATIONS", 0)

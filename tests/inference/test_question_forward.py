@@ -13,7 +13,7 @@ from tests.inference.questions import TracedCalls, assert_same_answer
 from tests.inference.test_queries_mixed import NET
 
 pytestmark = pytest.mark.filterwarnings(
-    "ignore::effect_networks.inference.queries.plausibility.OutsideTrainingData"
+    "ignore::effect_networks.inference.queries.implausibility.OutsideTrainingData"
 )
 
 DISCRETE = discrete_network([3, 2], 4)

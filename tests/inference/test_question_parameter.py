@@ -17,7 +17,7 @@ from tests.inference.test_parameter_effects import sliding, throwing
 from tests.inference.test_queries_mixed import NET
 
 pytestmark = pytest.mark.filterwarnings(
-    "ignore::effect_networks.inference.queries.plausibility.OutsideTrainingData"
+    "ignore::effect_networks.inference.queries.implausibility.OutsideTrainingData"
 )
 
 PARAMS = random_params(NET, 11, unseen=0.3)

@@ -20,7 +20,7 @@ from effect_networks.inference.fitting.scores import (
     n_parameters,
     take_rows,
 )
-from effect_networks.inference.queries.simulate import simulate
+from effect_networks.inference.queries.sampling import simulate
 from effect_networks.models import (
     Continuous,
     Discrete,

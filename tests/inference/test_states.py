@@ -6,7 +6,7 @@ import itertools
 
 import pytest
 import torch
-from effect_networks.inference.queries.states import StateSpace, state_features
+from effect_networks.inference.sequences.states import StateSpace, state_features
 from effect_networks.models import Continuous, Discrete, EffectNetwork
 
 

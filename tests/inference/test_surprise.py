@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import torch
 from effect_networks.inference import imitation_check, predict
-from effect_networks.inference.queries.plausibility import OutsideTrainingData
+from effect_networks.inference.queries.implausibility import OutsideTrainingData
 from effect_networks.inference.queries.surprise import _joint_gaussians
 from effect_networks.models import (
     Continuous,

@@ -3,7 +3,7 @@
 The oracle traces :func:`models.model.effect_model` with every discrete site observed,
 one row per configuration (initial states, action, cluster, end states, end-only
 features), and sums the rows' joint probabilities by hand: it shares no code with the
-tables, gathers and eliminations :func:`inference.queries.transitions.transitions` runs.
+tables, gathers and eliminations :func:`inference.sequences.transition_tables.transitions` runs.
 """
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ import numpy as np
 import pytest
 import torch
 from effect_networks.inference import fit
-from effect_networks.inference.queries.states import StateSpace
-from effect_networks.inference.queries.transitions import model_tables, transitions
+from effect_networks.inference.sequences.states import StateSpace
+from effect_networks.inference.sequences.transition_tables import model_tables, transitions
 from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter, random_params
 from effect_networks.models.model import effect_model
 from hypothesis import given, settings

@@ -186,7 +186,7 @@ def test_an_unknown_parameter_beside_it_is_integrated_out_too():
 def test_plausibility_measures_the_joint_distance_of_the_observed_end_state():
     # end.x and end.y observed, x unknown: they are dependent through x, and the squared
     # Mahalanobis distance the flag reads is that of their joint Gaussian (by hand)
-    from effect_networks.inference.queries.plausibility import plausibility
+    from effect_networks.inference.queries.implausibility import plausibility
     from scipy import stats
 
     ex, ey = [0.9], [2.0, -1.5]

@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 import torch
 from effect_networks.inference import fit, infer_action, predict, simulate
-from effect_networks.inference.queries.plausibility import OutsideTrainingData
+from effect_networks.inference.queries.implausibility import OutsideTrainingData
 from effect_networks.models import (
     Continuous,
     Discrete,

@@ -2,8 +2,8 @@
 
 The actions that reach a goal within a horizon, over the network's own states.
 
-:func:`~inference.queries.planner.plan` builds the network's joint transitions
-(:func:`~inference.queries.transitions.transitions`) and runs finite-horizon dynamic
+:func:`~inference.sequences.planner.plan` builds the network's joint transitions
+(:func:`~inference.sequences.transition_tables.transitions`) and runs finite-horizon dynamic
 programming on them (:func:`~inference.queries.planning.exact_plan`): with ``h`` actions
 left, each state takes the action that maximises the probability of reaching the goal
 within ``h`` actions, every next state's probability summed exactly. The goal is
@@ -26,8 +26,8 @@ from dataclasses import dataclass, field
 
 import torch
 from effect_networks.inference.queries.planning import exact_plan
-from effect_networks.inference.queries.states import Selection, StateLike
-from effect_networks.inference.queries.transitions import Transitions, transitions
+from effect_networks.inference.sequences.states import Selection, StateLike
+from effect_networks.inference.sequences.transition_tables import Transitions, transitions
 from effect_networks.models.declaration import DTYPE, EffectNetwork
 from effect_networks.models.params import NetworkParams
 
@@ -133,7 +133,7 @@ def plan(
     ----------
     net, params
         The network and its fitted tables; its state is its discrete features with an
-        initial and an end node (:mod:`inference.queries.states`).
+        initial and an end node (:mod:`inference.sequences.states`).
     start
         A full state (a label tuple, or ``{feature: label}`` naming every state feature)
         or a partial one (``{feature: label}`` for some features, or a predicate on a
@@ -148,7 +148,7 @@ def plan(
         The actions the plan may take: action labels, or an ``(A,)`` or ``(S, A)`` bool
         mask over the transitions' actions.
     states, parameter_values, given, normalise
-        As :func:`~inference.queries.transitions.transitions` takes them: the states to
+        As :func:`~inference.sequences.transition_tables.transitions` takes them: the states to
         plan over, how an action's parameter is chosen (``"integrate"``: drawn from the
         action's clusters; ``"clusters"``: one action per cluster, which the plan
         chooses), the continuous initial features' values, whether the next state is
@@ -195,7 +195,7 @@ def plan_on(
     *,
     avoid_unseen: bool = False,
 ) -> Plan:
-    """:func:`~inference.queries.planner.plan` on transitions already built (``model``); the same arguments."""
+    """:func:`~inference.sequences.planner.plan` on transitions already built (``model``); the same arguments."""
     if not isinstance(horizon, int) or isinstance(horizon, bool) or horizon < 1:
         raise ValueError(f"horizon must be an int >= 1, got {horizon!r}")
     space = model.space

@@ -2,8 +2,8 @@
 
 As the network's state space and arrays.
 
-:func:`explain <inference.queries.explain.explain>` reads its ``states`` here.
-:class:`~inference.queries.states.StateSpace` numbers the configurations of a
+:func:`explain <inference.sequences.explanation.explain>` reads its ``states`` here.
+:class:`~inference.sequences.states.StateSpace` numbers the configurations of a
 network's state (its discrete features with both an initial and an end node);
 :class:`Demonstrations` holds, per
 demonstration and time, the states consistent with what that time shows, the
@@ -20,8 +20,8 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 import torch
-from effect_networks.inference.queries.simulate import simulate
-from effect_networks.inference.queries.states import StateSpace
+from effect_networks.inference.queries.sampling import simulate
+from effect_networks.inference.sequences.states import StateSpace
 from effect_networks.models.cpds import TableParams
 from effect_networks.models.declaration import ACTION, DTYPE, Continuous, Discrete, EffectNetwork
 from effect_networks.models.params import NetworkParams
@@ -50,7 +50,7 @@ class Demonstrations:
     def read(net: EffectNetwork, space: StateSpace, states) -> Demonstrations:
         """Read ``states`` against ``space``.
 
-        ``states`` is :func:`~inference.queries.explain.explain`'s one demonstration or batch; a
+        ``states`` is :func:`~inference.sequences.explanation.explain`'s one demonstration or batch; a
         ``ValueError`` names the feature, the value and what was expected.
         """
         batch = _as_batch(net, states)
@@ -291,7 +291,7 @@ def simulate_demonstrations(
     Returns
     -------
     states : dict
-        :func:`~inference.queries.explain.explain`'s batch form, every value observed:
+        :func:`~inference.sequences.explanation.explain`'s batch form, every value observed:
         per discrete feature ``(n, steps + 1)`` labels (an outcome feature ``None`` at
         time 0), per continuous feature ``(n, steps + 1, d)`` numbers (an outcome
         feature NaN at time 0).

@@ -14,7 +14,7 @@ tables are built on first use and kept:
   acts on the parameter's continuous features and the evidence is one it reads;
 * ``predict``, ``imitation_check``, ``parameter_for_effect``: the traced queries;
 * ``transitions`` and ``plan``: the model's tables traced once per context (the
-  continuous initial features' values; :func:`~inference.queries.transitions.model_tables`).
+  continuous initial features' values; :func:`~inference.sequences.transition_tables.model_tables`).
 """
 
 from __future__ import annotations
@@ -27,13 +27,12 @@ import torch
 from effect_networks.inference.queries.action import compile_discrete as _compile_discrete
 from effect_networks.inference.queries.action import infer_action
 from effect_networks.inference.queries.forward import imitation_check, predict
+from effect_networks.inference.queries.implausibility import IMPLAUSIBLE_BELOW
 from effect_networks.inference.queries.inverse import parameter_for_effect
 from effect_networks.inference.queries.parameter import (
     compile_parameter_query as _compile_parameter_query,
 )
 from effect_networks.inference.queries.parameter import infer_parameter, shared_features
-from effect_networks.inference.queries.planner import Plan, plan_on
-from effect_networks.inference.queries.plausibility import IMPLAUSIBLE_BELOW
 from effect_networks.inference.queries.results import (
     ActionPosterior,
     ImitationCheck,
@@ -42,7 +41,12 @@ from effect_networks.inference.queries.results import (
     Prediction,
 )
 from effect_networks.inference.queries.surprise import QUADRATURE_POINTS
-from effect_networks.inference.queries.transitions import Transitions, model_tables, transitions
+from effect_networks.inference.sequences.planner import Plan, plan_on
+from effect_networks.inference.sequences.transition_tables import (
+    Transitions,
+    model_tables,
+    transitions,
+)
 from effect_networks.models.declaration import EffectNetwork
 from effect_networks.models.frames import as_data
 from effect_networks.models.params import NetworkParams, check_params

@@ -3,7 +3,7 @@ r"""Joint transitions of a network: ``P(next state | state, action)``.
 For every state and action, exactly, from the network's own tables.
 
 A network's state is its discrete features that have both an initial and an end node
-(:mod:`inference.queries.states`). One step is the network itself: the state's features
+(:mod:`inference.sequences.states`). One step is the network itself: the state's features
 are its initial sites, the action its action, the next state's features its end sites::
 
     initial.f1  initial.f2    action --> cluster.p   (integrated out, or one action per cluster)
@@ -36,12 +36,12 @@ from dataclasses import dataclass, field, replace
 
 import torch
 from effect_networks.inference.exact.elimination import contract
-from effect_networks.inference.queries.plausibility import (
+from effect_networks.inference.queries.implausibility import (
     IMPLAUSIBLE_BELOW,
     initial_tails,
     outside_training,
 )
-from effect_networks.inference.queries.states import StateLike, StateSpace
+from effect_networks.inference.sequences.states import StateLike, StateSpace
 from effect_networks.models.cpds.table import gather
 from effect_networks.models.declaration import (
     ACTION,
@@ -91,7 +91,7 @@ def model_tables(
     discrete end site). Unknown parameter values are integrated out in closed form
     (the model's collapsed form), unobserved continuous end sites left out. A value of
     ``given`` far outside the training data warns
-    (:class:`~inference.queries.plausibility.OutsideTrainingData`).
+    (:class:`~inference.queries.implausibility.OutsideTrainingData`).
     """
     check_params(net, params)
     data = _given(net, given)

@@ -41,18 +41,18 @@ import numpy as np
 import torch
 from effect_networks.inference.exact.enumeration import conditional_log_evidence, over_row_chunks
 from effect_networks.inference.exact.paths import LogTables, log_matvec, max_matvec
-from effect_networks.inference.queries.demonstration import (
-    Demonstrations,
-    key_columns,
-    with_action_prior,
-)
-from effect_networks.inference.queries.plausibility import (
+from effect_networks.inference.queries.implausibility import (
     IMPLAUSIBLE_BELOW,
     OutsideTrainingData,
     check_threshold,
     plausibility,
 )
-from effect_networks.inference.queries.states import StateSpace
+from effect_networks.inference.sequences.demonstration import (
+    Demonstrations,
+    key_columns,
+    with_action_prior,
+)
+from effect_networks.inference.sequences.states import StateSpace
 from effect_networks.models.declaration import ACTION, DTYPE, EffectNetwork
 from effect_networks.models.evidence import Evidence
 from effect_networks.models.params import NetworkParams, check_params
@@ -151,9 +151,9 @@ def explain(
         A step is ``implausible`` where the probability of its observed discrete end
         features, given everything observed up to its start, or the chi-square tail of
         its observed continuous end features under the closest component the whole
-        demonstration leaves possible (:mod:`inference.queries.plausibility`), is below
+        demonstration leaves possible (:mod:`inference.queries.implausibility`), is below
         this; or where a continuous initial value lies outside the training data
-        (warned as :class:`~inference.queries.plausibility.OutsideTrainingData`). With
+        (warned as :class:`~inference.queries.implausibility.OutsideTrainingData`). With
         every state fully observed these are the numbers
         :func:`~inference.queries.action.infer_action` flags a step by.
 
