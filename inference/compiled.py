@@ -8,7 +8,7 @@ evidence, and otherwise calls the traced query; each method's docstring says whi
 tables are built on first use and kept:
 
 * ``infer_action``: the discrete factor tables
-  (:class:`~inference.queries.action.CompiledNetwork`) where every site is discrete;
+  (:class:`~inference.queries.action_tables.CompiledNetwork`) where every site is discrete;
 * ``infer_parameter``: the compiled parameter posterior
   (:func:`~inference.queries.parameter.compile_parameter_query`) where no other parameter
   acts on the parameter's continuous features and the evidence is one it reads;
@@ -24,8 +24,8 @@ from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
 import torch
-from effect_networks.inference.queries.action import compile_discrete as _compile_discrete
 from effect_networks.inference.queries.action import infer_action
+from effect_networks.inference.queries.action_tables import compile_discrete as _compile_discrete
 from effect_networks.inference.queries.forward import imitation_check, predict
 from effect_networks.inference.queries.implausibility import IMPLAUSIBLE_BELOW
 from effect_networks.inference.queries.inverse import parameter_for_effect
@@ -52,7 +52,7 @@ from effect_networks.models.frames import as_data
 from effect_networks.models.params import NetworkParams, check_params
 
 if TYPE_CHECKING:  # annotations only
-    from effect_networks.inference.queries.action import CompiledNetwork
+    from effect_networks.inference.queries.action_tables import CompiledNetwork
     from effect_networks.inference.queries.parameter import CompiledJointParameterQuery
     from effect_networks.inference.queries.parameter_tables import CompiledParameterQuery
 

@@ -7,7 +7,7 @@ factor table is indexed at a row's observed states, which leaves a factor over t
 latent sites it spans, and the latent sites are summed out one at a time
 (:func:`inference.exact.elimination.contract`): the cost follows the largest factor
 the elimination builds, not the joint. The factors are the tables the traced model's
-log-probabilities are read from (:func:`inference.queries.action.compile_discrete`).
+log-probabilities are read from (:func:`inference.queries.action_tables.compile_discrete`).
 """
 
 from __future__ import annotations

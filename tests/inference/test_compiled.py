@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 from effect_networks.inference import infer_action
-from effect_networks.inference.queries.action import compile_discrete
+from effect_networks.inference.queries.action_tables import compile_discrete
 from effect_networks.models import Continuous, EffectNetwork
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
@@ -144,7 +144,7 @@ def test_answers_with_latent_initial_sites_equal_the_answers_per_row(
     observed configuration (the others summed out, in chunks of any size) are those
     computed row by row, and the traced model's: posterior, evidence, unseen mass, best
     action (with and without allowed actions and the unseen rule) and the flag."""
-    import effect_networks.inference.queries.action as action_module
+    import effect_networks.inference.queries.action_tables as action_module
 
     chunk = action_module.ANSWERS_CHUNK if chunk is None else chunk  # 40: small chunks
     with mock.patch.object(action_module, "ANSWERS_CHUNK", chunk):

@@ -100,18 +100,18 @@ def test_the_tables_refuse_what_the_traced_query_refuses_in_the_same_words():
 def test_patterns_summed_per_row_answer_bit_for_bit_as_the_summed_table(name, monkeypatch):
     """With the plan budget at 0 every pattern with an observed end site keeps its factors
     and sums them per queried row: the same bits as the table summed once."""
-    from effect_networks.inference.queries import action
+    from effect_networks.inference.queries import action_tables
 
     evidence, kwargs = CASES[name]
     whole = inference.compile(DISCRETE, PARAMS).infer_action(evidence, **kwargs)
-    monkeypatch.setattr(action, "PLAN_BUDGET", 0)
+    monkeypatch.setattr(action_tables, "PLAN_BUDGET", 0)
     per_row = inference.compile(DISCRETE, PARAMS)
     rows_ = per_row.infer_action(evidence, **kwargs)
     for field in ("probs", "best", "log_evidence", "unseen", "implausible"):
         assert torch.equal(getattr(rows_, field), getattr(whole, field)), field
     if any(s.startswith("end.") for s in DISCRETE.encode(evidence)):
         assert all(
-            isinstance(p.log_table, action._RowSums)
+            isinstance(p.log_table, action_tables._RowSums)
             for p in per_row.action_tables.plans.values()
             if any(s.startswith("end.") for s in p.observed)
         )
@@ -121,7 +121,7 @@ def test_a_pattern_whose_table_exceeds_the_budget_is_never_built():
     """Every site observed but the action on two 30-state features and 50 actions: the
     summed table would hold 30**4 * 50 = 40.5 million values (324 MB); the plan holds no
     tensor above the budget and answers as the traced query."""
-    from effect_networks.inference.queries import action
+    from effect_networks.inference.queries import action_tables
 
     net = discrete_network([30, 30], 50)
     params = random_params(net, 7, unseen=0.3)
@@ -138,8 +138,8 @@ def test_a_pattern_whose_table_exceeds_the_budget_is_never_built():
     assert torch.equal(fast.best, slow.best)
     for plan in compiled.action_tables.plans.values():
         for table in (plan.log_table, plan.unseen):
-            tensors = table.parts if isinstance(table, action._RowSums) else [table]
-            assert all(t is None or t.numel() <= action.PLAN_BUDGET for t in tensors)
+            tensors = table.parts if isinstance(table, action_tables._RowSums) else [table]
+            assert all(t is None or t.numel() <= action_tables.PLAN_BUDGET for t in tensors)
 
 
 @pytest.mark.parametrize("k", [8, 16, 40])

@@ -27,7 +27,7 @@ from effect_networks.inference import (
     predict,
     simulate,
 )
-from effect_networks.inference.queries.action import compile_discrete
+from effect_networks.inference.queries.action_tables import compile_discrete
 from effect_networks.inference.queries.parameter import compile_parameter_query
 from effect_networks.models import (
     Continuous,
