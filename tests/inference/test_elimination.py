@@ -18,6 +18,8 @@ from effect_networks.inference.exact.enumeration import enumerate_model
 from effect_networks.models import Continuous, Discrete, EffectNetwork, random_params
 from effect_networks.models.declaration import DTYPE
 
+from tests.networks import closed_form, sparse_network
+
 TOL = 1e-12
 
 
@@ -84,41 +86,6 @@ def test_draws_by_elimination_follow_the_joint():
     share = counts / n
     se = (probs * (1 - probs) / n).sqrt()
     assert bool(((share - probs).abs() <= 5 * se + 1e-12).all())
-
-
-def sparse_network(k: int) -> EffectNetwork:
-    """``k`` binary features; each end feature's parents: its own initial value and the
-    action."""
-    return EffectNetwork(
-        tuple(Discrete(f"f{i}", (0, 1)) for i in range(k)),
-        ("push", "lift", "wait"),
-        parents={f"end.f{i}": (f"initial.f{i}", "action") for i in range(k)},
-    )
-
-
-def closed_form(params, k: int, y: torch.Tensor, observed: int):
-    """With the initial state latent and ends ``0..observed-1`` observed (``y`` ``(n,
-    observed)``), the posterior factorises given the action: per row, p(a | y), the
-    unseen mass per action, each unobserved end feature's marginal, and the targets'
-    unseen mass."""
-    log_a = params["action"].probs.log().expand(y.shape[0], -1).clone()
-    all_seen = torch.ones_like(log_a)
-    for i in range(observed):
-        prior = params[f"initial.f{i}"].probs  # (2,)
-        table = params[f"end.f{i}"].probs  # (x, a, y)
-        seen = params[f"end.f{i}"].n > 0  # (x, a)
-        like = prior[:, None, None] * table[:, :, :]  # (x, a, y)
-        joint = like[:, :, y[:, i]].permute(2, 0, 1)  # (n, x, a)
-        log_a = log_a + joint.sum(1).log()
-        all_seen = all_seen * (joint * seen).sum(1) / joint.sum(1)
-    post = (log_a - log_a.logsumexp(-1, keepdim=True)).exp()
-    marginals, seen_targets = {}, torch.ones(3, dtype=DTYPE)
-    for j in range(observed, k):
-        prior, table = params[f"initial.f{j}"].probs, params[f"end.f{j}"].probs
-        per_action = (prior[:, None, None] * table).sum(0)  # (a, y)
-        marginals[f"f{j}"] = post @ per_action
-        seen_targets = seen_targets * (prior[:, None] * (params[f"end.f{j}"].n > 0)).sum(0)
-    return post, 1 - all_seen, marginals, post @ (1 - seen_targets)
 
 
 def test_a_sparse_network_of_40_latent_features_answers_in_closed_form():

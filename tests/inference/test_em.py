@@ -14,44 +14,14 @@ from effect_networks.inference import (
 )
 from effect_networks.inference.exact.enumeration import enumerate_model
 from effect_networks.inference.fitting.em import em_step, mixture_log_likelihood, responsibilities
-from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter
+from effect_networks.models import Continuous, EffectNetwork, Parameter
 from effect_networks.models.declaration import DTYPE
 from effect_networks.models.params import load, save
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from effect_networks import inference
-
-
-def tap_net(bins=3, affects="pos", layout="adaptive"):
-    """A tap world: the force of ``tap`` moves the can (and may knock it over)."""
-    return EffectNetwork(
-        (Discrete("visible", (0, 1)), Continuous("pos", 1, initial=False)),
-        ("remove", "tap"),
-        (Parameter("force", (0.0,), (10.0,), (bins,), ("tap",), affects, layout=layout),),
-    )
-
-
-def tap_data(net, n=300, seed=0):
-    g = torch.Generator().manual_seed(seed)
-    a = torch.randint(0, 2, (n,), generator=g)
-    vis0 = torch.randint(0, 2, (n,), generator=g)
-    force = torch.rand(n, 1, generator=g, dtype=DTYPE) * 10
-    force[a == 0] = float("nan")
-    f = force.nan_to_num()
-    falls = torch.rand(n, generator=g, dtype=DTYPE) < f[:, 0] / 12
-    vis1 = torch.where((a == 0) | falls, 0, vis0)
-    pos = torch.where(a[:, None] == 1, torch.sqrt(f) + 0.05 * f**2, 0.0)
-    pos = pos + 0.1 * torch.randn(n, 1, generator=g, dtype=DTYPE)
-    return net.encode_indices(
-        {
-            "initial.visible": vis0,
-            "action": a,
-            "param.force": force,
-            "end.visible": vis1,
-            "end.pos": pos,
-        }
-    )
+from tests.networks import tap_data, tap_net
 
 
 def one_d_net(bins=2):

@@ -28,7 +28,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tests.helpers import discrete_network
-from tests.inference.test_queries_mixed import README_NET
+from tests.networks import README_NET
 
 #: a world of two state features and a discrete outcome that depends on the door's end
 OUTCOME_NET = EffectNetwork(

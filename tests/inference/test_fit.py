@@ -6,6 +6,8 @@ from effect_networks.inference import fit, fit_gradient
 from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter
 from effect_networks.models.declaration import DTYPE
 
+from tests.networks import HANDLE_ACTIONS, HANDLE_KINDS, HANDLE_STATES, handle_world
+
 
 def tap_data(net, n=400, seed=0):
     """Rows of a tap world, by state index (``remove`` = 0, ``tap`` = 1)."""
@@ -325,53 +327,6 @@ def test_chunks_ending_with_an_empty_chunk_fit_as_their_rows():
         fit(DISCRETE, iter([]))
 
 
-# ------------------------------------------------------------------ softmax: Newton's method
-KINDS, STATES, ACTIONS = (
-    ("door", "drawer", "switch"),
-    ("closed", "ajar", "open"),
-    ("pull", "push", "press"),
-)
-
-
-def door_world(n=3000, seed=0, parents=None):
-    """Doors, drawers and switches, closed, ajar or open: ``end.state`` is a softmax of
-    the handle height and the effort per (kind, state, action), 27 configurations.
-    ``parents``: more parent sets for the network (the end kind's is its initial kind)."""
-    import numpy as np
-
-    net = EffectNetwork(
-        (
-            Discrete("kind", KINDS),
-            Discrete("state", STATES),
-            Continuous("handle", 1),
-            Continuous("effort", 1),
-        ),
-        ACTIONS,
-        parents={"end.kind": ("initial.kind",)} | (parents or {}),
-    )
-    rng = np.random.default_rng(seed)
-    kind, state, action = (rng.integers(0, 3, n) for _ in range(3))
-    handle = rng.normal(1.0, 0.3, n) + 0.2 * kind
-    effort = rng.gamma(2.0, 1.0, n)
-    strength = np.array([[3.0, 1.0, 0.2], [2.5, 2.0, 0.1], [0.1, 0.5, 4.0]])[kind, action]
-    opens = 1 / (1 + np.exp(-(2.0 * (strength - effort) - 0.5 * (handle - 1.2))))
-    u = rng.random(n)
-    target = np.where(action == 1, 0, 2)  # push closes, pull and press open
-    end = np.where(u < opens, target, np.where(u < opens + 0.5 * (1 - opens), 1, state))
-    data = {
-        "initial.kind": np.array(KINDS)[kind],
-        "initial.state": np.array(STATES)[state],
-        "initial.handle": handle[:, None],
-        "initial.effort": effort[:, None],
-        "action": np.array(ACTIONS)[action],
-        "end.kind": np.array(KINDS)[kind],
-        "end.state": np.array(STATES)[end],
-        "end.handle": handle[:, None] + 0.01 * rng.normal(size=(n, 1)),
-        "end.effort": effort[:, None] + 0.01 * rng.normal(size=(n, 1)),
-    }
-    return net, data
-
-
 def door_arrays(data):
     """The door rows as numpy: configuration ``(kind, state, action)``, inputs, class."""
     import numpy as np
@@ -379,13 +334,13 @@ def door_arrays(data):
     config = tuple(
         np.array([states.index(v) for v in data[site]])
         for site, states in (
-            ("initial.kind", KINDS),
-            ("initial.state", STATES),
-            ("action", ACTIONS),
+            ("initial.kind", HANDLE_KINDS),
+            ("initial.state", HANDLE_STATES),
+            ("action", HANDLE_ACTIONS),
         )
     )
     x = np.concatenate([data["initial.handle"], data["initial.effort"]], 1)
-    y = np.array([STATES.index(s) for s in data["end.state"]])
+    y = np.array([HANDLE_STATES.index(s) for s in data["end.state"]])
     return config, x, y
 
 
@@ -412,7 +367,7 @@ def test_softmax_fit_is_the_optimum_an_independent_optimiser_finds():
     import numpy as np
     from scipy.optimize import minimize
 
-    net, data = door_world(n=1500, seed=3)
+    net, data = handle_world(n=1500, seed=3)
     l2 = 0.05
     cpd = fit(net, data, l2=l2).params["end.state"]
     config, x, y = door_arrays(data)
@@ -492,7 +447,7 @@ def test_softmax_fit_of_3000_rows_is_fast():
     # model under L-BFGS took 7-23 s); the bound leaves room for a loaded machine
     import time
 
-    net, data = door_world(n=3000)
+    net, data = handle_world(n=3000)
     fit(net, data)  # warm-up
     start = time.perf_counter()
     result = fit(net, data)
@@ -504,7 +459,7 @@ def test_weighted_rows_count_as_repeated_rows():
     # the weights an EM step gives: a row of weight 2 is the row twice
     import numpy as np
 
-    net, data = door_world(n=300, seed=5)
+    net, data = handle_world(n=300, seed=5)
     cpd = net.cpd("end.state")
     config, x, y = door_arrays(data)
     index = torch.as_tensor((config[0] * 3 + config[1]) * 3 + config[2])

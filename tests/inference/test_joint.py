@@ -9,7 +9,7 @@ from effect_networks.inference import fit, predict
 from effect_networks.inference.queries.joint import predict_joint
 from effect_networks.inference.sequences.transition_tables import transitions
 
-from tests.inference.test_transitions import rich_net, rich_rows
+from tests.networks import rich_net, rich_rows
 
 
 def test_the_joint_equals_the_transitions_and_sums_to_the_marginals():

@@ -6,14 +6,13 @@ import math
 import pytest
 import torch
 from effect_networks.inference import ConvergenceWarning, fit
-from effect_networks.inference.exact.enumeration import enumerate_model
 from effect_networks.inference.fitting import em, missing
-from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter
+from effect_networks.models import Discrete, EffectNetwork
 from effect_networks.models.declaration import DTYPE
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tests.inference.test_em import tap_data, tap_net
+from tests.networks import marginal_loss, tap3_rows, tap_data, tap_net
 
 
 def test_em_keeps_the_missing_value_names():
@@ -143,61 +142,15 @@ def test_missing_values_em_reaches_the_brute_force_maximum():
         torch.testing.assert_close(result.params[site].probs, table, atol=1e-5, rtol=0)
 
 
-def marginal_loss(net, params, rows, masks, l2=0.01, presence=False):
-    """Per-row -log p(the observed values), the softmax prior included, and its
-    gradient's largest component over every CPD's free tensors. Pyro's TraceEnum_ELBO on
-    the model with the masked values latent; with ``presence``, a missing action ranges
-    over the actions that use exactly the parameters the row gives: each action given in
-    turn (the model enumerated by the queries' machinery), their likelihoods summed."""
-    import pyro
-    from effect_networks.models.model import effect_model
-    from effect_networks.models.params import NetworkParams
-    from pyro.infer import TraceEnum_ELBO
-
-    free = {
-        s: {k: t.detach().clone().requires_grad_() for k, t in net.cpd(s).free(params[s]).items()}
-        for s in params.cpds
-    }
-    bound = NetworkParams({s: net.cpd(s).bound(f, params[s]) for s, f in free.items()}, 0.0)
-
-    if presence:
-        others = {s: m for s, m in masks.items() if s != "action"}
-        data = rows.without(*(m.cluster.site for m in net.mixtures))
-        per_action = []
-        for a in range(len(net.actions)):
-            given = data | net.encode_indices({"action": torch.full((rows.n_rows,), a)})
-            log_p = enumerate_model(net, bound, given, masks=others).log_evidence
-            agree = masks["action"] == (rows["action"] == a)  # the given action, or...
-            for m in net.mixtures:  # ... one that uses exactly the parameters given
-                present = ~torch.isnan(rows[m.value.site]).any(-1)
-                agree = torch.where(masks["action"], agree, m.uses[a] == present)
-            per_action.append(torch.where(agree, log_p, -torch.inf))
-        loss = -torch.stack(per_action).logsumexp(0).sum()
-    else:
-
-        def model():
-            effect_model(net, bound, rows, masks=masks, collapse=True)
-
-        with pyro.validation_enabled(False):
-            loss = TraceEnum_ELBO(max_plate_nesting=1).differentiable_loss(model, lambda: None)
-    for s, f in free.items():
-        for w in net.cpd(s).penalised(f):
-            loss = loss + 0.5 * l2 * w.square().sum()
-    loss = loss / rows.n_rows
-    tensors = [t for f in free.values() for t in f.values()]
-    grads = torch.autograd.grad(loss, tensors, allow_unused=True)
-    return float(loss.detach()), max(float(g.abs().max()) for g in grads if g is not None)
-
-
 def door_rows(n, seed=0):
     """The door world with the kind missing in 30 % of the rows and the end state in
     20 %; the continuous features follow their own initial values only (so that no
     configuration of a few rows makes a singular Gaussian, where the likelihood has
     no maximum)."""
-    from tests.inference.test_fit import door_world
+    from tests.networks import handle_world
 
     own = {"end.handle": ("initial.handle",), "end.effort": ("initial.effort",)}
-    net, data = door_world(n=n, seed=seed, parents=own)
+    net, data = handle_world(n=n, seed=seed, parents=own)
     g = torch.Generator().manual_seed(seed)
     masks = {
         "initial.kind": torch.rand(n, generator=g) > 0.3,
@@ -258,42 +211,6 @@ def test_missing_values_with_a_parameter():
     loss, gradient = marginal_loss(net, result.params, rows, masks)
     assert loss == pytest.approx(result.losses[-1], rel=1e-10)
     assert gradient < 1e-5
-
-
-def tap3_rows(n=300, seed=0, users=("tap", "push")):
-    """Remove, tap and push: the force of tap and push moves the can differently (and
-    may knock it over). Masks: the action missing in 30 % of the rows, the initial
-    visibility in 20 %."""
-    net = EffectNetwork(
-        (Discrete("visible", (0, 1)), Continuous("pos", 1, initial=False)),
-        ("remove", "tap", "push"),
-        (Parameter("force", (0.0,), (10.0,), (3,), users, "pos"),),
-    )
-    g = torch.Generator().manual_seed(seed)
-    a = torch.randint(0, 3, (n,), generator=g)
-    vis0 = torch.randint(0, 2, (n,), generator=g)
-    force = torch.rand(n, 1, generator=g, dtype=DTYPE) * 10
-    uses = net.mixture("force").uses[a]
-    force[~uses] = float("nan")
-    f = force.nan_to_num()
-    falls = torch.rand(n, generator=g, dtype=DTYPE) < f[:, 0] / 12
-    vis1 = torch.where((a == 0) | falls, 0, vis0)
-    pos = torch.where(a[:, None] == 1, torch.sqrt(f), torch.where(a[:, None] == 2, 0.3 * f, 0.0))
-    pos = pos + 0.1 * torch.randn(n, 1, generator=g, dtype=DTYPE)
-    rows = net.encode_indices(
-        {
-            "initial.visible": vis0,
-            "action": a,
-            "param.force": force,
-            "end.visible": vis1,
-            "end.pos": pos,
-        }
-    )
-    masks = {
-        "action": torch.rand(n, generator=g) > 0.3,
-        "initial.visible": torch.rand(n, generator=g) > 0.2,
-    }
-    return net, rows, masks
 
 
 def test_missing_actions_with_a_parameter():

@@ -17,7 +17,7 @@ from effect_networks.models.params import NetworkParams
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tests.inference.test_fuzz import mixed_networks
+from tests.networks import mixed_networks
 
 SHAPES, ACTIONS = ("box", "ball"), ("push", "lift")
 
@@ -374,7 +374,7 @@ def test_a_discrete_child_of_a_missing_continuous_value_is_refused_by_name():
 
 def test_a_missing_value_of_a_parameter_its_action_uses_is_refused():
     # NaN in param.p means "the action does not use p"; where it does, NaN is refused
-    from tests.inference.test_em import tap_data, tap_net
+    from tests.networks import tap_data, tap_net
 
     net = tap_net(layout="grid")
     rows = dict(tap_data(net, n=40).items())
@@ -431,7 +431,7 @@ def test_missing_continuous_values_beside_missing_actions_with_a_parameter():
     # factor integrates to one), and its gradient over every CPD, zero at EM's optimum
     from effect_networks.models.evidence import Evidence
 
-    from tests.inference.test_missing import marginal_loss, tap3_rows
+    from tests.networks import marginal_loss, tap3_rows
 
     net, rows, masks = tap3_rows(n=300, seed=1)
     pos = rows["end.pos"].clone()

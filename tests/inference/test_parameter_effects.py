@@ -29,7 +29,7 @@ from effect_networks.models import (
     save,
 )
 
-ACTIONS = ("push", "wait")
+from tests.networks import PUSH_ACTIONS, joint_by_hand, sliding, throwing
 
 
 def normal_pdf(y, mean, cov):
@@ -44,7 +44,7 @@ def normal_pdf(y, mean, cov):
 # ---------------------------------------------------------------- a discrete feature
 def tipping():
     force = Parameter("force", 0.0, 9.0, 3, ("push",), "upright")
-    net = EffectNetwork((Discrete("upright", (True, False)),), ACTIONS, (force,))
+    net = EffectNetwork((Discrete("upright", (True, False)),), PUSH_ACTIONS, (force,))
     return net, random_params(net, 4)
 
 
@@ -79,14 +79,6 @@ def test_the_cell_is_inferred_from_a_discrete_outcome():
     actions = params["action"].probs
     likelihood = torch.stack([clusters[a] @ table[0, a, :, 1] for a in range(2)])
     torch.testing.assert_close(posterior.probs[0], actions * likelihood / (actions @ likelihood))
-
-
-# ---------------------------------------------------------------- two parameters, one feature
-def sliding():
-    force = Parameter("force", 0.0, 4.0, 2, ("push",), "pos")
-    angle = Parameter("angle", -1.0, 1.0, 2, ("push",), "pos")
-    net = EffectNetwork((Continuous("pos", 1),), ACTIONS, (force, angle))
-    return net, random_params(net, 7)
 
 
 def closed_form(params, x, clusters, known):
@@ -162,10 +154,10 @@ def test_one_parameter_is_inferred_given_the_other():
 def test_fit_recovers_two_parameters_slopes():
     force = Parameter("force", 0.0, 4.0, 1, ("push",), "pos")
     angle = Parameter("angle", -1.0, 1.0, 1, ("push",), "pos")
-    net = EffectNetwork((Continuous("pos", 1),), ACTIONS, (force, angle))
+    net = EffectNetwork((Continuous("pos", 1),), PUSH_ACTIONS, (force, angle))
     g = np.random.default_rng(0)
     n = 4000
-    action = g.choice(ACTIONS, n)
+    action = g.choice(PUSH_ACTIONS, n)
     push = action == "push"
     f = np.where(push, g.uniform(0, 4, n), np.nan)[:, None]
     a = np.where(push, g.uniform(-1, 1, n), np.nan)[:, None]
@@ -188,7 +180,7 @@ def test_one_parameter_on_a_continuous_and_a_discrete_feature(tmp_path):
     force = Parameter("force", 0.0, 6.0, 3, ("push",), ("pos", "upright"))
     net = EffectNetwork(
         (Discrete("upright", (True, False)), Continuous("pos", 1)),
-        ACTIONS,
+        PUSH_ACTIONS,
         (force,),
         parents={
             "end.upright": ("initial.upright", "action"),
@@ -214,34 +206,6 @@ def test_one_parameter_on_a_continuous_and_a_discrete_feature(tmp_path):
     assert load(tmp_path / "net.pt")[0] == net
     rows = simulate(net, params, 200, seed=0)  # fit reads what the model generates
     assert fit(net, rows).params["end.upright"].probs.shape == (2, 2, 3, 2)
-
-
-def throwing():
-    """One aim acting on two continuous features (where the ball lands, how far it
-    rolls): an unknown aim couples them."""
-    aim = Parameter("aim", 0.0, 2.0, 2, ("throw",), ("land", "roll"))
-    net = EffectNetwork(
-        (Continuous("land", 2), Continuous("roll", 1)),
-        ("throw", "drop"),
-        (aim,),
-        parents={"end.land": ("initial.land", "action"), "end.roll": ("initial.roll", "action")},
-    )
-    return net, random_params(net, 5)
-
-
-def joint_by_hand(params, x_land, x_roll, c):
-    """Per cluster ``c`` of the action throw: the joint Gaussian of (end.land, end.roll)
-    with the aim integrated out, and the two sites' weights on the aim."""
-    land, roll = params["end.land"], params["end.roll"]
-    prior = params["param.aim"]
-    m, s = prior.bias[c].numpy(), prior.covariance[c].numpy()
-    w1, w2 = land.weight[0, c].numpy(), roll.weight[0, c].numpy()  # (2, 3), (1, 2)
-    mu1 = land.bias[0, c].numpy() + w1[:, :2] @ x_land + w1[:, 2:] @ m
-    mu2 = roll.bias[0, c].numpy() + w2[:, :1] @ x_roll + w2[:, 1:] @ m
-    w = np.vstack([w1[:, 2:], w2[:, 1:]])  # (3, 1): both sites' weights on the aim
-    noise = np.zeros((3, 3))
-    noise[:2, :2], noise[2:, 2:] = land.covariance[0, c].numpy(), roll.covariance[0, c].numpy()
-    return np.concatenate([mu1, mu2]), w @ s @ w.T + noise, w, m, s
 
 
 def test_a_shared_parameter_couples_its_features():
@@ -294,4 +258,4 @@ def test_a_parameter_on_several_continuous_features_acts_alone():
     aim = Parameter("aim", 0.0, 1.0, 2, ("push",), ("a", "b"))
     spin = Parameter("spin", 0.0, 1.0, 2, ("push",), "a")
     with pytest.raises(ValueError, match=r"only parameter acting on each; \['a'\] have others"):
-        EffectNetwork((Continuous("a"), Continuous("b")), ACTIONS, (aim, spin))
+        EffectNetwork((Continuous("a"), Continuous("b")), PUSH_ACTIONS, (aim, spin))

@@ -282,7 +282,7 @@ def test_a_shared_parameter_conditions_on_the_observed_dimensions():
     # one aim acting on end.land (2-D) and end.roll (1-D); land observed in its second
     # dimension only: the joint Gaussian of (land, roll) per cluster, rows and columns
     # [1, 2] kept
-    from tests.inference.test_parameter_effects import joint_by_hand, throwing
+    from tests.networks import joint_by_hand, throwing
 
     net, params = throwing()
     x_land, x_roll = np.array([0.1, -0.2]), np.array([0.3])

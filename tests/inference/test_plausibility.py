@@ -15,7 +15,7 @@ from hypothesis import strategies as st
 
 from effect_networks import inference
 from tests.helpers import brute_joint, discrete_network, random_params
-from tests.inference.test_queries_mixed import README_NET, softmax_oracle
+from tests.networks import README_NET, softmax_oracle
 
 
 def brute_evidence_prob(net, params, init, end, action=None):

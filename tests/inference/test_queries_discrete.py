@@ -201,7 +201,7 @@ def test_empty_batches_give_empty_results():
     from effect_networks.inference import infer_parameter
 
     from effect_networks import inference
-    from tests.inference.test_queries_mixed import NET
+    from tests.networks import NET
 
     net = discrete_network([2, 3], 4)
     params = random_params(net, 0)

@@ -2,23 +2,17 @@
 
 import math
 
-import mpmath
 import pytest
 import torch
 from effect_networks.inference import imitation_check, infer_action, infer_parameter, predict
-from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter
+from effect_networks.models import Continuous, Discrete, EffectNetwork
 from effect_networks.models.declaration import DTYPE
 from effect_networks.models.gaussian import condition_linear_gaussian
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
 
 from tests.helpers import random_params
-
-NET = EffectNetwork(
-    (Discrete("visible", (False, True)), Continuous("pos", 2)),
-    ("remove", "tap", "push"),
-    (Parameter("force", (0.0,), (10.0,), (3,), ("tap", "push"), "pos"),),
-)
+from tests.networks import NET, README_NET, softmax_oracle
 
 
 def normal_pdf(x, mean, cov):
@@ -229,30 +223,6 @@ def test_inferred_parameter_outside_its_range_is_flagged():
     far = (1e4 * w / w.norm())[None].expand(2, 2)
     flagged = infer_parameter(NET, params, "force", ev | {"end.pos": far})
     assert flagged.outside.all()
-
-
-# README's network: a softmax end.visible (initial.position is its continuous input), a
-# Gaussian end.position, and a force parameter on "tap"
-README_NET = EffectNetwork(
-    features=(Discrete("visible", (False, True)), Continuous("position", 1)),
-    actions=("look", "remove", "tap"),
-    parameters=(
-        Parameter("force", low=0.0, high=20.0, bins=8, actions=("tap",), affects="position"),
-    ),
-)
-
-
-def softmax_oracle(params, index: tuple[int, ...], x: float) -> list:
-    """``p(end.visible | discrete parents, initial.position = x)`` in 60-digit arithmetic
-    (mpmath numbers, whose exponent does not underflow)."""
-    cpd = params["end.visible"]
-    w, b = cpd.weight[index].tolist(), cpd.bias[index].tolist()  # (K, 1), (K,)
-    with mpmath.workdps(60):
-        logits = [
-            mpmath.mpf(wk[0]) * mpmath.mpf(x) + mpmath.mpf(bk) for wk, bk in zip(w, b, strict=True)
-        ]
-        e = [mpmath.exp(v) for v in logits]
-        return [v / sum(e) for v in e]
 
 
 @settings(max_examples=30, deadline=None)

@@ -9,7 +9,7 @@ from effect_networks.models.declaration import DTYPE
 from effect_networks import inference
 from tests.helpers import discrete_network, random_params
 from tests.inference.questions import TracedCalls, assert_same_answer
-from tests.inference.test_queries_mixed import NET
+from tests.networks import NET
 
 DISCRETE = discrete_network([3, 2], 4)
 PARAMS = random_params(DISCRETE, 4, unseen=0.3)  # some configurations never seen
@@ -150,7 +150,7 @@ def test_sparse_networks_compiled_by_elimination_equal_traced_and_closed_form(k,
     build a table over the joint of the initial state (2^40 values at k = 40)."""
     from effect_networks.inference.exact.factored import FactoredPlan
 
-    from tests.inference.test_elimination import closed_form, sparse_network
+    from tests.networks import closed_form, sparse_network
 
     net = sparse_network(k)
     params = random_params(net, 3, unseen=0.2)

@@ -10,7 +10,7 @@ from effect_networks.models.evidence import Evidence
 from effect_networks import inference
 from tests.helpers import discrete_network, random_params
 from tests.inference.questions import TracedCalls, assert_same_answer
-from tests.inference.test_queries_mixed import NET
+from tests.networks import NET
 
 pytestmark = pytest.mark.filterwarnings(
     "ignore::effect_networks.inference.queries.implausibility.OutsideTrainingData"

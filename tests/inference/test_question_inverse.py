@@ -9,8 +9,7 @@ from effect_networks.models.declaration import DTYPE
 from effect_networks import inference
 from tests.helpers import random_params
 from tests.inference.questions import TracedCalls, assert_same_answer
-from tests.inference.test_parameter_effects import throwing
-from tests.inference.test_queries_mixed import NET
+from tests.networks import NET, throwing
 
 PARAMS = random_params(NET, 11)
 THROWING, THROWING_PARAMS = throwing()

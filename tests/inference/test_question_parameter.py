@@ -13,8 +13,7 @@ from effect_networks.models.declaration import DTYPE
 from effect_networks import inference
 from tests.helpers import random_params
 from tests.inference.questions import TracedCalls, assert_same_answer
-from tests.inference.test_parameter_effects import sliding, throwing
-from tests.inference.test_queries_mixed import NET
+from tests.networks import NET, sliding, throwing
 
 pytestmark = pytest.mark.filterwarnings(
     "ignore::effect_networks.inference.queries.implausibility.OutsideTrainingData"

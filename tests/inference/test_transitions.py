@@ -10,63 +10,18 @@ from __future__ import annotations
 
 import itertools
 
-import numpy as np
 import pytest
 import torch
 from effect_networks.inference import fit
 from effect_networks.inference.sequences.states import StateSpace
 from effect_networks.inference.sequences.transition_tables import model_tables, transitions
-from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter, random_params
+from effect_networks.models import Discrete, EffectNetwork, Parameter, random_params
 from effect_networks.models.model import effect_model
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from pyro import poutine
 
-DOOR = ("shut", "open")
-LOCK = ("off", "on")
-NOISE = (0, 1, 2)
-
-
-def rich_net() -> EffectNetwork:
-    """Two state features, the lock's end depending on the door's end and an end-only
-    ``noise`` (both latent in a step), a parameter acting on the door (discrete) and a
-    continuous feature, and a continuous initial feature the door's softmax reads."""
-    return EffectNetwork(
-        features=(
-            Discrete("door", DOOR),
-            Discrete("lock", LOCK),
-            Continuous("x", 1),
-            Discrete("noise", NOISE, initial=False),
-        ),
-        actions=("push", "unlock", "wait"),
-        parameters=(
-            Parameter("force", low=0.0, high=1.0, bins=3, actions=("push",), affects=("door", "x")),
-        ),
-        parents={"end.lock": ("initial.lock", "action", "end.door", "end.noise")},
-    )
-
-
-def rich_rows(net: EffectNetwork, n: int, seed: int) -> dict[str, np.ndarray]:
-    rng = np.random.default_rng(seed)
-    a = rng.choice(net.actions, n)
-    door = rng.choice(DOOR, n)
-    force = np.where(a[:, None] == "push", rng.uniform(0, 1, (n, 1)), np.nan)
-    opened = (a == "push") & (rng.random(n) < np.nan_to_num(force[:, 0]))
-    end_door = np.where(opened, "open", door)
-    noise = rng.choice(NOISE, n)
-    lock = rng.choice(LOCK, n)
-    flips = (end_door == "open") ^ (noise == 2)
-    return {
-        "initial.door": door,
-        "initial.lock": lock,
-        "initial.x": rng.normal(size=(n, 1)),
-        "action": a,
-        "param.force": force,
-        "end.door": end_door,
-        "end.lock": np.where(flips, np.where(lock == "on", "off", "on"), lock),
-        "end.x": rng.normal(size=(n, 1)),
-        "end.noise": noise,
-    }
+from tests.networks import DOOR, LOCK, NOISE, rich_net, rich_rows
 
 
 def brute_force(net, params, given, clusters: bool):
