@@ -78,8 +78,12 @@ def test_no_inference_module_imports_another_modules_private_name():
     assert offenders == {}
 
 
-@pytest.mark.parametrize("folder", ["fitting", "design"])
-def test_fitting_and_design_import_at_the_top(folder):
+#: The floors of the inference package, the engine's first.
+FLOORS = ["exact", "fitting", "queries", "sequences", "design"]
+
+
+@pytest.mark.parametrize("folder", FLOORS)
+def test_every_floor_imports_at_the_top(folder):
     """An import inside a function hides a circle; the shared pieces live below."""
     offenders = []
     for path in sorted((PACKAGE / folder).glob("*.py")):
@@ -93,8 +97,8 @@ def test_fitting_and_design_import_at_the_top(folder):
     assert offenders == []
 
 
-@pytest.mark.parametrize("folder", ["fitting", "design"])
-def test_fitting_and_design_rooms_stay_small(folder):
+@pytest.mark.parametrize("folder", FLOORS)
+def test_every_floors_rooms_stay_small(folder):
     """One concept per module: none above 600 lines."""
     sizes = {p.name: len(p.read_text().splitlines()) for p in (PACKAGE / folder).glob("*.py")}
     assert sizes and max(sizes.values()) <= 600, sizes
@@ -137,17 +141,46 @@ def test_the_face_exports_what_the_readme_and_the_guide_teach():
     assert taught <= faces, taught - faces
 
 
-QUERIES = PACKAGE / "queries"
+QUESTIONS = [PACKAGE / "queries", PACKAGE / "sequences"]
 
 
-@pytest.mark.parametrize("module", sorted(p.name for p in QUERIES.glob("*.py")))
-def test_every_query_module_is_one_room_of_at_most_600_lines(module):
-    assert len((QUERIES / module).read_text().splitlines()) <= 600
+def test_the_engine_floor_imports_no_floor_above_it():
+    """``exact`` sums for fitting and the questions alike: it imports none of them."""
+    above = {"fitting", "queries", "sequences", "design", "plots", "compiled"}
+    offenders = {
+        p.name: sorted(found)
+        for p in sorted((PACKAGE / "exact").glob("*.py"))
+        if (found := {m.split(".")[2] for m in _inference_imports(p)} & above)
+    }
+    assert offenders == {}
+
+
+def test_fitting_and_the_questions_do_not_import_each_other():
+    """Their shared pieces live on the engine floor below both."""
+    offenders = [
+        f"{p.parent.name}/{p.name}: {m}"
+        for folder, other in (("fitting", {"queries", "sequences"}), ("queries", {"fitting"}))
+        for p in sorted((PACKAGE / folder).glob("*.py"))
+        for m in _inference_imports(p)
+        if m.split(".")[2] in other
+    ]
+    assert offenders == []
+
+
+def _inference_imports(path: Path) -> set[str]:
+    """The ``effect_networks.inference.<floor>...`` modules ``path`` imports."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text())):
+        if isinstance(node, ast.ImportFrom) and node.level == 0 and node.module:
+            found.add(node.module)
+        elif isinstance(node, ast.Import):
+            found |= {a.name for a in node.names}
+    return {m for m in found if m.startswith("effect_networks.inference.") and m.count(".") >= 2}
 
 
 def test_no_query_module_imports_another_modules_private_names():
     offenders = []
-    for path in sorted(QUERIES.glob("*.py")):
+    for path in sorted(p for folder in QUESTIONS for p in folder.glob("*.py")):
         for node in ast.walk(ast.parse(path.read_text())):
             if isinstance(node, ast.ImportFrom) and (node.module or "").startswith("inference"):
                 private = [a.name for a in node.names if a.name.startswith("_")]

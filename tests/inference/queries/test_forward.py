@@ -9,8 +9,8 @@ from effect_networks.models.evidence import Evidence
 
 from effect_networks import inference
 from tests.helpers import discrete_network, random_params
-from tests.inference.questions import TracedCalls, assert_same_answer
 from tests.networks import NET
+from tests.questions import TracedCalls, assert_same_answer
 
 pytestmark = pytest.mark.filterwarnings(
     "ignore::effect_networks.inference.queries.implausibility.OutsideTrainingData"

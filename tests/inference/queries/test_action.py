@@ -8,8 +8,8 @@ from effect_networks.models.declaration import DTYPE
 
 from effect_networks import inference
 from tests.helpers import discrete_network, random_params
-from tests.inference.questions import TracedCalls, assert_same_answer
 from tests.networks import NET
+from tests.questions import TracedCalls, assert_same_answer
 
 DISCRETE = discrete_network([3, 2], 4)
 PARAMS = random_params(DISCRETE, 4, unseen=0.3)  # some configurations never seen

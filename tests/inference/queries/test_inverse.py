@@ -8,8 +8,8 @@ from effect_networks.models.declaration import DTYPE
 
 from effect_networks import inference
 from tests.helpers import random_params
-from tests.inference.questions import TracedCalls, assert_same_answer
 from tests.networks import NET, throwing
+from tests.questions import TracedCalls, assert_same_answer
 
 PARAMS = random_params(NET, 11)
 THROWING, THROWING_PARAMS = throwing()

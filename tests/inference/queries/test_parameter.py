@@ -12,8 +12,8 @@ from effect_networks.models.declaration import DTYPE
 
 from effect_networks import inference
 from tests.helpers import random_params
-from tests.inference.questions import TracedCalls, assert_same_answer
 from tests.networks import NET, sliding, throwing
+from tests.questions import TracedCalls, assert_same_answer
 
 pytestmark = pytest.mark.filterwarnings(
     "ignore::effect_networks.inference.queries.implausibility.OutsideTrainingData"
