@@ -390,7 +390,7 @@ def test_the_guide_example_runs():
     # docs/missing.md's example, as written there
     from pathlib import Path
 
-    page = (Path(__file__).parents[2] / "docs" / "missing.md").read_text()
+    page = (Path(__file__).parents[3] / "docs" / "missing.md").read_text()
     blocks = [b.split("```")[0] for b in page.split("```python\n")[1:]]
     assert len(blocks) == 3
     namespace: dict = {}

@@ -383,7 +383,7 @@ def test_the_scores_page_runs():
     import re
     from pathlib import Path
 
-    page = Path(__file__).resolve().parents[2] / "docs" / "scores.md"
+    page = Path(__file__).resolve().parents[3] / "docs" / "scores.md"
     namespace: dict = {}
     for code in re.findall(r"^```python\n(.*?)^```", page.read_text(), re.S | re.M):
         exec(compile(code, str(page), "exec"), namespace)  # noqa: S102

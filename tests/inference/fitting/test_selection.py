@@ -102,7 +102,7 @@ def load_benchmark():
     import sys
     from pathlib import Path
 
-    folder = Path(__file__).resolve().parents[2] / "benchmarks"
+    folder = Path(__file__).resolve().parents[3] / "benchmarks"
     spec = importlib.util.spec_from_file_location(
         "benchmark_select_clusters", folder / "select_clusters.py"
     )

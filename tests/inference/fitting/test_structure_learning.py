@@ -459,7 +459,7 @@ def test_the_learned_networks_score_is_the_sum_of_its_families():
 
 def test_the_structure_pages_snippet_runs_and_learns_what_it_says():
     """docs/structure.md's example: colour and size dropped from the moved's parents."""
-    page = Path(__file__).resolve().parents[2] / "docs" / "structure.md"
+    page = Path(__file__).resolve().parents[3] / "docs" / "structure.md"
     blocks = re.findall(r"^```python\n(.*?)^```", page.read_text(), re.S | re.M)
     assert len(blocks) == 1
     scope: dict = {}

@@ -27,7 +27,7 @@ from matplotlib.patches import Ellipse, FancyArrowPatch, Rectangle  # noqa: E402
 
 from effect_networks import inference  # noqa: E402
 
-ROOT = Path(__file__).parents[2]
+ROOT = Path(__file__).parents[3]
 
 
 def tap_net(layout="grid", parents=None):

@@ -234,7 +234,7 @@ def test_the_documentation_page_runs():
     import re
     from pathlib import Path
 
-    page = Path(__file__).parents[2] / "docs" / "chaining.md"
+    page = Path(__file__).parents[3] / "docs" / "chaining.md"
     namespace = {}
     for block in re.findall(r"```python\n(.*?)```", page.read_text(), re.S):
         exec(block, namespace)  # noqa: S102

@@ -416,7 +416,7 @@ def test_the_demonstrations_page_runs_and_says_what_its_comments_say():
     import matplotlib
 
     matplotlib.use("Agg")
-    root = Path(__file__).resolve().parents[2]
+    root = Path(__file__).resolve().parents[3]
     block = re.compile(r"^```python\n(.*?)^```", re.S | re.M)
     namespace: dict = {}
     exec(block.findall((root / "README.md").read_text())[0], namespace)  # noqa: S102

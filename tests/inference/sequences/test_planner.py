@@ -262,7 +262,7 @@ def test_the_planning_page_runs_and_says_what_its_comments_say():
     import re
     from pathlib import Path
 
-    page = Path(__file__).resolve().parents[2] / "docs" / "planning.md"
+    page = Path(__file__).resolve().parents[3] / "docs" / "planning.md"
     namespace: dict = {}
     for code in re.findall(r"^```python\n(.*?)^```", page.read_text(), re.S | re.M):
         exec(compile(code, str(page), "exec"), namespace)  # noqa: S102
