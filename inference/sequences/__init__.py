@@ -5,7 +5,7 @@
   distributions.
 * :mod:`~inference.sequences.transition_tables` -- :func:`transitions`: ``P(next state |
   state, action)`` over a network's states, as :class:`Transitions`.
-* :mod:`~inference.sequences.planner` -- :func:`plan`: the policy that reaches a goal
+* :mod:`~inference.sequences.planner` -- :func:`~inference.sequences.planner.plan`: the policy that reaches a goal
   within a horizon with the highest probability, by exact dynamic programming
   (:class:`Plan`).
 * :mod:`~inference.sequences.explanation` -- :func:`explain`: a demonstration (a
