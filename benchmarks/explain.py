@@ -4,7 +4,7 @@ Network: the door world (``door`` locked/shut/open, ``drawer`` shut/open, ``swit
 off/on: 12 states; actions press, pull, turn, wait), every initial feature and the
 action behind every end feature, fitted on 5,000 rows drawn from random tables.
 Demonstrations: ``--n`` (default 10,000) of ``--steps`` (default 5) steps drawn from the
-fitted model (:func:`inference.queries.demonstration.simulate_demonstrations`), read
+fitted model (:func:`inference.sequences.demonstration.simulate_demonstrations`), read
 fully observed and partly observed (each discrete value hidden with probability 0.3).
 Goal: 10,000 demonstrations of 5 steps in under 1 s.
 
@@ -28,8 +28,8 @@ import warnings
 
 import numpy as np
 from effect_networks.inference import OutsideTrainingData, fit, simulate
-from effect_networks.inference.queries.demonstration import simulate_demonstrations
-from effect_networks.inference.queries.explain import explain
+from effect_networks.inference.sequences.demonstration import simulate_demonstrations
+from effect_networks.inference.sequences.explanation import explain
 from effect_networks.models import Continuous, Discrete, EffectNetwork, random_params
 from timing import (  # benchmarks/timing.py, beside this script
     add_out,

@@ -20,7 +20,7 @@ Figures, each beside its goal and its peer:
   product: the floor), checked equal.
 * ``plan_on(model, start, goal, 6)``: the exact plan over 107 states and 195 actions,
   horizon 6, from the full pyramid to a goal configuration, on one core. Goal: under
-  1 s. Peer: :func:`inference.queries.planning.exact_plan` alone on the raw tensor (the
+  1 s. Peer: :func:`inference.sequences.dynamic_programming.exact_plan` alone on the raw tensor (the
   dynamic programme without labels, start or path), checked equal.
 """
 
@@ -33,8 +33,8 @@ import time
 import numpy as np
 import torch
 from effect_networks.inference import fit
-from effect_networks.inference.queries.planner import plan_on
-from effect_networks.inference.queries.planning import exact_plan
+from effect_networks.inference.sequences.dynamic_programming import exact_plan
+from effect_networks.inference.sequences.planner import plan_on
 from effect_networks.models.can_network import can_network, can_rows, n_cans
 from effect_networks.sim2d.configurations import stable_configurations
 from timing import (  # benchmarks/timing.py, beside this script

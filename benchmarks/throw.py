@@ -112,11 +112,11 @@ STAGES = (
     ("inference/queries/parameter.py", "infer_parameter", "the whole query"),
     ("models/params.py", "check_params", "checking the parameters' shapes"),
     ("models/declaration.py", "encode", "validating and encoding the evidence"),
-    ("inference/queries/enumeration.py", "enumerate_model", "tracing the model, summing log-probs"),
+    ("inference/exact/enumeration.py", "enumerate_model", "tracing the model, summing log-probs"),
     ("models/model.py", "effect_model", "  running the Pyro model under trace+enum"),
     ("torch/distributions/distribution.py", "__init__", "  building distributions (+checks)"),
     ("pyro/poutine/trace_struct.py", "compute_log_prob", "  log-probabilities"),
-    ("inference/queries/enumeration.py", "marginal", "cluster posterior from the log-weights"),
+    ("inference/exact/enumeration.py", "marginal", "cluster posterior from the log-weights"),
     ("models/cpds/mixture.py", "posterior", "Gaussian conditioning, best cluster"),
 )
 

@@ -88,7 +88,14 @@ PACKAGES = tuple(f"{TOP}.{p}" for p in ("models", "inference", "experiments", "s
 # records it as the canonical name)
 FACES = tuple(
     f"{TOP}.{p}"
-    for p in ("models", "inference", "inference.fitting", "inference.queries", "inference.plots")
+    for p in (
+        "models",
+        "inference",
+        "inference.fitting",
+        "inference.queries",
+        "inference.sequences",
+        "inference.plots",
+    )
 )
 GROUPS = {
     f"{TOP}.models": "declaring a network, its parameters and distributions",

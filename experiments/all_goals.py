@@ -60,8 +60,8 @@ from effect_networks.experiments.round_planner import paper_planner
 from effect_networks.experiments.throwing import MAX_BINS, fit_throws, get_data
 from effect_networks.inference import compile as compile_queries
 from effect_networks.inference import fit, predict
-from effect_networks.inference.queries.chaining import BoxPartition, chain, link_probabilities
-from effect_networks.inference.queries.planning import exact_plan
+from effect_networks.inference.sequences.chaining import BoxPartition, chain, link_probabilities
+from effect_networks.inference.sequences.dynamic_programming import exact_plan
 from effect_networks.models.can_network import can_network, can_rows
 from effect_networks.sim2d import geometry
 from effect_networks.sim2d.clock import simulating
@@ -311,7 +311,7 @@ def learned_transition(
 ) -> tuple[torch.Tensor, np.ndarray]:
     """``T[s, a, s']`` of aiming at ``heights[a]``, and the robot's aims ``(A, 2)``.
 
-    The networks chained (:func:`inference.queries.chaining.chain`): the throw network's
+    The networks chained (:func:`inference.sequences.chaining.chain`): the throw network's
     predicted hit (:func:`experiments.combined.hit_gaussians`, its height widened by the
     bins' boundary sd ``boundary_sd``, m) read as the height bin it falls in (each height
     owns the half step either side of it) within the can band; a hit beside the band or

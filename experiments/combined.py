@@ -16,7 +16,7 @@ whose direction is closest to the robot's measured impact direction.
 
 Planners: the paper's round planner (:mod:`experiments.round_planner`), whose actions in
 a round are the fields whose most probable end configuration is the (intermediate) goal;
-and an exact planner (:mod:`inference.queries.planning`) that maximises the probability
+and an exact planner (:mod:`inference.sequences.dynamic_programming`) that maximises the probability
 of reaching the goal within ``horizon`` throws under the learned models, with the
 throw's uncertainty (the throw network's predicted hit Gaussian) included and the hit
 read among fields whose boundaries are as uncertain as the can data's throws were spread
@@ -46,8 +46,8 @@ from effect_networks.experiments.round_planner import paper_planner
 from effect_networks.experiments.throwing import MAX_BINS, fit_throws, get_data
 from effect_networks.inference import GaussianMixture, predict
 from effect_networks.inference import compile as compile_queries
-from effect_networks.inference.queries.chaining import BoxPartition, chain, link_probabilities
-from effect_networks.inference.queries.planning import exact_plan
+from effect_networks.inference.sequences.chaining import BoxPartition, chain, link_probabilities
+from effect_networks.inference.sequences.dynamic_programming import exact_plan
 from effect_networks.models.throw_network import TARGET
 from effect_networks.sim2d import geometry, materials
 from effect_networks.sim2d.combined import CAN_BAND, TABLE_TOP_Z, first_contact, play_throw, settle
@@ -364,7 +364,7 @@ def field_link(heights: np.ndarray, fields: np.ndarray) -> tuple[BoxPartition, n
 def transition_model(world: World, states: list[int]) -> torch.Tensor:
     """``T[s, f, s']``: the learned chance that aiming at field ``f`` from ``s`` gives ``s'``.
 
-    The two networks chained (:func:`inference.queries.chaining.chain`): the throw
+    The two networks chained (:func:`inference.sequences.chaining.chain`): the throw
     network's predicted hit (:func:`hit_gaussians`, widened by the fields' boundary
     spread ``World.boundary_sd``) read through each state's :func:`field_link` (the
     fields' matched near-face heights, :meth:`World.heights`),

@@ -10,7 +10,7 @@ them. Then :func:`inference.explain` reads
 * one demonstration written out here (:data:`SHOWN`), partly observed, as the posterior
   over each step's action and the most probable sequence, drawn as a heat map; and
 * ``n_demos`` demonstrations of ``steps`` steps drawn from the fitted network
-  (:func:`~inference.queries.demonstration.simulate_demonstrations`), with each discrete
+  (:func:`~inference.sequences.demonstration.simulate_demonstrations`), with each discrete
   value hidden with probability ``hidden``: how often the most probable sequence
   (Viterbi) and the per-step posterior's argmax name the action that was drawn. Some
   steps cannot be told apart by any reader (pulling an open drawer looks like waiting):
@@ -27,7 +27,7 @@ import numpy as np
 from effect_networks.experiments.harness.config import Result, check_float, check_int
 from effect_networks.experiments.harness.registry import Experiment
 from effect_networks.inference import explain, fit
-from effect_networks.inference.queries.demonstration import simulate_demonstrations
+from effect_networks.inference.sequences.demonstration import simulate_demonstrations
 from effect_networks.models import Discrete, EffectNetwork
 
 __all__ = [

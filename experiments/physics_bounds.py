@@ -45,7 +45,7 @@ from effect_networks.experiments.harness.config import (
     check_int,
 )
 from effect_networks.experiments.harness.registry import Experiment
-from effect_networks.inference.queries.planning import exact_plan, policy_value
+from effect_networks.inference.sequences.dynamic_programming import exact_plan, policy_value
 from effect_networks.sim2d import field_throws, geometry
 from effect_networks.sim2d.can_dataset import generate_dataset, load_dataset
 from effect_networks.sim2d.combined import TABLE_TOP_Z, reachable_throws

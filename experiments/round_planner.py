@@ -15,7 +15,7 @@ state, its share times that state's success rate: a linear system, solved exactl
 (rounds can lead back to one another).
 
 Beyond the paper, the exact planner over learned transition probabilities is
-:func:`inference.queries.planning.exact_plan`.
+:func:`inference.sequences.dynamic_programming.exact_plan`.
 """
 
 from __future__ import annotations

@@ -12,20 +12,23 @@ by a decomposable score (:mod:`inference.fitting.structure`).
 Questions (:mod:`inference.queries`): :func:`predict`, :func:`imitation_check`,
 :func:`infer_action`, :func:`infer_parameter` (the parameter posterior),
 :func:`parameter_for_effect` (the inverse model), :func:`predict_joint` (the end
-features' joint), :func:`transitions` (``P(next state | state, action)`` over a
-network's states), :func:`plan` (the policy that reaches a goal within a horizon),
-:func:`explain` (a demonstration read as the actions that produced it), and
-:func:`compile`, whose methods of the same names answer from compiled tables where they
-can; :func:`link_probabilities` and :func:`chain` read one network's continuous output
-as another's actions. Active exploration
+features' joint). Sequences (:mod:`inference.sequences`): :func:`transitions`
+(``P(next state | state, action)`` over a network's states), :func:`plan` (the policy
+that reaches a goal within a horizon), :func:`explain` (a demonstration read as the
+actions that produced it); :func:`link_probabilities` and :func:`chain` read one
+network's continuous output as another's actions. :func:`compile`
+(:mod:`inference.compiled`): one object whose methods of the same names answer from
+compiled tables where they can. The exact sums beneath them all: :mod:`inference.exact`.
+Active exploration
 (:mod:`inference.design`): :func:`explore`. Pictures of a network and its fitted
 numbers (matplotlib, drawn into the caller's axes): the module :mod:`inference.plots`.
 
-Lower-level names live in their modules (:mod:`inference.queries.enumeration`,
+Lower-level names live in their modules (:mod:`inference.exact.enumeration`,
 :mod:`inference.fitting.statistics`, ...).
 """
 
 from effect_networks.inference import plots as plots  # the module only: its names stay off the face
+from effect_networks.inference.compiled import CompiledQueries, compile
 from effect_networks.inference.design.active import explore
 from effect_networks.inference.fitting.em import EMResult, fit_em
 from effect_networks.inference.fitting.fit import (
@@ -50,34 +53,35 @@ from effect_networks.inference.fitting.statistics import params_from_statistics
 from effect_networks.inference.fitting.structure import learn_structure
 from effect_networks.inference.queries import (
     ActionPosterior,
-    BoxPartition,
-    CompiledQueries,
-    FunctionLink,
     GaussianMixture,
     ImitationCheck,
     JointPrediction,
-    LinkProbabilities,
     ParameterForEffect,
     ParameterPosterior,
-    Plan,
     Prediction,
-    StateSpace,
-    Transitions,
-    chain,
-    compile,
     imitation_check,
     infer_action,
     infer_parameter,
-    link_probabilities,
     parameter_for_effect,
-    plan,
     predict,
     predict_joint,
 )
-from effect_networks.inference.queries.explain import Explanation, explain
-from effect_networks.inference.queries.plausibility import OutsideTrainingData
-from effect_networks.inference.queries.simulate import simulate
-from effect_networks.inference.queries.transitions import transitions
+from effect_networks.inference.queries.implausibility import OutsideTrainingData
+from effect_networks.inference.queries.sampling import simulate
+from effect_networks.inference.sequences import (
+    BoxPartition,
+    Explanation,
+    FunctionLink,
+    LinkProbabilities,
+    Plan,
+    StateSpace,
+    Transitions,
+    chain,
+    explain,
+    link_probabilities,
+    plan,
+    transitions,
+)
 
 __all__ = [
     "ActionPosterior",

@@ -15,47 +15,7 @@ import numpy as np
 import pytest
 import torch
 
-README = Path(__file__).resolve().parents[1] / "README.md"
-DOCS = README.parent / "docs"
-#: the user guide's pages, in the order docs/guide.md lists them
-GUIDE_PAGES = tuple(
-    DOCS / f"{name}.md"
-    for name in (
-        "network",
-        "evidence",
-        "parameters",
-        "fitting",
-        "queries",
-        "compiled",
-        "pyro",
-        "interop",
-        "pictures",
-    )
-)
-#: a page whose ```python blocks run on their own (its outlines use ```{code-block})
-EXPERIMENTS = DOCS / "experiments.md"
-
-
-def blocks(text: str) -> list[str]:
-    """The bodies of the ```python blocks of a Markdown text, in order, de-indented."""
-    found = re.findall(r"^( *)```python\n(.*?)^\1```", text, re.S | re.M)
-    out = []
-    for indent, body in found:
-        lines = [
-            line[len(indent) :] if line.startswith(indent) else line for line in body.splitlines()
-        ]
-        out.append("\n".join(lines))
-    return out
-
-
-def snippets(path: Path = README) -> list[str]:
-    """A Markdown file's snippets, in order."""
-    return blocks(path.read_text())
-
-
-def guide_text() -> str:
-    """README and the user guide's pages, as one text (the names they teach)."""
-    return "\n".join(path.read_text() for path in (README, *GUIDE_PAGES))
+from tests.snippets import DOCS, EXPERIMENTS, GUIDE_PAGES, README, blocks, snippets
 
 
 def test_the_guide_lists_its_pages():
@@ -194,7 +154,7 @@ def test_the_experiments_page_snippet_runs(tmp_path, monkeypatch):
 def assert_loss_is_exact(namespace):
     """The README's ``TraceEnum_ELBO`` idiom is -log p(evidence), against the model summed
     by enumeration, also where a continuous end site is left out of the evidence."""
-    from effect_networks.inference.queries.enumeration import enumerate_model
+    from effect_networks.inference.exact.enumeration import enumerate_model
     from pyro.infer import TraceEnum_ELBO
 
     net, params, pushed = namespace["net"], namespace["params"], namespace["pushed"]

@@ -20,7 +20,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 from effect_networks.inference import explain, fit
 from effect_networks.inference.plots import plot_demonstration
-from effect_networks.inference.queries.demonstration import simulate_demonstrations
+from effect_networks.inference.sequences.demonstration import simulate_demonstrations
 from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter
 
 TINY = os.environ.get("EFFECT_NETWORKS_TUTORIALS") == "tiny"

@@ -47,7 +47,7 @@ from collections.abc import Iterable, Mapping
 
 import pyro
 import torch
-from effect_networks.inference.fitting.gaussian_gaps import continuous_gaps
+from effect_networks.inference.exact.gaussian_gaps import continuous_gaps
 from effect_networks.inference.fitting.missing import available_case_start, fit_missing
 from effect_networks.inference.fitting.result import ConvergenceWarning, FitResult
 from effect_networks.inference.fitting.rows import (

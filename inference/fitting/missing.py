@@ -6,13 +6,13 @@ row misses a value) are latent variables, as adaptive clusters are
 
 * **Discrete values** (None or NaN in the rows, or False in ``masks``): the Pyro model,
   traced under enumeration with them latent
-  (:func:`inference.queries.enumeration.enumerate_model`), gives each row's joint
+  (:func:`inference.exact.enumeration.enumerate_model`), gives each row's joint
   posterior over its missing values and its log-likelihood with them summed out. Each
   row then stands for one completed row per assignment of its missing values, weighted
   by that assignment's posterior.
 * **Continuous values** (NaN, whole or in some dimensions, at a continuous initial or
   end site): given an assignment of the discrete values, the row's continuous sites are
-  jointly Gaussian (:mod:`inference.fitting.gaussian_gaps`). The model, traced with
+  jointly Gaussian (:mod:`inference.exact.gaussian_gaps`). The model, traced with
   their factors left out, gives each assignment's discrete factors; the joint Gaussian
   gives the density of the observed dimensions (the missing ones integrated out) and the
   missing ones' conditional mean and covariance. Each completed row holds the
@@ -50,7 +50,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 
 import torch
-from effect_networks.inference.fitting.gaussian_gaps import (
+from effect_networks.inference.exact.enumeration import enumerate_model, row_chunks
+from effect_networks.inference.exact.gaussian_gaps import (
     condition,
     continuous_gaps,
     continuous_sites,
@@ -58,6 +59,7 @@ from effect_networks.inference.fitting.gaussian_gaps import (
     joint_gaussian,
     refuse_open_forms,
 )
+from effect_networks.inference.exact.traced import Enumerated
 from effect_networks.inference.fitting.result import ConvergenceWarning, FitResult
 from effect_networks.inference.fitting.rows import check_settings, missing_masks, rows_with_gaps
 from effect_networks.inference.fitting.statistics import (
@@ -66,7 +68,6 @@ from effect_networks.inference.fitting.statistics import (
     params_from_statistics,
     statistics,
 )
-from effect_networks.inference.queries.enumeration import Enumerated, enumerate_model, row_chunks
 from effect_networks.models.declaration import ACTION, EffectNetwork
 from effect_networks.models.evidence import DTYPE, Evidence
 from effect_networks.models.params import NetworkParams, check_params
@@ -231,7 +232,7 @@ def gaussian_row_log_likelihoods(
     Its missing discrete values summed out and its missing continuous ones integrated out: the terms
     of :func:`missing_log_likelihood`, by the closed-form Gaussian path (every continuous initial
     and end site a linear Gaussian, checked by
-    :func:`~inference.fitting.gaussian_gaps.refuse_open_forms`).
+    :func:`~inference.exact.gaussian_gaps.refuse_open_forms`).
 
     ``enc``: checked rows (:func:`inference.fitting.rows.rows_with_gaps`), NaN where a
     continuous value is missing, an adaptive parameter's cluster left out where the rows
@@ -278,7 +279,7 @@ def _completed_rows(net, params, enc, masks, allowed=None) -> Completed:
     (missing values summed out). ``allowed`` (:func:`actions_allowed`) restricts a missing action;
     the parameters' clusters then follow each assignment's action (the cell of the value, or cell
     0). Rows go through the model in chunks whose joint posterior stays below
-    :data:`inference.queries.enumeration.CHUNK_ELEMENTS`. Where a continuous value is missing (NaN),
+    :data:`inference.exact.enumeration.CHUNK_ELEMENTS`. Where a continuous value is missing (NaN),
     :func:`_completed_gaussian` serves instead.
     """
     gaps = continuous_gaps(net, enc)
@@ -325,7 +326,7 @@ class Completed:
 
     The completed rows, their weights, the summed log-likelihood (missing values summed out), the
     conditional covariances' sums per linear Gaussian where continuous values are missing
-    (:mod:`inference.fitting.gaussian_gaps`), and there each row's log-likelihood ``(n,)``.
+    (:mod:`inference.exact.gaussian_gaps`), and there each row's log-likelihood ``(n,)``.
     """
 
     rows: Evidence
@@ -341,7 +342,7 @@ def _completed_gaussian(net, params, enc, masks, allowed, posterior=True) -> Com
     The model, traced under enumeration with the missing discrete values latent and every continuous
     initial and end site's factor left out (their values filled in, read by no factor kept), gives
     each completion's discrete factors; the continuous sites' joint Gaussian given the completion
-    (:func:`inference.fitting.gaussian_gaps.joint_gaussian`) gives the density of the observed
+    (:func:`inference.exact.gaussian_gaps.joint_gaussian`) gives the density of the observed
     dimensions and the missing ones' conditional moments. Without ``posterior``, only the rows'
     log-likelihoods (``per_row``, ``-inf`` for a row of probability 0) and their sum: the rows are
     not completed.

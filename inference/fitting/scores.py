@@ -21,7 +21,7 @@ NaN for a discrete label, NaN for a continuous value or some of its dimensions; 
 ``masks``) and summed or integrated out exactly, row by row:
 
 * a row whose continuous values are all given goes through the traced model
-  (:func:`inference.queries.enumeration.enumerate_model`), its missing discrete values
+  (:func:`inference.exact.enumeration.enumerate_model`), its missing discrete values
   enumerated;
 * a row that misses a continuous value goes through the continuous sites' joint
   Gaussian given each completion of its discrete values
@@ -76,17 +76,17 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from effect_networks.inference.fitting.em import fit_em
-from effect_networks.inference.fitting.fit import fit
-from effect_networks.inference.fitting.gaussian_gaps import continuous_gaps, refuse_open_forms
-from effect_networks.inference.fitting.missing import actions_allowed, gaussian_row_log_likelihoods
-from effect_networks.inference.fitting.rows import mask_values, rows_with_gaps, split_missing
-from effect_networks.inference.queries.enumeration import (
-    Enumerated,
+from effect_networks.inference.exact.enumeration import (
     enumerate_model,
     enumeration_size,
     row_chunks,
 )
+from effect_networks.inference.exact.gaussian_gaps import continuous_gaps, refuse_open_forms
+from effect_networks.inference.exact.traced import Enumerated
+from effect_networks.inference.fitting.em import fit_em
+from effect_networks.inference.fitting.fit import fit
+from effect_networks.inference.fitting.missing import actions_allowed, gaussian_row_log_likelihoods
+from effect_networks.inference.fitting.rows import mask_values, rows_with_gaps, split_missing
 from effect_networks.models.declaration import ACTION, EffectNetwork
 from effect_networks.models.dtype import DTYPE
 from effect_networks.models.evidence import Evidence

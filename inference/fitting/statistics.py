@@ -33,6 +33,7 @@ from dataclasses import dataclass
 
 import torch
 from effect_networks.models.cpds import Counts, Moments
+from effect_networks.models.cpds.table import flat_index
 from effect_networks.models.declaration import EffectNetwork
 from effect_networks.models.evidence import Evidence
 
@@ -108,16 +109,6 @@ def params_from_statistics(
     return {
         s.name: net.cpd(s.name).m_step(stats.sites[s.name], alpha, min_variance) for s in net.sites
     }
-
-
-def flat_index(enc: Evidence, sites: tuple[str, ...], card: tuple[int, ...]) -> torch.Tensor:
-    """``(n,)`` row-major index of the rows' configuration of ``sites``."""
-    if not sites:
-        return torch.zeros(enc.n_rows, dtype=torch.long)
-    index = enc[sites[0]]
-    for s, k in zip(sites[1:], card[1:], strict=True):
-        index = index * k + enc[s]
-    return index
 
 
 def maximise_site(

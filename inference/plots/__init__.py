@@ -19,7 +19,7 @@ so importing this package costs nothing.
 * :func:`plot_action_posterior` (:mod:`inference.plots.posteriors`) -- an
   :class:`~inference.queries.ActionPosterior` row as bars by action name.
 * :func:`plot_demonstration` (:mod:`inference.plots.posteriors`) -- an
-  :class:`~inference.queries.explain.Explanation` row: the per-step action posterior as
+  :class:`~inference.sequences.explanation.Explanation` row: the per-step action posterior as
   a heat map, the most probable sequence marked.
 * :func:`plot_plan` (:mod:`inference.plots.plans`) -- a :class:`~inference.Plan`: its
   policy as a grid of the actions chosen per state and actions left, or its most likely

@@ -18,7 +18,7 @@ SHOWS = ("policy", "path")
 def _labels(plan, states: Sequence | None, actions: Sequence[str] | None):
     """The state and action labels, and the name of the states' axis.
 
-    A :class:`~inference.queries.planner.Plan`'s own, or those given (default: indices).
+    A :class:`~inference.sequences.planner.Plan`'s own, or those given (default: indices).
     """
     model = getattr(plan, "model", None)
     s = plan.value.shape[1]
@@ -51,10 +51,10 @@ def plot_plan(
     Parameters
     ----------
     plan : Plan or ExactPlan
-        What :func:`inference.plan` (or :func:`~inference.queries.planner.plan_on`)
+        What :func:`inference.plan` (or :func:`~inference.sequences.planner.plan_on`)
         returned, drawn by its labels; or an
-        :class:`~inference.queries.planning.ExactPlan` from
-        :func:`~inference.queries.planning.exact_plan`, drawn by ``states`` and
+        :class:`~inference.sequences.dynamic_programming.ExactPlan` from
+        :func:`~inference.sequences.dynamic_programming.exact_plan`, drawn by ``states`` and
         ``actions`` (indices by default).
     ax : matplotlib.axes.Axes, optional
         Where to draw; a new figure when ``None``.

@@ -15,32 +15,21 @@ exists, its compiled answer (tables read once off the same model) side by side.
   the value under which a desired effect is most likely.
 * :mod:`~inference.queries.joint` -- :func:`predict_joint`: the joint of the discrete end
   features (not only each one's marginal).
-* :mod:`~inference.queries.transitions` -- :func:`inference.transitions`: ``P(next
-  state | state, action)`` over a network's states (:mod:`~inference.queries.states`),
-  from its tables (exported on the :mod:`inference` face only, so that the module keeps
-  its name here).
-* :mod:`~inference.queries.planner` -- :func:`~inference.queries.planner.plan`: the policy that reaches a goal
-  within a horizon with the highest probability, by exact dynamic programming.
-* :mod:`~inference.queries.explain` -- :func:`inference.explain`: a demonstration (a
-  sequence of observed states) read as the actions that produced it (exported on the
-  :mod:`inference` face only, so that the module keeps its name here).
-* :mod:`~inference.queries.compiled` -- :func:`~inference.queries.compiled.compile`: one
-  object whose methods answer these questions, from the compiled tables where they can.
-* :mod:`~inference.queries.chaining` -- :func:`link_probabilities` and :func:`chain`:
-  one network's continuous output read as another's actions, and the chained transitions
-  a planner plans over.
 
 Beside them: :mod:`~inference.queries.results` (the result types),
 :mod:`~inference.queries.batching` (evidence checks and row handling),
-:mod:`~inference.queries.enumeration`, :mod:`~inference.queries.plausibility`,
-:mod:`~inference.queries.surprise`, :mod:`~inference.queries.simulate` and
-:mod:`~inference.queries.planning`.
+:mod:`~inference.queries.implausibility`, :mod:`~inference.queries.surprise`,
+:mod:`~inference.queries.sampling`; the sums they read are :mod:`inference.exact`'s.
 
 Every query reports ``unseen``: the posterior probability that its answer rests on a
 parent configuration no training row reached (answered from the pseudo-count prior alone),
 and ``implausible``: a row whose observed end state the model gives almost no probability
-(:mod:`inference.queries.plausibility`; threshold ``implausible_below``). Both warn; the
+(:mod:`inference.queries.implausibility`; threshold ``implausible_below``). Both warn; the
 answer is still given.
+
+The questions about sequences of states (transitions, plans, demonstrations, chained
+networks) are :mod:`inference.sequences`; :func:`inference.compile` answers both kinds
+from compiled tables (:mod:`inference.compiled`).
 
 Evidence follows one convention (:mod:`models.evidence`): state labels for discrete
 sites, numbers for continuous ones; a parameter row of NaN is unknown and integrated out
@@ -48,19 +37,10 @@ for that row. Empty evidence rows (``n = 0``) give empty results of the right sh
 """
 
 from effect_networks.inference.queries.action import infer_action
-from effect_networks.inference.queries.chaining import (
-    BoxPartition,
-    FunctionLink,
-    LinkProbabilities,
-    chain,
-    link_probabilities,
-)
-from effect_networks.inference.queries.compiled import CompiledQueries, compile
 from effect_networks.inference.queries.forward import imitation_check, predict
 from effect_networks.inference.queries.inverse import parameter_for_effect
 from effect_networks.inference.queries.joint import JointPrediction, predict_joint
 from effect_networks.inference.queries.parameter import infer_parameter
-from effect_networks.inference.queries.planner import Plan, plan
 from effect_networks.inference.queries.results import (
     ActionPosterior,
     GaussianMixture,
@@ -69,32 +49,19 @@ from effect_networks.inference.queries.results import (
     ParameterPosterior,
     Prediction,
 )
-from effect_networks.inference.queries.states import StateSpace
-from effect_networks.inference.queries.transitions import Transitions
 
 __all__ = [
     "ActionPosterior",
-    "BoxPartition",
-    "CompiledQueries",
-    "FunctionLink",
     "GaussianMixture",
     "ImitationCheck",
     "JointPrediction",
-    "LinkProbabilities",
     "ParameterForEffect",
     "ParameterPosterior",
-    "Plan",
     "Prediction",
-    "StateSpace",
-    "Transitions",
-    "chain",
-    "compile",
     "imitation_check",
     "infer_action",
     "infer_parameter",
-    "link_probabilities",
     "parameter_for_effect",
-    "plan",
     "predict",
     "predict_joint",
 ]

@@ -17,9 +17,7 @@ from dataclasses import fields, is_dataclass, replace
 
 import numpy as np
 import torch
-from effect_networks.inference.queries.enumeration import (
-    Enumerated,
-)
+from effect_networks.inference.exact.traced import Enumerated
 from effect_networks.models.cpds.table import gather
 from effect_networks.models.declaration import (
     ACTION,

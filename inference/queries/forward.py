@@ -20,6 +20,8 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 import torch
+from effect_networks.inference.exact.enumeration import conditional_log_evidence, over_row_chunks
+from effect_networks.inference.exact.traced import Enumerated
 from effect_networks.inference.queries.batching import (
     no_rows,
     placeholder_row,
@@ -27,12 +29,7 @@ from effect_networks.inference.queries.batching import (
     unseen_indicator,
     unseen_mass,
 )
-from effect_networks.inference.queries.enumeration import (
-    Enumerated,
-    conditional_log_evidence,
-    over_row_chunks,
-)
-from effect_networks.inference.queries.plausibility import (
+from effect_networks.inference.queries.implausibility import (
     IMPLAUSIBLE_BELOW,
     check_threshold,
     plausibility,
@@ -65,7 +62,7 @@ def predict(
     """End-state distribution of every end feature not in ``evidence``.
 
     ``implausible`` flags rows whose observed end features (if any are given) have a
-    probability below ``implausible_below`` (:mod:`inference.queries.plausibility`).
+    probability below ``implausible_below`` (:mod:`inference.queries.implausibility`).
     """
     below = check_threshold(implausible_below)
     enc = prepare(net, params, evidence)
@@ -163,7 +160,7 @@ def imitation_check(
     quasi-random directions beyond two continuous dimensions (:mod:`inference.queries.surprise`).
     The same row gets the same answer in any batch. ``implausible`` flags rows whose
     observed end state has a probability below ``implausible_below`` given the executed
-    action (:mod:`inference.queries.plausibility`).
+    action (:mod:`inference.queries.implausibility`).
     """
     below = check_threshold(implausible_below)
     enc = prepare(net, params, evidence)

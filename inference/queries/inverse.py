@@ -16,6 +16,9 @@ import math
 from collections.abc import Mapping
 
 import torch
+from effect_networks.inference.exact.enumeration import (
+    over_row_chunks,
+)
 from effect_networks.inference.queries.batching import (
     check_parameter_evidence,
     first_best,
@@ -23,9 +26,6 @@ from effect_networks.inference.queries.batching import (
     no_rows,
     parameter_placeholder,
     prepare,
-)
-from effect_networks.inference.queries.enumeration import (
-    over_row_chunks,
 )
 from effect_networks.inference.queries.results import (
     ParameterForEffect,

@@ -8,7 +8,7 @@ features depend on each other (declared end -> end parents, a shared end-only fe
 one unknown parameter cluster acting on several), the joint is not the product of the
 marginals, and a step of a plan needs the joint. It is summed here from the same traced
 model, every other latent site summed out by contraction
-(:meth:`~inference.queries.enumeration.Enumerated.joint`).
+(:meth:`~inference.exact.traced.Enumerated.joint`).
 """
 
 from __future__ import annotations
@@ -18,9 +18,9 @@ from collections.abc import Hashable, Mapping, Sequence
 from dataclasses import dataclass, replace
 
 import torch
+from effect_networks.inference.exact.enumeration import over_row_chunks
 from effect_networks.inference.queries.batching import placeholder_row, prepare, unseen_mass
-from effect_networks.inference.queries.enumeration import over_row_chunks
-from effect_networks.inference.queries.plausibility import (
+from effect_networks.inference.queries.implausibility import (
     IMPLAUSIBLE_BELOW,
     check_threshold,
     plausibility,
@@ -39,7 +39,7 @@ class JointPrediction:
 
     ``unseen`` ``(n,)``: the probability that the prediction rests on a parent
     configuration no training row reached; ``implausible`` ``(n,)`` bool: the observed end
-    features (if any) have almost no probability (:mod:`inference.queries.plausibility`).
+    features (if any) have almost no probability (:mod:`inference.queries.implausibility`).
     """
 
     features: tuple[str, ...]

@@ -11,7 +11,7 @@ Side by side, tested equal on the same cases:
   precomputed) for a parameter acting on one continuous feature,
   :class:`CompiledJointParameterQuery` for one acting on several features. Both report
   ``implausible`` from the chi-square tail of the closest cluster's Gaussian
-  (:mod:`inference.queries.plausibility`).
+  (:mod:`inference.queries.implausibility`).
 
 Users reach the compiled query through :func:`inference.compile` (its
 ``infer_parameter``).
@@ -24,6 +24,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 
 import torch
+from effect_networks.inference.exact.enumeration import over_row_chunks
+from effect_networks.inference.exact.traced import Enumerated
 from effect_networks.inference.queries.batching import (
     check_parameter_evidence,
     given_other_parameters,
@@ -34,20 +36,16 @@ from effect_networks.inference.queries.batching import (
     unseen_indicator,
     unseen_mass,
 )
-from effect_networks.inference.queries.enumeration import (
-    Enumerated,
-    over_row_chunks,
-)
-from effect_networks.inference.queries.parameter_tables import (
-    CompiledParameterQuery,
-    refuse_impossible,
-)
-from effect_networks.inference.queries.plausibility import (
+from effect_networks.inference.queries.implausibility import (
     IMPLAUSIBLE_BELOW,
     check_threshold,
     initial_tails,
     outside_training,
     plausibility,
+)
+from effect_networks.inference.queries.parameter_tables import (
+    CompiledParameterQuery,
+    refuse_impossible,
 )
 from effect_networks.inference.queries.results import (
     GaussianMixture,
@@ -87,7 +85,7 @@ def infer_parameter(
     posterior mean of the parameter; the paper's best-cluster answer stays in ``mean``.
     ``implausible`` flags rows whose observed end state has a probability below
     ``implausible_below`` given the action, the parameter integrated out
-    (:mod:`inference.queries.plausibility`).
+    (:mod:`inference.queries.implausibility`).
     """
     below = check_threshold(implausible_below)
     m = net.mixture(parameter)

@@ -15,7 +15,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 import torch
-from effect_networks.inference.queries.plausibility import (
+from effect_networks.inference.queries.implausibility import (
     IMPLAUSIBLE_BELOW,
     check_threshold,
     initial_tails,
@@ -68,7 +68,7 @@ class CompiledParameterQuery:
     prior_mean: torch.Tensor  # (C, k)
     post_cov: torch.Tensor  # (P..., k, k)
     seen: torch.Tensor  # (P...) bool
-    # for the initial states' plausibility (inference.queries.plausibility.initial_tails)
+    # for the initial states' plausibility (inference.queries.implausibility.initial_tails)
     params: NetworkParams | None = field(default=None, repr=False, compare=False)
     # Built on first use: the one-row tables (:meth:`_one_row`), the largest entries
     # :meth:`_rounds_off` reads.
@@ -394,7 +394,7 @@ class CompiledParameterQuery:
 def refuse_impossible(log_post: torch.Tensor) -> None:
     """Refuse rows ``(n, C)`` whose every cluster has probability 0 (in float64).
 
-    No posterior exists (as :class:`inference.queries.enumeration.Enumerated` refuses them).
+    No posterior exists (as :class:`inference.exact.traced.Enumerated` refuses them).
     """
     top = log_post.amax(-1)
     if not bool((top > -torch.inf).all()):

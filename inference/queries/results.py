@@ -62,7 +62,7 @@ class Prediction:
     continuous: dict[str, GaussianMixture]
     unseen: torch.Tensor  # (n,) probability of resting on an unseen configuration
     states: dict[str, tuple] = field(default_factory=dict)
-    implausible: torch.Tensor | None = None  # (n,) bool; see inference.queries.plausibility
+    implausible: torch.Tensor | None = None  # (n,) bool; see inference.queries.implausibility
 
     def prob(self, feature: str, state: Hashable) -> torch.Tensor:
         """``(n,)`` probability that ``feature`` ends in ``state`` (a label)."""
@@ -118,7 +118,7 @@ class ActionPosterior:
 
     ``probs`` ``(n, A)`` over ``actions``; ``best`` ``(n,)`` index; ``unseen`` ``(n, A)``;
     ``implausible`` ``(n,)`` bool: the observed end state has (almost) no probability under the
-    model (see :mod:`inference.queries.plausibility`; ``None`` from the compiled queries), so
+    model (see :mod:`inference.queries.implausibility`; ``None`` from the compiled queries), so
     ``best`` answers a question the model cannot explain.
     """
 
@@ -181,7 +181,7 @@ class ImitationCheck:
       ``P(chi2_d < D^2)``.
     * ``unseen``: the posterior probability that the observed end sites' configuration
       was never reached in training.
-    * ``implausible`` bool (see :mod:`inference.queries.plausibility`).
+    * ``implausible`` bool (see :mod:`inference.queries.implausibility`).
     """
 
     log_likelihood: torch.Tensor
@@ -216,7 +216,7 @@ class ParameterPosterior:
     action the declaration does not cover). ``mixture``: with ``mixture=True``, the full
     posterior of the parameter, one Gaussian per cluster weighted by ``cluster_probs``.
     ``implausible`` ``(n,)`` bool: the observed end state has (almost) no probability
-    under the model (see :mod:`inference.queries.plausibility`; ``None`` from the compiled query).
+    under the model (see :mod:`inference.queries.implausibility`; ``None`` from the compiled query).
     """
 
     cluster_probs: torch.Tensor

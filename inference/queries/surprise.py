@@ -51,13 +51,13 @@ from __future__ import annotations
 import math
 
 import torch
-from effect_networks.inference.queries.enumeration import (
-    Enumerated,
+from effect_networks.inference.exact.enumeration import (
     enumerate_model,
     log_ratio,
     over_row_chunks,
     row_chunks,
 )
+from effect_networks.inference.exact.traced import Enumerated
 from effect_networks.models.declaration import DTYPE, EffectNetwork
 from effect_networks.models.evidence import Evidence, observed_dims
 from effect_networks.models.gaussian import mahalanobis, mask_unobserved

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import pyro.distributions as dist
 import torch
@@ -17,6 +18,9 @@ from effect_networks.models.cpds.base import CPD
 from effect_networks.models.dtype import DTYPE
 from pyro.ops.indexing import Vindex
 from torch.utils.weak import WeakIdKeyDictionary
+
+if TYPE_CHECKING:
+    from effect_networks.models.evidence import Evidence
 
 
 @dataclass(frozen=True)
@@ -331,6 +335,16 @@ def _is_range(i: torch.Tensor) -> bool:
     if flat.shape[0] <= 64:  # an enumerated site's states: Python's compare is cheaper
         return flat.tolist() == list(range(flat.shape[0]))
     return bool((flat == torch.arange(flat.shape[0])).all())
+
+
+def flat_index(enc: Evidence, sites: tuple[str, ...], card: tuple[int, ...]) -> torch.Tensor:
+    """``(n,)`` row-major index of the rows' configuration of ``sites``."""
+    if not sites:
+        return torch.zeros(enc.n_rows, dtype=torch.long)
+    index = enc[sites[0]]
+    for s, k in zip(sites[1:], card[1:], strict=True):
+        index = index * k + enc[s]
+    return index
 
 
 def counts(

@@ -16,7 +16,7 @@ from effect_networks.experiments.combined import (
     run_combined,
 )
 from effect_networks.experiments.harness.config import ConfigError
-from effect_networks.inference.queries.chaining import link_probabilities
+from effect_networks.inference.sequences.chaining import link_probabilities
 from effect_networks.sim2d import geometry, materials
 from effect_networks.sim2d.combined import CAN_BAND
 from effect_networks.sim2d.field_throws import aim_offset, launch_state

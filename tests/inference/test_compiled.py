@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 from effect_networks.inference import infer_action
-from effect_networks.inference.queries.action import compile_discrete
+from effect_networks.inference.queries.action_tables import compile_discrete
 from effect_networks.models import Continuous, EffectNetwork
 from hypothesis import example, given, settings
 from hypothesis import strategies as st
@@ -56,7 +56,7 @@ def test_compile_refuses_continuous_networks():
 def test_compiled_parameter_query_equals_traced():
     from effect_networks.inference import infer_parameter
 
-    from tests.inference.test_queries_mixed import NET
+    from tests.networks import NET
 
     params = random_params(NET, 21, unseen=0.2)
     query = inference.compile(NET, params).parameter_query("force")
@@ -81,7 +81,7 @@ def test_compiled_parameter_query_equals_traced():
 def test_compiled_parameter_query_with_one_shared_configuration():
     from effect_networks.inference import infer_parameter
 
-    from tests.inference.test_queries_mixed import NET
+    from tests.networks import NET
 
     params = random_params(NET, 4)
     g = torch.Generator().manual_seed(2)
@@ -144,7 +144,7 @@ def test_answers_with_latent_initial_sites_equal_the_answers_per_row(
     observed configuration (the others summed out, in chunks of any size) are those
     computed row by row, and the traced model's: posterior, evidence, unseen mass, best
     action (with and without allowed actions and the unseen rule) and the flag."""
-    import effect_networks.inference.queries.action as action_module
+    import effect_networks.inference.queries.action_tables as action_module
 
     chunk = action_module.ANSWERS_CHUNK if chunk is None else chunk  # 40: small chunks
     with mock.patch.object(action_module, "ANSWERS_CHUNK", chunk):
@@ -237,7 +237,7 @@ def test_compiled_query_of_a_parameter_on_two_continuous_features(seed, which):
     from effect_networks.inference.queries.parameter import CompiledJointParameterQuery
     from effect_networks.models import Partial
 
-    from tests.inference.test_parameter_effects import throwing
+    from tests.networks import throwing
 
     net, _ = throwing()
     params = random_params(net, seed, unseen=0.3)
@@ -304,7 +304,7 @@ def test_compiled_query_of_a_parameter_on_a_continuous_and_a_discrete_feature():
 def test_compiled_query_refuses_a_feature_shared_by_two_parameters():
     from effect_networks.inference.queries.parameter import compile_parameter_query
 
-    from tests.inference.test_parameter_effects import sliding
+    from tests.networks import sliding
 
     net, params = sliding()
     with pytest.raises(ValueError, match=r"'force' shares \['end.pos'\] with another parameter"):

@@ -20,73 +20,11 @@ import pytest
 import torch
 from effect_networks.models import Continuous, Discrete, EffectNetwork
 
-ACTIONS = ("press", "pull", "turn", "wait")
-STATES = {
-    "door": ("locked", "shut", "open"),
-    "drawer": ("shut", "open"),
-    "switch": ("off", "on"),
-}
-#: the door's end state follows its start, the action and the handle; the others their own
-OWN = {
-    "end.door": ("initial.door", "action", "initial.handle_angle"),
-    "end.drawer": ("initial.drawer", "action"),
-    "end.switch": ("initial.switch", "action"),
-    "end.handle_angle": ("initial.handle_angle", "action"),
-}
-
-
-def door_world(parents=OWN, *, handle=True) -> EffectNetwork:
-    """The network; ``parents=None``: the paper's default (every initial feature and the
-    action behind every end feature); ``handle=False``: the purely discrete version."""
-    features = tuple(Discrete(name, states) for name, states in STATES.items())
-    if handle:
-        features += (Continuous("handle_angle", 1),)
-    return EffectNetwork(features=features, actions=ACTIONS, parents=parents or {})
-
-
-def door_rows(n: int, seed: int = 0, *, handle: bool = True) -> dict[str, np.ndarray]:
-    """Training rows by site, labels for discrete sites, ``(n, 1)`` radians for the angle."""
-    rng = np.random.default_rng(seed)
-    action = rng.choice(ACTIONS, n)
-    door = rng.choice(STATES["door"], n, p=[0.3, 0.4, 0.3])
-    drawer = rng.choice(STATES["drawer"], n)
-    switch = rng.choice(STATES["switch"], n)
-    angle = rng.uniform(-1.0, 1.0, n)
-    turned = action == "turn"
-    # the door: a softmax of the angle; turning the handle far enough opens it
-    logits = np.stack(
-        [
-            np.where(door == "locked", 3.0 - 3.0 * turned * angle, -1.0),
-            np.where(action == "pull", 1.0, 0.0),
-            np.where(turned, 4.0 * angle, -2.0),
-        ],
-        1,
-    )
-    if not handle:
-        logits[:, 2] = np.where(turned, 1.5, -2.0)
-    prob = np.exp(logits - logits.max(1, keepdims=True))
-    prob /= prob.sum(1, keepdims=True)
-    end_door = (rng.random(n)[:, None] > prob.cumsum(1)).sum(1).clip(0, 2)
-    flipped = (action == "press") & (rng.random(n) < 0.9)
-    stuck = rng.random(n) < 0.1
-    rows = {
-        "initial.door": door,
-        "initial.drawer": drawer,
-        "initial.switch": switch,
-        "action": action,
-        "end.door": np.array(STATES["door"])[end_door],
-        "end.drawer": np.where((action == "pull") & ~stuck, "open", drawer),
-        "end.switch": np.where(flipped, np.where(switch == "on", "off", "on"), switch),
-    }
-    if handle:
-        rows["initial.handle_angle"] = angle[:, None]
-        end = np.where(turned, 0.5 * angle + 0.3, angle) + rng.normal(0.0, 0.05, n)
-        rows["end.handle_angle"] = end[:, None]
-    return rows
+from tests.networks import DOOR_ACTIONS, DOOR_PARENTS, DOOR_STATES, door_rows, door_world
 
 
 def states_of(site: str) -> tuple:
-    return ACTIONS if site == "action" else STATES[site.split(".", 1)[1]]
+    return DOOR_ACTIONS if site == "action" else DOOR_STATES[site.split(".", 1)[1]]
 
 
 def index_of(site: str, labels) -> np.ndarray:
@@ -174,7 +112,7 @@ def numpy_kkt(net, params, rows, l2):
     return max(np.abs(grad_w).max(), np.abs(grad_b).max())
 
 
-@pytest.mark.parametrize("parents", [OWN, None], ids=["own", "default"])
+@pytest.mark.parametrize("parents", [DOOR_PARENTS, None], ids=["own", "default"])
 @pytest.mark.parametrize("l2", [0.01, 1.0])
 def test_softmax_fit_meets_the_kkt_conditions_quickly(parents, l2):
     from effect_networks.inference import fit
@@ -190,13 +128,13 @@ def test_softmax_fit_meets_the_kkt_conditions_quickly(parents, l2):
     assert result.converged
     assert numpy_kkt(net, result.params, rows, l2) < 1e-6
     assert elapsed < 1.0  # goal 0.2 s; the bound leaves room for a loaded machine
-    if parents is not OWN:
+    if parents is not DOOR_PARENTS:
         return
     # the table sites beside it are the counts
     drawer = result.params["end.drawer"].probs.numpy()
     pulled = (rows["action"] == "pull") & (rows["initial.drawer"] == "shut")
     share = np.mean(rows["end.drawer"][pulled] == "open")
-    assert drawer[0, ACTIONS.index("pull"), 1] == pytest.approx(share, abs=1e-4)
+    assert drawer[0, DOOR_ACTIONS.index("pull"), 1] == pytest.approx(share, abs=1e-4)
 
 
 def test_softmax_fit_at_large_angles():
@@ -294,7 +232,7 @@ def test_bad_masks_are_value_errors_naming_the_site(masks, words):
 
 def tiny_world() -> EffectNetwork:
     return EffectNetwork(
-        features=(Discrete("door", STATES["door"]), Continuous("handle_angle", 1)),
+        features=(Discrete("door", DOOR_STATES["door"]), Continuous("handle_angle", 1)),
         actions=("turn", "wait"),
         parents={
             "end.door": ("action", "initial.handle_angle"),
@@ -311,7 +249,9 @@ def tiny_rows(n, seed):
     angle = rows["initial.handle_angle"][:, 0]
     logits = np.stack([np.zeros(n), np.where(turn, 1.0, 0.5), np.where(turn, 3 * angle, -1.0)], 1)
     prob = np.exp(logits) / np.exp(logits).sum(1, keepdims=True)
-    rows["end.door"] = np.array(STATES["door"])[(rng.random(n)[:, None] > prob.cumsum(1)).sum(1)]
+    rows["end.door"] = np.array(DOOR_STATES["door"])[
+        (rng.random(n)[:, None] > prob.cumsum(1)).sum(1)
+    ]
     end = np.where(turn, 0.5 * angle + 0.3, angle) + rng.normal(0.0, 0.1, n)
     rows["end.handle_angle"] = end[:, None]
     keep = ("initial.door", "initial.handle_angle", "action", "end.door", "end.handle_angle")
@@ -458,13 +398,13 @@ def test_discrete_queries_equal_pgmpy_variable_elimination(pattern):
         np.testing.assert_allclose(tables.probs[i].numpy(), expected, rtol=0, atol=1e-12)
         one = compiled.infer_action({s: rows[s][i : i + 1] for s in pattern})  # one row
         np.testing.assert_allclose(one.probs[0].numpy(), expected, rtol=0, atol=1e-12)
-        assert one.best_names == (ACTIONS[int(np.argmax(expected))],) or one.unseen.any()
+        assert one.best_names == (DOOR_ACTIONS[int(np.argmax(expected))],) or one.unseen.any()
     # predict: the initial sites of the pattern and an action; every end feature
     initial = [s for s in pattern if s.startswith("initial.")]
     prediction = predict(net, params, {s: rows[s] for s in initial} | {"action": rows["action"]})
     for i in range(6):
         evidence = {s: int(index_of(s, rows[s][i : i + 1])[0]) for s in (*initial, "action")}
-        for feature, states in STATES.items():
+        for feature, states in DOOR_STATES.items():
             expected = ve.query([f"end.{feature}"], evidence=evidence, show_progress=False).values
             ours = np.array([float(prediction.prob(feature, state)[i]) for state in states])
             np.testing.assert_allclose(ours, expected, rtol=0, atol=1e-12)
@@ -490,7 +430,7 @@ def test_mixed_queries_equal_the_brute_force_joint():
     evidence = {s: rows[s] for s in ("initial.handle_angle", "initial.door", "action")}
     prediction = predict(net, params, evidence)
     _, marginals = brute_force(net, params, evidence)
-    ours = np.stack([prediction.prob("door", s).numpy() for s in STATES["door"]], 1)
+    ours = np.stack([prediction.prob("door", s).numpy() for s in DOOR_STATES["door"]], 1)
     np.testing.assert_allclose(ours, marginals["end.door"], rtol=0, atol=1e-12)
 
 
@@ -676,8 +616,8 @@ def test_an_unknown_torque_integrated_out_equals_numerical_integration():
     from scipy.stats import norm
 
     net = EffectNetwork(
-        features=(Discrete("door", STATES["door"]), Continuous("handle_angle", 1)),
-        actions=ACTIONS,
+        features=(Discrete("door", DOOR_STATES["door"]), Continuous("handle_angle", 1)),
+        actions=DOOR_ACTIONS,
         parameters=(Parameter("torque", 0.0, 2.0, 4, actions=("turn",), affects="handle_angle"),),
         parents={
             "end.door": ("initial.door", "action", "initial.handle_angle"),
@@ -708,7 +648,7 @@ def test_an_unknown_torque_integrated_out_equals_numerical_integration():
     )
     t = np.linspace(-20.0, 22.0, 400_001)
     joint = np.zeros(4)
-    for a, name in enumerate(ACTIONS):
+    for a, name in enumerate(DOOR_ACTIONS):
         logits = p["end.door"].weight[0, a, :, 0].numpy() * x + p["end.door"].bias[0, a].numpy()
         opened = np.exp(logits - logits.max())[2] / np.exp(logits - logits.max()).sum()
         moved = 0.0

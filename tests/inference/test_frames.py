@@ -26,7 +26,7 @@ from effect_networks.inference import (
 from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter, random_params
 from effect_networks.models.frames import from_frame, to_frame
 
-from tests.inference.questions import TracedCalls, assert_same_answer
+from tests.questions import TracedCalls, assert_same_answer
 
 ROOT = Path(__file__).resolve().parents[2]
 

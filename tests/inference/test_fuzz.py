@@ -20,6 +20,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from effect_networks import inference
+from tests.networks import mixed_networks
 
 STATE_KINDS = {
     "int": lambda k: tuple(range(10, 10 + k)),
@@ -218,23 +219,6 @@ def test_continuous_calls_are_right_or_refused(seed, bad, where, data):
         )
 
 
-@st.composite
-def mixed_networks(draw):
-    """Discrete and continuous features, and perhaps a parameter that some actions use."""
-    features = [
-        Discrete(f"d{i}", ("x", "y", "z")[: draw(st.integers(2, 3))])
-        for i in range(draw(st.integers(0, 1)))
-    ]
-    features += [
-        Continuous(f"c{i}", draw(st.integers(1, 2))) for i in range(draw(st.integers(1, 2)))
-    ]
-    actions = tuple(f"a{j}" for j in range(draw(st.integers(2, 3))))
-    parameters = ()
-    if draw(st.booleans()):
-        parameters = (Parameter("p", 0.0, 1.0, draw(st.integers(1, 3)), actions[:1], "c0"),)
-    return EffectNetwork(tuple(features), actions, parameters)
-
-
 def _assert_distribution(probs: torch.Tensor, what: str):
     assert not probs.isnan().any(), what
     assert (probs >= 0).all(), what
@@ -259,7 +243,7 @@ def test_every_distribution_sums_to_one_at_every_accepted_magnitude(
     import warnings
 
     from effect_networks.inference import infer_parameter
-    from effect_networks.inference.queries.plausibility import OutsideTrainingData
+    from effect_networks.inference.queries.implausibility import OutsideTrainingData
 
     params = random_params(net, seed)
     big = sign * 10.0**exponent

@@ -34,7 +34,7 @@ from effect_networks.inference import (
     parameter_for_effect,
     predict,
 )
-from effect_networks.inference.queries.plausibility import IMPLAUSIBLE_BELOW
+from effect_networks.inference.queries.implausibility import IMPLAUSIBLE_BELOW
 from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter, random_params
 from effect_networks.models.cpds.linear_gaussian import LinearGaussianParams
 from effect_networks.models.cpds.softmax import SoftmaxParams

@@ -27,7 +27,7 @@ from effect_networks.inference import (
     predict,
     simulate,
 )
-from effect_networks.inference.queries.action import compile_discrete
+from effect_networks.inference.queries.action_tables import compile_discrete
 from effect_networks.inference.queries.parameter import compile_parameter_query
 from effect_networks.models import (
     Continuous,
@@ -258,7 +258,7 @@ def fields_of(result, name="") -> dict:
 
 
 @pytest.mark.filterwarnings(
-    "ignore::effect_networks.inference.queries.plausibility.OutsideTrainingData"
+    "ignore::effect_networks.inference.queries.implausibility.OutsideTrainingData"
 )
 def test_every_row_answers_alike_in_batches_of_0_1_and_10000():
     net, params, _ = shelf_world()
@@ -353,7 +353,7 @@ def slide_oracle(params, row, action, observed):
 
 
 @pytest.mark.filterwarnings(
-    "ignore::effect_networks.inference.queries.plausibility.OutsideTrainingData"
+    "ignore::effect_networks.inference.queries.implausibility.OutsideTrainingData"
 )
 def test_a_parameter_on_two_features_one_in_part_traced_compiled_and_by_hand():
     net, params = slide_world()
@@ -480,7 +480,7 @@ magnitudes = st.floats(-150.0, 150.0).map(lambda e: 10.0**e)
 
 
 @pytest.mark.filterwarnings(
-    "ignore::effect_networks.inference.queries.plausibility.OutsideTrainingData"
+    "ignore::effect_networks.inference.queries.implausibility.OutsideTrainingData"
 )
 @settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(
@@ -671,7 +671,7 @@ def test_a_parameter_on_a_discrete_feature_only_against_the_tables():
 
 # ---------------------------------------------------------------- compiled: one row and many
 @pytest.mark.filterwarnings(
-    "ignore::effect_networks.inference.queries.plausibility.OutsideTrainingData"
+    "ignore::effect_networks.inference.queries.implausibility.OutsideTrainingData"
 )
 def test_compiled_parameter_query_one_row_in_every_form_equals_its_row_in_10000():
     """A 2-D force whose feature's only parents are the action and the cluster (user
@@ -715,7 +715,7 @@ def test_compiled_parameter_query_one_row_in_every_form_equals_its_row_in_10000(
 
 
 @pytest.mark.filterwarnings(
-    "ignore::effect_networks.inference.queries.plausibility.OutsideTrainingData"
+    "ignore::effect_networks.inference.queries.implausibility.OutsideTrainingData"
 )
 def test_adaptive_compiled_equals_traced_from_ordinary_values_to_the_limit():
     net, params = adaptive_push_world()
@@ -807,7 +807,7 @@ def test_predict_integrates_the_unknown_height_by_hand():
 
 
 @pytest.mark.filterwarnings(
-    "ignore::effect_networks.inference.queries.plausibility.OutsideTrainingData"
+    "ignore::effect_networks.inference.queries.implausibility.OutsideTrainingData"
 )
 def test_slide_with_per_row_masks_answers_alike_in_batches_and_forms():
     """10,000 rows with their own masks of the 2-D position: the compiled and traced

@@ -399,7 +399,7 @@ magnitudes = st.floats(-3.0, math.log10(MAX_MAGNITUDE)).map(lambda e: 10.0**e)
 
 
 @pytest.mark.filterwarnings(
-    "ignore::effect_networks.inference.queries.plausibility.OutsideTrainingData"
+    "ignore::effect_networks.inference.queries.implausibility.OutsideTrainingData"
 )
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(
@@ -1039,7 +1039,7 @@ def affordance_oracle(params, size, end_size, shape, colour, end_shape) -> list:
 
 
 @pytest.mark.filterwarnings(
-    "ignore::effect_networks.inference.queries.plausibility.OutsideTrainingData"
+    "ignore::effect_networks.inference.queries.implausibility.OutsideTrainingData"
 )
 @settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(

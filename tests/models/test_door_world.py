@@ -13,7 +13,7 @@ import pytest
 import torch
 from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter, load, save
 
-from tests.inference.test_door_world import ACTIONS, OWN, STATES, door_rows, door_world
+from tests.networks import DOOR_ACTIONS, DOOR_PARENTS, DOOR_STATES, door_rows, door_world
 
 
 @pytest.fixture(scope="module")
@@ -76,11 +76,11 @@ def test_a_flipped_byte_is_refused(door, tmp_path):
 def reordered() -> EffectNetwork:
     features = (
         Discrete("door", ("shut", "locked", "open")),
-        Discrete("drawer", STATES["drawer"]),
-        Discrete("switch", STATES["switch"]),
+        Discrete("drawer", DOOR_STATES["drawer"]),
+        Discrete("switch", DOOR_STATES["switch"]),
         Continuous("handle_angle", 1),
     )
-    return EffectNetwork(features=features, actions=ACTIONS, parents=OWN)
+    return EffectNetwork(features=features, actions=DOOR_ACTIONS, parents=DOOR_PARENTS)
 
 
 def test_loaded_parameters_refuse_a_declaration_with_states_reordered(door, tmp_path):
@@ -114,15 +114,15 @@ def test_a_file_whose_declaration_was_edited_is_refused(door, tmp_path):
 
 def test_actions_given_as_one_string_are_refused():
     with pytest.raises(ValueError, match="'press'"):
-        EffectNetwork(features=(Discrete("door", STATES["door"]),), actions="press")
+        EffectNetwork(features=(Discrete("door", DOOR_STATES["door"]),), actions="press")
 
 
 def test_a_billion_bins_are_refused_at_once_naming_the_site():
     start = time.perf_counter()
     with pytest.raises(ValueError, match=r"cluster\.force"):
         EffectNetwork(
-            features=(Discrete("door", STATES["door"]), Continuous("handle_angle", 1)),
-            actions=ACTIONS,
+            features=(Discrete("door", DOOR_STATES["door"]), Continuous("handle_angle", 1)),
+            actions=DOOR_ACTIONS,
             parameters=(
                 Parameter(
                     "force",
@@ -148,9 +148,11 @@ def test_saving_onto_a_folder_is_refused_naming_it(door, tmp_path):
 def test_states_or_actions_given_as_a_set_are_refused():
     # a set's order (each label's index) may differ from one run to the next
     with pytest.raises(ValueError, match=r"feature 'door': states must be an ordered sequence"):
-        Discrete("door", set(STATES["door"]))
+        Discrete("door", set(DOOR_STATES["door"]))
     with pytest.raises(ValueError, match=r"actions must be an ordered sequence"):
-        EffectNetwork(features=(Discrete("door", STATES["door"]),), actions=frozenset(ACTIONS))
+        EffectNetwork(
+            features=(Discrete("door", DOOR_STATES["door"]),), actions=frozenset(DOOR_ACTIONS)
+        )
 
 
 @pytest.mark.parametrize(

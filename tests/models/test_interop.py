@@ -23,52 +23,12 @@ from effect_networks.models.declaration import DTYPE
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from tests.networks import counts_of, declared_networks, discrete_networks, pgmpy_marginal
+
 pytest.importorskip("pgmpy")
 from pgmpy.factors.discrete import TabularCPD  # noqa: E402
 from pgmpy.inference import VariableElimination  # noqa: E402
 from pgmpy.models import DiscreteBayesianNetwork  # noqa: E402
-
-LABELS = {
-    "str": lambda k: ("lo", "mid", "hi")[:k],
-    "int": lambda k: (7, -1, 2)[:k],
-    "bool": lambda k: (False, True),
-}
-
-
-@st.composite
-def discrete_networks(draw):
-    """Small discrete networks with str, int and bool labels, some end-only features."""
-    features = []
-    for i in range(draw(st.integers(1, 3))):
-        labels = draw(st.sampled_from(sorted(LABELS)))
-        k = 2 if labels == "bool" else draw(st.integers(2, 3))
-        initial = i == 0 or draw(st.booleans())
-        features.append(Discrete(f"f{i}", LABELS[labels](k), initial=initial))
-    actions = ("push", "pull", "wait")[: draw(st.integers(2, 3))]
-    return EffectNetwork(tuple(features), actions)
-
-
-@st.composite
-def declared_networks(draw):
-    """Small discrete networks with declared parent sets: initial sites on earlier
-    initial sites, end sites on any initial sites, the action and earlier end sites."""
-    base = draw(discrete_networks())
-    features = base.features
-    initial = [f"initial.{f.name}" for f in features if f.initial]
-    ends = [f"end.{f.name}" for f in features]
-    parents = {}
-    for i, site in enumerate(initial):
-        parents[site] = tuple(q for q in initial[:i] if draw(st.booleans()))
-    for i, site in enumerate(ends):
-        pool = [*initial, "action", *ends[:i]]
-        parents[site] = tuple(q for q in pool if draw(st.booleans()))
-    return EffectNetwork(features, base.actions, parents=parents)
-
-
-def pgmpy_marginal(ve, site, evidence):
-    """p(site | evidence) from pgmpy, in the order of the factor's state names."""
-    factor = ve.query([site], evidence=evidence, show_progress=False)
-    return factor.state_names[site], torch.as_tensor(factor.values, dtype=DTYPE)
 
 
 def door_world():
@@ -160,10 +120,6 @@ def test_a_continuous_network_leaves_out_what_pgmpy_cannot_hold():
 
 
 # ----------------------------------------------------------------------------- round trips
-def counts_of(params):
-    return {site: cpd.n for site, cpd in params.cpds.items()}
-
-
 def assert_same(net, params, net2, params2):
     assert net2 == net
     assert params2.cpds.keys() == params.cpds.keys()

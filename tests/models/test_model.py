@@ -7,7 +7,7 @@ import pyro
 import pytest
 import torch
 from effect_networks.inference import infer_action, predict
-from effect_networks.inference.queries.enumeration import enumerate_model
+from effect_networks.inference.exact.enumeration import enumerate_model
 from effect_networks.models import (
     Continuous,
     Discrete,

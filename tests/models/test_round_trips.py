@@ -21,7 +21,7 @@ from effect_networks.models import (
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tests.models.test_interop import counts_of, declared_networks, pgmpy_marginal
+from tests.networks import counts_of, declared_networks, pgmpy_marginal
 
 pytest.importorskip("pgmpy")
 from pgmpy.inference import VariableElimination  # noqa: E402
