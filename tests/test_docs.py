@@ -136,7 +136,7 @@ def test_site_builds_strictly(tmp_path):
 
 
 def test_the_compiled_page_names_every_method():
-    from effect_networks.inference.queries.compiled import CompiledQueries
+    from effect_networks.inference.compiled import CompiledQueries
 
     methods = {n for n in vars(CompiledQueries) if not n.startswith("_")}
     assert len(methods) >= 9, methods
