@@ -19,8 +19,8 @@ import numpy as np
 import torch
 from effect_networks.experiments.adaptive_throw.run import adaptive_throw_network
 from effect_networks.inference import fit, fit_em
-from effect_networks.models.throw_network import throw_data, throw_network
-from effect_networks.sim2d.throw import sample_targets, throw
+from effect_networks.models.humanoid_throw import throw_data, throw_network
+from effect_networks.sim2d.analytic_throw import sample_targets, throw
 from throw import machine  # benchmarks/throw.py, beside this script
 from timing import add_out, median_seconds, print_also_to
 

@@ -36,7 +36,7 @@ N_CONFIGS = 107
 def chunk(net, index: int):
     """One data set's worth of random rows (seeded by ``index``), encoded."""
     import numpy as np
-    from effect_networks.models.can_network import can_rows
+    from effect_networks.models.can_pyramid import can_rows
 
     rng = np.random.default_rng(index)
     states = np.asarray(net.feature("config").states)
@@ -50,7 +50,7 @@ def chunk(net, index: int):
 def run(mode: str, copies: int, threads: int) -> dict:
     import torch
     from effect_networks.inference import fit
-    from effect_networks.models.can_network import can_network
+    from effect_networks.models.can_pyramid import can_network
 
     torch.set_num_threads(threads)
     net = can_network(range(N_CONFIGS))

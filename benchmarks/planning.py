@@ -1,7 +1,7 @@
 """Planning speed on the can network: its joint transitions from compiled tables, and an
 exact plan over its states.
 
-Network: the can network (:func:`models.can_network.can_network`, paper Fig. 2) over
+Network: the can network (:func:`models.can_pyramid.can_network`, paper Fig. 2) over
 the physically possible configurations (:func:`sim2d.configurations.stable_configurations`,
 107 with the default constants; cached after the first run), 195 fields; its tables
 fitted, as :func:`experiments.cans.fit_can_network` fits them, on 74,000 synthetic rows
@@ -35,7 +35,7 @@ import torch
 from effect_networks.inference import fit
 from effect_networks.inference.sequences.dynamic_programming import exact_plan
 from effect_networks.inference.sequences.planner import plan_on
-from effect_networks.models.can_network import can_network, can_rows, n_cans
+from effect_networks.models.can_pyramid import can_network, can_rows, n_cans
 from effect_networks.sim2d.configurations import stable_configurations
 from timing import (  # benchmarks/timing.py, beside this script
     add_out,

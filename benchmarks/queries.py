@@ -52,7 +52,7 @@ from effect_networks.models import (
     Parameter,
     random_params,
 )
-from effect_networks.models.can_network import can_network
+from effect_networks.models.can_pyramid import can_network
 from effect_networks.models.declaration import DTYPE
 from scipy import stats
 from timing import (  # benchmarks/timing.py, beside this script

@@ -22,8 +22,8 @@ import time
 import numpy as np
 from effect_networks.experiments.throwing import BIN_CANDIDATES, get_data, select_bins
 from effect_networks.inference import select_clusters
-from effect_networks.models.throw_network import THROW, throw_network
-from effect_networks.sim2d.throw import ReleaseNoise
+from effect_networks.models.humanoid_throw import THROW, throw_network
+from effect_networks.sim2d.analytic_throw import ReleaseNoise
 from timing import add_out, print_also_to  # benchmarks/timing.py, beside this script
 
 

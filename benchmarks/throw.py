@@ -30,8 +30,8 @@ import pyro
 import torch
 from effect_networks.experiments.adaptive_throw.run import adaptive_throw_network
 from effect_networks.inference import fit, fit_em, infer_parameter, parameter_for_effect
-from effect_networks.models.throw_network import TARGET, throw_data, throw_network
-from effect_networks.sim2d.throw import sample_targets, throw
+from effect_networks.models.humanoid_throw import TARGET, throw_data, throw_network
+from effect_networks.sim2d.analytic_throw import sample_targets, throw
 from timing import (  # benchmarks/timing.py, beside this script
     add_out,
     median_seconds,

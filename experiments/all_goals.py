@@ -62,8 +62,9 @@ from effect_networks.inference import compile as compile_queries
 from effect_networks.inference import fit, predict
 from effect_networks.inference.sequences.chaining import BoxPartition, chain, link_probabilities
 from effect_networks.inference.sequences.dynamic_programming import exact_plan
-from effect_networks.models.can_network import can_network, can_rows
+from effect_networks.models.can_pyramid import can_network, can_rows
 from effect_networks.sim2d import geometry
+from effect_networks.sim2d.analytic_throw import TARGET_AREA, ReleaseNoise, throw
 from effect_networks.sim2d.clock import simulating
 from effect_networks.sim2d.combined import (
     CAN_BAND,
@@ -74,7 +75,6 @@ from effect_networks.sim2d.combined import (
 )
 from effect_networks.sim2d.configurations import stable_configurations
 from effect_networks.sim2d.executors import open_executor
-from effect_networks.sim2d.throw import TARGET_AREA, ReleaseNoise, throw
 
 __all__ = [
     "AllGoalsConfig",

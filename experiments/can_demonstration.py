@@ -51,7 +51,7 @@ from effect_networks.experiments.cans import CanDataSettings, CanModel, can_data
 from effect_networks.experiments.harness.config import Result, check_float, check_int
 from effect_networks.experiments.harness.registry import Experiment
 from effect_networks.inference import explain
-from effect_networks.models.can_network import n_cans
+from effect_networks.models.can_pyramid import n_cans
 from effect_networks.sim2d import field_throws, geometry
 from effect_networks.sim2d.clock import simulation
 

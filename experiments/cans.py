@@ -24,7 +24,7 @@ from effect_networks.experiments.harness.config import check_choice, check_execu
 from effect_networks.inference import CompiledQueries, fit, predict
 from effect_networks.inference import compile as compile_queries
 from effect_networks.models import EffectNetwork, NetworkParams
-from effect_networks.models.can_network import can_network, can_rows
+from effect_networks.models.can_pyramid import can_network, can_rows
 from effect_networks.sim2d import field_throws, geometry
 from effect_networks.sim2d.can_dataset import CanDataset, generate_dataset, load_dataset
 from effect_networks.sim2d.configurations import cache_dir, stable_configurations

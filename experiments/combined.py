@@ -48,12 +48,12 @@ from effect_networks.inference import GaussianMixture, predict
 from effect_networks.inference import compile as compile_queries
 from effect_networks.inference.sequences.chaining import BoxPartition, chain, link_probabilities
 from effect_networks.inference.sequences.dynamic_programming import exact_plan
-from effect_networks.models.throw_network import TARGET
+from effect_networks.models.humanoid_throw import TARGET
 from effect_networks.sim2d import geometry, materials
+from effect_networks.sim2d.analytic_throw import TARGET_AREA, ReleaseNoise, throw
 from effect_networks.sim2d.combined import CAN_BAND, TABLE_TOP_Z, first_contact, play_throw, settle
 from effect_networks.sim2d.configurations import stable_configurations
 from effect_networks.sim2d.field_throws import aim_offset, launch_state
-from effect_networks.sim2d.throw import TARGET_AREA, ReleaseNoise, throw
 from tqdm.auto import tqdm
 
 __all__ = [

@@ -47,11 +47,11 @@ from effect_networks.experiments.harness.config import (
 from effect_networks.experiments.harness.registry import Experiment
 from effect_networks.inference.sequences.dynamic_programming import exact_plan, policy_value
 from effect_networks.sim2d import field_throws, geometry
+from effect_networks.sim2d.analytic_throw import TARGET_AREA
 from effect_networks.sim2d.can_dataset import generate_dataset, load_dataset
 from effect_networks.sim2d.combined import TABLE_TOP_Z, reachable_throws
 from effect_networks.sim2d.configurations import stable_configurations
 from effect_networks.sim2d.executors import open_executor
-from effect_networks.sim2d.throw import TARGET_AREA
 
 __all__ = [
     "PhysicsBoundsConfig",

@@ -19,15 +19,15 @@ import numpy as np
 from effect_networks.experiments.harness.config import ConfigError, Result, check_float, check_int
 from effect_networks.experiments.harness.registry import Experiment
 from effect_networks.sim2d import geometry, recording, render
-from effect_networks.sim2d.configurations import check_config
-from effect_networks.sim2d.field_throws import check_throwable
-from effect_networks.sim2d.throw import (
+from effect_networks.sim2d.analytic_throw import (
     TARGET_AREA,
     ReleaseNoise,
     is_reachable_hit,
     sample_targets,
     throw,
 )
+from effect_networks.sim2d.configurations import check_config
+from effect_networks.sim2d.field_throws import check_throwable
 from effect_networks.sim2d.throw_plot import plot_flight_paths, plot_target_to_hit
 
 __all__ = [

@@ -1,11 +1,11 @@
 """Throwing (the paper's §IV-B): learn where to aim to hit a point, and re-throw.
 
 A humanoid throws at target points on a wall 2 m away; its joint limits and gravity make
-the target-to-hit mapping non-linear. The throw network (:mod:`models.throw_network`)
+the target-to-hit mapping non-linear. The throw network (:mod:`models.humanoid_throw`)
 learns the joint of target and hit as a mixture of Gaussians over an equidistant grid of
 target clusters; the inverse query (best cluster by enumeration, then Gaussian
 conditioning) answers "where to aim to hit this point". Every test sample's hit is the
-evidence; the robot throws at the inferred target (:func:`sim2d.throw.throw`) and the RMS
+evidence; the robot throws at the inferred target (:func:`sim2d.analytic_throw.throw`) and the RMS
 error of the new hit against the desired one is reported per axis. The paper's "x" and
 "y" on the wall are our ``y`` (lateral) and ``z`` (height).
 
@@ -31,8 +31,8 @@ import numpy as np
 from effect_networks.experiments.harness.config import ConfigError, Result, check_int
 from effect_networks.experiments.harness.registry import Experiment
 from effect_networks.inference import fit, infer_parameter
-from effect_networks.models.throw_network import TARGET, hit_evidence, throw_data, throw_network
-from effect_networks.sim2d.throw import (
+from effect_networks.models.humanoid_throw import TARGET, hit_evidence, throw_data, throw_network
+from effect_networks.sim2d.analytic_throw import (
     TARGET_AREA,
     ReleaseNoise,
     is_reachable_hit,

@@ -24,14 +24,14 @@ Active exploration
 numbers (matplotlib, drawn into the caller's axes): the module :mod:`inference.plots`.
 
 Lower-level names live in their modules (:mod:`inference.exact.enumeration`,
-:mod:`inference.fitting.statistics`, ...).
+:mod:`inference.fitting.sufficient_statistics`, ...).
 """
 
 from effect_networks.inference import plots as plots  # the module only: its names stay off the face
 from effect_networks.inference.compiled import CompiledQueries, compile
 from effect_networks.inference.design.active import explore
 from effect_networks.inference.fitting.em import EMResult, fit_em
-from effect_networks.inference.fitting.fit import (
+from effect_networks.inference.fitting.maximum_likelihood import (
     ConvergenceWarning,
     FitResult,
     fit,
@@ -49,8 +49,8 @@ from effect_networks.inference.fitting.scores import (
     n_parameters,
 )
 from effect_networks.inference.fitting.selection import ClusterSelection, select_clusters
-from effect_networks.inference.fitting.statistics import params_from_statistics
 from effect_networks.inference.fitting.structure import learn_structure
+from effect_networks.inference.fitting.sufficient_statistics import params_from_statistics
 from effect_networks.inference.queries import (
     ActionPosterior,
     GaussianMixture,

@@ -22,10 +22,15 @@ from pathlib import Path
 
 import numpy as np
 from effect_networks.sim2d import geometry, materials
+from effect_networks.sim2d.analytic_throw import (
+    ReleaseNoise,
+    exact_target_for_hit,
+    is_reachable_hit,
+    throw,
+)
 from effect_networks.sim2d.chunks import locked, read_npz, run_chunks
 from effect_networks.sim2d.configurations import stable_configurations
 from effect_networks.sim2d.field_throws import aim_offset, launch_state, play_ball
-from effect_networks.sim2d.throw import ReleaseNoise, exact_target_for_hit, is_reachable_hit, throw
 
 #: m, the table top above the robot's floor: a standard table. The pyramid then spans
 #: 0.75-1.39 m, inside the throw's reachable hits (0.35-1.63 m near y = 0).
@@ -127,7 +132,7 @@ def play_throw(
 def exact_throws(step: float = 0.002, *, table_z: float = TABLE_TOP_Z):
     """The robot's noise-free throws at every reachable height of the pyramid's face.
 
-    Aimed with the exact inverse kinematics (:func:`sim2d.throw.exact_target_for_hit`) at
+    Aimed with the exact inverse kinematics (:func:`sim2d.analytic_throw.exact_target_for_hit`) at
     ``y = 0`` and heights from the table top to a ball radius above the pyramid, every
     ``step`` metres; heights the arm cannot reach are left out.
 
@@ -135,7 +140,7 @@ def exact_throws(step: float = 0.002, *, table_z: float = TABLE_TOP_Z):
     -------
     heights : (n,) float
         Hit heights above the table top (can frame).
-    result : sim2d.throw.ThrowResult
+    result : sim2d.analytic_throw.ThrowResult
         The throws (``hit``, ``velocity_at_plane``, ...).
     """
     if not step > 0:
@@ -282,7 +287,7 @@ def play_policy(
     states : sequence of int
         The masks indexing the policy's columns; a state not among them ends the episode.
     aims : (A, 2) float
-        The robot's aim ``[y, z]`` for each action (thrown with :func:`sim2d.throw.throw`,
+        The robot's aim ``[y, z]`` for each action (thrown with :func:`sim2d.analytic_throw.throw`,
         with ``noise`` if given).
 
     Returns

@@ -1,4 +1,4 @@
-"""Figures of the throw kinematics (:mod:`sim2d.throw`), saved as files.
+"""Figures of the throw kinematics (:mod:`sim2d.analytic_throw`), saved as files.
 
 matplotlib is imported inside each function (and only its object-oriented
 ``Figure``, no pyplot state), so importing this module costs nothing.
@@ -9,8 +9,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from effect_networks.sim2d.materials import GRAVITY
-from effect_networks.sim2d.throw import (
+from effect_networks.sim2d.analytic_throw import (
     PITCH_LIMITS_DEG,
     SHOULDER,
     TARGET_AREA,
@@ -19,6 +18,7 @@ from effect_networks.sim2d.throw import (
     reachable_hit_boundary,
     throw,
 )
+from effect_networks.sim2d.materials import GRAVITY
 
 __all__ = ["plot_flight_paths", "plot_target_to_hit"]
 

@@ -257,6 +257,20 @@ def test_every_room_is_at_most_600_lines(module):
     assert len(MODULES[module].read_text(encoding="utf-8").splitlines()) <= LARGEST_ROOM
 
 
+def test_no_module_is_named_after_a_function_or_class_it_defines():
+    """``inference.transitions`` the function and a module of that name would confuse every
+    reader: a module says what it holds (``transition_tables``), its functions what they do."""
+    clashes = []
+    for module, path in MODULES.items():
+        if path.name == "__init__.py":
+            continue
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        defined = {n.name for n in tree.body if isinstance(n, ast.FunctionDef | ast.ClassDef)}
+        if module.rsplit(".", 1)[1] in defined:
+            clashes.append(module)
+    assert clashes == []
+
+
 def python_files() -> list[Path]:
     """Every Python file of the repository: the library, tests, examples, benchmarks, docs."""
     skip = {".venv", "build", "results", "data", ".git", "_build"}

@@ -37,7 +37,7 @@ from effect_networks.experiments.physics_bounds import BOUND_SEED, held_out_best
 from effect_networks.inference import compile as compile_queries
 from effect_networks.inference import fit, fit_pooled, grid_kernel
 from effect_networks.inference.design.active import explore, with_pool_prior
-from effect_networks.models.can_network import can_network, can_rows, config_index
+from effect_networks.models.can_pyramid import can_network, can_rows, config_index
 from effect_networks.models.declaration import EffectNetwork
 from effect_networks.sim2d import field_throws, geometry
 from effect_networks.sim2d.can_dataset import generate_dataset, load_dataset

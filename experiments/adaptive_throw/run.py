@@ -27,8 +27,8 @@ from effect_networks.experiments.throwing import HIT_MARGIN_M, get_data, rms
 from effect_networks.inference import fit, fit_em, infer_parameter, parameter_for_effect
 from effect_networks.inference.design.active_gaussian import select_by_information
 from effect_networks.models.declaration import EffectNetwork
-from effect_networks.models.throw_network import TARGET, hit_evidence, throw_data, throw_network
-from effect_networks.sim2d.throw import TARGET_AREA, ReleaseNoise, sample_targets, throw
+from effect_networks.models.humanoid_throw import TARGET, hit_evidence, throw_data, throw_network
+from effect_networks.sim2d.analytic_throw import TARGET_AREA, ReleaseNoise, sample_targets, throw
 from tqdm.auto import tqdm
 
 __all__ = [
@@ -43,7 +43,7 @@ __all__ = [
 def adaptive_throw_network(bins) -> EffectNetwork:
     """The throw network with adaptive target clusters seeded by the ``bins`` grid.
 
-    See :func:`models.throw_network.throw_network`.
+    See :func:`models.humanoid_throw.throw_network`.
     """
     net = throw_network(bins)
     target = dataclasses.replace(net.parameters[0], layout="adaptive")

@@ -41,7 +41,7 @@ from effect_networks.experiments.evaluation import (
 )
 from effect_networks.experiments.harness.config import Result, check_choice
 from effect_networks.inference import imitation_check
-from effect_networks.models.can_network import config_index, n_cans
+from effect_networks.models.can_pyramid import config_index, n_cans
 from effect_networks.sim2d import field_throws, geometry, materials
 from effect_networks.sim2d.clock import simulation
 from effect_networks.sim2d.executors import open_executor

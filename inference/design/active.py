@@ -6,7 +6,7 @@ plays candidates and reports their end states, :func:`explore` repeatedly choose
 batch of candidates, plays them and updates the tables in closed form, until it has
 used ``budget`` candidates.
 
-Bayesian view of the fit. With pseudo-count ``alpha`` (:mod:`inference.fitting.statistics`), a
+Bayesian view of the fit. With pseudo-count ``alpha`` (:mod:`inference.fitting.sufficient_statistics`), a
 table row fitted on counts ``c`` is ``(c + alpha) / (n + K alpha)``: the posterior mean of
 the row's probabilities ``theta`` under a ``Dirichlet(alpha, ..., alpha)`` prior. Every
 row (a configuration of an end site's discrete parents) has its own independent

@@ -22,7 +22,7 @@ from collections.abc import Mapping
 
 import torch
 from effect_networks.inference.fitting.rows import training_rows
-from effect_networks.inference.fitting.statistics import statistics
+from effect_networks.inference.fitting.sufficient_statistics import statistics
 from effect_networks.models.declaration import ACTION, EffectNetwork
 from effect_networks.models.evidence import DTYPE
 

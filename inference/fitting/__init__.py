@@ -1,7 +1,7 @@
 """Fitting an effect network to training rows by maximum likelihood.
 
 The closed form for tables and Gaussians (:func:`fit`, on sufficient statistics that
-merge by addition: :mod:`inference.fitting.statistics`), Newton steps for softmax CPDs,
+merge by addition: :mod:`inference.fitting.sufficient_statistics`), Newton steps for softmax CPDs,
 EM for adaptive clusters (:mod:`inference.fitting.em`) and for missing values
 (:mod:`inference.fitting.missing`), the gradient route (:func:`fit_gradient`) and a shared prior over table rows
 (:mod:`inference.fitting.pooling`). Every route checks its settings, training rows and
@@ -13,7 +13,7 @@ masks with the same rules (:mod:`inference.fitting.rows`) and returns a
 
 from effect_networks.inference.fitting.em import EMResult, fit_em
 from effect_networks.inference.fitting.family import family_scores
-from effect_networks.inference.fitting.fit import (
+from effect_networks.inference.fitting.maximum_likelihood import (
     ConvergenceWarning,
     FitResult,
     fit,
@@ -31,8 +31,11 @@ from effect_networks.inference.fitting.scores import (
     n_parameters,
 )
 from effect_networks.inference.fitting.selection import ClusterSelection, select_clusters
-from effect_networks.inference.fitting.statistics import Statistics, params_from_statistics
 from effect_networks.inference.fitting.structure import learn_structure
+from effect_networks.inference.fitting.sufficient_statistics import (
+    Statistics,
+    params_from_statistics,
+)
 
 __all__ = [
     "ClusterSelection",

@@ -20,7 +20,7 @@ row misses a value) are latent variables, as adaptive clusters are
   Gaussians: ``E[v v^T] = E[v] E[v]^T + Cov[v]``.
 
 The M-step is the closed form on the weighted statistics of the completed rows
-(:func:`inference.fitting.statistics.statistics` with ``weights``, plus the covariance
+(:func:`inference.fitting.sufficient_statistics.statistics` with ``weights``, plus the covariance
 sums) -- exactly the expected sufficient statistics -- and, for a CPD without a closed
 form (softmax), its own weighted maximisation (Newton's method from the current
 parameters). The log-likelihood never falls from step to step; with a pseudo-count the
@@ -62,7 +62,7 @@ from effect_networks.inference.exact.gaussian_gaps import (
 from effect_networks.inference.exact.traced import Enumerated
 from effect_networks.inference.fitting.result import ConvergenceWarning, FitResult
 from effect_networks.inference.fitting.rows import check_settings, missing_masks, rows_with_gaps
-from effect_networks.inference.fitting.statistics import (
+from effect_networks.inference.fitting.sufficient_statistics import (
     Statistics,
     maximise_site,
     params_from_statistics,

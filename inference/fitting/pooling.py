@@ -32,7 +32,7 @@ import math
 from collections.abc import Iterable, Mapping
 
 import torch
-from effect_networks.inference.fitting.fit import fit_statistics
+from effect_networks.inference.fitting.maximum_likelihood import fit_statistics
 from effect_networks.inference.fitting.result import FitResult
 from effect_networks.inference.fitting.rows import check_settings
 from effect_networks.models.cpds.table import TableCPD, TableParams

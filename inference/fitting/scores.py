@@ -84,7 +84,7 @@ from effect_networks.inference.exact.enumeration import (
 from effect_networks.inference.exact.gaussian_gaps import continuous_gaps, refuse_open_forms
 from effect_networks.inference.exact.traced import Enumerated
 from effect_networks.inference.fitting.em import fit_em
-from effect_networks.inference.fitting.fit import fit
+from effect_networks.inference.fitting.maximum_likelihood import fit
 from effect_networks.inference.fitting.missing import actions_allowed, gaussian_row_log_likelihoods
 from effect_networks.inference.fitting.rows import mask_values, rows_with_gaps, split_missing
 from effect_networks.models.declaration import ACTION, EffectNetwork

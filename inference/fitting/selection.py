@@ -18,7 +18,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
 
 from effect_networks.inference.fitting.em import fit_em
-from effect_networks.inference.fitting.fit import fit
+from effect_networks.inference.fitting.maximum_likelihood import fit
 from effect_networks.inference.fitting.scores import cross_validate, log_likelihood, n_parameters
 from effect_networks.models.declaration import LAYOUTS, EffectNetwork, cluster_site
 from effect_networks.models.evidence import Evidence
@@ -141,7 +141,7 @@ def select_clusters(
 
     Examples
     --------
-    >>> from models.throw_network import throw_network
+    >>> from models.humanoid_throw import throw_network
     >>> choice = select_clusters(throw_network(), rows, [2, 4, 8], score="bic")  # doctest: +SKIP
     >>> choice.chosen.bins  # doctest: +SKIP
     (8, 8)

@@ -10,7 +10,7 @@ from effect_networks.experiments.cans import CanModel, can_dataset, fit_can_netw
 from effect_networks.experiments.harness.config import ConfigError
 from effect_networks.inference import compile as compile_queries
 from effect_networks.inference import fit
-from effect_networks.models.can_network import can_network, can_rows, n_cans
+from effect_networks.models.can_pyramid import can_network, can_rows, n_cans
 from effect_networks.sim2d import field_throws, geometry
 
 # A three-can world: 7 (cans 0, 1, 2) -> 3 (cans 0, 1) or 5 (cans 0, 2), both of two

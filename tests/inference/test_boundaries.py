@@ -25,8 +25,8 @@ from effect_networks.inference import (
     simulate,
 )
 from effect_networks.inference.fitting.em import fit_em
-from effect_networks.inference.fitting.fit import fit_statistics
-from effect_networks.inference.fitting.statistics import Counts
+from effect_networks.inference.fitting.maximum_likelihood import fit_statistics
+from effect_networks.inference.fitting.sufficient_statistics import Counts
 from effect_networks.models import (
     Continuous,
     Discrete,

@@ -507,7 +507,7 @@ def test_compiled_parameter_query_keeps_every_digit_with_a_small_fitted_noise(la
     query's cluster posterior agrees with the traced model's to 1e-12, batched and one
     row at a time, picks the same best cluster, and matches a 50-digit oracle."""
     from effect_networks.inference import fit, fit_em, infer_parameter
-    from effect_networks.models.throw_network import throw_data, throw_network
+    from effect_networks.models.humanoid_throw import throw_data, throw_network
 
     net = throw_network((8, 8))
     if layout == "adaptive":

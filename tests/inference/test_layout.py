@@ -16,7 +16,7 @@ def test_the_package_face_keeps_its_functions():
     """``inference.fit`` and ``inference.simulate`` are the functions, not modules."""
     assert (
         callable(inference.fit)
-        and inference.fit.__module__ == "effect_networks.inference.fitting.fit"
+        and inference.fit.__module__ == "effect_networks.inference.fitting.maximum_likelihood"
     )
     assert inference.simulate.__module__ == "effect_networks.inference.queries.sampling"
 
@@ -38,8 +38,10 @@ def private_imports(tree: ast.AST) -> list[str]:
 
 
 def test_private_imports_are_found():
-    tree = ast.parse("def f():\n    from effect_networks.inference.fitting.fit import _x, y\n")
-    assert private_imports(tree) == ["effect_networks.inference.fitting.fit._x"]
+    tree = ast.parse(
+        "def f():\n    from effect_networks.inference.fitting.maximum_likelihood import _x, y\n"
+    )
+    assert private_imports(tree) == ["effect_networks.inference.fitting.maximum_likelihood._x"]
     source = "from effect_networks.models.params import _x\nfrom effect_networks import inference"
     assert private_imports(ast.parse(source)) == []
 

@@ -44,7 +44,7 @@ def resolve(name: str) -> object:
 
 def test_the_glossary_names_dotted_paths():
     names = dotted_names()
-    assert "sim2d.world.run_ball" in names and "models.can_network.n_cans" in names
+    assert "sim2d.world.run_ball" in names and "models.can_pyramid.n_cans" in names
 
 
 @pytest.mark.parametrize("name", dotted_names())

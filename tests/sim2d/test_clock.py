@@ -4,7 +4,7 @@ import time
 
 import numpy as np
 from effect_networks.sim2d import clock
-from effect_networks.sim2d.throw import throw
+from effect_networks.sim2d.analytic_throw import throw
 
 
 def test_nested_intervals_count_once_and_time_outside_does_not_count():

@@ -7,6 +7,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from effect_networks.sim2d import geometry, materials
+from effect_networks.sim2d.analytic_throw import exact_target_for_hit, throw
 from effect_networks.sim2d.combined import (
     CAN_BAND,
     TABLE_TOP_Z,
@@ -17,7 +18,6 @@ from effect_networks.sim2d.combined import (
     settle,
 )
 from effect_networks.sim2d.configurations import stable_configurations
-from effect_networks.sim2d.throw import exact_target_for_hit, throw
 
 from tests.helpers import InlineExecutor
 

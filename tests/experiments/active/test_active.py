@@ -15,7 +15,7 @@ from effect_networks.experiments.harness.config import ConfigError
 from effect_networks.experiments.harness.registry import experiment
 from effect_networks.inference import compile as compile_queries
 from effect_networks.inference import fit_pooled, grid_kernel
-from effect_networks.models.can_network import config_index
+from effect_networks.models.can_pyramid import config_index
 from effect_networks.sim2d import geometry
 
 

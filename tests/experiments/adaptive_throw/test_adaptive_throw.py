@@ -15,7 +15,7 @@ from effect_networks.experiments.adaptive_throw.settings import AdaptiveThrowCon
 from effect_networks.experiments.harness.config import ConfigError
 from effect_networks.experiments.harness.registry import experiment
 from effect_networks.inference import infer_parameter
-from effect_networks.sim2d.throw import TARGET_AREA
+from effect_networks.sim2d.analytic_throw import TARGET_AREA
 
 from tests.helpers import ADAPTIVE_THROW_TINY as TINY
 
@@ -181,8 +181,8 @@ def test_every_fit_takes_the_configured_pseudo_count(layout):
     """The fits are the library's with the config's pseudo-count, not its default."""
     from effect_networks.experiments.adaptive_throw.run import _fit, adaptive_throw_network
     from effect_networks.inference import fit, fit_em
-    from effect_networks.models.throw_network import throw_data, throw_network
-    from effect_networks.sim2d.throw import sample_targets, throw
+    from effect_networks.models.humanoid_throw import throw_data, throw_network
+    from effect_networks.sim2d.analytic_throw import sample_targets, throw
 
     targets = sample_targets(300, np.random.default_rng(0))
     train = (targets, throw(targets).hit)

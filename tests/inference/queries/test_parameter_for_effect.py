@@ -349,7 +349,7 @@ def test_partial_evidence_counts_its_observed_dimensions():
 
 def _throw_case(layout):
     """The throw network (a 2-D target acting on a 2-D hit) on a curved map."""
-    from effect_networks.models.throw_network import throw_data, throw_network
+    from effect_networks.models.humanoid_throw import throw_data, throw_network
 
     net = throw_network((3, 3))
     if layout == "adaptive":

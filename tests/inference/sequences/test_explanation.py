@@ -21,7 +21,7 @@ from effect_networks.inference.exact.enumeration import over_row_chunks
 from effect_networks.inference.sequences.demonstration import simulate_demonstrations
 from effect_networks.inference.sequences.explanation import Explanation, explain
 from effect_networks.models import Continuous, Discrete, EffectNetwork, random_params
-from effect_networks.models.can_network import can_network
+from effect_networks.models.can_pyramid import can_network
 from effect_networks.models.cpds import TableParams
 from effect_networks.models.declaration import DTYPE
 from hypothesis import given, settings

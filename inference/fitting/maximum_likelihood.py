@@ -34,7 +34,7 @@ Every loop is bounded and every input checked: a value whose square would overfl
 (beyond ``models.evidence.MAX_MAGNITUDE``), a non-finite or negative setting, zero rows, or a covariance
 that no jitter makes positive definite raise a ``ValueError`` naming the site.
 
-The closed form runs on sufficient statistics (:mod:`inference.fitting.statistics`, where the
+The closed form runs on sufficient statistics (:mod:`inference.fitting.sufficient_statistics`, where the
 pseudo-count policy is written): ``data`` may be an iterable of row chunks whose
 statistics are summed, so a data set larger than memory, or partitioned on a cluster,
 fits to the same parameters.
@@ -57,7 +57,7 @@ from effect_networks.inference.fitting.rows import (
     rows_with_gaps,
     training_rows,
 )
-from effect_networks.inference.fitting.statistics import (
+from effect_networks.inference.fitting.sufficient_statistics import (
     Statistics,
     maximise_site,
     params_from_statistics,
@@ -106,7 +106,7 @@ def fit(
         continuous initial or end value or some of its dimensions (or
         :class:`models.evidence.Partial`); then the fit is EM (see ``masks``). Or an iterable of such row chunks (a generator, say), read once: each
         chunk's sufficient statistics are computed and summed
-        (:mod:`inference.fitting.statistics`), so the rows never need to be in memory together.
+        (:mod:`inference.fitting.sufficient_statistics`), so the rows never need to be in memory together.
         Chunks serve networks whose CPDs all have a closed form, without ``masks``.
     pseudo_count, min_variance
         The pseudo-count policy (README, "Unseen configurations") and the covariance
@@ -227,7 +227,7 @@ def fit_statistics(
     """The summed sufficient statistics of row chunks (each checked as :func:`fit` does).
 
     Statistics of partitions computed apart (on a cluster's workers, say) add up with
-    ``+``; :func:`inference.fitting.statistics.params_from_statistics` turns the sum into
+    ``+``; :func:`inference.fitting.sufficient_statistics.params_from_statistics` turns the sum into
     parameters.
     """
     refuse_adaptive(net, "fit_statistics")

@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 import torch
 from effect_networks.inference import fit, infer_parameter, predict
-from effect_networks.models.throw_network import (
+from effect_networks.models.humanoid_throw import (
     HIT,
     PAPER_AREA_HIGH,
     PAPER_AREA_LOW,
@@ -14,7 +14,7 @@ from effect_networks.models.throw_network import (
     throw_data,
     throw_network,
 )
-from effect_networks.sim2d.throw import TARGET_AREA, sample_targets, throw
+from effect_networks.sim2d.analytic_throw import TARGET_AREA, sample_targets, throw
 from scipy.stats import multivariate_normal
 
 BINS = (4, 5)

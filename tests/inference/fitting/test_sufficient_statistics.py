@@ -106,7 +106,7 @@ def test_weighted_rows_count_as_repeated_rows(seed):
     # the statistics an EM step gives: a row of weight k is the row k times, for every
     # kind (tables, linear Gaussians, a parameter's cluster table and Gaussians)
     from effect_networks.inference.fitting.rows import training_rows
-    from effect_networks.inference.fitting.statistics import statistics
+    from effect_networks.inference.fitting.sufficient_statistics import statistics
 
     rows = training_rows(THROW, simulate(THROW, random_params(THROW, seed), 300, seed=seed))
     k = torch.as_tensor(np.random.default_rng(seed).integers(0, 4, rows.n_rows))

@@ -171,7 +171,7 @@ def test_fit_rejects_bad_data():
 
 
 @pytest.mark.filterwarnings(
-    "ignore::effect_networks.inference.fitting.fit.ConvergenceWarning"
+    "ignore::effect_networks.inference.fitting.maximum_likelihood.ConvergenceWarning"
 )  # 5 steps only
 def test_fitting_leaves_pyros_param_store_alone():
     import pyro
@@ -424,7 +424,7 @@ def test_softmax_fit_reaches_the_gradient_routes_optimum():
     # the traced Pyro model minimised by L-BFGS (the route that differentiates the
     # model itself) finds the same optimum
     from effect_networks.inference import params_from_statistics
-    from effect_networks.inference.fitting.statistics import statistics
+    from effect_networks.inference.fitting.sufficient_statistics import statistics
     from effect_networks.models.params import NetworkParams
 
     net, data = noisy_threshold_world()

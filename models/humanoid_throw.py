@@ -19,7 +19,7 @@ Gaussian (the cluster site has one state). Fitting and the queries are the core'
 :func:`inference.fit`, :func:`inference.infer_parameter` (hit -> target, the paper's
 inverse) and :func:`inference.predict` (target -> hit).
 
-This module knows nothing of the kinematics that produce the data (:mod:`sim2d.throw`):
+This module knows nothing of the kinematics that produce the data (:mod:`sim2d.analytic_throw`):
 it declares the network and turns plain ``(n, 2)`` arrays into validated rows.
 """
 
@@ -56,7 +56,7 @@ TARGET = "target"
 HIT = "hit"
 
 #: The paper's target area (§IV-B: 2 m x 2 m, centred on the robot), ``[y, z]`` in
-#: metres: the same numbers as ``sim2d.throw.TARGET_AREA`` (a test keeps them equal;
+#: metres: the same numbers as ``sim2d.analytic_throw.TARGET_AREA`` (a test keeps them equal;
 #: models/ does not import the simulator).
 PAPER_AREA_LOW = (-1.0, 0.4)
 PAPER_AREA_HIGH = (1.0, 2.4)

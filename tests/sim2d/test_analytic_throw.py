@@ -1,4 +1,4 @@
-"""Tests of sim2d.throw: the analytic throw against physics and geometry it does not use."""
+"""Tests of sim2d.analytic_throw: the analytic throw against physics and geometry it does not use."""
 
 from __future__ import annotations
 
@@ -8,8 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from effect_networks.sim2d.materials import GRAVITY
-from effect_networks.sim2d.throw import (
+from effect_networks.sim2d.analytic_throw import (
     FOREARM_LENGTH,
     HAND_SPEED,
     PITCH_LIMITS_DEG,
@@ -26,6 +25,7 @@ from effect_networks.sim2d.throw import (
     sample_targets,
     throw,
 )
+from effect_networks.sim2d.materials import GRAVITY
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
@@ -319,7 +319,7 @@ def test_sample_targets_is_uniform_on_the_area_and_seeded():
 
 def test_sim2d_throw_imports_neither_torch_nor_pyro_nor_matplotlib():
     code = (
-        "import sys, sim2d.throw, sim2d.throw_plot; "
+        "import sys, sim2d.analytic_throw, sim2d.throw_plot; "
         "bad = [m for m in ('torch', 'pyro', 'matplotlib') if m in sys.modules]; "
         "assert not bad, bad"
     )
