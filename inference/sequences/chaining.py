@@ -49,10 +49,18 @@ __all__ = [
 ]
 
 NONE = "none"
-#: Gauss-Legendre nodes per piece of the 2-D rectangle quadrature (up to 15 pieces a box).
+#: Gauss-Legendre nodes per piece of the 2-D rectangle quadrature (up to 34 pieces a box).
 QUADRATURE_NODES = 20
+#: The fewest nodes accepted: below them the quadrature's error rises above rounding.
+MIN_QUADRATURE_NODES = 12
 #: The quadrature's range of the standardised first dimension: 2 Phi(-9) < 3e-19 outside.
 Z_CUT = 9.0
+#: Where the quadrature splits the standardised first dimension for its density's sake.
+PHI_CUTS = (-6.0, -4.5, -3.0, -2.0, -1.0, 0.0, 1.0, 2.0, 3.0, 4.5, 6.0)
+#: Where it splits either side of a step of the conditional probability, in step widths.
+STEP_CUTS = (-16.0, -8.0, -4.0, -2.0, -1.0, 0.0, 1.0, 2.0, 4.0, 8.0, 16.0)
+#: The most a component's disjoint boxes may sum to above 1 and be rounding.
+ROUNDING = 1e-12
 #: Monte Carlo draws per row of the upper mixture.
 SAMPLES = 100_000
 
@@ -209,8 +217,8 @@ class LinkProbabilities:
     stderr : torch.Tensor or None
         ``(U, A)`` Monte Carlo standard errors of ``probs``; None where computed exactly.
     method : str
-        ``"exact"`` (normal CDFs), ``"quadrature"`` (2-D rectangles under a correlated
-        Gaussian) or ``"monte carlo"``.
+        ``"exact"`` (normal CDFs, every box), ``"quadrature"`` (a 2-D box under a
+        correlated component; the other boxes still exact) or ``"monte carlo"``.
     """
 
     probs: torch.Tensor
@@ -274,7 +282,7 @@ def link_probabilities(
     seed : int
         Seeds the Monte Carlo draws.
     nodes : int
-        Gauss-Legendre nodes per piece of the 2-D rectangle quadrature.
+        Gauss-Legendre nodes per piece of the 2-D rectangle quadrature, at least 12.
 
     Returns
     -------
@@ -283,20 +291,27 @@ def link_probabilities(
 
     Notes
     -----
-    A box partition is integrated over each Gaussian component in the dimensions its
-    boxes bound (the others integrate to 1):
+    A box partition is integrated over each Gaussian component box by box, each box in
+    the dimensions it bounds (the others integrate to 1), whatever the other boxes bound:
 
-    * exactly, as products of per-dimension normal CDF differences, when those
-      dimensions are one, or when the component's covariance restricted to them is
-      diagonal (``method="exact"``);
+    * exactly, as products of per-dimension normal CDF differences, when the box bounds
+      one dimension, or several that the component does not correlate (``method="exact"``
+      when every box is);
     * in two correlated dimensions, by conditioning on the first: ``P = integral of
       phi(z) P(a2 <= x2 < b2 | z) dz`` over the box's standardised first side, cut to
-      ``|z| <= 9``, Gauss-Legendre with ``nodes`` nodes on each of up to 15 pieces split
-      where the conditional mean of ``x2`` crosses ``a2`` and ``b2``
-      (``method="quadrature"``): deterministic; absolute error below ``1e-10`` per box
-      at the default ``nodes`` for correlations up to 0.99999 (tested against the
-      bivariate orthant probabilities' closed form and ``scipy.integrate.dblquad``);
-    * otherwise by Monte Carlo as for a :class:`FunctionLink`.
+      ``|z| <= 9``, split at fixed points for ``phi`` and around where the conditional
+      mean of ``x2`` crosses ``a2`` and ``b2``, Gauss-Legendre with ``nodes`` nodes on each
+      of up to 34 pieces (``method="quadrature"``): deterministic; absolute error below
+      ``1e-10`` per box at the default ``nodes`` for correlations up to 0.99999 (tested
+      against the bivariate normal CDF's closed form in Owen's T function and
+      ``scipy.integrate.dblquad``);
+    * the whole partition by Monte Carlo, as for a :class:`FunctionLink`, when a box bounds
+      three or more dimensions that a component correlates.
+
+    The boxes are disjoint, so each component's box probabilities and *none* (the rest)
+    sum to 1: a sum of box probabilities above 1 by more than rounding (``1e-12``) is a
+    defect and asserted against; rounding is normalised away in log space. Every
+    probability lies in [0, 1].
 
     A :class:`FunctionLink` is estimated from ``samples`` seeded draws per row
     (``method="monte carlo"``): each probability has standard error ``sqrt(p (1 - p) /
@@ -306,14 +321,13 @@ def link_probabilities(
     """
     _check_mixture(mixture, link.dim)
     if isinstance(link, BoxPartition):
-        bounded = torch.isfinite(link.low).any(0) | torch.isfinite(link.high).any(0)
-        dims = bounded.nonzero().flatten()
-        covs = mixture.covs[..., dims, :][..., :, dims]
-        off_diagonal = covs - torch.diag_embed(torch.diagonal(covs, dim1=-2, dim2=-1))
-        if len(dims) <= 1 or not off_diagonal.any():
-            return _boxes_exact(link, mixture, dims)
-        if len(dims) == 2:
-            return _boxes_quadrature(link, mixture, dims, nodes)
+        if not isinstance(nodes, int) or nodes < MIN_QUADRATURE_NODES:
+            raise ValueError(
+                f"nodes: {nodes!r}; expected an integer of at least {MIN_QUADRATURE_NODES} "
+                f"(the default {QUADRATURE_NODES} keeps the quadrature at rounding error)"
+            )
+        if not _needs_monte_carlo(link, mixture):
+            return _boxes(link, mixture, nodes)
     elif not isinstance(link, FunctionLink):
         raise TypeError(f"link: {type(link).__name__}; expected a BoxPartition or a FunctionLink")
     return _monte_carlo(link, mixture, samples, seed)
@@ -385,69 +399,140 @@ def chain(
 # --- box partitions ----------------------------------------------------------------------
 
 
-def _boxes_exact(link: BoxPartition, mixture: GaussianMixture, dims) -> LinkProbabilities:
-    """Products of per-dimension CDF differences, summed over the components."""
-    if len(dims) == 0:  # every box is the whole space: at most one box
-        per_box = mixture.weights.new_ones(len(mixture.weights), len(link.labels))
-        return _to_actions(link, per_box, "exact")
-    mean = mixture.means[..., dims]  # (U, M, D)
-    sd = torch.diagonal(mixture.covs, dim1=-2, dim2=-1)[..., dims].sqrt()
-    normal = torch.distributions.Normal(mean[:, :, None, :], sd[:, :, None, :])
-    low, high = link.low[:, dims], link.high[:, dims]  # (K, D)
-    per_dim = normal.cdf(high) - normal.cdf(low)  # (U, M, K, D)
-    per_box = (mixture.weights[..., None] * per_dim.prod(-1)).sum(1)  # (U, K)
-    return _to_actions(link, per_box, "exact")
+def _boxes(link: BoxPartition, mixture: GaussianMixture, nodes: int) -> LinkProbabilities:
+    """Each box by its own route: CDF products, or the quadrature for a correlated pair.
 
-
-def _boxes_quadrature(
-    link: BoxPartition, mixture: GaussianMixture, dims, nodes: int
-) -> LinkProbabilities:
-    """2-D rectangles under correlated components, by conditioning on the first dimension.
-
-    ``P = integral over z in [a1, b1] of phi(z) P(a2 <= x2 < b2 | z) dz`` (``z`` the first
-    dimension standardised), the range cut to ``|z| <= Z_CUT``; the integrand is smooth
-    but steps (over a width ``w = sqrt(1 - rho^2) / |rho|``) where the conditional mean
-    of ``x2`` crosses ``a2`` or ``b2``, so the range is split there and at ``w``, ``4 w``
-    and ``16 w`` either side, and each piece gets ``nodes`` Gauss-Legendre nodes.
+    A box's route depends only on the dimensions it bounds and each component's covariance
+    there, never on the other boxes.
     """
-    i, j = dims.tolist()
+    per_box = _cdf_products(link, mixture)  # (U, M, K)
+    bounded = _bounded(link)
+    method = "exact"
+    pairs = {tuple(row.nonzero().flatten().tolist()) for row in bounded if row.sum() == 2}
+    for i, j in sorted(pairs):
+        correlated = mixture.covs[..., i, j] != 0  # (U, M)
+        if not correlated.any():
+            continue
+        boxes = (bounded.sum(-1) == 2) & bounded[:, i] & bounded[:, j]
+        sides = [i, j]
+        rectangles = _rectangles(
+            mixture, link.low[boxes][:, sides], link.high[boxes][:, sides], i, j, nodes
+        )
+        per_box[..., boxes] = torch.where(correlated[..., None], rectangles, per_box[..., boxes])
+        method = "quadrature"
+    undefined = per_box.isnan().flatten(1).any(-1)
+    if undefined.any():
+        raise ValueError(
+            f"mixture: rows {undefined.nonzero().flatten().tolist()[:5]} give undefined box "
+            "probabilities; expected finite means and covariances with positive variances"
+        )
+    per_box, none = _normalised(per_box)
+    column = torch.tensor([link.actions.index(label) for label in link.labels], dtype=torch.long)
+    weighted = mixture.weights[..., None] * per_box
+    probs = weighted.new_zeros(len(weighted), len(link.actions))
+    probs.index_add_(1, column, weighted.sum(1))
+    return LinkProbabilities(probs, (mixture.weights * none).sum(1), link.actions, None, method)
+
+
+def _bounded(link: BoxPartition) -> torch.Tensor:
+    """``(K, d)``: whether box ``k`` bounds dimension ``i`` (a finite side)."""
+    return torch.isfinite(link.low) | torch.isfinite(link.high)
+
+
+def _needs_monte_carlo(link: BoxPartition, mixture: GaussianMixture) -> bool:
+    """Whether a box bounds three or more dimensions that some component correlates."""
+    for dims in {tuple(row.nonzero().flatten().tolist()) for row in _bounded(link)}:
+        if len(dims) < 3:
+            continue
+        covs = mixture.covs[..., dims, :][..., :, dims]
+        if (covs - torch.diag_embed(torch.diagonal(covs, dim1=-2, dim2=-1))).any():
+            return True
+    return False
+
+
+def _cdf_products(link: BoxPartition, mixture: GaussianMixture) -> torch.Tensor:
+    """``(U, M, K)`` products of per-dimension normal CDF differences over each box's sides.
+
+    Exact for a box bounding one dimension, or several that the component does not
+    correlate; an unbounded side contributes exactly 1. A side above the mean is read in
+    the upper tail (``Phi(-a) - Phi(-b)``), so a far box keeps its relative precision.
+    """
+    mean = mixture.means[:, :, None, :]  # (U, M, 1, d)
+    sd = torch.diagonal(mixture.covs, dim1=-2, dim2=-1).sqrt()[:, :, None, :]
+    low, high = (link.low - mean) / sd, (link.high - mean) / sd  # (U, M, K, d)
+    upper = low > 0
+    per_side = torch.where(
+        upper,
+        torch.special.ndtr(-low) - torch.special.ndtr(-high),
+        torch.special.ndtr(high) - torch.special.ndtr(low),
+    )
+    per_side = torch.where(_bounded(link), per_side, 1.0)
+    return per_side.prod(-1)
+
+
+def _rectangles(
+    mixture: GaussianMixture, low: torch.Tensor, high: torch.Tensor, i: int, j: int, nodes: int
+) -> torch.Tensor:
+    """``(U, M, K)``: boxes ``[low, high)`` ``(K, 2)`` in dimensions ``(i, j)``, correlated.
+
+    With ``z`` and ``v`` the two dimensions standardised and ``rho`` their correlation,
+    ``P = integral over z in [a1, b1] of phi(z) g(z) dz``, ``g(z) = P(a2 <= v < b2 | z)``
+    with ``v | z ~ N(rho z, 1 - rho^2)``, the range cut to ``|z| <= Z_CUT``. ``phi`` is
+    smooth on the scale 1, so the range is split at ``PHI_CUTS``; ``g`` steps (over a
+    width ``w = sqrt(1 - rho^2) / |rho|``) where ``rho z`` crosses ``a2`` or ``b2``, so
+    it is split there and at ``w``, ``2 w``, ... ``16 w`` either side, beyond which ``g``
+    is within ``Phi(-16) < 1e-57`` of constant. Each piece gets ``nodes`` Gauss-Legendre
+    nodes. Entries of uncorrelated components are meaningless (the caller discards them).
+    """
     mu1, mu2 = mixture.means[..., i, None], mixture.means[..., j, None]  # (U, M, 1)
     s1 = mixture.covs[..., i, i, None].sqrt()
     s2 = mixture.covs[..., j, j, None].sqrt()
-    rho = mixture.covs[..., i, j, None] / (s1 * s2)
-    lo = ((link.low[:, i] - mu1) / s1).clamp(-Z_CUT, Z_CUT)  # (U, M, K)
-    hi = ((link.high[:, i] - mu1) / s1).clamp(-Z_CUT, Z_CUT)
-    a2, b2 = link.low[:, j], link.high[:, j]
-    slope = rho * s2  # the conditional mean's change per unit z
-    sd = (s2 * (1 - rho * rho).clamp_min(0.0).sqrt()).clamp_min(1e-300)
-    cross = torch.stack([(a2 - mu2) / slope, (b2 - mu2) / slope], -1).nan_to_num(0.0)
-    width = (sd / slope.abs())[..., None, None]
-    steps = torch.tensor([-16.0, -4.0, -1.0, 0.0, 1.0, 4.0, 16.0], dtype=torch.float64)
-    cuts = (cross[..., None] + width * steps).flatten(-2).nan_to_num(0.0)
-    edges = torch.cat([lo[..., None], cuts.clamp(lo[..., None], hi[..., None]), hi[..., None]], -1)
-    edges = edges.sort(-1).values  # (U, M, K, P + 1)
+    rho = (mixture.covs[..., i, j, None] / (s1 * s2)).clamp(-1.0, 1.0)
+    rho = torch.where(rho == 0, 1.0, rho)  # uncorrelated entries: any finite value
+    a1 = ((low[:, 0] - mu1) / s1).clamp(-Z_CUT, Z_CUT)  # (U, M, K)
+    b1 = ((high[:, 0] - mu1) / s1).clamp(-Z_CUT, Z_CUT)
+    a2, b2 = (low[:, 1] - mu2) / s2, (high[:, 1] - mu2) / s2
+    spread = ((1 - rho) * (1 + rho)).sqrt().clamp_min(1e-300)  # sd of v given z
+    width = (spread / rho.abs())[..., None, None]
+    steps = torch.tensor(STEP_CUTS, dtype=torch.float64)
+    cross = torch.stack([a2 / rho, b2 / rho], -1)[..., None]  # (U, M, K, 2, 1), maybe inf
+    cuts = (cross + width * steps).flatten(-2)
+    fixed = torch.tensor(PHI_CUTS, dtype=torch.float64).expand(*a1.shape, -1)
+    cuts = torch.cat([cuts.nan_to_num(0.0), fixed], -1)
+    cuts = torch.minimum(torch.maximum(cuts, a1[..., None]), b1[..., None])
+    edges = torch.cat([a1[..., None], cuts, b1[..., None]], -1).sort(-1).values
     x, w = np.polynomial.legendre.leggauss(nodes)
     x, w = torch.as_tensor(x), torch.as_tensor(w)
     start, length = edges[..., :-1, None], (edges[..., 1:] - edges[..., :-1])[..., None]
     z = start + length * (x + 1) / 2  # (U, M, K, P, nodes)
-    mean2 = mu2[..., None, None] + slope[..., None, None] * z
-    sd = sd[..., None, None]
-    inner = torch.special.ndtr((b2[:, None, None] - mean2) / sd) - torch.special.ndtr(
-        (a2[:, None, None] - mean2) / sd
+    mean = rho[..., None, None] * z
+    spread = spread[..., None, None]
+    lo = (a2[..., None, None] - mean) / spread
+    hi = (b2[..., None, None] - mean) / spread
+    inner = torch.where(
+        lo > 0,
+        torch.special.ndtr(-lo) - torch.special.ndtr(-hi),
+        torch.special.ndtr(hi) - torch.special.ndtr(lo),
     )
     density = torch.exp(-0.5 * z * z) / math.sqrt(2 * math.pi)
-    per_component = (density * inner * w * length / 2).sum((-1, -2))  # (U, M, K)
-    per_box = (mixture.weights[..., None] * per_component).sum(1)
-    return _to_actions(link, per_box, "quadrature")
+    return (density * inner * w * length / 2).sum((-1, -2))
 
 
-def _to_actions(link: BoxPartition, per_box: torch.Tensor, method: str) -> LinkProbabilities:
-    """Boxes' probabilities ``(U, K)`` summed into the lower actions ``(U, A)``."""
-    column = torch.tensor([link.actions.index(label) for label in link.labels], dtype=torch.long)
-    probs = per_box.new_zeros(len(per_box), len(link.actions))
-    probs.index_add_(1, column, per_box)
-    none = (1 - probs.sum(-1)).clamp_min(0.0)
-    return LinkProbabilities(probs, none, link.actions, None, method)
+def _normalised(per_box: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    """``(U, M, K)`` box probabilities and ``(U, M)`` none, each component's summing to 1.
+
+    The boxes are disjoint, so a component's box probabilities sum to at most 1 and
+    *none* is the rest; a sum above 1 by more than ``ROUNDING`` is an error in a route
+    (asserted), below it rounding, removed by normalising in log space.
+    """
+    total = per_box.sum(-1)
+    excess = (total - 1).max().item() if total.numel() else 0.0
+    assert excess <= ROUNDING, f"box probabilities sum to 1 + {excess:.3g} in a component"
+    assert (per_box >= 0).all(), "a negative box probability"
+    none = (1 - total).clamp_min(0.0)
+    log = torch.cat([per_box, none[..., None]], -1).log()
+    log = log - log.logsumexp(-1, keepdim=True)
+    return log[..., :-1].exp(), log[..., -1].exp()
 
 
 # --- Monte Carlo -------------------------------------------------------------------------

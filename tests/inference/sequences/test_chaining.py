@@ -17,7 +17,7 @@ from effect_networks.inference.sequences.chaining import (
 )
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from scipy import integrate, stats
+from scipy import integrate, special, stats
 
 INF = math.inf
 
@@ -171,6 +171,203 @@ def test_rows_of_a_batch_are_independent():
     for r, row in enumerate(rows):
         alone = link_probabilities(link, mixture(*([x] for x in row)))
         torch.testing.assert_close(batch.probs[r], alone.probs[0], rtol=0, atol=1e-15)
+
+
+# --- every box by its exact route, against the bivariate normal CDF -----------------------
+
+
+def bivariate_cdf(h, k, rho):
+    """``P(z < h, v < k)`` for standard normals of correlation ``rho``: Owen's T closed form,
+    ``Phi(h) / 2 + Phi(k) / 2 - T(h, a_h) - T(k, a_k) - beta`` (scipy's ``owens_t``)."""
+    if h == -INF or k == -INF:
+        return 0.0
+    if h == INF or k == INF:
+        return float(special.ndtr(min(h, k)))
+    if h == 0.0 and k == 0.0:
+        return 0.25 + math.asin(rho) / (2 * math.pi)
+    r = math.sqrt((1 - rho) * (1 + rho))
+
+    def t(x, y):  # T(x, (y - rho x) / (x r)), with its limit at x = 0
+        return math.copysign(0.25, y) if x == 0.0 else special.owens_t(x, (y - rho * x) / (x * r))
+
+    beta = 0.0 if (h >= 0) == (k >= 0) else 0.5  # signs, not h * k: that underflows
+    return 0.5 * (special.ndtr(h) + special.ndtr(k)) - t(h, k) - t(k, h) - beta
+
+
+def gaussian_box(mean, cov, sides):
+    """A box's mass under one Gaussian in the (at most two) dimensions it bounds.
+
+    One dimension: scipy's normal CDF difference; two: the bivariate CDF at the corners by
+    inclusion-exclusion."""
+    bounded = [i for i, (lo, hi) in enumerate(sides) if lo > -INF or hi < INF]
+    if not bounded:
+        return 1.0
+    z = [[(side - mean[i]) / math.sqrt(cov[i][i]) for side in sides[i]] for i in bounded]
+    if len(bounded) == 1:
+        (lo, hi), = z  # fmt: skip
+        return (
+            stats.norm.sf(lo) - stats.norm.sf(hi)
+            if lo > 0
+            else stats.norm.cdf(hi) - stats.norm.cdf(lo)
+        )
+    i, j = bounded
+    rho = cov[i][j] / math.sqrt(cov[i][i] * cov[j][j])
+    (a1, b1), (a2, b2) = z
+    return (bivariate_cdf(b1, b2, rho) - bivariate_cdf(a1, b2, rho)
+            - bivariate_cdf(b1, a2, rho) + bivariate_cdf(a1, a2, rho))  # fmt: skip
+
+
+def correlated(s1, s2, rho):
+    return [[s1 * s1, rho * s1 * s2], [rho * s1 * s2, s2 * s2]]
+
+
+@pytest.mark.parametrize("rho", [-0.99999, -0.9, 0.3, 0.8, 0.99999])
+def test_the_bivariate_oracle_matches_dblquad_and_the_orthant_form(rho):
+    """The tests' oracle is checked too: against P(z > 0, v > 0) and, where the ridge is
+    wide enough for it, dblquad."""
+    assert bivariate_cdf(0.0, 0.0, rho) == pytest.approx(0.25 + math.asin(rho) / (2 * math.pi))
+    assert gaussian_box([0.0, 0.0], correlated(1.0, 1.0, rho), [(0.0, INF), (0.0, INF)]) == (
+        pytest.approx(0.25 + math.asin(rho) / (2 * math.pi), abs=1e-15)
+    )
+    if abs(rho) > 0.99:
+        return
+    mean, cov = [0.3, -0.2], correlated(1.0, 0.5, rho)
+    pdf = stats.multivariate_normal(mean, cov).pdf
+    for sides in (
+        [(0.5, 2.0), (0.0, INF)],
+        [(-1.0, 0.4), (-0.6, 0.1)],
+        [(-INF, 0.0), (-INF, -0.4)],
+    ):
+        want = box_integral(pdf, sides)
+        assert gaussian_box(mean, cov, sides) == pytest.approx(want, abs=1e-10), sides
+
+
+REPORTED = [  # rho 0.8: one box bounds x and y, the others x only
+    [("left", [(-INF, -1.0), (-INF, INF)]), ("mid", [(-1.0, 0.5), (-INF, INF)]),
+     ("corner", [(0.5, 2.0), (0.0, INF)]), ("right", [(2.0, INF), (-INF, INF)])],
+    [("x<9.5", [(-INF, 9.5), (-INF, INF)]), ("corner", [(9.5, INF), (0.0, INF)])],
+    [("corner", [(-INF, -7.8), (0.0, INF)]), ("x>=-7.8", [(-7.8, INF), (-INF, INF)])],
+]  # fmt: skip
+
+
+@pytest.mark.parametrize("boxes", REPORTED, ids=["around", "wide-left", "wide-right"])
+def test_x_only_boxes_stay_exact_beside_a_correlated_box(boxes):
+    """Regression: one box needing the quadrature sent every box through it, and a box
+    spanning the Gaussian's bulk got 20 nodes over [-9, 9] (off by 1.1e-4, up to 1.00003).
+    The x-only boxes are normal CDF differences, the corner within 1e-10, none >= 0."""
+    mean, cov = [0.0, 0.0], correlated(1.0, 1.0, 0.8)
+    got = link_probabilities(
+        BoxPartition.from_boxes(boxes, [label for label, _ in boxes]),
+        mixture([[1.0]], [[mean]], [[cov]]),
+    )
+    assert got.method == "quadrature"
+    for k, (label, sides) in enumerate(boxes):
+        want = gaussian_box(mean, cov, sides)
+        tolerance = 1e-10 if label == "corner" else 1e-15
+        assert got.probs[0, k].item() == pytest.approx(want, abs=tolerance), label
+    assert 0.0 <= got.probs.min() and got.probs.max() <= 1.0 and got.none.item() >= 0.0
+    assert got.probs.sum().item() + got.none.item() == pytest.approx(1.0, abs=1e-12)
+
+
+@st.composite
+def guillotine(draw):
+    """Boxes of a 2-D partition: strips across one axis, each a box bounding that axis
+    only, none, or split along the other axis into 2-D boxes (and none)."""
+    first = draw(st.sampled_from([0, 1]))
+    edges = draw(st.lists(st.floats(-8.0, 8.0), min_size=1, max_size=4, unique=True))
+    boxes = []
+    for lo, hi in itertools.pairwise([-INF, *sorted(edges), INF]):
+        kind = draw(st.sampled_from(["box", "none", "split"]))
+        if kind == "box":
+            boxes.append([(lo, hi), (-INF, INF)])
+        elif kind == "split":
+            across = draw(st.lists(st.floats(-8.0, 8.0), min_size=1, max_size=3, unique=True))
+            for c, d in itertools.pairwise([-INF, *sorted(across), INF]):
+                if draw(st.booleans()):
+                    boxes.append([(lo, hi), (c, d)])
+    boxes = boxes or [[(lo, hi), (-INF, INF)]]  # at least one box: the last strip
+    return [sides if first == 0 else sides[::-1] for sides in boxes]
+
+
+@settings(max_examples=60, deadline=None)
+@given(
+    boxes=guillotine(),
+    components=st.lists(
+        st.tuples(
+            st.floats(-0.99999, 0.99999),  # correlation
+            st.floats(-30.0, 30.0), st.floats(-30.0, 30.0),  # mean, far from the boxes too
+            st.floats(0.01, 20.0), st.floats(0.01, 20.0),  # scales
+            st.floats(0.05, 1.0),  # weight
+        ),
+        min_size=1, max_size=3,
+    ),
+)  # fmt: skip
+def test_every_box_within_its_documented_error_and_every_column_sums_to_one(boxes, components):
+    """Drawn partitions (1-D and 2-D boxes mixed), correlations, means and scales: each
+    component's and the mixture's box probabilities against the bivariate normal CDF
+    (within 1e-10 per box), in [0, 1], summing with none to 1 within 1e-12."""
+    labels = list(range(len(boxes)))
+    link = BoxPartition.from_boxes(list(zip(labels, boxes, strict=True)), labels)
+    means = [[mx, my] for _, mx, my, *_ in components]
+    covs = [correlated(sx, sy, rho) for rho, _, _, sx, sy, _ in components]
+    weights = np.array([w for *_, w in components]) / sum(w for *_, w in components)
+    # one row per component alone, then the mixture
+    rows = [([1.0], [m], [c]) for m, c in zip(means, covs, strict=True)]
+    got = link_probabilities(
+        link,
+        mixture(
+            [np.eye(len(means))[r] for r in range(len(means))] + [weights],
+            [means] * (len(means) + 1),
+            [covs] * (len(means) + 1),
+        ),
+    )
+    want = np.array([[gaussian_box(m, c, sides) for sides in boxes] for _, (m,), (c,) in rows])
+    want = np.vstack([want, weights @ want])
+    assert np.abs(got.probs.numpy() - want).max() <= 1e-10
+    assert (got.probs >= 0).all() and (got.probs <= 1).all()
+    assert (got.none >= 0).all() and (got.none <= 1).all()
+    assert ((got.probs.sum(-1) + got.none - 1).abs() <= 1e-12).all()
+    assert np.abs(got.none.numpy() - (1 - want.sum(-1))).max() <= 1e-10 * len(boxes)
+    two_d = any(all(lo > -INF or hi < INF for lo, hi in sides) for sides in boxes)
+    quadrature = two_d and any(rho != 0 for rho, *_ in components)
+    assert got.method == ("quadrature" if quadrature else "exact")
+
+
+def test_boxes_bounding_different_pairs_of_three_correlated_dimensions_are_not_sampled():
+    """Each box bounds at most two of three correlated dimensions: exact or quadrature per
+    box, not Monte Carlo, and the four boxes fill the space."""
+    cov = [[1.0, 0.6, -0.5], [0.6, 2.0, 0.3], [-0.5, 0.3, 0.5]]
+    mean = [0.2, -0.1, 0.4]
+    boxes = [
+        ("a", [(-INF, 0.0), (-INF, 0.0), (-INF, INF)]),
+        ("b", [(-INF, 0.0), (0.0, INF), (-INF, INF)]),
+        ("c", [(0.0, INF), (-INF, INF), (-INF, 1.0)]),
+        ("d", [(0.0, INF), (-INF, INF), (1.0, INF)]),
+    ]
+    got = link_probabilities(
+        BoxPartition.from_boxes(boxes, "abcd"), mixture([[1.0]], [[mean]], [[cov]])
+    )
+    assert got.method == "quadrature"
+    for k, (label, sides) in enumerate(boxes):
+        pair = [i for i, (lo, hi) in enumerate(sides) if lo > -INF or hi < INF]
+        want = gaussian_box([mean[i] for i in pair], [[cov[i][j] for j in pair] for i in pair],
+                            [sides[i] for i in pair])  # fmt: skip
+        assert got.probs[0, k].item() == pytest.approx(want, abs=1e-10), label
+    assert got.probs.sum().item() == pytest.approx(1.0, abs=1e-12) and got.none.item() <= 1e-12
+
+
+def test_a_mixture_without_a_density_is_refused():
+    link = BoxPartition.from_boxes(BOXES_2D, "abcd")
+    with pytest.raises(ValueError, match=r"rows \[1\] give undefined box probabilities"):
+        link_probabilities(
+            link, mixture([[1.0], [1.0]], [[[0.0, 0.0]], [[math.nan, 0.0]]], [[np.eye(2)]] * 2)
+        )
+
+
+def test_too_few_quadrature_nodes_are_refused():
+    link = BoxPartition.from_boxes(BOXES_2D, "abcd")
+    with pytest.raises(ValueError, match="nodes: 6; expected an integer of at least 12"):
+        link_probabilities(link, mixture([[1.0]], [[[0.0, 0.0]]], [[np.eye(2)]]), nodes=6)
 
 
 # --- Monte Carlo -------------------------------------------------------------------------
