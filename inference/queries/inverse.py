@@ -73,6 +73,12 @@ def parameter_for_effect(
     noise and with the effect inside a cluster's reach, the answer reproduces the
     effect exactly under that cluster (``miss`` 0).
 
+    Per cluster the objective is lexicographic, the effects' likelihood first and the
+    cluster's Gaussian over the value second (among values reaching the effect equally well
+    the candidate has the highest joint density ``p(theta_c, evidence | c)``); it is not the
+    joint density's maximiser over all values, which is ``c``'s posterior mode and misses the
+    effect by the share that noise explains.
+
     The evidence is as for :func:`~inference.queries.parameter.infer_parameter` (the parameter and its cluster
     unknown; the action, or the only one using the parameter; the discrete parents of the
     observed effects; any other parameter acting on the same feature given); at least

@@ -410,6 +410,18 @@ class ParameterMixture:
         coordinates). Returns the value ``(..., k)`` and the children's squared Mahalanobis distance
         from their prediction at it, summed ``(...)``: zero when the value produces the observed
         effect exactly.
+
+        The objective is lexicographic: first the children's likelihood, then the cluster's own
+        Gaussian among the values reaching it equally well (where the joint density ``p(theta, y |
+        cluster)`` is highest among them). It is not the maximiser of the joint density over all
+        values: that is the cluster's posterior mode, a generalised least squares of ``[A; L^-1]
+        theta = [b; L^-1 mean]``, which gives up part of the effect for prior density (the
+        posterior's shrinkage :func:`~inference.parameter_for_effect` is there to avoid).
+        On a near-singular regression the value reaching the effect may lie far from the cluster,
+        with a low joint density that ranks it behind the other clusters' candidates. The SVD
+        solve is backward stable: on a design conditioned ``kappa`` the value is exact for weights
+        within a few ``eps`` of the given ones, and its joint density within about ``kappa eps``
+        (relative) of the exact optimum's.
         """
         slope, target = whitened[0], whitened[1]
         mean, cov = self.belief(params, cluster)
