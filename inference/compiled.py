@@ -44,6 +44,7 @@ from effect_networks.inference.queries.surprise import QUADRATURE_POINTS
 from effect_networks.inference.sequences.planner import Plan, plan_on
 from effect_networks.inference.sequences.transition_tables import (
     Transitions,
+    context_evidence,
     model_tables,
     transitions,
 )
@@ -214,7 +215,7 @@ class CompiledQueries:
 
         Traced once per ``given`` (the continuous initial features' values) and kept.
         """
-        key = ("tables", _context_key(given))
+        key = ("tables", _context_key(self.net, given))
         if key not in self._built:
             self._built[key] = model_tables(self.net, self.params, given)
         return transitions(
@@ -247,11 +248,9 @@ class CompiledQueries:
         return plan_on(model, start, goal, horizon, allowed, avoid_unseen=avoid_unseen)
 
 
-def _context_key(given: Mapping[str, object] | None) -> tuple:
-    """A hashable key of the continuous initial features' values."""
-    if not given:
-        return ()
+def _context_key(net: EffectNetwork, given: Mapping[str, object] | None) -> tuple:
+    """The continuous initial features' values, checked, as a hashable key."""
     return tuple(
-        (k, tuple(torch.as_tensor(v, dtype=torch.float64).reshape(-1).tolist()))
-        for k, v in sorted(given.items())
+        (site, tuple(value.reshape(-1).tolist()))
+        for site, value in sorted(context_evidence(net, given).items())
     )

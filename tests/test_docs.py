@@ -188,3 +188,17 @@ def test_the_benchmarks_page_names_every_script_and_logs_no_measurement():
     assert not re.findall(r"\b20\d\d-\d\d-\d\d\b", text), "a dated measurement"
     assert not re.findall(r"\b[0-9a-f]{7,40}\b", text), "a measurement keyed by commit"
     assert measured_figures(text) == [], "figures go to the scripts' output (--out)"
+
+
+def test_the_limits_page_names_each_limit_with_its_value():
+    """Each constant docs/limits.md names exists, with the value the page gives it."""
+    import importlib
+
+    text = (DOCS / "limits.md").read_text()
+    rows = re.findall(r"^\| `([\w.]+)\.([A-Z_]+)` \(([^)]*)\)", text, re.M)
+    assert len(rows) >= 6, rows
+    for module, name, shown in rows:
+        value = getattr(importlib.import_module(f"effect_networks.{module}"), name)
+        number = shown.split(" numbers")[0].split(" entries")[0].replace(",", "")
+        number = number.replace("10^", "10**").replace("2^", "2**").replace(" MiB", " * 2**20")
+        assert eval(number) == value, (module, name, shown, value)  # noqa: S307

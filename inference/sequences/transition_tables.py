@@ -51,6 +51,7 @@ from effect_networks.models.declaration import (
     end_site,
     initial_site,
 )
+from effect_networks.models.dtype import MAX_MAGNITUDE
 from effect_networks.models.model import effect_model
 from effect_networks.models.params import NetworkParams, check_params
 from pyro import poutine
@@ -94,7 +95,7 @@ def model_tables(
     (:class:`~inference.queries.implausibility.OutsideTrainingData`).
     """
     check_params(net, params)
-    data = _given(net, given)
+    data = context_evidence(net, given)
     if end_sites is None:
         end_sites = [s.name for s in net.sites if s.role == "end" and s.discrete]
     enc = net.encode(data) if data else None
@@ -126,8 +127,10 @@ def model_tables(
     return ModelTables(order, factors, unseen)
 
 
-def _given(net: EffectNetwork, given: Mapping[str, object] | None) -> dict[str, torch.Tensor]:
-    """The continuous initial features' values as one row of encoded evidence."""
+def context_evidence(
+    net: EffectNetwork, given: Mapping[str, object] | None
+) -> dict[str, torch.Tensor]:
+    """The continuous initial features' values (``given=``, checked) as evidence rows."""
     given = dict(given or {})
     needed = [f for f in net.features if isinstance(f, Continuous) and f.initial]
     names = {f.name for f in needed}
@@ -145,13 +148,32 @@ def _given(net: EffectNetwork, given: Mapping[str, object] | None) -> dict[str, 
         )
     out = {}
     for f in needed:
-        value = torch.as_tensor(given[f.name], dtype=DTYPE).reshape(-1)
-        if value.shape != (f.dim,) or not bool(torch.isfinite(value).all()):
-            raise ValueError(
-                f"given[{f.name!r}] must be {f.dim} finite number(s), got {given[f.name]!r}"
-            )
+        expected = (
+            f"given[{f.name!r}] must be {f.dim} finite number(s) of magnitude at most "
+            f"{MAX_MAGNITUDE:g} (the feature's value in every step), got {given[f.name]!r}"
+        )
+        raw = given[f.name]
+        if raw is None or isinstance(raw, str | bytes | bool) or _holds_text(raw):
+            raise ValueError(expected)
+        try:
+            value = torch.as_tensor(raw, dtype=DTYPE).reshape(-1)
+        except (TypeError, ValueError, RuntimeError) as exc:  # text, None, ragged lists
+            raise ValueError(expected) from exc
+        if (
+            value.shape != (f.dim,)
+            or not bool(torch.isfinite(value).all())
+            or bool((value.abs() > MAX_MAGNITUDE).any())
+        ):
+            raise ValueError(expected)
         out[initial_site(f.name)] = value.reshape(1, f.dim)
     return out
+
+
+def _holds_text(raw: object) -> bool:
+    """Whether a list of values holds a label (torch would read ``["1"]`` as 1.0)."""
+    return isinstance(raw, list | tuple) and any(
+        isinstance(v, str | bytes | bool) or v is None for v in raw
+    )
 
 
 @dataclass(frozen=True)

@@ -12,10 +12,11 @@ import itertools
 
 import pytest
 import torch
-from effect_networks.inference import fit
+from effect_networks.inference import compile as compile_queries
+from effect_networks.inference import fit, plan
 from effect_networks.inference.sequences.states import StateSpace
 from effect_networks.inference.sequences.transition_tables import model_tables, transitions
-from effect_networks.models import Discrete, EffectNetwork, Parameter, random_params
+from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter, random_params
 from effect_networks.models.model import effect_model
 from hypothesis import given, settings
 from hypothesis import strategies as st
@@ -270,3 +271,44 @@ def test_a_state_space_too_large_to_hold_is_refused_with_advice():
         transitions(net, random_params(net, 0))
     few = transitions(net, random_params(net, 0), states=[(0, 0), (1, 2)])
     assert few.probs.shape == (2, 20, 2)
+
+
+# ------------------------------------------------ a context value that is not a number
+def _context_network():
+    net = EffectNetwork(
+        features=(Discrete("visible", (False, True)), Continuous("position", 1)),
+        actions=("look", "remove"),
+    )
+    return net, random_params(net, 0)
+
+
+BAD_CONTEXTS = st.one_of(
+    st.none(),
+    st.text(max_size=3),
+    st.lists(st.text(min_size=1, max_size=2), min_size=1, max_size=2),
+    st.lists(st.booleans(), min_size=1, max_size=1),
+    st.lists(st.none(), min_size=1, max_size=1),
+    st.sampled_from([[float("nan")], [float("inf")], [1e200], [[1.0, 2.0]], [], [1.0, 2.0]]),
+)
+
+
+@settings(max_examples=60, deadline=None)
+@given(bad=BAD_CONTEXTS, route=st.sampled_from(["transitions", "plan", "compiled"]))
+def test_a_context_that_is_not_one_number_is_named_with_what_it_should_be(bad, route):
+    """Text, None, labels, non-finite or huge numbers, the wrong length: each refused with
+    an error naming given['position'] and what it must be, by every sequence question."""
+    net, params = _context_network()
+    ask = {
+        "transitions": lambda: transitions(net, params, given={"position": bad}),
+        "plan": lambda: plan(
+            net,
+            params,
+            {"visible": True},
+            {"visible": False},
+            horizon=1,
+            given={"position": bad},
+        ),
+        "compiled": lambda: compile_queries(net, params).transitions(given={"position": bad}),
+    }[route]
+    with pytest.raises(ValueError, match=r"given\['position'\] must be 1 finite number"):
+        ask()
