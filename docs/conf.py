@@ -123,7 +123,8 @@ def _public(module) -> dict[str, object]:
     """The names autodoc documents for ``module``: a face's ``__all__``, else what the
     module defines (its helpers too, which other docstrings name)."""
     if module.__name__ in FACES:
-        return {name: getattr(module, name) for name in module.__all__}
+        names = [*module.__all__, *getattr(module, "NOT_STARRED", ())]
+        return {name: getattr(module, name) for name in names}
     return {
         name: value
         for name, value in vars(module).items()
@@ -159,6 +160,11 @@ def _write_api_pages() -> None:
             lines.append("   :ignore-module-all:")
         if skip:
             lines.append(f"   :exclude-members: {', '.join(skip)}")
+        if name in FACES:  # names on the face but left out of its __all__ (star imports)
+            lines += [
+                "",
+                *(f".. autofunction:: {name}.{n}" for n in getattr(module, "NOT_STARRED", ())),
+            ]
         text = "\n".join(lines) + "\n"
         page = out / f"{name}.rst"
         if not page.exists() or page.read_text() != text:

@@ -28,7 +28,8 @@ Lower-level names live in their modules (:mod:`inference.exact.enumeration`,
 """
 
 from effect_networks.inference import plots as plots  # the module only: its names stay off the face
-from effect_networks.inference.compiled import CompiledQueries, compile
+from effect_networks.inference.compiled import CompiledQueries
+from effect_networks.inference.compiled import compile as compile  # on the face, not in __all__
 from effect_networks.inference.design.active import explore
 from effect_networks.inference.fitting.em import EMResult, fit_em
 from effect_networks.inference.fitting.maximum_likelihood import (
@@ -83,6 +84,10 @@ from effect_networks.inference.sequences import (
     transitions,
 )
 
+#: On the face but left out of ``__all__``: ``from effect_networks.inference import *``
+#: must not hide Python's built-in ``compile`` (``inference.compile`` is there).
+NOT_STARRED = ("compile",)
+
 __all__ = [
     "ActionPosterior",
     "BoxPartition",
@@ -109,7 +114,6 @@ __all__ = [
     "aic",
     "bic",
     "chain",
-    "compile",
     "cross_validate",
     "explain",
     "explore",
