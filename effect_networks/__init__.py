@@ -32,116 +32,29 @@ except PackageNotFoundError:  # a source tree that was never installed
 
 #: The subpackages, imported on first use as attributes (``en.inference``).
 SUBPACKAGES = ("models", "inference", "sim2d", "experiments")
+#: The faces whose names this face gives, in order: every name of their ``__all__``, and
+#: the names they keep out of it (``NOT_STARRED``: ``compile``).
+FACES = ("models", "inference")
 
-#: Face name -> the subpackage whose face exports it: every name of
-#: :mod:`effect_networks.models` and :mod:`effect_networks.inference` (a test checks).
-_HOME = {
-    **dict.fromkeys(
-        (
-            "ACTION",
-            "CPD",
-            "Continuous",
-            "Discrete",
-            "EffectNetwork",
-            "Evidence",
-            "KINDS",
-            "LinearGaussianCPD",
-            "LinearGaussianParams",
-            "NetworkParams",
-            "Parameter",
-            "ParameterMixture",
-            "Partial",
-            "PgmpyNetwork",
-            "SoftmaxCPD",
-            "SoftmaxParams",
-            "TableCPD",
-            "TableParams",
-            "cluster_site",
-            "effect_model",
-            "end_site",
-            "from_frame",
-            "from_pgmpy",
-            "initial_site",
-            "load",
-            "param_site",
-            "random_params",
-            "read_bif",
-            "save",
-            "to_frame",
-            "to_pgmpy",
-            "write_bif",
-        ),
-        "models",
-    ),
-    **dict.fromkeys(
-        (
-            "ActionPosterior",
-            "BoxPartition",
-            "ClusterSelection",
-            "CompiledQueries",
-            "ConvergenceWarning",
-            "CrossValidation",
-            "EMResult",
-            "Explanation",
-            "FitResult",
-            "FunctionLink",
-            "GaussianMixture",
-            "ImitationCheck",
-            "JointPrediction",
-            "LinkProbabilities",
-            "LogLikelihood",
-            "OutsideTrainingData",
-            "ParameterForEffect",
-            "ParameterPosterior",
-            "Plan",
-            "Prediction",
-            "StateSpace",
-            "Transitions",
-            "aic",
-            "bic",
-            "chain",
-            "compile",
-            "cross_validate",
-            "explain",
-            "explore",
-            "fit",
-            "fit_em",
-            "fit_gradient",
-            "fit_pooled",
-            "fit_statistics",
-            "grid_kernel",
-            "imitation_check",
-            "infer_action",
-            "infer_parameter",
-            "learn_structure",
-            "link_probabilities",
-            "log_likelihood",
-            "n_parameters",
-            "parameter_for_effect",
-            "params_from_statistics",
-            "plan",
-            "predict",
-            "predict_joint",
-            "select_clusters",
-            "simulate",
-            "transitions",
-        ),
-        "inference",
-    ),
-}
 
-__all__ = sorted(name for name in _HOME if name != "compile") + ["__version__"]
+def _face(sub: str):
+    return importlib.import_module(f"{__name__}.{sub}")
 
 
 def __getattr__(name: str):
     if name in SUBPACKAGES:
-        return importlib.import_module(f"{__name__}.{name}")
-    if name in _HOME:
-        value = getattr(importlib.import_module(f"{__name__}.{_HOME[name]}"), name)
-        globals()[name] = value  # looked up once
-        return value
+        return _face(name)
+    if name == "__all__":  # what a star import brings: every face's __all__
+        return sorted({n for sub in FACES for n in _face(sub).__all__}) + ["__version__"]
+    if not name.startswith("_"):
+        for sub in FACES:
+            face = _face(sub)
+            if name in face.__all__ or name in getattr(face, "NOT_STARRED", ()):
+                value = getattr(face, name)
+                globals()[name] = value  # looked up once
+                return value
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def __dir__() -> list[str]:
-    return sorted({*globals(), *_HOME, *SUBPACKAGES})
+    return sorted({*globals(), *SUBPACKAGES, *__getattr__("__all__")})
