@@ -59,7 +59,7 @@ from effect_networks.inference.fitting.gaussian_gaps import (
     refuse_open_forms,
 )
 from effect_networks.inference.fitting.result import ConvergenceWarning, FitResult
-from effect_networks.inference.fitting.rows import check_settings, missing_masks, rows_with_gaps
+from effect_networks.inference.fitting.rows import check_settings, missing_masks, read_rows
 from effect_networks.inference.fitting.statistics import (
     Statistics,
     maximise_site,
@@ -217,8 +217,8 @@ def missing_log_likelihood(
     by ``masks`` (False where a discrete value is missing).
     """
     check_params(net, params)
-    enc, masks = rows_with_gaps(net, data, masks)
-    masks = missing_masks(net, masks, enc.n_rows)
+    rows = read_rows(net, data, masks)
+    enc, masks = rows.enc, missing_masks(net, rows.masks, rows.n_rows)
     refuse_open_forms(net, enc, continuous_gaps(net, enc))
     return _completed_rows(net, params, enc, masks, actions_allowed(net, enc, masks)).log_lik
 
