@@ -54,12 +54,8 @@ from dataclasses import dataclass
 
 import torch
 from effect_networks.inference.fitting.missing import fit_missing, missing_log_likelihood
-from effect_networks.inference.fitting.rows import (
-    TrainingRows,
-    check_settings,
-    read_rows,
-    training_rows,
-)
+from effect_networks.inference.fitting.reading import TrainingRows, read_rows
+from effect_networks.inference.fitting.rows import check_settings, training_rows
 from effect_networks.inference.fitting.statistics import params_from_statistics, statistics
 from effect_networks.models.cpds import (
     Counts,

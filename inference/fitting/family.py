@@ -42,7 +42,8 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
 import torch
-from effect_networks.inference.fitting.rows import check_settings, read_rows, refuse_adaptive
+from effect_networks.inference.fitting.reading import read_rows
+from effect_networks.inference.fitting.rows import check_settings, refuse_adaptive
 from effect_networks.models.cpds import (
     Counts,
     LinearGaussianCPD,

@@ -49,12 +49,11 @@ import pyro
 import torch
 from effect_networks.inference.fitting.gaussian_gaps import continuous_gaps
 from effect_networks.inference.fitting.missing import available_case_start, fit_missing
+from effect_networks.inference.fitting.reading import TrainingRows, read_rows
 from effect_networks.inference.fitting.result import ConvergenceWarning, FitResult
 from effect_networks.inference.fitting.rows import (
     NoRows,
-    TrainingRows,
     check_settings,
-    read_rows,
     refuse_adaptive,
     row_masks,
     training_rows,

@@ -58,8 +58,9 @@ from effect_networks.inference.fitting.gaussian_gaps import (
     joint_gaussian,
     refuse_open_forms,
 )
+from effect_networks.inference.fitting.reading import read_rows
 from effect_networks.inference.fitting.result import ConvergenceWarning, FitResult
-from effect_networks.inference.fitting.rows import check_settings, missing_masks, read_rows
+from effect_networks.inference.fitting.rows import check_settings, missing_masks
 from effect_networks.inference.fitting.statistics import (
     Statistics,
     maximise_site,

@@ -80,7 +80,7 @@ from effect_networks.inference.fitting.em import fit_em
 from effect_networks.inference.fitting.fit import fit
 from effect_networks.inference.fitting.gaussian_gaps import continuous_gaps, refuse_open_forms
 from effect_networks.inference.fitting.missing import actions_allowed, gaussian_row_log_likelihoods
-from effect_networks.inference.fitting.rows import TrainingRows, read_rows
+from effect_networks.inference.fitting.reading import TrainingRows, read_rows
 from effect_networks.inference.queries.enumeration import (
     Enumerated,
     enumerate_model,
@@ -362,7 +362,7 @@ def take_rows(data: Mapping[str, object], index: torch.Tensor) -> Mapping[str, o
 
     Labels in lists, arrays or tensors, :class:`~models.evidence.Partial` values (with
     per-row or shared observed dimensions); :class:`~models.evidence.Evidence`;
-    :class:`~inference.fitting.rows.TrainingRows` (their masks cut with them).
+    :class:`~inference.fitting.reading.TrainingRows` (their masks cut with them).
     """
     if isinstance(data, Evidence | TrainingRows):
         return data.rows(index) if isinstance(data, Evidence) else data.take(index)
@@ -388,7 +388,7 @@ def take_rows(data: Mapping[str, object], index: torch.Tensor) -> Mapping[str, o
 def _scored_rows(
     net: EffectNetwork, data: object, masks: Mapping[str, object] | None
 ) -> tuple[Evidence, dict[str, torch.Tensor], tuple[str, ...]]:
-    """The rows as :func:`inference.fit` reads them (:func:`~inference.fitting.rows.read_rows`).
+    """The rows as :func:`inference.fit` reads them (:func:`~inference.fitting.reading.read_rows`).
 
     The encoded rows (NaN where a continuous value is missing), the masks that leave gaps
     (``masks`` and the rows' own marks), and the parameters' clusters the rows do not give.

@@ -19,7 +19,7 @@ from dataclasses import dataclass
 
 from effect_networks.inference.fitting.em import fit_em
 from effect_networks.inference.fitting.fit import fit
-from effect_networks.inference.fitting.rows import read_rows
+from effect_networks.inference.fitting.reading import read_rows
 from effect_networks.inference.fitting.scores import cross_validate, log_likelihood, n_parameters
 from effect_networks.models.declaration import LAYOUTS, EffectNetwork, cluster_site
 from effect_networks.models.evidence import Evidence

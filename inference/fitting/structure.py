@@ -77,7 +77,7 @@ def learn_structure(
     ----------
     data
         Complete training rows by site, read as :func:`inference.fit` reads them
-        (:func:`inference.fitting.rows.read_rows`: a mapping of labels, a ``DataFrame``
+        (:func:`inference.fitting.reading.read_rows`: a mapping of labels, a ``DataFrame``
         or one read back from CSV; ``param.p`` NaN where the action does not use ``p``).
         Rows with missing values are refused, naming each site with gaps and how many
         rows miss it: learn from the complete rows (``frame.dropna(subset=...)``, the

@@ -1,4 +1,4 @@
-"""One way in for training rows (inference.fitting.rows.read_rows): every function that
+"""One way in for training rows (inference.fitting.reading.read_rows): every function that
 takes rows reads a mapping, a DataFrame with gaps and a CSV round trip alike.
 
 README's frame with gaps (None in a discrete column, NaN in a continuous one) is taken by
@@ -25,7 +25,7 @@ from effect_networks.inference import (
     select_clusters,
     simulate,
 )
-from effect_networks.inference.fitting.rows import read_rows
+from effect_networks.inference.fitting.reading import read_rows
 from effect_networks.models import (
     Continuous,
     Discrete,
