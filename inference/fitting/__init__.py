@@ -5,7 +5,8 @@ merge by addition: :mod:`inference.fitting.sufficient_statistics`), Newton steps
 EM for adaptive clusters (:mod:`inference.fitting.em`) and for missing values
 (:mod:`inference.fitting.missing`), the gradient route (:func:`fit_gradient`) and a shared prior over table rows
 (:mod:`inference.fitting.pooling`). Every route checks its settings, training rows and
-masks with the same rules (:mod:`inference.fitting.rows`) and returns a
+masks with the same rules (:mod:`inference.fitting.rows`), read one way
+(:mod:`inference.fitting.reading`), and returns a
 :class:`FitResult` (:mod:`inference.fitting.result`). Structure learning
 (:func:`learn_structure`) chooses the end features' parents by a decomposable score
 (:mod:`inference.fitting.structure`, the families' scores in :mod:`inference.fitting.family`).

@@ -54,6 +54,7 @@ from dataclasses import dataclass
 
 import torch
 from effect_networks.inference.fitting.missing import fit_missing, missing_log_likelihood
+from effect_networks.inference.fitting.reading import TrainingRows, read_rows
 from effect_networks.inference.fitting.rows import check_settings, training_rows
 from effect_networks.inference.fitting.sufficient_statistics import (
     params_from_statistics,
@@ -154,13 +155,21 @@ def fit_em(
     check_settings(pseudo_count=pseudo_count, min_variance=min_variance, steps=steps, tol=tol)
     start = time.perf_counter()
     mixtures = _adaptive(net)
-    data = as_data(net, data)
-    if not isinstance(data, Mapping):
+    if not isinstance(as_data(net, data), Mapping | TrainingRows):
         raise ValueError(
-            f"data must be one mapping of rows (EM revisits them every step), got "
-            f"{type(data).__name__}"
+            f"data must be one mapping or DataFrame of rows (EM revisits them every step), "
+            f"got {type(data).__name__}"
         )
-    enc = training_rows(net, data)
+    rows = read_rows(net, data)
+    missing = rows.missing()
+    if missing:
+        raise ValueError(
+            f"the rows miss values of {rows.missing_text()}: "
+            f"fit_em fits adaptive clusters from complete rows; drop the incomplete rows "
+            f"({rows.dropna_text()}) or fit the network under the grid layout, where "
+            "inference.fit runs EM over the gaps"
+        )
+    enc = rows.enc
     if init is None:
         init = NetworkParams(
             params_from_statistics(net, statistics(net, enc), pseudo_count, min_variance),

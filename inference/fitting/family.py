@@ -42,12 +42,8 @@ from collections.abc import Iterable, Mapping
 from dataclasses import dataclass
 
 import torch
-from effect_networks.inference.fitting.rows import (
-    check_settings,
-    refuse_adaptive,
-    split_missing,
-    training_rows,
-)
+from effect_networks.inference.fitting.reading import read_rows
+from effect_networks.inference.fitting.rows import check_settings, refuse_adaptive
 from effect_networks.models.cpds import (
     Counts,
     LinearGaussianCPD,
@@ -57,7 +53,6 @@ from effect_networks.models.cpds import (
 )
 from effect_networks.models.cpds.linear_gaussian import floor_variance
 from effect_networks.models.declaration import ACTION, DTYPE, MAX_CPD_ENTRIES, EffectNetwork
-from effect_networks.models.frames import as_data
 from effect_networks.models.sites import SiteSpec
 
 __all__ = ["SCORES", "Families", "family_scores"]
@@ -139,18 +134,17 @@ class Families:
             if ess <= 0:
                 raise ValueError(f"ess (BDeu's equivalent sample size) must be > 0, got {ess}")
         refuse_adaptive(net, "learn_structure")
-        data = as_data(net, data)
-        if isinstance(data, Mapping):
-            _, masks, gaps = split_missing(net, data)
-            missing = [s for s, m in masks.items() if not bool(m.all())]
-            missing += [s for s, g in gaps.items() if bool(g.any())]
-            if missing:
-                raise ValueError(
-                    f"learn_structure and family_scores need complete rows; the rows miss "
-                    f"values of {sorted(set(missing))} (fit the learned network with the "
-                    "gaps: inference.fit runs EM over them)"
-                )
-        enc = training_rows(net, data)
+        rows = read_rows(net, data)
+        missing = rows.missing()
+        if missing:
+            raise ValueError(
+                "learn_structure and family_scores score complete rows; the rows miss "
+                f"values of {rows.missing_text()}. Learn from the complete rows "
+                f"({rows.dropna_text()}; a bare dropna() also drops the rows whose action "
+                "leaves a parameter NaN) and fit the learned network on all rows, or fit a "
+                "declared structure with the gaps: inference.fit runs EM over them"
+            )
+        enc = rows.enc
         self.net, self.score_name = net, score
         self.min_variance, self.l2, self.steps, self.ess = min_variance, l2, steps, ess
         self.pooled = pooled

@@ -49,12 +49,13 @@ import pyro
 import torch
 from effect_networks.inference.exact.gaussian_gaps import continuous_gaps
 from effect_networks.inference.fitting.missing import available_case_start, fit_missing
+from effect_networks.inference.fitting.reading import TrainingRows, read_rows
 from effect_networks.inference.fitting.result import ConvergenceWarning, FitResult
 from effect_networks.inference.fitting.rows import (
+    NoRows,
     check_settings,
     refuse_adaptive,
     row_masks,
-    rows_with_gaps,
     training_rows,
 )
 from effect_networks.inference.fitting.sufficient_statistics import (
@@ -134,7 +135,7 @@ def fit(
     )
     refuse_adaptive(net, "fit")
     data = as_data(net, data)
-    if not isinstance(data, Mapping):
+    if not isinstance(data, Mapping | TrainingRows):
         if isinstance(data, str | bytes) or not isinstance(data, Iterable):
             raise ValueError(
                 "data must be a mapping of rows by site or an iterable of such chunks; got "
@@ -151,8 +152,8 @@ def fit(
             )
         cpds = params_from_statistics(net, stats, pseudo_count, min_variance)
         return FitResult(NetworkParams(cpds, pseudo_count, net))
-    enc, masks = rows_with_gaps(net, data, masks)
-    gaps = {site: m for site, m in masks.items() if not bool(m.all())}
+    rows = read_rows(net, data, masks)
+    enc, gaps = rows.enc, rows.gaps
     if gaps or continuous_gaps(net, enc):
         return fit_missing(
             net,
@@ -232,18 +233,28 @@ def fit_statistics(
     """
     refuse_adaptive(net, "fit_statistics")
     total, empty = None, 0
-    for chunk in tqdm(chunks, desc="fit (chunks)", unit="chunk", disable=not progress):
+    for i, chunk in enumerate(
+        tqdm(chunks, desc="fit (chunks)", unit="chunk", disable=not progress)
+    ):
         chunk = as_data(net, chunk)  # a chunk may be a DataFrame
-        if not isinstance(chunk, Mapping):
+        if not isinstance(chunk, Mapping | TrainingRows):
             raise ValueError(
                 f"data must be a mapping of rows or an iterable of such chunks; got a "
                 f"chunk of type {type(chunk).__name__}"
             )
-        enc = net.encode(chunk)
-        if len(enc) and enc.n_rows == 0:  # a chunk of no rows (a split's last) adds nothing
+        try:
+            rows = read_rows(net, chunk)
+        except NoRows:  # a chunk of no rows (a split's last) adds nothing
             empty += 1
             continue
-        total = statistics(net, training_rows(net, enc)).merged_into(total)
+        missing = rows.missing()
+        if missing:
+            raise ValueError(
+                f"chunk {i}: its rows miss values of {rows.missing_text()}; chunks are "
+                "summed as sufficient statistics, and EM over missing values revisits every "
+                "row each step: give the rows as one mapping or DataFrame"
+            )
+        total = statistics(net, rows.enc).merged_into(total)
     if total is None:
         why = f"each of the {empty} chunks has 0 rows" if empty else "the iterable was empty"
         raise ValueError(f"no training rows: {why}")

@@ -60,8 +60,9 @@ from effect_networks.inference.exact.gaussian_gaps import (
     refuse_open_forms,
 )
 from effect_networks.inference.exact.traced import Enumerated
+from effect_networks.inference.fitting.reading import read_rows
 from effect_networks.inference.fitting.result import ConvergenceWarning, FitResult
-from effect_networks.inference.fitting.rows import check_settings, missing_masks, rows_with_gaps
+from effect_networks.inference.fitting.rows import check_settings, missing_masks
 from effect_networks.inference.fitting.sufficient_statistics import (
     Statistics,
     maximise_site,
@@ -218,8 +219,8 @@ def missing_log_likelihood(
     by ``masks`` (False where a discrete value is missing).
     """
     check_params(net, params)
-    enc, masks = rows_with_gaps(net, data, masks)
-    masks = missing_masks(net, masks, enc.n_rows)
+    rows = read_rows(net, data, masks)
+    enc, masks = rows.enc, missing_masks(net, rows.masks, rows.n_rows)
     refuse_open_forms(net, enc, continuous_gaps(net, enc))
     return _completed_rows(net, params, enc, masks, actions_allowed(net, enc, masks)).log_lik
 

@@ -15,6 +15,7 @@ are written once here:
 * the layout (:func:`refuse_adaptive`): the closed form files each row under its value's
   cell, which adaptive clusters (latent components) forbid.
 
+
 Each check raises a ``ValueError`` that names the site or setting, the value and what
 was expected.
 """
@@ -30,6 +31,7 @@ from effect_networks.models.declaration import ACTION, EffectNetwork, cluster_si
 from effect_networks.models.evidence import Evidence, Partial, check_magnitude, is_partial
 
 __all__ = [
+    "NoRows",
     "check_settings",
     "ignore_missing",
     "mask_site",
@@ -41,6 +43,10 @@ __all__ = [
     "training_rows",
     "with_gaps",
 ]
+
+
+class NoRows(ValueError):
+    """Training data of no rows (a chunk of no rows is skipped where chunks are summed)."""
 
 
 def check_settings(**settings: float) -> None:
@@ -137,7 +143,7 @@ def training_rows(
     """
     enc = net.encode(data)
     if not len(enc) or enc.n_rows == 0:
-        raise ValueError("no training rows: fit needs at least one row of every site")
+        raise NoRows("no training rows: fit needs at least one row of every site")
     missing = [s.name for s in net.sites if s.name not in enc and s.role != "cluster"]
     if missing:
         raise ValueError(
@@ -430,11 +436,11 @@ def split_missing(
         missing, in the order of the given values' elements (:func:`with_gaps` puts
         NaN back there once the rows are encoded).
     """
-    if isinstance(data, Evidence):  # encoded: only a continuous end value may be NaN
+    if isinstance(data, Evidence):  # encoded: a continuous initial or end value may be NaN
         partial = {
             s: v
             for s, v in data.items()
-            if not net.site(s).discrete and net.site(s).role == "end" and is_partial(v)
+            if not net.site(s).discrete and net.site(s).role in ("initial", "end") and is_partial(v)
         }
         gaps = {s: torch.isnan(v).reshape(-1) for s, v in partial.items()}
         filled = {s: v.nan_to_num() for s, v in partial.items()}

@@ -86,11 +86,10 @@ from effect_networks.inference.exact.traced import Enumerated
 from effect_networks.inference.fitting.em import fit_em
 from effect_networks.inference.fitting.maximum_likelihood import fit
 from effect_networks.inference.fitting.missing import actions_allowed, gaussian_row_log_likelihoods
-from effect_networks.inference.fitting.rows import mask_values, rows_with_gaps, split_missing
+from effect_networks.inference.fitting.reading import TrainingRows, read_rows
 from effect_networks.models.declaration import ACTION, EffectNetwork
 from effect_networks.models.dtype import DTYPE
-from effect_networks.models.evidence import Evidence
-from effect_networks.models.frames import as_data
+from effect_networks.models.evidence import Evidence, Partial
 from effect_networks.models.params import NetworkParams, check_params
 
 __all__ = [
@@ -317,34 +316,26 @@ def cross_validate(
     ValueError
         For ``folds`` or ``seed`` out of range, or what the fit refuses.
     """
-    data = as_data(net, data)
-    if not isinstance(data, Mapping):
-        raise ValueError(
-            f"data must be one mapping or DataFrame of rows by site (the folds are cut "
-            f"from it), got "
-            f"{type(data).__name__}"
-        )
-    filled, found, holes = split_missing(net, data)  # the rows' own marks of gaps
-    n = net.encode(filled).n_rows
-    fold = fold_of_rows(n, folds, seed)
-    per_row = torch.empty(n, dtype=DTYPE)
+    rows = read_rows(net, data, masks)  # once: the folds are cut from what was read
+    fold = fold_of_rows(rows.n_rows, folds, seed)
+    per_row = torch.empty(rows.n_rows, dtype=DTYPE)
     adaptive = any(p.adaptive for p in net.parameters)
-    if adaptive and (masks or found or holes):
-        what = "masks" if masks else f"data (missing values at {sorted([*found, *holes])})"
+    missing = rows.missing()
+    if adaptive and (masks or missing):
+        what = "masks" if masks else f"data (missing values at {sorted(missing)})"
         raise ValueError(
-            f"{what}: inference.fit_em fits adaptive clusters from complete rows only; "
-            "score a network with missing values under the grid layout"
+            f"{what}: inference.fit_em fits adaptive "
+            "clusters from complete rows only; score a network with missing values under "
+            "the grid layout"
         )
     for f in range(folds):
         held, rest = (fold == f).nonzero().squeeze(-1), (fold != f).nonzero().squeeze(-1)
-        train = take_rows(data, rest)
+        train = rows.take(rest)
         if adaptive:
             params = fit_em(net, train, **fit_kwargs).params
         else:
-            train_masks = _take_masks(masks, rest)
-            params = fit(net, train, masks=train_masks, **fit_kwargs).params
-        scored = log_likelihood(net, params, take_rows(data, held), masks=_take_masks(masks, held))
-        per_row[held] = scored.per_row
+            params = fit(net, train, **fit_kwargs).params
+        per_row[held] = log_likelihood(net, params, rows.take(held)).per_row
     return CrossValidation(per_row, fold)
 
 
@@ -369,14 +360,21 @@ def fold_of_rows(n: int, folds: int, seed: int) -> torch.Tensor:
 def take_rows(data: Mapping[str, object], index: torch.Tensor) -> Mapping[str, object]:
     """The rows ``index`` ``(m,)`` long of rows given by site.
 
-    Labels in lists, arrays or tensors; :class:`~models.evidence.Evidence`.
+    Labels in lists, arrays or tensors, :class:`~models.evidence.Partial` values (with
+    per-row or shared observed dimensions); :class:`~models.evidence.Evidence`;
+    :class:`~inference.fitting.reading.TrainingRows` (their masks cut with them).
     """
-    if isinstance(data, Evidence):
-        return data.rows(index)
+    if isinstance(data, Evidence | TrainingRows):
+        return data.rows(index) if isinstance(data, Evidence) else data.take(index)
     out = {}
     positions = index.tolist()
     for site, values in data.items():
-        if isinstance(values, torch.Tensor):
+        if isinstance(values, Partial):  # a value and its observed dimensions, row by row
+            observed = np.asarray(values.observed)
+            if observed.ndim == 2:
+                observed = observed[positions]
+            out[site] = Partial(np.asarray(values.value)[positions], observed)
+        elif isinstance(values, torch.Tensor):
             out[site] = values[index]
         elif isinstance(values, np.ndarray):
             out[site] = values[positions]
@@ -387,30 +385,16 @@ def take_rows(data: Mapping[str, object], index: torch.Tensor) -> Mapping[str, o
 
 
 # ------------------------------------------------------------------------------ internals
-def _take_masks(masks: Mapping[str, object] | None, index: torch.Tensor):
-    if not masks:
-        return None
-    return {site: mask_values(site, m)[index] for site, m in masks.items()}
-
-
 def _scored_rows(
-    net: EffectNetwork, data: Mapping[str, object], masks: Mapping[str, object] | None
+    net: EffectNetwork, data: object, masks: Mapping[str, object] | None
 ) -> tuple[Evidence, dict[str, torch.Tensor], tuple[str, ...]]:
-    """The rows encoded and checked as :func:`inference.fit` reads them, and what leaves gaps.
+    """The rows as :func:`inference.fit` reads them (:func:`~inference.fitting.reading.read_rows`).
 
-    The rows as :func:`~inference.fitting.rows.rows_with_gaps` gives them (NaN where a continuous
-    value is missing), the masks that leave gaps (``masks`` and the rows' own marks), and the
-    parameters' clusters the rows do not give.
+    The encoded rows (NaN where a continuous value is missing), the masks that leave gaps
+    (``masks`` and the rows' own marks), and the parameters' clusters the rows do not give.
     """
-    data = as_data(net, data)
-    if not isinstance(data, Mapping):
-        raise ValueError(
-            f"data must be a mapping or a DataFrame of rows by site, got {type(data).__name__}"
-        )
-    given = {m.cluster.site for m in net.mixtures if m.cluster.site in data}
-    enc, masks = rows_with_gaps(net, data, masks)
-    gaps = {s: m for s, m in masks.items() if not bool(m.all())}
-    return enc, gaps, tuple(m.cluster.site for m in net.mixtures if m.cluster.site not in given)
+    rows = read_rows(net, data, masks)
+    return rows.enc, rows.gaps, rows.unread
 
 
 def _per_row(

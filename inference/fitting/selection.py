@@ -19,6 +19,7 @@ from dataclasses import dataclass
 
 from effect_networks.inference.fitting.em import fit_em
 from effect_networks.inference.fitting.maximum_likelihood import fit
+from effect_networks.inference.fitting.reading import read_rows
 from effect_networks.inference.fitting.scores import cross_validate, log_likelihood, n_parameters
 from effect_networks.models.declaration import LAYOUTS, EffectNetwork, cluster_site
 from effect_networks.models.evidence import Evidence
@@ -126,7 +127,9 @@ def select_clusters(
         (:func:`inference.fitting.scores.cross_validate`); ``"bic"``: the BIC of the fit
         on all rows.
     **fit_kwargs
-        Passed to every fit (``pseudo_count``, ``min_variance``, ``steps``, ...).
+        Passed to every fit (``pseudo_count``, ``min_variance``, ``steps``, ...);
+        ``masks`` marks missing discrete values, as :func:`inference.fit` takes them, for
+        the fits and the scores alike.
 
     Returns
     -------
@@ -161,6 +164,7 @@ def select_clusters(
             "data is Evidence, encoded for one network; each candidate is another network: "
             "give the rows by site as labels and numbers"
         )
+    masks = fit_kwargs.pop("masks", None)  # read with the rows, for the fits and the scores
     scored = []
     for bins in candidates:
         for layout in layouts:
@@ -172,15 +176,16 @@ def select_clusters(
                     "leave it out (each row's cluster is then its value's cell, or latent "
                     "when adaptive)"
                 )
+            rows = read_rows(net, data, masks)  # each candidate's rows, read as fit reads them
             if score == "heldout":
-                ll = cross_validate(net, data, folds, seed, **fit_kwargs).total
+                ll = cross_validate(net, rows, folds, seed, **fit_kwargs).total
                 scored.append(ClusterScore(p.bins, layout, p.n_clusters, n_parameters(net), ll))
             else:
                 if layout == "adaptive":
-                    params = fit_em(net, data, **fit_kwargs).params
+                    params = fit_em(net, rows, **fit_kwargs).params
                 else:
-                    params = fit(net, data, **fit_kwargs).params
-                result = log_likelihood(net, params, data)
+                    params = fit(net, rows, **fit_kwargs).params
+                result = log_likelihood(net, params, rows)
                 scored.append(
                     ClusterScore(
                         p.bins, layout, p.n_clusters, result.n_parameters, result.total, result.bic

@@ -76,9 +76,13 @@ def learn_structure(
     Parameters
     ----------
     data
-        Complete training rows by site, as :func:`inference.fit` takes them (a mapping
-        of labels or a ``DataFrame``; ``param.p`` NaN where the action does not use
-        ``p``). Rows with missing values are refused.
+        Complete training rows by site, read as :func:`inference.fit` reads them
+        (:func:`inference.fitting.reading.read_rows`: a mapping of labels, a ``DataFrame``
+        or one read back from CSV; ``param.p`` NaN where the action does not use ``p``).
+        Rows with missing values are refused, naming each site with gaps and how many
+        rows miss it: learn from the complete rows (``frame.dropna(subset=...)``, the
+        columns of the sites with gaps) and fit the
+        learned network on all rows, or fit a declared structure with the gaps.
     features, actions, parameters
         The declaration (:class:`~models.declaration.EffectNetwork`); its end sites'
         parents are learned.
@@ -115,7 +119,7 @@ def learn_structure(
     Raises
     ------
     ValueError
-        Naming the argument: an unknown score or search, a pair that names no site or
+        Naming the argument: rows with missing values, an unknown score or search, a pair that names no site or
         breaks the declaration's rules, required pairs that form a cycle, or an end site
         no admissible family fits (more parent configurations than rows).
 
