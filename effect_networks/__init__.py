@@ -30,6 +30,12 @@ try:
 except PackageNotFoundError:  # a source tree that was never installed
     __version__ = "0+unknown"
 
+__doc__ = (__doc__ or "") + (
+    f"\nThis is effect-networks {__version__}. Its documentation: README.md (set-up and the\n"
+    "quick start) and the user guide in docs/ (docs/guide.md), built into a site with the\n"
+    "reference by bin/build-docs; every function's own docstring (help(en.fit)).\n"
+)
+
 #: The subpackages, imported on first use as attributes (``en.inference``).
 SUBPACKAGES = ("models", "inference", "sim2d", "experiments")
 #: The faces whose names this face gives, in order: every name of their ``__all__``, and

@@ -335,3 +335,9 @@ def test_a_star_import_of_a_face_hides_no_builtin(face):
     exec(f"from {face} import *", namespace)  # noqa: S102
     assert not set(namespace) & set(dir(builtins)) - {"__builtins__"}
     assert "EffectNetwork" in namespace or "fit" in namespace
+
+
+def test_help_names_the_version_and_the_documentation():
+    text = effect_networks.__doc__
+    assert f"effect-networks {effect_networks.__version__}" in text
+    assert "README.md" in text and "docs/guide.md" in text

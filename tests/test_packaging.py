@@ -42,7 +42,14 @@ def test_extras_by_purpose_and_dev_installs_them_all():
     assert requirement_names(extras["cluster"]) == {"dask", "ray"}
     dev = requirement_names(extras["dev"])
     assert {"pytest", "hypothesis", "ruff"} <= dev
-    assert requirement_names(extras["interop"]) | requirement_names(extras["cluster"]) <= dev
+    assert requirement_names(extras["render"]) == {"graphviz"}
+    assert "graphviz" not in requirement_names(project()["dependencies"])  # no module needs it
+    assert (
+        requirement_names(extras["interop"])
+        | requirement_names(extras["cluster"])
+        | requirement_names(extras["render"])
+        <= dev
+    )
     # the setup script installs the dev extra, so the two README commands get everything
     import re
 
