@@ -84,8 +84,8 @@ class NetworkParams:
     things there. Parameters assembled by hand without it are checked by shape only.
 
     ``statistics``: the summed sufficient statistics the closed-form fit computed them
-    from, per site (:class:`~models.cpds.Counts` of a table or softmax,
-    :class:`~models.cpds.Moments` of a linear Gaussian), which
+    from, per site (:class:`~models.cpds.table.Counts` of a table or softmax,
+    :class:`~models.cpds.linear_gaussian.Moments` of a linear Gaussian), which
     :func:`inference.fit_update` continues from; ``None`` where the parameters did not
     come from such a fit (EM, the gradient route, by hand, a file saved without them).
     """
