@@ -39,7 +39,9 @@ from effect_networks.inference.fitting.maximum_likelihood import (
     fit_gradient,
     fit_statistics,
 )
+from effect_networks.inference.fitting.online import fit_update
 from effect_networks.inference.fitting.pooling import fit_pooled, grid_kernel
+from effect_networks.inference.fitting.priors import K2, BDeu, NormalInverseWishart
 from effect_networks.inference.fitting.scores import (
     CrossValidation,
     LogLikelihood,
@@ -90,9 +92,12 @@ NOT_STARRED = ("compile",)
 
 __all__ = [
     "ActionPosterior",
+    "BDeu",
     "BoxPartition",
     "ClusterSelection",
     "CompiledQueries",
+    "K2",
+    "NormalInverseWishart",
     "ConvergenceWarning",
     "CrossValidation",
     "EMResult",
@@ -122,6 +127,7 @@ __all__ = [
     "fit_gradient",
     "fit_pooled",
     "fit_statistics",
+    "fit_update",
     "grid_kernel",
     "imitation_check",
     "infer_action",

@@ -16,6 +16,7 @@ import errno
 import hashlib
 import io
 import json
+import math
 import os
 import secrets
 import zipfile
@@ -27,7 +28,10 @@ import numpy as np
 import torch
 from effect_networks.models.cpds import CPD as KindCPD
 from effect_networks.models.cpds import (
+    Counts,
+    LinearGaussianCPD,
     LinearGaussianParams,
+    Moments,
     SoftmaxParams,
     TableParams,
     map_tensors,
@@ -38,7 +42,12 @@ FORMAT = "effect-networks"
 #: Version 2 added the content checksum (``sha256``); files of other versions are refused.
 FORMAT_VERSION = 2
 #: The entries of a saved file's payload; a file holding anything else is refused.
-PAYLOAD_KEYS = frozenset({"format", "version", "declaration", "pseudo_count", "cpds", "sha256"})
+#: ``statistics`` is optional (a file without it loads, its parameters carry none).
+PAYLOAD_KEYS = frozenset(
+    {"format", "version", "declaration", "pseudo_count", "cpds", "sha256", "statistics"}
+)
+#: The containers of sufficient statistics a saved file may hold, by their saved names.
+STATISTICS_TYPES: dict[str, type] = {"Counts": Counts, "Moments": Moments}
 #: The largest pickled part of a file (its structure, declaration and numbers' headers:
 #: the numbers themselves are separate members) that :func:`load` reads.
 MAX_STRUCTURE_BYTES = 16 * 2**20
@@ -73,19 +82,32 @@ class NetworkParams:
     :meth:`~models.declaration.EffectNetwork.identity` differs (states in another order,
     other actions, another parameter layout, ...): the same numbers would mean other
     things there. Parameters assembled by hand without it are checked by shape only.
+
+    ``statistics``: the summed sufficient statistics the closed-form fit computed them
+    from, per site (:class:`~models.cpds.table.Counts` of a table or softmax,
+    :class:`~models.cpds.linear_gaussian.Moments` of a linear Gaussian), which
+    :func:`inference.fit_update` continues from; ``None`` where the parameters did not
+    come from such a fit (EM, the gradient route, by hand, a file saved without them).
     """
 
     cpds: dict[str, SiteParams]
     pseudo_count: float
     network: EffectNetwork | None = field(default=None, repr=False, compare=False)
+    statistics: dict[str, Counts | Moments] | None = field(default=None, repr=False, compare=False)
 
     def __getitem__(self, site: str) -> SiteParams:
         return self.cpds[site]
 
     def map(self, fn) -> NetworkParams:
-        """Apply ``fn`` to every tensor (e.g. ``lambda t: t.double()``)."""
+        """Apply ``fn`` to every tensor (e.g. ``lambda t: t.double()``), statistics included."""
+        statistics = self.statistics
+        if statistics is not None:
+            statistics = {k: map_tensors(c, fn) for k, c in statistics.items()}
         return NetworkParams(
-            {k: map_tensors(c, fn) for k, c in self.cpds.items()}, self.pseudo_count, self.network
+            {k: map_tensors(c, fn) for k, c in self.cpds.items()},
+            self.pseudo_count,
+            self.network,
+            statistics,
         )
 
 
@@ -152,7 +174,9 @@ def save(path: str | Path, net: EffectNetwork, params: NetworkParams) -> Path:
     The file is written beside ``path`` under a temporary name and renamed over it once
     complete, so a failed save (a full disk, a kill) leaves the file that was there. It
     holds a checksum of its content (sha256) that :func:`load` verifies. Tensors are
-    saved on the CPU.
+    saved on the CPU. The parameters' sufficient statistics (``NetworkParams.statistics``)
+    are saved with them where they are the toolkit's containers, so that a loaded fit
+    can be continued (:func:`inference.fit_update`).
     """
     check_params(net, params)
     path = Path(path)
@@ -172,6 +196,9 @@ def save(path: str | Path, net: EffectNetwork, params: NetworkParams) -> Path:
         "pseudo_count": float(params.pseudo_count),
         "cpds": cpds,
     }
+    statistics = _saved_statistics(params)
+    if statistics is not None:
+        payload["statistics"] = statistics
     payload["sha256"] = _checksum(payload)
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp")
@@ -276,7 +303,8 @@ def load(
             if not all(isinstance(v, torch.Tensor) for v in entry.values()):
                 raise ValueError(f"site {site!r}: its {cls.__name__} holds other than tensors")
             cpds[site] = cls(**entry)
-        params = NetworkParams(cpds, float(payload["pseudo_count"]), net)
+        statistics = _loaded_statistics(net, payload.get("statistics"))
+        params = NetworkParams(cpds, float(payload["pseudo_count"]), net, statistics)
         check_params(net, params)  # shapes only: nothing has been read yet
     except (KeyError, TypeError, ValueError, RecursionError) as exc:
         # RecursionError: a declaration nested deeper than any network's (a crafted file)
@@ -284,6 +312,51 @@ def load(
             f"{path} is a damaged effect-network file ({type(exc).__name__}: {exc})"
         ) from exc
     return net, params.map(lambda t: t.clone())  # off the mapped file
+
+
+def _saved_statistics(params: NetworkParams) -> dict | None:
+    """The statistics entry of a saved file, or ``None`` (none kept, or a user's container)."""
+    if params.statistics is None or set(params.statistics) != set(params.cpds):
+        return None
+    names = {cls: name for name, cls in STATISTICS_TYPES.items()}
+    if not all(type(c) in names for c in params.statistics.values()):
+        return None
+    return {
+        site: {"type": names[type(c)], **{f.name: _cpu(getattr(c, f.name)) for f in fields(c)}}
+        for site, c in params.statistics.items()
+    }
+
+
+def _loaded_statistics(net: EffectNetwork, entries: object) -> dict | None:
+    """A saved statistics entry, checked against ``net``'s kinds and shapes (or ``None``)."""
+    if entries is None:
+        return None
+    if not isinstance(entries, dict) or set(entries) != {s.name for s in net.sites}:
+        raise ValueError("its statistics do not name every site of its declaration")
+    statistics = {}
+    for site, entry in entries.items():
+        entry = dict(entry)
+        cls = STATISTICS_TYPES.get(entry.pop("type", None))
+        cpd = net.cpd(site)
+        expected = Moments if isinstance(cpd, LinearGaussianCPD) else Counts
+        if cls is not expected:
+            raise ValueError(f"site {site!r}: its statistics are not {expected.__name__}")
+        groups, d, q = math.prod(cpd.card), cpd.size, cpd.width + 1
+        shapes = (
+            {"zz": (groups, q, q), "zy": (groups, q, d), "yy": (groups, d, d), "n": (groups,)}
+            if cls is Moments
+            else {"counts": (*cpd.card, cpd.size)}
+        )
+        if set(entry) != set(shapes) or not all(
+            isinstance(v, torch.Tensor) and v.dtype == torch.float64 and tuple(v.shape) == shapes[k]
+            for k, v in entry.items()
+        ):
+            raise ValueError(
+                f"site {site!r}: its {cls.__name__} statistics are not float64 tensors of "
+                f"shapes {shapes}"
+            )
+        statistics[site] = cls(**entry)
+    return statistics
 
 
 def _cpu(value):
@@ -296,7 +369,9 @@ def _checksum(payload: dict) -> str:
     Its header, declaration and pseudo-count, and every site's tensors (dtype, shape and bytes),
     sites and fields in sorted order.
     """
-    cpds = payload["cpds"]
+    cpds = dict(payload["cpds"])
+    if "statistics" in payload:  # optional: a file without it keeps its checksum
+        cpds |= {f"statistics:{site}": entry for site, entry in payload["statistics"].items()}
     h = hashlib.sha256()
     header = {
         "format": payload["format"],

@@ -21,7 +21,9 @@ from effect_networks.inference.fitting.maximum_likelihood import (
     fit_gradient,
     fit_statistics,
 )
+from effect_networks.inference.fitting.online import fit_update
 from effect_networks.inference.fitting.pooling import fit_pooled, grid_kernel
+from effect_networks.inference.fitting.priors import K2, BDeu, NormalInverseWishart
 from effect_networks.inference.fitting.scores import (
     CrossValidation,
     LogLikelihood,
@@ -39,6 +41,9 @@ from effect_networks.inference.fitting.sufficient_statistics import (
 )
 
 __all__ = [
+    "K2",
+    "NormalInverseWishart",
+    "BDeu",
     "ClusterSelection",
     "ConvergenceWarning",
     "CrossValidation",
@@ -55,6 +60,7 @@ __all__ = [
     "fit_gradient",
     "fit_pooled",
     "fit_statistics",
+    "fit_update",
     "grid_kernel",
     "learn_structure",
     "log_likelihood",

@@ -49,6 +49,7 @@ import pyro
 import torch
 from effect_networks.inference.exact.gaussian_gaps import continuous_gaps
 from effect_networks.inference.fitting.missing import available_case_start, fit_missing
+from effect_networks.inference.fitting.priors import Prior, site_priors
 from effect_networks.inference.fitting.reading import TrainingRows, read_rows
 from effect_networks.inference.fitting.result import ConvergenceWarning, FitResult
 from effect_networks.inference.fitting.rows import (
@@ -86,6 +87,8 @@ def fit(
     data: Mapping[str, object] | Iterable[Mapping[str, object]],
     *,
     pseudo_count: float = 0.01,
+    prior: Prior | None = None,
+    estimate: str = "mean",
     min_variance: float = 1e-6,
     masks: Mapping[str, torch.Tensor] | None = None,
     steps: int = 500,
@@ -94,7 +97,7 @@ def fit(
     tol: float = 1e-6,
     progress: bool = False,
 ) -> FitResult:
-    """Fit every CPD of ``net`` by maximum likelihood.
+    """Fit every CPD of ``net`` by maximum likelihood, or under a prior.
 
     Parameters
     ----------
@@ -115,6 +118,16 @@ def fit(
         and all: against a configuration whose inputs span a small part of the pooled
         range they weigh like ``(pooled spread / own spread)**2 * pseudo_count`` rows
         in its slope. Pass 0 when every configuration has rows enough.
+    prior, estimate
+        Priors per site (:mod:`inference.fitting.priors`): a number (the same as
+        ``pseudo_count``), :class:`~inference.fitting.priors.BDeu` ``(ess)``,
+        :class:`~inference.fitting.priors.K2` ``()`` or a mapping site -> number, array
+        of pseudo-counts ``(P..., K)``, ``BDeu``, ``K2`` or
+        :class:`~models.cpds.NormalInverseWishart`; sites it does not name keep
+        ``pseudo_count``. A table is the Dirichlet posterior's mean
+        (``estimate="mean"``, pgmpy's ``BayesianEstimator``) or mode (``"map"``, every
+        pseudo-count >= 1); a linear Gaussian under a normal-inverse-Wishart is the
+        posterior's joint mode. EM over gaps uses the same closed forms in its M-step.
     masks
         ``(n,)`` bool per discrete site, False where the row's value is missing (the
         row's value there is ignored), another way to mark missing labels. With gaps
@@ -130,10 +143,13 @@ def fit(
         gradient route's (:func:`fit_gradient`), for a kind with neither a closed form
         nor a ``maximise`` method. ``progress`` shows bars (over chunks, CPDs, steps).
     """
+    if isinstance(prior, int | float) and not isinstance(prior, bool):
+        pseudo_count = prior  # a number is the symmetric pseudo-count itself
     check_settings(
         pseudo_count=pseudo_count, min_variance=min_variance, steps=steps, lr=lr, l2=l2, tol=tol
     )
     refuse_adaptive(net, "fit")
+    alpha = site_priors(net, prior, pseudo_count, estimate)
     data = as_data(net, data)
     if not isinstance(data, Mapping | TrainingRows):
         if isinstance(data, str | bytes) or not isinstance(data, Iterable):
@@ -150,8 +166,8 @@ def fit(
                 f"sites {list(stats.gradient)} are {kinds} CPDs (no closed form): their "
                 "gradient fit needs the rows in memory; give data as one mapping"
             )
-        cpds = params_from_statistics(net, stats, pseudo_count, min_variance)
-        return FitResult(NetworkParams(cpds, pseudo_count, net))
+        cpds = params_from_statistics(net, stats, alpha, min_variance)
+        return FitResult(NetworkParams(cpds, pseudo_count, net, stats.sites))
     rows = read_rows(net, data, masks)
     enc, gaps = rows.enc, rows.gaps
     if gaps or continuous_gaps(net, enc):
@@ -159,16 +175,18 @@ def fit(
             net,
             enc,
             gaps,
-            init=available_case_start(net, enc, gaps, pseudo_count, min_variance),
+            init=available_case_start(net, enc, gaps, pseudo_count, min_variance, prior=alpha),
             pseudo_count=pseudo_count,
+            prior=alpha,
             min_variance=min_variance,
             l2=l2,
             steps=steps,
             tol=tol,
             progress=progress,
         )
-    cpds = params_from_statistics(net, statistics(net, enc), pseudo_count, min_variance)
-    params = NetworkParams(cpds, pseudo_count, net)
+    stats = statistics(net, enc)
+    cpds = params_from_statistics(net, stats, alpha, min_variance)
+    params = NetworkParams(cpds, pseudo_count, net, stats.sites)
     return _fit_open_forms(net, enc, params, steps=steps, lr=lr, l2=l2, tol=tol, progress=progress)
 
 
@@ -212,7 +230,7 @@ def _fit_open_forms(
             ConvergenceWarning,
             stacklevel=3,
         )
-    params = NetworkParams(cpds, params.pseudo_count, net)
+    params = NetworkParams(cpds, params.pseudo_count, net, params.statistics)
     rest = [s for s in open_forms if s not in maximised]
     if not rest:
         return FitResult(params, losses, not unsettled)

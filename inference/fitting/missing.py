@@ -90,6 +90,7 @@ def fit_missing(
     *,
     init: NetworkParams,
     pseudo_count: float = 0.01,
+    prior: Mapping[str, object] | None = None,
     min_variance: float = 1e-6,
     l2: float = 0.01,
     steps: int = 500,
@@ -103,6 +104,10 @@ def fit_missing(
     ``masks``: ``(n,)`` bool per discrete site, False where the row's value is missing; ``init``: the start (``fit`` gives the closed form on the complete
     rows). At most ``steps`` EM steps; the fit has converged when a step lowers the
     per-row loss by less than ``tol`` (relative). ``l2``: the softmax slopes' prior.
+    ``prior``: each site's prior (:func:`inference.fitting.priors.site_priors`; default
+    ``pseudo_count`` everywhere), which the M-step's closed forms take as ``fit``'s do.
+    The loss is the likelihood's, without the prior: a step that the prior's pull would
+    make lower the likelihood ends the fit, as a pseudo-count's does.
 
     ``FitResult.losses``: the per-row negative log-likelihood, the missing values summed
     out (a missing action over the actions that agree with the row's parameter values,
@@ -118,6 +123,7 @@ def fit_missing(
     gaps = continuous_gaps(net, enc)
     refuse_open_forms(net, enc, gaps)
     allowed = actions_allowed(net, enc, masks)
+    alpha = pseudo_count if prior is None else prior
     n = enc.n_rows
     params = init
     completed = _completed_rows(net, params, enc, masks, allowed)
@@ -126,7 +132,7 @@ def fit_missing(
     converged = False
     bar = tqdm(total=steps, desc="fit (EM, missing values)", disable=not progress)
     for _ in range(steps):
-        proposal = _m_step_missing(net, params, completed, pseudo_count, min_variance, l2)
+        proposal = _m_step_missing(net, params, completed, alpha, min_variance, l2)
         step = _completed_rows(net, proposal, enc, masks, allowed)
         loss = (_prior(net, proposal, l2) - step.log_lik) / n
         bar.update()
@@ -158,6 +164,8 @@ def available_case_start(
     masks: Mapping[str, torch.Tensor],
     pseudo_count: float,
     min_variance: float,
+    *,
+    prior: Mapping[str, object] | None = None,
 ) -> NetworkParams:
     """EM's start: each CPD's closed form on the rows that give its site and every parent.
 
@@ -172,12 +180,13 @@ def available_case_start(
     given = {s: m for s, m in masks.items()}
     for site, x in continuous_gaps(net, enc).items():
         given[site] = ~x.any(-1)
+    alpha = pseudo_count if prior is None else prior
     everything = torch.ones(enc.n_rows, dtype=torch.bool)
     for m in given.values():
         everything &= m
     if bool(everything.all()):
         return NetworkParams(
-            params_from_statistics(net, statistics(net, enc), pseudo_count, min_variance),
+            params_from_statistics(net, statistics(net, enc), alpha, min_variance),
             pseudo_count,
             net,
         )
@@ -200,7 +209,7 @@ def available_case_start(
             by_rows[key] = statistics(net, enc if bool(rows.all()) else enc.rows(rows))
         sites[spec.name] = by_rows[key].sites[spec.name]
     stats = Statistics(sites, enc.n_rows)
-    cpds = params_from_statistics(net, stats, pseudo_count, min_variance)
+    cpds = params_from_statistics(net, stats, alpha, min_variance)
     return NetworkParams(cpds, pseudo_count, net)
 
 

@@ -19,7 +19,9 @@ site (all rows together), so an unseen one is the pooled fit and a rarely seen o
 shrunk towards it. A covariance's eigenvalues are floored at ``min_variance``, so that a
 configuration with fewer rows than dimensions stays positive definite; one whose spread
 exceeds it in every direction keeps its estimate. ``alpha = 0`` gives the plain sample
-statistics where every configuration is seen.
+statistics where every configuration is seen. Other priors (Dirichlet pseudo-counts
+per table cell, a normal-inverse-Wishart per linear Gaussian) are in
+:mod:`inference.fitting.priors`.
 
 A kind without a closed form (softmax) has no sufficient statistics to sum: it is
 maximised on the rows themselves, by its own ``maximise`` method (Newton's method per
@@ -29,6 +31,7 @@ rows for both :func:`inference.fit` and EM over missing values.
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 import torch
@@ -100,14 +103,18 @@ def statistics(
 
 
 def params_from_statistics(
-    net: EffectNetwork, stats: Statistics, alpha: float, min_variance: float
+    net: EffectNetwork, stats: Statistics, alpha: float | Mapping[str, object], min_variance: float
 ) -> dict:
-    """Every kind's ``m_step``: the closed-form maximum-likelihood CPDs.
+    """Every kind's ``m_step``: the closed-form CPDs.
 
-    For kinds without one, the gradient route's start.
+    For kinds without one, the gradient route's start. ``alpha``: the pseudo-count of
+    every site, or each site's prior as :func:`inference.fitting.priors.site_priors`
+    gives it (a mapping naming every site).
     """
+    priors = alpha if isinstance(alpha, Mapping) else dict.fromkeys(stats.sites, alpha)
     return {
-        s.name: net.cpd(s.name).m_step(stats.sites[s.name], alpha, min_variance) for s in net.sites
+        s.name: net.cpd(s.name).m_step(stats.sites[s.name], priors[s.name], min_variance)
+        for s in net.sites
     }
 
 

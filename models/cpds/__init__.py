@@ -24,6 +24,7 @@ from effect_networks.models.cpds.linear_gaussian import (
     LinearGaussianCPD,
     LinearGaussianParams,
     Moments,
+    NormalInverseWishart,
 )
 from effect_networks.models.cpds.mixture import ParameterMixture
 from effect_networks.models.cpds.softmax import SoftmaxCPD, SoftmaxParams
@@ -45,6 +46,7 @@ __all__ = [
     "LinearGaussianCPD",
     "LinearGaussianParams",
     "Moments",
+    "NormalInverseWishart",
     "ParameterMixture",
     "SoftmaxCPD",
     "SoftmaxParams",

@@ -83,6 +83,65 @@ class Moments:
             getattr(self, f.name).add_(getattr(other, f.name))
 
 
+@dataclass(frozen=True)
+class NormalInverseWishart:
+    """A conjugate prior on a linear Gaussian, the same in every parent configuration.
+
+    With ``B = [W, b]^T`` ``(q, d)`` the coefficients of ``z = [x, 1]``:
+    ``Sigma ~ InverseWishart(scale, dof)`` and, given ``Sigma``, ``B`` matrix normal with
+    mean 0, row precision ``precision * I_q`` and column covariance ``Sigma`` (each
+    coefficient row ``~ N(0, Sigma / precision)``). The fit is the posterior's joint mode
+    (MAP), in closed form per configuration from the sums ``S_zz``, ``S_zy``, ``S_yy``
+    and ``n`` (:class:`Moments`)::
+
+        B     = (S_zz + precision I)^-1 S_zy
+        Sigma = (scale + S_yy - B^T (S_zz + precision I) B) / (n + dof + d + 1 + q)
+
+    ``q`` counts the coefficients the structure leaves free (a weight fixed at zero has
+    no prior). A configuration no row reached gets ``B = 0`` and
+    ``Sigma = scale / (dof + d + 1 + q)``. ``precision`` and ``dof`` are numbers
+    ``>= 0``; ``scale`` a number (times the identity) or a ``(d, d)`` symmetric positive
+    semi-definite matrix. The covariance floor ``min_variance`` applies as without a
+    prior. ``precision`` pulls the offset towards 0 as well as the weights: centre the
+    data, or keep ``precision`` small against ``n``, where the offset is far from 0.
+    """
+
+    precision: float = 1.0
+    dof: float = 0.0
+    scale: object = 0.0
+
+    def scale_matrix(self, site: str, d: int) -> torch.Tensor:
+        """``scale`` as a ``(d, d)`` float64 matrix, checked; a ``ValueError`` names ``site``."""
+        for name in ("precision", "dof"):
+            value = getattr(self, name)
+            if isinstance(value, bool) or not isinstance(value, int | float):
+                raise ValueError(
+                    f"site {site!r}: the prior's {name} must be a number, got {value!r}"
+                )
+            if not math.isfinite(value) or value < 0:
+                raise ValueError(
+                    f"site {site!r}: the prior's {name} must be finite and >= 0, got {value!r}"
+                )
+        scale = torch.as_tensor(self.scale, dtype=DTYPE)
+        if scale.dim() == 0:
+            scale = scale * torch.eye(d, dtype=DTYPE)
+        if tuple(scale.shape) != (d, d):
+            raise ValueError(
+                f"site {site!r}: the prior's scale has shape {tuple(scale.shape)}, expected a "
+                f"number or ({d}, {d})"
+            )
+        if (
+            not bool(scale.isfinite().all())
+            or not torch.allclose(scale, scale.mT, rtol=1e-12, atol=0)
+            or float(torch.linalg.eigvalsh(scale)[0]) < -1e-12 * float(scale.abs().max())
+        ):
+            raise ValueError(
+                f"site {site!r}: the prior's scale must be a finite, symmetric positive "
+                f"semi-definite matrix, got {scale.tolist()}"
+            )
+        return scale
+
+
 _LOWER_CHOLESKY = dist.transforms.LowerCholeskyTransform()
 
 
@@ -216,8 +275,16 @@ class LinearGaussianCPD(CPD):
         rows = torch.bincount(index, weights=weighted[:, -1], minlength=groups).to(DTYPE)
         return Moments(zz, zy, yy, rows)
 
-    def m_step(self, stats: Moments, alpha: float, min_variance: float) -> LinearGaussianParams:
-        """Per-configuration least squares of y on [x, 1] with pooled pseudo-rows."""
+    def m_step(
+        self, stats: Moments, alpha: float | NormalInverseWishart, min_variance: float
+    ) -> LinearGaussianParams:
+        """Per-configuration least squares of y on [x, 1] with pooled pseudo-rows.
+
+        ``alpha`` a :class:`NormalInverseWishart` instead of a pseudo-count: the
+        posterior's mode under that prior (:meth:`posterior_mode`).
+        """
+        if isinstance(alpha, NormalInverseWishart):
+            return self.posterior_mode(stats, alpha, min_variance)
         s, card, site = stats, self.card, self.site
         szz, szy, syy, n = s.zz, s.zy, s.yy, s.n
         groups, q, d = szy.shape
@@ -259,6 +326,46 @@ class LinearGaussianCPD(CPD):
         cov = resid / total.clamp_min(1e-300)[:, None, None]
         cov = floor_variance(0.5 * (cov + cov.mT), min_variance)
         tril = safe_cholesky(cov, site)
+        return LinearGaussianParams(
+            beta[:, : q - 1, :].mT.reshape(*card, d, q - 1),
+            beta[:, q - 1, :].reshape(*card, d),
+            tril.reshape(*card, d, d),
+            n.reshape(card),
+        )
+
+    def posterior_mode(
+        self, stats: Moments, prior: NormalInverseWishart, min_variance: float
+    ) -> LinearGaussianParams:
+        """The joint mode of the coefficients and covariance (:class:`NormalInverseWishart`)."""
+        szz, szy, syy, n = stats.zz, stats.zy, stats.yy, stats.n
+        groups, q, d = szy.shape
+        scale = prior.scale_matrix(self.site, d)
+        eye = torch.eye(q, dtype=DTYPE)
+        free = torch.full((groups,), float(q), dtype=DTYPE)
+        precision = szz + prior.precision * eye
+        zero_weights = self.zero_weights
+        if zero_weights is not None and bool(zero_weights.any()):
+            drop = torch.cat([zero_weights, torch.zeros(groups, 1, dtype=torch.bool)], -1)
+            keep = (~drop).to(DTYPE)
+            precision = precision * keep[:, :, None] * keep[:, None, :]
+            precision = precision + torch.diag_embed(drop.to(DTYPE))
+            szy = szy * keep[:, :, None]
+            free = free - drop.sum(-1).to(DTYPE)
+        if not all(bool(t.isfinite().all()) for t in (precision, szy, syy)):
+            raise ValueError(
+                f"site {self.site!r}: the fit's second moments overflow float64; rescale the data"
+            )
+        # a ridge only where the prior leaves the inputs (nearly) collinear: precision 0
+        diagonal = precision.diagonal(dim1=-2, dim2=-1)
+        unit = diagonal.clamp_min(1e-300).rsqrt()
+        smallest = torch.linalg.eigvalsh(precision * unit[:, :, None] * unit[:, None, :])[:, 0]
+        ridge = torch.where(smallest > 1e-8, 0.0, 1e-10 * diagonal.mean(-1).clamp_min(1e-12))
+        beta = torch.linalg.solve(precision + ridge[:, None, None] * eye, szy)
+        resid = syy - szy.mT @ beta - beta.mT @ szy + beta.mT @ precision @ beta
+        cov = (scale + resid) / (n + prior.dof + d + 1 + free)[:, None, None]
+        cov = floor_variance(0.5 * (cov + cov.mT), min_variance)
+        tril = safe_cholesky(cov, self.site)
+        card = self.card
         return LinearGaussianParams(
             beta[:, : q - 1, :].mT.reshape(*card, d, q - 1),
             beta[:, q - 1, :].reshape(*card, d),

@@ -3,7 +3,8 @@
 ``probs[P..., k]`` is the probability of state ``k`` given the parents' states; the
 maximum-likelihood table is the normalised counts. Pseudo-count policy (``alpha``): a
 row is ``(counts + alpha) / (n + K alpha)``, so a configuration no row reached is
-uniform.
+uniform. Pseudo-counts per cell (a Dirichlet prior per row, ``alpha`` ``(P..., K)``)
+give the posterior mean ``(counts + alpha) / (n + sum_k alpha)``.
 """
 
 from __future__ import annotations
@@ -153,8 +154,14 @@ class TableCPD(CPD):
         """Counts of the site's states per parent configuration (:meth:`~models.CPD.statistics`)."""
         return counts(index, y, self.card, self.size, weights)
 
-    def m_step(self, stats: Counts, alpha: float, min_variance: float) -> TableParams:
-        """Normalised counts, pinned configurations kept on state 0 (:meth:`~models.CPD.m_step`)."""
+    def m_step(
+        self, stats: Counts, alpha: float | torch.Tensor, min_variance: float
+    ) -> TableParams:
+        """Normalised counts, pinned configurations kept on state 0 (:meth:`~models.CPD.m_step`).
+
+        ``alpha``: one symmetric pseudo-count or Dirichlet pseudo-counts ``(P..., K)``
+        (:func:`normalised`); the table is their posterior mean.
+        """
         table = normalised(stats.counts, alpha)
         return TableParams(self.pin(table.probs), table.n) if self.pinned is not None else table
 
@@ -366,13 +373,28 @@ def counts(
     return Counts(found.reshape(*card, k))
 
 
-def normalised(counts: torch.Tensor, alpha: float) -> TableParams:
-    """The pseudo-count policy's table of ``counts`` (a new tensor; ``counts`` is kept)."""
+def normalised(counts: torch.Tensor, alpha: float | torch.Tensor) -> TableParams:
+    """The posterior-mean table of ``counts`` under the Dirichlet pseudo-counts ``alpha``.
+
+    ``(counts + alpha) / (n + sum_k alpha)`` per row (a new tensor; ``counts`` is kept).
+    ``alpha`` is one symmetric pseudo-count (the pseudo-count policy: a row no sample
+    reached is uniform) or a tensor of pseudo-counts broadcasting to ``counts``' shape
+    ``(P..., K)`` (a row no sample reached is the prior's mean ``alpha / sum alpha``, or
+    uniform where its pseudo-counts are all 0).
+    """
     counts = counts.to(DTYPE)  # no copy for float64 counts
     k = counts.shape[-1]
     n = counts.sum(-1)
-    probs = (counts + alpha).div_((n + k * alpha).clamp_min(1e-300)[..., None])
-    unseen = n == 0
-    if bool(unseen.any()):
-        probs[unseen] = 1.0 / k
+    if not isinstance(alpha, torch.Tensor):
+        probs = (counts + alpha).div_((n + k * alpha).clamp_min(1e-300)[..., None])
+        unseen = n == 0
+        if bool(unseen.any()):
+            probs[unseen] = 1.0 / k
+        return TableParams(probs, n)
+    shifted = counts + alpha.to(DTYPE)
+    total = shifted.sum(-1)
+    probs = shifted.div_(total.clamp_min(1e-300)[..., None])
+    empty = total == 0
+    if bool(empty.any()):
+        probs[empty] = 1.0 / k
     return TableParams(probs, n)
