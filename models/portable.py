@@ -1,8 +1,8 @@
 r"""The toolkit's portable file: a network's declaration as JSON, its numbers as numpy arrays.
 
-:func:`save_npz` writes any network (discrete, continuous, action parameters and their
-clusters, declared parent sets, user kinds whose containers hold tensors) to one ``.npz``
-file that numpy and json read without torch::
+:func:`~effect_networks.models.save_npz` writes any network (discrete, continuous,
+action parameters and their clusters, declared parent sets, user kinds whose containers
+hold tensors) to one ``.npz`` file that numpy and json read without torch::
 
     net.npz (a zip archive, every member stored uncompressed)
     |- network.json              UTF-8 JSON: format, version, declaration
@@ -16,10 +16,10 @@ Reading it without the toolkit::
     import json, numpy as np
     with np.load("net.npz", allow_pickle=False) as z:
         header = json.loads(z["network.json"])            # a member without .npy: bytes
-        probs = z["params/end.visible/probs"]             # (P..., K) float64
+        prior = z["params/action/probs"]                  # (n_actions,) float64
 
-:func:`load_npz` checks what it reads before it builds anything: the members are stored
-(none inflates), the JSON is at most :data:`MAX_HEADER_BYTES`, the checksum matches
+:func:`~effect_networks.models.load_npz` checks what it reads before it builds anything:
+the members are stored (none inflates), the JSON is at most :data:`MAX_HEADER_BYTES`, the checksum matches
 before the JSON is parsed, the header holds exactly :data:`HEADER_KEYS`, the arrays are
 exactly the declared sites' fields, of numeric dtypes, read with ``allow_pickle=False``,
 and the numbers fit the declaration's shapes. A round trip keeps every tensor bit for
@@ -47,7 +47,7 @@ PORTABLE_FORMAT = "effect-networks-npz"
 PORTABLE_VERSION = 1
 #: The keys of ``network.json``; a file whose header holds others is refused.
 HEADER_KEYS = frozenset({"format", "version", "declaration", "pseudo_count", "sites"})
-#: The largest ``network.json`` that :func:`load_npz` reads.
+#: The largest ``network.json`` that :func:`~effect_networks.models.load_npz` reads.
 MAX_HEADER_BYTES = 16 * 2**20
 HEADER, CHECKSUM, ARRAYS = "network.json", "sha256", "params/"
 #: numpy dtype kinds an array may have: bool, integers, floats, complex numbers.
@@ -106,7 +106,7 @@ def save_npz(path: str | Path, net: EffectNetwork, params: NetworkParams) -> Pat
 def load_npz(
     path: str | Path, kinds: Iterable[type[KindCPD]] = ()
 ) -> tuple[EffectNetwork, NetworkParams]:
-    """Load a network saved by :func:`save_npz`, checking it first (see the module).
+    """Load a network saved by :func:`~effect_networks.models.save_npz`, checking it first.
 
     ``kinds``: the classes of the user-defined kinds it names (the toolkit's own are known).
 
