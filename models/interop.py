@@ -16,18 +16,19 @@ initial nodes, the action and other end nodes as parents.
   node per site (``initial.<f>``, ``action``, ``end.<f>``), the declared state labels
   as pgmpy state names, unchanged (str, int, float, bool or None: pgmpy accepts any
   hashable), and one ``TabularCPD`` per table whose evidence order is
-  :meth:`EffectNetwork.discrete_parents`. Everything else is left out and named:
-  continuous features, action parameters (``param.<p>``, ``cluster.<p>``) and discrete
-  end sites with continuous parents (softmax CPDs).
+  :meth:`EffectNetwork.discrete_parents`. A network with sites pgmpy cannot hold
+  (continuous features, action parameters ``param.<p>`` and ``cluster.<p>``, discrete
+  end sites with continuous parents: softmax CPDs, and tables below those) is refused,
+  naming each site and why; ``drop_continuous=True`` asks for the discrete part
+  instead, with a :class:`DroppedSites` warning naming what is left out. Nothing is
+  dropped silently.
 * :func:`from_pgmpy` reads a pgmpy network of such a structure back into a declaration
   (its parent sets declared where they are not Fig. 1's) and parameters; a structure a
   declaration cannot express (an action with parents, an initial node with an end or
   action parent, a node of another name, a parameter's node) is refused, naming it. A pgmpy CPD holds probabilities only, so the caller states the training
   rows behind every parent configuration (``n``; ``n == 0`` marks a configuration as
   unseen, which every query reports).
-* :func:`write_bif` and :func:`read_bif` do the same through a BIF file (pgmpy's
-  ``BIFWriter`` and ``BIFReader``). BIF stores state names as text, so labels come back
-  as ``str`` unless ``states=`` gives the declared labels.
+* The files (BIF, XMLBIF, UAI) that go through these are in :mod:`models.pgmpy_files`.
 
 pgmpy is a development dependency only; it is imported when one of these functions runs.
 """
@@ -35,8 +36,8 @@ pgmpy is a development dependency only; it is imported when one of these functio
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Hashable, Mapping, Sequence
-from pathlib import Path
 from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
@@ -57,7 +58,10 @@ if TYPE_CHECKING:
 
 SUM_TOLERANCE = 0.01  # pgmpy's own check_model tolerance on a column's sum
 EXACT_SUM = 1e-12  # columns this close to 1 are kept bit for bit (no renormalising)
-_BIF_FORBIDDEN = (",", ";", "{", "}", "(", ")", "|", '"', "//", "/*", "\n")
+
+
+class DroppedSites(UserWarning):
+    """:func:`to_pgmpy` with ``drop_continuous=True`` left sites out; the warning names them."""
 
 
 class PgmpyNetwork(NamedTuple):
@@ -68,16 +72,19 @@ class PgmpyNetwork(NamedTuple):
     model : pgmpy.models.DiscreteBayesianNetwork
         The network's discrete part; ``model.check_model()`` passes.
     left_out : tuple of str
-        The sites not in ``model``, in the network's site order: continuous sites,
-        ``param.<p>`` and ``cluster.<p>``, and discrete end sites with a softmax CPD.
+        The sites not in ``model``, in the network's site order (empty unless
+        ``drop_continuous=True``): continuous sites, ``param.<p>`` and ``cluster.<p>``,
+        and discrete end sites with a softmax CPD or a left-out parent.
     """
 
     model: DiscreteBayesianNetwork
     left_out: tuple[str, ...]
 
 
-def to_pgmpy(net: EffectNetwork, params: NetworkParams) -> PgmpyNetwork:
-    """The discrete part of a fitted network as a pgmpy ``DiscreteBayesianNetwork``.
+def to_pgmpy(
+    net: EffectNetwork, params: NetworkParams, *, drop_continuous: bool = False
+) -> PgmpyNetwork:
+    """A fitted network as a pgmpy ``DiscreteBayesianNetwork``, whole or its discrete part.
 
     Parameters
     ----------
@@ -86,6 +93,11 @@ def to_pgmpy(net: EffectNetwork, params: NetworkParams) -> PgmpyNetwork:
     params : NetworkParams
         Its parameters (checked against ``net``). The counts ``TableParams.n`` and the
         pseudo-count are not part of a pgmpy network and are dropped.
+    drop_continuous : bool
+        What to do with sites a discrete network cannot hold (continuous sites,
+        ``param.<p>``, ``cluster.<p>``, softmax end sites and tables below any of them).
+        ``False`` (the default): refuse the network. ``True``: return the discrete part
+        and warn (:class:`DroppedSites`) naming the sites left out.
 
     Returns
     -------
@@ -101,40 +113,24 @@ def to_pgmpy(net: EffectNetwork, params: NetworkParams) -> PgmpyNetwork:
     ImportError
         If pgmpy is not installed.
     ValueError
-        If ``params`` does not fit ``net``.
+        If ``params`` does not fit ``net``, or (without ``drop_continuous``) if the
+        network has sites a discrete network cannot hold, naming each and why.
     """
-    DiscreteBayesianNetwork, TabularCPD = _pgmpy()
+    require_pgmpy()
     check_params(net, params)
-    kept, kept_names = [], set()
-    for s in net.sites:  # parents first: a table whose parents are all kept is kept
-        cpd = net.cpd(s.name)
-        if s.role in ("initial", "action", "end") and cpd.tabular:
-            if set(cpd.parents) <= kept_names:
-                kept.append(s)
-                kept_names.add(s.name)
-    left_out = tuple(s.name for s in net.sites if s.name not in kept_names)
-    states = {s.name: list(_site_states(net, s.name)) for s in kept}
-
-    model = DiscreteBayesianNetwork()
-    model.add_nodes_from([s.name for s in kept])
-    cpds = []
-    for s in kept:
-        probs = params[s.name].probs.detach().cpu().numpy().astype(np.float64)
-        parents = list(net.cpd(s.name).parents)
-        model.add_edges_from((p, s.name) for p in parents)
-        cpds.append(
-            TabularCPD(
-                s.name,
-                s.size,
-                probs.reshape(-1, s.size).T,
-                evidence=parents or None,
-                evidence_card=[len(states[p]) for p in parents] or None,
-                state_names={v: states[v] for v in [s.name, *parents]},
-            )
+    kept, left_out = discrete_part(net)
+    if left_out:
+        if not drop_continuous:
+            check_discrete(net, "a pgmpy DiscreteBayesianNetwork", "drop_continuous=True")
+        reasons = "; ".join(f"{site}: {why}" for site, why in left_out.items())
+        warnings.warn(
+            f"to_pgmpy left out the sites {list(left_out)} ({reasons}); the pgmpy network "
+            "holds the rest",
+            DroppedSites,
+            stacklevel=2,
         )
-    model.add_cpds(*cpds)
-    model.check_model()
-    return PgmpyNetwork(model, left_out)
+    model = pgmpy_model(net, params, kept)
+    return PgmpyNetwork(model, tuple(left_out))
 
 
 def from_pgmpy(
@@ -203,7 +199,7 @@ def from_pgmpy(
         ``check_model`` refuses, an initial and end node with different labels, or
         counts of the wrong shape or sign.
     """
-    return _from_pgmpy(
+    return network_from_model(
         model,
         n=n,
         actions_node=actions_node,
@@ -214,112 +210,9 @@ def from_pgmpy(
     )
 
 
-def write_bif(path: str | Path, net: EffectNetwork, params: NetworkParams) -> Path:
-    """Write a discrete network to a BIF file (via :func:`to_pgmpy` and pgmpy's BIFWriter).
-
-    BIF stores every state label as its ``str()``; :func:`read_bif` with
-    ``states=`` restores the declared labels. Counts and the pseudo-count are not
-    stored. The file lists variables sorted by name.
-
-    Raises
-    ------
-    ValueError
-        If the network has sites BIF cannot hold (continuous, parameter or softmax
-        sites: use :func:`models.save` for those), or if a label's ``str()`` cannot be
-        read back from BIF (empty, padded with spaces, holding one of
-        ``, ; { } ( ) | "``, ``//``, ``/*`` or a line break, or equal to another
-        label's of the same site), or if two site names differ only in case (the
-        reader folds case).
-    """
-    _pgmpy()
-    from pgmpy.readwrite import BIFWriter
-
-    exported = to_pgmpy(net, params)
-    if exported.left_out:
-        raise ValueError(
-            f"BIF holds discrete tables only; this network's sites {list(exported.left_out)} "
-            "are not tables of discrete parents. Save the whole network with models.save"
-        )
-    folded: dict[str, str] = {}
-    for node in exported.model.nodes():
-        other = folded.setdefault(node.lower(), node)
-        if other != node:
-            raise ValueError(
-                f"sites {other!r} and {node!r} differ only in case; BIF readers fold case. "
-                "Rename one of the features"
-            )
-        seen: dict[str, Hashable] = {}
-        for label in _site_states(net, node):
-            text = str(label)
-            bad = [c for c in _BIF_FORBIDDEN if c in text]
-            if not text or text != text.strip() or bad:
-                raise ValueError(
-                    f"site {node!r}: label {label!r} cannot be written to BIF (its text "
-                    f"{text!r} must be non-empty, without surrounding spaces and without "
-                    f"{' '.join(_BIF_FORBIDDEN[:-1])} or a line break)"
-                )
-            if text in seen:
-                raise ValueError(
-                    f"site {node!r}: labels {seen[text]!r} and {label!r} are both {text!r} "
-                    "in BIF; give them distinct texts"
-                )
-            seen[text] = label
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    BIFWriter(exported.model).write(str(path))
-    return path
-
-
-def read_bif(
-    path: str | Path,
-    *,
-    n: float | Mapping[str, Any],
-    states: Mapping[str, Sequence[Hashable]] | None = None,
-    actions_node: str = ACTION,
-    kind: FeatureKind | Mapping[str, FeatureKind] = "object",
-    order: Sequence[str] | None = None,
-    pseudo_count: float = 0.01,
-) -> tuple[EffectNetwork, NetworkParams]:
-    """Read a BIF file (pgmpy's BIFReader) into a declaration and parameters.
-
-    Parameters
-    ----------
-    path : str or Path
-        The BIF file.
-    n, actions_node, kind, order, pseudo_count
-        As in :func:`from_pgmpy`; ``n`` must be stated.
-    states : mapping of feature name to labels, optional
-        The declared labels of a feature, matched to the file's state texts by
-        ``str(label)``: BIF stores text, so without this every label is a ``str``
-        (``True`` comes back as ``"True"``). The labels' order is the declared order.
-
-    Returns
-    -------
-    (EffectNetwork, NetworkParams)
-
-    Raises
-    ------
-    ValueError
-        As :func:`from_pgmpy`, and if ``states`` names an unknown feature or its
-        labels' texts are not the file's states.
-    """
-    _pgmpy()
-    from pgmpy.readwrite import BIFReader
-
-    model = BIFReader(path=str(path)).get_model()
-    return _from_pgmpy(
-        model,
-        n=n,
-        actions_node=actions_node,
-        kind=kind,
-        order=order,
-        pseudo_count=pseudo_count,
-        relabel=states,
-    )
-
-
 # ----------------------------------------------------------------------------- helpers
-def _pgmpy():
+def require_pgmpy():
+    """The classes of pgmpy this module uses, or an ImportError naming the extra."""
     try:
         from pgmpy.factors.discrete import TabularCPD
         from pgmpy.models import DiscreteBayesianNetwork
@@ -331,7 +224,80 @@ def _pgmpy():
     return DiscreteBayesianNetwork, TabularCPD
 
 
-def _site_states(net: EffectNetwork, site: str) -> tuple:
+def discrete_part(net: EffectNetwork) -> tuple[list[str], dict[str, str]]:
+    """The sites a discrete network holds, in site order, and why each other site is not held.
+
+    Held: the tables of initial, action and end sites whose parents are all held.
+    """
+    kept: list[str] = []
+    left_out: dict[str, str] = {}
+    for s in net.sites:  # parents first: a table whose parents are all kept is kept
+        cpd = net.cpd(s.name)
+        missing = [p for p in cpd.parents if p not in kept]
+        if s.role == "param":
+            left_out[s.name] = "an action parameter's value is continuous"
+        elif s.role == "cluster":
+            left_out[s.name] = "an action parameter's cluster, whose value is continuous"
+        elif not s.discrete:
+            left_out[s.name] = "a continuous feature"
+        elif not cpd.tabular:
+            inputs = f" with continuous parents {list(cpd.inputs)}" if cpd.inputs else ""
+            left_out[s.name] = f"a {cpd.name} CPD{inputs}"
+        elif missing:
+            left_out[s.name] = f"a table whose parents {missing} are left out"
+        else:
+            kept.append(s.name)
+    return kept, left_out
+
+
+def check_discrete(net: EffectNetwork, holder: str, instead: str = "") -> None:
+    """Raise ``ValueError`` naming every site ``holder`` (a format) cannot carry, and why."""
+    _, left_out = discrete_part(net)
+    if left_out:
+        reasons = "; ".join(f"{site}: {why}" for site, why in left_out.items())
+        alternative = f"Pass {instead} for the discrete part, or save" if instead else "Save"
+        raise ValueError(
+            f"{holder} holds tables of discrete sites only; this network's sites "
+            f"{list(left_out)} cannot be carried ({reasons}). {alternative} the whole "
+            "network with models.save_npz"
+        )
+
+
+def pgmpy_model(net: EffectNetwork, params: NetworkParams, kept: list[str], text=None):
+    """The tables of the sites ``kept`` as a checked pgmpy network.
+
+    ``text(label)``: the state name of a label (default: the label itself).
+    """
+    DiscreteBayesianNetwork, TabularCPD = require_pgmpy()
+    states = {
+        site: [label if text is None else text(label) for label in site_states(net, site)]
+        for site in kept
+    }
+    model = DiscreteBayesianNetwork()
+    model.add_nodes_from(kept)
+    cpds = []
+    for site in kept:
+        size = len(states[site])
+        probs = params[site].probs.detach().cpu().numpy().astype(np.float64)
+        parents = list(net.cpd(site).parents)
+        model.add_edges_from((p, site) for p in parents)
+        cpds.append(
+            TabularCPD(
+                site,
+                size,
+                probs.reshape(-1, size).T,
+                evidence=parents or None,
+                evidence_card=[len(states[p]) for p in parents] or None,
+                state_names={v: states[v] for v in [site, *parents]},
+            )
+        )
+    model.add_cpds(*cpds)
+    model.check_model()
+    return model
+
+
+def site_states(net: EffectNetwork, site: str) -> tuple:
+    """The labels of a discrete feature's site, or the action names for ``action``."""
     if site == ACTION:
         return net.actions
     feature = net.feature(net.site(site).feature)
@@ -339,8 +305,9 @@ def _site_states(net: EffectNetwork, site: str) -> tuple:
     return feature.states
 
 
-def _from_pgmpy(model, *, n, actions_node, kind, order, pseudo_count, relabel):
-    DiscreteBayesianNetwork, TabularCPD = _pgmpy()
+def network_from_model(model, *, n, actions_node, kind, order, pseudo_count, relabel, text=str):
+    """:func:`from_pgmpy`, with ``relabel``: per feature, labels matched to the states by ``text``."""
+    DiscreteBayesianNetwork, TabularCPD = require_pgmpy()
     if not isinstance(model, DiscreteBayesianNetwork):
         raise TypeError(
             f"model must be a pgmpy DiscreteBayesianNetwork, got {type(model).__name__}"
@@ -393,7 +360,9 @@ def _from_pgmpy(model, *, n, actions_node, kind, order, pseudo_count, relabel):
     for f in names:
         nodes_of_f = [initial_site(f), end_site(f)] if f in initial else [end_site(f)]
         own = {
-            node: Discrete(f, _relabel(node, cpds[node].state_names[node], relabel.get(f))).states
+            node: Discrete(
+                f, _relabel(node, cpds[node].state_names[node], relabel.get(f), text)
+            ).states
             for node in nodes_of_f
         }
         declared = tuple(relabel[f]) if f in relabel else own[nodes_of_f[0]]
@@ -423,7 +392,7 @@ def _from_pgmpy(model, *, n, actions_node, kind, order, pseudo_count, relabel):
     node_of |= {initial_site(f.name): initial_site(f.name) for f in features if f.initial}
     node_of |= {end_site(f.name): end_site(f.name) for f in features}
     shapes = {s.name: net.cpd(s.name).shapes() for s in net.sites}
-    counts = _counts(n, shapes)
+    counts = table_counts(n, shapes)
     tables = {}
     for site, node in node_of.items():
         cpd = cpds[node]
@@ -523,21 +492,21 @@ def _declared(model, features: list[Discrete], actions_node: str) -> dict[str, t
     }
 
 
-def _relabel(node: str, raw: list, labels: Sequence[Hashable] | None) -> list:
-    """The node's state names, or the given labels matched to them by ``str()``."""
+def _relabel(node: str, raw: list, labels: Sequence[Hashable] | None, text=str) -> list:
+    """The node's state names, or the given labels matched to them by ``text()``."""
     if labels is None:
         return raw
     labels = list(labels)
-    by_text = {str(label): label for label in labels}
+    by_text = {text(label): label for label in labels}
     if len(by_text) != len(labels) or sorted(by_text) != sorted(map(str, raw)):
         raise ValueError(
-            f"node {node!r}: states {labels} (as text {[str(v) for v in labels]}) do not "
+            f"node {node!r}: states {labels} (as text {[text(v) for v in labels]}) do not "
             f"match its state names {[str(v) for v in raw]} one to one"
         )
     return [by_text[str(s)] for s in raw]
 
 
-def _counts(n, shapes) -> dict[str, torch.Tensor]:
+def table_counts(n, shapes) -> dict[str, torch.Tensor]:
     """``n`` per site, as a float tensor of the site's parent shape."""
     if isinstance(n, Mapping):
         missing = set(shapes) - set(n)

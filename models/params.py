@@ -12,14 +12,10 @@ alone (uniform table, pooled Gaussian) and which queries report as unseen.
 
 from __future__ import annotations
 
-import errno
 import hashlib
 import io
 import json
 import math
-import os
-import secrets
-import zipfile
 from collections.abc import Iterable
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -37,6 +33,7 @@ from effect_networks.models.cpds import (
     map_tensors,
 )
 from effect_networks.models.declaration import EffectNetwork
+from effect_networks.models.files import stored_members, target_file, write_atomically
 
 FORMAT = "effect-networks"
 #: Version 2 added the content checksum (``sha256``); files of other versions are refused.
@@ -179,9 +176,7 @@ def save(path: str | Path, net: EffectNetwork, params: NetworkParams) -> Path:
     can be continued (:func:`inference.fit_update`).
     """
     check_params(net, params)
-    path = Path(path)
-    if path.is_dir():  # the rename would fail last, naming the temporary file
-        raise ValueError(f"{str(path)!r} is a folder; expected the path of the file to save")
+    path = target_file(path)
     cpds = {
         site: {
             "type": saved_name(type(c)),
@@ -200,33 +195,11 @@ def save(path: str | Path, net: EffectNetwork, params: NetworkParams) -> Path:
     if statistics is not None:
         payload["statistics"] = statistics
     payload["sha256"] = _checksum(payload)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(f".{path.name}.{os.getpid()}-{secrets.token_hex(4)}.tmp")
     # the archive is built in memory (a model's numbers are small), so that a disk that
     # fills is Python's OSError on our write, not an error deep inside torch's zip writer
     content = io.BytesIO()
     torch.save(payload, content)
-    try:
-        # O_EXCL: a fresh file of our own; mode 0o666 minus the umask, as open() gives
-        fd = os.open(tmp, os.O_WRONLY | os.O_CREAT | os.O_EXCL, 0o666)
-        with os.fdopen(fd, "wb") as f:
-            f.write(content.getbuffer())
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except OSError as exc:
-        tmp.unlink(missing_ok=True)
-        if exc.errno == errno.ENOSPC:
-            raise OSError(
-                exc.errno,
-                f"No space left on device: cannot save {path} ({len(content.getbuffer())} "
-                "bytes); the file that was there is kept. Free some space or save elsewhere",
-                str(path),
-            ) from exc
-        raise
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+    write_atomically(path, content.getbuffer())
     return path
 
 
@@ -403,22 +376,7 @@ def _check_archive(path: Path) -> None:
     That is a file whose members are compressed (a small file can inflate to gigabytes; :func:`save`
     compresses nothing) or whose pickled structure is larger than :data:`MAX_STRUCTURE_BYTES`.
     """
-    try:
-        with zipfile.ZipFile(path) as archive:
-            members = archive.infolist()
-    except FileNotFoundError:
-        raise
-    except (zipfile.BadZipFile, OSError, ValueError, EOFError) as exc:
-        raise ValueError(
-            f"{path} is not a readable effect-network file ({type(exc).__name__}: {exc})"
-        ) from exc
-    for m in members:
-        if m.compress_type != zipfile.ZIP_STORED:
-            raise ValueError(
-                f"{path} is not an effect-network file as save writes it: its member "
-                f"{m.filename!r} is compressed ({m.file_size} bytes inflated); refused "
-                "unread"
-            )
+    for m in stored_members(path, "effect-network file"):
         if m.filename.endswith("/data.pkl") and m.file_size > MAX_STRUCTURE_BYTES:
             raise ValueError(
                 f"{path}: its structure {m.filename!r} has {m.file_size} bytes, more than "

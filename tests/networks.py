@@ -242,6 +242,49 @@ def mixed_networks(draw):
     return EffectNetwork(tuple(features), actions, parameters)
 
 
+# random networks of every kind the toolkit declares (hypothesis): saved and loaded
+def same_bits(a: torch.Tensor, b: torch.Tensor) -> bool:
+    """Equal dtype, shape and bytes (NaN equal to itself, -0.0 unequal to 0.0)."""
+    return (
+        a.dtype == b.dtype
+        and a.shape == b.shape
+        and np.ascontiguousarray(a.numpy()).tobytes() == np.ascontiguousarray(b.numpy()).tobytes()
+    )
+
+
+@st.composite
+def networks_of_every_kind(draw):
+    """A network of one to three features, each discrete (two or three states) or
+    continuous (one or two dimensions), sparse parents drawn by the declaration's rules,
+    and perhaps a parameter on a grid or adaptive clusters."""
+    n = draw(st.integers(1, 3))
+    features = []
+    for i in range(n):
+        if draw(st.booleans()):
+            features.append(Discrete(f"d{i}", tuple(range(draw(st.integers(2, 3))))))
+        else:
+            features.append(Continuous(f"c{i}", draw(st.integers(1, 2))))
+    actions = ("a", "b")
+    parents = {}
+    for f in features:
+        pool = [f"initial.{g.name}" for g in features] + ["action"]
+        pool += [
+            f"end.{g.name}"
+            for g in features
+            if isinstance(g, Discrete) and g.name < f.name and g is not f
+        ]
+        chosen = draw(st.lists(st.sampled_from(pool), unique=True, max_size=3))
+        parents[f"end.{f.name}"] = tuple(chosen)
+    parameters = ()
+    continuous = [f for f in features if isinstance(f, Continuous)]
+    if continuous and draw(st.booleans()):
+        layout = draw(st.sampled_from(["grid", "adaptive"]))
+        parameters = (Parameter("p", 0.0, 4.0, 2, ("a",), continuous[0].name, layout=layout),)
+        site = f"end.{continuous[0].name}"
+        parents[site] = tuple(dict.fromkeys((*parents[site], "action")))
+    return EffectNetwork(tuple(features), actions, parameters, parents=parents)
+
+
 # tap worlds with missing values, and their marginal loss
 def marginal_loss(net, params, rows, masks, l2=0.01, presence=False):
     """Per-row -log p(the observed values), the softmax prior included, and its

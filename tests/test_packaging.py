@@ -43,11 +43,13 @@ def test_extras_by_purpose_and_dev_installs_them_all():
     dev = requirement_names(extras["dev"])
     assert {"pytest", "hypothesis", "ruff"} <= dev
     assert requirement_names(extras["render"]) == {"graphviz"}
+    assert requirement_names(extras["graph"]) == {"networkx"}
     assert "graphviz" not in requirement_names(project()["dependencies"])  # no module needs it
     assert (
         requirement_names(extras["interop"])
         | requirement_names(extras["cluster"])
         | requirement_names(extras["render"])
+        | requirement_names(extras["graph"])
         <= dev
     )
     # the setup script installs the dev extra, so the two README commands get everything
@@ -58,16 +60,31 @@ def test_extras_by_purpose_and_dev_installs_them_all():
 
 
 def test_a_missing_pgmpy_names_the_interop_extra(monkeypatch):
-    from effect_networks.models import interop
+    from effect_networks.models import pgmpy_files
 
     monkeypatch.setitem(sys.modules, "pgmpy", None)  # import pgmpy now raises ImportError
     monkeypatch.setitem(sys.modules, "pgmpy.models", None)
     monkeypatch.setitem(sys.modules, "pgmpy.factors.discrete", None)
     monkeypatch.setitem(sys.modules, "pgmpy.readwrite", None)
     with pytest.raises(ImportError, match=r"effect-networks\[interop\]"):
-        interop.read_bif("nowhere.bif", n=1)
+        pgmpy_files.read_bif("nowhere.bif", n=1)
     with pytest.raises(ImportError, match=r"effect-networks\[interop\]"):
-        interop.write_bif("nowhere.bif", None, None)
+        pgmpy_files.write_bif("nowhere.bif", None, None)
+    with pytest.raises(ImportError, match=r"effect-networks\[interop\]"):
+        pgmpy_files.write_xmlbif("nowhere.xml", None, None)
+    with pytest.raises(ImportError, match=r"effect-networks\[interop\]"):
+        pgmpy_files.read_xmlbif("nowhere.xml", n=1)
+    with pytest.raises(ImportError, match=r"effect-networks\[interop\]"):
+        pgmpy_files.read_uai("nowhere.uai", None, n=1)
+
+
+def test_a_missing_networkx_names_the_graph_extra(monkeypatch):
+    from effect_networks.models import Discrete, EffectNetwork, to_networkx
+
+    monkeypatch.setitem(sys.modules, "networkx", None)
+    net = EffectNetwork((Discrete("f", (0, 1)),), ("x", "y"))
+    with pytest.raises(ImportError, match=r"effect-networks\[graph\]"):
+        to_networkx(net)
 
 
 @pytest.mark.parametrize(("spec", "module"), [("dask-local:1", "distributed"), ("ray", "ray")])

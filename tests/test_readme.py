@@ -112,6 +112,28 @@ def check_pictures(ns):
     assert os.path.getsize("pictures.png") > 0
 
 
+def check_interop(ns):
+    net = ns["net"]
+    left = ("initial.position", "cluster.force", "param.force", "end.visible", "end.position")
+    assert ns["left_out"] == left and str(list(left)) in ns["refusal"]
+    assert len(ns["dropped"]) == 1 and "end.visible" in str(ns["dropped"][0].message)
+    assert list(ns["bn"].nodes()) == ["initial.visible", "action"]
+    door = ns["door"]
+    assert ns["from_bif"].feature("door") == door.feature("door")
+    assert ns["from_xml"] == door and ns["from_uai"] is door
+    for site, cpd in ns["door_params"].cpds.items():
+        assert torch.equal(ns["uai_params"][site].probs, cpd.probs)
+        assert torch.allclose(ns["xml_params"][site].probs, cpd.probs, atol=1e-12, rtol=0)
+    assert ns["same_net"] == net
+    for site, cpd in ns["params"].cpds.items():
+        assert torch.equal(ns["same_params"][site].n, cpd.n)
+    assert ns["end_visible"]["type"] == "Softmax"
+    assert np.array_equal(ns["weight"], ns["params"]["end.visible"].weight.numpy())
+    cpd = net.cpd("end.position")
+    assert ns["parents"] == sorted({*cpd.parents, *cpd.inputs})
+    assert ns["order"].index("param.force") < ns["order"].index("end.position")
+
+
 #: What each guide page's comments promise, checked after the page runs alone.
 CHECKS = {
     "network": check_network,
@@ -120,6 +142,7 @@ CHECKS = {
     "compiled": check_compiled,
     "pyro": check_pyro,
     "pictures": check_pictures,
+    "interop": check_interop,
 }
 
 

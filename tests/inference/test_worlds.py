@@ -39,6 +39,7 @@ from effect_networks.inference import (
 from effect_networks.models import (
     Continuous,
     Discrete,
+    DroppedSites,
     EffectNetwork,
     Parameter,
     Partial,
@@ -725,7 +726,8 @@ def test_affordance_discrete_queries_against_pgmpy():
     from pgmpy.inference import VariableElimination
 
     net, params = affordance_world()
-    bn, left_out = to_pgmpy(net, params)
+    with pytest.warns(DroppedSites, match="end.size"):
+        bn, left_out = to_pgmpy(net, params, drop_continuous=True)
     assert "end.size" in left_out and "end.shape" not in left_out
     engine = VariableElimination(bn)
     for shape, end_shape, colour in itertools.product(SHAPES, SHAPES, COLOURS[:2]):
@@ -901,7 +903,8 @@ def test_affordance_with_the_shape_unknown():
     from pgmpy.inference import VariableElimination
 
     net, params = affordance_world()
-    bn, _ = to_pgmpy(net, params)
+    with pytest.warns(DroppedSites):
+        bn, _ = to_pgmpy(net, params, drop_continuous=True)
     given = {"initial.size": [[0.2]], "initial.colour": ["red"], "action": ["push"]}
     pred = predict(net, params, given)
     theirs = VariableElimination(bn).query(

@@ -11,6 +11,7 @@ from effect_networks.inference import infer_action, predict
 from effect_networks.models import (
     Continuous,
     Discrete,
+    DroppedSites,
     EffectNetwork,
     Parameter,
     from_pgmpy,
@@ -99,24 +100,61 @@ def test_pgmpy_answers_equal_ours(net, seed, data):
     torch.testing.assert_close(post.probs[0], theirs, atol=1e-9, rtol=0)
 
 
-def test_a_continuous_network_leaves_out_what_pgmpy_cannot_hold():
-    net = EffectNetwork(
+LEFT_OUT = (
+    "initial.position",
+    "cluster.force",
+    "param.force",
+    "end.visible",  # a softmax: its parents include initial.position
+    "end.position",
+)
+
+
+def continuous_network():
+    return EffectNetwork(
         (Discrete("visible", (False, True)), Continuous("position", 1)),
         ("look", "remove", "tap"),
         (Parameter("force", 0.0, 20.0, 4, ("tap",), "position"),),
     )
-    model, left_out = to_pgmpy(net, random_params(net, 0))
-    assert left_out == (
-        "initial.position",
-        "cluster.force",
-        "param.force",
-        "end.visible",  # a softmax: its parents include initial.position
-        "end.position",
-    )
-    assert list(model.nodes()) == ["initial.visible", "action"]
-    assert model.check_model()
+
+
+def test_a_network_pgmpy_cannot_hold_whole_is_refused_naming_its_sites():
+    net = continuous_network()
+    with pytest.raises(ValueError) as refused:
+        to_pgmpy(net, random_params(net, 0))
+    message = str(refused.value)
+    assert str(list(LEFT_OUT)) in message and "drop_continuous=True" in message
+    for site, why in (
+        ("initial.position", "a continuous feature"),
+        ("param.force", "an action parameter's value is continuous"),
+        ("end.visible", "a softmax CPD with continuous parents ['initial.position']"),
+    ):
+        assert f"{site}: {why}" in message
     with pytest.raises(ValueError, match=r"sites \['initial.position', 'cluster.force'"):
         write_bif("net.bif", net, random_params(net, 0))
+
+
+def test_the_discrete_part_on_request_warns_naming_what_it_drops():
+    net = continuous_network()
+    with pytest.warns(DroppedSites) as caught:
+        model, left_out = to_pgmpy(net, random_params(net, 0), drop_continuous=True)
+    assert len(caught) == 1 and str(list(LEFT_OUT)) in str(caught[0].message)
+    assert left_out == LEFT_OUT
+    assert list(model.nodes()) == ["initial.visible", "action"]
+    assert model.check_model()
+
+
+def test_a_table_below_a_left_out_site_is_named_with_its_parent():
+    net = EffectNetwork(
+        (Discrete("door", ("shut", "open")), Continuous("x", 1), Discrete("lock", (0, 1))),
+        ("push", "wait"),
+        parents={
+            "end.door": ("initial.door", "action", "initial.x"),  # a softmax
+            "end.x": ("initial.x",),
+            "end.lock": ("initial.lock", "end.door"),  # a table below the softmax
+        },
+    )
+    with pytest.raises(ValueError, match=r"end.lock: a table whose parents \['end.door'\] are"):
+        to_pgmpy(net, random_params(net, 0))
 
 
 # ----------------------------------------------------------------------------- round trips

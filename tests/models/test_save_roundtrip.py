@@ -16,7 +16,6 @@ from effect_networks.models import (
     Discrete,
     EffectNetwork,
     NetworkParams,
-    Parameter,
     load,
     random_params,
     save,
@@ -24,18 +23,11 @@ from effect_networks.models import (
 from hypothesis import HealthCheck, assume, given, settings
 from hypothesis import strategies as st
 
+from tests.networks import networks_of_every_kind, same_bits
+
 
 def replace_site(params, site, cpd):
     return NetworkParams({**params.cpds, site: cpd}, params.pseudo_count)
-
-
-def same_bits(a: torch.Tensor, b: torch.Tensor) -> bool:
-    """Equal dtype, shape and bytes (NaN equal to itself, -0.0 unequal to 0.0)."""
-    return (
-        a.dtype == b.dtype
-        and a.shape == b.shape
-        and np.ascontiguousarray(a.numpy()).tobytes() == np.ascontiguousarray(b.numpy()).tobytes()
-    )
 
 
 def assert_same_numbers(net, params, path):
@@ -52,44 +44,11 @@ def assert_same_numbers(net, params, path):
                 assert value == other, (site, name)
 
 
-@st.composite
-def networks(draw):
-    """A network of one to three features, each discrete (two or three states) or
-    continuous (one or two dimensions), sparse parents drawn by the declaration's rules,
-    and perhaps a parameter on a grid or adaptive clusters."""
-    n = draw(st.integers(1, 3))
-    features = []
-    for i in range(n):
-        if draw(st.booleans()):
-            features.append(Discrete(f"d{i}", tuple(range(draw(st.integers(2, 3))))))
-        else:
-            features.append(Continuous(f"c{i}", draw(st.integers(1, 2))))
-    actions = ("a", "b")
-    parents = {}
-    for f in features:
-        pool = [f"initial.{g.name}" for g in features] + ["action"]
-        pool += [
-            f"end.{g.name}"
-            for g in features
-            if isinstance(g, Discrete) and g.name < f.name and g is not f
-        ]
-        chosen = draw(st.lists(st.sampled_from(pool), unique=True, max_size=3))
-        parents[f"end.{f.name}"] = tuple(chosen)
-    parameters = ()
-    continuous = [f for f in features if isinstance(f, Continuous)]
-    if continuous and draw(st.booleans()):
-        layout = draw(st.sampled_from(["grid", "adaptive"]))
-        parameters = (Parameter("p", 0.0, 4.0, 2, ("a",), continuous[0].name, layout=layout),)
-        site = f"end.{continuous[0].name}"
-        parents[site] = tuple(dict.fromkeys((*parents[site], "action")))
-    return EffectNetwork(tuple(features), actions, parameters, parents=parents)
-
-
 ROUNDTRIP = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 
 
 @ROUNDTRIP
-@given(net=networks(), seed=st.integers(0, 2**16))
+@given(net=networks_of_every_kind(), seed=st.integers(0, 2**16))
 def test_random_params_of_any_network_roundtrip(tmp_path_factory, net, seed):
     params = random_params(net, seed)
     assert_same_numbers(net, params, tmp_path_factory.mktemp("save") / "net.pt")
@@ -106,7 +65,7 @@ def rows_of(net, seed, n=120):
 @ROUNDTRIP
 @pytest.mark.filterwarnings("ignore::effect_networks.inference.ConvergenceWarning")
 @pytest.mark.filterwarnings("ignore::effect_networks.inference.OutsideTrainingData")
-@given(net=networks(), seed=st.integers(0, 2**16), gaps=st.booleans())
+@given(net=networks_of_every_kind(), seed=st.integers(0, 2**16), gaps=st.booleans())
 def test_any_fitted_network_roundtrips(tmp_path_factory, net, seed, gaps):
     """Closed form (or EM over adaptive clusters), and EM over gaps in the end values."""
     rows = rows_of(net, seed)
@@ -127,7 +86,7 @@ def test_any_fitted_network_roundtrips(tmp_path_factory, net, seed, gaps):
 
 
 @ROUNDTRIP
-@given(net=networks(), seed=st.integers(0, 2**16))
+@given(net=networks_of_every_kind(), seed=st.integers(0, 2**16))
 def test_chunked_fits_roundtrip(tmp_path_factory, net, seed):
     # chunks serve closed-form networks
     assume(not any(p.layout == "adaptive" for p in net.parameters) and not has_softmax(net))
