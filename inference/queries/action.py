@@ -32,6 +32,7 @@ from effect_networks.inference.queries.implausibility import (
     check_threshold,
     plausibility,
 )
+from effect_networks.inference.queries.kept_tables import tracer_for
 from effect_networks.inference.queries.results import (
     ActionPosterior,
 )
@@ -113,7 +114,9 @@ def infer_action(
         per_action = joint.sum(others).T if others else joint.T
         return probs, per_action / probs.clamp_min(1e-300), e.log_evidence
 
-    probs, unseen, log_evidence = over_row_chunks(net, params, enc, set(), fn, contracted=True)
+    probs, unseen, log_evidence = over_row_chunks(
+        net, params, enc, set(), fn, contracted=True, tracer=tracer_for(net, params)
+    )
     unseen = unseen.clamp(0, 1)
     score = probs.clone()
     if allowed is not None:
