@@ -221,6 +221,19 @@ def write_bif(path: str | Path, net: EffectNetwork, params: NetworkParams) -> Pa
     ``states=`` restores the declared labels. Counts and the pseudo-count are not
     stored. The file lists variables sorted by name.
 
+
+    Parameters
+    ----------
+    path
+        The BIF file to write.
+    net, params
+        A discrete network (tables only) and its fitted parameters.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``, as a ``Path``.
+
     Raises
     ------
     ValueError
