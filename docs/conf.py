@@ -20,8 +20,11 @@ copyright = "The effect-networks authors"  # noqa: A001
 extensions = [
     "myst_nb",  # MyST Markdown pages, and the tutorials executed
     "sphinx.ext.autodoc",
+    "sphinx.ext.autosummary",  # the reference's tables of names (no stub pages: conf.py)
     "sphinx.ext.napoleon",
     "sphinx.ext.mathjax",
+    # MathJax served from the built site (_static/mathjax), so formulas render offline
+    "sphinx-mathjax-offline",
     "sphinx.ext.viewcode",
 ]
 
@@ -75,9 +78,15 @@ nitpick_ignore_regex = [
     (r"py:class", r"(collections\.abc|pathlib|typing)\..*"),
 ]
 
-html_theme = "alabaster"
+autosummary_generate = False  # the pages the tables link to are written below
+
+# furo: a sidebar with the table of contents, code blocks and cell outputs that scroll
+# sideways instead of being cut (docs/_static/site.css), a light and a dark scheme
+html_theme = "furo"
 html_title = "effect-networks"
-html_static_path: list[str] = []
+html_static_path = ["_static"]
+html_css_files = ["site.css"]
+html_theme_options = {"navigation_with_keys": True}
 
 
 # -- the API reference: one page per module, generated here ---------------------------
@@ -103,6 +112,61 @@ GROUPS = {
     f"{TOP}.experiments": "the paper's experiments as a library",
     f"{TOP}.sim2d": "the simulated can world and the robot's throw",
 }
+# The libraries without a face: their module pages are their reference, and stay in the
+# search. Every other module page (the modules behind the faces) is left out of it.
+SEARCHED = (f"{TOP}.experiments", f"{TOP}.sim2d")
+
+#: The reference index, by purpose: (heading, what the group is for, the names of the
+#: faces' functions and classes in it). Every function and class a face documents is in
+#: exactly one group (the build fails otherwise); result types come last.
+REFERENCE = (
+    (
+        "Declaring a network",
+        "Features, actions and parameters; evidence; the network as a Pyro model.",
+        "EffectNetwork Discrete Continuous Parameter Evidence Partial effect_model "
+        "initial_site end_site param_site cluster_site",
+    ),
+    (
+        "Parameters, kinds and files",
+        "Fitted numbers, the conditional distributions' kinds, saving and loading, other formats.",
+        "NetworkParams random_params save load CPD TableCPD TableParams LinearGaussianCPD "
+        "LinearGaussianParams SoftmaxCPD SoftmaxParams ParameterMixture to_frame from_frame "
+        "to_pgmpy from_pgmpy read_bif write_bif PgmpyNetwork",
+    ),
+    (
+        "Fitting",
+        "Maximum likelihood, EM over gaps, priors, clusters, structure and scores.",
+        "fit fit_em fit_gradient fit_pooled grid_kernel fit_update fit_statistics "
+        "params_from_statistics Statistics BDeu K2 NormalInverseWishart select_clusters "
+        "learn_structure family_scores log_likelihood aic bic n_parameters cross_validate",
+    ),
+    (
+        "One-step questions",
+        "What an action will do, which action did this, with which parameter, and what to "
+        "try next.",
+        "predict predict_joint infer_action infer_parameter parameter_for_effect "
+        "imitation_check simulate compile explore",
+    ),
+    (
+        "Sequences",
+        "Transitions between states, plans, chained steps and demonstrations read back.",
+        "transitions plan chain link_probabilities explain StateSpace BoxPartition FunctionLink",
+    ),
+    (
+        "Pictures",
+        "Matplotlib figures of a network, its tables, clusters, posteriors and plans.",
+        "plot_network plot_table plot_clusters plot_action_posterior plot_demonstration "
+        "plot_plan site_parents state_labels",
+    ),
+    (
+        "Result types",
+        "What the functions above return, and the warnings they give.",
+        "Prediction JointPrediction ActionPosterior ParameterPosterior ParameterForEffect "
+        "GaussianMixture ImitationCheck CompiledQueries FitResult EMResult ClusterSelection "
+        "LogLikelihood CrossValidation Transitions Plan LinkProbabilities Explanation "
+        "ConvergenceWarning OutsideTrainingData",
+    ),
+)
 
 
 def _modules() -> list[str]:
@@ -136,6 +200,22 @@ def _public(module) -> dict[str, object]:
 HOME: dict[int, tuple[str, str]] = {}
 
 
+def _object_page(name: str, value) -> str:
+    """The page (relative to docs/api) of a face's function or class: one folder per kind,
+    so that ``plan`` and ``Plan`` are two files on a case-blind file system too."""
+    return f"{'class' if isinstance(value, type) else 'function'}/{name}"
+
+
+def _write(path: Path, text: str) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if not path.exists() or path.read_text() != text:
+        path.write_text(text)  # unchanged pages keep their time: no rebuild
+
+
+def _heading(text: str, underline: str = "=") -> list[str]:
+    return [text, underline * len(text), ""]
+
+
 def _write_api_pages() -> None:
     import importlib
 
@@ -143,46 +223,87 @@ def _write_api_pages() -> None:
     for face in FACES:
         for member, value in _public(importlib.import_module(face)).items():
             HOME.setdefault(id(value), (face, f"{face}.{member}"))
+    # every function and class of a face: its page, and its group on the index
+    objects: dict[str, tuple[str, object]] = {}  # short name -> (documented name, object)
+    for face in FACES:
+        for member, value in _public(importlib.import_module(face)).items():
+            if callable(value) and HOME[id(value)][1] == f"{face}.{member}":
+                if member in objects:
+                    raise ValueError(f"two faces document a {member}: name its page apart")
+                objects[member] = (f"{face}.{member}", value)
+    grouped = [name for _, _, names in REFERENCE for name in names.split()]
+    ungrouped = set(objects) - set(grouped)
+    unknown = [name for name in grouped if name not in objects or grouped.count(name) > 1]
+    if ungrouped or unknown:
+        raise ValueError(
+            f"docs/conf.py REFERENCE: put {sorted(ungrouped)} in a group; "
+            f"{sorted(set(unknown))} are in none of the faces, or in two groups"
+        )
+    pages = {_object_page(full, value): (full, value) for full, value in objects.values()}
+    if len({page.lower() for page in pages}) != len(pages):
+        raise ValueError("two reference pages differ only in case")
+
     out = DOCS / "api"
-    out.mkdir(exist_ok=True)
-    for stale in set(out.glob("*.rst")) - {out / f"{m}.rst" for m in [*modules, "index"]}:
-        stale.unlink()  # a module renamed or removed since the last build
+    keep = {out / f"{m}.rst" for m in [*modules, "index", "modules"]} | {
+        out / f"{p}.rst" for p in pages
+    }
+    for stale in set(out.rglob("*.rst")) - keep:
+        stale.unlink()  # a module or a name renamed or removed since the last build
+    for page, (full, value) in pages.items():
+        short = full.rsplit(".", 1)[1]
+        directive = "autoclass" if isinstance(value, type) else "autofunction"
+        lines = [*_heading(f"``{short}``"), f".. {directive}:: {full}"]
+        _write(out / f"{page}.rst", "\n".join(lines) + "\n")
+
     for name in modules:
         module = importlib.import_module(name)
-        skip = sorted(
-            member
-            for member, value in _public(module).items()
-            if HOME.get(id(value), (name,))[0] != name and callable(value)
-        )
-        title = f"``{name}``"
-        lines = [title, "=" * len(title), "", f".. automodule:: {name}"]
-        if name not in FACES:
+        lines = []
+        if name not in FACES and not name.startswith(SEARCHED) and name != TOP:
+            lines += [":nosearch:", ""]  # file-wide metadata: the page is left out of search
+        lines += [*_heading(f"``{name}``"), f".. automodule:: {name}"]
+        if name in FACES:  # the face: its names, each on its own page, in a table
+            names = [*module.__all__, *getattr(module, "NOT_STARRED", ())]
+            callables = [n for n in names if callable(getattr(module, n))]
+            lines += ["   :no-members:", "", ".. currentmodule:: None", ""]  # full names
+            lines += [".. autosummary::", "   :nosignatures:", ""]
+            lines += [f"   ~{HOME[id(getattr(module, n))][1]}" for n in callables]
+            lines += [""]
+            lines += [f".. autodata:: {name}.{n}" for n in names if n not in callables]
+        else:
             lines.append("   :ignore-module-all:")
-        if skip:
-            lines.append(f"   :exclude-members: {', '.join(skip)}")
-        if name in FACES:  # names on the face but left out of its __all__ (star imports)
-            lines += [
-                "",
-                *(f".. autofunction:: {name}.{n}" for n in getattr(module, "NOT_STARRED", ())),
-            ]
-        text = "\n".join(lines) + "\n"
-        page = out / f"{name}.rst"
-        if not page.exists() or page.read_text() != text:
-            page.write_text(text)
-    index = ["API reference", "=============", ""]
+            skip = sorted(
+                member
+                for member, value in _public(module).items()
+                if HOME.get(id(value), (name,))[0] != name and callable(value)
+            )
+            if skip:
+                lines.append(f"   :exclude-members: {', '.join(skip)}")
+        _write(out / f"{name}.rst", "\n".join(lines) + "\n")
+
+    index = _heading("API reference")
     index += [
-        "Every module, one page each. The names README and the guides import are documented",
-        "under the face that exports them (:mod:`effect_networks.models`,",
-        ":mod:`effect_networks.inference`, :mod:`effect_networks.inference.fitting`,",
-        ":mod:`effect_networks.inference.queries`); the module that defines one",
-        "links to it there.",
+        "One page per function and class that the faces export (``import effect_networks as",
+        "en``: ``en.fit``, ``en.plan``, ...), grouped by purpose. Every module has a page of",
+        "its own too (:doc:`modules`); the module that defines a name links to its page here.",
         "",
     ]
-    heading = f"``{TOP}``: the package and its face"
-    index += [
-        heading,
-        "-" * len(heading),
+    for heading, blurb, names in REFERENCE:
+        index += [*_heading(heading, "-"), blurb, "", ".. autosummary::", "   :nosignatures:", ""]
+        index += [f"   ~{objects[n][0]}" for n in names.split()]
+        index += ["", ".. toctree::", "   :hidden:", ""]
+        index += [f"   {_object_page(*objects[n])}" for n in names.split()]
+        index.append("")
+    index += [".. toctree::", "   :hidden:", "", "   modules", ""]
+    _write(out / "index.rst", "\n".join(index))
+
+    listing = _heading("Every module")
+    listing += [
+        "One page per module. The names README and the guides import are documented under",
+        "the face that exports them (:mod:`effect_networks.models`,",
+        ":mod:`effect_networks.inference` and its subpackages), one page each; the pages of",
+        "the modules behind the faces are left out of the site's search.",
         "",
+        *_heading(f"``{TOP}``: the package and its face", "-"),
         ".. toctree::",
         "   :maxdepth: 1",
         "",
@@ -190,13 +311,11 @@ def _write_api_pages() -> None:
         "",
     ]
     for package in PACKAGES:
-        heading = f"``{package}``: {GROUPS[package]}"
-        index += [heading, "-" * len(heading), "", ".. toctree::", "   :maxdepth: 1", ""]
-        index += [f"   {m}" for m in modules if m == package or m.startswith(package + ".")]
-        index.append("")
-    text = "\n".join(index)
-    if not (out / "index.rst").exists() or (out / "index.rst").read_text() != text:
-        (out / "index.rst").write_text(text)
+        listing += [*_heading(f"``{package}``: {GROUPS[package]}", "-")]
+        listing += [".. toctree::", "   :maxdepth: 1", ""]
+        listing += [f"   {m}" for m in modules if m == package or m.startswith(package + ".")]
+        listing.append("")
+    _write(out / "modules.rst", "\n".join(listing))
 
 
 _write_api_pages()
@@ -289,7 +408,25 @@ def _readme_links(app, docname, source):
     source[0] = source[0].replace("](../README.md", "](readme.md")
 
 
+def _python_domain_hiding_unsearched_pages():
+    """The Python domain, whose objects documented on a page left out of the search
+    (``:nosearch:``: the modules behind the faces) are left out of it too: Sphinx's search
+    index skips an object of negative priority, while cross-references and objects.inv
+    still find it."""
+    from sphinx.domains.python import PythonDomain
+
+    class Domain(PythonDomain):
+        def get_objects(self):
+            for name, shown, kind, docname, anchor, priority in super().get_objects():
+                if "nosearch" in self.env.metadata.get(docname, {}):
+                    priority = -1
+                yield name, shown, kind, docname, anchor, priority
+
+    return Domain
+
+
 def setup(app):
+    app.add_domain(_python_domain_hiding_unsearched_pages(), override=True)
     app.connect("source-read", _readme_links)
     app.connect("missing-reference", _short_name)
     app.connect("autodoc-process-docstring", _keep_prose, priority=400)

@@ -63,6 +63,16 @@ def compile(net: EffectNetwork, params: NetworkParams) -> CompiledQueries:
 
     Answered from compiled tables where they can be (built on first use) and by the traced model
     otherwise; the same answers either way (tested equal).
+
+    Parameters
+    ----------
+    net, params
+        The network and its fitted parameters (checked to fit each other).
+
+    Returns
+    -------
+    CompiledQueries
+        The questions (``predict``, ``infer_action``, ...) on this network, as methods.
     """
     check_params(net, params)
     return CompiledQueries(net, params)

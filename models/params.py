@@ -174,6 +174,18 @@ def save(path: str | Path, net: EffectNetwork, params: NetworkParams) -> Path:
     saved on the CPU. The parameters' sufficient statistics (``NetworkParams.statistics``)
     are saved with them where they are the toolkit's containers, so that a loaded fit
     can be continued (:func:`inference.fit_update`).
+
+    Parameters
+    ----------
+    path
+        The file to write (its folder is made if missing); a file there is replaced.
+    net, params
+        The network's declaration and its fitted parameters (checked to fit each other).
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``, as a ``Path``: what :func:`load` reads back.
     """
     check_params(net, params)
     path = target_file(path)
@@ -217,6 +229,21 @@ def load(
     :data:`PAYLOAD_KEYS`. Then the content's checksum is verified, before the declaration
     is parsed or any CPD built; then every site must hold a CPD of its declared shape and
     nothing else, and the numbers are copied into memory.
+
+
+    Parameters
+    ----------
+    path
+        A file :func:`save` wrote.
+    kinds
+        The classes of the user-defined kinds it names (the toolkit's own are known).
+
+    Returns
+    -------
+    tuple of (EffectNetwork, NetworkParams)
+        The declaration and the parameters, as they were saved (with their sufficient
+        statistics where they were saved, so that :func:`inference.fit_update` continues
+        the fit).
 
     Raises
     ------
@@ -405,6 +432,21 @@ def random_params(net: EffectNetwork, seed: int, *, unseen: float = 0.0) -> Netw
     drawn in the cell's middle half, standard deviation an eighth of the cell), as a
     fitted one does, and actions not using the parameter sit on cell 0. ``unseen``: the
     share of parent configurations marked as reached by no training row (``n = 0``).
+
+    Parameters
+    ----------
+    net
+        The network to draw parameters for.
+    seed
+        Seeds the draw: the same seed gives the same parameters.
+    unseen
+        The share of parent configurations marked as reached by no training row, in
+        ``[0, 1]``.
+
+    Returns
+    -------
+    NetworkParams
+        A CPD per site of ``net``, with pseudo-count 0.01.
     """
     seed = check_seed(seed)
     if not 0.0 <= unseen <= 1.0:

@@ -66,6 +66,18 @@ def write_bif(path: str | Path, net: EffectNetwork, params: NetworkParams) -> Pa
     ``states=`` restores the declared labels. Counts and the pseudo-count are not
     stored. The file lists variables sorted by name.
 
+    Parameters
+    ----------
+    path
+        The file to write (its folder is made if missing).
+    net, params
+        A discrete network (tables only) and its fitted parameters.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``, as a ``Path``.
+
     Raises
     ------
     ValueError
@@ -148,6 +160,18 @@ def write_xmlbif(path: str | Path, net: EffectNetwork, params: NetworkParams) ->
     A label whose text holds white space is refused (pgmpy keeps some and replaces
     other, depending on its neighbours).
 
+    Parameters
+    ----------
+    path
+        The file to write (its folder is made if missing).
+    net, params
+        A discrete network (tables only) and its fitted parameters.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``, as a ``Path``.
+
     Raises
     ------
     ValueError
@@ -179,6 +203,20 @@ def read_xmlbif(
     As :func:`read_bif`, except that ``states`` are matched to the file's state names by
     :func:`xmlbif_text` (the text :func:`write_xmlbif` stored); without ``states`` the
     labels are those texts. Action names come back as the file's texts.
+
+    Parameters
+    ----------
+    path
+        The XMLBIF file.
+    n, states, actions_node, kind, order, pseudo_count
+        As :func:`read_bif`'s: the counts the tables stand for, the declared labels by
+        feature, the action's node, the features' kinds, their order and the
+        pseudo-count.
+
+    Returns
+    -------
+    tuple of EffectNetwork and NetworkParams
+        The declaration read from the file and its parameters.
     """
     require_pgmpy()
     from pgmpy.readwrite import XMLBIFReader
@@ -217,6 +255,18 @@ def write_uai(path: str | Path, net: EffectNetwork, params: NetworkParams) -> Pa
     under a scope that lists the child last, and its UAIReader orders a table's parents
     by the graph's predecessor order (which varies between runs), so its files of
     tables with two or more parents do not round-trip.
+
+    Parameters
+    ----------
+    path
+        The file to write (its folder is made if missing).
+    net, params
+        A discrete network (tables only) and its fitted parameters.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``, as a ``Path``.
 
     Raises
     ------

@@ -61,6 +61,18 @@ def save_npz(path: str | Path, net: EffectNetwork, params: NetworkParams) -> Pat
     a failed save leaves the file that was there. Tensors are saved from the CPU, as
     they are (dtype, shape and bytes).
 
+    Parameters
+    ----------
+    path
+        The file to write (its folder is made if missing).
+    net, params
+        Any network and its fitted parameters.
+
+    Returns
+    -------
+    pathlib.Path
+        ``path``, as a ``Path``.
+
     Raises
     ------
     ValueError
@@ -108,7 +120,17 @@ def load_npz(
 ) -> tuple[EffectNetwork, NetworkParams]:
     """Load a network saved by :func:`~effect_networks.models.save_npz`, checking it first.
 
-    ``kinds``: the classes of the user-defined kinds it names (the toolkit's own are known).
+    Parameters
+    ----------
+    path
+        A file written by :func:`~effect_networks.models.save_npz`.
+    kinds
+        The classes of the user-defined kinds it names (the toolkit's own are known).
+
+    Returns
+    -------
+    tuple of EffectNetwork and NetworkParams
+        The declaration and the parameters, the same numbers bit for bit.
 
     Raises
     ------

@@ -18,22 +18,66 @@ Role = Literal["initial", "action", "cluster", "param", "end"]
 
 
 def initial_site(feature: str) -> str:
-    """Site name of a feature's initial state."""
+    """Site name of a feature's initial state.
+
+    Parameters
+    ----------
+    feature : str
+        A feature's name, as declared.
+
+    Returns
+    -------
+    str
+        ``"initial.{feature}"``: the key of its column in training rows and evidence.
+    """
     return f"initial.{feature}"
 
 
 def end_site(feature: str) -> str:
-    """Site name of a feature's end state."""
+    """Site name of a feature's end state.
+
+    Parameters
+    ----------
+    feature : str
+        A feature's name, as declared.
+
+    Returns
+    -------
+    str
+        ``"end.{feature}"``: the key of its column in training rows and evidence.
+    """
     return f"end.{feature}"
 
 
 def param_site(parameter: str) -> str:
-    """Site name of an action parameter's value."""
+    """Site name of an action parameter's value.
+
+    Parameters
+    ----------
+    parameter : str
+        An action parameter's name, as declared.
+
+    Returns
+    -------
+    str
+        ``"param.{parameter}"``: the key of its column in training rows and evidence.
+    """
     return f"param.{parameter}"
 
 
 def cluster_site(parameter: str) -> str:
-    """Site name of an action parameter's cluster."""
+    """Site name of an action parameter's cluster.
+
+    Parameters
+    ----------
+    parameter : str
+        An action parameter's name, as declared.
+
+    Returns
+    -------
+    str
+        ``"cluster.{parameter}"``: the key of its column in training rows and evidence.
+    """
     return f"cluster.{parameter}"
 
 

@@ -3,6 +3,7 @@
 (no orphan page), and (slow) the site builds strictly, as ``bin/build-docs`` builds it,
 every tutorial rendered with its outputs and figures."""
 
+import json
 import re
 import runpy
 import subprocess
@@ -123,9 +124,29 @@ def test_site_builds_strictly(tmp_path):
     )
     assert result.returncode == 0, result.stderr[-4000:]
     assert (out / "index.html").exists() and (out / "search.html").exists()
-    api = (out / "api" / "effect_networks.inference.html").read_text()
-    assert 'id="effect_networks.inference.fit"' in api
-    assert 'id="effect_networks.inference.infer_action"' in api
+    # one page per function and class of the faces, listed on the reference's index
+    api = out / "api"
+    fit = (api / "function" / "effect_networks.inference.fit.html").read_text()
+    assert 'id="effect_networks.inference.fit"' in fit
+    plan = (api / "class" / "effect_networks.inference.Plan.html").read_text()
+    assert 'id="effect_networks.inference.Plan"' in plan
+    index = (api / "index.html").read_text()
+    assert 'href="function/effect_networks.inference.infer_action.html' in index
+    assert index.index("Declaring a network") < index.index("Result types")
+    # the modules behind the faces are out of the search (their text and their objects),
+    # the guides and the reference's pages in it
+    search = (out / "searchindex.js").read_text()
+    frozen = json.loads(search[search.index("(") + 1 : search.rindex(")")])
+    titles = dict(zip(frozen["docnames"], frozen["titles"], strict=True))
+    assert titles["planning"] and titles["api/function/effect_networks.inference.plan"]
+    assert titles["api/effect_networks.inference.sequences.planner"] == ""
+    assert "effect_networks.inference.sequences.planner" not in frozen["objects"]
+    assert "plan" in {entry[4] for entry in frozen["objects"]["effect_networks.inference"]}
+    # formulas render offline: MathJax is served from the site itself
+    formulas = (out / "structure.html").read_text()
+    assert re.search(r'<script [^>]*src="_static/mathjax/tex-chtml\.js"', formulas)
+    assert "cdn.jsdelivr" not in formulas
+    assert (out / "_static" / "mathjax" / "tex-chtml.js").stat().st_size > 100_000
     for script in tutorials():
         page = (out / "tutorials" / script.with_suffix(".html").name).read_text()
         # executed: each tutorial's page holds its cells' outputs and at least one figure
@@ -202,3 +223,44 @@ def test_the_limits_page_names_each_limit_with_its_value():
         number = shown.split(" numbers")[0].split(" entries")[0].replace(",", "")
         number = number.replace("10^", "10**").replace("2^", "2**").replace(" MiB", " * 2**20")
         assert eval(number) == value, (module, name, shown, value)  # noqa: S307
+
+
+#: The faces whose names the reference documents one page each (docs/conf.py's FACES).
+FACES = (
+    "effect_networks.models",
+    "effect_networks.inference",
+    "effect_networks.inference.fitting",
+    "effect_networks.inference.queries",
+    "effect_networks.inference.sequences",
+    "effect_networks.inference.plots",
+)
+
+
+def numpy_sections(docstring: str) -> set[str]:
+    """The numpy-style section headings of a docstring (a title over a dashed line)."""
+    import inspect
+
+    text = inspect.cleandoc(docstring or "")
+    return set(re.findall(r"^(\w[\w ]*)\n-+$", text, re.M))
+
+
+def test_every_face_function_documents_its_parameters_and_what_it_returns():
+    import importlib
+    import inspect
+
+    missing = []
+    for face in FACES:
+        module = importlib.import_module(face)
+        for name in [*module.__all__, *getattr(module, "NOT_STARRED", ())]:
+            value = getattr(module, name)
+            if inspect.isfunction(value):
+                lacks = {"Parameters", "Returns"} - numpy_sections(value.__doc__)
+                if lacks:
+                    missing.append(f"{face}.{name}: {sorted(lacks)}")
+    assert not missing, "\n".join(missing)
+
+
+def test_the_section_reader_sees_a_missing_returns():
+    documented = "Do.\n\n    Parameters\n    ----------\n    x\n        A.\n\n    Returns\n    -------\n    int\n"
+    assert numpy_sections(documented) == {"Parameters", "Returns"}
+    assert numpy_sections("Do.\n\n    Parameters\n    ----------\n    x\n") == {"Parameters"}

@@ -45,6 +45,9 @@ def test_extras_by_purpose_and_dev_installs_them_all():
     assert requirement_names(extras["render"]) == {"graphviz"}
     assert requirement_names(extras["graph"]) == {"networkx"}
     assert "graphviz" not in requirement_names(project()["dependencies"])  # no module needs it
+    # the site's build: Sphinx and MyST-NB, the furo theme, MathJax served offline
+    docs = requirement_names(extras["docs"])
+    assert {"sphinx", "myst-nb", "jupytext", "furo", "sphinx-mathjax-offline"} <= docs
     assert (
         requirement_names(extras["interop"])
         | requirement_names(extras["cluster"])

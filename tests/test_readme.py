@@ -174,6 +174,16 @@ def test_the_experiments_page_snippet_runs(tmp_path, monkeypatch):
     assert os.path.exists("tap/tap_and_remove.png")
 
 
+def test_the_front_page_snippet_runs(tmp_path, monkeypatch):
+    # the site's front page (docs/index.md): declare, fit, ask, as its comments say
+    monkeypatch.chdir(tmp_path)
+    page = DOCS / "index.md"
+    assert len(snippets(page)) == 1 and "import effect_networks as en" in snippets(page)[0]
+    namespace = run_snippets(page)
+    assert abs(float(namespace["where"][0, 0]) - 0.35) < 0.02
+    assert namespace["best"] == ("remove",)
+
+
 def assert_loss_is_exact(namespace):
     """The README's ``TraceEnum_ELBO`` idiom is -log p(evidence), against the model summed
     by enumeration, also where a continuous end site is left out of the evidence."""

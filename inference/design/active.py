@@ -262,6 +262,12 @@ def explore(
         (started with the same arguments) continues from it.
     progress
         A tqdm bar over the candidates chosen.
+
+    Returns
+    -------
+    ExplorationResult
+        The candidates chosen, in order, their scores, the training rows they gave and the
+        parameters fitted to them.
     """
     _check_network(net)
     check_settings(pseudo_count=pseudo_count, prior_strength=prior_strength)

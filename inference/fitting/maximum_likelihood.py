@@ -142,6 +142,12 @@ def fit(
         converged when a step gains less than ``tol`` (relative) per row. ``lr``: the
         gradient route's (:func:`fit_gradient`), for a kind with neither a closed form
         nor a ``maximise`` method. ``progress`` shows bars (over chunks, CPDs, steps).
+
+    Returns
+    -------
+    FitResult
+        The fitted parameters (``params``); for an iterative fit (EM over gaps, a softmax's
+        Newton iterations) its loss curve and whether it settled.
     """
     if isinstance(prior, int | float) and not isinstance(prior, bool):
         pseudo_count = prior  # a number is the symmetric pseudo-count itself
@@ -248,6 +254,20 @@ def fit_statistics(
     Statistics of partitions computed apart (on a cluster's workers, say) add up with
     ``+``; :func:`inference.fitting.sufficient_statistics.params_from_statistics` turns the sum into
     parameters.
+
+    Parameters
+    ----------
+    net
+        The network whose CPDs the statistics are for.
+    chunks
+        An iterable of row chunks, each as :func:`fit` reads training rows; read once.
+    progress
+        Show a progress bar over the chunks.
+
+    Returns
+    -------
+    Statistics
+        Every closed-form site's sufficient statistics, summed over the chunks.
     """
     refuse_adaptive(net, "fit_statistics")
     total, empty = None, 0
@@ -312,6 +332,32 @@ def fit_gradient(
     iterations (``lr`` unused). With gaps, Adam with ``lr`` runs ``steps`` steps. The fit
     has settled when the loss changes by less than ``tol`` (relative) per step; otherwise
     a :class:`ConvergenceWarning` names the CPDs and ``FitResult.converged`` is False.
+
+    Parameters
+    ----------
+    net
+        The network to fit.
+    data
+        Training rows by site name, as :func:`fit` reads them (no row chunks).
+    init
+        The parameters to start from (and to keep for the sites not in ``sites``).
+    sites
+        The sites whose CPDs are fitted (default: every site).
+    masks
+        ``(n,)`` bool per discrete site, False where a row's value is missing.
+    steps, lr, l2, tol
+        The most iterations (L-BFGS) or steps (Adam), Adam's learning rate, the softmax
+        slopes' prior precision, and the relative change of the loss under which the fit
+        has settled.
+    pseudo_count
+        The pseudo-count policy of the closed-form sites.
+    progress
+        Show a progress bar over the steps.
+
+    Returns
+    -------
+    FitResult
+        The fitted parameters, the loss curve and whether it settled.
     """
     check_settings(pseudo_count=pseudo_count, steps=steps, lr=lr, l2=l2, tol=tol)
     refuse_adaptive(net, "fit_gradient")

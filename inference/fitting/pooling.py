@@ -49,6 +49,18 @@ def grid_kernel(grid_shape: tuple[int, int], sigma: float) -> torch.Tensor:
 
     A ``(rows, columns)`` grid in row-major order (``A = rows * columns``, ``d`` the distance in
     cells); ``sigma = 0`` gives the identity (no pooling).
+
+    Parameters
+    ----------
+    grid_shape
+        ``(rows, columns)`` of the grid.
+    sigma
+        The kernel's width, in cells (``>= 0``).
+
+    Returns
+    -------
+    torch.Tensor
+        ``(A, A)`` float64 weights, 1 on the diagonal.
     """
     if len(grid_shape) != 2 or not all(
         isinstance(k, int) and not isinstance(k, bool) and k >= 1 for k in grid_shape
@@ -94,6 +106,11 @@ def fit_pooled(
     sites
         The end sites whose tables are pooled (default: every end table with the action
         among its parents); the others get the plain fit's.
+
+    Returns
+    -------
+    FitResult
+        The parameters, the pooled end tables in place of the plain fit's.
     """
     check_settings(pseudo_count=pseudo_count, min_variance=min_variance)
     if (

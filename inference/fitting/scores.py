@@ -201,6 +201,17 @@ def n_parameters(net: EffectNetwork) -> int:
 
     They depend on the declaration only, not on fitted numbers.
 
+
+    Parameters
+    ----------
+    net
+        The network's declaration.
+
+    Returns
+    -------
+    int
+        The number of free parameters, summed over the sites.
+
     Raises
     ------
     NotImplementedError
@@ -219,6 +230,21 @@ def bic(
     """``-2 L + k ln n`` (lower is better) of the rows (see :func:`log_likelihood`).
 
     pgmpy's ``BIC`` score is ``-bic / 2`` (:attr:`LogLikelihood.bic_score`).
+
+    Parameters
+    ----------
+    net, params
+        The network and its fitted parameters.
+    data
+        The rows, as :func:`inference.fit` reads them (gaps summed out).
+    masks
+        ``(n,)`` bool per discrete site, False where a row's value is missing.
+
+    Returns
+    -------
+    float
+        ``-2 L + k ln n``, with ``L`` the rows' log-likelihood, ``k`` :func:`n_parameters`
+        and ``n`` the number of rows.
     """
     return log_likelihood(net, params, data, masks=masks).bic
 
@@ -230,7 +256,22 @@ def aic(
     *,
     masks: Mapping[str, object] | None = None,
 ) -> float:
-    """``-2 L + 2 k`` (lower is better) of the rows (see :func:`log_likelihood`)."""
+    """``-2 L + 2 k`` (lower is better) of the rows (see :func:`log_likelihood`).
+
+    Parameters
+    ----------
+    net, params
+        The network and its fitted parameters.
+    data
+        The rows, as :func:`inference.fit` reads them (gaps summed out).
+    masks
+        ``(n,)`` bool per discrete site, False where a row's value is missing.
+
+    Returns
+    -------
+    float
+        ``-2 L + 2 k``, with ``L`` the rows' log-likelihood and ``k`` :func:`n_parameters`.
+    """
     return log_likelihood(net, params, data, masks=masks).aic
 
 

@@ -110,6 +110,22 @@ def params_from_statistics(
     For kinds without one, the gradient route's start. ``alpha``: the pseudo-count of
     every site, or each site's prior as :func:`inference.fitting.priors.site_priors`
     gives it (a mapping naming every site).
+
+    Parameters
+    ----------
+    net
+        The network the statistics are of.
+    stats
+        Sufficient statistics, as :func:`inference.fit_statistics` sums them.
+    alpha
+        The pseudo-count of every site, or each site's prior.
+    min_variance
+        The covariance floor of the linear Gaussians.
+
+    Returns
+    -------
+    dict
+        Site name -> its CPD (the closed form, or the gradient route's start).
     """
     priors = alpha if isinstance(alpha, Mapping) else dict.fromkeys(stats.sites, alpha)
     return {

@@ -24,7 +24,20 @@ def check_site(net: EffectNetwork, site: str) -> None:
 
 
 def site_parents(net: EffectNetwork, site: str) -> tuple[str, ...]:
-    """Every parent of ``site``: its discrete parents, then its continuous inputs."""
+    """Every parent of ``site``: its discrete parents, then its continuous inputs.
+
+    Parameters
+    ----------
+    net
+        The network.
+    site
+        A site's name (``"end.visible"``, ...).
+
+    Returns
+    -------
+    tuple of str
+        The parents' site names.
+    """
     cpd = net.cpd(site)
     return cpd.parents + cpd.inputs
 
@@ -33,6 +46,18 @@ def state_labels(net: EffectNetwork, site: str) -> tuple:
     """The labels of a discrete site's states.
 
     A feature's states, the action names, or a cluster's numbers ``0 .. C-1``.
+
+    Parameters
+    ----------
+    net
+        The network.
+    site
+        A discrete site's name.
+
+    Returns
+    -------
+    tuple
+        Its state labels, in order.
     """
     spec = net.site(site)
     if not spec.discrete:

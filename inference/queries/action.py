@@ -68,6 +68,11 @@ def infer_action(
         ``implausible`` flags rows whose observed end state has a probability below this
         under the model, every action summed out (:mod:`inference.queries.implausibility`); such a
         row still gets its posterior and ``best``.
+
+    Returns
+    -------
+    ActionPosterior
+        Per row, the posterior over the actions and the best allowed one.
     """
     below = check_threshold(implausible_below)
     enc = prepare(net, params, evidence)

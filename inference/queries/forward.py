@@ -63,6 +63,22 @@ def predict(
 
     ``implausible`` flags rows whose observed end features (if any are given) have a
     probability below ``implausible_below`` (:mod:`inference.queries.implausibility`).
+
+    Parameters
+    ----------
+    net, params
+        The network and its fitted parameters.
+    evidence
+        ``n`` rows of what is known, by site name (labels, numbers, NaN where unknown):
+        see :meth:`models.EffectNetwork.encode`.
+    implausible_below
+        The probability under which a row's observed end features are flagged.
+
+    Returns
+    -------
+    Prediction
+        Per row, each unobserved discrete end feature's probabilities and each continuous
+        one's Gaussian mixture.
     """
     below = check_threshold(implausible_below)
     enc = prepare(net, params, evidence)
@@ -161,6 +177,26 @@ def imitation_check(
     The same row gets the same answer in any batch. ``implausible`` flags rows whose
     observed end state has a probability below ``implausible_below`` given the executed
     action (:mod:`inference.queries.implausibility`).
+
+    Parameters
+    ----------
+    net, params
+        The network and its fitted parameters.
+    evidence
+        ``n`` rows of what is known, by site name (labels, numbers, NaN where unknown):
+        see :meth:`models.EffectNetwork.encode`.
+        Each row gives the executed action and the observed end state.
+    n_samples
+        Quadrature points per Gaussian component (several components only).
+    seed
+        Fixes the quadrature's directions beyond two continuous dimensions.
+    implausible_below
+        The probability under which a row's observed end state is flagged.
+
+    Returns
+    -------
+    ImitationCheck
+        Per row, how surprising the observed end state is under the executed action.
     """
     below = check_threshold(implausible_below)
     enc = prepare(net, params, evidence)

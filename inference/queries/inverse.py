@@ -84,6 +84,22 @@ def parameter_for_effect(
     observed effects; any other parameter acting on the same feature given); at least
     one continuous feature the parameter acts on must be observed. Raises ``ValueError``
     otherwise.
+
+    Parameters
+    ----------
+    net, params
+        The network and its fitted parameters.
+    evidence
+        ``n`` rows of what is known, by site name (labels, numbers, NaN where unknown):
+        see :meth:`models.EffectNetwork.encode`.
+    parameter
+        The action parameter's name; unknown in ``evidence``.
+
+    Returns
+    -------
+    ParameterForEffect
+        Per row, the value to use, the cluster it comes from, its joint density and how
+        far its predicted effect misses the desired one.
     """
     m = net.mixture(parameter)
     p = m.parameter

@@ -90,6 +90,22 @@ def predict_joint(
     labels, numbers, NaN for an unknown parameter); unknown discrete sites and
     parameters are summed and integrated out, continuous end features left out.
 
+
+    Parameters
+    ----------
+    net, params
+        The network and its fitted parameters.
+    evidence
+        ``n`` rows of what is known, by site name (labels, numbers, NaN where unknown):
+        see :meth:`models.EffectNetwork.encode`.
+    implausible_below
+        The probability under which a row's observed end features are flagged.
+
+    Returns
+    -------
+    JointPrediction
+        Per row, the joint distribution over the unobserved discrete end features' states.
+
     Examples
     --------
     >>> from models import Discrete, EffectNetwork, random_params

@@ -86,6 +86,26 @@ def infer_parameter(
     ``implausible`` flags rows whose observed end state has a probability below
     ``implausible_below`` given the action, the parameter integrated out
     (:mod:`inference.queries.implausibility`).
+
+    Parameters
+    ----------
+    net, params
+        The network and its fitted parameters.
+    evidence
+        ``n`` rows of what is known, by site name (labels, numbers, NaN where unknown):
+        see :meth:`models.EffectNetwork.encode`.
+    parameter
+        The action parameter's name; unknown (NaN or left out) in ``evidence``.
+    mixture
+        Also give the parameter's full posterior over every cluster.
+    implausible_below
+        The probability under which a row's observed end state is flagged.
+
+    Returns
+    -------
+    ParameterPosterior
+        Per row, the cluster posterior and the parameter's Gaussian given the best
+        cluster (and, with ``mixture=True``, the full posterior).
     """
     below = check_threshold(implausible_below)
     m = net.mixture(parameter)

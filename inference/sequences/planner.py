@@ -157,6 +157,14 @@ def plan(
         Never take an action whose step rests mostly (``unseen > 0.5``) on configurations
         no training row reached, unless a state has no other.
 
+
+    Returns
+    -------
+    Plan
+        The best action per state and step (``policy``), the probability of reaching the
+        goal within ``horizon`` actions from ``start`` (``success``) and the most likely
+        path of states and actions (``path``).
+
     Examples
     --------
     >>> from models import Discrete, EffectNetwork
