@@ -131,7 +131,8 @@ REFERENCE = (
         "Fitted numbers, the conditional distributions' kinds, saving and loading, other formats.",
         "NetworkParams random_params save load CPD TableCPD TableParams LinearGaussianCPD "
         "LinearGaussianParams SoftmaxCPD SoftmaxParams ParameterMixture to_frame from_frame "
-        "to_pgmpy from_pgmpy read_bif write_bif PgmpyNetwork",
+        "to_pgmpy from_pgmpy read_bif write_bif read_xmlbif write_xmlbif read_uai write_uai"
+        " save_npz load_npz to_networkx PgmpyNetwork DroppedSites",
     ),
     (
         "Fitting",
