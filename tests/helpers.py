@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import errno
 import itertools
+import os
 from concurrent.futures import Future
 
 import torch
@@ -117,3 +119,29 @@ def spilling_network() -> tuple[EffectNetwork, NetworkParams]:
         ),
     }
     return net, NetworkParams(cpds, 0.01)
+
+
+class FillingFile:
+    """A file whose disk fills on the first write: 100 bytes land, then ``ENOSPC``."""
+
+    def __init__(self, f):
+        self.f = f
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.f.close()
+
+    def write(self, data):
+        self.f.write(bytes(data)[:100])
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    def __getattr__(self, name):
+        return getattr(self.f, name)
+
+
+def fill_the_disk(monkeypatch) -> None:
+    """Every file the code under test opens with ``os.fdopen`` fills its disk."""
+    real_fdopen = os.fdopen
+    monkeypatch.setattr(os, "fdopen", lambda fd, mode: FillingFile(real_fdopen(fd, mode)))

@@ -4,7 +4,6 @@ import collections
 import errno
 import io
 import json
-import os
 import pickle
 import random
 import zipfile
@@ -26,6 +25,8 @@ from effect_networks.models.params import NetworkParams, _checksum, check_params
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from pyro import poutine
+
+from tests.helpers import fill_the_disk
 
 
 def visible_network(states, *, kind="object", actions=("look", "remove")):
@@ -403,26 +404,7 @@ def test_a_disk_that_fills_during_save_is_an_oserror_naming_the_file(tmp_path, m
     previous file stays whole."""
     old = random_params(NET, 1)
     path = save(tmp_path / "net.pt", NET, old)
-    real_fdopen = os.fdopen
-
-    class FillingFile:
-        def __init__(self, f):
-            self.f = f
-
-        def __enter__(self):
-            return self
-
-        def __exit__(self, *exc):
-            self.f.close()
-
-        def write(self, data):
-            self.f.write(bytes(data)[:100])
-            raise OSError(errno.ENOSPC, "No space left on device")
-
-        def __getattr__(self, name):
-            return getattr(self.f, name)
-
-    monkeypatch.setattr(os, "fdopen", lambda fd, mode: FillingFile(real_fdopen(fd, mode)))
+    fill_the_disk(monkeypatch)
     with pytest.raises(OSError, match=r"No space left on device: cannot save .*net\.pt") as caught:
         save(path, NET, random_params(NET, 2))
     assert caught.value.errno == errno.ENOSPC and caught.value.filename == str(path)

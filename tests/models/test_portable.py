@@ -2,11 +2,9 @@
 numpy alone read every number, and a damaged or crafted file is refused before anything
 is built from it."""
 
-import errno
 import hashlib
 import io
 import json
-import os
 import random
 import zipfile
 from dataclasses import fields
@@ -27,6 +25,7 @@ from effect_networks.models.portable import HEADER_KEYS, content_sha256
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from tests.helpers import fill_the_disk
 from tests.networks import (
     NET,
     README_NET,
@@ -268,23 +267,7 @@ def test_not_a_zip_and_a_truncated_file_are_refused(saved, tmp_path):
 
 def test_a_failed_save_leaves_the_previous_file(saved, monkeypatch):
     path, old = saved
-    real_fdopen = os.fdopen
-
-    class FillingFile:
-        def __init__(self, f):
-            self.f = f
-
-        def __enter__(self):
-            return self
-
-        def __exit__(self, *exc):
-            self.f.close()
-
-        def write(self, data):
-            self.f.write(bytes(data)[:100])
-            raise OSError(errno.ENOSPC, "No space left on device")
-
-    monkeypatch.setattr(os, "fdopen", lambda fd, mode: FillingFile(real_fdopen(fd, mode)))
+    fill_the_disk(monkeypatch)
     with pytest.raises(OSError, match=r"No space left on device: cannot save .*net\.npz"):
         save_npz(path, NET, random_params(NET, 9))
     monkeypatch.undo()
