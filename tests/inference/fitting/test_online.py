@@ -73,7 +73,33 @@ def test_gaussian_updates_equal_one_fit_over_several_steps(seed, n, cuts, niw):
     params = fit(THROW, pieces[0], prior=prior).params
     for piece in pieces[1:]:
         params = fit_update(THROW, params, piece, prior=prior).params
-    assert_same(fit(THROW, rows, prior=prior).params, params, 1e-12)
+    once = fit(THROW, rows, prior=prior).params
+    # the moments summed piece by piece round differently from one sum, and a regression on
+    # throws (small noise beside large offsets) magnifies rounding: the update agrees with
+    # one fit as closely as one fit agrees with itself on the rows in another order (and
+    # to 1e-10 of the numbers' scale, where a few rows sum alike in any order)
+    order = torch.randperm(n, generator=torch.Generator().manual_seed(seed))
+    shuffled = fit(THROW, {k: take(v, order) for k, v in rows.items()}, prior=prior).params
+    for site, cpd in once.cpds.items():
+        for name, value in vars(cpd).items():
+            if isinstance(value, torch.Tensor) and value.is_floating_point():
+                diff = (value - getattr(shuffled[site], name)).abs()
+                spread = float(diff.max()) if value.numel() else 0.0
+                scale = float(value.abs().max()) if value.numel() else 0.0
+                torch.testing.assert_close(
+                    getattr(params[site], name),
+                    value,
+                    atol=100 * spread + 1e-10 * max(1.0, scale),
+                    rtol=0,
+                    msg=f"{site}.{name}",
+                )
+
+
+def take(values, order: torch.Tensor):
+    """Rows of ``values`` (a tensor or a list of labels) in ``order``."""
+    if isinstance(values, torch.Tensor):
+        return values[order]
+    return [values[i] for i in order.tolist()]
 
 
 def test_an_update_from_chunks_and_after_a_save_equals_one_fit(tmp_path):
