@@ -41,11 +41,14 @@ from effect_networks.inference.sequences.states import ProjectedSpace, Selection
 from effect_networks.models.declaration import DTYPE, end_site, initial_site
 
 #: The most joint states of the relevant features the exact factored route plans over.
-MAX_RELEVANT_STATES = 1 << 16
+MAX_RELEVANT_STATES = 1 << 14
 #: Simulated runs of an approximate plan's policy in the full relevant model.
 EPISODES = 40_000
 #: The confidence of an approximate plan's lower bound on its success.
 CONFIDENCE = 0.95
+#: A projected space whose ``(S, A, S)`` tensor holds at most this many numbers is
+#: backed up through that tensor (built once from the factors); a larger one factor by factor.
+SMALL_PROJECTION = 1 << 18
 #: Rows of a plan's value table kept in full when the values converge before the horizon.
 KEEP_ROWS = 1 << 22
 
@@ -277,13 +280,27 @@ class _Backup:
                 self.tables.append(torch.ones(size_of[c], dtype=DTYPE))
                 self.seen_tables.append(torch.ones(size_of[c], dtype=DTYPE))
                 self.terms.append(c)
+        # a small projected space: its (S, A, S) tensor once, then products
+        s, a = len(space), self.n_actions
+        self.matrix = None
+        if s * a * s <= SMALL_PROJECTION:
+            one = torch.ones((), dtype=DTYPE)
+            full = _chain(one, "", self.tables, self.terms, self.now + self.act + self.then)
+            self.matrix = full.reshape(s, a, s)
 
     def __call__(self, v: torch.Tensor) -> torch.Tensor:
         """``q[s, a]``."""
+        if self.matrix is not None:
+            return self.matrix @ v
         q = _chain(v.reshape(self.sizes), self.then, self.tables, self.terms, self.now + self.act)
         return q.reshape(len(self.space), self.n_actions)
 
     def _forward(self, taken: torch.Tensor) -> torch.Tensor:
+        if self.matrix is not None:
+            s = len(self.space)
+            return (taken.reshape(s * self.n_actions) @ self.matrix.reshape(-1, s)).reshape(
+                self.sizes
+            )
         return _chain(taken, self.now + self.act, self.tables, self.terms, self.then)
 
     def forward(self, mass: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
@@ -492,8 +509,10 @@ def _certify(model, relevant, space, policy, goal, start, horizon, episodes, see
             break
         values = {initial_site(n): state[n] for n in relevant} | {OFFERED: act.clamp_min(0)}
         for f in factors:
-            logits = f.log_table[tuple(values[q] for q in f.parents)]
-            values[f.site] = torch.multinomial(logits.exp(), 1, generator=gen).squeeze(-1)
+            probs = f.log_table[tuple(values[q] for q in f.parents)].exp()
+            cdf = probs.cumsum(-1)
+            u = torch.rand(episodes, 1, generator=gen, dtype=DTYPE) * cdf[:, -1:]
+            values[f.site] = (u >= cdf).sum(-1).clamp_max(probs.shape[-1] - 1)
         state = {n: torch.where(moving, values[end_site(n)], state[n]) for n in relevant}
         reached = reached | (moving & goal_of(state))
     estimate = float(reached.to(DTYPE).mean())

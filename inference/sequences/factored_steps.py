@@ -45,6 +45,7 @@ from effect_networks.inference.sequences.transition_tables import (
     requested_actions,
 )
 from effect_networks.models.cpds.base import concat_inputs
+from effect_networks.models.cpds.table import TableCPD
 from effect_networks.models.declaration import (
     ACTION,
     DTYPE,
@@ -109,6 +110,9 @@ class StepModel:
     prior : tuple of StepFactor
         The initial sites' factors (continuous ones at their given values, over their
         discrete parents): ``P(state)`` up to the context's density.
+    kept : tuple of str
+        The state features whose steps the factors hold (every one, unless
+        :func:`step_model` was asked for some with ``features=``).
     """
 
     features: tuple[Discrete, ...]
@@ -117,6 +121,7 @@ class StepModel:
     factors: tuple[StepFactor, ...] = field(repr=False)
     latent: tuple[str, ...]
     prior: tuple[StepFactor, ...] = field(repr=False)
+    kept: tuple[str, ...] = ()
 
     @property
     def names(self) -> tuple[str, ...]:
@@ -156,6 +161,7 @@ class StepModel:
         unknown = wanted - set(self.names)
         if unknown:
             raise ValueError(f"{sorted(unknown)} are not state features; those are {self.names}")
+        self._check_kept(wanted)
         while True:
             todo = [end_site(n) for n in wanted]
             seen: set[str] = set()
@@ -177,8 +183,17 @@ class StepModel:
                 return tuple(n for n in self.names if n in wanted)
             wanted = grown
 
+    def _check_kept(self, features: Collection[str]) -> None:
+        missing = [n for n in features if n not in self.kept]
+        if missing:
+            raise ValueError(
+                f"this step model keeps the steps of {self.kept}, not of {missing}: build it "
+                "with step_model(..., features=...) naming them"
+            )
+
     def step_factors(self, features: Collection[str]) -> tuple[StepFactor, ...]:
         """The factors the next values of ``features`` need (their ends', and what those read)."""
+        self._check_kept(features)
         by_site = {f.site: f for f in self.factors}
         todo = [end_site(n) for n in features]
         out: dict[str, StepFactor] = {}
@@ -192,6 +207,7 @@ class StepModel:
 
     def prob(self, state: StateLike, action: str | int, next: StateLike) -> float:
         """``P(next | state, action)`` for one entry, the latent sites summed out exactly."""
+        self._check_kept(self.names)
         now, then = self._indices(state), self._indices(next)
         fixed = {initial_site(n): i for n, i in zip(self.names, now, strict=True)}
         fixed |= {end_site(n): i for n, i in zip(self.names, then, strict=True)}
@@ -208,6 +224,7 @@ class StepModel:
         ``S x A x S`` numbers: for small spaces and for checks, as
         :func:`~inference.sequences.transition_tables.transitions` is.
         """
+        self._check_kept(self.names)
         features = self.features
         if space is None:
             sizes = [f.cardinality for f in features]
@@ -263,6 +280,7 @@ def step_model(
     actions: Iterable[str] | None = None,
     parameter_values: str = "integrate",
     given: Mapping[str, object] | None = None,
+    features: Iterable[str] | None = None,
 ) -> StepModel:
     """The network's step model in factored form: one table per site.
 
@@ -274,6 +292,10 @@ def step_model(
         As :func:`~inference.sequences.transition_tables.transitions` takes them: the
         actions offered, whether a parameterised action is offered once per cluster, and
         the continuous initial features' values.
+    features
+        The state features whose steps to keep, with every feature their next values
+        read (closed as :meth:`StepModel.relevant` closes them); default all. A planner
+        for a goal on a few features of a large world reads only their tables.
 
     Returns
     -------
@@ -300,9 +322,10 @@ def step_model(
         )
     check_params(net, params)
     context = context_evidence(net, given)
-    features = state_features(net)
+    all_features = state_features(net)
     offered = offered_actions(net, params, requested_actions(net, actions), parameter_values)
-    needed = net.end_sites_needed([end_site(f.name) for f in features])
+    kept = _closure(net, all_features, features)
+    needed = net.end_sites_needed([end_site(n) for n in kept])
     discrete_ends = [s.name for s in net.sites if s.name in needed and s.discrete]
     clusters = {m.cluster.site: m for m in net.mixtures}
     read = {q for site in discrete_ends for q in net.cpd(site).parents}
@@ -312,15 +335,55 @@ def step_model(
     for site in latent_clusters + discrete_ends:
         factors.append(_factor(net, params, site, context, cache, clusters, offered))
     prior = [
-        _factor(net, params, s.name, context, cache, clusters, offered)
-        for s in net.sites
-        if s.role == "initial"
+        _factor(net, params, site, context, cache, clusters, offered)
+        for site in _initial_ancestors(net, kept)
     ]
-    state_ends = {end_site(f.name) for f in features}
+    state_ends = {end_site(f.name) for f in all_features}
     latent = tuple(f.site for f in factors if f.site not in state_ends)
     return StepModel(
-        features, offered.labels, offered.choices, tuple(factors), latent, tuple(prior)
+        all_features,
+        offered.labels,
+        offered.choices,
+        tuple(factors),
+        latent,
+        tuple(prior),
+        kept,
     )
+
+
+def _closure(net: EffectNetwork, features, wanted) -> tuple[str, ...]:
+    """The wanted state features and every one their next values read, in order."""
+    names = tuple(f.name for f in features)
+    if wanted is None:
+        return names
+    if isinstance(wanted, str):
+        raise ValueError(f"features must be a collection of names, got {wanted!r}")
+    kept = set(wanted)
+    unknown = kept - set(names)
+    if unknown:
+        raise ValueError(f"{sorted(unknown)} are not state features; those are {names}")
+    while True:
+        needed = net.end_sites_needed([end_site(n) for n in kept])
+        read = {q for site in needed for q in net.cpd(site).parents}
+        mixtures = {m.cluster.site: m for m in net.mixtures}
+        read |= {mixtures[q].action for q in read if q in mixtures}
+        grown = kept | {q.removeprefix("initial.") for q in read if q.startswith("initial.")}
+        grown &= set(names)
+        if grown == kept:
+            return tuple(n for n in names if n in kept)
+        kept = grown
+
+
+def _initial_ancestors(net: EffectNetwork, kept: tuple[str, ...]) -> list[str]:
+    """The initial sites of ``kept`` and of what they depend on, in the network's order."""
+    todo = [initial_site(n) for n in kept]
+    seen: set[str] = set()
+    while todo:
+        site = todo.pop()
+        if site not in seen:
+            seen.add(site)
+            todo.extend(q for q in net.cpd(site).parents if q.startswith("initial."))
+    return [s.name for s in net.sites if s.name in seen]
 
 
 def _factor(net, params, site, context, cache, clusters, offered) -> StepFactor:
@@ -344,14 +407,17 @@ def _factor(net, params, site, context, cache, clusters, offered) -> StepFactor:
         torch.arange(k).reshape(*[1] * j, k, *[1] * (rank - j - 1), 1) for j, k in enumerate(sizes)
     ]
     x = concat_inputs([context[q] for q in inputs]) if inputs else None
-    fn = cpd.distribution(params[site], index, x, cache)
-    if spec.discrete:
+    if isinstance(cpd, TableCPD):  # the table itself, axes (parents..., site)
+        logs, scope = cpd.log_table(params[site], cache).to(DTYPE), (*parents, site)
+    elif spec.discrete:
+        fn = cpd.distribution(params[site], index, x, cache)
         k = spec.size
         value = torch.arange(k).reshape(k, *[1] * (rank + 1))
         logs = fn.log_prob(value).to(DTYPE)  # (K, P..., 1)
         logs = logs.expand(k, *sizes, 1).reshape(k, *sizes).movedim(0, -1)
         scope = (*parents, site)
     else:  # a continuous initial feature at its given value, over its discrete parents
+        fn = cpd.distribution(params[site], index, x, cache)
         logs = fn.log_prob(context[site].reshape(*[1] * rank, 1, -1)).to(DTYPE)
         logs = logs.expand(*sizes, 1).reshape(sizes)
         scope = parents

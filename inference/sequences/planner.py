@@ -150,7 +150,13 @@ def plan(
     if route == "factored":
         if states is not None or normalise:
             raise ValueError("states= and normalise= read the dense tensor: use route='dense'")
-        model = step_model(net, params, parameter_values=parameter_values, given=given)
+        model = step_model(
+            net,
+            params,
+            parameter_values=parameter_values,
+            given=given,
+            features=_read_by(net, start, goal),
+        )
         out = factored_plan(
             model,
             start,
@@ -173,6 +179,20 @@ def plan(
         normalise=normalise,
     )
     return plan_on(model, start, goal, horizon, allowed, avoid_unseen=avoid_unseen)
+
+
+def _read_by(net: EffectNetwork, start, goal) -> list[str] | None:
+    """The features whose steps a factored plan reads (``None``: all).
+
+    The goal's, where the start is a full state; a partial one is weighed by every
+    initial table.
+    """
+    names = {f.name for f in state_features(net)}
+    full = isinstance(start, Sequence) and not isinstance(start, str | bytes)
+    full |= isinstance(start, Mapping) and names <= set(start)
+    if not full or not isinstance(goal, Mapping) or not set(goal) <= names or not goal:
+        return None
+    return list(goal)
 
 
 def _dense_wanted(net, states, normalise, allowed, start) -> bool:
