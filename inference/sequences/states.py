@@ -112,7 +112,8 @@ class StateSpace:
             if size > MAX_STATES:
                 raise ValueError(
                     f"the state space of {[f.name for f in features]} has {size} states, "
-                    f"more than {MAX_STATES}: pass states= (the states that occur)"
+                    f"more than {MAX_STATES}: pass states= (the states that occur), or keep the "
+                    "step factored (step_model; plan does by itself)"
                 )
             index = list(itertools.product(*(range(f.cardinality) for f in features)))
         else:

@@ -349,10 +349,12 @@ def _check_size(net: EffectNetwork, space: StateSpace, offered: OfferedActions) 
         for scope in scopes
     )
     if s * a * s * widest > MAX_ENTRIES:
+        gib = s * a * s * widest * 8 / 2**30
         raise ValueError(
             f"{s} states x {a} actions x {s} next states (x {widest} latent configurations) "
-            f"is more than {MAX_ENTRIES} numbers: pass states= (the states that occur) or "
-            "actions="
+            f"is {s * a * s * widest:.3g} numbers ({gib:.3g} GiB of float64), more than "
+            f"{MAX_ENTRIES}: pass states= (the states that occur) or actions=, or keep the "
+            "step factored (step_model: one table per site; plan uses it by itself)"
         )
 
 

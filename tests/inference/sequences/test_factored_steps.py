@@ -75,3 +75,22 @@ def test_the_step_model_is_linear_in_the_tables_at_64_features():
     assert max(f.log_table.numel() for f in model.factors) == 2 * 65 * 2 * 2
     start, after = world.start, ("on",) + world.start[1:]
     assert model.prob(start, "flip_0", after) == pytest.approx(0.9)
+
+
+def test_the_dense_refusal_states_its_size_and_the_factored_way():
+    world = switch_world(14, "sparse")
+    with pytest.raises(ValueError, match=r"GiB of float64.*step_model"):
+        transitions(world.net, world.params)
+    bigger = switch_world(17, "sparse")
+    with pytest.raises(ValueError, match="step_model"):
+        transitions(bigger.net, bigger.params)
+
+
+def test_a_step_model_of_some_features_keeps_what_they_read_and_refuses_the_rest():
+    world = switch_world(12, "sparse")
+    part = step_model(world.net, world.params, features=["f4"])
+    assert part.kept == ("f4", "f5") and len(part.factors) == 2
+    with pytest.raises(ValueError, match="keeps the steps of"):
+        part.dense()
+    with pytest.raises(ValueError, match="keeps the steps of"):
+        part.relevant(["f0"])
