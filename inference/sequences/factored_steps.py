@@ -70,7 +70,7 @@ class StepFactor:
         The site whose table this is (``"end.door"``, ``"cluster.force"``, ``"initial.lock"``).
     scope : tuple of str
         The sites of the axes of ``log_table``: the site's discrete parents, then the site
-        itself. ``"action"`` is the offered action (:attr:`StepModel.actions`).
+        itself. ``"action"`` is the offered action (``actions``).
     log_table : torch.Tensor
         ``log P(site | parents)`` (float64), one axis per scope site.
     unseen : torch.Tensor or None
@@ -104,7 +104,7 @@ class StepModel:
         Per offered action the evidence that plays it.
     factors : tuple of StepFactor
         The step's factors: every end site a state feature's end needs, and the clusters
-        they read. Their product, summed over :attr:`latent`, is ``P(next | state, action)``.
+        they read. Their product, summed over ``latent``, is ``P(next | state, action)``.
     latent : tuple of str
         The sites a step sums out: end sites of end-only features, unfixed clusters.
     prior : tuple of StepFactor

@@ -43,7 +43,7 @@ from effect_networks.models.params import NetworkParams
 #: (states x actions x states), and factor by factor beyond.
 DENSE_ENTRIES = 1 << 18
 #: A plan warns when following it takes a step no training row reached with at least
-#: this probability (:attr:`Plan.unseen`).
+#: this probability (``unseen``).
 UNSEEN_WARNING = 0.5
 
 

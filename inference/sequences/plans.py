@@ -59,9 +59,9 @@ class Plan:
         The dense transitions planned on (states, action labels, ``probs``); ``None`` on
         the factored routes, which never build them.
     goal : (S,) bool
-        The goal states (of :attr:`space`).
+        The goal states (of ``space``).
     start : (S,) float64
-        The start distribution (over :attr:`space`).
+        The start distribution (over ``space``).
     horizon : int
         The most actions the plan takes.
     value : (H + 1, S) float64
