@@ -146,7 +146,7 @@ def plan(
     if route not in ("auto", "dense", "factored"):
         raise ValueError(f"route must be 'auto', 'dense' or 'factored', got {route!r}")
     if route == "auto":
-        route = "dense" if _dense_wanted(net, states, normalise, allowed, start) else "factored"
+        route = "dense" if dense_wanted(net, states, normalise, allowed, start) else "factored"
     if route == "factored":
         if states is not None or normalise:
             raise ValueError("states= and normalise= read the dense tensor: use route='dense'")
@@ -195,8 +195,8 @@ def _read_by(net: EffectNetwork, start, goal) -> list[str] | None:
     return list(goal)
 
 
-def _dense_wanted(net, states, normalise, allowed, start) -> bool:
-    """Whether ``route="auto"`` plans on the dense tensor."""
+def dense_wanted(net: EffectNetwork, states, normalise, allowed, start) -> bool:
+    """Whether ``route="auto"`` plans on the dense tensor (see :func:`plan`'s ``route``)."""
     if states is not None or normalise:
         return True
     if isinstance(allowed, torch.Tensor) and allowed.dim() == 2:
