@@ -151,7 +151,8 @@ REFERENCE = (
     (
         "Sequences",
         "Transitions between states, plans, chained steps and demonstrations read back.",
-        "transitions step_model plan chain link_probabilities explain StateSpace ProjectedSpace "
+        "transitions step_model plan chain link_probabilities explain fit_demonstrations "
+        "StateSpace ProjectedSpace "
         "StepModel StepFactor BoxPartition FunctionLink",
     ),
     (
@@ -166,7 +167,7 @@ REFERENCE = (
         "Prediction JointPrediction ActionPosterior ParameterPosterior ParameterForEffect "
         "GaussianMixture ImitationCheck CompiledQueries FitResult EMResult ClusterSelection "
         "LogLikelihood CrossValidation Transitions Plan Certificate LinkProbabilities "
-        "Explanation ConvergenceWarning OutsideTrainingData RestsOnUnseen",
+        "Explanation WatchedFit ConvergenceWarning OutsideTrainingData RestsOnUnseen",
     ),
 )
 

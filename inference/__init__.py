@@ -14,9 +14,11 @@ Questions (:mod:`inference.queries`): :func:`predict`, :func:`imitation_check`,
 :func:`parameter_for_effect` (the inverse model), :func:`predict_joint` (the end
 features' joint). Sequences (:mod:`inference.sequences`): :func:`transitions`
 (``P(next state | state, action)`` over a network's states), :func:`plan` (the policy
-that reaches a goal within a horizon), :func:`explain` (a demonstration read as the
-actions that produced it); :func:`link_probabilities` and :func:`chain` read one
-network's continuous output as another's actions. :func:`compile`
+that reaches a goal within a horizon; by the network's structure in large worlds, with
+:func:`step_model`), :func:`explain` (a demonstration read as the actions that produced
+it); :func:`link_probabilities` and :func:`chain` read one network's continuous output as
+another's actions. :func:`fit_demonstrations` (:mod:`inference.watching`) learns a
+network from demonstrations whose actions were not all labelled. :func:`compile`
 (:mod:`inference.compiled`): one object whose methods of the same names answer from
 compiled tables where they can. The exact sums beneath them all: :mod:`inference.exact`.
 Active exploration
@@ -88,6 +90,7 @@ from effect_networks.inference.sequences import (
     step_model,
     transitions,
 )
+from effect_networks.inference.watching import WatchedFit, fit_demonstrations
 
 #: On the face but left out of ``__all__``: ``from effect_networks.inference import *``
 #: must not hide Python's built-in ``compile`` (``inference.compile`` is there).
@@ -121,6 +124,7 @@ __all__ = [
     "StateSpace",
     "StepModel",
     "Transitions",
+    "WatchedFit",
     "aic",
     "bic",
     "chain",
@@ -128,6 +132,7 @@ __all__ = [
     "explain",
     "explore",
     "fit",
+    "fit_demonstrations",
     "fit_em",
     "fit_gradient",
     "fit_pooled",

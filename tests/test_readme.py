@@ -53,6 +53,7 @@ def test_readme_snippets_run_in_sequence(tmp_path, monkeypatch):
     assert namespace["p_gone"] > 0.99
     assert namespace["first"] == "remove" and namespace["chance"] > 0.99
     assert namespace["story"] == (("tap", "remove"),)
+    assert float(namespace["opens"]) > 0.95 and namespace["watched"].identifiable
     route = namespace["route"]
     assert route.route == "dense" and 0.0 <= route.unseen <= 1.0 and route.features == ("visible",)
     curve = namespace["fitted"].log_likelihoods
