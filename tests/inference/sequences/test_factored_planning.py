@@ -14,6 +14,7 @@ import warnings
 import pytest
 import torch
 from effect_networks.experiments.switch_worlds import switch_world
+from effect_networks.inference import fit
 from effect_networks.inference.sequences import dynamic_programming
 from effect_networks.inference.sequences.dynamic_programming import policy_value
 from effect_networks.inference.sequences.planner import RestsOnUnseen, plan
@@ -23,7 +24,7 @@ from effect_networks.models import Discrete, EffectNetwork, random_params
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from tests.networks import declared_networks
+from tests.networks import declared_networks, rich_net, rich_rows
 
 
 def _quiet(fn, *args, **kw):
@@ -207,3 +208,17 @@ def test_factored_routes_refuse_what_only_the_dense_tensor_answers():
         plan(world.net, world.params, lambda s: True, world.goal, 2, route="factored")
     with pytest.raises(ValueError, match="route must be"):
         plan(world.net, world.params, world.start, world.goal, 2, route="fast")
+
+
+@pytest.mark.parametrize("mode", ["integrate", "clusters"])
+def test_a_network_with_clusters_a_context_and_an_outcome_plans_alike_on_both_routes(mode):
+    net = rich_net()
+    params = fit(net, rich_rows(net, 400, 0)).params
+    kw = {"given": {"x": [0.3]}, "parameter_values": mode}
+    for goal in ({"door": "open"}, {"lock": "on"}, {"door": "open", "lock": "off"}):
+        dense = _quiet(plan, net, params, ("shut", "off"), goal, 3, route="dense", **kw)
+        factored = _quiet(plan, net, params, ("shut", "off"), goal, 3, route="factored", **kw)
+        assert factored.success == pytest.approx(dense.success, abs=1e-12)
+        assert factored.actions == dense.actions
+        for state in dense.space.states:
+            assert factored.probability(state) == pytest.approx(dense.probability(state), abs=1e-12)
