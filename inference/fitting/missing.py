@@ -60,6 +60,7 @@ from effect_networks.inference.exact.gaussian_gaps import (
     refuse_open_forms,
 )
 from effect_networks.inference.exact.traced import Enumerated
+from effect_networks.inference.fitting.family_marginals import covers, family_counts
 from effect_networks.inference.fitting.reading import read_rows
 from effect_networks.inference.fitting.result import ConvergenceWarning, FitResult
 from effect_networks.inference.fitting.rows import check_settings, missing_masks
@@ -69,6 +70,7 @@ from effect_networks.inference.fitting.sufficient_statistics import (
     params_from_statistics,
     statistics,
 )
+from effect_networks.models.cpds import Counts
 from effect_networks.models.declaration import ACTION, EffectNetwork
 from effect_networks.models.evidence import DTYPE, Evidence
 from effect_networks.models.params import NetworkParams, check_params
@@ -126,14 +128,14 @@ def fit_missing(
     alpha = pseudo_count if prior is None else prior
     n = enc.n_rows
     params = init
-    completed = _completed_rows(net, params, enc, masks, allowed)
+    completed = _e_step(net, params, enc, masks, allowed)
     curve = [(_prior(net, params, l2) - completed.log_lik) / n]
     log_liks = [completed.log_lik]
     converged = False
     bar = tqdm(total=steps, desc="fit (EM, missing values)", disable=not progress)
     for _ in range(steps):
         proposal = _m_step_missing(net, params, completed, alpha, min_variance, l2)
-        step = _completed_rows(net, proposal, enc, masks, allowed)
+        step = _e_step(net, proposal, enc, masks, allowed)
         loss = (_prior(net, proposal, l2) - step.log_lik) / n
         bar.update()
         if not loss <= curve[-1]:  # a dip (a pseudo-count's prior), or NaN: stop before it
@@ -231,7 +233,7 @@ def missing_log_likelihood(
     rows = read_rows(net, data, masks)
     enc, masks = rows.enc, missing_masks(net, rows.masks, rows.n_rows)
     refuse_open_forms(net, enc, continuous_gaps(net, enc))
-    return _completed_rows(net, params, enc, masks, actions_allowed(net, enc, masks)).log_lik
+    return _e_step(net, params, enc, masks, actions_allowed(net, enc, masks)).log_lik
 
 
 def gaussian_row_log_likelihoods(
@@ -280,6 +282,20 @@ def actions_allowed(net: EffectNetwork, enc: Evidence, masks) -> torch.Tensor | 
                 "value exactly when its action uses the parameter)"
             )
     return allowed
+
+
+def _e_step(net, params, enc, masks, allowed=None) -> Completed:
+    """The E-step: by elimination over the families where the network is all tables.
+
+    (:mod:`inference.fitting.family_marginals`: the expected counts without completing rows),
+    else the completed rows (:func:`_completed_rows`, its twin in the tests).
+    """
+    if not masks or not covers(net):
+        return _completed_rows(net, params, enc, masks, allowed)
+    found = family_counts(net, params, enc, masks)
+    stats = Statistics({s: Counts(c) for s, c in found.counts.items()}, enc.n_rows)
+    weights = torch.ones(enc.n_rows, dtype=DTYPE)
+    return Completed(enc, weights, found.log_lik, per_row=found.per_row, stats=stats)
 
 
 def _completed_rows(net, params, enc, masks, allowed=None) -> Completed:
@@ -336,7 +352,9 @@ class Completed:
 
     The completed rows, their weights, the summed log-likelihood (missing values summed out), the
     conditional covariances' sums per linear Gaussian where continuous values are missing
-    (:mod:`inference.exact.gaussian_gaps`), and there each row's log-likelihood ``(n,)``.
+    (:mod:`inference.exact.gaussian_gaps`), and there each row's log-likelihood ``(n,)``. Where
+    the E-step ran by elimination, ``stats`` holds the expected statistics themselves (the rows
+    are then the rows as given, not completed).
     """
 
     rows: Evidence
@@ -344,6 +362,7 @@ class Completed:
     log_lik: float
     moments: dict = field(default_factory=dict)
     per_row: torch.Tensor | None = None
+    stats: Statistics | None = None
 
 
 def _completed_gaussian(net, params, enc, masks, allowed, posterior=True) -> Completed:
@@ -491,6 +510,12 @@ def _m_step_missing(net, params, completed: Completed, alpha, min_variance, l2) 
     there is none.
     """
     rows, weights = completed.rows, completed.weights
+    if completed.stats is not None:  # by elimination: every site a table, all in closed form
+        return NetworkParams(
+            params_from_statistics(net, completed.stats, alpha, min_variance),
+            params.pseudo_count,
+            net,
+        )
     stats = statistics(net, rows, weights)
     for site, extra in completed.moments.items():
         stats.sites[site] = stats.sites[site] + extra
