@@ -98,6 +98,7 @@ def fit_missing(
     steps: int = 500,
     tol: float = 1e-6,
     progress: bool = False,
+    by_families: bool = True,
 ) -> FitResult:
     """Maximum likelihood with missing values, by EM with exact E-steps.
 
@@ -108,6 +109,9 @@ def fit_missing(
     per-row loss by less than ``tol`` (relative). ``l2``: the softmax slopes' prior.
     ``prior``: each site's prior (:func:`inference.fitting.priors.site_priors`; default
     ``pseudo_count`` everywhere), which the M-step's closed forms take as ``fit``'s do.
+    ``by_families``: where every site is a table, the E-step by elimination over the families
+    (:mod:`inference.fitting.family_marginals`); False: the completed rows everywhere (the
+    route the benchmarks and tests compare it with; the same counts).
     The loss is the likelihood's, without the prior: a step that the prior's pull would
     make lower the likelihood ends the fit, as a pseudo-count's does.
 
@@ -128,14 +132,14 @@ def fit_missing(
     alpha = pseudo_count if prior is None else prior
     n = enc.n_rows
     params = init
-    completed = _e_step(net, params, enc, masks, allowed)
+    completed = _e_step(net, params, enc, masks, allowed, by_families)
     curve = [(_prior(net, params, l2) - completed.log_lik) / n]
     log_liks = [completed.log_lik]
     converged = False
     bar = tqdm(total=steps, desc="fit (EM, missing values)", disable=not progress)
     for _ in range(steps):
         proposal = _m_step_missing(net, params, completed, alpha, min_variance, l2)
-        step = _e_step(net, proposal, enc, masks, allowed)
+        step = _e_step(net, proposal, enc, masks, allowed, by_families)
         loss = (_prior(net, proposal, l2) - step.log_lik) / n
         bar.update()
         if not loss <= curve[-1]:  # a dip (a pseudo-count's prior), or NaN: stop before it
@@ -157,7 +161,7 @@ def fit_missing(
             ConvergenceWarning,
             stacklevel=3,
         )
-    return FitResult(params, tuple(curve), converged, tuple(log_liks))
+    return FitResult(params, tuple(curve), converged, tuple(log_liks), tol, steps)
 
 
 def available_case_start(
@@ -284,13 +288,13 @@ def actions_allowed(net: EffectNetwork, enc: Evidence, masks) -> torch.Tensor | 
     return allowed
 
 
-def _e_step(net, params, enc, masks, allowed=None) -> Completed:
+def _e_step(net, params, enc, masks, allowed=None, by_families=True) -> Completed:
     """The E-step: by elimination over the families where the network is all tables.
 
     (:mod:`inference.fitting.family_marginals`: the expected counts without completing rows),
     else the completed rows (:func:`_completed_rows`, its twin in the tests).
     """
-    if not masks or not covers(net):
+    if not by_families or not masks or not covers(net):
         return _completed_rows(net, params, enc, masks, allowed)
     found = family_counts(net, params, enc, masks)
     stats = Statistics({s: Counts(c) for s, c in found.counts.items()}, enc.n_rows)
