@@ -22,7 +22,8 @@ factors alone:
   family's counts at once, as a junction tree's calibration would.
 
 The route covers networks whose every site is a discrete table (no continuous site, no
-action parameter); :func:`covers` says which. Elsewhere the general route serves.
+action parameter), up to :data:`MAX_SITES` sites; :func:`covers` says which. Elsewhere the
+general route serves.
 """
 
 from __future__ import annotations
@@ -38,7 +39,11 @@ from effect_networks.models.declaration import EffectNetwork
 from effect_networks.models.evidence import DTYPE, Evidence
 from effect_networks.models.params import NetworkParams
 
-__all__ = ["FamilyCounts", "covers", "family_counts"]
+__all__ = ["MAX_SITES", "FamilyCounts", "covers", "family_counts"]
+
+#: The most sites the route lays out: one dim each, and the rows', in a torch tensor of at
+#: most 64 dims. A larger network takes the completed rows.
+MAX_SITES = 63
 
 
 @dataclass(frozen=True)
@@ -58,9 +63,10 @@ class FamilyCounts:
 def covers(net: EffectNetwork) -> bool:
     """Whether every site of ``net`` is a discrete table without pinned states.
 
-    There is then no action parameter, no continuous site, no softmax.
+    There is then no action parameter, no continuous site, no softmax; and at most
+    :data:`MAX_SITES` sites.
     """
-    if net.mixtures:
+    if net.mixtures or len(net.sites) > MAX_SITES:
         return False
     for spec in net.sites:
         cpd = net.cpd(spec.name)

@@ -9,7 +9,10 @@ row misses a value) are latent variables, as adaptive clusters are
   (:func:`inference.exact.enumeration.enumerate_model`), gives each row's joint
   posterior over its missing values and its log-likelihood with them summed out. Each
   row then stands for one completed row per assignment of its missing values, weighted
-  by that assignment's posterior.
+  by that assignment's posterior. Where every site is a table, the same expected counts
+  come by elimination over the families instead
+  (:mod:`inference.fitting.family_marginals`), at the cost of the families, not of the
+  missing values' joint.
 * **Continuous values** (NaN, whole or in some dimensions, at a continuous initial or
   end site): given an assignment of the discrete values, the row's continuous sites are
   jointly Gaussian (:mod:`inference.exact.gaussian_gaps`). The model, traced with

@@ -174,3 +174,15 @@ def test_em_ends_at_a_fixed_point_of_the_brute_force_em():
         torch.testing.assert_close(
             moved[spec.name].probs, result.params[spec.name].probs, rtol=0, atol=1e-8
         )
+
+
+def test_the_fit_states_its_stopping_rule_and_the_route_its_scope():
+    from effect_networks.inference import fit
+    from effect_networks.models import Continuous
+
+    rows, masks = tiny_rows(n=60)
+    result = fit(TINY, rows, masks=masks)
+    assert (result.tol, result.max_steps) == (missing.EM_TOL, 500)
+    assert result.converged
+    mixed = EffectNetwork((Discrete("visible", (0, 1)), Continuous("pos", 1)), ("remove",))
+    assert family_marginals.covers(TINY) and not family_marginals.covers(mixed)
