@@ -94,7 +94,7 @@ def fit(
     steps: int = 500,
     lr: float = 0.05,
     l2: float = 0.01,
-    tol: float = 1e-6,
+    tol: float | None = None,
     progress: bool = False,
 ) -> FitResult:
     """Fit every CPD of ``net`` by maximum likelihood, or under a prior.
@@ -139,7 +139,9 @@ def fit(
     steps, lr, l2, tol, progress
         ``steps``: the most Newton iterations of a softmax fit, or EM steps with gaps.
         ``l2``: the precision of the softmax slopes' Gaussian prior. ``tol``: EM has
-        converged when a step gains less than ``tol`` (relative) per row. ``lr``: the
+        converged when a step gains less than ``tol`` (relative) per row (default:
+        :func:`~inference.fitting.missing.fit_missing`'s, tighter where every site is a
+        table); a softmax or gradient fit when its loss changes by less (default 1e-6). ``lr``: the
         gradient route's (:func:`fit_gradient`), for a kind with neither a closed form
         nor a ``maximise`` method. ``progress`` shows bars (over chunks, CPDs, steps).
 
@@ -151,6 +153,7 @@ def fit(
     """
     if isinstance(prior, int | float) and not isinstance(prior, bool):
         pseudo_count = prior  # a number is the symmetric pseudo-count itself
+    em_tol, tol = tol, 1e-6 if tol is None else tol  # EM's default is fit_missing's
     check_settings(
         pseudo_count=pseudo_count, min_variance=min_variance, steps=steps, lr=lr, l2=l2, tol=tol
     )
@@ -187,7 +190,7 @@ def fit(
             min_variance=min_variance,
             l2=l2,
             steps=steps,
-            tol=tol,
+            tol=em_tol,
             progress=progress,
         )
     stats = statistics(net, enc)

@@ -17,13 +17,17 @@ class FitResult:
     softmax prior included: at each Newton iteration, EM step or gradient evaluation) and whether it
     settled within the tolerance. EM over missing values also gives ``log_likelihoods``: the summed
     log-likelihood of the rows (missing values summed and integrated out, no prior) at the start and
-    after each step, never falling.
+    after each step, never falling. ``tol`` and ``max_steps``: the stopping rule EM ran under (a
+    step that gains less than ``tol``, relative, per row ends it; at most ``max_steps`` steps),
+    ``None`` for a fit that is not EM over gaps.
     """
 
     params: NetworkParams
     losses: tuple[float, ...] = ()
     converged: bool = True
     log_likelihoods: tuple[float, ...] = ()
+    tol: float | None = None
+    max_steps: int | None = None
 
 
 class ConvergenceWarning(UserWarning):
