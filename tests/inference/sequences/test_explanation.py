@@ -366,15 +366,14 @@ def test_errors_name_what_is_wrong():
 
 @pytest.mark.filterwarnings("ignore::effect_networks.inference.OutsideTrainingData")
 def test_parts_and_chunks_answer_as_one_batch(monkeypatch):
-    """Step tables built part by part and paths summed chunk by chunk: the same answers."""
-    import effect_networks.inference.sequences.explanation as module
+    """Step tables read off the model row by row: the same answers as all rows at once."""
+    import effect_networks.inference.sequences.hidden_steps as module
 
     net, params = README_NET, random_params(README_NET, 6)
     states, _ = simulate_demonstrations(net, params, 7, 3, seed=2)
     states["visible"][:, 1] = None
     whole = explain(net, params, states)
-    monkeypatch.setattr(module, "TABLE_ELEMENTS", 4 * 3 * 4 * 2)  # two demonstrations a part
-    monkeypatch.setattr(module, "CHUNK_ELEMENTS", 4 * 3)  # one demonstration a chunk
+    monkeypatch.setattr(module, "ROW_CHUNK", len(net.actions))  # one (start, end) pair a read
     parts = explain(net, params, states)
     assert torch.allclose(whole.probs, parts.probs, atol=1e-12)
     assert torch.allclose(whole.log_likelihood, parts.log_likelihood, atol=1e-12)
