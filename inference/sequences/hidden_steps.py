@@ -31,7 +31,11 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
-from effect_networks.inference.exact.enumeration import conditional_log_evidence, over_row_chunks
+from effect_networks.inference.exact.enumeration import (
+    enumerate_model,
+    enumeration_size,
+    row_chunks,
+)
 from effect_networks.inference.queries.implausibility import plausibility
 from effect_networks.inference.sequences.demonstration import Demonstrations, key_columns
 from effect_networks.inference.sequences.states import StateSpace
@@ -43,7 +47,7 @@ from effect_networks.models.sites import end_site, initial_site
 #: The most entries one step's table may hold: (configurations at its start) x actions x
 #: (configurations at its end). Past it :func:`step_pairs` refuses, naming the step.
 MAX_STEP_TABLE = 1 << 22
-#: Model rows (pairs x actions) read off the traced model at once.
+#: (start, end) pairs read off the traced model at once, times the actions.
 ROW_CHUNK = 1 << 17
 
 
@@ -274,7 +278,7 @@ def read_step_tables(
         for i in range(0, len(rows_of), chunk):
             rows = rows_of[i : i + chunk]
             ev = _pair_evidence(net, codes, keys, columns, triples[rows])
-            step, discrete, start = _read_rows(net, params, ev, a)
+            step, discrete, start = _read_rows(net, params, triples[rows], ev, a)
             log_step[rows], log_discrete[rows], log_start[rows] = step, discrete, start
             if continuous:
                 told = plausibility(net, params, net.encode_indices(ev))
@@ -295,33 +299,61 @@ def read_step_tables(
     )
 
 
-def _log_evidence(net: EffectNetwork, params: NetworkParams, enc: Evidence) -> torch.Tensor:
-    return over_row_chunks(net, params, enc, (), lambda e, *_: e.log_evidence, contracted=True)
+def _read_rows(net, params, triples: torch.Tensor, ev: dict[str, torch.Tensor], a: int):
+    """Step entries for rows ``triples`` ``(m, 3)`` (key, start, end) of evidence ``ev``.
 
-
-def _read_rows(net, params, ev: dict[str, torch.Tensor], a: int):
-    """Step entries for ``m`` rows of evidence ``ev`` (start, end and observations).
-
-    ``(m, A)`` the step's, ``(m, A)`` the same without the continuous ends, ``(m,)`` the
-    start's.
+    ``(m, A)`` the step's ``log p(a) + log p(end, observations | start, observations, a)``,
+    ``(m, A)`` the same without the continuous ends, ``(m,)`` the start's ``log p(start,
+    start observations)``. The action is enumerated with the other latent sites and kept
+    (one row per pair, not per pair and action); the start's evidence is summed once per
+    distinct (key, start). The ratio's per-site offsets cancel exactly
+    (:func:`~inference.exact.enumeration.log_ratio`).
     """
-    n_rows = len(next(iter(ev.values())))
-    with_action = {site: v.repeat_interleave(a, 0) for site, v in ev.items()}
-    with_action[ACTION] = torch.arange(a).repeat(n_rows)
-    enc = net.encode_indices(with_action)
+    enc = net.encode_indices(ev)
     ends = [x for x in enc if x.startswith("end.")]
-    given = enc.without(ACTION, *ends)
-    log_start = _log_evidence(net, params, given.rows(torch.arange(n_rows) * a))
-    log_given = log_start.repeat_interleave(a)
-    log_joint = _log_evidence(net, params, enc)
-    values = conditional_log_evidence(net, params, enc, given, log_joint, log_given)
+    starts, where = torch.unique(triples[:, :2], dim=0, return_inverse=True)
+    one = torch.zeros(len(starts), dtype=torch.long)
+    one[where] = torch.arange(len(triples))  # a row of each start (any: they read alike)
+    start, start_offsets = _summed(net, params, enc.without(*ends).rows(one), None)
+    start, start_offsets = start[where], {k: v[where] for k, v in start_offsets.items()}
+    joint, offsets = _summed(net, params, enc, a)
+    values = _ratio(joint, offsets, start, start_offsets)
     discrete = values
     continuous_ends = [x for x in ends if not net.site(x).discrete]
     if continuous_ends:
-        without = enc.without(*continuous_ends)
-        log_joint = _log_evidence(net, params, without)
-        discrete = conditional_log_evidence(net, params, without, given, log_joint, log_given)
-    return values.reshape(n_rows, a), discrete.reshape(n_rows, a), log_start
+        joint, offsets = _summed(net, params, enc.without(*continuous_ends), a)
+        discrete = _ratio(joint, offsets, start, start_offsets)
+    return values, discrete, start[:, 0] + sum(start_offsets.values(), 0.0)
+
+
+def _summed(net, params, enc: Evidence, a: int | None):
+    """The evidence's ``log sum`` over its latent sites, and its offsets by name.
+
+    ``(n, a)`` with the action kept (``a`` actions), ``(n, 1)`` where ``a`` is ``None``
+    (every site summed); offsets ``{name: (n,)}``.
+    """
+    n = enc.n_rows
+    out = torch.empty(n, a or 1, dtype=DTYPE)
+    offsets: dict[str, torch.Tensor] = {}
+    size = enumeration_size(net, enc, contracted=True)
+    for rows in row_chunks(n, size):
+        e = enumerate_model(net, params, enc.rows(rows))
+        if a is not None:
+            w = e.log_sum([ACTION]).movedim(e.dims[ACTION], -1)
+            out[rows] = w.reshape(-1, a).expand(rows.stop - rows.start, a)
+        else:
+            out[rows, 0] = e.log_norm
+        for name, value in e.offsets.items():
+            offsets.setdefault(name, torch.zeros(n, dtype=DTYPE))[rows] = value
+    return out, offsets
+
+
+def _ratio(joint, offsets, start, start_offsets) -> torch.Tensor:
+    """``log p(joint's evidence) - log p(start's evidence)``, offsets cancelled by name."""
+    ratio = joint - start
+    for name in offsets.keys() | start_offsets.keys():
+        ratio = ratio + (offsets.get(name, 0.0) - start_offsets.get(name, 0.0))[:, None]
+    return ratio
 
 
 def _pair_evidence(net, codes: StateCodes, keys, columns, triples) -> dict[str, torch.Tensor]:
