@@ -37,6 +37,12 @@ def segment_logsumexp(values: torch.Tensor, index: torch.Tensor, size: int) -> t
     return total.log() + safe
 
 
+def _logsumexp(values: torch.Tensor, top: torch.Tensor) -> torch.Tensor:
+    """``log sum exp`` of ``values`` ``(P, A)`` along its last axis, its maxima ``top`` given."""
+    safe = torch.where(torch.isfinite(top), top, 0.0)
+    return (values - safe[:, None]).exp().sum(-1).log() + safe
+
+
 def segment_argmax(values: torch.Tensor, index: torch.Tensor, size: int):
     """Per group of ``index``: the largest of ``values`` and the first position holding it."""
     top = torch.full((size,), -torch.inf, dtype=values.dtype)
@@ -80,8 +86,8 @@ def over_hidden_paths(
     demo_of = configs.owner // (steps + 1)  # (M,) each configuration's demonstration
     time_of = configs.owner % (steps + 1)
     at = [(pairs.step % steps == t).nonzero().squeeze(-1) for t in range(steps)]
-    summed = tables.log_step.logsumexp(-1)  # (P,): the action summed out
     top, act = tables.log_step.max(-1)  # (P,): the action maximised (Viterbi)
+    summed = _logsumexp(tables.log_step, top)  # (P,): the action summed out
     # the start given state 0: the initial distribution over time 0's configurations
     first = time_of == 0
     log_start = torch.full((m,), -torch.inf, dtype=DTYPE)
@@ -107,7 +113,7 @@ def over_hidden_paths(
     joint = alpha[pairs.start, None] + tables.log_step + beta[pairs.end, None] - pair_z[:, None]
     probs = torch.zeros(n * steps, a, dtype=DTYPE).index_add_(0, pairs.step, joint.exp())
     best, path = _viterbi(configs, pairs, top, act, at, alpha, (n, steps))
-    flags, initial = _flags(configs, pairs, tables, at, alpha, beta, summed, (n, steps), below)
+    flags, initial = _flags(configs, pairs, tables, at, (alpha, beta, summed), (n, steps), below)
     return PathAnswers(
         probs.reshape(n, steps, a),
         best,
@@ -146,16 +152,20 @@ def _viterbi(configs, pairs, top, act, at, alpha, shape):
     return best, path
 
 
-def _flags(configs, pairs, tables, at, alpha, beta, summed, shape, below):
+def _flags(configs, pairs, tables, at, passes, shape, below):
     """``(n, T)`` implausible steps and ``{site: (n, T)}`` continuous initial tails.
 
     The discrete ends given all before the step; the continuous ends' tail at the closest
     possible pair; the initial tails at the closest possible start.
     """
     n, steps = shape
+    alpha, beta, summed = passes
     time_of = configs.owner % (steps + 1)
     demo_of = configs.owner // (steps + 1)
-    discrete = tables.log_discrete.logsumexp(-1)
+    if tables.log_discrete is tables.log_step:  # no continuous end: the same sums
+        discrete = summed
+    else:
+        discrete = tables.log_discrete.logsumexp(-1)
     continuous = bool(tables.initial) or bool((tables.tail < 1).any())
     flags = torch.zeros(n * steps, dtype=torch.bool)
     initial = {site: torch.ones(n * steps, dtype=DTYPE) for site in tables.initial}

@@ -48,7 +48,7 @@ from effect_networks.models.sites import end_site, initial_site
 #: (configurations at its end). Past it :func:`step_pairs` refuses, naming the step.
 MAX_STEP_TABLE = 1 << 22
 #: (start, end) pairs read off the traced model at once, times the actions.
-ROW_CHUNK = 1 << 17
+ROW_CHUNK = 1 << 20
 
 
 class ProductStates(Sequence):
@@ -169,6 +169,23 @@ def hidden_configurations(demo: Demonstrations, codes: StateCodes) -> HiddenConf
     return HiddenConfigurations(offset, state, owner)
 
 
+def unique_rows(rows: torch.Tensor, bounds: Sequence[int]) -> tuple[torch.Tensor, torch.Tensor]:
+    """The distinct rows of ``rows`` ``(m, c)``, in order, and each row's index among them.
+
+    Column ``j`` holds numbers in ``0 .. bounds[j] - 1``. One number per row where the bounds' product fits an int64 (a sort of ``m`` numbers),
+    else :func:`torch.unique` over the rows.
+    """
+    if not len(rows):
+        return rows, torch.zeros(0, dtype=torch.long)
+    if math.prod(bounds) >= 1 << 62:
+        return torch.unique(rows, dim=0, return_inverse=True)
+    scale = torch.tensor([math.prod(bounds[j + 1 :]) for j in range(len(bounds))])
+    distinct, where = torch.unique((rows * scale).sum(-1), return_inverse=True)
+    first = torch.zeros(len(distinct), dtype=torch.long)
+    first[where] = torch.arange(len(rows))
+    return rows[first], where
+
+
 def _offsets(counts: torch.Tensor) -> torch.Tensor:
     offset = torch.zeros(len(counts) + 1, dtype=torch.long)
     offset[1:] = counts.cumsum(0)
@@ -225,7 +242,8 @@ class StepTables:
 
     ``log_step`` ``(P, A)``: ``log p(a) + log p(end state and observations | start state and
     observations, a)``; ``log_discrete`` the same without the continuous end observations
-    (the discrete plausibility's numerator); ``log_start`` ``(P,)``: ``log p(start state,
+    (the discrete plausibility's numerator; ``log_step`` itself where the network has no
+    continuous end); ``log_start`` ``(P,)``: ``log p(start state,
     start observations)`` under the initial distribution; ``tail`` ``(P,)`` and ``initial``
     ``{site: (P,)}`` the plausibility tails (1 where not needed).
     """
@@ -256,10 +274,8 @@ def read_step_tables(
     triples = torch.stack(
         [step_key, configs.state[pairs.start], configs.state[pairs.end]], 1
     )  # (P, 3)
-    if len(triples):
-        triples, where = torch.unique(triples, dim=0, return_inverse=True)
-    else:
-        where = torch.zeros(0, dtype=torch.long)
+    size = len(codes.listed) if codes.listed is not None else int(codes.cards.prod())
+    triples, where = unique_rows(triples, (max(1, len(keys)), size, size))
     u = len(triples)
     log_step = torch.full((u, a), -torch.inf, dtype=DTYPE)
     log_discrete = log_step.clone()
@@ -278,7 +294,7 @@ def read_step_tables(
         for i in range(0, len(rows_of), chunk):
             rows = rows_of[i : i + chunk]
             ev = _pair_evidence(net, codes, keys, columns, triples[rows])
-            step, discrete, start = _read_rows(net, params, triples[rows], ev, a)
+            step, discrete, start = _read_rows(net, params, triples[rows], ev, a, size)
             log_step[rows], log_discrete[rows], log_start[rows] = step, discrete, start
             if continuous:
                 told = plausibility(net, params, net.encode_indices(ev))
@@ -290,16 +306,18 @@ def read_step_tables(
     impossible = params[ACTION].probs == 0
     log_step[:, impossible] = -torch.inf
     log_discrete[:, impossible] = -torch.inf
+    step = log_step[where]
+    continuous_ends = any(not x.discrete for x in net.sites if x.role == "end")
     return StepTables(
-        log_step[where],
-        log_discrete[where],
+        step,
+        log_discrete[where] if continuous_ends else step,  # without them: the same table
         log_start[where],
         tail[where],
         {site: value[where] for site, value in initial.items()},
     )
 
 
-def _read_rows(net, params, triples: torch.Tensor, ev: dict[str, torch.Tensor], a: int):
+def _read_rows(net, params, triples: torch.Tensor, ev: dict[str, torch.Tensor], a: int, bound: int):
     """Step entries for rows ``triples`` ``(m, 3)`` (key, start, end) of evidence ``ev``.
 
     ``(m, A)`` the step's ``log p(a) + log p(end, observations | start, observations, a)``,
@@ -311,7 +329,7 @@ def _read_rows(net, params, triples: torch.Tensor, ev: dict[str, torch.Tensor], 
     """
     enc = net.encode_indices(ev)
     ends = [x for x in enc if x.startswith("end.")]
-    starts, where = torch.unique(triples[:, :2], dim=0, return_inverse=True)
+    starts, where = unique_rows(triples[:, :2], (int(triples[:, 0].max()) + 1, bound))
     one = torch.zeros(len(starts), dtype=torch.long)
     one[where] = torch.arange(len(triples))  # a row of each start (any: they read alike)
     start, start_offsets = _summed(net, params, enc.without(*ends).rows(one), None)
