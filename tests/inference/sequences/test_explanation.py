@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -22,35 +21,13 @@ from effect_networks.inference.sequences.demonstration import simulate_demonstra
 from effect_networks.inference.sequences.explanation import Explanation, explain
 from effect_networks.models import Continuous, Discrete, EffectNetwork, random_params
 from effect_networks.models.can_pyramid import can_network
-from effect_networks.models.cpds import TableParams
 from effect_networks.models.declaration import DTYPE
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tests.helpers import discrete_network
+from tests.inference.sequences.demonstration_worlds import OUTCOME_NET, PLAIN_NET, uniform_prior
 from tests.networks import README_NET
-
-#: a world of two state features and a discrete outcome that depends on the door's end
-OUTCOME_NET = EffectNetwork(
-    features=(
-        Discrete("door", ("shut", "open", "locked")),
-        Discrete("light", ("off", "on")),
-        Discrete("creak", (False, True), initial=False),
-    ),
-    actions=("push", "flip", "wait"),
-    parents={"end.creak": ("end.door", "action")},
-)
-PLAIN_NET = EffectNetwork(
-    features=(Discrete("a", (0, 1)), Discrete("b", ("x", "y", "z"))),
-    actions=("go", "stay"),
-)
-
-
-def uniform_prior(net, params):
-    a = len(net.actions)
-    cpds = dict(params.cpds)
-    cpds["action"] = TableParams(torch.full((a,), 1 / a, dtype=DTYPE), params["action"].n)
-    return replace(params, cpds=cpds)
 
 
 def log_table(net, params, site: str, values: dict) -> float:

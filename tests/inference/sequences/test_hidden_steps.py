@@ -23,21 +23,15 @@ from effect_networks.models import Discrete, EffectNetwork, random_params
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from tests.inference.sequences.test_explanation import OUTCOME_NET, PLAIN_NET, uniform_prior
+from tests.inference.sequences.demonstration_worlds import (
+    OUTCOME_NET,
+    PLAIN_NET,
+    flip_world,
+    uniform_prior,
+)
 from tests.networks import rich_net
 
 RICH_NET = rich_net()
-
-
-def flip_world(k: int) -> EffectNetwork:
-    """``k`` binary features, ``flip_i`` and ``wait``; parents: own, action, right neighbour."""
-    features = tuple(Discrete(f"f{i}", (False, True)) for i in range(k))
-    parents = {
-        f"end.f{i}": (f"initial.f{i}", "action", *((f"initial.f{i + 1}",) if i + 1 < k else ()))
-        for i in range(k)
-    }
-    actions = (*(f"flip_{i}" for i in range(k)), "wait")
-    return EffectNetwork(features=features, actions=actions, parents=parents)
 
 
 def assert_same(ours: Explanation, dense: Explanation) -> None:
