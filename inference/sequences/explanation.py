@@ -10,9 +10,10 @@ one step to the next. That is a hidden Markov model::
      │            │            │                      │
     x_0          x_1          x_2                    x_T      x_t: what state t shows
 
-whose hidden variable at time ``t`` is the discrete state ``H_t`` (its observed features
-restrict it), whose start is the network's own initial distribution given what state 0
-shows, and whose step ``t`` is the action drawn from a prior (uniform unless given) and
+whose hidden variable at time ``t`` is what state ``t`` hides of ``H_t``: the
+configurations of the state features not observed at ``t``, those observed fixed to
+their values (:mod:`inference.sequences.hidden_steps`); whose start is the network's own
+initial distribution given what state 0 shows; and whose step ``t`` is the action drawn from a prior (uniform unless given) and
 the network's ``p(H_{t+1}, x_{t+1} | H_t, x_t, a_t)``: the end state given the initial
 one, the action and the continuous features observed at both ends. Everything else the
 network holds is summed or integrated out inside a step, exactly, by the model itself
@@ -21,14 +22,19 @@ demonstration, so each parameterised action counts as the mixture of its paramet
 clusters (the parameter integrated out in closed form); outcome features
 (``initial=False``) that a state does not show are summed out.
 
-Each step's table ``log p(H_{t+1}, x_{t+1} | H_t, x_t, a)`` over (start state, action,
-end state) is read off the traced model once per distinct observation of the step (one
-table for a whole batch of an all-discrete network's demonstrations), and the sums over
-paths run in log space over the batch: forward-backward for the posterior over each
+Each step's table ``log p(H_{t+1}, x_{t+1} | H_t, x_t, a)`` spans (configurations hidden
+at its start) x actions x (configurations hidden at its end): ``A`` entries where the
+step is fully observed, ``2^(h + h')`` times as many where its start hides ``h`` binary
+features and its end ``h'``, however many features the network has. It is read off the traced model (the action enumerated and
+kept) once per distinct (observation, start, end), and the sums over paths run in log
+space over the batch, over those configurations only
+(:mod:`inference.sequences.hidden_paths`): forward-backward for the posterior over each
 step's action and the demonstration's log-likelihood, Viterbi for the most probable
-action sequence and state path, jointly. With every state fully observed the latent
-part is empty and each step is :func:`~inference.queries.action.infer_action`'s
-question, asked with the same action prior.
+action sequence and state path, jointly. With every state fully observed nothing is
+latent and each step is :func:`~inference.queries.action.infer_action`'s question, asked
+with the same action prior. A step whose table would exceed :data:`MAX_STEP_TABLE`
+entries is refused, naming it. The same question over every state at every time, the
+tests' twin, is :func:`~inference.sequences.dense_explanation.explain_dense`.
 """
 
 from __future__ import annotations
@@ -65,8 +71,6 @@ from effect_networks.models.params import NetworkParams, check_params
 #: shape and ``states`` a :class:`~inference.sequences.hidden_steps.ProductStates`.
 DENSE_STATE_PROBS = MAX_STEP_TABLE
 
-__all__ = ["MAX_STEP_TABLE", "Explanation", "explain"]
-
 
 @dataclass(frozen=True)
 class Explanation:
@@ -76,8 +80,11 @@ class Explanation:
     demonstration (forward-backward). ``best`` ``(n, T)``: the actions of the most
     probable action sequence and state path, taken jointly (Viterbi); ``best_names``
     the same as names. ``path`` ``(n, T + 1)``: that path's states, indices into
-    ``states`` (labels of ``features``, in declaration order). ``state_probs``
-    ``(n, T + 1, S)``: the posterior over each time's state. ``log_likelihood`` ``(n,)``:
+    ``states`` (labels of ``features``, in declaration order: a tuple, or past
+    :data:`DENSE_STATE_PROBS` a :class:`~inference.sequences.hidden_steps.ProductStates`
+    that makes each state's labels on demand). ``state_probs`` ``(n, T + 1, S)``: the
+    posterior over each time's state; past :data:`DENSE_STATE_PROBS` a sparse COO tensor
+    holding each time's hidden configurations (``.to_dense()`` where it fits). ``log_likelihood`` ``(n,)``:
     ``log p(x_1, ..., x_T | x_0)``, the demonstration's probability (a density where it
     observes continuous features) given its first state, actions and latent parts summed
     out. ``implausible`` ``(n, T)`` bool: the step's observed end state has (almost) no
