@@ -111,16 +111,16 @@ class Demonstrations:
 
     def split(self, size: int) -> list[Demonstrations]:
         """The batch in parts of ``size`` demonstrations (the last may be shorter)."""
-        n = self.shape[0]
-        return [
-            Demonstrations(
-                None if self.allowed is None else self.allowed[i : i + size],
-                {f: x[i : i + size] for f, x in self.continuous.items()},
-                {f: x[i : i + size] for f, x in self.outcomes.items()},
-                self.shown[i : i + size],
-            )
-            for i in range(0, n, size)
-        ]
+        return [self.part(slice(i, i + size)) for i in range(0, self.shape[0], size)]
+
+    def part(self, rows: slice) -> Demonstrations:
+        """The demonstrations ``rows`` of the batch."""
+        return Demonstrations(
+            None if self.allowed is None else self.allowed[rows],
+            {f: x[rows] for f, x in self.continuous.items()},
+            {f: x[rows] for f, x in self.outcomes.items()},
+            self.shown[rows],
+        )
 
     def step_keys(self) -> tuple[np.ndarray, np.ndarray]:
         """Each step's observation as an index among the distinct ones, and the distinct ones.

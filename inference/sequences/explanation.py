@@ -57,6 +57,7 @@ from effect_networks.inference.sequences.hidden_steps import (
     MAX_STEP_TABLE,
     ProductStates,
     StateCodes,
+    configuration_counts,
     hidden_configurations,
     read_step_tables,
     step_pairs,
@@ -70,6 +71,9 @@ from effect_networks.models.params import NetworkParams, check_params
 #: tensor and ``states`` a tuple; past it ``state_probs`` is a sparse tensor of the same
 #: shape and ``states`` a :class:`~inference.sequences.hidden_steps.ProductStates`.
 DENSE_STATE_PROBS = MAX_STEP_TABLE
+#: Entries of the step tables (pairs of configurations x actions) one part of the batch
+#: holds at once; a larger batch is read part by part.
+TABLE_ELEMENTS = 1 << 24
 
 
 @dataclass(frozen=True)
@@ -196,37 +200,69 @@ def explain(
     if n == 0:
         return _no_demonstrations(net, names, labels, steps, dense)
     codes = StateCodes.of(features, space)
-    configs = hidden_configurations(demo, codes)
-    pairs = step_pairs(configs, (n, steps), a)
-    tables = read_step_tables(net, params, codes, demo, configs, pairs)
-    answers = over_hidden_paths(configs, pairs, tables, (n, steps), below)
-    where = (configs.owner // (steps + 1), configs.owner % (steps + 1), configs.state)
+    counts = configuration_counts(demo, codes)
+    entries = (counts[:, :-1] * counts[:, 1:]).sum(-1) * a  # (n,) each one's table entries
+    parts = [_read_part(net, params, codes, demo, rows, below) for rows in _parts(entries)]
+    answers = [x[0] for x in parts]
+    initial = {site: torch.cat([x.initial[site] for x in answers]) for site in answers[0].initial}
+    where = torch.cat([x[1][0] for x in parts], 1)
+    config_probs = torch.cat([x[1][1] for x in parts])
     if dense:
         state_probs = torch.zeros(n, steps + 1, size, dtype=DTYPE)
-        state_probs[where] = answers.config_probs
-    else:  # the hidden configurations of each time, in order: coalesced as built
+        state_probs[tuple(where)] = config_probs
+    else:  # each time's hidden configurations, in order: coalesced as built
         state_probs = torch.sparse_coo_tensor(
-            torch.stack(where),
-            answers.config_probs,
-            (n, steps + 1, size),
-            is_coalesced=True,
-            check_invariants=False,
+            where, config_probs, (n, steps + 1, size), is_coalesced=True, check_invariants=False
         )
-    implausible = answers.flags | outside_flags(answers.initial, (n, steps), below)
-    best = answers.best
+    best = torch.cat([x.best for x in answers])
+    flags = torch.cat([x.flags for x in answers])
+    implausible = flags | outside_flags(initial, (n, steps), below)
     best_names = tuple(map(tuple, np.array(net.actions, dtype=object)[best.numpy()].tolist()))
     return Explanation(
-        answers.probs,
+        torch.cat([x.probs for x in answers]),
         best,
         best_names,
-        answers.path,
+        torch.cat([x.path for x in answers]),
         state_probs,
-        answers.log_likelihood,
+        torch.cat([x.log_likelihood for x in answers]),
         implausible,
         net.actions,
         names,
         labels,
     )
+
+
+def _parts(entries: torch.Tensor) -> list[slice]:
+    """The batch in runs of demonstrations, each within :data:`TABLE_ELEMENTS` entries.
+
+    ``entries`` ``(n,)``: each demonstration's step table entries; a demonstration that alone
+    holds more is a run of its own.
+    """
+    parts, start, held = [], 0, 0
+    for i, e in enumerate(entries.tolist()):
+        if held and held + e > TABLE_ELEMENTS:
+            parts.append(slice(start, i))
+            start, held = i, 0
+        held += e
+    parts.append(slice(start, len(entries)))
+    return parts
+
+
+def _read_part(net, params, codes, demo, rows: slice, below: float):
+    """The demonstrations ``rows`` of the batch, read.
+
+    The passes' answers and the state posterior's entries: ``(3, M)`` indices
+    (demonstration, time, state) and ``(M,)`` values.
+    """
+    demo = demo.part(rows)
+    n, steps = demo.shape
+    configs = hidden_configurations(demo, codes)
+    pairs = step_pairs(configs, (n, steps), len(net.actions))
+    tables = read_step_tables(net, params, codes, demo, configs, pairs)
+    answers = over_hidden_paths(configs, pairs, tables, (n, steps), below)
+    first = configs.owner // (steps + 1) + rows.start
+    where = torch.stack([first, configs.owner % (steps + 1), configs.state])
+    return answers, (where, answers.config_probs)
 
 
 def _no_demonstrations(net: EffectNetwork, names, labels, steps: int, dense: bool) -> Explanation:

@@ -132,30 +132,43 @@ class HiddenConfigurations:
         return self.offset[1:] - self.offset[:-1]
 
 
-def hidden_configurations(demo: Demonstrations, codes: StateCodes) -> HiddenConfigurations:
-    """The states each time of ``demo`` allows: its hidden features enumerated.
+def configuration_counts(demo: Demonstrations, codes: StateCodes) -> torch.Tensor:
+    """``(n, T + 1)`` the number of states each time of ``demo`` allows.
 
     Refuses (``ValueError``) a time whose configurations alone exceed :data:`MAX_STEP_TABLE`,
     naming the demonstration, the time and the number.
     """
     n, steps = demo.shape
     if codes.listed is not None:
+        return demo.allowed.sum(-1)
+    hidden = demo.shown < 0
+    cards = torch.where(hidden, codes.cards, 1)  # (n, T + 1, F): 1 where shown
+    log_counts = cards.to(DTYPE).log2().sum(-1)
+    past = log_counts > math.log2(MAX_STEP_TABLE)
+    if bool(past.any()):
+        i, t = (int(x) for x in past.nonzero()[0])
+        raise ValueError(
+            f"demonstration {i} at time {t} hides {int(hidden[i, t].sum())} state features, "
+            f"{2 ** float(log_counts[i, t]):.4g} configurations: more than MAX_STEP_TABLE = "
+            f"{MAX_STEP_TABLE} entries a step; observe more of the state at that time or "
+            "name the states that occur (state_space=)"
+        )
+    return cards.prod(-1) if cards.shape[-1] else torch.ones(n, steps + 1, dtype=torch.long)
+
+
+def hidden_configurations(demo: Demonstrations, codes: StateCodes) -> HiddenConfigurations:
+    """The states each time of ``demo`` allows: its hidden features enumerated.
+
+    Refuses as :func:`configuration_counts` does.
+    """
+    n, steps = demo.shape
+    counts = configuration_counts(demo, codes).reshape(-1)
+    if codes.listed is not None:
         owner, state = demo.allowed.reshape(n * (steps + 1), -1).nonzero(as_tuple=True)
-        counts = torch.bincount(owner, minlength=n * (steps + 1))
         return HiddenConfigurations(_offsets(counts), state, owner)
     shown = demo.shown.reshape(n * (steps + 1), -1)
     hidden = shown < 0
-    cards = torch.where(hidden, codes.cards, 1)  # (N, F): 1 where shown
-    log_counts = cards.to(DTYPE).log2().sum(-1)
-    if bool((log_counts > math.log2(MAX_STEP_TABLE)).any()):
-        p = int((log_counts > math.log2(MAX_STEP_TABLE)).nonzero()[0])
-        raise ValueError(
-            f"demonstration {p // (steps + 1)} at time {p % (steps + 1)} hides "
-            f"{int(hidden[p].sum())} state features, {2 ** float(log_counts[p]):.4g} "
-            f"configurations: more than MAX_STEP_TABLE = {MAX_STEP_TABLE} entries a step; "
-            "observe more of the state at that time or name the states that occur (state_space=)"
-        )
-    counts = cards.prod(-1) if cards.shape[-1] else torch.ones(len(shown), dtype=torch.long)
+    cards = torch.where(hidden, codes.cards, 1)
     offset = _offsets(counts)
     owner = torch.repeat_interleave(torch.arange(len(counts)), counts)
     local = torch.arange(len(owner)) - offset[owner]

@@ -343,19 +343,24 @@ def test_errors_name_what_is_wrong():
 
 @pytest.mark.filterwarnings("ignore::effect_networks.inference.OutsideTrainingData")
 def test_parts_and_chunks_answer_as_one_batch(monkeypatch):
-    """Step tables read off the model row by row: the same answers as all rows at once."""
-    import effect_networks.inference.sequences.hidden_steps as module
+    """The batch read part by part and the step tables row by row: the same answers as all
+    at once."""
+    import effect_networks.inference.sequences.explanation as module
+    import effect_networks.inference.sequences.hidden_steps as steps
 
     net, params = README_NET, random_params(README_NET, 6)
     states, _ = simulate_demonstrations(net, params, 7, 3, seed=2)
     states["visible"][:, 1] = None
     whole = explain(net, params, states)
-    monkeypatch.setattr(module, "ROW_CHUNK", len(net.actions))  # one (start, end) pair a read
+    monkeypatch.setattr(module, "TABLE_ELEMENTS", 3 * (1 + 2 + 2) * 2)  # two demonstrations a part
+    monkeypatch.setattr(steps, "ROW_CHUNK", len(net.actions))  # one (start, end) pair a read
     parts = explain(net, params, states)
     assert torch.allclose(whole.probs, parts.probs, atol=1e-12)
     assert torch.allclose(whole.log_likelihood, parts.log_likelihood, atol=1e-12)
     assert whole.best_names == parts.best_names
     assert torch.equal(whole.implausible, parts.implausible)
+    assert torch.allclose(whole.state_probs, parts.state_probs, atol=1e-12)
+    assert torch.equal(whole.path, parts.path)
 
 
 def test_simulated_demonstrations_are_read_back():

@@ -14,7 +14,7 @@ import numpy as np
 import pytest
 import torch
 from effect_networks.inference import infer_action
-from effect_networks.inference.sequences import hidden_steps
+from effect_networks.inference.sequences import explanation, hidden_steps
 from effect_networks.inference.sequences.dense_explanation import explain_dense
 from effect_networks.inference.sequences.explanation import Explanation, explain
 from effect_networks.inference.sequences.hidden_steps import ProductStates, unique_rows
@@ -108,7 +108,7 @@ def test_a_parameterised_action_with_everything_hidden_equals_the_dense_route():
     assert_same(explain(net, params, batch), explain_dense(net, params, batch))
 
 
-def test_fully_observed_twelve_features_is_each_steps_own_question():
+def test_fully_observed_twelve_features_is_each_steps_own_question(monkeypatch):
     """k = 12 binary features (4096 states, 13 actions): the dense route refuses; the
     structured one reads each step as infer_action does, and its state posterior is the
     observed states, held sparse."""
@@ -136,6 +136,10 @@ def test_fully_observed_twelve_features_is_each_steps_own_question():
         start = infer_action(net, uniform, {k: v for k, v in ev.items() if "initial" in k})
         log_likelihood += float(step.log_evidence[0] - start.log_evidence[0])
     assert float(result.log_likelihood[0]) == pytest.approx(log_likelihood, abs=1e-10)
+    monkeypatch.setattr(explanation, "TABLE_ELEMENTS", 1)  # one demonstration a part
+    parts = explain(net, params, states)
+    assert torch.equal(parts.state_probs.to_dense(), dense_probs)
+    assert torch.equal(parts.probs, result.probs) and torch.equal(parts.path, result.path)
     assert result.path_labels(0) == [
         {f: bool(v[0, t]) for f, v in states.items()} for t in range(4)
     ]
