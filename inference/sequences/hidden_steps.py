@@ -80,6 +80,14 @@ class ProductStates(Sequence):
             labels.append(f.states[digit])
         return tuple(reversed(labels))
 
+    def __eq__(self, other: object) -> bool:
+        if isinstance(other, ProductStates):
+            return self.features == other.features
+        return NotImplemented
+
+    def __hash__(self) -> int:
+        return hash(self.features)
+
     def __repr__(self) -> str:
         return f"ProductStates({[f.name for f in self.features]}, {len(self)} states)"
 

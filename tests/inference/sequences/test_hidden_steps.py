@@ -120,6 +120,7 @@ def test_fully_observed_twelve_features_is_each_steps_own_question(monkeypatch):
         explain_dense(net, params, states)
     result = explain(net, params, states)
     assert isinstance(result.states, ProductStates) and len(result.states) == 4096
+    assert result.states == ProductStates(net.features) != ProductStates(net.features[1:])
     assert result.state_probs.is_sparse and result.state_probs.shape == (2, 4, 4096)
     dense_probs = result.state_probs.to_dense()
     assert torch.allclose(
