@@ -197,9 +197,9 @@ def explain(
     else:
         labels = ProductStates(features)
     names = tuple(f.name for f in features)
+    codes = StateCodes.of(features, space)
     if n == 0:
         return _no_demonstrations(net, names, labels, steps, dense)
-    codes = StateCodes.of(features, space)
     counts = configuration_counts(demo, codes)
     entries = (counts[:, :-1] * counts[:, 1:]).sum(-1) * a  # (n,) each one's table entries
     parts = [_read_part(net, params, codes, demo, rows, below) for rows in _parts(entries)]

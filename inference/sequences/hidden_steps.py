@@ -108,11 +108,22 @@ class StateCodes:
     @staticmethod
     def of(features: Sequence[Discrete], space: StateSpace | None) -> StateCodes:
         """The codes of the product of ``features`` (``space`` ``None``) or of a listed space."""
+        if space is None and math.prod(f.cardinality for f in features) >= 1 << 62:
+            raise ValueError(
+                f"the state of {len(features)} features has "
+                f"{math.prod(f.cardinality for f in features):.4g} configurations, past the "
+                "2**62 a state's index can number: name the states that occur (state_space=)"
+            )
         cards = torch.tensor([f.cardinality for f in features], dtype=torch.long)
         after = torch.ones_like(cards)
         if len(cards) > 1:
             after[:-1] = cards.flip(0).cumprod(0).flip(0)[1:]
         return StateCodes(cards, after, None if space is None else space.index)
+
+    @property
+    def size(self) -> int:
+        """The number of states."""
+        return len(self.listed) if self.listed is not None else math.prod(self.cards.tolist())
 
     def digits(self, state: torch.Tensor) -> torch.Tensor:
         """``(m, F)`` the state features' indices of the states ``state`` ``(m,)``."""
@@ -264,9 +275,9 @@ class StepTables:
     ``log_step`` ``(P, A)``: ``log p(a) + log p(end state and observations | start state and
     observations, a)``; ``log_discrete`` the same without the continuous end observations
     (the discrete plausibility's numerator; ``log_step`` itself where the network has no
-    continuous end); ``log_start`` ``(P,)``: ``log p(start state,
-    start observations)`` under the initial distribution; ``tail`` ``(P,)`` and ``initial``
-    ``{site: (P,)}`` the plausibility tails (1 where not needed).
+    continuous end); ``log_start`` ``(P,)``: ``log p(start state, start observations)``
+    under the initial distribution; ``tail`` ``(P,)`` and ``initial`` ``{site: (P,)}`` the
+    plausibility tails (1 where not needed).
     """
 
     log_step: torch.Tensor
@@ -295,7 +306,7 @@ def read_step_tables(
     triples = torch.stack(
         [step_key, configs.state[pairs.start], configs.state[pairs.end]], 1
     )  # (P, 3)
-    size = len(codes.listed) if codes.listed is not None else int(codes.cards.prod())
+    size = codes.size
     triples, where = unique_rows(triples, (max(1, len(keys)), size, size))
     u = len(triples)
     log_step = torch.full((u, a), -torch.inf, dtype=DTYPE)

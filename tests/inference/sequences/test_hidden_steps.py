@@ -64,7 +64,7 @@ def draw_batch(data, net, n: int, steps: int, hide: float) -> dict:
     return batch
 
 
-@settings(max_examples=12, deadline=None)
+@settings(max_examples=30, deadline=None)
 @given(
     net=st.sampled_from([OUTCOME_NET, PLAIN_NET, RICH_NET]),
     seed=st.integers(0, 50),
@@ -159,6 +159,13 @@ def test_a_step_past_the_budget_is_refused_naming_it(monkeypatch):
     monkeypatch.setattr(hidden_steps, "MAX_STEP_TABLE", 7)
     with pytest.raises(ValueError, match="time 1 hides 3 state features, 8 configurations"):
         explain(net, params, states)
+
+
+def test_a_state_past_what_an_index_numbers_is_refused():
+    net = flip_world(62)
+    states = {f.name: np.zeros((1, 2), dtype=bool) for f in net.features}
+    with pytest.raises(ValueError, match="past the 2\\*\\*62 a state's index can number"):
+        explain(net, random_params(net, 0), states)
 
 
 def test_no_demonstrations_past_the_dense_route_give_sparse_empty_answers():
