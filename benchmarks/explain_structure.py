@@ -13,7 +13,9 @@ Goals: fully observed at ``k = 32`` under 0.1 s; 20 % hidden at ``k = 16`` under
 equal to the dense route (every state at every time,
 :func:`inference.sequences.dense_explanation.explain_dense`) at ``k <= 8`` to 1e-10.
 The dense route is timed beside wherever it runs (it refuses past ``2**22`` entries a
-step table: ``k = 10`` with its 11 actions). Run::
+step table: ``k = 10`` with its 11 actions). One torch thread by default (``--threads``):
+the routes' time is in many small tensor operations, and on cores that other work shares
+the threads of one operation wait on each other. Run::
 
     .venv/bin/python benchmarks/explain_structure.py [--n 100] [--steps 10] [--repeats 3]
 """
@@ -21,6 +23,7 @@ step table: ``k = 10`` with its 11 actions). Run::
 from __future__ import annotations
 
 import argparse
+import os
 import platform
 import statistics
 import time
@@ -143,10 +146,21 @@ def main() -> None:
     parser.add_argument(
         "--features", type=int, nargs="+", default=[4, 8, 12, 16, 24, 32], help="values of k"
     )
+    parser.add_argument(
+        "--threads",
+        type=int,
+        default=1,
+        help="torch's intra-op threads (on cores other work shares, more threads wait on "
+        "each other)",
+    )
     add_out(parser)
     args = parser.parse_args()
     print_also_to(args.out, __file__)
-    print(f"python {platform.python_version()}, {platform.machine()}, torch {torch.__version__}")
+    torch.set_num_threads(args.threads)
+    print(
+        f"python {platform.python_version()}, {platform.machine()}, torch {torch.__version__}, "
+        f"{torch.get_num_threads()} thread(s), {os.cpu_count()} cores"
+    )
     print(
         f"explain by structure, flip world, {args.n} demonstrations x {args.steps} steps, "
         f"fitted on {args.rows} rows; {HIDDEN:.0%} hidden: each value hidden with that "
