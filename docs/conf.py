@@ -151,7 +151,8 @@ REFERENCE = (
     (
         "Sequences",
         "Transitions between states, plans, chained steps and demonstrations read back.",
-        "transitions plan chain link_probabilities explain StateSpace BoxPartition FunctionLink",
+        "transitions step_model plan chain link_probabilities explain StateSpace ProjectedSpace "
+        "StepModel StepFactor BoxPartition FunctionLink",
     ),
     (
         "Pictures",
@@ -164,8 +165,8 @@ REFERENCE = (
         "What the functions above return, and the warnings they give.",
         "Prediction JointPrediction ActionPosterior ParameterPosterior ParameterForEffect "
         "GaussianMixture ImitationCheck CompiledQueries FitResult EMResult ClusterSelection "
-        "LogLikelihood CrossValidation Transitions Plan LinkProbabilities Explanation "
-        "ConvergenceWarning OutsideTrainingData",
+        "LogLikelihood CrossValidation Transitions Plan Certificate LinkProbabilities "
+        "Explanation ConvergenceWarning OutsideTrainingData RestsOnUnseen",
     ),
 )
 

@@ -41,7 +41,8 @@ from effect_networks.inference.queries.results import (
     Prediction,
 )
 from effect_networks.inference.queries.surprise import QUADRATURE_POINTS
-from effect_networks.inference.sequences.planner import Plan, plan_on
+from effect_networks.inference.sequences.factored_planning import EPISODES, MAX_RELEVANT_STATES
+from effect_networks.inference.sequences.planner import Plan, dense_wanted, plan, plan_on
 from effect_networks.inference.sequences.transition_tables import (
     Transitions,
     context_evidence,
@@ -250,8 +251,36 @@ class CompiledQueries:
         given: Mapping[str, object] | None = None,
         normalise: bool = False,
         avoid_unseen: bool = False,
+        route: str = "auto",
+        budget: int = MAX_RELEVANT_STATES,
+        episodes: int = EPISODES,
+        seed: int = 0,
     ) -> Plan:
-        """:func:`inference.plan` on :meth:`transitions` (the kept tables)."""
+        """:func:`inference.plan`: on :meth:`transitions` (the kept tables) on the dense route.
+
+        The factored routes read the network's tables directly (:func:`inference.step_model`,
+        no trace to keep), as :func:`inference.plan` chooses them.
+        """
+        if route == "factored" or (
+            route == "auto" and not dense_wanted(self.net, states, normalise, allowed, start)
+        ):
+            return plan(
+                self.net,
+                self.params,
+                start,
+                goal,
+                horizon,
+                allowed,
+                parameter_values=parameter_values,
+                given=given,
+                avoid_unseen=avoid_unseen,
+                route="factored",
+                budget=budget,
+                episodes=episodes,
+                seed=seed,
+            )
+        if route not in ("auto", "dense"):
+            raise ValueError(f"route must be 'auto', 'dense' or 'factored', got {route!r}")
         model = self.transitions(
             states=states, parameter_values=parameter_values, given=given, normalise=normalise
         )

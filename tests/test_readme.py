@@ -53,6 +53,8 @@ def test_readme_snippets_run_in_sequence(tmp_path, monkeypatch):
     assert namespace["p_gone"] > 0.99
     assert namespace["first"] == "remove" and namespace["chance"] > 0.99
     assert namespace["story"] == (("tap", "remove"),)
+    route = namespace["route"]
+    assert route.route == "dense" and 0.0 <= route.unseen <= 1.0 and route.features == ("visible",)
     curve = namespace["fitted"].log_likelihoods
     assert all(b >= a for a, b in zip(curve, curve[1:], strict=False))
     assert math.isfinite(namespace["score"])

@@ -148,8 +148,50 @@ def contract(
     A tensor whose other dims keep their size and whose eliminated dims are 1. ``scopes``: each
     factor's :func:`scope`, where the caller has them.
     """
-    left, _ = _eliminate(factors, eliminate, _logsumexp, scopes)
-    return _sum(left)
+    if scopes is None:
+        scopes = tuple(scope(f) for f in factors)
+    steps, left = schedule(scopes, frozenset(eliminate))
+    slots = dict(enumerate(factors))
+    first = len(factors)
+    pending: list[tuple[int, int, torch.Tensor]] = []  # (step, dim, summed factors)
+    for n, (d, involved) in enumerate(steps):
+        if pending and not all(i < first for i in involved):
+            _flush(pending, slots, first)
+        total = _sum([slots[i] for i in involved])
+        if all(i < first for i in involved):  # a leaf: sums of leaves are batched
+            if pending and _key(pending[0][2], pending[0][1]) != _key(total, d):
+                _flush(pending, slots, first)
+            pending.append((n, d, total))
+        else:
+            slots[first + n] = total.logsumexp(d, keepdim=True)
+    _flush(pending, slots, first)
+    return _sum([slots[i] for i in left])
+
+
+def _key(total: torch.Tensor, d: int) -> tuple[tuple[int, ...], int]:
+    """A leaf step's answer's shape and the size of the dim it sums."""
+    shape = list(total.shape)
+    shape[d] = 1
+    return tuple(shape), total.shape[d]
+
+
+def _flush(pending: list, slots: dict, first: int) -> None:
+    """The pending leaf steps' sums, as one ``logsumexp`` over their stacked tensors.
+
+    Each step's tensor with its summed dim moved last is laid out as its answer (every
+    other dim it spans is kept, in order), so the steps stack; the answers are the same
+    numbers a ``logsumexp`` per step gives.
+    """
+    if len(pending) == 1:
+        n, d, total = pending[0]
+        slots[first + n] = total.logsumexp(d, keepdim=True)
+    elif pending:
+        shape, size = _key(pending[0][2], pending[0][1])
+        stacked = torch.stack([t.movedim(d, -1).reshape(*shape, size) for _, d, t in pending])
+        summed = stacked.logsumexp(-1)
+        for j, (n, _, _) in enumerate(pending):
+            slots[first + n] = summed[j]
+    pending.clear()
 
 
 def maximum(factors: list[torch.Tensor], eliminate: list[int]) -> torch.Tensor:

@@ -20,12 +20,12 @@ def _labels(plan, states: Sequence | None, actions: Sequence[str] | None):
 
     A :class:`~inference.sequences.planner.Plan`'s own, or those given (default: indices).
     """
-    model = getattr(plan, "model", None)
+    space = getattr(plan, "space", None)
     s = plan.value.shape[1]
-    if model is not None:
-        states = [", ".join(map(str, state)) for state in model.space.states]
-        axis = ", ".join(f.name for f in model.space.features)
-        return states, list(model.actions), axis
+    if space is not None:  # a Plan: its own states (projected ones on the factored routes)
+        states = [", ".join(map(str, state)) for state in space.states]
+        axis = ", ".join(space.names)
+        return states, list(plan.actions), axis
     if states is not None and len(states) != s:
         raise ValueError(f"states names {len(states)} states; the plan has {s}")
     chosen = [int(x) for x in np.unique(plan.policy.numpy()) if x >= 0]
@@ -142,8 +142,7 @@ def _path(plan, ax, state_names, axis):
     if not path:
         ax.set_title(f"no path reaches the goal within {plan.horizon} actions", fontsize=9)
         return ax
-    space = plan.model.space
-    rows = [space.index_of(state) for state in path[::2]]
+    rows = [plan.space.index_of(state) for state in path[::2]]
     steps = np.arange(len(rows))
     ax.plot(steps, rows, "o-", color="C0", markersize=7)
     for t, action in enumerate(path[1::2]):

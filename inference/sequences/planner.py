@@ -21,94 +21,34 @@ under another transition model is :func:`~inference.sequences.dynamic_programmin
 from __future__ import annotations
 
 import math
-from collections.abc import Hashable, Iterable, Mapping, Sequence
-from dataclasses import dataclass, field
+import warnings
+from collections.abc import Iterable, Mapping, Sequence
 
 import torch
-from effect_networks.inference.sequences.dynamic_programming import exact_plan
-from effect_networks.inference.sequences.states import Selection, StateLike
+from effect_networks.inference.sequences.dynamic_programming import induction, unseen_along
+from effect_networks.inference.sequences.factored_planning import (
+    EPISODES,
+    KEEP_ROWS,
+    MAX_RELEVANT_STATES,
+    factored_plan,
+)
+from effect_networks.inference.sequences.factored_steps import step_model
+from effect_networks.inference.sequences.plans import Plan
+from effect_networks.inference.sequences.states import Selection, StateLike, state_features
 from effect_networks.inference.sequences.transition_tables import Transitions, transitions
 from effect_networks.models.declaration import DTYPE, EffectNetwork
 from effect_networks.models.params import NetworkParams
 
+#: ``route="auto"`` plans on the dense tensor when it holds at most this many numbers
+#: (states x actions x states), and factor by factor beyond.
+DENSE_ENTRIES = 1 << 18
+#: A plan warns when following it takes a step no training row reached with at least
+#: this probability (``unseen``).
+UNSEEN_WARNING = 0.5
 
-@dataclass(frozen=True)
-class Plan:
-    """A finite-horizon plan over ``model``'s states and actions.
 
-    Attributes
-    ----------
-    model : Transitions
-        The transitions planned on (states, action labels, ``probs``).
-    goal : (S,) bool
-        The goal states.
-    start : (S,) float64
-        The start distribution.
-    horizon : int
-        The most actions the plan takes.
-    value : (H + 1, S) float64
-        ``value[h, s]``: the probability of reaching the goal from ``s`` within ``h``
-        actions under the policy (the best any policy achieves).
-    policy : (H + 1, S) long
-        ``policy[h, s]``: the action to take in ``s`` with ``h`` actions left; ``-1`` in
-        a goal state, where no action is allowed, and in row 0.
-    success : float
-        The probability of reaching the goal within ``horizon`` actions from ``start``.
-    path : tuple
-        The most likely path to the goal under the policy: ``(state, action, state,
-        ..., goal state)`` by labels (the start alone if it is a goal; empty if no path
-        reaches the goal), and ``path_probability`` its probability.
-    """
-
-    model: Transitions
-    goal: torch.Tensor = field(repr=False)
-    start: torch.Tensor = field(repr=False)
-    horizon: int
-    value: torch.Tensor = field(repr=False)
-    policy: torch.Tensor = field(repr=False)
-    success: float
-    path: tuple = ()
-    path_probability: float = 0.0
-
-    def action(self, state: StateLike | int, steps_left: int | None = None) -> str | None:
-        """The action label to take in ``state`` with ``steps_left`` actions left.
-
-        ``steps_left`` defaults to the horizon; ``None`` in a goal state or where no action is
-        allowed.
-        """
-        h = self.horizon if steps_left is None else steps_left
-        if not isinstance(h, int) or not 1 <= h <= self.horizon:
-            raise ValueError(f"steps_left must be an int in 1..{self.horizon}, got {steps_left!r}")
-        a = int(self.policy[h, self.model.space.index_of(state)])
-        return None if a < 0 else self.model.actions[a]
-
-    def probability(self, state: StateLike | int, steps_left: int | None = None) -> float:
-        """The probability of reaching the goal from ``state`` within ``steps_left`` actions.
-
-        ``steps_left`` defaults to the horizon.
-        """
-        h = self.horizon if steps_left is None else steps_left
-        return float(self.value[h, self.model.space.index_of(state)])
-
-    def to_dict(self) -> dict[tuple[tuple[Hashable, ...], int], str]:
-        """``{(state, steps left): action}`` by labels.
-
-        For every non-goal state with an allowed action.
-        """
-        out = {}
-        for h in range(1, self.horizon + 1):
-            for i, s in enumerate(self.model.space.states):
-                a = int(self.policy[h, i])
-                if a >= 0:
-                    out[(s, h)] = self.model.actions[a]
-        return out
-
-    def __repr__(self) -> str:
-        return (
-            f"Plan(success={self.success:.4g} within {self.horizon} actions, "
-            f"{int(self.goal.sum())} goal states of {len(self.model.space)}, "
-            f"most likely path {self.path!r} (p={self.path_probability:.3g}))"
-        )
+class RestsOnUnseen(UserWarning):
+    """A plan's policy likely takes steps that no training row reached."""
 
 
 def plan(
@@ -124,10 +64,18 @@ def plan(
     given: Mapping[str, object] | None = None,
     normalise: bool = False,
     avoid_unseen: bool = False,
+    route: str = "auto",
+    budget: int = MAX_RELEVANT_STATES,
+    episodes: int = EPISODES,
+    seed: int = 0,
 ) -> Plan:
     """The policy maximising the probability of reaching ``goal`` within ``horizon`` actions.
 
-    By exact finite-horizon dynamic programming over the network's states.
+    By exact finite-horizon dynamic programming: over the network's states where they are
+    few (``route="dense"``), factor by factor over the features the goal depends on
+    otherwise (``"projected"``, the same answers), and approximately, with a certified
+    lower bound on its success, where even those exceed ``budget`` (``"approximate"``):
+    :mod:`inference.sequences.factored_planning`.
 
     Parameters
     ----------
@@ -156,14 +104,26 @@ def plan(
     avoid_unseen
         Never take an action whose step rests mostly (``unseen > 0.5``) on configurations
         no training row reached, unless a state has no other.
-
+    route
+        ``"auto"`` (default): ``"dense"`` where the ``(S, A, S)`` tensor holds at most
+        :data:`DENSE_ENTRIES` numbers or ``states=``, ``normalise=``, a per-state
+        ``allowed`` mask or a predicate start asks for it; the factored routes otherwise
+        (``"projected"`` when the goal's relevant features have at most ``budget`` joint
+        states, ``"approximate"`` beyond). ``"dense"`` or ``"factored"`` forces one.
+    budget
+        The most joint states of the relevant features the factored route plans over
+        exactly.
+    episodes, seed
+        The approximate route's simulated runs of its policy and their seed.
 
     Returns
     -------
     Plan
         The best action per state and step (``policy``), the probability of reaching the
-        goal within ``horizon`` actions from ``start`` (``success``) and the most likely
-        path of states and actions (``path``).
+        goal within ``horizon`` actions from ``start`` (``success``), the most likely
+        path of states and actions (``path``), the route, the features the policy reads
+        and the probability that it takes steps no training row reached (``unseen``;
+        :class:`RestsOnUnseen` warns at :data:`UNSEEN_WARNING` or more).
 
     Examples
     --------
@@ -183,6 +143,33 @@ def plan(
     >>> p.path[1::2], p.success > 0.9
     (('unlock', 'push'), True)
     """
+    if route not in ("auto", "dense", "factored"):
+        raise ValueError(f"route must be 'auto', 'dense' or 'factored', got {route!r}")
+    if route == "auto":
+        route = "dense" if dense_wanted(net, states, normalise, allowed, start) else "factored"
+    if route == "factored":
+        if states is not None or normalise:
+            raise ValueError("states= and normalise= read the dense tensor: use route='dense'")
+        model = step_model(
+            net,
+            params,
+            parameter_values=parameter_values,
+            given=given,
+            features=_read_by(net, start, goal),
+        )
+        out = factored_plan(
+            model,
+            start,
+            goal,
+            horizon,
+            allowed,
+            avoid_unseen=avoid_unseen,
+            budget=budget,
+            episodes=episodes,
+            seed=seed,
+        )
+        _warn_unseen(out)
+        return out
     model = transitions(
         net,
         params,
@@ -192,6 +179,44 @@ def plan(
         normalise=normalise,
     )
     return plan_on(model, start, goal, horizon, allowed, avoid_unseen=avoid_unseen)
+
+
+def _read_by(net: EffectNetwork, start, goal) -> list[str] | None:
+    """The features whose steps a factored plan reads (``None``: all).
+
+    The goal's, where the start is a full state; a partial one is weighed by every
+    initial table.
+    """
+    names = {f.name for f in state_features(net)}
+    full = isinstance(start, Sequence) and not isinstance(start, str | bytes)
+    full |= isinstance(start, Mapping) and names <= set(start)
+    if not full or not isinstance(goal, Mapping) or not set(goal) <= names or not goal:
+        return None
+    return list(goal)
+
+
+def dense_wanted(net: EffectNetwork, states, normalise, allowed, start) -> bool:
+    """Whether ``route="auto"`` plans on the dense tensor (see :func:`plan`'s ``route``)."""
+    if states is not None or normalise:
+        return True
+    if isinstance(allowed, torch.Tensor) and allowed.dim() == 2:
+        return True
+    if callable(start) and not isinstance(start, Mapping):
+        return True
+    s = math.prod(f.cardinality for f in state_features(net))
+    return s * s * len(net.actions) <= DENSE_ENTRIES
+
+
+def _warn_unseen(out: Plan) -> None:
+    if out.unseen >= UNSEEN_WARNING:
+        warnings.warn(
+            RestsOnUnseen(
+                f"following this plan takes a step that no training row reached with "
+                f"probability {out.unseen:.3g}: its success is the pseudo-count prior's "
+                "answer there (avoid_unseen=True plans around such steps)"
+            ),
+            stacklevel=3,
+        )
 
 
 def plan_on(
@@ -215,16 +240,46 @@ def plan_on(
     if avoid_unseen:
         seen = mask & (model.unseen <= 0.5)
         mask = torch.where(seen.any(-1, keepdim=True), seen, mask)
-    exact = exact_plan(model.probs, goal_mask, horizon, allowed=mask)
+    probs = model.probs
+    exact = induction(lambda v: probs @ v, goal_mask, horizon, mask, probs.dtype)
     policy = exact.policy.clone()
     policy[:, goal_mask] = -1
     policy[:, ~mask.any(-1)] = -1  # no allowed action: none is taken
-    success = float(start_dist @ exact.value[horizon])
-    path, p = _most_likely_path(model.probs, policy, goal_mask, start_dist, horizon)
+    value = exact.value
+    rows = value.shape[0] - 1
+    if rows < horizon and (horizon + 1) * len(space) <= KEEP_ROWS:  # converged: repeat
+        value = torch.cat([value, value[-1:].expand(horizon - rows, -1)])
+        policy = torch.cat([policy, policy[-1:].expand(horizon - rows, -1)])
+    success = float(start_dist @ value[min(horizon, value.shape[0] - 1)])
+    steps = _path_steps(horizon, exact.converged, len(space))
+    path, p = _most_likely_path(probs, policy, goal_mask, start_dist, horizon, steps)
     labelled = tuple(
         space.states[x] if i % 2 == 0 else model.actions[x] for i, x in enumerate(path)
     )
-    return Plan(model, goal_mask, start_dist, horizon, exact.value, policy, success, labelled, p)
+    states = torch.arange(len(space))
+    unseen = unseen_along(
+        lambda mass, acts: mass @ probs[states, acts],
+        lambda acts: model.unseen[states, acts],
+        policy,
+        start_dist,
+        goal_mask,
+        horizon,
+    )
+    out = Plan(
+        model,
+        goal_mask,
+        start_dist,
+        horizon,
+        value,
+        policy,
+        success,
+        labelled,
+        p,
+        unseen=unseen,
+        converged=exact.converged,
+    )
+    _warn_unseen(out)
+    return out
 
 
 def _start(model: Transitions, start) -> torch.Tensor:
@@ -262,12 +317,22 @@ def _allowed(model: Transitions, allowed) -> torch.Tensor:
     return mask.expand(s, a).clone()
 
 
+def _path_steps(horizon: int, converged: int | None, n_states: int) -> int:
+    """The actions a most likely path is searched within.
+
+    Past the rows where the policy stopped changing it is the same in every step, and a
+    most likely path under one policy repeats no state: ``converged + S`` actions hold it.
+    """
+    return horizon if converged is None else min(horizon, converged + n_states)
+
+
 def _most_likely_path(
     probs: torch.Tensor,
     policy: torch.Tensor,
     goal: torch.Tensor,
     start: torch.Tensor,
     horizon: int,
+    steps: int | None = None,
 ) -> tuple[Sequence[int], float]:
     """The most probable state sequence under the policy that ends in the goal.
 
@@ -280,14 +345,16 @@ def _most_likely_path(
     delta = start.log()
     back = []
     best, best_t, best_s = -torch.inf, -1, -1
-    for t in range(horizon + 1):
+    last = policy.shape[0] - 1
+    steps = horizon if steps is None else steps
+    for t in range(steps + 1):
         in_goal = torch.where(goal, delta, -torch.inf)
         top, at = in_goal.max(0)
         if top > best:
             best, best_t, best_s = float(top), t, int(at)
-        if t == horizon:
+        if t == steps:
             break
-        act = policy[horizon - t]
+        act = policy[min(horizon - t, last)]
         step = log_t[rows, act.clamp_min(0)]  # (S, S'): from each state under its action
         moving = ~goal & (act >= 0)
         step = torch.where(moving[:, None], step + delta[:, None], -torch.inf)
@@ -299,6 +366,6 @@ def _most_likely_path(
     state = best_s
     for t in range(best_t, 0, -1):
         prev = int(back[t - 1][state])
-        path = [prev, int(policy[horizon - t + 1, prev]), *path]
+        path = [prev, int(policy[min(horizon - t + 1, last), prev]), *path]
         state = prev
     return path, math.exp(best)

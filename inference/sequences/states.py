@@ -112,7 +112,8 @@ class StateSpace:
             if size > MAX_STATES:
                 raise ValueError(
                     f"the state space of {[f.name for f in features]} has {size} states, "
-                    f"more than {MAX_STATES}: pass states= (the states that occur)"
+                    f"more than {MAX_STATES}: pass states= (the states that occur), or keep the "
+                    "step factored (step_model; plan does by itself)"
                 )
             index = list(itertools.product(*(range(f.cardinality) for f in features)))
         else:
@@ -194,7 +195,7 @@ class StateSpace:
         keep = torch.ones(len(self), dtype=torch.bool)
         for name, label in selection.items():
             j = self._feature(name)
-            keep &= self.index[:, j] == _state_index(self.features[j], label)
+            keep &= self.index[:, j] == state_index(self.features[j], label)
         return keep
 
     def distribution(
@@ -233,7 +234,8 @@ class StateSpace:
         return self.names.index(name)
 
 
-def _state_index(feature: Discrete, label: Hashable) -> int:
+def state_index(feature: Discrete, label: Hashable) -> int:
+    """The index of ``label`` among ``feature``'s states (``ValueError`` naming them)."""
     for i, s in enumerate(feature.states):  # by type too: 1 is not True
         if s == label and type(s) is type(label):
             return i
@@ -261,8 +263,120 @@ def _indices(features: tuple[Discrete, ...], state: StateLike) -> tuple[int, ...
         )
     if len(state) != len(features):
         raise ValueError(f"state {tuple(state)!r} needs one label for each of {names}")
-    return tuple(_state_index(f, s) for f, s in zip(features, state, strict=True))
+    return tuple(state_index(f, s) for f, s in zip(features, state, strict=True))
 
 
 def _labels(features: tuple[Discrete, ...], index: tuple[int, ...]) -> State:
     return tuple(f.states[i] for f, i in zip(features, index, strict=True))
+
+
+@dataclass(frozen=True)
+class ProjectedSpace:
+    """The joint states of some of the state features: a projection of the full space.
+
+    A plan whose goal reads a few features needs only them and the features their next
+    values depend on (:meth:`~inference.sequences.factored_steps.StepModel.relevant`); its
+    states are the combinations of those, numbered in mixed radix (the last feature
+    fastest), never listed. A full state (every state feature's label, as a tuple or a
+    mapping) is read by its projected features' labels; so is a mapping naming at least
+    them, or a tuple of the projected features' labels alone.
+
+    Examples
+    --------
+    >>> from effect_networks.models import Discrete
+    >>> door, lock, light = (Discrete(n, (0, 1)) for n in ("door", "lock", "light"))
+    >>> space = ProjectedSpace((door, light), (door, lock, light))
+    >>> len(space), space.index_of((1, 0, 1)), space.state(3)
+    (4, 3, (1, 1))
+    """
+
+    features: tuple[Discrete, ...]
+    all_features: tuple[Discrete, ...]
+
+    @property
+    def names(self) -> tuple[str, ...]:
+        """The projected features' names."""
+        return tuple(f.name for f in self.features)
+
+    @property
+    def sizes(self) -> tuple[int, ...]:
+        """The projected features' numbers of states."""
+        return tuple(f.cardinality for f in self.features)
+
+    def __len__(self) -> int:
+        return math.prod(self.sizes)
+
+    def state(self, i: int) -> State:
+        """State ``i``'s labels, one per projected feature."""
+        digits = []
+        for k in reversed(self.sizes):
+            i, d = divmod(i, k)
+            digits.append(d)
+        return _labels(self.features, tuple(reversed(digits)))
+
+    @property
+    def states(self) -> Iterator[State]:
+        """Every projected state's labels, in index order (generated, not stored)."""
+        return (self.state(i) for i in range(len(self)))
+
+    def labels(self, i: int) -> dict[str, Hashable]:
+        """State ``i`` as ``{feature: label}``."""
+        return dict(zip(self.names, self.state(i), strict=True))
+
+    def index_of(self, state: StateLike | int) -> int:
+        """The index of a state's projection (a full state, or the projected labels)."""
+        if isinstance(state, int) and not isinstance(state, bool):
+            if not 0 <= state < len(self):
+                raise ValueError(f"state index {state} outside 0..{len(self) - 1}")
+            return state
+        if isinstance(state, Mapping):
+            missing = [n for n in self.names if n not in state]
+            unknown = sorted(set(state) - {f.name for f in self.all_features}, key=str)
+            if missing or unknown:
+                raise ValueError(
+                    f"state {dict(state)!r} must name the features {self.names} (missing: "
+                    f"{missing}) and only state features (unknown: {unknown})"
+                )
+            labels = tuple(state[n] for n in self.names)
+        elif isinstance(state, Sequence) and not isinstance(state, str | bytes):
+            if len(state) == len(self.all_features):
+                full = dict(zip((f.name for f in self.all_features), state, strict=True))
+                labels = tuple(full[n] for n in self.names)
+            elif len(state) == len(self.features):
+                labels = tuple(state)
+            else:
+                raise ValueError(
+                    f"state {tuple(state)!r} needs one label for each state feature "
+                    f"{tuple(f.name for f in self.all_features)} (or each of {self.names})"
+                )
+        else:
+            raise ValueError(f"a state is a tuple of labels or a mapping, got {state!r}")
+        index = 0
+        for f, label in zip(self.features, labels, strict=True):
+            index = index * f.cardinality + state_index(f, label)
+        return index
+
+    def digits(self) -> torch.Tensor:
+        """``(S, F)`` long: every projected state's index per feature."""
+        grids = torch.meshgrid(*(torch.arange(k) for k in self.sizes), indexing="ij")
+        return torch.stack([g.reshape(-1) for g in grids], -1).reshape(len(self), -1)
+
+    def mask(self, selection: Selection) -> torch.Tensor:
+        """``(S,)`` bool: the projected states ``selection`` picks.
+
+        Labels of some projected features, or a predicate on a state's ``{feature: label}``.
+        """
+        if callable(selection) and not isinstance(selection, Mapping):
+            return torch.tensor([bool(selection(self.labels(i))) for i in range(len(self))])
+        if not isinstance(selection, Mapping):
+            raise ValueError(
+                f"a selection is a mapping feature -> label or a predicate, got {selection!r}"
+            )
+        digits = self.digits()
+        keep = torch.ones(len(self), dtype=torch.bool)
+        for name, label in selection.items():
+            if name not in self.names:
+                raise ValueError(f"{name!r} is not one of the features {self.names}")
+            j = self.names.index(name)
+            keep &= digits[:, j] == state_index(self.features[j], label)
+        return keep

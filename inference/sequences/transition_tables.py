@@ -317,8 +317,8 @@ def transitions(
         )
     check_params(net, params)
     space = states if isinstance(states, StateSpace) else StateSpace.of(net, states)
-    names = _actions(net, actions)
-    offered = _offered(net, params, names, parameter_values)
+    names = requested_actions(net, actions)
+    offered = offered_actions(net, params, names, parameter_values)
     _check_size(net, space, offered)
     if tables is None:
         ends = [end_site(f.name) for f in space.features]
@@ -333,7 +333,7 @@ def transitions(
     return replace(out, probs=probs)
 
 
-def _check_size(net: EffectNetwork, space: StateSpace, offered: _Offered) -> None:
+def _check_size(net: EffectNetwork, space: StateSpace, offered: OfferedActions) -> None:
     """Refuse a question whose tables would hold more than :data:`MAX_ENTRIES` numbers.
 
     The tables read at every ``(state, action, next state)`` with the latent sites they span.
@@ -349,14 +349,17 @@ def _check_size(net: EffectNetwork, space: StateSpace, offered: _Offered) -> Non
         for scope in scopes
     )
     if s * a * s * widest > MAX_ENTRIES:
+        gib = s * a * s * widest * 8 / 2**30
         raise ValueError(
             f"{s} states x {a} actions x {s} next states (x {widest} latent configurations) "
-            f"is more than {MAX_ENTRIES} numbers: pass states= (the states that occur) or "
-            "actions="
+            f"is {s * a * s * widest:.3g} numbers ({gib:.3g} GiB of float64), more than "
+            f"{MAX_ENTRIES}: pass states= (the states that occur) or actions=, or keep the "
+            "step factored (step_model: one table per site; plan uses it by itself)"
         )
 
 
-def _actions(net: EffectNetwork, actions: Iterable[str] | None) -> list[int]:
+def requested_actions(net: EffectNetwork, actions: Iterable[str] | None) -> list[int]:
+    """The network's indices of the actions named (default all), checked."""
     if actions is None:
         return list(range(len(net.actions)))
     if isinstance(actions, str):
@@ -368,7 +371,7 @@ def _actions(net: EffectNetwork, actions: Iterable[str] | None) -> list[int]:
 
 
 @dataclass(frozen=True)
-class _Offered:
+class OfferedActions:
     """The offered actions: labels, each one's action index and fixed clusters."""
 
     labels: tuple[str, ...]
@@ -377,7 +380,8 @@ class _Offered:
     choices: tuple[dict[str, object], ...]
 
 
-def _offered(net, params, names: list[int], parameter_values: str) -> _Offered:
+def offered_actions(net, params, names: list[int], parameter_values: str) -> OfferedActions:
+    """The actions offered: each named one, or once per cluster of its parameters."""
     labels, action, choices = [], [], []
     clusters: dict[str, list[int]] = {m.cluster.site: [] for m in net.mixtures}
     for a in names:
@@ -404,7 +408,7 @@ def _offered(net, params, names: list[int], parameter_values: str) -> _Offered:
     fixed_sites = (
         {k: long(v) for k, v in clusters.items()} if parameter_values == "clusters" else {}
     )
-    return _Offered(tuple(labels), long(action), fixed_sites, tuple(choices))
+    return OfferedActions(tuple(labels), long(action), fixed_sites, tuple(choices))
 
 
 def _product(ranges: list[range]) -> list[tuple[int, ...]]:
@@ -414,7 +418,9 @@ def _product(ranges: list[range]) -> list[tuple[int, ...]]:
     return out
 
 
-def _transitions(net, space: StateSpace, offered: _Offered, tables: ModelTables) -> Transitions:
+def _transitions(
+    net, space: StateSpace, offered: OfferedActions, tables: ModelTables
+) -> Transitions:
     s, a = len(space), len(offered.labels)
     features = {f.name: j for j, f in enumerate(space.features)}
     index: dict[str, torch.Tensor] = {}  # fixed site -> index broadcastable to (S, A, S')

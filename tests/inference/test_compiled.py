@@ -7,6 +7,7 @@ import mpmath
 import numpy as np
 import pytest
 import torch
+from effect_networks.experiments.switch_worlds import switch_world
 from effect_networks.inference import infer_action
 from effect_networks.inference.queries.action_tables import compile_discrete
 from effect_networks.models import Continuous, EffectNetwork
@@ -585,3 +586,13 @@ def test_one_row_query_refuses_complex_and_huge_hits_as_encode_does(hit, match):
         warnings.simplefilter("error")
         with pytest.raises(ValueError, match=match):
             query.infer_parameter({"end.hit": hit, "action": "throw"})
+
+
+def test_a_compiled_plan_of_a_large_world_takes_the_factored_route():
+    world = switch_world(12, "sparse")
+    compiled = inference.compile(world.net, world.params)
+    got = compiled.plan(world.start, world.goal, 5)
+    want = inference.plan(world.net, world.params, world.start, world.goal, 5)
+    assert got.route == want.route == "projected" and got.success == want.success
+    with pytest.raises(ValueError, match="route must be"):
+        compiled.plan(world.start, world.goal, 5, route="quick")

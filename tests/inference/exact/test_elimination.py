@@ -54,6 +54,34 @@ def test_contraction_is_the_dense_sum(seed):
     assert torch.allclose(maximum(factors, dims).expand_as(top), top, rtol=0, atol=TOL)
 
 
+@pytest.mark.parametrize("seed", range(4))
+def test_leaves_summed_together_are_each_ones_own_sum(seed):
+    """Private latent dims (a prior and a factor with a kept dim each, as a latent initial
+    feature under an observed end): their sums, batched as one, equal one sum per dim and
+    the dense joint's."""
+    g = torch.Generator().manual_seed(seed)
+    k, kept = 6, -2  # dims -3 .. -8 private, -2 kept (3 states), rows last
+    factors = []
+    for i in range(k):
+        d = -3 - i
+        shape = [1] * (k + 1)
+        shape[d + 1] = 2
+        factors.append(torch.randn(*shape, 2, generator=g, dtype=DTYPE) * 3)  # its prior
+        both = list(shape)
+        both[kept + 1] = 3
+        factors.append(torch.randn(*both, 2, generator=g, dtype=DTYPE) * 3)  # with the kept dim
+    factors[0] = torch.where(factors[0] > 2, -torch.inf, factors[0])
+    eliminate = [-3 - i for i in range(k)]
+    dense = sum(factors)
+    want = dense.logsumexp([dense.dim() + d for d in eliminate], keepdim=True)
+    got = contract(factors, eliminate)
+    assert torch.allclose(got.expand_as(want), want, rtol=0, atol=TOL)
+    one_by_one = sum(
+        (factors[2 * i] + factors[2 * i + 1]).logsumexp(-3 - i, keepdim=True) for i in range(k)
+    )
+    assert torch.allclose(got.expand_as(one_by_one), one_by_one, rtol=0, atol=TOL)
+
+
 @pytest.mark.parametrize("seed", range(6))
 def test_max_product_finds_a_best_configuration(seed):
     factors, dims = random_factors(seed)

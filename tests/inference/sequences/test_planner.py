@@ -281,6 +281,8 @@ def test_the_planning_page_runs_and_says_what_its_comments_say():
     )
     assert namespace["no_key"].success < 0.9  # without unlock only an unlocked start opens
     assert len(namespace["space"]) == 4
+    big = namespace["big"]
+    assert (big.route, big.features) == ("projected", ("f0", "f1", "f2", "f3"))
 
 
 def test_planning_on_the_readme_network():
