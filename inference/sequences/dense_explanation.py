@@ -29,14 +29,13 @@ from effect_networks.inference.sequences.demonstration import (
     with_action_prior,
 )
 from effect_networks.inference.sequences.explanation import Explanation, outside_flags
+from effect_networks.inference.sequences.hidden_steps import MAX_STEP_TABLE
 from effect_networks.inference.sequences.states import StateSpace
 from effect_networks.models.declaration import ACTION, DTYPE, EffectNetwork
 from effect_networks.models.evidence import Evidence
 from effect_networks.models.params import NetworkParams, check_params
 from effect_networks.models.sites import end_site, initial_site
 
-#: Largest step table (states x actions x states) :func:`explain` builds.
-MAX_STEP_TABLE = 1 << 22
 #: Elements of the step tables held at once (distinct steps x states x actions x states).
 TABLE_ELEMENTS = 1 << 24
 #: Elements of the per-demonstration tensors one pass over the batch holds at once.

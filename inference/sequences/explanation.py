@@ -32,9 +32,10 @@ space over the batch, over those configurations only
 step's action and the demonstration's log-likelihood, Viterbi for the most probable
 action sequence and state path, jointly. With every state fully observed nothing is
 latent and each step is :func:`~inference.queries.action.infer_action`'s question, asked
-with the same action prior. A step whose table would exceed :data:`MAX_STEP_TABLE`
-entries is refused, naming it. The same question over every state at every time, the
-tests' twin, is :func:`~inference.sequences.dense_explanation.explain_dense`.
+with the same action prior. A step whose table would exceed
+:data:`~inference.sequences.hidden_steps.MAX_STEP_TABLE` entries is refused, naming it.
+The same question over every state at every time, the tests' twin, is
+:func:`~inference.sequences.dense_explanation.explain_dense`.
 """
 
 from __future__ import annotations
