@@ -21,7 +21,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 import torch
 from effect_networks.inference.queries.sampling import simulate
-from effect_networks.inference.sequences.states import StateSpace
+from effect_networks.inference.sequences.states import StateSpace, state_features
 from effect_networks.models.cpds import TableParams
 from effect_networks.models.declaration import ACTION, DTYPE, Continuous, Discrete, EffectNetwork
 from effect_networks.models.params import NetworkParams
@@ -32,23 +32,26 @@ from effect_networks.models.sites import end_site, initial_site
 class Demonstrations:
     """A batch read.
 
-    ``allowed`` ``(n, T + 1, S)`` the states consistent with what each time shows; ``continuous[f]``
-    ``(n, T + 1, d)`` (NaN: not observed); ``outcomes[f]`` ``(n, T + 1)`` state indices of discrete
-    outcome features (-1: not observed).
+    ``shown`` ``(n, T + 1, F)`` long: per state feature (declaration order) the state index each
+    time shows, -1 where not observed; ``allowed`` ``(n, T + 1, S)`` the states of a listed space
+    consistent with what each time shows (``None`` where read without a space);
+    ``continuous[f]`` ``(n, T + 1, d)`` (NaN: not observed); ``outcomes[f]`` ``(n, T + 1)``
+    state indices of discrete outcome features (-1: not observed).
     """
 
-    allowed: torch.Tensor
+    allowed: torch.Tensor | None
     continuous: dict[str, np.ndarray]
     outcomes: dict[str, np.ndarray]
+    shown: torch.Tensor
 
     @property
     def shape(self) -> tuple[int, int]:
         """``(n, T)``."""
-        return self.allowed.shape[0], self.allowed.shape[1] - 1
+        return self.shown.shape[0], self.shown.shape[1] - 1
 
     @staticmethod
-    def read(net: EffectNetwork, space: StateSpace, states) -> Demonstrations:
-        """Read ``states`` against ``space``.
+    def read(net: EffectNetwork, space: StateSpace | None, states) -> Demonstrations:
+        """Read ``states`` against ``space`` (``None``: every combination, ``allowed`` not built).
 
         ``states`` is :func:`~inference.sequences.explanation.explain`'s one demonstration or batch; a
         ``ValueError`` names the feature, the value and what was expected.
@@ -65,7 +68,6 @@ class Demonstrations:
         n, times = lengths.pop()
         if times < 2:
             raise ValueError(f"states: a demonstration needs at least 2 states, got {times}")
-        allowed = torch.ones(n, times, len(space), dtype=torch.bool)
         continuous, outcomes, indices = {}, {}, {}
         for f in net.features:
             value = batch.get(f.name)
@@ -85,30 +87,40 @@ class Demonstrations:
                 else:
                     _unobserved_first(f, ~np.isnan(x[:, 0]).all(-1))
                 continuous[f.name] = x
-        for f, digit in zip(space.features, space.index.T, strict=True):
-            index = torch.from_numpy(indices[f.name])
-            allowed &= (index[..., None] < 0) | (index[..., None] == digit)
+        state = state_features(net)
+        shown = torch.from_numpy(
+            np.stack([indices[f.name] for f in state], -1)
+            if state
+            else np.zeros((n, times, 0), dtype=np.int64)
+        )
+        if space is None:
+            return Demonstrations(None, continuous, outcomes, shown)
+        allowed = torch.ones(n, times, len(space), dtype=torch.bool)
+        for j, digit in enumerate(space.index.T):
+            index = shown[..., j, None]
+            allowed &= (index < 0) | (index == digit)
         empty = ~allowed.any(-1)
         if bool(empty.any()):
             i, t = (int(x) for x in empty.nonzero()[0])
-            shown = {f.name: f.states[indices[f.name][i, t]] for f in space.features}
+            seen = {f.name: f.states[indices[f.name][i, t]] for f in space.features}
             raise ValueError(
-                f"states: demonstration {i} at time {t} shows {shown}, which no state of "
+                f"states: demonstration {i} at time {t} shows {seen}, which no state of "
                 f"the state space ({len(space)} states) matches"
             )
-        return Demonstrations(allowed, continuous, outcomes)
+        return Demonstrations(allowed, continuous, outcomes, shown)
 
     def split(self, size: int) -> list[Demonstrations]:
         """The batch in parts of ``size`` demonstrations (the last may be shorter)."""
-        n = self.shape[0]
-        return [
-            Demonstrations(
-                self.allowed[i : i + size],
-                {f: x[i : i + size] for f, x in self.continuous.items()},
-                {f: x[i : i + size] for f, x in self.outcomes.items()},
-            )
-            for i in range(0, n, size)
-        ]
+        return [self.part(slice(i, i + size)) for i in range(0, self.shape[0], size)]
+
+    def part(self, rows: slice) -> Demonstrations:
+        """The demonstrations ``rows`` of the batch."""
+        return Demonstrations(
+            None if self.allowed is None else self.allowed[rows],
+            {f: x[rows] for f, x in self.continuous.items()},
+            {f: x[rows] for f, x in self.outcomes.items()},
+            self.shown[rows],
+        )
 
     def step_keys(self) -> tuple[np.ndarray, np.ndarray]:
         """Each step's observation as an index among the distinct ones, and the distinct ones.

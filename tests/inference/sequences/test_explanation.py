@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import itertools
 import math
-from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -22,35 +21,13 @@ from effect_networks.inference.sequences.demonstration import simulate_demonstra
 from effect_networks.inference.sequences.explanation import Explanation, explain
 from effect_networks.models import Continuous, Discrete, EffectNetwork, random_params
 from effect_networks.models.can_pyramid import can_network
-from effect_networks.models.cpds import TableParams
 from effect_networks.models.declaration import DTYPE
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
 from tests.helpers import discrete_network
+from tests.inference.sequences.demonstration_worlds import OUTCOME_NET, PLAIN_NET, uniform_prior
 from tests.networks import README_NET
-
-#: a world of two state features and a discrete outcome that depends on the door's end
-OUTCOME_NET = EffectNetwork(
-    features=(
-        Discrete("door", ("shut", "open", "locked")),
-        Discrete("light", ("off", "on")),
-        Discrete("creak", (False, True), initial=False),
-    ),
-    actions=("push", "flip", "wait"),
-    parents={"end.creak": ("end.door", "action")},
-)
-PLAIN_NET = EffectNetwork(
-    features=(Discrete("a", (0, 1)), Discrete("b", ("x", "y", "z"))),
-    actions=("go", "stay"),
-)
-
-
-def uniform_prior(net, params):
-    a = len(net.actions)
-    cpds = dict(params.cpds)
-    cpds["action"] = TableParams(torch.full((a,), 1 / a, dtype=DTYPE), params["action"].n)
-    return replace(params, cpds=cpds)
 
 
 def log_table(net, params, site: str, values: dict) -> float:
@@ -366,20 +343,24 @@ def test_errors_name_what_is_wrong():
 
 @pytest.mark.filterwarnings("ignore::effect_networks.inference.OutsideTrainingData")
 def test_parts_and_chunks_answer_as_one_batch(monkeypatch):
-    """Step tables built part by part and paths summed chunk by chunk: the same answers."""
+    """The batch read part by part and the step tables row by row: the same answers as all
+    at once."""
     import effect_networks.inference.sequences.explanation as module
+    import effect_networks.inference.sequences.hidden_steps as steps
 
     net, params = README_NET, random_params(README_NET, 6)
     states, _ = simulate_demonstrations(net, params, 7, 3, seed=2)
     states["visible"][:, 1] = None
     whole = explain(net, params, states)
-    monkeypatch.setattr(module, "TABLE_ELEMENTS", 4 * 3 * 4 * 2)  # two demonstrations a part
-    monkeypatch.setattr(module, "CHUNK_ELEMENTS", 4 * 3)  # one demonstration a chunk
+    monkeypatch.setattr(module, "TABLE_ELEMENTS", 3 * (1 + 2 + 2) * 2)  # two demonstrations a part
+    monkeypatch.setattr(steps, "ROW_CHUNK", len(net.actions))  # one (start, end) pair a read
     parts = explain(net, params, states)
     assert torch.allclose(whole.probs, parts.probs, atol=1e-12)
     assert torch.allclose(whole.log_likelihood, parts.log_likelihood, atol=1e-12)
     assert whole.best_names == parts.best_names
     assert torch.equal(whole.implausible, parts.implausible)
+    assert torch.allclose(whole.state_probs, parts.state_probs, atol=1e-12)
+    assert torch.equal(whole.path, parts.path)
 
 
 def test_simulated_demonstrations_are_read_back():
