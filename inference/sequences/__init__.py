@@ -16,7 +16,11 @@
   with an approximate route and its :class:`Certificate` beyond a budget).
 * :mod:`~inference.sequences.explanation` -- :func:`explain`: a demonstration (a
   sequence of observed states) read as the actions that produced it
-  (:class:`Explanation`); :mod:`~inference.sequences.demonstration` holds the
+  (:class:`Explanation`), summing at each time only the configurations of what it does
+  not show (:mod:`~inference.sequences.hidden_steps`, the step tables;
+  :mod:`~inference.sequences.hidden_paths`, the sums over paths;
+  :mod:`~inference.sequences.dense_explanation`, the route over every state, kept as
+  the tests' twin); :mod:`~inference.sequences.demonstration` holds the
   demonstrations' encoding and draws them from a network.
 * :mod:`~inference.sequences.chaining` -- :func:`link_probabilities` and :func:`chain`:
   one network's continuous output read as another's actions (:class:`BoxPartition`,

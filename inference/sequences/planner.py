@@ -196,7 +196,7 @@ def _read_by(net: EffectNetwork, start, goal) -> list[str] | None:
 
 
 def dense_wanted(net: EffectNetwork, states, normalise, allowed, start) -> bool:
-    """Whether ``route="auto"`` plans on the dense tensor (see :func:`plan`'s ``route``)."""
+    """Whether ``route="auto"`` plans on the dense tensor (see ``plan``'s ``route``)."""
     if states is not None or normalise:
         return True
     if isinstance(allowed, torch.Tensor) and allowed.dim() == 2:

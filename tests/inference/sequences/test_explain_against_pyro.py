@@ -59,7 +59,9 @@ def pyro_log_evidence(world, demo, times: int) -> float:
     return -float(elbo.loss(model, lambda: None))
 
 
-@pytest.mark.parametrize("k, hidden, seed", [(4, 0.0, 0), (5, 0.2, 1), (6, 0.2, 2)])
+@pytest.mark.parametrize(
+    "k, hidden, seed", [(4, 0.0, 0), (5, 0.2, 1), (6, 0.2, 2), (10, 0.2, 3), (12, 0.2, 4)]
+)
 def test_explain_s_log_likelihood_is_pyro_s(k, hidden, seed):
     world = switch_world(k, "sparse")
     states, _ = simulate_demonstrations(world.net, world.params, 3, 4, seed=seed)
