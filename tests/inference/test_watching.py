@@ -6,6 +6,8 @@ brute-force posterior over each step's action, and the true tables of a switch w
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 import torch
@@ -14,8 +16,10 @@ from effect_networks.inference import fit
 from effect_networks.inference.sequences.demonstration import simulate_demonstrations
 from effect_networks.inference.watching import fit_demonstrations
 from effect_networks.models import Discrete, EffectNetwork, random_params
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
-from tests.networks import tap_net
+from tests.networks import declared_networks, tap_net
 
 
 @pytest.fixture(scope="module")
@@ -104,3 +108,62 @@ def test_hidden_state_values_and_parameters_are_refused_with_the_reason():
         fit_demonstrations(world.net, [demo[:1] * 2], [["jump"]])
     with pytest.raises(ValueError, match="does not record an action's parameter"):
         fit_demonstrations(tap_net(), [[{"visible": 1}, {"visible": 0}]])
+
+
+@settings(max_examples=20, deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(declared_networks(), st.integers(0, 2**16), st.data())
+def test_one_em_step_is_brute_force_over_every_action_and_hidden_outcome(net, seed, data):
+    """On drawn networks (end -> end parents, outcome features): one EM step from drawn
+    tables equals the counts of every step's every action and hidden outcome, weighted by
+    their posterior, written out by hand."""
+    init = random_params(net, seed)
+    g = np.random.default_rng(seed)
+    states = [f for f in net.features if f.initial]
+    outcomes = [f for f in net.features if not f.initial]
+    demos, labels = [], []
+    for _ in range(3):
+        demo = []
+        for t in range(3):
+            state = {f.name: f.states[g.integers(f.cardinality)] for f in states}
+            if t:
+                for f in outcomes:
+                    hide = data.draw(st.booleans())
+                    state[f.name] = None if hide else f.states[g.integers(f.cardinality)]
+            demo.append(state)
+        demos.append(demo)
+        labels.append([data.draw(st.sampled_from([None, *net.actions])) for _ in range(2)])
+    got = fit_demonstrations(net, demos, labels, init=init, steps=1, tol=1e-300)
+    if len(got.log_likelihoods) < 2:
+        return  # the step would have lowered the likelihood (a pseudo-count's pull): not taken
+    sites = [s.name for s in net.sites]
+    counts = {s: torch.zeros_like(init[s].probs) for s in sites}
+    for demo, marks in zip(demos, labels, strict=True):
+        for t in range(2):
+            fixed = {f"initial.{f.name}": f.states.index(demo[t][f.name]) for f in states}
+            fixed |= {f"end.{f.name}": f.states.index(demo[t + 1][f.name]) for f in states}
+            open_ = [f for f in outcomes if demo[t + 1][f.name] is None]
+            for f in outcomes:
+                if demo[t + 1][f.name] is not None:
+                    fixed[f"end.{f.name}"] = f.states.index(demo[t + 1][f.name])
+            actions = range(len(net.actions)) if marks[t] is None else [net.actions.index(marks[t])]
+            completions, weights = [], []
+            for a in actions:
+                for values in itertools.product(*(range(f.cardinality) for f in open_)):
+                    row = {**fixed, "action": a}
+                    row |= {f"end.{f.name}": v for f, v in zip(open_, values, strict=True)}
+                    w = 1.0
+                    for s in sites:
+                        parents = net.cpd(s).parents
+                        w *= float(init[s].probs[tuple(row[q] for q in parents) + (row[s],)])
+                    completions.append(row)
+                    weights.append(w)
+            total = sum(weights)
+            for row, w in zip(completions, weights, strict=True):
+                for s in sites:
+                    parents = net.cpd(s).parents
+                    counts[s][tuple(row[q] for q in parents) + (row[s],)] += w / total
+    for s in sites:
+        c = counts[s]
+        alpha = 0.01  # fit_demonstrations' pseudo-count
+        want = (c + alpha) / (c + alpha).sum(-1, keepdim=True)
+        torch.testing.assert_close(got.params[s].probs, want, rtol=0, atol=1e-10)
