@@ -103,6 +103,12 @@ def factored_plan(
     relevant = model.relevant(goal_features)
     by_name = {f.name: f for f in model.features}
     full = math.prod(by_name[n].cardinality for n in relevant)
+    if full > budget and not isinstance(goal, Mapping):
+        raise ValueError(
+            f"a predicate goal reads every feature ({full} joint states, more than "
+            f"budget={budget}): give the goal as labels of the features it reads "
+            "({feature: label}), which the plan projects onto"
+        )
     if full <= budget:
         planned, route = relevant, "projected"
     else:
@@ -415,6 +421,13 @@ def _prior_over(model: StepModel, space: ProjectedSpace, start: Mapping) -> torc
         todo.extend(by_site[site].scope)
     by_name = {f.name: f for f in model.features}
     fixed = {initial_site(n): state_index(by_name[n], v) for n, v in start.items()}
+    free = {q for f in kept.values() for q in f.scope if q not in fixed}
+    free |= {initial_site(n) for n in space.names}
+    if len(free) > len(_LETTERS):
+        raise ValueError(
+            f"a partial start leaves {len(free)} initial sites to weigh by the initial "
+            f"tables, more than {len(_LETTERS)}: name more of the start's features"
+        )
     letters: dict[str, str] = {}
     tables, terms = [], []
     for f in kept.values():

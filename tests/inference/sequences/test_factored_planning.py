@@ -208,6 +208,9 @@ def test_factored_routes_refuse_what_only_the_dense_tensor_answers():
         plan(world.net, world.params, lambda s: True, world.goal, 2, route="factored")
     with pytest.raises(ValueError, match="route must be"):
         plan(world.net, world.params, world.start, world.goal, 2, route="fast")
+    big = switch_world(20, "sparse")
+    with pytest.raises(ValueError, match="a predicate goal reads every feature"):
+        plan(big.net, big.params, big.start, lambda s: s["f0"] == "on", 2)
 
 
 @pytest.mark.parametrize("mode", ["integrate", "clusters"])
