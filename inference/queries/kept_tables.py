@@ -95,8 +95,8 @@ class _Same:
 class _Factor:
     """How one site's traced factor is read off its full table for one row."""
 
-    table: torch.Tensor  # the full table, permuted: observed axes, then the latent ones
-    observed: tuple[str | None, ...]  # per observed axis its site, None where of size 1
+    table: torch.Tensor  # the full table, permuted: the observed axes it spans, then the latent
+    observed: tuple[str, ...]  # per observed axis its site (the sites it does not span dropped)
     shape: torch.Size  # the traced factor's
     order: tuple[int, ...]  # its dims from the outermost in memory (stride 0: broadcast)
 
@@ -169,7 +169,15 @@ class KeptTables:
                 return None
             table = lp.permute(*obs_axes, *lat_axes, *rest)
             table = table.reshape(table.shape[: len(obs_axes) + len(lat_axes)])
-            sites = tuple(s if lp.shape[rank + full_dims[s]] > 1 else None for s in observed)
+            spans = [lp.shape[rank + full_dims[s]] > 1 for s in observed]
+            sites = tuple(s for s, kept in zip(observed, spans, strict=True) if kept)
+            # an observed axis of size one is read at 0 on every row: dropped here once
+            dropped = [
+                k
+                for k, kept in zip(table.shape, [*spans, *[True] * len(lat_axes)], strict=True)
+                if kept
+            ]
+            table = table.reshape(dropped)
             held = [d for d in range(real.dim()) if real.stride(d) > 0]
             order = sorted(held, key=lambda d: -real.stride(d))
             order += [d for d in range(real.dim()) if d not in order]
@@ -200,10 +208,7 @@ def _rebuilt(
         node = dict(node)
         if name in factors:
             f = factors[name]
-            at = tuple(
-                evidence[s] if s is not None else torch.zeros(1, dtype=torch.long)
-                for s in f.observed
-            )
+            at = tuple(evidence[s] for s in f.observed)
             lp = f.table[at] if at else f.table[None]  # (1, latent sizes...)
             lp = lp.movedim(0, -1)
             # laid out in memory as the traced factor is (a sum's order follows the layout)
