@@ -13,7 +13,8 @@ keep one chunk's joint small (:func:`over_row_chunks`, :func:`row_chunks`,
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping
+from collections.abc import Iterable, Iterator, Mapping
+from contextlib import contextmanager
 
 import torch
 from effect_networks.inference.exact.elimination import contract_size
@@ -135,15 +136,40 @@ def over_row_chunks(
     """
     size = enumeration_size(net, evidence, keep, contracted=contracted)
     outs = []
-    for rows in row_chunks(evidence.n_rows, size):
-        chunk = evidence.rows(rows)
-        enumerated = enumerate_model(
-            net, params, chunk, keep=keep, trace_only=trace_only, tracer=tracer
-        )
-        outs.append(fn(enumerated, chunk, rows))
+    chunks = row_chunks(evidence.n_rows, size)
+    widest = max((r.stop - r.start for r in chunks), default=0)
+    with one_thread_below(size * widest):
+        for rows in chunks:
+            chunk = evidence.rows(rows)
+            enumerated = enumerate_model(
+                net, params, chunk, keep=keep, trace_only=trace_only, tracer=tracer
+            )
+            outs.append(fn(enumerated, chunk, rows))
     if isinstance(outs[0], tuple):
         return tuple(torch.cat(parts, 0) for parts in zip(*outs, strict=True))
     return torch.cat(outs, 0)
+
+
+#: Elements of one chunk's sums up to which torch's intra-op threads cost more than they
+#: save: an op of at most a million numbers gains little from being split, and where other
+#: processes hold some of the cores each split op waits for its slowest thread (a batch of
+#: 1,000 rows at 8 features ran 20x slower per row on two shared cores with two threads
+#: than with one). Such a query runs on one thread, the caller's setting restored after.
+SMALL_WORK = 1 << 20
+
+
+@contextmanager
+def one_thread_below(elements: int) -> Iterator[None]:
+    """Run the block on one torch thread where ``elements`` is at most :data:`SMALL_WORK`."""
+    threads = torch.get_num_threads()
+    if threads == 1 or elements > SMALL_WORK:
+        yield
+        return
+    torch.set_num_threads(1)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(threads)
 
 
 # Elements of one chunk's joint tensor (8 MiB of float64). Larger chunks cost more than
