@@ -50,6 +50,7 @@ from effect_networks.inference.fitting.maximum_likelihood import fit
 from effect_networks.inference.fitting.missing import available_case_start, fit_missing
 from effect_networks.inference.fitting.reading import read_rows
 from effect_networks.inference.fitting.result import ConvergenceWarning
+from effect_networks.inference.hidden_demonstrations import fit_hidden_states
 from effect_networks.inference.queries.action import infer_action
 from effect_networks.models.cpds.table import TableParams
 from effect_networks.models.declaration import ACTION, Continuous, Discrete, EffectNetwork
@@ -155,7 +156,12 @@ def fit_demonstrations(
         )
     if not isinstance(restarts, int) or restarts < 0:
         raise ValueError(f"restarts must be an int >= 0, got {restarts!r}")
+    if isinstance(demonstrations, Mapping):
+        demonstrations = _from_batch(net, demonstrations)
     steps_rows, labels = _step_rows(net, demonstrations, actions)
+    hidden = _hidden_state(net, demonstrations)
+    if hidden is not None:
+        _refuse_beside_hidden_states(net, rows, hidden)
     data = _joined(net, steps_rows, rows)
     read = read_rows(net, data)
     enc, gaps = read.enc, read.gaps
@@ -164,22 +170,32 @@ def fit_demonstrations(
     if init is not None:
         inits.append(init)
     else:
+        starts = [lambda: _effect_start(net, data, len(steps_rows[ACTION]), pseudo_count)]
         if has_labels:
-            inits.append(available_case_start(net, enc, gaps, pseudo_count, 1e-6))
-        inits.append(_effect_start(net, data, len(steps_rows[ACTION]), pseudo_count))
+            starts.insert(0, lambda: available_case_start(net, enc, gaps, pseudo_count, 1e-6))
+        for start in starts:
+            try:
+                inits.append(start())
+            except ValueError:
+                # hidden state values may leave a table without a row that gives its
+                # family: that start does not exist, the random ones do
+                if hidden is None:
+                    raise
         inits += [random_params(net, seed + r) for r in range(restarts)]
     if not inits:
         raise ValueError("no labelled step and restarts=0: EM has no start")
     runs = []
+    settings = {"pseudo_count": pseudo_count, "steps": steps, "tol": tol}
+    if hidden is not None:
+        marks = _label_indices(net, steps_rows[ACTION], demonstrations)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
         for init in inits:
             init = NetworkParams(init.cpds, pseudo_count, net)
-            runs.append(
-                fit_missing(
-                    net, enc, gaps, init=init, pseudo_count=pseudo_count, steps=steps, tol=tol
-                )
-            )
+            if hidden is None:
+                runs.append(fit_missing(net, enc, gaps, init=init, **settings))
+            else:
+                runs.append(fit_hidden_states(net, demonstrations, marks, init=init, **settings))
     finals = tuple(r.log_likelihoods[-1] if r.log_likelihoods else -math.inf for r in runs)
     best = runs[int(np.argmax(finals))]
     params = best.params
@@ -209,8 +225,6 @@ def fit_demonstrations(
 
 def _step_rows(net, demonstrations, actions):
     """One row per step (the action None where unlabelled), and which steps are labelled."""
-    if isinstance(demonstrations, Mapping):
-        demonstrations = _from_batch(net, demonstrations)
     if isinstance(actions, np.ndarray):
         actions = actions.tolist()
     if not isinstance(demonstrations, Sequence):
@@ -236,14 +250,6 @@ def _step_rows(net, demonstrations, actions):
             unknown = set(state) - {f.name for f in net.features}
             if unknown:
                 raise ValueError(f"demonstration {i}, time {t}: {sorted(unknown)} are not features")
-            for f in net.features:
-                if f.initial and _missing(state.get(f.name)):
-                    raise ValueError(
-                        f"demonstration {i}, time {t}: {f.name!r} is not given. A feature with "
-                        "an initial node carries over from one step to the next: a hidden value "
-                        "of it is a hidden state, which fit_demonstrations does not sum; give it "
-                        "at every time (or drop the demonstration's steps around it)"
-                    )
         for t in range(len(demo) - 1):
             for f in net.features:
                 if f.initial:
@@ -266,6 +272,44 @@ def _step_rows(net, demonstrations, actions):
         else:
             rows[site] = np.asarray(values, dtype=np.float64).reshape(len(values), -1)
     return rows, np.asarray(labelled)
+
+
+def _hidden_state(net, demonstrations) -> tuple[int, int, str] | None:
+    """The first (demonstration, time, feature) that hides a state value, None if none does."""
+    for i, demo in enumerate(demonstrations):
+        for t, state in enumerate(demo):
+            for f in net.features:
+                if f.initial and _missing(state.get(f.name)):
+                    return i, t, f.name
+    return None
+
+
+def _refuse_beside_hidden_states(net, rows, hidden) -> None:
+    """What EM over hidden states does not cover: continuous features, training rows."""
+    i, t, name = hidden
+    where = f"demonstration {i}, time {t} hides {name!r}: a hidden state carried over time"
+    continuous = [f.name for f in net.features if isinstance(f, Continuous)]
+    if continuous:
+        raise ValueError(
+            f"{where}, which fit_demonstrations sums over networks of discrete features only; "
+            f"this one has continuous features {continuous}: give {name!r} at every time (or "
+            "drop the demonstration's steps around it)"
+        )
+    if rows is not None:
+        raise ValueError(
+            f"{where}; fit_demonstrations does not join training rows (rows=) to that fit: "
+            "give each row as a demonstration of one step instead"
+        )
+
+
+def _label_indices(net, labels, demonstrations) -> list[list[int | None]]:
+    """Per demonstration, each step's action index (None where not labelled)."""
+    flat = [None if x is None else net.action_index(x) for x in labels]
+    out, at = [], 0
+    for demo in demonstrations:
+        out.append(flat[at : at + len(demo) - 1])
+        at += len(demo) - 1
+    return out
 
 
 def _effect_start(net, data, n_steps: int, pseudo_count: float) -> NetworkParams:
