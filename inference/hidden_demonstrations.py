@@ -17,10 +17,11 @@ product of its steps' rows::
 
 (``a_t`` summed too where the step is not labelled). Every step's start counts in the
 initial tables, not time 0's alone: with every state shown this is the per-step fit
-exactly, and the counts it gives the initial tables are the starts of all the steps.
+exactly, and the initial tables count the starts of all the steps.
 :func:`~inference.sequences.explanation.explain` reads a demonstration with time 0 alone
-drawn from them; the two agree on every posterior over actions and hidden values where
-time 0 is the only start that hides a value.
+drawn from them and the actions from a prior it is given; the model here multiplies in
+every start's initial probability as well, which weighs a hidden start's configurations
+by the initial tables at every time.
 
 **E-step.** Each step's table of ``log p(H_t, x_t) + log p(a) + log p(H_{t+1}, x_{t+1} |
 H_t, x_t, a)`` over (start configuration, action, end configuration), read off the

@@ -31,9 +31,16 @@ any, the actions are named by a reference network's tables where one is given
 (``reference=``: the relabelling whose tables are closest to it, by total variation), and
 the result says they are not identified (``identifiable=False``) otherwise.
 
-A state feature hidden at some time links the steps on either side of it (its value at
-one step's end is its value at the next one's start): that is a hidden state carried
-over time, which this fit does not sum; it is refused with the feature and the time.
+**Hidden state values.** A state feature hidden at some time links the steps on either
+side of it (its value at one step's end is its value at the next one's start): a hidden
+state carried over time, and the steps are no longer separate rows. Where any
+demonstration hides a state value, EM runs by forward-backward over each time's hidden
+configurations instead (:mod:`inference.hidden_demonstrations`): exact for the model in
+which every step is a row of the network (every step's start drawn from the initial
+tables, as the per-step fit counts them), the log-likelihood never falling; with every
+state shown it is the per-step fit above. That route covers networks of discrete
+features; with continuous features, or with ``rows=``, a hidden state value is refused,
+naming the demonstration, the time and the feature.
 """
 
 from __future__ import annotations
@@ -124,9 +131,12 @@ def fit_demonstrations(
         demonstration does not record a parameter's value).
     demonstrations
         Demonstrations, each a sequence of ``T + 1 >= 2`` states ``{feature: value}``;
-        every state feature (discrete, with an initial node) and every continuous
-        feature with an initial node is given at every time; an outcome feature
-        (``initial=False``) or a continuous end value may be missing (absent, None, NaN).
+        every continuous feature with an initial node is given at every time; an outcome
+        feature (``initial=False``) or a continuous end value may be missing (absent,
+        None, NaN). A state feature (discrete, with an initial node) may be hidden
+        (absent, None) at some times where every feature of the network is discrete and
+        ``rows`` is not given: EM then sums the hidden states carried from step to step
+        exactly (the module's notes).
     actions
         Per demonstration, ``T`` labels: an action's name where the step was labelled,
         None where not (default: none labelled).
