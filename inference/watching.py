@@ -346,7 +346,7 @@ def _effect_start(net, data, n_steps: int, pseudo_count: float) -> NetworkParams
     if not columns:
         return random_params(net, 0)
     change = np.stack(columns, 1).astype(np.int64)
-    labels = np.asarray(data[ACTION][:n_steps], dtype=object)
+    labels = np.array(data[ACTION][:n_steps], dtype=object)  # a copy: the steps keep theirs
     open_steps = np.array([v is None for v in labels])
     kinds, counts = np.unique(change[open_steps], axis=0, return_counts=True)
     common = kinds[np.argsort(-counts, kind="stable")][: len(net.actions)]
@@ -422,24 +422,40 @@ def _labelled_rows(rows: Mapping) -> bool:
 
 
 def _recognised(net, params, steps_rows, labels) -> tuple[float, float]:
-    """The mean posterior of the label, and the share recognised, on the labelled steps."""
+    """The mean posterior of the label, and the share recognised, on the labelled steps.
+
+    Each step's posterior given the values it shows (its start and end), the steps that
+    show the same sites asked together; a step that shows nothing has the action table.
+    """
     if not labels.any():
         return math.nan, math.nan
-    evidence = {
-        site: column[labels]
-        for site, column in steps_rows.items()
-        if site != ACTION and not _column_missing(net, site, column[labels])
-    }
+    sites = [site for site in steps_rows if site != ACTION]
+    shown = np.stack(
+        [~_value_missing(net, site, steps_rows[site][labels]) for site in sites], 1
+    ).reshape(int(labels.sum()), len(sites))
     truth = torch.tensor([net.action_index(a) for a in steps_rows[ACTION][labels]])
-    probs = infer_action(net, params, evidence).probs
+    probs = torch.empty(len(truth), len(net.actions), dtype=params[ACTION].probs.dtype)
+    patterns, which = np.unique(shown, axis=0, return_inverse=True)
+    for k, pattern in enumerate(patterns):
+        rows = np.flatnonzero(which.reshape(-1) == k)
+        evidence = {
+            site: steps_rows[site][labels][rows]
+            for site, given in zip(sites, pattern, strict=True)
+            if given
+        }
+        if evidence:
+            probs[rows] = infer_action(net, params, evidence).probs
+        else:
+            probs[rows] = params[ACTION].probs
     mine = probs.gather(1, truth[:, None]).squeeze(1)
     return float(mine.mean()), float((probs.argmax(1) == truth).to(torch.float64).mean())
 
 
-def _column_missing(net, site, column) -> bool:
+def _value_missing(net, site, column) -> np.ndarray:
+    """``(m,)`` bool: each row of a step column misses its value."""
     if net.site(site).discrete:
-        return any(v is None for v in column)
-    return bool(np.isnan(column).any())
+        return np.array([v is None for v in column], dtype=bool)
+    return np.isnan(np.asarray(column, dtype=np.float64)).any(-1)
 
 
 def _aligned(net, params, reference) -> NetworkParams:
