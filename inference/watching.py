@@ -93,8 +93,8 @@ class WatchedFit:
         aligned to ``reference``. False: the actions are learned up to a relabelling.
     confidence, agreement : float
         On the labelled steps, the learned network's mean posterior of the label (the
-        label hidden), and the share whose most likely action is the label (NaN without
-        labelled steps).
+        label hidden, given the values the step shows at its start and end), and the
+        share whose most likely action is the label (NaN without labelled steps).
     """
 
     params: NetworkParams = field(repr=False)
