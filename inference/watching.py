@@ -31,9 +31,16 @@ any, the actions are named by a reference network's tables where one is given
 (``reference=``: the relabelling whose tables are closest to it, by total variation), and
 the result says they are not identified (``identifiable=False``) otherwise.
 
-A state feature hidden at some time links the steps on either side of it (its value at
-one step's end is its value at the next one's start): that is a hidden state carried
-over time, which this fit does not sum; it is refused with the feature and the time.
+**Hidden state values.** A state feature hidden at some time links the steps on either
+side of it (its value at one step's end is its value at the next one's start): a hidden
+state carried over time, and the steps are no longer separate rows. Where any
+demonstration hides a state value, EM runs by forward-backward over each time's hidden
+configurations instead (:mod:`inference.hidden_demonstrations`): exact for the model in
+which every step is a row of the network (every step's start drawn from the initial
+tables, as the per-step fit counts them), the log-likelihood never falling; with every
+state shown it is the per-step fit above. That route covers networks of discrete
+features; with continuous features, or with ``rows=``, a hidden state value is refused,
+naming the demonstration, the time and the feature.
 """
 
 from __future__ import annotations
@@ -50,6 +57,7 @@ from effect_networks.inference.fitting.maximum_likelihood import fit
 from effect_networks.inference.fitting.missing import available_case_start, fit_missing
 from effect_networks.inference.fitting.reading import read_rows
 from effect_networks.inference.fitting.result import ConvergenceWarning
+from effect_networks.inference.hidden_demonstrations import fit_hidden_states
 from effect_networks.inference.queries.action import infer_action
 from effect_networks.models.cpds.table import TableParams
 from effect_networks.models.declaration import ACTION, Continuous, Discrete, EffectNetwork
@@ -85,8 +93,8 @@ class WatchedFit:
         aligned to ``reference``. False: the actions are learned up to a relabelling.
     confidence, agreement : float
         On the labelled steps, the learned network's mean posterior of the label (the
-        label hidden), and the share whose most likely action is the label (NaN without
-        labelled steps).
+        label hidden, given the values the step shows at its start and end), and the
+        share whose most likely action is the label (NaN without labelled steps).
     """
 
     params: NetworkParams = field(repr=False)
@@ -123,9 +131,12 @@ def fit_demonstrations(
         demonstration does not record a parameter's value).
     demonstrations
         Demonstrations, each a sequence of ``T + 1 >= 2`` states ``{feature: value}``;
-        every state feature (discrete, with an initial node) and every continuous
-        feature with an initial node is given at every time; an outcome feature
-        (``initial=False``) or a continuous end value may be missing (absent, None, NaN).
+        every continuous feature with an initial node is given at every time; an outcome
+        feature (``initial=False``) or a continuous end value may be missing (absent,
+        None, NaN). A state feature (discrete, with an initial node) may be hidden
+        (absent, None) at some times where every feature of the network is discrete and
+        ``rows`` is not given: EM then sums the hidden states carried from step to step
+        exactly (the module's notes).
     actions
         Per demonstration, ``T`` labels: an action's name where the step was labelled,
         None where not (default: none labelled).
@@ -155,7 +166,12 @@ def fit_demonstrations(
         )
     if not isinstance(restarts, int) or restarts < 0:
         raise ValueError(f"restarts must be an int >= 0, got {restarts!r}")
+    if isinstance(demonstrations, Mapping):
+        demonstrations = _from_batch(net, demonstrations)
     steps_rows, labels = _step_rows(net, demonstrations, actions)
+    hidden = _hidden_state(net, demonstrations)
+    if hidden is not None:
+        _refuse_beside_hidden_states(net, rows, hidden)
     data = _joined(net, steps_rows, rows)
     read = read_rows(net, data)
     enc, gaps = read.enc, read.gaps
@@ -164,22 +180,32 @@ def fit_demonstrations(
     if init is not None:
         inits.append(init)
     else:
+        starts = [lambda: _effect_start(net, data, len(steps_rows[ACTION]), pseudo_count)]
         if has_labels:
-            inits.append(available_case_start(net, enc, gaps, pseudo_count, 1e-6))
-        inits.append(_effect_start(net, data, len(steps_rows[ACTION]), pseudo_count))
+            starts.insert(0, lambda: available_case_start(net, enc, gaps, pseudo_count, 1e-6))
+        for start in starts:
+            try:
+                inits.append(start())
+            except ValueError:
+                # hidden state values may leave a table without a row that gives its
+                # family: that start does not exist, the random ones do
+                if hidden is None:
+                    raise
         inits += [random_params(net, seed + r) for r in range(restarts)]
     if not inits:
         raise ValueError("no labelled step and restarts=0: EM has no start")
     runs = []
+    settings = {"pseudo_count": pseudo_count, "steps": steps, "tol": tol}
+    if hidden is not None:
+        marks = _label_indices(net, steps_rows[ACTION], demonstrations)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
         for init in inits:
             init = NetworkParams(init.cpds, pseudo_count, net)
-            runs.append(
-                fit_missing(
-                    net, enc, gaps, init=init, pseudo_count=pseudo_count, steps=steps, tol=tol
-                )
-            )
+            if hidden is None:
+                runs.append(fit_missing(net, enc, gaps, init=init, **settings))
+            else:
+                runs.append(fit_hidden_states(net, demonstrations, marks, init=init, **settings))
     finals = tuple(r.log_likelihoods[-1] if r.log_likelihoods else -math.inf for r in runs)
     best = runs[int(np.argmax(finals))]
     params = best.params
@@ -209,8 +235,6 @@ def fit_demonstrations(
 
 def _step_rows(net, demonstrations, actions):
     """One row per step (the action None where unlabelled), and which steps are labelled."""
-    if isinstance(demonstrations, Mapping):
-        demonstrations = _from_batch(net, demonstrations)
     if isinstance(actions, np.ndarray):
         actions = actions.tolist()
     if not isinstance(demonstrations, Sequence):
@@ -236,14 +260,6 @@ def _step_rows(net, demonstrations, actions):
             unknown = set(state) - {f.name for f in net.features}
             if unknown:
                 raise ValueError(f"demonstration {i}, time {t}: {sorted(unknown)} are not features")
-            for f in net.features:
-                if f.initial and _missing(state.get(f.name)):
-                    raise ValueError(
-                        f"demonstration {i}, time {t}: {f.name!r} is not given. A feature with "
-                        "an initial node carries over from one step to the next: a hidden value "
-                        "of it is a hidden state, which fit_demonstrations does not sum; give it "
-                        "at every time (or drop the demonstration's steps around it)"
-                    )
         for t in range(len(demo) - 1):
             for f in net.features:
                 if f.initial:
@@ -266,6 +282,44 @@ def _step_rows(net, demonstrations, actions):
         else:
             rows[site] = np.asarray(values, dtype=np.float64).reshape(len(values), -1)
     return rows, np.asarray(labelled)
+
+
+def _hidden_state(net, demonstrations) -> tuple[int, int, str] | None:
+    """The first (demonstration, time, feature) that hides a state value, None if none does."""
+    for i, demo in enumerate(demonstrations):
+        for t, state in enumerate(demo):
+            for f in net.features:
+                if f.initial and _missing(state.get(f.name)):
+                    return i, t, f.name
+    return None
+
+
+def _refuse_beside_hidden_states(net, rows, hidden) -> None:
+    """What EM over hidden states does not cover: continuous features, training rows."""
+    i, t, name = hidden
+    where = f"demonstration {i}, time {t} hides {name!r}: a hidden state carried over time"
+    continuous = [f.name for f in net.features if isinstance(f, Continuous)]
+    if continuous:
+        raise ValueError(
+            f"{where}, which fit_demonstrations sums over networks of discrete features only; "
+            f"this one has continuous features {continuous}: give {name!r} at every time (or "
+            "drop the demonstration's steps around it)"
+        )
+    if rows is not None:
+        raise ValueError(
+            f"{where}; fit_demonstrations does not join training rows (rows=) to that fit: "
+            "give each row as a demonstration of one step instead"
+        )
+
+
+def _label_indices(net, labels, demonstrations) -> list[list[int | None]]:
+    """Per demonstration, each step's action index (None where not labelled)."""
+    flat = [None if x is None else net.action_index(x) for x in labels]
+    out, at = [], 0
+    for demo in demonstrations:
+        out.append(flat[at : at + len(demo) - 1])
+        at += len(demo) - 1
+    return out
 
 
 def _effect_start(net, data, n_steps: int, pseudo_count: float) -> NetworkParams:
@@ -292,7 +346,7 @@ def _effect_start(net, data, n_steps: int, pseudo_count: float) -> NetworkParams
     if not columns:
         return random_params(net, 0)
     change = np.stack(columns, 1).astype(np.int64)
-    labels = np.asarray(data[ACTION][:n_steps], dtype=object)
+    labels = np.array(data[ACTION][:n_steps], dtype=object)  # a copy: the steps keep theirs
     open_steps = np.array([v is None for v in labels])
     kinds, counts = np.unique(change[open_steps], axis=0, return_counts=True)
     common = kinds[np.argsort(-counts, kind="stable")][: len(net.actions)]
@@ -368,24 +422,40 @@ def _labelled_rows(rows: Mapping) -> bool:
 
 
 def _recognised(net, params, steps_rows, labels) -> tuple[float, float]:
-    """The mean posterior of the label, and the share recognised, on the labelled steps."""
+    """The mean posterior of the label, and the share recognised, on the labelled steps.
+
+    Each step's posterior given the values it shows (its start and end), the steps that
+    show the same sites asked together; a step that shows nothing has the action table.
+    """
     if not labels.any():
         return math.nan, math.nan
-    evidence = {
-        site: column[labels]
-        for site, column in steps_rows.items()
-        if site != ACTION and not _column_missing(net, site, column[labels])
-    }
+    sites = [site for site in steps_rows if site != ACTION]
+    shown = np.stack(
+        [~_value_missing(net, site, steps_rows[site][labels]) for site in sites], 1
+    ).reshape(int(labels.sum()), len(sites))
     truth = torch.tensor([net.action_index(a) for a in steps_rows[ACTION][labels]])
-    probs = infer_action(net, params, evidence).probs
+    probs = torch.empty(len(truth), len(net.actions), dtype=params[ACTION].probs.dtype)
+    patterns, which = np.unique(shown, axis=0, return_inverse=True)
+    for k, pattern in enumerate(patterns):
+        rows = np.flatnonzero(which.reshape(-1) == k)
+        evidence = {
+            site: steps_rows[site][labels][rows]
+            for site, given in zip(sites, pattern, strict=True)
+            if given
+        }
+        if evidence:
+            probs[rows] = infer_action(net, params, evidence).probs
+        else:
+            probs[rows] = params[ACTION].probs
     mine = probs.gather(1, truth[:, None]).squeeze(1)
     return float(mine.mean()), float((probs.argmax(1) == truth).to(torch.float64).mean())
 
 
-def _column_missing(net, site, column) -> bool:
+def _value_missing(net, site, column) -> np.ndarray:
+    """``(m,)`` bool: each row of a step column misses its value."""
     if net.site(site).discrete:
-        return any(v is None for v in column)
-    return bool(np.isnan(column).any())
+        return np.array([v is None for v in column], dtype=bool)
+    return np.isnan(np.asarray(column, dtype=np.float64)).any(-1)
 
 
 def _aligned(net, params, reference) -> NetworkParams:

@@ -85,7 +85,7 @@ def over_hidden_paths(
     m = len(configs.state)
     demo_of = configs.owner // (steps + 1)  # (M,) each configuration's demonstration
     time_of = configs.owner % (steps + 1)
-    at = [(pairs.step % steps == t).nonzero().squeeze(-1) for t in range(steps)]
+    at = step_order(pairs, steps)
     top, act = tables.log_step.max(-1)  # (P,): the action maximised (Viterbi)
     summed = _logsumexp(tables.log_step, top)  # (P,): the action summed out
     # the start given state 0: the initial distribution over time 0's configurations
@@ -94,18 +94,9 @@ def over_hidden_paths(
     log_start.index_put_((pairs.start[at[0]],), tables.log_start[at[0]])
     start = torch.where(first, log_start, -torch.inf)
     norm = segment_logsumexp(start[first], demo_of[first], n)
-    alpha = torch.where(first, start - norm[demo_of], -torch.inf)
-    for t in range(steps):
-        p = at[t]
-        into = segment_logsumexp(alpha[pairs.start[p]] + summed[p], pairs.end[p], m)
-        alpha = torch.where(time_of == t + 1, into, alpha)
-    last = time_of == steps
-    log_likelihood = segment_logsumexp(alpha[last], demo_of[last], n)
-    beta = torch.where(last, 0.0, -torch.inf).to(DTYPE)
-    for t in reversed(range(steps)):
-        p = at[t]
-        back = segment_logsumexp(beta[pairs.end[p]] + summed[p], pairs.start[p], m)
-        beta = torch.where(time_of == t, back, beta)
+    alpha, beta, log_likelihood = forward_backward(
+        configs, pairs, summed, torch.where(first, start - norm[demo_of], -torch.inf), shape, at
+    )
     z = log_likelihood[demo_of]
     config_probs = (alpha + beta - z).exp()
     # each step's action: the pairs' joint with the action kept, summed per step
@@ -123,6 +114,47 @@ def over_hidden_paths(
         flags,
         initial,
     )
+
+
+def step_order(pairs: StepPairs, steps: int) -> list[torch.Tensor]:
+    """Per time ``t``, the positions of the pairs of every demonstration's step ``t``."""
+    return [(pairs.step % steps == t).nonzero().squeeze(-1) for t in range(steps)]
+
+
+def forward_backward(
+    configs: HiddenConfigurations,
+    pairs: StepPairs,
+    summed: torch.Tensor,
+    first: torch.Tensor,
+    shape: tuple[int, int],
+    at: list[torch.Tensor] | None = None,
+) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The forward and backward messages over the pairs, and each demonstration's log-sum.
+
+    ``summed`` ``(P,)``: each pair's log-factor (the action summed out); ``first`` ``(M,)``:
+    the log-weight of each time-0 configuration (``-inf`` at the other times). Returns
+    ``alpha``, ``beta`` ``(M,)`` and ``(n,)`` the log-sum over every path of the product of
+    its start weight and its pairs' factors; ``alpha + beta`` at a configuration, less that
+    sum, is its log-posterior.
+    """
+    n, steps = shape
+    m = len(configs.state)
+    demo_of = configs.owner // (steps + 1)
+    time_of = configs.owner % (steps + 1)
+    at = step_order(pairs, steps) if at is None else at
+    alpha = torch.where(time_of == 0, first, -torch.inf)
+    for t in range(steps):
+        p = at[t]
+        into = segment_logsumexp(alpha[pairs.start[p]] + summed[p], pairs.end[p], m)
+        alpha = torch.where(time_of == t + 1, into, alpha)
+    last = time_of == steps
+    log_sum = segment_logsumexp(alpha[last], demo_of[last], n)
+    beta = torch.where(last, 0.0, -torch.inf).to(DTYPE)
+    for t in reversed(range(steps)):
+        p = at[t]
+        back = segment_logsumexp(beta[pairs.end[p]] + summed[p], pairs.start[p], m)
+        beta = torch.where(time_of == t, back, beta)
+    return alpha, beta, log_sum
 
 
 def _viterbi(configs, pairs, top, act, at, alpha, shape):

@@ -15,7 +15,7 @@ from effect_networks.experiments.switch_worlds import switch_world
 from effect_networks.inference import fit
 from effect_networks.inference.sequences.demonstration import simulate_demonstrations
 from effect_networks.inference.watching import fit_demonstrations
-from effect_networks.models import Discrete, EffectNetwork, random_params
+from effect_networks.models import Continuous, Discrete, EffectNetwork, random_params
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
@@ -98,12 +98,19 @@ def test_without_labels_the_actions_are_named_by_a_reference(watched):
         assert _weighted_tv(named.params, full, site) < 0.1, site
 
 
-def test_hidden_state_values_and_parameters_are_refused_with_the_reason():
+def test_hidden_state_values_beside_what_their_em_does_not_cover_are_refused():
     world = switch_world(4, "sparse")
     demo = [dict.fromkeys(("f0", "f1", "f2", "f3"), "off") for _ in range(3)]
     demo[1] = {**demo[1], "f2": None}
-    with pytest.raises(ValueError, match=r"time 1: 'f2' is not given.*hidden state"):
-        fit_demonstrations(world.net, [demo])
+    got = fit_demonstrations(world.net, [demo], [["wait", None]], steps=3)
+    assert got.steps == 2 and got.labelled == 1
+    rows = {s.name: ["off"] for s in world.net.sites if s.name != "action"} | {"action": ["wait"]}
+    with pytest.raises(ValueError, match=r"time 1 hides 'f2'.*give each row as a demonstration"):
+        fit_demonstrations(world.net, [demo], rows=rows)
+    net = EffectNetwork((Discrete("door", ("shut", "open")), Continuous("x", 1)), ("push", "wait"))
+    hidden = [{"door": None, "x": [0.0]}, {"door": "open", "x": [1.0]}]
+    with pytest.raises(ValueError, match=r"time 0 hides 'door'.*continuous features \['x'\]"):
+        fit_demonstrations(net, [hidden])
     with pytest.raises(ValueError, match="not one of"):
         fit_demonstrations(world.net, [demo[:1] * 2], [["jump"]])
     with pytest.raises(ValueError, match="does not record an action's parameter"):

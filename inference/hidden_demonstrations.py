@@ -1,0 +1,300 @@
+r"""EM over demonstrations that hide state values: forward-backward over each time's hidden part.
+
+A state feature (discrete, with an initial node) hidden at time ``t`` is step ``t - 1``'s
+end and step ``t``'s start at once, so the steps are no longer separate rows: the
+demonstration is a hidden Markov model over each time's hidden configurations (the
+states that agree with what the time shows, :mod:`inference.sequences.hidden_steps`)::
+
+    H_0 ──a_0──> H_1 ──a_1──> H_2  ...  ──a_{T-1}──> H_T      H_t: the discrete state
+
+**The model fitted.** As :func:`~inference.watching.fit_demonstrations` reads
+demonstrations whose states are all shown, every step is a row of the network: its start
+drawn from the initial tables, its action from the action table, its end from the end
+tables. A demonstration's likelihood is the sum over its hidden configurations of the
+product of its steps' rows::
+
+    L = sum over H_0..H_T of  prod_t  p(H_t, x_t) p(a_t) p(H_{t+1}, x_{t+1} | H_t, x_t, a_t)
+
+(``a_t`` summed too where the step is not labelled). Every step's start counts in the
+initial tables, not time 0's alone: with every state shown this is the per-step fit
+exactly, and the initial tables count the starts of all the steps.
+:func:`~inference.sequences.explanation.explain` reads a demonstration with time 0 alone
+drawn from them and the actions from a prior it is given; the model here multiplies in
+every start's initial probability as well, which weighs a hidden start's configurations
+by the initial tables at every time.
+
+**E-step.** Each step's table of ``log p(H_t, x_t) + log p(a) + log p(H_{t+1}, x_{t+1} |
+H_t, x_t, a)`` over (start configuration, action, end configuration), read off the
+traced model by explain's machinery (:func:`~inference.sequences.hidden_steps.read_step_tables`,
+a labelled step's other actions ruled out), and its forward and backward messages
+(:func:`~inference.sequences.hidden_paths.forward_backward`) give each step's two-slice
+posterior over (configuration at ``t``, action, configuration at ``t + 1``) given the whole
+demonstration, exactly.
+
+**M-step.** Each step is completed once per entry of that posterior's support (the
+configuration pair read as full states, the action), weighted by the entry, and the
+toolkit's closed forms fit the weighted rows
+(:func:`~inference.fitting.sufficient_statistics.statistics`,
+:func:`~inference.fitting.sufficient_statistics.params_from_statistics`, with the
+pseudo-count). EM on ``L`` then never lowers it.
+
+Scope: networks whose features are all discrete and that have no action parameter. An
+outcome feature (``initial=False``) that a step does not show is summed inside the step's
+table, and the M-step completes it too: each completed row once per value of it, weighted
+by its posterior given the row (the step's states and action separate it from the other
+steps, so that posterior is exact).
+
+**Cost.** A step's table spans (configurations of its start) x actions x (configurations
+of its end): ``A`` entries where both ends show every state feature, ``2^(h + h')`` times
+as many where they hide ``h`` and ``h'`` binary ones, read once per distinct
+(observation, start, end) per EM step; the messages and the completed rows are linear in
+those entries. A step past
+:data:`~inference.sequences.hidden_steps.MAX_STEP_TABLE` entries is refused, naming it.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+from effect_networks.inference.exact.enumeration import enumerate_model, row_chunks
+from effect_networks.inference.fitting.result import ConvergenceWarning, FitResult
+from effect_networks.inference.fitting.rows import check_settings
+from effect_networks.inference.fitting.sufficient_statistics import (
+    params_from_statistics,
+    statistics,
+)
+from effect_networks.inference.sequences.demonstration import Demonstrations
+from effect_networks.inference.sequences.hidden_paths import forward_backward
+from effect_networks.inference.sequences.hidden_steps import (
+    StateCodes,
+    hidden_configurations,
+    read_step_tables,
+    step_pairs,
+)
+from effect_networks.inference.sequences.states import state_features
+from effect_networks.models.declaration import ACTION, DTYPE, Discrete, EffectNetwork
+from effect_networks.models.evidence import Evidence
+from effect_networks.models.params import NetworkParams
+from effect_networks.models.sites import end_site, initial_site
+
+__all__ = ["CompletedSteps", "completed_steps", "fit_hidden_states"]
+
+#: The covariance floor the closed forms take (no linear Gaussian here: a formality).
+_MIN_VARIANCE = 1e-6
+
+
+@dataclass(frozen=True)
+class CompletedSteps:
+    """An E-step's result (:func:`completed_steps`).
+
+    ``rows``: every step completed once per entry of its posterior's support (states,
+    action, hidden outcomes); ``weights`` ``(m,)`` the entries' posterior probabilities
+    (each step's sum to 1); ``log_likelihoods`` ``(n,)`` each demonstration's log-likelihood
+    (the model of the module: every step a row, hidden values and unlabelled actions
+    summed out).
+    """
+
+    rows: Evidence
+    weights: torch.Tensor
+    log_likelihoods: torch.Tensor
+
+    @property
+    def log_likelihood(self) -> float:
+        """The demonstrations' summed log-likelihood."""
+        return float(self.log_likelihoods.sum())
+
+
+def fit_hidden_states(
+    net: EffectNetwork,
+    demonstrations: Sequence[Sequence[dict]],
+    labels: Sequence[Sequence[int | None]],
+    *,
+    init: NetworkParams,
+    pseudo_count: float = 0.01,
+    steps: int = 500,
+    tol: float = 1e-6,
+) -> FitResult:
+    """EM on demonstrations whose state values may be hidden, exact for the module's model.
+
+    Parameters
+    ----------
+    net
+        A network of discrete features only, without action parameters.
+    demonstrations
+        Demonstrations, each ``T + 1 >= 2`` states ``{feature: label or None}`` (None or
+        absent: hidden).
+    labels
+        Per demonstration ``T`` action indices, None where the step is not labelled.
+    init, pseudo_count, steps, tol
+        EM's start, the closed forms' pseudo-count, the most EM steps, and the tolerance:
+        the fit has converged when a step raises the per-step log-likelihood by less than
+        ``tol`` times its magnitude (absolute below 1 nat), or would lower it (a
+        pseudo-count's pull near the optimum); such a step is not taken.
+
+    Returns
+    -------
+    FitResult
+        ``log_likelihoods``: the summed log-likelihood at the start and after each step
+        taken (never falling); ``losses``: minus the same per step.
+    """
+    _check_scope(net)
+    check_settings(pseudo_count=pseudo_count, steps=steps, tol=tol)
+    n_steps = sum(len(d) - 1 for d in demonstrations)
+    params = init
+    completed = completed_steps(net, params, demonstrations, labels)
+    log_liks = [completed.log_likelihood]
+    converged = False
+    for _ in range(steps):
+        stats = statistics(net, completed.rows, completed.weights)
+        cpds = params_from_statistics(net, stats, pseudo_count, _MIN_VARIANCE)
+        proposal = NetworkParams(cpds, params.pseudo_count, net)
+        step = completed_steps(net, proposal, demonstrations, labels)
+        if not step.log_likelihood >= log_liks[-1]:  # a pseudo-count's pull, or NaN
+            converged = True
+            break
+        params, completed = proposal, step
+        log_liks.append(step.log_likelihood)
+        gain = (log_liks[-1] - log_liks[-2]) / n_steps
+        if gain <= tol * max(1.0, abs(log_liks[-1] / n_steps)):
+            converged = True
+            break
+    if not converged:
+        warnings.warn(
+            f"EM over the demonstrations' hidden states did not settle in {steps} steps; "
+            "raise steps",
+            ConvergenceWarning,
+            stacklevel=2,
+        )
+    losses = tuple(-x / n_steps for x in log_liks)
+    return FitResult(params, losses, converged, tuple(log_liks), tol, steps)
+
+
+def completed_steps(
+    net: EffectNetwork,
+    params: NetworkParams,
+    demonstrations: Sequence[Sequence[dict]],
+    labels: Sequence[Sequence[int | None]],
+) -> CompletedSteps:
+    """The E-step: every step's two-slice posterior given its whole demonstration, as rows.
+
+    Demonstrations of the same length are read as one batch. ``ValueError`` names a
+    demonstration that has probability 0 under ``params``.
+    """
+    _check_scope(net)
+    by_length: dict[int, list[int]] = {}
+    for i, demo in enumerate(demonstrations):
+        by_length.setdefault(len(demo), []).append(i)
+    parts, weights = [], []
+    log_liks = torch.empty(len(demonstrations), dtype=DTYPE)
+    for which in by_length.values():
+        rows, w, lls = _completed_batch(
+            net, params, [demonstrations[i] for i in which], [labels[i] for i in which]
+        )
+        bad = (lls == -torch.inf).nonzero()
+        if len(bad):
+            raise ValueError(
+                f"demonstration {which[int(bad[0])]} has probability 0 under the parameters "
+                "(every completion of its hidden values and actions is impossible): no posterior "
+                "exists; start from tables with a pseudo-count"
+            )
+        log_liks[which] = lls
+        parts.append(rows)
+        weights.append(w)
+    rows = {site: torch.cat([p[site] for p in parts]) for site in parts[0]}
+    n = sum(p.n_rows for p in parts)
+    return CompletedSteps(Evidence(net, rows, n), torch.cat(weights), log_liks)
+
+
+def _check_scope(net: EffectNetwork) -> None:
+    continuous = [f.name for f in net.features if not isinstance(f, Discrete)]
+    if continuous or net.mixtures:
+        raise ValueError(
+            "EM over hidden state values covers networks of discrete features without action "
+            f"parameters; this one has continuous features {continuous} and parameters "
+            f"{[p.name for p in net.parameters]}: show every state feature at every time"
+        )
+
+
+def _completed_batch(net, params, demonstrations, labels):
+    """:func:`completed_steps` for demonstrations of one length: rows, weights, ``(n,)`` sums."""
+    n, steps = len(demonstrations), len(demonstrations[0]) - 1
+    a = len(net.actions)
+    batch = {}
+    for f in net.features:
+        column = np.empty((n, steps + 1), dtype=object)
+        for i, demo in enumerate(demonstrations):
+            for t, state in enumerate(demo):
+                # an outcome feature has no value before the first step
+                column[i, t] = state.get(f.name) if (f.initial or t) else None
+        batch[f.name] = column
+    demo = Demonstrations.read(net, None, batch)
+    codes = StateCodes.of(state_features(net), None)
+    configs = hidden_configurations(demo, codes)
+    pairs = step_pairs(configs, (n, steps), a)
+    tables = read_step_tables(net, params, codes, demo, configs, pairs)
+    # every step's start drawn from the initial tables: the pair's whole row
+    factor = tables.log_step + tables.log_start[:, None]  # (P, A)
+    label = torch.tensor(
+        [-1 if x is None else int(x) for marks in labels for x in marks], dtype=torch.long
+    )[pairs.step]
+    other = (label[:, None] >= 0) & (torch.arange(a) != label[:, None])
+    factor = factor.masked_fill(other, -torch.inf)
+    summed = factor.logsumexp(-1)
+    first = torch.zeros(len(configs.state), dtype=DTYPE)
+    alpha, beta, log_liks = forward_backward(configs, pairs, summed, first, (n, steps))
+    if bool((log_liks == -torch.inf).any()):
+        return None, None, log_liks
+    z = log_liks[pairs.step // steps]
+    joint = alpha[pairs.start, None] + factor + beta[pairs.end, None] - z[:, None]
+    weight = joint.exp()
+    pair, action = (weight > 0).nonzero(as_tuple=True)
+    start = codes.digits(configs.state[pairs.start[pair]])
+    end = codes.digits(configs.state[pairs.end[pair]])
+    values = {ACTION: action}
+    for j, f in enumerate(state_features(net)):
+        values[initial_site(f.name)] = start[:, j]
+        values[end_site(f.name)] = end[:, j]
+    step = pairs.step[pair]
+    masks = {}
+    for name, index in demo.outcomes.items():
+        outcome = torch.from_numpy(index[:, 1:].reshape(-1))[step]
+        values[end_site(name)] = outcome.clamp(min=0)
+        if bool((outcome < 0).any()):
+            masks[end_site(name)] = outcome >= 0
+    rows = net.encode_indices(values)
+    return *_outcomes_completed(net, params, rows, weight[pair, action], masks), log_liks
+
+
+def _outcomes_completed(net, params, rows: Evidence, weights, masks):
+    """Each row once per value of its hidden outcomes, its weight times their posterior.
+
+    The row's states and action given, its outcomes depend on no other step: the model
+    enumerated over them alone gives their exact posterior.
+    """
+    if not masks:
+        return rows, weights
+    size = math.prod(net.site(site).size for site in masks)
+    parts, out = [], []
+    for chunk in row_chunks(rows.n_rows, size):
+        some = rows.rows(chunk)
+        enumerated = enumerate_model(
+            net, params, some, masks={s: m[chunk] for s, m in masks.items()}
+        )
+        assert set(enumerated.dims) == set(masks), (enumerated.dims, list(masks))
+        posterior = enumerated.posterior()  # (K_k, ..., K_1, m)
+        flat = posterior.reshape(-1, some.n_rows)
+        assignment, row = flat.nonzero(as_tuple=True)
+        values = {}
+        for site, dim in enumerated.dims.items():
+            k = net.site(site).size
+            states = torch.arange(k).reshape(k, *([1] * (-dim - 2)))
+            values[site] = states.expand(posterior.shape[:-1]).reshape(-1)[assignment]
+        parts.append(some.rows(row) | net.encode_indices(values))
+        out.append(weights[chunk][row] * flat[assignment, row])
+    completed = {site: torch.cat([p[site] for p in parts]) for site in parts[0]}
+    return Evidence(net, completed, sum(p.n_rows for p in parts)), torch.cat(out)
