@@ -431,7 +431,9 @@ def _boxes(link: BoxPartition, mixture: GaussianMixture, nodes: int) -> LinkProb
     weighted = mixture.weights[..., None] * per_box
     probs = weighted.new_zeros(len(weighted), len(link.actions))
     probs.index_add_(1, column, weighted.sum(1))
-    return LinkProbabilities(probs, (mixture.weights * none).sum(1), link.actions, None, method)
+    none = (mixture.weights * none).sum(1)
+    # weights that sum to 1 + 2e-16 would carry a certain box past 1 by as much
+    return LinkProbabilities(probs.clamp_(0, 1), none.clamp(0, 1), link.actions, None, method)
 
 
 def _bounded(link: BoxPartition) -> torch.Tensor:
