@@ -202,8 +202,9 @@ def fit_demonstrations(
         warnings.simplefilter("ignore", ConvergenceWarning)
         for init in inits:
             init = NetworkParams(init.cpds, pseudo_count, net)
-            if hidden is None:
-                runs.append(fit_missing(net, enc, gaps, init=init, **settings))
+            if hidden is None:  # a step hides its action and a few outcomes: completing
+                # each row over them costs less than the families' contraction
+                runs.append(fit_missing(net, enc, gaps, init=init, by_families=False, **settings))
             else:
                 runs.append(fit_hidden_states(net, demonstrations, marks, init=init, **settings))
     finals = tuple(r.log_likelihoods[-1] if r.log_likelihoods else -math.inf for r in runs)
