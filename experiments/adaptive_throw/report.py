@@ -9,7 +9,7 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from effect_networks.experiments.adaptive_throw.settings import GOAL_FIT_S, GOAL_RMS_M, QUERIES
+from effect_networks.experiments.adaptive_throw.settings import GOAL_RMS_M, QUERIES
 from effect_networks.experiments.harness.config import Result
 
 if TYPE_CHECKING:
@@ -110,8 +110,10 @@ def summary_rows(t: AdaptiveThrowResult, results: Mapping[str, Result]) -> list[
     """Beyond the paper: grid vs adaptive (EM) clusters, and active throw targets.
 
     Each layout by the inverse model and by the paper's posterior query. The adaptive layout is
-    shown at its best EM checkpoint fitted in under 2 s (the goal's), else its last; the noisy
-    comparison at its own cluster count. A layout with no inverse-model row (``query`` ``"effect"``)
+    shown at its first EM checkpoint (``em_steps[0]``, the goal's: 5 steps at full scale),
+    whatever its fit time, which is reported beside it (the fit-time goal is judged in the
+    experiment's own goals): the row shown does not depend on the speed of the machine. The
+    noisy comparison at its own cluster count. A layout with no inverse-model row (``query`` ``"effect"``)
     is shown by its posterior query.
     """
     k = max(row["n_clusters"] for row in t.layouts)
@@ -131,12 +133,9 @@ def summary_rows(t: AdaptiveThrowResult, results: Mapping[str, Result]) -> list[
         rows = mine(rows, layout, query, size, steps)
         return rows[-1] if rows else None
 
-    def goal_row(layout):  # the best checkpoint fitted within the goal's time, else the last
+    def goal_row(layout):  # the first checkpoint (the fewest EM steps): not chosen by time
         rows = mine(t.layouts, layout, "effect") or mine(t.layouts, layout, "posterior")
-        quick = [row for row in rows if row["fit_s"] < GOAL_FIT_S]
-        if not quick:
-            return rows[-1]
-        return min(quick, key=lambda row: max(row["rms_y_m"], row["rms_z_m"]))
+        return min(rows, key=lambda row: row["em_steps"])
 
     def cm(row):
         return f"{100 * row['rms_y_m']:.4f} / {100 * row['rms_z_m']:.4f} cm"

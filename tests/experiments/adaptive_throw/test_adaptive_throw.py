@@ -1,10 +1,13 @@
 """experiments.adaptive_throw runs end to end with tiny settings; its settings are checked."""
 
+import dataclasses
 import json
+import re
 
 import numpy as np
 import pytest
 import torch
+from effect_networks.experiments.adaptive_throw.report import summary_rows
 from effect_networks.experiments.adaptive_throw.run import (
     AdaptiveThrowResult,
     local_inverse,
@@ -217,3 +220,16 @@ def test_each_posterior_answer_is_computed_once(monkeypatch):
     rows = [r for r in result.layouts + result.noisy if r["query"] == "posterior"]
     points = sum(len(curve) for curve in result.active.values())
     assert len(calls) == len(rows) + points
+
+
+def test_the_summary_row_shown_does_not_depend_on_the_fit_times():
+    """The adaptive layout is shown at its first EM checkpoint however fast it was fitted:
+    the same results with other fit times give the same row, times apart."""
+    result = run_adaptive_throw(AdaptiveThrowConfig(**TINY, seed=2))
+    slow = dataclasses.replace(
+        result, layouts=[{**row, "fit_s": 100.0 + row["fit_s"]} for row in result.layouts]
+    )
+    strip = lambda rows: [re.sub(r"fit [0-9.]+ s", "fit T", r) for r in rows]  # noqa: E731
+    assert strip(summary_rows(result, {})) == strip(summary_rows(slow, {}))
+    first = min(r["em_steps"] for r in result.layouts if r["layout"] == "adaptive")
+    assert f"{first} EM steps" in " ".join(summary_rows(result, {}))
