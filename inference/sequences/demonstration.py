@@ -250,6 +250,21 @@ def key_columns(net: EffectNetwork, demo: Demonstrations) -> dict[str, slice]:
     return out
 
 
+def key_evidence(net: EffectNetwork, keys: np.ndarray, columns, k: torch.Tensor) -> dict:
+    """Evidence by site for rows of the distinct observations ``keys[k]``.
+
+    ``columns``: :func:`key_columns`; an outcome a pattern does not observe (NaN) is left
+    out (the rows share one pattern).
+    """
+    ev: dict[str, torch.Tensor] = {}
+    for site, cols in columns.items():
+        value = torch.from_numpy(keys[k.numpy(), cols])
+        if bool(torch.isnan(value).any()):
+            continue  # an outcome this pattern does not observe
+        ev[site] = value[:, 0].long() if net.site(site).discrete else value
+    return ev
+
+
 def with_action_prior(
     net: EffectNetwork, params: NetworkParams, prior: Mapping[str, float] | Sequence[float] | None
 ) -> NetworkParams:

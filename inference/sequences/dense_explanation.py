@@ -26,6 +26,7 @@ from effect_networks.inference.queries.implausibility import (
 from effect_networks.inference.sequences.demonstration import (
     Demonstrations,
     key_columns,
+    key_evidence,
     with_action_prior,
 )
 from effect_networks.inference.sequences.explanation import Explanation, outside_flags
@@ -53,53 +54,11 @@ def explain_dense(
 ) -> Explanation:
     """:func:`~inference.sequences.explanation.explain`'s question over the whole state space.
 
-    Per-step posterior, most probable sequence, log-likelihood; the same arguments and
-    answer, with the hidden variable at every time ranging over every state.
-
-    Parameters
-    ----------
-    net, params
-        The network and its fitted parameters.
-    states
-        One demonstration: a sequence of ``T + 1`` mappings feature -> value, the scene
-        at each time (labels for discrete features, numbers for continuous ones). Or a
-        batch of ``n`` demonstrations as one mapping feature -> array: ``(n, T + 1)``
-        labels for a discrete feature, ``(n, T + 1, d)`` (or ``(n, T + 1)`` for
-        ``d = 1``) numbers for a continuous one. A discrete value that is ``None`` (or a
-        feature left out) is not observed at that time; the state's unobserved parts are
-        latent. Continuous features with an initial node are observed at every time. An
-        outcome feature (``initial=False``) exists after a step only: its value at time
-        ``t + 1`` is step ``t``'s outcome, ``None``/NaN where not observed; at time 0 it
-        must be unobserved.
-    prior
-        The actions' prior at every step: a mapping action -> probability or an ``(A,)``
-        sequence; default uniform. It replaces the network's fitted action table.
-    state_space
-        The states a demonstration may pass through: label tuples (one label per
-        discrete feature with an initial node, in declaration order) or mappings feature
-        -> label; default every combination. Naming the states that occur (the can
-        world's possible configurations, each with its count) keeps the step tables to
-        their size; the others then have probability 0.
-    implausible_below
-        A step is ``implausible`` where the probability of its observed discrete end
-        features, given everything observed up to its start, or the chi-square tail of
-        its observed continuous end features under the closest component the whole
-        demonstration leaves possible (:mod:`inference.queries.implausibility`), is below
-        this; or where a continuous initial value lies outside the training data
-        (warned as :class:`~inference.queries.implausibility.OutsideTrainingData`). With
-        every state fully observed these are the numbers
-        :func:`~inference.queries.action.infer_action` flags a step by.
-
-    Returns
-    -------
-    Explanation
-
-    Notes
-    -----
-    An action parameter is never observed in a demonstration: each parameterised action
-    is the mixture over its parameter's clusters that the network fitted, the value
-    integrated out. The most probable sequence is the joint maximum over actions and
-    latent states (Viterbi), which can differ from the per-step argmax of ``probs``.
+    Per-step posterior, most probable sequence, log-likelihood: the same arguments and the
+    same answer as :func:`~inference.sequences.explanation.explain` (its docstring says
+    what each one means), with the hidden variable at every time ranging over every state
+    of ``state_space``; refused where one step's table (states x actions x states) would
+    hold more than ``MAX_STEP_TABLE`` numbers. The tests' twin of the structured route.
     """
     check_params(net, params)
     below = check_threshold(implausible_below)
@@ -247,15 +206,7 @@ def _pair_evidence(net, space, digits, keys, columns, triples) -> dict[str, torc
     for f, digit in zip(space.features, digits, strict=True):
         ev[initial_site(f.name)] = digit[start]
         ev[end_site(f.name)] = digit[end]
-    for site, cols in columns.items():
-        value = torch.from_numpy(keys[k.numpy(), cols])
-        if bool(torch.isnan(value).any()):
-            continue  # an outcome this pattern does not observe
-        if net.site(site).discrete:
-            ev[site] = value[:, 0].long()
-        else:
-            ev[site] = value
-    return ev
+    return ev | key_evidence(net, keys, columns, k)
 
 
 def _over_paths(demo: Demonstrations, key: np.ndarray, tables: _StepTables, below: float):

@@ -27,7 +27,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Hashable, Iterable, Mapping, Sequence
-from dataclasses import dataclass
 
 import torch
 from effect_networks.inference.sequences.dynamic_programming import (
@@ -35,8 +34,16 @@ from effect_networks.inference.sequences.dynamic_programming import (
     induction,
     unseen_along,
 )
-from effect_networks.inference.sequences.factored_steps import OFFERED, StepFactor, StepModel
-from effect_networks.inference.sequences.plans import Certificate, Plan
+from effect_networks.inference.sequences.factored_steps import (
+    EINSUM_LETTERS,
+    OFFERED,
+    Letters,
+    StepFactor,
+    StepModel,
+    chain_product,
+    product_form,
+)
+from effect_networks.inference.sequences.plans import Certificate, Plan, allowed_mask
 from effect_networks.inference.sequences.states import ProjectedSpace, Selection, state_index
 from effect_networks.models.declaration import DTYPE, end_site, initial_site
 
@@ -51,8 +58,6 @@ CONFIDENCE = 0.95
 SMALL_PROJECTION = 1 << 18
 #: Rows of a plan's value table kept in full when the values converge before the horizon.
 KEEP_ROWS = 1 << 22
-
-_LETTERS = "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ"
 
 
 def factored_plan(
@@ -118,10 +123,12 @@ def factored_plan(
     if route == "approximate":
         held = _held(model, start, relevant, planned)
     backup = _Backup(model, space, held)
-    goal_mask = space.mask(goal) if isinstance(goal, Mapping) else _predicate_goal(space, goal)
+    goal_mask = space.mask(goal)
     if not bool(goal_mask.any()):
         raise ValueError(f"goal {goal!r} picks no state of the features {space.names}")
-    mask = _allowed(model, allowed, len(space))
+    mask = allowed_mask(
+        allowed, len(space), len(model.actions), model.action_index, per_state=False
+    )
     unseen = backup.unseen()
     if avoid_unseen:
         seen = mask & (unseen <= 0.5)
@@ -192,10 +199,6 @@ def _goal_features(model: StepModel, goal: Selection) -> tuple[str, ...]:
     raise ValueError(f"a goal is a mapping feature -> label or a predicate, got {goal!r}")
 
 
-def _predicate_goal(space: ProjectedSpace, goal) -> torch.Tensor:
-    return space.mask(goal)
-
-
 def _nearest(model, goal_features, relevant, budget) -> tuple[str, ...]:
     """The goal's features, then the relevant ones nearest them in the step, within ``budget``."""
     by_name = {f.name: f for f in model.features}
@@ -250,55 +253,21 @@ class _Backup:
     def __init__(self, model: StepModel, space: ProjectedSpace, held: Mapping[str, int]):
         self.space = space
         self.n_actions = len(model.actions)
-        factors = model.step_factors(space.names)
-        letters: dict[str, str] = {}
-
-        def letter(q: str) -> str:
-            if q not in letters:
-                if len(letters) == len(_LETTERS):
-                    raise ValueError(
-                        f"the step of {space.names} spans more than {len(_LETTERS)} sites: "
-                        "lower budget="
-                    )
-                letters[q] = _LETTERS[len(letters)]
-            return letters[q]
-
-        self.tables, self.terms, self.unseen_terms = [], [], []
-        self.seen_tables = []
-        for f in factors:
-            table, scope, seen = _held_factor(f, held)
-            self.tables.append(table.exp())
-            self.seen_tables.append(seen)
-            self.terms.append("".join(letter(q) for q in scope))
-        self.now = "".join(letter(initial_site(n)) for n in space.names)
-        self.then = "".join(letter(end_site(n)) for n in space.names)
-        self.act = letter(OFFERED)
-        for n in space.names:  # a relevant feature no factor reads still has its axes
-            letter(initial_site(n))
-            letter(end_site(n))
-        self.sizes = space.sizes
-        # an output axis no factor reads (a feature whose next value ignores its own):
-        # a vector of ones keeps it
-        read = set("".join(self.terms))
-        size_of = dict(zip(self.now, space.sizes, strict=True)) | {self.act: self.n_actions}
-        for c in self.now + self.act:
-            if c not in read:
-                self.tables.append(torch.ones(size_of[c], dtype=DTYPE))
-                self.seen_tables.append(torch.ones(size_of[c], dtype=DTYPE))
-                self.terms.append(c)
+        form = product_form(model, space.names, held)
+        self.form = form
+        self.tables, self.terms, self.sizes = form.tables, form.terms, form.sizes
+        self.now, self.act, self.then = form.now, form.act, form.then
         # a small projected space: its (S, A, S) tensor once, then products
         s, a = len(space), self.n_actions
-        self.matrix = None
-        if s * a * s <= SMALL_PROJECTION:
-            one = torch.ones((), dtype=DTYPE)
-            full = _chain(one, "", self.tables, self.terms, self.now + self.act + self.then)
-            self.matrix = full.reshape(s, a, s)
+        self.matrix = form.matrix().reshape(s, a, s) if s * a * s <= SMALL_PROJECTION else None
 
     def __call__(self, v: torch.Tensor) -> torch.Tensor:
         """``q[s, a]``."""
         if self.matrix is not None:
             return self.matrix @ v
-        q = _chain(v.reshape(self.sizes), self.then, self.tables, self.terms, self.now + self.act)
+        q = chain_product(
+            v.reshape(self.sizes), self.then, self.tables, self.terms, self.now + self.act
+        )
         return q.reshape(len(self.space), self.n_actions)
 
     def _forward(self, taken: torch.Tensor) -> torch.Tensor:
@@ -307,7 +276,7 @@ class _Backup:
             return (taken.reshape(s * self.n_actions) @ self.matrix.reshape(-1, s)).reshape(
                 self.sizes
             )
-        return _chain(taken, self.now + self.act, self.tables, self.terms, self.then)
+        return chain_product(taken, self.now + self.act, self.tables, self.terms, self.then)
 
     def forward(self, mass: torch.Tensor, actions: torch.Tensor) -> torch.Tensor:
         """The next states' mass from ``mass`` ``(S,)``, each state taking ``actions[s]``."""
@@ -323,66 +292,11 @@ class _Backup:
 
     def unseen(self) -> torch.Tensor:
         """``(S, A)``: the probability each step rests on a configuration no row reached."""
-        tables = [t * s for t, s in zip(self.tables, self.seen_tables, strict=True)]
+        tables = [t * s for t, s in zip(self.tables, self.form.seen, strict=True)]
         one = torch.ones((), dtype=DTYPE)
-        seen = _chain(one, "", tables, self.terms, self.now + self.act)
+        seen = chain_product(one, "", tables, self.terms, self.now + self.act)
         seen = seen.reshape(len(self.space), self.n_actions)
         return (1 - seen).clamp(0, 1)
-
-
-def _chain(first, first_term: str, tables, terms, out: str) -> torch.Tensor:
-    """``first`` times every table, summed to the axes ``out``, one table at a time.
-
-    Each axis is summed out as soon as no later table and not ``out`` reads it, so the
-    running product never holds more than the axes still to be read (the tables come in
-    the network's order: each end site's factor after those it reads).
-    """
-    acc, acc_term = first, first_term
-    for i, (table, term) in enumerate(zip(tables, terms, strict=True)):
-        later = set(out).union(*terms[i + 1 :])
-        union = "".join(dict.fromkeys(acc_term + term))
-        kept = "".join(c for c in union if c in later)
-        acc = torch.einsum(f"{acc_term},{term}->{kept}", acc, table)
-        acc_term = kept
-    return torch.einsum(f"{acc_term}->{out}", acc)
-
-
-def _held_factor(f: StepFactor, held: Mapping[str, int]):
-    """The factor with the held features' initial sites fixed; its seen indicator alike."""
-    seen = torch.ones(f.log_table.shape, dtype=DTYPE)
-    if f.unseen is not None:
-        seen = (~f.unseen).to(DTYPE).unsqueeze(-1).expand(f.log_table.shape)
-    picks = tuple(
-        held[q.removeprefix("initial.")]
-        if q.startswith("initial.") and q.removeprefix("initial.") in held
-        else slice(None)
-        for q in f.scope
-    )
-    scope = tuple(
-        q for q in f.scope if not (q.startswith("initial.") and q.removeprefix("initial.") in held)
-    )
-    return f.log_table[picks], scope, seen[picks]
-
-
-def _allowed(model: StepModel, allowed, s: int) -> torch.Tensor:
-    a = len(model.actions)
-    if allowed is None:
-        return torch.ones(s, a, dtype=torch.bool)
-    if isinstance(allowed, torch.Tensor) and allowed.dtype == torch.bool:
-        if allowed.shape != (a,):
-            raise ValueError(
-                f"allowed must be an ({a},) bool mask on the factored routes (a per-state "
-                f"mask needs the dense route), got {tuple(allowed.shape)}"
-            )
-        return allowed.expand(s, a).clone()
-    if isinstance(allowed, str) or not isinstance(allowed, Iterable):
-        raise ValueError(f"allowed must be action labels or a bool mask, got {allowed!r}")
-    mask = torch.zeros(a, dtype=torch.bool)
-    for label in allowed:
-        mask[model.action_index(label)] = True
-    if not bool(mask.any()):
-        raise ValueError("allowed names no action")
-    return mask.expand(s, a).clone()
 
 
 def _start(model: StepModel, space: ProjectedSpace, start) -> torch.Tensor:
@@ -423,28 +337,21 @@ def _prior_over(model: StepModel, space: ProjectedSpace, start: Mapping) -> torc
     fixed = {initial_site(n): state_index(by_name[n], v) for n, v in start.items()}
     free = {q for f in kept.values() for q in f.scope if q not in fixed}
     free |= {initial_site(n) for n in space.names}
-    if len(free) > len(_LETTERS):
+    if len(free) > len(EINSUM_LETTERS):
         raise ValueError(
             f"a partial start leaves {len(free)} initial sites to weigh by the initial "
-            f"tables, more than {len(_LETTERS)}: name more of the start's features"
+            f"tables, more than {len(EINSUM_LETTERS)}: name more of the start's features"
         )
-    letters: dict[str, str] = {}
+    letters = Letters()
     tables, terms = [], []
     for f in kept.values():
-        picks = tuple(fixed.get(q, slice(None)) for q in f.scope)
-        tables.append(f.log_table[picks].exp())
-        terms.append(
-            "".join(
-                letters.setdefault(q, _LETTERS[len(letters)]) for q in f.scope if q not in fixed
-            )
-        )
-    out_sites = [initial_site(n) for n in space.names]
-    target = ""
-    for q in out_sites:
-        target += letters.setdefault(q, _LETTERS[len(letters)])
-    ones = [torch.ones(k, dtype=DTYPE) for k in space.sizes]
-    spec = ",".join([*terms, *(letters[q] for q in out_sites)]) + "->" + target
-    weight = torch.einsum(spec, *tables, *ones).reshape(-1)
+        tables.append(f.log_table[tuple(fixed.get(q, slice(None)) for q in f.scope)].exp())
+        terms.append(letters.term(q for q in f.scope if q not in fixed))
+    target = letters.term(initial_site(n) for n in space.names)
+    tables += [torch.ones(k, dtype=DTYPE) for k in space.sizes]  # every projected axis kept
+    terms += list(target)
+    one = torch.ones((), dtype=DTYPE)
+    weight = chain_product(one, "", tables, terms, target).reshape(-1)
     for n, v in start.items():
         if n in space.names:
             weight = weight * space.mask({n: v}).to(DTYPE)
@@ -490,12 +397,6 @@ def _rows(exact: ExactPlan, policy: torch.Tensor, horizon: int):
         torch.cat([exact.value, exact.value[-1:].expand(more, s)]),
         torch.cat([policy, policy[-1:].expand(more, s)]),
     )
-
-
-@dataclass(frozen=True)
-class _Run:
-    state: torch.Tensor  # (N, F) long over the relevant features
-    done: torch.Tensor  # (N,) bool: reached the goal
 
 
 def _certify(model, relevant, space, policy, goal, start, horizon, episodes, seed) -> Certificate:

@@ -26,20 +26,19 @@ planner projects onto (:mod:`inference.sequences.factored_planning`).
 
 from __future__ import annotations
 
-import itertools
 import math
-from collections.abc import Collection, Iterable, Mapping
+from collections.abc import Collection, Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 
 import torch
 from effect_networks.inference.sequences.states import (
     StateLike,
-    StateSpace,
     state_features,
     state_index,
 )
 from effect_networks.inference.sequences.transition_tables import (
     PARAMETER_VALUES,
+    action_position,
     context_evidence,
     offered_actions,
     requested_actions,
@@ -138,14 +137,7 @@ class StepModel:
 
     def action_index(self, action: str | int) -> int:
         """The index of an offered action's label (or a checked index)."""
-        if isinstance(action, int) and not isinstance(action, bool):
-            if not 0 <= action < len(self.actions):
-                raise ValueError(f"action index {action} outside 0..{len(self.actions) - 1}")
-            return action
-        try:
-            return self.actions.index(action)
-        except ValueError:
-            raise ValueError(f"unknown action {action!r}; actions are {self.actions}") from None
+        return action_position(self.actions, action)
 
     def relevant(self, features: Iterable[str]) -> tuple[str, ...]:
         """The state features whose values the next values of ``features`` depend on.
@@ -212,47 +204,27 @@ class StepModel:
         fixed = {initial_site(n): i for n, i in zip(self.names, now, strict=True)}
         fixed |= {end_site(n): i for n, i in zip(self.names, then, strict=True)}
         fixed[OFFERED] = self.action_index(action)
-        tables = []
+        letters = Letters()
+        tables, terms = [], []
         for factor in self.factors:
-            picks = tuple(fixed.get(q, slice(None)) for q in factor.scope)
-            tables.append((factor.log_table[picks], [q for q in factor.scope if q not in fixed]))
-        return float(_contract(tables, [], self.sizes()).exp())
+            tables.append(
+                factor.log_table[tuple(fixed.get(q, slice(None)) for q in factor.scope)].exp()
+            )
+            terms.append(letters.term(q for q in factor.scope if q not in fixed))
+        return float(chain_product(torch.ones((), dtype=DTYPE), "", tables, terms, ""))
 
-    def dense(self, space: StateSpace | None = None) -> torch.Tensor:
-        """``probs[s, a, s']`` over ``space`` (default every state): the dense tensor.
+    def dense(self) -> torch.Tensor:
+        """``probs[s, a, s']`` over every state (the last feature fastest): the dense tensor.
 
         ``S x A x S`` numbers: for small spaces and for checks, as
         :func:`~inference.sequences.transition_tables.transitions` is.
         """
         self._check_kept(self.names)
-        features = self.features
-        if space is None:
-            sizes = [f.cardinality for f in features]
-            index = torch.tensor(
-                list(itertools.product(*(range(k) for k in sizes))), dtype=torch.long
-            ).reshape(-1, len(features))
-        else:
-            index = space.index
-        s, a = index.shape[0], len(self.actions)
+        s = math.prod(f.cardinality for f in self.features)
+        a = len(self.actions)
         if s * a * s > 1 << 27:
             raise ValueError(f"{s} x {a} x {s} is more than {1 << 27} numbers")
-        position = {}
-        for j, f in enumerate(features):
-            position[initial_site(f.name)] = index[:, j].reshape(s, 1, 1)
-            position[end_site(f.name)] = index[:, j].reshape(1, 1, s)
-        position[OFFERED] = torch.arange(a).reshape(1, a, 1)
-        tables = []
-        for factor in self.factors:
-            fixed = [q for q in factor.scope if q in position]
-            rest = [q for q in factor.scope if q not in position]
-            moved = factor.log_table.permute(
-                *[factor.scope.index(q) for q in fixed], *[factor.scope.index(q) for q in rest]
-            )
-            picked = moved[tuple(position[q] for q in fixed)] if fixed else moved[None, None, None]
-            tables.append((picked.reshape(*picked.shape[:3], *moved.shape[len(fixed) :]), rest))
-        sizes = self.sizes()
-        out = _contract(tables, ["s", "a", "t"], sizes | {"s": s, "a": a, "t": s}, leading=3)
-        return out.exp().expand(s, a, s).contiguous()
+        return product_form(self, self.names, {}).matrix().reshape(s, a, s)
 
     def _indices(self, state: StateLike) -> tuple[int, ...]:
         if isinstance(state, Mapping):
@@ -447,48 +419,106 @@ def _on_offered(logs, scope, unseen, offered):
     return logs, (OFFERED, *rest), unseen
 
 
-def _contract(tables, out, sizes, leading: int = 0) -> torch.Tensor:
-    """``log sum over the non-``out`` axes of exp(sum of tables)``, by torch.einsum.
+#: The letters of an einsum, one per site of a contraction.
+EINSUM_LETTERS = "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ"
 
-    ``tables``: ``(log tensor, axis names)`` pairs; with ``leading``, each tensor's first
-    ``leading`` axes are named ``out`` (broadcast where 1).
+
+class Letters:
+    """One einsum letter per site, handed out as sites are first named."""
+
+    def __init__(self) -> None:
+        self.of: dict[str, str] = {}
+
+    def __call__(self, site: str) -> str:
+        """``site``'s letter (a new one the first time)."""
+        if site not in self.of:
+            if len(self.of) == len(EINSUM_LETTERS):
+                raise ValueError(
+                    f"a contraction over more than {len(EINSUM_LETTERS)} sites: plan on fewer "
+                    "features (a smaller budget=, or a goal on fewer features)"
+                )
+            self.of[site] = EINSUM_LETTERS[len(self.of)]
+        return self.of[site]
+
+    def term(self, sites) -> str:
+        """The letters of ``sites``, in order."""
+        return "".join(self(q) for q in sites)
+
+
+def chain_product(first, first_term: str, tables, terms, out: str) -> torch.Tensor:
+    """``first`` times every table, summed to the axes ``out``, one table at a time.
+
+    Each axis is summed out as soon as no later table and not ``out`` reads it, so the
+    running product never holds more than the axes still to be read (the tables come in
+    the network's order: each end site's factor after those it reads).
     """
-    names: dict[str, str] = {}
-    letters = "abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ"
-
-    def letter(q: str) -> str:
-        if q not in names:
-            if len(names) == len(letters):
-                raise ValueError("more than 52 sites in one step: use the factored routes")
-            names[q] = letters[len(names)]
-        return names[q]
-
-    operands, terms, shifts = [], [], []
-    for t, axes in tables:
-        axes = [*out[:leading], *axes] if leading else list(axes)
-        shift = t.max() if t.numel() and bool(torch.isfinite(t.max())) else torch.tensor(0.0)
-        operands.append((t - shift).exp())
-        shifts.append(shift)
-        terms.append("".join(letter(q) for q in axes))
-    if not operands:
-        return torch.zeros((), dtype=DTYPE)
-    target = "".join(letter(q) for q in out)
-    expanded = [
-        o.expand(
-            [sizes[q] if n == 1 else n for q, n in zip(_names(term, names), o.shape, strict=True)]
-        )
-        for o, term in zip(operands, terms, strict=True)
-    ]
-    total = torch.einsum(",".join(terms) + "->" + target, *expanded)
-    return total.log() + sum(shifts)
+    acc, acc_term = first, first_term
+    for i, (table, term) in enumerate(zip(tables, terms, strict=True)):
+        later = set(out).union(*terms[i + 1 :])
+        union = "".join(dict.fromkeys(acc_term + term))
+        kept = "".join(c for c in union if c in later)
+        acc = torch.einsum(f"{acc_term},{term}->{kept}", acc, table)
+        acc_term = kept
+    return torch.einsum(f"{acc_term}->{out}", acc)
 
 
-def _names(term: str, names: dict[str, str]) -> list[str]:
-    back = {v: k for k, v in names.items()}
-    return [back[c] for c in term]
+@dataclass(frozen=True)
+class ProductForm:
+    """The step of some features as einsum operands: probability tables and their letters.
+
+    ``tables[i]`` over ``terms[i]``; ``seen[i]`` alike, 1 where the table's parent
+    configuration was reached by a training row; ``now``, ``act``, ``then``: the letters of
+    the features' initial sites, the offered action and their end sites; ``sizes``: the
+    features' numbers of states.
+    """
+
+    tables: list[torch.Tensor]
+    seen: list[torch.Tensor]
+    terms: list[str]
+    now: str
+    act: str
+    then: str
+    sizes: tuple[int, ...]
+
+    def matrix(self) -> torch.Tensor:
+        """``P(then | now, act)`` with one axis per letter of ``now + act + then``."""
+        one = torch.ones((), dtype=DTYPE)
+        return chain_product(one, "", self.tables, self.terms, self.now + self.act + self.then)
 
 
-def size_of(model: StepModel, features: Iterable[str]) -> int:
-    """The number of joint states of ``features``."""
-    by_name = {f.name: f for f in model.features}
-    return math.prod(by_name[n].cardinality for n in features)
+def product_form(model: StepModel, features: Sequence[str], held: Mapping[str, int]) -> ProductForm:
+    """The step of ``features`` (closed under the step) as einsum operands.
+
+    ``held``: features outside ``features`` whose initial values the tables are read at.
+    """
+    letters = Letters()
+    tables, seen, terms = [], [], []
+    for f in model.step_factors(features):
+        table, scope, reached = _held_factor(f, held)
+        tables.append(table.exp())
+        seen.append(reached)
+        terms.append(letters.term(scope))
+    now = letters.term(initial_site(n) for n in features)
+    then = letters.term(end_site(n) for n in features)
+    act = letters(OFFERED)
+    # an axis no table reads (a feature whose next value ignores its own): a vector of ones
+    by_name = {f.name: f.cardinality for f in model.features}
+    sizes = tuple(by_name[n] for n in features)
+    size_of = dict(zip(now, sizes, strict=True)) | {act: len(model.actions)}
+    read = set("".join(terms))
+    for c in now + act:
+        if c not in read:
+            tables.append(torch.ones(size_of[c], dtype=DTYPE))
+            seen.append(torch.ones(size_of[c], dtype=DTYPE))
+            terms.append(c)
+    return ProductForm(tables, seen, terms, now, act, then, sizes)
+
+
+def _held_factor(f: StepFactor, held: Mapping[str, int]):
+    """The factor with the held features' initial sites fixed; its seen indicator alike."""
+    seen = torch.ones(f.log_table.shape, dtype=DTYPE)
+    if f.unseen is not None:
+        seen = (~f.unseen).to(DTYPE).unsqueeze(-1).expand(f.log_table.shape)
+    fixed = {initial_site(n): i for n, i in held.items()}
+    picks = tuple(fixed.get(q, slice(None)) for q in f.scope)
+    return f.log_table[picks], tuple(q for q in f.scope if q not in fixed), seen[picks]

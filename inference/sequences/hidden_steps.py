@@ -37,7 +37,11 @@ from effect_networks.inference.exact.enumeration import (
     row_chunks,
 )
 from effect_networks.inference.queries.implausibility import plausibility
-from effect_networks.inference.sequences.demonstration import Demonstrations, key_columns
+from effect_networks.inference.sequences.demonstration import (
+    Demonstrations,
+    key_columns,
+    key_evidence,
+)
 from effect_networks.inference.sequences.states import StateSpace
 from effect_networks.models.declaration import ACTION, DTYPE, Discrete, EffectNetwork
 from effect_networks.models.evidence import Evidence
@@ -419,12 +423,4 @@ def _pair_evidence(net, codes: StateCodes, keys, columns, triples) -> dict[str, 
     for j, f in enumerate(state):
         ev[initial_site(f.name)] = start[:, j]
         ev[end_site(f.name)] = end[:, j]
-    for site, cols in columns.items():
-        value = torch.from_numpy(keys[k.numpy(), cols])
-        if bool(torch.isnan(value).any()):
-            continue  # an outcome this pattern does not observe
-        if net.site(site).discrete:
-            ev[site] = value[:, 0].long()
-        else:
-            ev[site] = value
-    return ev
+    return ev | key_evidence(net, keys, columns, k)

@@ -33,7 +33,7 @@ from effect_networks.inference.sequences.factored_planning import (
     factored_plan,
 )
 from effect_networks.inference.sequences.factored_steps import step_model
-from effect_networks.inference.sequences.plans import Plan
+from effect_networks.inference.sequences.plans import Plan, allowed_mask
 from effect_networks.inference.sequences.states import Selection, StateLike, state_features
 from effect_networks.inference.sequences.transition_tables import Transitions, transitions
 from effect_networks.models.declaration import DTYPE, EffectNetwork
@@ -236,7 +236,7 @@ def plan_on(
     goal_mask = space.mask(goal)
     if not bool(goal_mask.any()):
         raise ValueError(f"goal {goal!r} picks no state of the {len(space)} planned over")
-    mask = _allowed(model, allowed)
+    mask = allowed_mask(allowed, len(space), len(model.actions), model.action_index)
     if avoid_unseen:
         seen = mask & (model.unseen <= 0.5)
         mask = torch.where(seen.any(-1, keepdim=True), seen, mask)
@@ -295,26 +295,6 @@ def _start(model: Transitions, start) -> torch.Tensor:
         if prior is None:
             raise
         return space.distribution(start)  # the allowed states have no prior weight
-
-
-def _allowed(model: Transitions, allowed) -> torch.Tensor:
-    s, a = len(model.space), len(model.actions)
-    if allowed is None:
-        return torch.ones(s, a, dtype=torch.bool)
-    if isinstance(allowed, torch.Tensor) and allowed.dtype == torch.bool:
-        if allowed.shape not in ((a,), (s, a)):
-            raise ValueError(
-                f"allowed must be a ({a},) or ({s}, {a}) bool mask, got {tuple(allowed.shape)}"
-            )
-        return allowed.expand(s, a).clone()
-    if isinstance(allowed, str) or not isinstance(allowed, Iterable):
-        raise ValueError(f"allowed must be action labels or a bool mask, got {allowed!r}")
-    mask = torch.zeros(a, dtype=torch.bool)
-    for label in allowed:
-        mask[model.action_index(label)] = True
-    if not bool(mask.any()):
-        raise ValueError("allowed names no action")
-    return mask.expand(s, a).clone()
 
 
 def _path_steps(horizon: int, converged: int | None, n_states: int) -> int:

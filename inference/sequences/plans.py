@@ -9,7 +9,7 @@ row reached, and, for an approximate plan, a :class:`Certificate` for its succes
 
 from __future__ import annotations
 
-from collections.abc import Hashable
+from collections.abc import Callable, Hashable, Iterable
 from dataclasses import dataclass, field
 
 import torch
@@ -18,6 +18,45 @@ from effect_networks.inference.sequences.transition_tables import Transitions
 
 #: The routes a plan is computed by (:func:`~inference.sequences.planner.plan`).
 ROUTES = ("dense", "projected", "approximate")
+
+
+def allowed_mask(
+    allowed: Iterable[str] | torch.Tensor | None,
+    n_states: int,
+    n_actions: int,
+    action_index: Callable[[str], int],
+    *,
+    per_state: bool = True,
+) -> torch.Tensor:
+    """``(S, A)`` bool: the actions a plan may take, from labels or a mask.
+
+    ``allowed``: action labels (read by ``action_index``), an ``(A,)`` bool mask, or, with
+    ``per_state``, an ``(S, A)`` one; ``None``: every action.
+    """
+    s, a = n_states, n_actions
+    if allowed is None:
+        return torch.ones(s, a, dtype=torch.bool)
+    if isinstance(allowed, torch.Tensor) and allowed.dtype == torch.bool:
+        shapes = ((a,), (s, a)) if per_state else ((a,),)
+        if allowed.shape not in shapes:
+            wanted = f"a ({a},) or ({s}, {a})" if per_state else f"an ({a},)"
+            where = (
+                ""
+                if per_state
+                else " on the factored routes (a per-state mask needs the dense route)"
+            )
+            raise ValueError(
+                f"allowed must be {wanted} bool mask{where}, got {tuple(allowed.shape)}"
+            )
+        return allowed.expand(s, a).clone()
+    if isinstance(allowed, str) or not isinstance(allowed, Iterable):
+        raise ValueError(f"allowed must be action labels or a bool mask, got {allowed!r}")
+    mask = torch.zeros(a, dtype=torch.bool)
+    for label in allowed:
+        mask[action_index(label)] = True
+    if not bool(mask.any()):
+        raise ValueError("allowed names no action")
+    return mask.expand(s, a).clone()
 
 
 @dataclass(frozen=True)

@@ -176,6 +176,18 @@ def _holds_text(raw: object) -> bool:
     )
 
 
+def action_position(labels: tuple[str, ...], action: str | int) -> int:
+    """The index of ``action`` among ``labels`` (or ``action``, a checked index)."""
+    if isinstance(action, int) and not isinstance(action, bool):
+        if not 0 <= action < len(labels):
+            raise ValueError(f"action index {action} outside 0..{len(labels) - 1}")
+        return action
+    try:
+        return labels.index(action)
+    except ValueError:
+        raise ValueError(f"unknown action {action!r}; actions are {labels}") from None
+
+
 @dataclass(frozen=True)
 class Transitions:
     """``probs[s, a, s']``: ``P(next state s' | state s, action a)`` over ``space`` and ``actions``.
@@ -213,14 +225,7 @@ class Transitions:
 
     def action_index(self, action: str | int) -> int:
         """The index of an action label (or a checked index)."""
-        if isinstance(action, int) and not isinstance(action, bool):
-            if not 0 <= action < len(self.actions):
-                raise ValueError(f"action index {action} outside 0..{len(self.actions) - 1}")
-            return action
-        try:
-            return self.actions.index(action)
-        except ValueError:
-            raise ValueError(f"unknown action {action!r}; actions are {self.actions}") from None
+        return action_position(self.actions, action)
 
     def prob(self, state: StateLike | int, action: str | int, next: StateLike | int) -> float:
         """``P(next | state, action)``; states as label tuples or mappings, the action by label."""
