@@ -13,10 +13,11 @@ from hypothesis import settings
 
 torch.set_num_threads(1)
 
-# CI draws the same examples on every run (`HYPOTHESIS_PROFILE=ci`, set by .ci/run), so
-# that a submission lands or fails on its own code; a local run explores new ones.
-settings.register_profile("ci", derandomize=True, print_blob=True)
-settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE", "default"))
+# Every run draws the same examples, so that a change passes or fails on its own code;
+# `HYPOTHESIS_PROFILE=explore ./run-tests` draws new ones.
+settings.register_profile("fixed", derandomize=True, print_blob=True)
+settings.register_profile("explore", print_blob=True)
+settings.load_profile(os.environ.get("HYPOTHESIS_PROFILE") or "fixed")
 
 
 @pytest.fixture(scope="session")
