@@ -18,7 +18,7 @@ from contextlib import contextmanager
 
 import torch
 from effect_networks.inference.exact.elimination import contract_size
-from effect_networks.inference.exact.traced import CENTRED, Enumerated, Tracer, enumerate_traced
+from effect_networks.inference.exact.traced import CENTRED, Enumerated, enumerate_traced
 from effect_networks.inference.exact.unknown_initial import enumerate_unknown_initial
 from effect_networks.models.declaration import EffectNetwork
 from effect_networks.models.evidence import Evidence
@@ -33,7 +33,6 @@ def enumerate_model(
     keep: Iterable[str] = (),
     trace_only: Iterable[str] = (),
     masks: Mapping[str, torch.Tensor] | None = None,
-    tracer: Tracer | None = None,
 ) -> Enumerated:
     """Trace the model with ``evidence`` and sum every observed or structural factor.
 
@@ -52,8 +51,6 @@ def enumerate_model(
     masks
         ``(n,)`` bool per discrete site of ``evidence``: False where the row's value is
         missing; the site is then enumerated (its posterior is the missing value's).
-    tracer
-        Where given, the trace from its caller's tables (:func:`~inference.exact.traced.enumerate_traced`).
     """
     keep = set(keep)
     trace_only = set(trace_only)
@@ -66,9 +63,7 @@ def enumerate_model(
         return enumerate_unknown_initial(
             net, params, evidence, missing_initial, keep=keep, trace_only=trace_only, masks=masks
         )
-    return enumerate_traced(
-        net, params, evidence, keep=keep, trace_only=trace_only, masks=masks, tracer=tracer
-    )
+    return enumerate_traced(net, params, evidence, keep=keep, trace_only=trace_only, masks=masks)
 
 
 def log_ratio(a: Enumerated, b: Enumerated) -> torch.Tensor:
@@ -124,7 +119,6 @@ def over_row_chunks(
     trace_only: Iterable[str] = (),
     *,
     contracted: bool = False,
-    tracer: Tracer | None = None,
 ):
     """``fn(enumerated, chunk, rows)`` over row chunks of encoded ``evidence``.
 
@@ -132,7 +126,7 @@ def over_row_chunks(
     ``keep`` and ``trace_only`` as :func:`enumerate_model` takes them. The results are concatenated
     along the rows (a tuple element by element). ``contracted``: ``fn`` reads sums and marginals
     only, never the joint (``log_weight``, ``posterior``), so chunks are sized by the contraction's
-    largest intermediate (:func:`enumeration_size`). ``tracer``: as :func:`enumerate_model` takes it.
+    largest intermediate (:func:`enumeration_size`).
     """
     size = enumeration_size(net, evidence, keep, contracted=contracted)
     outs = []
@@ -141,9 +135,7 @@ def over_row_chunks(
     with one_thread_below(size * widest):
         for rows in chunks:
             chunk = evidence.rows(rows)
-            enumerated = enumerate_model(
-                net, params, chunk, keep=keep, trace_only=trace_only, tracer=tracer
-            )
+            enumerated = enumerate_model(net, params, chunk, keep=keep, trace_only=trace_only)
             outs.append(fn(enumerated, chunk, rows))
     if isinstance(outs[0], tuple):
         return tuple(torch.cat(parts, 0) for parts in zip(*outs, strict=True))

@@ -16,7 +16,7 @@ closed form. Nothing here samples.
 
 from __future__ import annotations
 
-from collections.abc import Callable, Iterable, Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field
 from functools import cached_property
 
@@ -252,10 +252,6 @@ def _states(trace: poutine.Trace, site: str) -> int:
     return int(trace.nodes[site]["fn"].enumerate_support(expand=False).shape[0])
 
 
-#: ``tracer(net, params, evidence, end_sites)``: a trace as :func:`trace_model` returns it, or None.
-Tracer = Callable[[EffectNetwork, NetworkParams, Evidence, set], "poutine.Trace | None"]
-
-
 def trace_model(
     net: EffectNetwork,
     params: NetworkParams,
@@ -282,7 +278,6 @@ def enumerate_traced(
     keep: Iterable[str] = (),
     trace_only: Iterable[str] = (),
     masks: Mapping[str, torch.Tensor] | None = None,
-    tracer: Tracer | None = None,
 ) -> Enumerated:
     """Trace the model with ``evidence`` and sum every observed or structural factor.
 
@@ -302,20 +297,12 @@ def enumerate_traced(
     masks
         ``(n,)`` bool per discrete site of ``evidence``: False where the row's value is
         missing; the site is then enumerated (its posterior is the missing value's).
-    tracer
-        ``tracer(net, params, evidence, end_sites)``: the trace :func:`trace_model` would
-        return, its ``log_prob`` computed, from tables its caller keeps; or None, and the
-        model is traced (asked only without ``masks`` and ``trace_only``).
     """
     keep = set(keep)
     trace_only = set(trace_only)
     n = evidence.n_rows
     end_sites = set(evidence) | keep | trace_only
-    trace = None
-    if tracer is not None and not masks and not trace_only:
-        trace = tracer(net, params, evidence, end_sites)
-    if trace is None:
-        trace = trace_model(net, params, evidence, end_sites, masks)
+    trace = trace_model(net, params, evidence, end_sites, masks)
     bounded: list[torch.Tensor] = []  # tables and factors: 0, -inf or a probability's log
     unbounded: dict[str, torch.Tensor] = {}  # densities and softmaxes, as traced
     dims: dict[str, int] = {}

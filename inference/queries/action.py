@@ -8,7 +8,9 @@ marginal MAP, as pgmpy's ``map_query``; not the joint MAP ``infer_discrete`` ret
 Its compiled answer, from tables read once off the same model for a network whose sites
 are all discrete, is :class:`~inference.queries.action_tables.CompiledNetwork`; both are
 tested equal on the same cases. Users reach the tables through :func:`inference.compile`
-(its ``infer_action``).
+(its ``infer_action``); the free function itself answers a query of a few rows on an
+all-discrete network from tables it keeps per (network, parameters)
+(:mod:`inference.queries.kept_tables`), and larger batches by the traced model.
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ from effect_networks.inference.queries.implausibility import (
     check_threshold,
     plausibility,
 )
-from effect_networks.inference.queries.kept_tables import tracer_for
+from effect_networks.inference.queries.kept_tables import FEW_ROWS, tables_for
 from effect_networks.inference.queries.results import (
     ActionPosterior,
 )
@@ -92,6 +94,12 @@ def infer_action(
                 implausible_below=below,
             )
         )
+    if enc.n_rows <= FEW_ROWS:
+        tables = tables_for(net, params)
+        if tables is not None:
+            return tables.infer_action(
+                enc, allowed=allowed, avoid_unseen=avoid_unseen, implausible_below=below
+            )
     observed_end = [end_site(f.name) for f in net.features if end_site(f.name) in enc]
 
     def fn(e: Enumerated, *_):
@@ -119,9 +127,7 @@ def infer_action(
         per_action = joint.sum(others).T if others else joint.T
         return probs, per_action / probs.clamp_min(1e-300), e.log_evidence
 
-    probs, unseen, log_evidence = over_row_chunks(
-        net, params, enc, set(), fn, contracted=True, tracer=tracer_for(net, params)
-    )
+    probs, unseen, log_evidence = over_row_chunks(net, params, enc, set(), fn, contracted=True)
     unseen = unseen.clamp(0, 1)
     score = probs.clone()
     if allowed is not None:
