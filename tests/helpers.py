@@ -23,6 +23,7 @@ ADAPTIVE_THROW_TINY = {
     "budgets": (40, 80),
     "batch": 20,
     "pool": 60,
+    "active_seeds": 2,
     "noise_repeats": 2,
     "workers": 1,  # in this process, so that a test can count calls (its test_parallel: 2)
     "progress": False,

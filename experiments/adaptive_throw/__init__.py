@@ -29,9 +29,13 @@ uniform targets on the 2 m x 2 m area, their hits, re-throw RMS per axis ``y``, 
 * **Active throw targets.** Learning the grid network from few throws, each batch of
   targets chosen among a pool of random candidates by the expected information gain
   about the clusters' regressions (:func:`inference.design.active_gaussian.select_by_information`)
-  against random targets; re-throw RMS against the number of throws. The grid size
-  follows the data: ``clamp(round(sqrt(n / 30)), 2, 16)`` clusters per axis for ``n``
-  throws (about 30 throws per cluster), the same for both strategies.
+  or by the expected reduction of the predictive variance summed over the target area
+  (:func:`inference.design.active_gaussian.select_by_variance`, ALC), on the grid that
+  will be fitted at the next budget, against random targets; re-throw RMS against the
+  number of throws, the mean of ``active_seeds`` seeds. The grid size follows the data:
+  ``clamp(round(sqrt(n / 30)), 2, 16)`` clusters per axis for ``n`` throws (about 30
+  throws per cluster), the same for every strategy; the same grid fitted on all the
+  training throws is the curve's floor.
 
 Timings are wall-clock seconds of the fit alone, in the calling process (the example
 runs it on one torch thread).

@@ -19,13 +19,17 @@ from effect_networks.experiments.adaptive_throw.settings import (
     GOAL_RMS_M,
     QUERIES,
     ROWS_PER_CLUSTER,
+    STRATEGIES,
     AdaptiveThrowConfig,
 )
 from effect_networks.experiments.harness.config import Result
 from effect_networks.experiments.harness.parallel import forks, run_tasks
 from effect_networks.experiments.throwing import HIT_MARGIN_M, get_data, rms
 from effect_networks.inference import fit, fit_em, infer_parameter, parameter_for_effect
-from effect_networks.inference.design.active_gaussian import select_by_information
+from effect_networks.inference.design.active_gaussian import (
+    select_by_information,
+    select_by_variance,
+)
 from effect_networks.models.declaration import EffectNetwork
 from effect_networks.models.humanoid_throw import TARGET, hit_evidence, throw_data, throw_network
 from effect_networks.sim2d.analytic_throw import TARGET_AREA, ReleaseNoise, sample_targets, throw
@@ -233,10 +237,18 @@ def _grid_for(n: int) -> int:
 
 
 def _active_curve(strategy, config, test_hits, window, rng):
-    """Re-throw RMS at each budget, the targets chosen by ``strategy``."""
+    """Re-throw RMS at each budget, the targets chosen by ``strategy`` (one of ``STRATEGIES``).
+
+    ``"variance"`` sums the predictive variance over a fresh uniform sample of the target area
+    each round (the targets the inverse model will be asked to reach are hits of such targets).
+    Each point also holds ``edge_share``: the share of the targets chosen since the last budget
+    that lie within a tenth of a cell's width of an edge of the grid they were chosen for
+    (uniform targets: 36 %); None at the first budget.
+    """
     targets = sample_targets(config.budgets[0], rng)
     hits = throw(targets).hit
     curve = []
+    near_edge = []
     bar = tqdm(total=config.budgets[-1], desc=f"active ({strategy})", disable=not config.progress)
     bar.update(len(targets))
     for budget in config.budgets:
@@ -248,10 +260,17 @@ def _active_curve(strategy, config, test_hits, window, rng):
             else:
                 net = throw_network((_grid_for(budget),) * 2)  # the grid to be fitted
                 candidates = {"action": [net.actions[0]] * len(pool), f"param.{TARGET}": pool}
-                index = select_by_information(
-                    net, TARGET, throw_data(net, targets, hits), candidates, k
-                )
+                data = throw_data(net, targets, hits)
+                if strategy == "information":
+                    index = select_by_information(net, TARGET, data, candidates, k)
+                else:
+                    area = sample_targets(config.pool, rng)
+                    reference = {"action": [net.actions[0]] * len(area), f"param.{TARGET}": area}
+                    index = select_by_variance(
+                        net, TARGET, data, candidates, k, reference=reference
+                    )
                 chosen = pool[index.numpy()]
+            near_edge.append(_near_edge(chosen, _grid_for(budget)))
             targets = np.concatenate([targets, chosen])
             hits = np.concatenate([hits, throw(chosen).hit])
             bar.update(len(chosen))
@@ -261,9 +280,21 @@ def _active_curve(strategy, config, test_hits, window, rng):
         params = fit(net, data, pseudo_count=config.pseudo_count).params
         error = _rethrow((net, params), test_hits, _window(window, hits))
         y, z = rms(error)
-        curve.append({"n": len(targets), "bins": k, "rms_y_m": float(y), "rms_z_m": float(z)})
+        share = float(np.concatenate(near_edge).mean()) if near_edge else None
+        near_edge = []
+        curve.append(
+            {"n": len(targets), "bins": k, "rms_y_m": float(y), "rms_z_m": float(z)}
+            | {"edge_share": share}
+        )
     bar.close()
     return curve
+
+
+def _near_edge(targets: np.ndarray, bins: int) -> np.ndarray:
+    """``(n,)`` bool: within a tenth of a cell's width of an edge of the ``bins`` x ``bins`` grid."""
+    cell = (targets - TARGET_AREA.low) / (TARGET_AREA.high - TARGET_AREA.low) * bins
+    offset = cell - np.floor(cell)
+    return (np.abs(offset - 0.5) > 0.4).any(1)
 
 
 @dataclass
@@ -285,8 +316,11 @@ class AdaptiveThrowResult(Result):
     choice among the model's answers). ``pieces``: per grid size, the RMS residual of one
     least-squares plane per equidistant cell through the unclamped training throws
     (:func:`plane_residuals`): the curvature that linear pieces of that size leave.
-    ``active``: per strategy (``"random"``, ``"information"``) the curve of
-    ``{n, bins, rms_y_m, rms_z_m}``. ``goals``: each goal's verdict.
+    ``active``: per strategy (``STRATEGIES``) the curve of ``{n, bins, rms_y_m, rms_z_m,
+    seeds_y_m, seeds_z_m}``: the mean RMS over the seeds' curves, and each seed's.
+    ``active_floor``: per budget the RMS of that budget's grid fitted on all ``n_train``
+    training throws (``{n, bins, rms_y_m, rms_z_m}``): what the grid itself leaves, whichever
+    targets were thrown. ``goals``: each goal's verdict.
     """
 
     experiment_name: ClassVar[str] = "adaptive_throw"
@@ -303,6 +337,7 @@ class AdaptiveThrowResult(Result):
     pieces: list[dict]
     active: dict[str, list[dict]]
     goals: dict[str, bool]
+    active_floor: list[dict] | None = None
 
 
 def _layout_rows(k, layout, train, test_hits, window, config):
@@ -377,10 +412,10 @@ def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
 
     # the model work: independent tasks (longest first), on every core (workers); the
     # release noise is drawn here afterwards, in the order of the rows
-    strategies = ("random", "information")
     keys = [("layout", k, layout) for k in config.bins for layout in ("grid", "adaptive")]
     keys += [("noisy", layout) for layout in ("grid", "adaptive")]
-    keys += [("active", strategy) for strategy in strategies]
+    curves = seeds[3].spawn(config.active_seeds)  # per seed, the same first targets
+    keys += [("active", strategy, i) for strategy in STRATEGIES for i in range(len(curves))]
     forked = forks(config.workers, len(keys))
     # forked workers' bars would mix: one bar over the tasks instead
     quiet = dataclasses.replace(config, progress=False) if forked else config
@@ -391,8 +426,8 @@ def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
     def noisy_task(layout):
         return lambda: _noisy_aims(layout, train, test[1][1], window[1], quiet)
 
-    def active_task(strategy):
-        rng = np.random.default_rng(seeds[3 + strategies.index(strategy)])
+    def active_task(strategy, i):
+        rng = np.random.default_rng(curves[i])
         return lambda: _active_curve(strategy, quiet, test[0][1], window[0], rng)
 
     make = {"layout": layout_task, "noisy": noisy_task, "active": active_task}
@@ -447,7 +482,13 @@ def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
         y, z = rms(residual[~np.isnan(residual[:, 0])])
         pieces.append({"bins": k, "n_clusters": k * k, "rms_y_m": float(y), "rms_z_m": float(z)})
 
-    active = {strategy: done["active", strategy] for strategy in strategies}
+    active = {
+        strategy: _mean_curve([done["active", strategy, i] for i in range(len(curves))])
+        for strategy in STRATEGIES
+    }
+    active_floor = [
+        _grid_floor(budget, train[0], test[0][1], window[0], config) for budget in config.budgets
+    ]
     adaptive = [r for r in layouts if r["layout"] == "adaptive"]
     worst_axis = [max(r["rms_y_m"], r["rms_z_m"]) for r in adaptive]
     fast = [e for e, r in zip(worst_axis, adaptive, strict=True) if r["fit_s"] < GOAL_FIT_S]
@@ -459,6 +500,10 @@ def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
         and min(fast) <= GOAL_RMS_M,
         "adaptive with release noise within 5 % of the noise's scatter (either query)": any(
             max(r["ratio_y"], r["ratio_z"]) <= GOAL_NOISE_RATIO for r in adaptive_noisy
+        ),
+        "active targets (variance) below random at every budget after the first (thrown at "
+        "random by both), both axes, mean of the seeds": _below(
+            active["variance"][1:], active["random"][1:]
         ),
     }
     return AdaptiveThrowResult(
@@ -474,4 +519,37 @@ def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
         pieces=pieces,
         active=active,
         goals={name: bool(ok) for name, ok in goals.items()},
+        active_floor=active_floor,
     )
+
+
+def _mean_curve(curves: list[list[dict]]) -> list[dict]:
+    """The seeds' curves as one: the mean RMS per budget, with each seed's."""
+    out = []
+    for rows in zip(*curves, strict=True):
+        row = {"n": rows[0]["n"], "bins": rows[0]["bins"]}
+        shares = [r["edge_share"] for r in rows if r.get("edge_share") is not None]
+        row["edge_share"] = float(np.mean(shares)) if shares else None
+        for axis in ("y", "z"):
+            values = [r[f"rms_{axis}_m"] for r in rows]
+            row[f"rms_{axis}_m"] = float(np.mean(values))
+            row[f"seeds_{axis}_m"] = values
+        out.append(row)
+    return out
+
+
+def _below(curve: list[dict], other: list[dict]) -> bool:
+    """Whether ``curve`` is below ``other`` at every budget on both axes."""
+    return all(
+        a["rms_y_m"] < b["rms_y_m"] and a["rms_z_m"] < b["rms_z_m"]
+        for a, b in zip(curve, other, strict=True)
+    )
+
+
+def _grid_floor(budget, train, test_hits, window, config) -> dict:
+    """The re-throw RMS of ``budget``'s grid fitted on every training throw."""
+    k = _grid_for(budget)
+    net = throw_network((k, k))
+    params = fit(net, throw_data(net, *train), pseudo_count=config.pseudo_count).params
+    y, z = rms(_rethrow((net, params), test_hits, _window(window, train[1])))
+    return {"n": budget, "bins": k, "rms_y_m": float(y), "rms_z_m": float(z)}

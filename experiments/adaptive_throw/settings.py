@@ -17,12 +17,17 @@ __all__ = [
     "QUERIES",
     "QUICK",
     "ROWS_PER_CLUSTER",
+    "STRATEGIES",
 ]
 
 GOAL_RMS_M = 0.0001  # 0.01 cm on both axes, noise-free
 GOAL_FIT_S = 2.0  # one core
 GOAL_NOISE_RATIO = 1.05  # within 5 % of the noise's own scatter
 ROWS_PER_CLUSTER = 30  # the active curves' grid rule
+#: How the active curves choose targets: at random; by the expected information gain about
+#: the clusters' regressions; by the expected reduction of the predictive variance summed
+#: over the target area (ALC).
+STRATEGIES = ("random", "information", "variance")
 #: The two inverse queries every layout is scored with (see the module).
 QUERIES = ("posterior", "effect")
 #: A first look in seconds.
@@ -73,6 +78,9 @@ class AdaptiveThrowConfig:
         the first is thrown at random targets by both).
     batch, pool : int
         Targets chosen per round, among ``pool`` random candidates (``batch <= pool``).
+    active_seeds : int
+        Curves per strategy (>= 1), each from its own seed; a seed's first budget of
+        random targets is the same for every strategy.
     noise_repeats : int
         Re-throws per desired hit with release noise (>= 1): the noisy RMS and scatter
         average over them.
@@ -96,6 +104,7 @@ class AdaptiveThrowConfig:
     budgets: tuple[int, ...] = (250, 500, 1_000, 2_000, 4_000)
     batch: int = 50
     pool: int = 2_000
+    active_seeds: int = 3
     noise_repeats: int = 10
     workers: int = 0
     progress: bool = True
@@ -111,6 +120,7 @@ class AdaptiveThrowConfig:
             raise ConfigError("neighbours", f"{self.neighbours} exceeds n_train={self.n_train}")
         check_int("batch", self.batch, 1)
         check_int("pool", self.pool, self.batch)
+        check_int("active_seeds", self.active_seeds, 1)
         check_int("noise_repeats", self.noise_repeats, 1)
         check_int("workers", self.workers, 0)
         for name in ("bins", "budgets", "em_steps"):

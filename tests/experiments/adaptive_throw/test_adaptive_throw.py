@@ -10,6 +10,7 @@ import torch
 from effect_networks.experiments.adaptive_throw.report import summary_rows
 from effect_networks.experiments.adaptive_throw.run import (
     AdaptiveThrowResult,
+    _near_edge,
     local_inverse,
     plane_residuals,
     run_adaptive_throw,
@@ -60,13 +61,35 @@ def test_runs_and_writes_its_results(tmp_path):
     assert all(1 <= r["em_steps"] <= 3 for r in saved["layouts"] if r["layout"] == "adaptive")
     curve = np.array(saved["em_log_likelihoods"])
     assert np.all(np.diff(curve) >= -1e-9)  # EM never lowers the likelihood
-    assert [r["n"] for r in saved["active"]["random"]] == [40, 80]
-    assert [r["n"] for r in saved["active"]["information"]] == [40, 80]
+    assert set(saved["active"]) == {"random", "information", "variance"}
+    for curve in saved["active"].values():
+        assert [r["n"] for r in curve] == [40, 80]
+        for r in curve:  # the mean of the two seeds' curves
+            assert len(r["seeds_y_m"]) == 2
+            assert r["rms_y_m"] == pytest.approx(np.mean(r["seeds_y_m"]))
+    # every strategy starts from the same random targets, seed by seed
+    first = {s: curve[0]["seeds_y_m"] for s, curve in saved["active"].items()}
+    assert first["random"] == first["information"] == first["variance"]
+    assert [(r["n"], r["bins"]) for r in saved["active_floor"]] == [(40, 2), (80, 2)]
+    for curve in saved["active"].values():  # chosen targets near a cell's edge
+        assert curve[0]["edge_share"] is None and 0 <= curve[1]["edge_share"] <= 1
     assert set(saved["goals"]) and all(isinstance(v, bool) for v in saved["goals"].values())
     assert (tmp_path / "adaptive_throw.png").stat().st_size > 10_000
     text = (tmp_path / "adaptive_throw.md").read_text()
     assert "| 9 | adaptive | effect |" in text and "physics' bound" in text
     assert "least-squares plane per equidistant cell" in text
+    assert "the expected reduction of the predictive variance summed over the target area" in text
+    assert "times the error of the same grid fitted on all 400 training throws" in text
+
+
+def test_near_edge_marks_the_outer_tenth_of_each_cell():
+    low, high = np.asarray(TARGET_AREA.low), np.asarray(TARGET_AREA.high)
+    width = (high - low) / 4
+    centre = low + 1.5 * width
+    points = np.stack([centre, centre + [0.45, 0.0] * width, centre + [0.0, -0.41] * width])
+    assert _near_edge(points, 4).tolist() == [False, True, True]
+    uniform = np.random.default_rng(0).uniform(low, high, (200_000, 2))
+    assert _near_edge(uniform, 4).mean() == pytest.approx(1 - 0.8**2, abs=0.005)
 
 
 def test_plane_residuals_vanish_on_planes_and_match_a_parabola():
@@ -218,8 +241,8 @@ def test_each_posterior_answer_is_computed_once(monkeypatch):
     monkeypatch.setattr(adaptive_run, "infer_parameter", counted)
     result = run_adaptive_throw(AdaptiveThrowConfig(**TINY, seed=2))
     rows = [r for r in result.layouts + result.noisy if r["query"] == "posterior"]
-    points = sum(len(curve) for curve in result.active.values())
-    assert len(calls) == len(rows) + points
+    points = TINY["active_seeds"] * sum(len(curve) for curve in result.active.values())
+    assert len(calls) == len(rows) + points + len(result.active_floor)
 
 
 def test_the_summary_row_shown_does_not_depend_on_the_fit_times():

@@ -216,9 +216,11 @@ def test_active_rows_give_each_learner_at_ten_percent_beside_the_full_data(tmp_p
 THROW_FLOOR_AND_ACTIVE = {
     "floor": {"rms_y_m": 0.0003, "rms_z_m": 0.0004},
     "active": {
-        "random": [{"n": 4000, "rms_y_m": 0.005, "rms_z_m": 0.006}],
+        "random": [{"n": 4000, "rms_y_m": 0.005, "rms_z_m": 0.006, "seeds_y_m": [0.0, 0.0]}],
         "information": [{"n": 4000, "rms_y_m": 0.004, "rms_z_m": 0.007}],
+        "variance": [{"n": 4000, "rms_y_m": 0.0045, "rms_z_m": 0.0065}],
     },
+    "active_floor": [{"n": 4000, "bins": 12, "rms_y_m": 0.0035, "rms_z_m": 0.0027}],
 }
 
 
@@ -256,7 +258,12 @@ def test_adaptive_throw_rows(tmp_path):
     )
     assert "adaptive 1.05 / 1.10, grid 1.15 / 1.15 (goal 1.05)" in text
     assert "local Newton inverse of the training throws 0.0300 / 0.0400 cm |" in text
-    assert "after 4000 throws | - | active 0.4000 / 0.7000 cm, random 0.5000 / 0.6000 cm" in text
+    assert (
+        "after 4000 throws (mean of 2 seeds) | - | random 0.5000 / 0.6000 cm, information gain "
+        "0.4000 / 0.7000 cm, variance (ALC) 0.4500 / 0.6500 cm | the same 12 x 12 grid fitted "
+        "on all " in text
+    )
+    assert "training throws: 0.3500 / 0.2700 cm |" in text
 
 
 def test_adaptive_throw_rows_with_both_queries(tmp_path):
