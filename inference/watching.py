@@ -41,6 +41,15 @@ tables, as the per-step fit counts them), the log-likelihood never falling; with
 state shown it is the per-step fit above. That route covers networks of discrete
 features; with continuous features, or with ``rows=``, a hidden state value is refused,
 naming the demonstration, the time and the feature.
+
+**Action parameters.** A step may record its action's parameter (``parameters=``) or not.
+A recorded value says the action uses the parameter, as a training row's does; an
+unrecorded one is a hidden value of its step: the E-step's posterior is over the action
+and the parameter's cluster with the value integrated out exactly, jointly Gaussian with
+the continuous features it acts on (:mod:`inference.fitting.completion`), and the M-step
+refits the clusters' table and Gaussians from the expected sums. EM's starts read an
+unrecorded value as drawn uniformly over the parameter's range
+(:mod:`inference.unrecorded_parameters`).
 """
 
 from __future__ import annotations

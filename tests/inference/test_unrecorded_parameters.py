@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import math
 
-import numpy as np
 import pytest
 import torch
 from effect_networks.inference import fit, simulate
@@ -76,7 +75,7 @@ def _by_quadrature(net, params, step, label):
 def test_one_em_step_integrates_the_unrecorded_force_as_quadrature_does(tapped):
     net, true, rows, demos = tapped
     steps = [demos[i] for i in range(5)]
-    labels = [[rows["action"][i] if i % 3 == 0 else None] for i in range(8)]
+    labels = [[rows["action"][i] if i % 3 == 0 else None] for i in range(5)]
     got = fit_demonstrations(net, steps, labels, init=true, steps=1, tol=1e-300, pseudo_count=0.0)
     tables = [_by_quadrature(net, true, s, lab[0]) for s, lab in zip(steps, labels, strict=True)]
     want_ll = sum(math.log(sum(m for m, _ in t.values())) for t in tables)
@@ -87,7 +86,7 @@ def test_one_em_step_integrates_the_unrecorded_force_as_quadrature_does(tapped):
     weight, first = torch.zeros(3, dtype=torch.float64), torch.zeros(3, dtype=torch.float64)
     for t in tables:
         total = sum(m for m, _ in t.values())
-        for (action, c), (m, f) in t.items():
+        for (_action, c), (m, f) in t.items():
             if c is not None:
                 weight[c] += m / total
                 first[c] += f / total
