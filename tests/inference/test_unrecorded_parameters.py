@@ -49,14 +49,19 @@ def _joint(net, params, step, action, cluster=None, force=None):
     return float(enumerate_model(net, params, net.encode(evidence)).log_evidence[0])
 
 
-def _by_quadrature(net, params, step, label):
+def _by_quadrature(net, params, step, label, recorded=None):
     """Per (action, cluster): the step's joint with the force integrated numerically, and the
-    force's first moment; an action that ignores the force has one entry (cluster None)."""
+    force's first moment; an action that ignores the force has one entry (cluster None). A
+    recorded force: the actions that use it alone, its cluster its cell."""
     out = {}
     gauss = params["param.force"]
+    if recorded is not None:
+        cell = int(net.mixture("force").parameter.cluster_of(torch.tensor([[recorded]])))
+        mass = math.exp(_joint(net, params, step, "tap", cell, recorded))
+        return {("tap", cell): (mass, recorded * mass, recorded**2 * mass)}
     for action in [label] if label else net.actions:
         if action != "tap":
-            out[action, None] = (math.exp(_joint(net, params, step, action)), 0.0)
+            out[action, None] = (math.exp(_joint(net, params, step, action)), 0.0, 0.0)
             continue
         for c in range(3):
             m = float(gauss.bias[c, 0])
@@ -68,7 +73,8 @@ def _by_quadrature(net, params, step, label):
             lo, hi = m - 12 * s, m + 12 * s
             mass = quad(density, lo, hi, epsabs=0, epsrel=1e-12, limit=200)[0]
             first = quad(lambda x: x * density(x), lo, hi, epsabs=0, epsrel=1e-12, limit=200)[0]
-            out[action, c] = (mass, first)
+            second = quad(lambda x: x * x * density(x), lo, hi, epsabs=0, epsrel=1e-12, limit=200)
+            out[action, c] = (mass, first, second[0])
     return out
 
 
@@ -76,29 +82,40 @@ def test_one_em_step_integrates_the_unrecorded_force_as_quadrature_does(tapped):
     net, true, rows, demos = tapped
     steps = [demos[i] for i in range(5)]
     labels = [[rows["action"][i] if i % 3 == 0 else None] for i in range(5)]
-    got = fit_demonstrations(net, steps, labels, init=true, steps=1, tol=1e-300, pseudo_count=0.0)
-    tables = [_by_quadrature(net, true, s, lab[0]) for s, lab in zip(steps, labels, strict=True)]
-    want_ll = sum(math.log(sum(m for m, _ in t.values())) for t in tables)
+    # one unlabelled tap step records its force
+    shown = next(i for i in range(1, 5) if i % 3 and rows["action"][i] == "tap")
+    force = float(rows["param.force"][shown, 0])
+    records = [[{"force": [force]}] if i == shown else None for i in range(5)]
+    got = fit_demonstrations(
+        net, steps, labels, parameters=records, init=true, steps=1, tol=1e-300, pseudo_count=0.0
+    )
+    tables = [
+        _by_quadrature(net, true, s, lab[0], force if i == shown else None)
+        for i, (s, lab) in enumerate(zip(steps, labels, strict=True))
+    ]
+    want_ll = sum(math.log(sum(m for m, *_ in t.values())) for t in tables)
     assert got.log_likelihoods[0] == pytest.approx(want_ll, rel=1e-9, abs=1e-9)
     assert len(got.log_likelihoods) == 2 and got.log_likelihoods[1] >= got.log_likelihoods[0]
     # the M-step: the cluster table of tap and each cluster's mean force, from the
     # posterior over (action, cluster) and the force's conditional mean
-    weight, first = torch.zeros(3, dtype=torch.float64), torch.zeros(3, dtype=torch.float64)
+    weight, first, second = (torch.zeros(3, dtype=torch.float64) for _ in range(3))
     for t in tables:
-        total = sum(m for m, _ in t.values())
-        for (_action, c), (m, f) in t.items():
+        total = sum(m for m, *_ in t.values())
+        for (_action, c), (m, f, g) in t.items():
             if c is not None:
                 weight[c] += m / total
                 first[c] += f / total
+                second[c] += g / total
     torch.testing.assert_close(
         got.params["cluster.force"].probs[net.action_index("tap")],
         weight / weight.sum(),
         rtol=0,
         atol=1e-8,
     )
-    torch.testing.assert_close(
-        got.params["param.force"].bias[:, 0], first / weight, rtol=1e-7, atol=0
-    )
+    mean = first / weight
+    torch.testing.assert_close(got.params["param.force"].bias[:, 0], mean, rtol=1e-7, atol=0)
+    variance = got.params["param.force"].scale_tril[:, 0, 0] ** 2
+    torch.testing.assert_close(variance, second / weight - mean**2, rtol=1e-6, atol=0)
 
 
 def test_recorded_forces_fit_as_the_labelled_rows_do(tapped):
