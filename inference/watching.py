@@ -160,9 +160,10 @@ def fit_demonstrations(
         Ordinary training rows (by site, as :func:`~inference.fitting.fit` takes them),
         fitted together with the demonstrations.
     parameters
-        Per demonstration (None: nothing recorded), ``T`` entries: ``{parameter: value}`` (``(d,)`` numbers, in the
-        parameter's units) where the step recorded its action's parameter, None (or a
-        mapping without it, or NaN) where not (default: none recorded). A recorded value
+        Per demonstration (None: nothing recorded), ``T`` entries: ``{parameter: value}``
+        (``(d,)`` numbers, in the parameter's units) where the step recorded its action's
+        parameter, None (or a mapping without it, or NaN) where not (default: none
+        recorded). A recorded value
         says the step's action uses the parameter; an unrecorded one says nothing of the
         action, and where the action uses the parameter the value is a hidden value of its
         step, integrated out exactly through its clusters (the module's notes).

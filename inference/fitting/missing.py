@@ -186,7 +186,8 @@ def fit_missing(
     bar.close()
     if not converged:
         warnings.warn(
-            f"EM over the missing values of {sorted([*masks, *gaps, *unrecorded])} did not settle in "
+            f"EM over the missing values of {sorted([*masks, *gaps, *unrecorded])} did not "
+            "settle in "
             f"{steps} steps (last relative gain of the log-likelihood above tol={tol:g}); "
             "raise steps",
             ConvergenceWarning,
