@@ -41,6 +41,15 @@ tables, as the per-step fit counts them), the log-likelihood never falling; with
 state shown it is the per-step fit above. That route covers networks of discrete
 features; with continuous features, or with ``rows=``, a hidden state value is refused,
 naming the demonstration, the time and the feature.
+
+**Action parameters.** A step may record its action's parameter (``parameters=``) or not.
+A recorded value says the action uses the parameter, as a training row's does; an
+unrecorded one is a hidden value of its step: the E-step's posterior is over the action
+and the parameter's cluster with the value integrated out exactly, jointly Gaussian with
+the continuous features it acts on (:mod:`inference.fitting.completion`), and the M-step
+refits the clusters' table and Gaussians from the expected sums. EM's starts read an
+unrecorded value as drawn uniformly over the parameter's range
+(:mod:`inference.unrecorded_parameters`).
 """
 
 from __future__ import annotations
@@ -59,6 +68,12 @@ from effect_networks.inference.fitting.reading import read_rows
 from effect_networks.inference.fitting.result import ConvergenceWarning
 from effect_networks.inference.hidden_demonstrations import fit_hidden_states
 from effect_networks.inference.queries.action import infer_action
+from effect_networks.inference.unrecorded_parameters import (
+    for_actions,
+    parameter_columns,
+    placeholders,
+    spread_values,
+)
 from effect_networks.models.cpds.table import TableParams
 from effect_networks.models.declaration import ACTION, Continuous, Discrete, EffectNetwork
 from effect_networks.models.params import NetworkParams, random_params
@@ -114,6 +129,7 @@ def fit_demonstrations(
     actions: Sequence[Sequence[str | None]] | None = None,
     *,
     rows: Mapping[str, object] | None = None,
+    parameters: Sequence[Sequence[Mapping[str, object] | None]] | None = None,
     reference: NetworkParams | None = None,
     init: NetworkParams | None = None,
     restarts: int = 2,
@@ -127,8 +143,8 @@ def fit_demonstrations(
     Parameters
     ----------
     net
-        The network (discrete and continuous features; no action parameters: a
-        demonstration does not record a parameter's value).
+        The network (discrete and continuous features, action parameters of the grid
+        layout).
     demonstrations
         Demonstrations, each a sequence of ``T + 1 >= 2`` states ``{feature: value}``;
         every continuous feature with an initial node is given at every time; an outcome
@@ -143,6 +159,14 @@ def fit_demonstrations(
     rows
         Ordinary training rows (by site, as :func:`~inference.fitting.fit` takes them),
         fitted together with the demonstrations.
+    parameters
+        Per demonstration (None: nothing recorded), ``T`` entries: ``{parameter: value}``
+        (``(d,)`` numbers, in the parameter's units) where the step recorded its action's
+        parameter, None (or a mapping without it, or NaN) where not (default: none
+        recorded). A recorded value
+        says the step's action uses the parameter; an unrecorded one says nothing of the
+        action, and where the action uses the parameter the value is a hidden value of its
+        step, integrated out exactly through its clusters (the module's notes).
     reference
         Parameters whose tables name the actions, for aligning a fit without any label.
     init
@@ -159,30 +183,38 @@ def fit_demonstrations(
         The fitted parameters, EM's curve, each start's result, and how the actions are
         named (``identifiable``, ``confidence``, ``agreement``).
     """
-    if net.mixtures:
+    adaptive = [p.name for p in net.parameters if p.adaptive]
+    if adaptive:
         raise ValueError(
-            "a demonstration does not record an action's parameter: fit_demonstrations "
-            f"takes networks without parameters (this one has {[p.name for p in net.parameters]})"
+            f"parameters {adaptive} have the adaptive layout: fit_demonstrations integrates a "
+            "parameter's value through the cells of the grid layout; declare them with "
+            "layout='grid'"
         )
     if not isinstance(restarts, int) or restarts < 0:
         raise ValueError(f"restarts must be an int >= 0, got {restarts!r}")
     if isinstance(demonstrations, Mapping):
         demonstrations = _from_batch(net, demonstrations)
     steps_rows, labels = _step_rows(net, demonstrations, actions)
+    unrecorded = parameter_columns(net, demonstrations, steps_rows, parameters)
     hidden = _hidden_state(net, demonstrations)
     if hidden is not None:
         _refuse_beside_hidden_states(net, rows, hidden)
     data = _joined(net, steps_rows, rows)
-    read = read_rows(net, data)
+    unrecorded = {s: _padded(u, len(data[ACTION])) for s, u in unrecorded.items()}
+    read = read_rows(net, placeholders(net, data, unrecorded))
     enc, gaps = read.enc, read.gaps
+    enc = enc | {s: torch.where(u[:, None], torch.nan, enc[s]) for s, u in unrecorded.items()}
     has_labels = labels.any() or (rows is not None and _labelled_rows(rows))
     inits = []
     if init is not None:
         inits.append(init)
     else:
-        starts = [lambda: _effect_start(net, data, len(steps_rows[ACTION]), pseudo_count)]
+        n_steps = len(steps_rows[ACTION])
+        spread = spread_values(net, data, unrecorded, seed)  # the starts' stand-ins
+        starts = [lambda: _effect_start(net, spread, n_steps, pseudo_count)]
         if has_labels:
-            starts.insert(0, lambda: available_case_start(net, enc, gaps, pseudo_count, 1e-6))
+            filled = enc | {s: torch.as_tensor(spread[s]) for s in unrecorded}
+            starts.insert(0, lambda: available_case_start(net, filled, gaps, pseudo_count, 1e-6))
         for start in starts:
             try:
                 inits.append(start())
@@ -204,7 +236,17 @@ def fit_demonstrations(
             init = NetworkParams(init.cpds, pseudo_count, net)
             if hidden is None:  # a step hides its action and a few outcomes: completing
                 # each row over them costs less than the families' contraction
-                runs.append(fit_missing(net, enc, gaps, init=init, by_families=False, **settings))
+                runs.append(
+                    fit_missing(
+                        net,
+                        enc,
+                        gaps,
+                        init=init,
+                        by_families=False,
+                        unrecorded=unrecorded,
+                        **settings,
+                    )
+                )
             else:
                 runs.append(fit_hidden_states(net, demonstrations, marks, init=init, **settings))
     finals = tuple(r.log_likelihoods[-1] if r.log_likelihoods else -math.inf for r in runs)
@@ -299,6 +341,11 @@ def _refuse_beside_hidden_states(net, rows, hidden) -> None:
     """What EM over hidden states does not cover: continuous features, training rows."""
     i, t, name = hidden
     where = f"demonstration {i}, time {t} hides {name!r}: a hidden state carried over time"
+    if net.mixtures:
+        raise ValueError(
+            f"{where}, which fit_demonstrations sums over networks without action parameters; "
+            f"this one has {[p.name for p in net.parameters]}: give {name!r} at every time"
+        )
     continuous = [f.name for f in net.features if isinstance(f, Continuous)]
     if continuous:
         raise ValueError(
@@ -358,6 +405,7 @@ def _effect_start(net, data, n_steps: int, pseudo_count: float) -> NetworkParams
             labels[i] = net.actions[int(nearest[i])]
     rows = {site: column[:n_steps] for site, column in data.items()}
     rows[ACTION] = labels
+    rows |= for_actions(net, rows, labels)
     start = fit(net, rows, pseudo_count=max(pseudo_count, 0.01))
     return start.params
 
@@ -396,6 +444,11 @@ def _value(f, value):
         return list(np.asarray(value, dtype=np.float64).reshape(f.dim))
     assert isinstance(f, Discrete)
     return None if _missing(value) else value
+
+
+def _padded(mask: torch.Tensor, n: int) -> torch.Tensor:
+    """A steps' mask followed by False for the training rows after them."""
+    return torch.cat([mask, torch.zeros(n - len(mask), dtype=torch.bool)])
 
 
 def _joined(net, steps_rows, rows):

@@ -200,15 +200,21 @@ def condition(
 
 
 def covariance_moments(
-    net: EffectNetwork, rows: Evidence, cov: torch.Tensor, weights: torch.Tensor
+    net: EffectNetwork,
+    rows: Evidence,
+    cov: torch.Tensor,
+    weights: torch.Tensor,
+    parameters: bool = False,
 ) -> dict[str, Moments]:
     """Per continuous initial or end site, the weighted sums of the conditional covariance.
 
     Of its ``z = [x, 1]`` and ``y`` (``cov`` ``(n, D, D)`` over the joint vector, zero where
     observed): what the expected sums add to those of the row with its missing values at their
-    conditional means.
+    conditional means. With ``parameters`` the joint vector holds the parameters' values too
+    (:func:`joint_gaussian`), and their cluster Gaussians get their sums as well (``cov`` zero
+    where the row's action does not use the value).
     """
-    layout = continuous_sites(net)
+    layout = continuous_sites(net, parameters)
     dim = cov.shape[-1]
     padded = torch.zeros(cov.shape[0], dim + 1, dim + 1, dtype=DTYPE)
     padded[:, :dim, :dim] = cov * weights.to(DTYPE)[:, None, None]  # index dim: zeros

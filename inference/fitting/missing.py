@@ -43,26 +43,28 @@ presence of each value is evidence of it. The E-step keeps the actions that use 
 the parameters the row gives (the model's joint weight of the others is set to zero),
 and each completed row's clusters are its values' cells under its action. A row that no
 action agrees with (a value missing where every action would use it) is refused.
+
+An *unrecorded* parameter value (``unrecorded=``: the data never held it, as a
+demonstration does not record the force of a tap) is another matter: its NaN says nothing
+of the action, and where the action uses the parameter the value is integrated out
+exactly through its clusters (:mod:`inference.fitting.completion`), its cluster Gaussian
+and the features it acts on refitted on the expected sums.
 """
 
 from __future__ import annotations
 
-import math
 import warnings
 from collections.abc import Mapping
-from dataclasses import dataclass, field, replace
+from dataclasses import replace
 
 import torch
-from effect_networks.inference.exact.enumeration import enumerate_model, row_chunks
-from effect_networks.inference.exact.gaussian_gaps import (
-    condition,
-    continuous_gaps,
-    continuous_sites,
-    covariance_moments,
-    joint_gaussian,
-    refuse_open_forms,
+from effect_networks.inference.exact.gaussian_gaps import continuous_gaps, refuse_open_forms
+from effect_networks.inference.fitting.completion import (
+    Completed,
+    completed_gaussian,
+    completed_rows,
+    open_parameters,
 )
-from effect_networks.inference.exact.traced import Enumerated
 from effect_networks.inference.fitting.family_marginals import covers, family_counts
 from effect_networks.inference.fitting.reading import read_rows
 from effect_networks.inference.fitting.result import ConvergenceWarning, FitResult
@@ -118,6 +120,7 @@ def fit_missing(
     tol: float | None = None,
     progress: bool = False,
     by_families: bool = True,
+    unrecorded: Mapping[str, torch.Tensor] | None = None,
 ) -> FitResult:
     """Maximum likelihood with missing values, by EM with exact E-steps.
 
@@ -133,6 +136,10 @@ def fit_missing(
     ``by_families``: where every site is a table, the E-step by elimination over the families
     (:mod:`inference.fitting.family_marginals`); False: the completed rows everywhere (the
     route the benchmarks and tests compare it with; the same counts).
+    ``unrecorded``: per parameter site (``param.p``), ``(n,)`` bool, True where the row does not
+    record the value (NaN there, whatever its action): where the action uses the parameter the
+    value is integrated out exactly through its clusters
+    (:mod:`inference.fitting.completion`), and its absence says nothing of the action.
     The loss is the likelihood's, without the prior: a step that the prior's pull would
     make lower the likelihood ends the fit, as a pseudo-count's does.
 
@@ -151,18 +158,19 @@ def fit_missing(
     masks = missing_masks(net, masks, enc.n_rows)
     gaps = continuous_gaps(net, enc)
     refuse_open_forms(net, enc, gaps)
-    allowed = actions_allowed(net, enc, masks)
+    unrecorded = _checked_unrecorded(net, unrecorded, enc.n_rows)
+    allowed = actions_allowed(net, enc, masks, unrecorded)
     alpha = pseudo_count if prior is None else prior
     n = enc.n_rows
     params = init
-    completed = _e_step(net, params, enc, masks, allowed, by_families)
+    completed = _e_step(net, params, enc, masks, allowed, by_families, unrecorded)
     curve = [(_prior(net, params, l2) - completed.log_lik) / n]
     log_liks = [completed.log_lik]
     converged = False
     bar = tqdm(total=steps, desc="fit (EM, missing values)", disable=not progress)
     for _ in range(steps):
         proposal = _m_step_missing(net, params, completed, alpha, min_variance, l2)
-        step = _e_step(net, proposal, enc, masks, allowed, by_families)
+        step = _e_step(net, proposal, enc, masks, allowed, by_families, unrecorded)
         loss = (_prior(net, proposal, l2) - step.log_lik) / n
         bar.update()
         if not loss <= curve[-1]:  # a dip (a pseudo-count's prior), or NaN: stop before it
@@ -178,7 +186,8 @@ def fit_missing(
     bar.close()
     if not converged:
         warnings.warn(
-            f"EM over the missing values of {sorted([*masks, *gaps])} did not settle in "
+            f"EM over the missing values of {sorted([*masks, *gaps, *unrecorded])} did not "
+            "settle in "
             f"{steps} steps (last relative gain of the log-likelihood above tol={tol:g}); "
             "raise steps",
             ConvergenceWarning,
@@ -280,16 +289,19 @@ def gaussian_row_log_likelihoods(
     """
     masks = {s: m for s, m in masks.items() if not bool(m.all())}
     allowed = actions_allowed(net, enc, masks)
-    return _completed_gaussian(net, params, enc, masks, allowed, posterior=False).per_row
+    return completed_gaussian(net, params, enc, masks, allowed, posterior=False).per_row
 
 
-def actions_allowed(net: EffectNetwork, enc: Evidence, masks) -> torch.Tensor | None:
+def actions_allowed(
+    net: EffectNetwork, enc: Evidence, masks, unrecorded: Mapping[str, torch.Tensor] | None = None
+) -> torch.Tensor | None:
     """The actions that agree with each row's parameter values, where the action is missing.
 
     ``(A, n)`` bool, in a network with parameters. A training row gives a parameter's value exactly
     when its action uses the parameter (:func:`inference.fit` checks it where the action is given),
     so where the action is missing the presence of each value is evidence of it. ``None`` where
-    there is nothing to restrict.
+    there is nothing to restrict. A value ``unrecorded`` (per parameter site, ``(n,)`` bool) is no
+    evidence either way.
     """
     if ACTION not in masks or not net.mixtures:
         return None
@@ -298,6 +310,8 @@ def actions_allowed(net: EffectNetwork, enc: Evidence, masks) -> torch.Tensor | 
     for m in net.mixtures:
         present = ~torch.isnan(enc[m.value.site]).any(-1)  # (n,)
         agree = m.uses[:, None] == present[None, :]  # (A, n)
+        if unrecorded and m.value.site in unrecorded:
+            agree = agree | unrecorded[m.value.site][None, :]
         allowed &= agree | ~missing[None, :]
         none = ~allowed.any(0)
         if bool(none.any()):
@@ -311,218 +325,19 @@ def actions_allowed(net: EffectNetwork, enc: Evidence, masks) -> torch.Tensor | 
     return allowed
 
 
-def _e_step(net, params, enc, masks, allowed=None, by_families=True) -> Completed:
+def _e_step(net, params, enc, masks, allowed=None, by_families=True, unrecorded=None) -> Completed:
     """The E-step: by elimination over the families where the network is all tables.
 
     (:mod:`inference.fitting.family_marginals`: the expected counts without completing rows),
-    else the completed rows (:func:`_completed_rows`, its twin in the tests).
+    else the completed rows (:func:`~inference.fitting.completion.completed_rows`, its twin in
+    the tests).
     """
-    if not by_families or not masks or not covers(net):
-        return _completed_rows(net, params, enc, masks, allowed)
+    if not by_families or not masks or not covers(net) or open_parameters(unrecorded):
+        return completed_rows(net, params, enc, masks, allowed, unrecorded)
     found = family_counts(net, params, enc, masks)
     stats = Statistics({s: Counts(c) for s, c in found.counts.items()}, enc.n_rows)
     weights = torch.ones(enc.n_rows, dtype=DTYPE)
     return Completed(enc, weights, found.log_lik, per_row=found.per_row, stats=stats)
-
-
-def _completed_rows(net, params, enc, masks, allowed=None) -> Completed:
-    """The E-step: every row once per assignment of its missing values, with its weight.
-
-    Every assignment that has posterior weight, with that weight, and the summed log-likelihood
-    (missing values summed out). ``allowed`` (:func:`actions_allowed`) restricts a missing action;
-    the parameters' clusters then follow each assignment's action (the cell of the value, or cell
-    0). Rows go through the model in chunks whose joint posterior stays below
-    :data:`inference.exact.enumeration.CHUNK_ELEMENTS`. Where a continuous value is missing (NaN),
-    :func:`_completed_gaussian` serves instead.
-    """
-    gaps = continuous_gaps(net, enc)
-    if gaps:
-        return _completed_gaussian(net, params, enc, masks, allowed)
-    if not masks:  # nothing missing: the rows' log-likelihood alone
-        log_lik = sum(
-            float(enumerate_model(net, params, enc.rows(chunk)).log_evidence.sum())
-            for chunk in row_chunks(enc.n_rows, 1)
-        )
-        return Completed(enc, torch.ones(enc.n_rows, dtype=DTYPE), log_lik)
-    size = math.prod(net.site(site).size for site in masks)
-    model_rows = enc
-    if allowed is not None:  # the clusters follow the action: the model derives them
-        model_rows = enc.without(*(m.cluster.site for m in net.mixtures))
-        size *= math.prod(m.cluster.size for m in net.mixtures)
-    parts, weights, log_lik = [], [], 0.0
-    for chunk in row_chunks(enc.n_rows, size):
-        rows = model_rows.rows(chunk)
-        chunk_masks = {s: m[chunk] for s, m in masks.items()}
-        enumerated = enumerate_model(net, params, rows, masks=chunk_masks)
-        assert set(masks) <= set(enumerated.dims), (enumerated.dims, list(masks))
-        if allowed is not None:
-            enumerated = _restrict_actions(net, enumerated, allowed[:, chunk])
-        posterior = enumerated.posterior()  # (E_k, ..., E_1, n)
-        log_lik += float(enumerated.log_evidence.sum())
-        others = [d + posterior.dim() for s, d in enumerated.dims.items() if s not in masks]
-        if others:  # the clusters: summed out (each assignment's action fixes them)
-            posterior = posterior.sum(others, keepdim=True)
-        flat = posterior.reshape(-1, rows.n_rows)
-        assignment, row = flat.nonzero(as_tuple=True)
-        values = _assigned(net, enumerated.dims, posterior.shape[:-1], masks, assignment)
-        completed = enc.rows(chunk).rows(row) | net.encode_indices(values)
-        if allowed is not None:
-            completed = _with_cells(net, completed)
-        parts.append(completed)
-        weights.append(flat[assignment, row])
-    return Completed(_joined(net, parts), torch.cat(weights), log_lik)
-
-
-@dataclass(frozen=True)
-class Completed:
-    """An E-step's result.
-
-    The completed rows, their weights, the summed log-likelihood (missing values summed out), the
-    conditional covariances' sums per linear Gaussian where continuous values are missing
-    (:mod:`inference.exact.gaussian_gaps`), and there each row's log-likelihood ``(n,)``. Where
-    the E-step ran by elimination, ``stats`` holds the expected statistics themselves (the rows
-    are then the rows as given, not completed).
-    """
-
-    rows: Evidence
-    weights: torch.Tensor
-    log_lik: float
-    moments: dict = field(default_factory=dict)
-    per_row: torch.Tensor | None = None
-    stats: Statistics | None = None
-
-
-def _completed_gaussian(net, params, enc, masks, allowed, posterior=True) -> Completed:
-    """The E-step where continuous values are missing.
-
-    The model, traced under enumeration with the missing discrete values latent and every continuous
-    initial and end site's factor left out (their values filled in, read by no factor kept), gives
-    each completion's discrete factors; the continuous sites' joint Gaussian given the completion
-    (:func:`inference.exact.gaussian_gaps.joint_gaussian`) gives the density of the observed
-    dimensions and the missing ones' conditional moments. Without ``posterior``, only the rows'
-    log-likelihoods (``per_row``, ``-inf`` for a row of probability 0) and their sum: the rows are
-    not completed.
-    """
-    refuse_open_forms(net, enc, continuous_gaps(net, enc))
-    layout = continuous_sites(net)
-    filled = enc | {s: enc[s].nan_to_num() for s in layout}
-    size = math.prod(net.site(site).size for site in masks) if masks else 1
-    model_rows = filled
-    if allowed is not None:
-        model_rows = filled.without(*(m.cluster.site for m in net.mixtures))
-        size *= math.prod(m.cluster.size for m in net.mixtures)
-    parts, weights, covs, per_row, log_lik = [], [], [], [], 0.0
-    for chunk in row_chunks(enc.n_rows, size):
-        rows = model_rows.rows(chunk)
-        n = rows.n_rows
-        chunk_masks = {s: m[chunk] for s, m in masks.items()}
-        enumerated = enumerate_model(net, params, rows, masks=chunk_masks, trace_only=layout)
-        if allowed is not None:
-            enumerated = _restrict_actions(net, enumerated, allowed[:, chunk])
-        dims = enumerated.dims
-        shape = [1] * max([-d for d in dims.values()], default=1)
-        for site, d in dims.items():
-            shape[d] = net.site(site).size
-        shape[-1] = n
-        flat = enumerated.log_weight.expand(shape).reshape(-1, n)
-        assignment, row = (flat > -torch.inf).nonzero(as_tuple=True)
-        values = _assigned(net, dims, tuple(shape[:-1]), dims, assignment)
-        completed = enc.rows(chunk).rows(row) | net.encode_indices(values)
-        if allowed is not None:
-            completed = _with_cells(net, completed)
-        # the Gaussian part once per row and configuration of the continuous sites'
-        # discrete parents (the completions of other sites share it)
-        key = row.clone()
-        for site in dims:
-            if any(site in net.cpd(c).parents for c in layout):
-                key = key * net.site(site).size + completed[site]
-        key, inverse = torch.unique(key, return_inverse=True)
-        first = torch.zeros(len(key), dtype=torch.long).scatter_(
-            0, inverse, torch.arange(len(inverse))
-        )
-        distinct = completed.rows(first)
-        mean, cov = joint_gaussian(net, params, distinct)
-        value = torch.cat([distinct[s] for s in layout], -1)
-        log_density, post_mean, post_cov = condition(mean, cov, value)
-        joint = torch.full_like(flat, -torch.inf)
-        joint[assignment, row] = flat[assignment, row] + log_density[inverse]
-        log_norm = joint.logsumexp(0)  # (n,)
-        per_row.append(log_norm + enumerated.log_offset)
-        if not posterior:
-            continue
-        if not bool((log_norm > -torch.inf).all()):
-            bad = int((log_norm == -torch.inf).nonzero()[0])
-            raise ValueError(
-                f"training row {bad + (chunk.start or 0)} has probability 0 under every "
-                "completion of its missing values: no posterior exists"
-            )
-        log_lik += float(per_row[-1].sum())
-        w = (joint[assignment, row] - log_norm[row]).exp()
-        keep = w > 0
-        means = post_mean[inverse[keep]]
-        parts.append(completed.rows(keep) | {s: means[:, own] for s, own in layout.items()})
-        weights.append(w[keep])
-        # the conditional covariances' sums: per distinct Gaussian that misses a value,
-        # its completions' weights summed
-        gapped = torch.isnan(value).any(-1)
-        summed = torch.zeros(len(key), dtype=DTYPE).index_add_(0, inverse, w)
-        covs.append((distinct.rows(gapped), post_cov[gapped], summed[gapped]))
-    if not posterior:
-        scored = torch.cat(per_row)
-        return Completed(enc, torch.ones(enc.n_rows, dtype=DTYPE), float(scored.sum()), {}, scored)
-    moments = covariance_moments(
-        net,
-        _joined(net, [c[0] for c in covs]),
-        torch.cat([c[1] for c in covs]),
-        torch.cat([c[2] for c in covs]),
-    )
-    return Completed(_joined(net, parts), torch.cat(weights), log_lik, moments, torch.cat(per_row))
-
-
-def _restrict_actions(net, enumerated: Enumerated, allowed: torch.Tensor) -> Enumerated:
-    """``enumerated`` with the actions that disagree with a row's parameter values impossible.
-
-    ``allowed`` ``(A, n)``.
-    """
-    dim = enumerated.dims[ACTION]
-    agree = allowed.reshape(len(net.actions), *([1] * (-dim - 2)), -1)
-    log_weight = enumerated.log_weight.masked_fill(~agree, -torch.inf)
-    return Enumerated((log_weight,), enumerated.dims, enumerated.trace, enumerated.offsets)
-
-
-def _assigned(net, dims, shape, sites, assignment) -> dict[str, torch.Tensor]:
-    """The state of each of ``sites`` in each flat ``assignment`` of a joint of ``shape``.
-
-    ``sites`` are enumerated at ``dims``.
-    """
-    values = {}
-    for site in sites:
-        dim = dims[site]
-        k = net.site(site).size
-        assert shape[dim + 1] == k, (site, shape, dim)
-        states = torch.arange(k).reshape(k, *([1] * (-dim - 2)))
-        values[site] = states.expand(shape).reshape(-1)[assignment]
-    return values
-
-
-def _with_cells(net, completed: Evidence) -> Evidence:
-    """The completed rows with each grid parameter's cluster its value's cell.
-
-    Its cell under the row's (completed) action; an adaptive one's is enumerated with the rest.
-    """
-    cells = {
-        m.cluster.site: m.cells(completed[m.value.site], completed[ACTION])
-        for m in net.mixtures
-        if not m.parameter.adaptive
-    }
-    return completed | net.encode_indices(cells)
-
-
-def _joined(net, parts: list[Evidence]) -> Evidence:
-    if len(parts) == 1:
-        return parts[0]
-    completed = {site: torch.cat([p[site] for p in parts]) for site in parts[0]}
-    return Evidence(net, completed, sum(p.n_rows for p in parts))
 
 
 #: The most Newton iterations of one M-step (from the last step's optimum it takes a
@@ -571,3 +386,18 @@ def _prior(net: EffectNetwork, params: NetworkParams, l2: float) -> float:
         for tensor in cpd.penalised(cpd.free(params[spec.name])):
             total += 0.5 * l2 * float(tensor.square().sum())
     return total
+
+
+def _checked_unrecorded(net, unrecorded, n: int) -> dict[str, torch.Tensor]:
+    """``unrecorded`` as ``(n,)`` bool per parameter site that leaves some value open."""
+    sites = {m.value.site for m in net.mixtures}
+    out = {}
+    for site, mask in (unrecorded or {}).items():
+        mask = torch.as_tensor(mask, dtype=torch.bool)
+        if site not in sites or mask.shape != (n,):
+            raise ValueError(
+                f"unrecorded[{site!r}] must be ({n},) bool for a parameter site of the network "
+                f"(one of {sorted(sites)}); got shape {tuple(mask.shape)}"
+            )
+        out[site] = mask
+    return open_parameters(out)

@@ -113,7 +113,7 @@ def test_hidden_state_values_beside_what_their_em_does_not_cover_are_refused():
         fit_demonstrations(net, [hidden])
     with pytest.raises(ValueError, match="not one of"):
         fit_demonstrations(world.net, [demo[:1] * 2], [["jump"]])
-    with pytest.raises(ValueError, match="does not record an action's parameter"):
+    with pytest.raises(ValueError, match="adaptive layout"):
         fit_demonstrations(tap_net(), [[{"visible": 1}, {"visible": 0}]])
 
 

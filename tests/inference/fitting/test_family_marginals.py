@@ -5,7 +5,7 @@ import itertools
 
 import pytest
 import torch
-from effect_networks.inference.fitting import family_marginals, missing
+from effect_networks.inference.fitting import completion, family_marginals, missing
 from effect_networks.inference.fitting.sufficient_statistics import statistics
 from effect_networks.models import Discrete, EffectNetwork, random_params
 from effect_networks.models.declaration import DTYPE
@@ -45,7 +45,7 @@ def test_expected_counts_are_the_completed_rows(case):
     # the twin: the general route completes each row once per assignment of its gaps
     net, params, rows, masks = case
     assert family_marginals.covers(net)
-    completed = missing._completed_rows(net, params, rows, masks)
+    completed = completion.completed_rows(net, params, rows, masks)
     twin = statistics(net, completed.rows, completed.weights)
     found = family_marginals.family_counts(net, params, rows, masks)
     assert found.log_lik == pytest.approx(completed.log_lik, rel=1e-12, abs=1e-10)
