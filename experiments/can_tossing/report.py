@@ -115,7 +115,7 @@ def _of_bound(ours: float | None, bound: float | None) -> str:
 def _threshold_lines(i: dict) -> list[str]:
     """The surprise's operating points, chosen on the validation draw."""
     lines = []
-    for label, point in i["threshold"].items():
+    for label, point in i.get("threshold", {}).items():
         if point is None:
             continue
         rates = (
@@ -133,7 +133,9 @@ def _threshold_lines(i: dict) -> list[str]:
 
 
 def _bound_lines(i: dict) -> list[str]:
-    """The surprise's physics bound and ours as a fraction of it."""
+    """The surprise's physics bound and ours as a fraction of it (none in older results)."""
+    if "bound" not in i:
+        return []
     b = i["bound"]
     h = b["half_repeats"]
     return [
@@ -196,7 +198,7 @@ def plot_roc(result: dict, path) -> Path:
 
     fig = Figure(figsize=(5.6, 5.0))
     ax = fig.subplots()
-    bound = result["bound"]
+    bound = result.get("bound", {"repeats": 0})
     for (key, label), colour in zip(FAILURE_WORDS.items(), ("C0", "C1"), strict=True):
         suffix = "" if key == "failed" else "_ordinary"
         for source, scores, style, name in (
@@ -204,11 +206,11 @@ def plot_roc(result: dict, path) -> Path:
             (result, "pooled_surprise", "--", f"pooled, {result['aim_sigma']:g} fields"),
             (bound, "surprise", ":", f"physics bound, {bound['repeats']} replays"),
         ):
-            auc = source[f"auc{suffix}" + ("_pooled" if scores == "pooled_surprise" else "")]
+            auc = source.get(f"auc{suffix}" + ("_pooled" if scores == "pooled_surprise" else ""))
             if auc is not None:
                 fpr, tpr = roc_curve(source[scores], result[key])
                 ax.plot(fpr, tpr, style, color=colour, label=f"failed: {label}; {name} ({auc:.3f})")
-        point = result["threshold"][key]
+        point = result.get("threshold", {}).get(key)
         if point is not None and point["tpr"] is not None:
             ax.plot(
                 point["fpr"], point["tpr"], "o", color=colour,
@@ -259,11 +261,19 @@ def table_one_rows(c: CanTossingResult | None, b: Result | None) -> list[str]:
 def can_rows(c: CanTossingResult) -> list[str]:
     """Emulation and imitation."""
     e, i = c.emulation, c.imitation
-    b = i["bound"]
 
     def auc(x):
         return "n/a" if x is None else f"{x:.3f}"
 
+    bound = ""
+    if "bound" in i:  # results written before the bound was measured have none
+        b = i["bound"]
+        bound = (
+            f"{auc(b['auc'])} / {auc(b['auc_ordinary'])}; aim-pooled {auc(b['auc_pooled'])} / "
+            f"{auc(b['auc_ordinary_pooled'])} (the simulator's own outcome frequencies, "
+            f"{b['repeats']} replays per aim); ours {_of_bound(i['auc'], b['auc'])} / "
+            f"{_of_bound(i['auc_ordinary'], b['auc_ordinary'])} of it"
+        )
     return [
         f"| cans: emulation, same end configuration | - | "
         f"{percent(e['same_end_config'], 1)} of {e['n_demonstrations']} demonstrations "
@@ -272,10 +282,7 @@ def can_rows(c: CanTossingResult) -> list[str]:
         f"outcome / none of the usual outcomes) | - | {auc(i['auc'])} / "
         f"{auc(i['auc_ordinary'])}; aim-pooled ({i['aim_sigma']:g} fields): "
         f"{auc(i['auc_pooled'])} / {auc(i['auc_ordinary_pooled'])} ({i['n_throws']} throws) | "
-        f"{auc(b['auc'])} / {auc(b['auc_ordinary'])}; aim-pooled {auc(b['auc_pooled'])} / "
-        f"{auc(b['auc_ordinary_pooled'])} (the simulator's own outcome frequencies, "
-        f"{b['repeats']} replays per aim); ours {_of_bound(i['auc'], b['auc'])} / "
-        f"{_of_bound(i['auc_ordinary'], b['auc_ordinary'])} of it |",
+        f"{bound} |",
     ]
 
 
