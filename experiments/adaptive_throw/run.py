@@ -14,6 +14,7 @@ from typing import ClassVar
 import numpy as np
 import torch
 from effect_networks.experiments.adaptive_throw.settings import (
+    CAUSES,
     GOAL_FIT_S,
     GOAL_NOISE_RATIO,
     GOAL_RMS_M,
@@ -34,6 +35,8 @@ from tqdm.auto import tqdm
 __all__ = [
     "AdaptiveThrowResult",
     "adaptive_throw_network",
+    "error_causes",
+    "error_tail",
     "local_inverse",
     "plane_residuals",
     "run_adaptive_throw",
@@ -84,18 +87,18 @@ def _fit(layout, k, train, config):
 def _query(model, desired, window, query="posterior"):
     """The inferred aims ``(n, 2)`` for the desired hits, clipped into the area.
 
-    And for the inverse model every cluster's candidate ``(n, C, 2)``, clipped (None for the
+    And for the inverse model its answer (:class:`inference.ParameterForEffect`: every cluster's
+    candidate, the chosen cluster, whether the value lies outside the area; None for the
     posterior query).
     """
     net, params = model
     evidence = hit_evidence(desired, low=window[0], high=window[1])
     if query == "posterior":
-        aim, candidates = infer_parameter(net, params, TARGET, evidence).mean, None
+        aim, answer = infer_parameter(net, params, TARGET, evidence).mean, None
     else:
         answer = parameter_for_effect(net, params, TARGET, evidence)
         aim = answer.value
-        candidates = np.clip(answer.candidates.numpy(), TARGET_AREA.low, TARGET_AREA.high)
-    return np.clip(aim.numpy(), TARGET_AREA.low, TARGET_AREA.high), candidates
+    return np.clip(aim.numpy(), TARGET_AREA.low, TARGET_AREA.high), answer
 
 
 def _aims(model, desired, window, query="posterior"):
@@ -106,12 +109,72 @@ def _aims(model, desired, window, query="posterior"):
 def _best_candidate(candidates, desired):
     """Errors ``(n, 2)`` of re-throwing at the candidate that the throw itself says misses least.
 
-    How well a perfect choice among the model's per-cluster answers would do.
+    How well a perfect choice among the model's per-cluster answers would do; ``candidates``
+    ``(n, C, 2)``, clipped into the area.
     """
     n, c, _ = candidates.shape
     hits = throw(candidates.reshape(n * c, 2)).hit.reshape(n, c, 2)
     best = np.linalg.norm(hits - desired[:, None], axis=-1).argmin(1)
     return hits[np.arange(n), best] - desired
+
+
+#: An RMS below this (m; a tenth of the report's last digit) is rounding: its shares mean nothing.
+NEGLIGIBLE_M = 1e-7
+
+
+def error_causes(error, best_error, outside, clamped) -> np.ndarray:
+    """``(n,)`` index into ``CAUSES`` of what each hit's re-throw error is put down to.
+
+    ``error``, ``best_error`` ``(n, 2)``: the re-throw errors at the inverse model's aim and at
+    its best candidate (:func:`_best_candidate`); ``outside`` ``(n,)``: its answer lay outside the
+    target area (clipped into it); ``clamped`` ``(n,)``: the arm clamps at the aim (where the map
+    has a kink). The first that applies: ``clipped``, ``clamped``, ``choice`` (another cluster's
+    candidate misses by less than half as much), else ``curvature`` (what the chosen linear
+    piece leaves of the map).
+    """
+    length, best = np.linalg.norm(error, axis=1), np.linalg.norm(best_error, axis=1)
+    cause = np.full(len(length), CAUSES.index("curvature"))
+    cause[best < length / 2] = CAUSES.index("choice")
+    cause[clamped] = CAUSES.index("clamped")
+    cause[outside] = CAUSES.index("clipped")
+    return cause
+
+
+def error_tail(error, cause, desired, worst: float = 0.01, shown: int = 5) -> dict:
+    """Where a re-throw error's sum of squares lies, per axis.
+
+    ``worst_share_*``: the share carried by the ``worst`` fraction of the hits (by the error's
+    length, at least one hit); ``share_*``: the share of each of ``CAUSES``
+    (:func:`error_causes`); None where an axis has no error to speak of (RMS under
+    ``NEGLIGIBLE_M``, rounding). ``worst_hits``: the ``shown``
+    largest errors, each with its desired hit and error (m) and its cause.
+    """
+    squares = error**2
+    total, rms_ = squares.sum(0), rms(error)
+    order = np.argsort(-np.linalg.norm(error, axis=1), kind="stable")
+    top = order[: max(1, math.ceil(worst * len(order)))]
+
+    def share(rows) -> list[float | None]:
+        return [
+            float(squares[rows, a].sum() / total[a]) if rms_[a] >= NEGLIGIBLE_M else None
+            for a in (0, 1)
+        ]
+
+    out = {"worst_fraction": worst, "n_worst": len(top)}
+    out |= dict(zip(("worst_share_y", "worst_share_z"), share(top), strict=True))
+    for k, name in enumerate(CAUSES):
+        out |= dict(zip((f"share_y_{name}", f"share_z_{name}"), share(cause == k), strict=True))
+    out["worst_hits"] = [
+        {
+            "desired_y_m": float(desired[i, 0]),
+            "desired_z_m": float(desired[i, 1]),
+            "error_y_m": float(error[i, 0]),
+            "error_z_m": float(error[i, 1]),
+            "cause": CAUSES[cause[i]],
+        }
+        for i in order[:shown]
+    ]
+    return out
 
 
 def _rethrow(model, desired, window, rng=None, noise=None, query="posterior"):
@@ -282,7 +345,8 @@ class AdaptiveThrowResult(Result):
     largest adaptive fit's curve (mean per-row). ``floor``: the local Newton inverse (a reference).
     The inverse model's rows also hold ``best_rms_*``: the re-throw RMS had each row
     taken the cluster candidate that the throw itself says misses least (a perfect
-    choice among the model's answers). ``pieces``: per grid size, the RMS residual of one
+    choice among the model's answers), and ``tail``: where the squared error lies
+    (:func:`error_tail`: the worst hits' share and each cause's, :func:`error_causes`). ``pieces``: per grid size, the RMS residual of one
     least-squares plane per equidistant cell through the unclamped training throws
     (:func:`plane_residuals`): the curvature that linear pieces of that size leave.
     ``active``: per strategy (``"random"``, ``"information"``) the curve of
@@ -315,9 +379,10 @@ def _layout_rows(k, layout, train, test_hits, window, config):
     rows, curve, floor = [], [], None
     for model, seconds, ll in _fit(layout, k, train, config):
         for query in QUERIES:
-            aims, candidates = _query(model, test_hits, window, query)
+            aims, answer = _query(model, test_hits, window, query)
             if (layout, query, k) == ("grid", "posterior", config.bins[-1]):
                 floor = local_inverse(*train, test_hits, aims, config.neighbours)
+            thrown = throw(aims)
             row = {
                 "layout": layout,
                 "query": query,
@@ -325,10 +390,16 @@ def _layout_rows(k, layout, train, test_hits, window, config):
                 "n_clusters": k * k,
                 "fit_s": seconds,
                 "em_steps": max(0, len(ll) - 1),
-            } | _spread(throw(aims).hit - test_hits)
-            if candidates is not None:
-                best = rms(_best_candidate(candidates, test_hits))
-                row |= {"best_rms_y_m": float(best[0]), "best_rms_z_m": float(best[1])}
+            } | _spread(thrown.hit - test_hits)
+            if answer is not None:
+                candidates = answer.candidates.numpy()
+                candidates = np.clip(candidates, TARGET_AREA.low, TARGET_AREA.high)
+                best = _best_candidate(candidates, test_hits)
+                y, z = rms(best)
+                row |= {"best_rms_y_m": float(y), "best_rms_z_m": float(z)}
+                error = thrown.hit - test_hits
+                cause = error_causes(error, best, answer.outside.numpy(), thrown.clamped)
+                row["tail"] = error_tail(error, cause, test_hits)
             rows.append(row)
         curve = ll
     return rows, curve, floor
