@@ -32,14 +32,21 @@ from effect_networks.sim2d.configurations import cache_dir, stable_configuration
 __all__ = [
     "SCALES",
     "CanDataSettings",
+    "BOUND_SEED",
     "CanModel",
+    "Replays",
     "SimulationSettings",
     "can_dataset",
     "choose",
     "default_data_dir",
     "fit_can_network",
+    "replays",
     "start_configurations",
 ]
+
+#: Seed of the simulator's own repeated throws (:func:`replays`); the training data set uses
+#: seed 0, so these throws are fresh.
+BOUND_SEED = 1
 
 #: Scales: how many start configurations (None: all) and repeats per throw.
 SCALES = {
@@ -138,6 +145,65 @@ def can_dataset(
         progress=progress,
     )
     return load_dataset(path)
+
+
+@dataclass(frozen=True)
+class Replays:
+    """The simulator's own repeated 0° throws: every field from every non-empty start.
+
+    ``configs``: the start masks, sorted; ``end_config`` and ``count_after``: ``(configs, 195,
+    repeats)`` int64, the outcome of each repeat (an unthrowable field's rows are its start, not
+    simulated).
+    """
+
+    configs: tuple[int, ...]
+    end_config: np.ndarray
+    count_after: np.ndarray
+
+    @property
+    def repeats(self) -> int:
+        """Throws per (start, field)."""
+        return self.end_config.shape[-1]
+
+    def head(self, repeats: int) -> Replays:
+        """The first ``repeats`` throws of each (start, field)."""
+        assert 1 <= repeats <= self.repeats
+        return Replays(
+            self.configs, self.end_config[..., :repeats], self.count_after[..., :repeats]
+        )
+
+    def row(self, start: int) -> int:
+        """The index of the start configuration ``start`` in ``configs``."""
+        return self.configs.index(int(start))
+
+
+def replays(
+    data_dir: Path, scale: str, repeats: int, *, angle: int = 0, executor=None, progress=True
+) -> Replays:
+    """Every field thrown ``repeats`` times at ``angle`` from every non-empty start at ``scale``.
+
+    With the data set's jitter and fresh seeds (``BOUND_SEED``); generated once as
+    ``data_dir/can_bound_<scale>_<repeats>.npz`` (resumed when interrupted) and shared by every
+    experiment that asks for the same replays.
+    """
+    configs = [c for c in start_configurations(SCALES[scale]["n_configs"]) if c]
+    path = generate_dataset(
+        Path(data_dir) / f"can_bound_{scale}_{repeats}.npz",
+        configs=configs,
+        angles=(angle,),
+        repeats=repeats,
+        seed=BOUND_SEED,
+        executor=executor,
+        progress=progress,
+    )
+    sims = load_dataset(path)
+    order = np.lexsort((sims.repeat, sims.field, sims.start_config))
+    shape = (len(configs), geometry.N_FIELDS, repeats)
+    return Replays(
+        tuple(sorted(configs)),
+        sims.end_config[order].astype(np.int64).reshape(shape),
+        sims.count_after[order].astype(np.int64).reshape(shape),
+    )
 
 
 @dataclass(frozen=True)

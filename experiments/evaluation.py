@@ -15,6 +15,11 @@
   throws per cell misses but the neighbouring cells produced.
 * :func:`tail_surprise` -- the imitation surprise of an observed outcome under a
   discrete predictive: the probability of the outcomes strictly more likely than it.
+* :func:`sample_frequencies` -- a discrete predictive estimated from repeated outcomes:
+  the simulator's own, from which the surprise's physics bound is computed.
+* :func:`best_threshold` and :func:`rates_at` -- a score's operating point: the
+  threshold chosen on one draw (the largest true- minus false-positive rate), and the
+  rates it gives on another.
 """
 
 from __future__ import annotations
@@ -28,8 +33,11 @@ __all__ = [
     "accuracy_histogram",
     "aim_pooled",
     "aim_robust_best",
+    "best_threshold",
+    "rates_at",
     "roc_auc",
     "roc_curve",
+    "sample_frequencies",
     "tail_surprise",
 ]
 
@@ -118,6 +126,28 @@ def roc_curve(scores, positive) -> tuple[np.ndarray, np.ndarray]:
     tpr = np.r_[0.0, tp / positive.sum()]
     fpr = np.r_[0.0, fp / (~positive).sum()]
     return fpr, tpr
+
+
+def rates_at(scores, positive, threshold: float) -> tuple[float, float]:
+    """``(false-positive rate, true-positive rate)`` when a score ``>= threshold`` flags.
+
+    ``scores`` and ``positive`` as in :func:`roc_auc`.
+    """
+    scores, positive = _scores_and_labels(scores, positive)
+    flagged = scores >= threshold
+    return float(flagged[~positive].mean()), float(flagged[positive].mean())
+
+
+def best_threshold(scores, positive) -> float:
+    """The score threshold of the largest true- minus false-positive rate (Youden's J).
+
+    A score ``>= threshold`` flags. Candidates are the observed scores; among equally good
+    ones, the highest (fewest flags). ``scores`` and ``positive`` as in :func:`roc_auc`.
+    """
+    scores, positive = _scores_and_labels(scores, positive)
+    candidates = np.unique(scores)[::-1]
+    j = [np.subtract(*rates_at(scores, positive, t)[::-1]) for t in candidates]
+    return float(candidates[int(np.argmax(j))])
 
 
 def aim_robust_best(
@@ -315,3 +345,30 @@ def tail_surprise(probs, observed) -> torch.Tensor:
     log_obs = torch.gather(log_p, -1, observed[..., None])
     more_likely = log_p > log_obs + SURPRISE_LOG_TOLERANCE
     return (probs * more_likely).sum(-1).clamp(0, 1)
+
+
+def sample_frequencies(samples, n_outcomes: int) -> torch.Tensor:
+    """The outcomes' relative frequencies among repeated draws, a predictive per row.
+
+    Parameters
+    ----------
+    samples : (..., R) int
+        ``R >= 1`` observed outcomes per row, indices in ``0..n_outcomes-1``.
+    n_outcomes : int
+        ``K``, the number of outcomes.
+
+    Returns
+    -------
+    torch.Tensor
+        ``(..., K)`` float64, each row summing to 1; an outcome never drawn has 0.
+    """
+    samples = torch.as_tensor(np.asarray(samples))
+    if samples.dim() < 1 or samples.shape[-1] < 1 or samples.is_floating_point():
+        raise ValueError(
+            f"samples must be a (..., R) integer array with R >= 1, got {tuple(samples.shape)}"
+        )
+    if samples.numel() and not bool(((samples >= 0) & (samples < n_outcomes)).all()):
+        raise ValueError(f"samples must lie in 0..{n_outcomes - 1}")
+    counts = torch.zeros(*samples.shape[:-1], n_outcomes, dtype=torch.float64)
+    counts.scatter_add_(-1, samples.long(), torch.ones(samples.shape, dtype=torch.float64))
+    return counts / samples.shape[-1]

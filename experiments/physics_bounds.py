@@ -6,7 +6,7 @@ be read against it:
 
 * **Table I**, under both protocols of :func:`experiments.can_tossing.run.table_one_cases`.
   Every 0° field is thrown ``repeats`` more times from every start (the data set's
-  jitter, fresh seeds; :func:`sim2d.can_dataset.generate_dataset`). For each case the
+  jitter, fresh seeds; :func:`experiments.cans.replays`). For each case the
   field is chosen by its success on the first half of the repeats and scored on the
   second half (held out, so that luck in the choice does not count; :func:`held_out_best`).
 * **Combined.** From every state its throws reach from the full pyramid, the robot
@@ -32,10 +32,10 @@ from effect_networks.experiments.can_tossing.report import table_one_rows
 from effect_networks.experiments.can_tossing.run import table_one_cases
 from effect_networks.experiments.can_tossing.settings import ANGLE, PROTOCOLS
 from effect_networks.experiments.cans import (
-    SCALES,
+    BOUND_SEED,
     CanDataSettings,
     can_dataset,
-    start_configurations,
+    replays,
 )
 from effect_networks.experiments.combined import MAX_HORIZON, SCENARIOS
 from effect_networks.experiments.harness.config import (
@@ -48,7 +48,6 @@ from effect_networks.experiments.harness.registry import Experiment
 from effect_networks.inference.sequences.dynamic_programming import exact_plan, policy_value
 from effect_networks.sim2d import field_throws, geometry
 from effect_networks.sim2d.analytic_throw import TARGET_AREA
-from effect_networks.sim2d.can_dataset import generate_dataset, load_dataset
 from effect_networks.sim2d.combined import TABLE_TOP_Z, reachable_throws
 from effect_networks.sim2d.configurations import stable_configurations
 from effect_networks.sim2d.executors import open_executor
@@ -65,8 +64,6 @@ __all__ = [
     "run_physics_bounds",
     "table_one_bound",
 ]
-
-BOUND_SEED = 1  # the training data set uses seed 0: these throws are fresh
 
 
 @dataclass(frozen=True)
@@ -138,26 +135,15 @@ def table_one_bound(config: PhysicsBoundsConfig, executor=None) -> dict[str, dic
     """
     progress = config.progress
     data = can_dataset(config.data_dir, config.scale, progress=progress, executor=executor)
-    configs = [c for c in start_configurations(SCALES[config.scale]["n_configs"]) if c]
-    path = generate_dataset(
-        config.data_dir / f"can_bound_{config.scale}_{config.repeats}.npz",
-        configs=configs,
-        angles=(ANGLE,),
-        repeats=config.repeats,
-        seed=BOUND_SEED,
-        executor=executor,
-        progress=progress,
+    sims = replays(
+        config.data_dir, config.scale, config.repeats, executor=executor, progress=progress
     )
-    sims = load_dataset(path)
     fields = np.flatnonzero([field_throws.is_throwable(f, ANGLE) for f in range(geometry.N_FIELDS)])
-    order = np.lexsort((sims.repeat, sims.field, sims.start_config))
-    counts = sims.count_after[order].reshape(len(configs), geometry.N_FIELDS, config.repeats)
-    counts = counts[:, fields]  # (configs, throwable fields, repeats)
-    row = {c: i for i, c in enumerate(sorted(configs))}
+    counts = sims.count_after[:, fields]  # (configs, throwable fields, repeats)
     out = {}
     for protocol in PROTOCOLS:
         start, desired = table_one_cases(data, protocol)
-        success = counts[[row[int(s)] for s in start]] == desired[:, None, None]
+        success = counts[[sims.row(s) for s in start]] == desired[:, None, None]
         out[protocol] = {
             "n_cases": int(len(start)),
             "repeats": config.repeats,

@@ -25,22 +25,20 @@ from effect_networks.experiments.can_tossing.settings import (
     RULES,
 )
 from effect_networks.experiments.cans import (
-    SCALES,
     CanModel,
     can_dataset,
     choose,
-    start_configurations,
+    replays,
 )
 from effect_networks.experiments.harness.config import Result
 from effect_networks.experiments.harness.parallel import forks, run_tasks
-from effect_networks.experiments.physics_bounds import BOUND_SEED, held_out_best
+from effect_networks.experiments.physics_bounds import held_out_best
 from effect_networks.inference import compile as compile_queries
 from effect_networks.inference import fit, fit_pooled, grid_kernel
 from effect_networks.inference.design.active import explore, with_pool_prior
 from effect_networks.models.can_pyramid import can_network, can_rows, config_index
 from effect_networks.models.declaration import EffectNetwork
 from effect_networks.sim2d import field_throws, geometry
-from effect_networks.sim2d.can_dataset import generate_dataset, load_dataset
 from effect_networks.sim2d.executors import open_executor
 from tqdm.auto import tqdm
 
@@ -83,20 +81,10 @@ def replay_counts(config: ActiveConfig, executor=None) -> tuple[np.ndarray, list
     The replays of every non-empty start configuration's 0° fields (sorted configurations), and
     those configurations.
     """
-    configs = [c for c in start_configurations(SCALES[config.scale]["n_configs"]) if c]
-    path = generate_dataset(
-        config.data_dir / f"can_bound_{config.scale}_{config.repeats}.npz",
-        configs=configs,
-        angles=(ANGLE,),
-        repeats=config.repeats,
-        seed=BOUND_SEED,
-        executor=executor,
-        progress=config.progress,
+    sims = replays(
+        config.data_dir, config.scale, config.repeats, executor=executor, progress=config.progress
     )
-    sims = load_dataset(path)
-    order = np.lexsort((sims.repeat, sims.field, sims.start_config))
-    counts = sims.count_after[order].reshape(len(configs), geometry.N_FIELDS, config.repeats)
-    return counts.astype(np.int64), sorted(configs)
+    return sims.count_after, list(sims.configs)
 
 
 def table_one_on_replays(

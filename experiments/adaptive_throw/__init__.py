@@ -20,12 +20,15 @@ uniform targets on the 2 m x 2 m area, their hits, re-throw RMS per axis ``y``, 
   the noise-free rows (the result's ``floor``), what a local fit makes of the training
   throws: per test hit,
   Newton's method on a local quadratic forward model fitted to the ``neighbours``
-  training throws nearest the current aim (:func:`local_inverse`). Two measurements say
+  training throws nearest the current aim (:func:`local_inverse`). Three measurements say
   where the inverse model's error comes from: per row, the best of its candidates (the
   cluster answer that the throw itself says misses least: the error a perfect choice
-  would leave), and per grid size, what the best linear pieces leave of the map's
+  would leave); per grid size, what the best linear pieces leave of the map's
   curvature (one least-squares plane per equidistant cell through the unclamped training
-  throws, :func:`plane_residuals`).
+  throws, :func:`plane_residuals`); and per row, which hits carry its squared error (the
+  worst 1 %'s share, and each cause's: an answer clipped into the area, an aim the arm
+  clamps, a choice another cluster would have bettered, the piece's curvature;
+  :func:`.aiming.error_tail`), with the headline row's largest errors.
 * **Active throw targets.** Learning the grid network from few throws, each batch of
   targets chosen among a pool of random candidates by the expected information gain
   about the clusters' regressions (:func:`inference.design.active_gaussian.select_by_information`)
@@ -41,7 +44,9 @@ Timings are wall-clock seconds of the fit alone, in the calling process (the exa
 runs it on one torch thread).
 
 Layers, each importing only those before it: :mod:`.settings` (settings and constants),
-:mod:`.run` (the run and its result), :mod:`.report` (Markdown, figures, rows of the
+:mod:`.aiming` (the inverse model's aims, re-throws and their error's causes),
+:mod:`.active_curves` (the active curves and the grid's floor), :mod:`.run` (the run and
+its result), :mod:`.report` (Markdown, figures, rows of the
 results table), and this package's declaration (``EXPERIMENTS``).
 """
 

@@ -9,7 +9,12 @@ from collections.abc import Mapping
 from pathlib import Path
 from typing import TYPE_CHECKING
 
-from effect_networks.experiments.adaptive_throw.settings import GOAL_RMS_M, QUERIES, STRATEGIES
+from effect_networks.experiments.adaptive_throw.settings import (
+    CAUSES,
+    GOAL_RMS_M,
+    QUERIES,
+    STRATEGIES,
+)
 from effect_networks.experiments.harness.config import Result
 
 if TYPE_CHECKING:
@@ -51,6 +56,7 @@ def markdown(result: AdaptiveThrowResult) -> str:
         "Best candidate: the re-throw RMS had every hit taken the cluster candidate of the "
         "inverse model that the throw itself says misses least.",
         "",
+        *_tail_lines(result),
         "What linear pieces leave of the map's curvature: RMS residual (cm) of one "
         "least-squares plane per equidistant cell through the unclamped training throws "
         "(an inverse answering with one piece re-throws with that piece's residual at "
@@ -146,6 +152,66 @@ def _why_random_is_hard_to_beat(result: AdaptiveThrowResult) -> list[str]:
         "which weighs the least-squares planes away from the targets the inverse model is "
         "asked about, and so raises the misfit's error.",
     ]
+
+
+def _share(value: float | None) -> str:
+    return "-" if value is None else f"{100 * value:.0f}"
+
+
+def _tail_lines(result: AdaptiveThrowResult) -> list[str]:
+    """Where the inverse model's squared re-throw error lies: its worst hits and its causes."""
+    rows = [row for row in result.layouts if "tail" in row]
+    if not rows:
+        return []
+    tail = rows[0]["tail"]
+    lines = [
+        "Where the inverse model's squared re-throw error lies, % per axis y / z: the share "
+        f"of the worst {100 * tail['worst_fraction']:g} % of the hits, and of each cause "
+        "(first that applies: the answer lay outside the area and was clipped into it; the "
+        "arm clamps at the aim, where the map has a kink; another cluster's candidate misses "
+        "by less than half as much, a choice; else what the chosen linear piece leaves of "
+        "the map's curvature):",
+        "",
+        "| clusters | layout | EM steps | worst hits | " + " | ".join(CAUSES) + " |",
+        "|---:|---|---:|---:|" + "---:|" * len(CAUSES),
+    ]
+    for row in rows:
+        t = row["tail"]
+        cells = [f"{_share(t[f'share_y_{c}'])} / {_share(t[f'share_z_{c}'])}" for c in CAUSES]
+        lines.append(
+            f"| {row['n_clusters']} | {row['layout']} | {row['em_steps']} | "
+            f"{_share(t['worst_share_y'])} / {_share(t['worst_share_z'])} | "
+            + " | ".join(cells)
+            + " |"
+        )
+    head = _headline(result.layouts)
+    if head is not None:
+        lines += [
+            "",
+            f"The headline row's ({head['n_clusters']} adaptive clusters, "
+            f"{head['em_steps']} EM steps) largest errors (cm):",
+            "",
+            "| desired y | desired z | error y | error z | cause |",
+            "|---:|---:|---:|---:|---|",
+            *(
+                f"| {100 * h['desired_y_m']:.2f} | {100 * h['desired_z_m']:.2f} | "
+                f"{100 * h['error_y_m']:.4f} | {100 * h['error_z_m']:.4f} | {h['cause']} |"
+                for h in head["tail"]["worst_hits"]
+            ),
+        ]
+    return [*lines, ""]
+
+
+def _headline(layouts: list[dict]) -> dict | None:
+    """The adaptive inverse model's row at the most clusters and its first EM checkpoint.
+
+    The row the results table shows (:func:`summary_rows`); None without one.
+    """
+    rows = [r for r in layouts if r["layout"] == "adaptive" and "tail" in r]
+    if not rows:
+        return None
+    k = max(r["n_clusters"] for r in rows)
+    return min((r for r in rows if r["n_clusters"] == k), key=lambda r: r["em_steps"])
 
 
 def summary_rows(t: AdaptiveThrowResult, results: Mapping[str, Result]) -> list[str]:

@@ -6,34 +6,41 @@ The experiment is described in :mod:`experiments.adaptive_throw`.
 from __future__ import annotations
 
 import dataclasses
-import math
 import time
 from dataclasses import dataclass
 from typing import ClassVar
 
 import numpy as np
 import torch
+from effect_networks.experiments.adaptive_throw.active_curves import (
+    active_curve,
+    below_at_every_budget,
+    grid_floor,
+    mean_curve,
+)
+from effect_networks.experiments.adaptive_throw.aiming import (
+    aims_for,
+    best_candidate_error,
+    error_causes,
+    error_tail,
+    hit_window,
+    inferred_aims,
+)
 from effect_networks.experiments.adaptive_throw.settings import (
     GOAL_FIT_S,
     GOAL_NOISE_RATIO,
     GOAL_RMS_M,
     QUERIES,
-    ROWS_PER_CLUSTER,
     STRATEGIES,
     AdaptiveThrowConfig,
 )
 from effect_networks.experiments.harness.config import Result
 from effect_networks.experiments.harness.parallel import forks, run_tasks
-from effect_networks.experiments.throwing import HIT_MARGIN_M, get_data, rms
-from effect_networks.inference import fit, fit_em, infer_parameter, parameter_for_effect
-from effect_networks.inference.design.active_gaussian import (
-    select_by_information,
-    select_by_variance,
-)
+from effect_networks.experiments.throwing import get_data, rms
+from effect_networks.inference import fit, fit_em
 from effect_networks.models.declaration import EffectNetwork
-from effect_networks.models.humanoid_throw import TARGET, hit_evidence, throw_data, throw_network
-from effect_networks.sim2d.analytic_throw import TARGET_AREA, ReleaseNoise, sample_targets, throw
-from tqdm.auto import tqdm
+from effect_networks.models.humanoid_throw import TARGET, throw_data, throw_network
+from effect_networks.sim2d.analytic_throw import TARGET_AREA, ReleaseNoise, throw
 
 __all__ = [
     "AdaptiveThrowResult",
@@ -83,44 +90,6 @@ def _fit(layout, k, train, config):
         curve += list(result.log_likelihoods[1:] if curve else result.log_likelihoods)
         out.append(((net, params), time.perf_counter() - start, list(curve)))
     return out
-
-
-def _query(model, desired, window, query="posterior"):
-    """The inferred aims ``(n, 2)`` for the desired hits, clipped into the area.
-
-    And for the inverse model every cluster's candidate ``(n, C, 2)``, clipped (None for the
-    posterior query).
-    """
-    net, params = model
-    evidence = hit_evidence(desired, low=window[0], high=window[1])
-    if query == "posterior":
-        aim, candidates = infer_parameter(net, params, TARGET, evidence).mean, None
-    else:
-        answer = parameter_for_effect(net, params, TARGET, evidence)
-        aim = answer.value
-        candidates = np.clip(answer.candidates.numpy(), TARGET_AREA.low, TARGET_AREA.high)
-    return np.clip(aim.numpy(), TARGET_AREA.low, TARGET_AREA.high), candidates
-
-
-def _aims(model, desired, window, query="posterior"):
-    """The inferred aims ``(n, 2)`` for the desired hits, clipped into the area."""
-    return _query(model, desired, window, query)[0]
-
-
-def _best_candidate(candidates, desired):
-    """Errors ``(n, 2)`` of re-throwing at the candidate that the throw itself says misses least.
-
-    How well a perfect choice among the model's per-cluster answers would do.
-    """
-    n, c, _ = candidates.shape
-    hits = throw(candidates.reshape(n * c, 2)).hit.reshape(n, c, 2)
-    best = np.linalg.norm(hits - desired[:, None], axis=-1).argmin(1)
-    return hits[np.arange(n), best] - desired
-
-
-def _rethrow(model, desired, window, rng=None, noise=None, query="posterior"):
-    """Errors ``(n, 2)`` of re-throwing at the inferred aims."""
-    return throw(_aims(model, desired, window, query), rng=rng, noise=noise).hit - desired
 
 
 def plane_residuals(targets, hits, bins, use=None):
@@ -179,11 +148,6 @@ def _noisy_spread(aims, desired, repeats, rng, noise) -> dict[str, float]:
     }
 
 
-def _window(*hits):
-    every = np.concatenate(hits)
-    return every.min(0) - HIT_MARGIN_M, every.max(0) + HIT_MARGIN_M
-
-
 def local_inverse(train_targets, train_hits, desired, start, neighbours, iterations=4):
     """Aims ``(n, 2)`` by damped Newton steps on a local quadratic forward model.
 
@@ -232,71 +196,6 @@ def _spread(error) -> dict[str, float]:
     }
 
 
-def _grid_for(n: int) -> int:
-    return int(min(16, max(2, round(math.sqrt(n / ROWS_PER_CLUSTER)))))
-
-
-def _active_curve(strategy, config, test_hits, window, rng):
-    """Re-throw RMS at each budget, the targets chosen by ``strategy`` (one of ``STRATEGIES``).
-
-    ``"variance"`` sums the predictive variance over a fresh uniform sample of the target area
-    each round (the targets the inverse model will be asked to reach are hits of such targets).
-    Each point also holds ``edge_share``: the share of the targets chosen since the last budget
-    that lie within a tenth of a cell's width of an edge of the grid they were chosen for
-    (uniform targets: 36 %); None at the first budget.
-    """
-    targets = sample_targets(config.budgets[0], rng)
-    hits = throw(targets).hit
-    curve = []
-    near_edge = []
-    bar = tqdm(total=config.budgets[-1], desc=f"active ({strategy})", disable=not config.progress)
-    bar.update(len(targets))
-    for budget in config.budgets:
-        while len(targets) < budget:
-            k = min(config.batch, budget - len(targets))
-            pool = sample_targets(config.pool, rng)
-            if strategy == "random":
-                chosen = pool[:k]
-            else:
-                net = throw_network((_grid_for(budget),) * 2)  # the grid to be fitted
-                candidates = {"action": [net.actions[0]] * len(pool), f"param.{TARGET}": pool}
-                data = throw_data(net, targets, hits)
-                if strategy == "information":
-                    index = select_by_information(net, TARGET, data, candidates, k)
-                else:
-                    area = sample_targets(config.pool, rng)
-                    reference = {"action": [net.actions[0]] * len(area), f"param.{TARGET}": area}
-                    index = select_by_variance(
-                        net, TARGET, data, candidates, k, reference=reference
-                    )
-                chosen = pool[index.numpy()]
-            near_edge.append(_near_edge(chosen, _grid_for(budget)))
-            targets = np.concatenate([targets, chosen])
-            hits = np.concatenate([hits, throw(chosen).hit])
-            bar.update(len(chosen))
-        k = _grid_for(len(targets))
-        net = throw_network((k, k))
-        data = throw_data(net, targets, hits)
-        params = fit(net, data, pseudo_count=config.pseudo_count).params
-        error = _rethrow((net, params), test_hits, _window(window, hits))
-        y, z = rms(error)
-        share = float(np.concatenate(near_edge).mean()) if near_edge else None
-        near_edge = []
-        curve.append(
-            {"n": len(targets), "bins": k, "rms_y_m": float(y), "rms_z_m": float(z)}
-            | {"edge_share": share}
-        )
-    bar.close()
-    return curve
-
-
-def _near_edge(targets: np.ndarray, bins: int) -> np.ndarray:
-    """``(n,)`` bool: within a tenth of a cell's width of an edge of the ``bins`` x ``bins`` grid."""
-    cell = (targets - TARGET_AREA.low) / (TARGET_AREA.high - TARGET_AREA.low) * bins
-    offset = cell - np.floor(cell)
-    return (np.abs(offset - 0.5) > 0.4).any(1)
-
-
 @dataclass
 class AdaptiveThrowResult(Result):
     """What :func:`run_adaptive_throw` measured; RMS in metres per axis, times in s.
@@ -313,7 +212,8 @@ class AdaptiveThrowResult(Result):
     largest adaptive fit's curve (mean per-row). ``floor``: the local Newton inverse (a reference).
     The inverse model's rows also hold ``best_rms_*``: the re-throw RMS had each row
     taken the cluster candidate that the throw itself says misses least (a perfect
-    choice among the model's answers). ``pieces``: per grid size, the RMS residual of one
+    choice among the model's answers), and ``tail``: where the squared error lies
+    (:func:`error_tail`: the worst hits' share and each cause's, :func:`error_causes`). ``pieces``: per grid size, the RMS residual of one
     least-squares plane per equidistant cell through the unclamped training throws
     (:func:`plane_residuals`): the curvature that linear pieces of that size leave.
     ``active``: per strategy (``STRATEGIES``) the curve of ``{n, bins, rms_y_m, rms_z_m,
@@ -350,9 +250,10 @@ def _layout_rows(k, layout, train, test_hits, window, config):
     rows, curve, floor = [], [], None
     for model, seconds, ll in _fit(layout, k, train, config):
         for query in QUERIES:
-            aims, candidates = _query(model, test_hits, window, query)
+            aims, answer = inferred_aims(model, test_hits, window, query)
             if (layout, query, k) == ("grid", "posterior", config.bins[-1]):
                 floor = local_inverse(*train, test_hits, aims, config.neighbours)
+            thrown = throw(aims)
             row = {
                 "layout": layout,
                 "query": query,
@@ -360,10 +261,16 @@ def _layout_rows(k, layout, train, test_hits, window, config):
                 "n_clusters": k * k,
                 "fit_s": seconds,
                 "em_steps": max(0, len(ll) - 1),
-            } | _spread(throw(aims).hit - test_hits)
-            if candidates is not None:
-                best = rms(_best_candidate(candidates, test_hits))
-                row |= {"best_rms_y_m": float(best[0]), "best_rms_z_m": float(best[1])}
+            } | _spread(thrown.hit - test_hits)
+            if answer is not None:
+                candidates = answer.candidates.numpy()
+                candidates = np.clip(candidates, TARGET_AREA.low, TARGET_AREA.high)
+                best = best_candidate_error(candidates, test_hits)
+                y, z = rms(best)
+                row |= {"best_rms_y_m": float(y), "best_rms_z_m": float(z)}
+                error = thrown.hit - test_hits
+                cause = error_causes(error, best, answer.outside.numpy(), thrown.clamped)
+                row["tail"] = error_tail(error, cause, test_hits)
             rows.append(row)
         curve = ll
     return rows, curve, floor
@@ -376,7 +283,7 @@ def _noisy_aims(layout, train, test_hits, window, config):
     noise-free throws inverted from this fit's posterior answers, :func:`local_inverse`), else None.
     """
     model, seconds, _ = _fit(layout, config.noisy_bins, train[1], config)[-1]
-    aims = {query: _aims(model, test_hits, window, query) for query in QUERIES}
+    aims = {query: aims_for(model, test_hits, window, query) for query in QUERIES}
     bound = None
     if layout == "grid":
         bound = local_inverse(*train[0], test_hits, aims["posterior"], config.neighbours)
@@ -408,7 +315,7 @@ def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
     noisy = get_data(n, np.random.default_rng(seeds[2]), noise)
     train = [(t[: config.n_train], h[: config.n_train]) for t, h in (exact, noisy)]
     test = [(t[config.n_train :], h[config.n_train :]) for t, h in (exact, noisy)]
-    window = [_window(tr[1], te[1]) for tr, te in zip(train, test, strict=True)]
+    window = [hit_window(tr[1], te[1]) for tr, te in zip(train, test, strict=True)]
 
     # the model work: independent tasks (longest first), on every core (workers); the
     # release noise is drawn here afterwards, in the order of the rows
@@ -428,7 +335,7 @@ def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
 
     def active_task(strategy, i):
         rng = np.random.default_rng(curves[i])
-        return lambda: _active_curve(strategy, quiet, test[0][1], window[0], rng)
+        return lambda: active_curve(strategy, quiet, test[0][1], window[0], rng)
 
     make = {"layout": layout_task, "noisy": noisy_task, "active": active_task}
     tasks = {key: make[key[0]](*key[1:]) for key in keys}
@@ -483,11 +390,11 @@ def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
         pieces.append({"bins": k, "n_clusters": k * k, "rms_y_m": float(y), "rms_z_m": float(z)})
 
     active = {
-        strategy: _mean_curve([done["active", strategy, i] for i in range(len(curves))])
+        strategy: mean_curve([done["active", strategy, i] for i in range(len(curves))])
         for strategy in STRATEGIES
     }
     active_floor = [
-        _grid_floor(budget, train[0], test[0][1], window[0], config) for budget in config.budgets
+        grid_floor(budget, train[0], test[0][1], window[0], config) for budget in config.budgets
     ]
     adaptive = [r for r in layouts if r["layout"] == "adaptive"]
     worst_axis = [max(r["rms_y_m"], r["rms_z_m"]) for r in adaptive]
@@ -502,7 +409,7 @@ def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
             max(r["ratio_y"], r["ratio_z"]) <= GOAL_NOISE_RATIO for r in adaptive_noisy
         ),
         "active targets (variance) below random at every budget after the first (thrown at "
-        "random by both), both axes, mean of the seeds": _below(
+        "random by both), both axes, mean of the seeds": below_at_every_budget(
             active["variance"][1:], active["random"][1:]
         ),
     }
@@ -521,35 +428,3 @@ def run_adaptive_throw(config: AdaptiveThrowConfig) -> AdaptiveThrowResult:
         goals={name: bool(ok) for name, ok in goals.items()},
         active_floor=active_floor,
     )
-
-
-def _mean_curve(curves: list[list[dict]]) -> list[dict]:
-    """The seeds' curves as one: the mean RMS per budget, with each seed's."""
-    out = []
-    for rows in zip(*curves, strict=True):
-        row = {"n": rows[0]["n"], "bins": rows[0]["bins"]}
-        shares = [r["edge_share"] for r in rows if r.get("edge_share") is not None]
-        row["edge_share"] = float(np.mean(shares)) if shares else None
-        for axis in ("y", "z"):
-            values = [r[f"rms_{axis}_m"] for r in rows]
-            row[f"rms_{axis}_m"] = float(np.mean(values))
-            row[f"seeds_{axis}_m"] = values
-        out.append(row)
-    return out
-
-
-def _below(curve: list[dict], other: list[dict]) -> bool:
-    """Whether ``curve`` is below ``other`` at every budget on both axes."""
-    return all(
-        a["rms_y_m"] < b["rms_y_m"] and a["rms_z_m"] < b["rms_z_m"]
-        for a, b in zip(curve, other, strict=True)
-    )
-
-
-def _grid_floor(budget, train, test_hits, window, config) -> dict:
-    """The re-throw RMS of ``budget``'s grid fitted on every training throw."""
-    k = _grid_for(budget)
-    net = throw_network((k, k))
-    params = fit(net, throw_data(net, *train), pseudo_count=config.pseudo_count).params
-    y, z = rms(_rethrow((net, params), test_hits, _window(window, train[1])))
-    return {"n": budget, "bins": k, "rms_y_m": float(y), "rms_z_m": float(z)}

@@ -10,6 +10,7 @@ from dataclasses import dataclass
 from effect_networks.experiments.harness.config import ConfigError, check_float, check_int
 
 __all__ = [
+    "CAUSES",
     "AdaptiveThrowConfig",
     "GOAL_FIT_S",
     "GOAL_NOISE_RATIO",
@@ -30,6 +31,9 @@ ROWS_PER_CLUSTER = 30  # the active curves' grid rule
 STRATEGIES = ("random", "information", "variance")
 #: The two inverse queries every layout is scored with (see the module).
 QUERIES = ("posterior", "effect")
+#: What an inverse-model hit's re-throw error is put down to, in order of precedence
+#: (:func:`experiments.adaptive_throw.aiming.error_causes`).
+CAUSES = ("clipped", "clamped", "choice", "curvature")
 #: A first look in seconds.
 QUICK = {
     "n_train": 2_000,

@@ -28,13 +28,19 @@ count) is fitted by maximum likelihood on the 0° throws of the can data set onl
   outcomes the field produces now and then; the pooled surprise scores the observed end
   configuration under the intended field's predictive averaged over an aim error of
   ``sigma`` fields (:func:`experiments.evaluation.aim_pooled`), ``sigma`` chosen on a
-  separate validation draw of perturbed throws.
+  separate validation draw of perturbed throws, as is the surprise's threshold (the
+  largest true- minus false-positive rate there), whose rates on the scored throws are
+  reported. The physics bound (:func:`.surprise.surprise_bound`): the same surprise
+  computed from the simulator's own outcome frequencies per aim, over ``bound_repeats``
+  replays of every field from every start (the physics bounds' Table I replays), which
+  neither the scored throws nor their labels are part of.
 
 Every evaluation throw draws its aim jitter from ``SeedSequence([seed, purpose])``, never
 from the data set's per-throw seeds.
 
 Layers, each importing only those before it: :mod:`.settings` (settings and constants),
-:mod:`.run` (the run and its result), :mod:`.report` (Markdown, figures, rows of the
+:mod:`.surprise` (the imitation surprise's scores and bound), :mod:`.run` (the run and its
+result), :mod:`.report` (Markdown, figures, rows of the
 results table), and this package's declaration (``EXPERIMENTS``).
 """
 
@@ -78,8 +84,8 @@ EXPERIMENTS = (
         run_can_tossing,
         CanTossingResult,
         order=60,
-        tiny={"scale": "tiny", "n_demos": 2},
-        quick={"scale": "quick", "n_demos": 100},
+        tiny={"scale": "tiny", "n_demos": 2, "bound_repeats": 2},
+        quick={"scale": "quick", "n_demos": 100, "bound_repeats": 8},
         markdown=report.markdown,
         figures=report.figures,
         summary_rows=report.summary_rows,

@@ -89,6 +89,8 @@ def markdown(r: CanTossingResult) -> str:
             f"{b['sigma']:g}: {_auc_text(b['auc'])} / {_auc_text(b['auc_ordinary'])}"
             for b in v["by_sigma"]
         ),
+        *_threshold_lines(i),
+        *_bound_lines(i),
         "",
     ]
     return "\n".join(lines)
@@ -96,6 +98,59 @@ def markdown(r: CanTossingResult) -> str:
 
 def _auc_text(auc: float | None) -> str:
     return "n/a" if auc is None else f"{auc:.3f}"
+
+
+#: Imitation's failure labels in the report's words.
+FAILURE_WORDS = {
+    "failed": "not the unperturbed throw's outcome",
+    "failed_ordinary": "none of the usual outcomes",
+}
+
+
+def _of_bound(ours: float | None, bound: float | None) -> str:
+    """``ours`` as a percentage of ``bound``, or n/a."""
+    return "n/a" if ours is None or not bound else f"{100 * ours / bound:.1f} %"
+
+
+def _threshold_lines(i: dict) -> list[str]:
+    """The surprise's operating points, chosen on the validation draw."""
+    lines = []
+    for label, point in i.get("threshold", {}).items():
+        if point is None:
+            continue
+        rates = (
+            "n/a on the scored throws (one class only)"
+            if point["tpr"] is None
+            else f"flags {100 * point['tpr']:.1f} % of the failed throws and "
+            f"{100 * point['fpr']:.1f} % of the others"
+        )
+        lines.append(
+            f"- imitation threshold, failed = {FAILURE_WORDS[label]}: surprise >= "
+            f"{point['threshold']:.4g} (chosen on the validation draw, largest true- minus "
+            f"false-positive rate) {rates}"
+        )
+    return lines
+
+
+def _bound_lines(i: dict) -> list[str]:
+    """The surprise's physics bound and ours as a fraction of it (none in older results)."""
+    if "bound" not in i:
+        return []
+    b = i["bound"]
+    h = b["half_repeats"]
+    return [
+        f"- imitation's physics bound (the surprise under the simulator's own outcome "
+        f"frequencies per aim, {b['repeats']} replays of every field from every start): "
+        f"ROC AUC {_auc_text(b['auc'])} / {_auc_text(b['auc_ordinary'])} (failed = "
+        f"{FAILURE_WORDS['failed']} / {FAILURE_WORDS['failed_ordinary']}); aim-pooled "
+        f"({b['aim_sigma']:g} fields, chosen on the validation draw as ours): "
+        f"{_auc_text(b['auc_pooled'])} / {_auc_text(b['auc_ordinary_pooled'])}; from "
+        f"{h['repeats']} replays only: {_auc_text(h['auc'])} / {_auc_text(h['auc_ordinary'])}",
+        f"- imitation, ours as a fraction of the bound: surprise "
+        f"{_of_bound(i['auc'], b['auc'])} / {_of_bound(i['auc_ordinary'], b['auc_ordinary'])}; "
+        f"aim-pooled {_of_bound(i['auc_pooled'], b['auc_pooled'])} / "
+        f"{_of_bound(i['auc_ordinary_pooled'], b['auc_ordinary_pooled'])}",
+    ]
 
 
 def figures(result: CanTossingResult, out: Path) -> list[Path]:
@@ -143,31 +198,32 @@ def plot_roc(result: dict, path) -> Path:
 
     fig = Figure(figsize=(5.6, 5.0))
     ax = fig.subplots()
-    for (key, label), colour in zip(
-        (
-            ("failed", "not the unperturbed throw's outcome"),
-            ("failed_ordinary", "none of the usual outcomes"),
-        ),
-        ("C0", "C1"),
-        strict=True,
-    ):
+    bound = result.get("bound", {"repeats": 0})
+    for (key, label), colour in zip(FAILURE_WORDS.items(), ("C0", "C1"), strict=True):
         suffix = "" if key == "failed" else "_ordinary"
-        for scores, style, name in (
-            ("surprise", "-", "surprise"),
-            ("pooled_surprise", "--", f"pooled, {result['aim_sigma']:g} fields"),
+        for source, scores, style, name in (
+            (result, "surprise", "-", "surprise"),
+            (result, "pooled_surprise", "--", f"pooled, {result['aim_sigma']:g} fields"),
+            (bound, "surprise", ":", f"physics bound, {bound['repeats']} replays"),
         ):
-            auc = result[f"auc{suffix}" + ("_pooled" if scores == "pooled_surprise" else "")]
+            auc = source.get(f"auc{suffix}" + ("_pooled" if scores == "pooled_surprise" else ""))
             if auc is not None:
-                fpr, tpr = roc_curve(result[scores], result[key])
+                fpr, tpr = roc_curve(source[scores], result[key])
                 ax.plot(fpr, tpr, style, color=colour, label=f"failed: {label}; {name} ({auc:.3f})")
-    ax.plot([0, 1], [0, 1], ":", color="0.5", label="chance")
+        point = result.get("threshold", {}).get(key)
+        if point is not None and point["tpr"] is not None:
+            ax.plot(
+                point["fpr"], point["tpr"], "o", color=colour,
+                label=f"threshold {point['threshold']:.3g} (chosen on the validation draw)",
+            )  # fmt: skip
+    ax.plot([0, 1], [0, 1], "-.", color="0.6", label="chance")
     ax.set_xlabel("false-positive rate (successful throws flagged)")
     ax.set_ylabel("true-positive rate (failed throws flagged)")
     ax.set_title(
         f"Imitation: {result['n_throws']} throws aimed {100 * result['aim_error_m']:.0f} cm off",
         fontsize=10,
     )
-    ax.legend(loc="lower right", fontsize=8)
+    ax.legend(loc="lower right", fontsize=7)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
     return Path(path)
@@ -209,6 +265,15 @@ def can_rows(c: CanTossingResult) -> list[str]:
     def auc(x):
         return "n/a" if x is None else f"{x:.3f}"
 
+    bound = ""
+    if "bound" in i:  # results written before the bound was measured have none
+        b = i["bound"]
+        bound = (
+            f"{auc(b['auc'])} / {auc(b['auc_ordinary'])}; aim-pooled {auc(b['auc_pooled'])} / "
+            f"{auc(b['auc_ordinary_pooled'])} (the simulator's own outcome frequencies, "
+            f"{b['repeats']} replays per aim); ours {_of_bound(i['auc'], b['auc'])} / "
+            f"{_of_bound(i['auc_ordinary'], b['auc_ordinary'])} of it"
+        )
     return [
         f"| cans: emulation, same end configuration | - | "
         f"{percent(e['same_end_config'], 1)} of {e['n_demonstrations']} demonstrations "
@@ -216,7 +281,8 @@ def can_rows(c: CanTossingResult) -> list[str]:
         f"| cans: imitation, ROC AUC of the surprise (failed = not the unperturbed throw's "
         f"outcome / none of the usual outcomes) | - | {auc(i['auc'])} / "
         f"{auc(i['auc_ordinary'])}; aim-pooled ({i['aim_sigma']:g} fields): "
-        f"{auc(i['auc_pooled'])} / {auc(i['auc_ordinary_pooled'])} ({i['n_throws']} throws) | |",
+        f"{auc(i['auc_pooled'])} / {auc(i['auc_ordinary_pooled'])} ({i['n_throws']} throws) | "
+        f"{bound} |",
     ]
 
 

@@ -11,7 +11,6 @@ from typing import ClassVar
 import numpy as np
 import torch
 from effect_networks.experiments.can_tossing.settings import (
-    AIM_SIGMAS,
     ANGLE,
     CHUNK,
     DEMO,
@@ -27,21 +26,26 @@ from effect_networks.experiments.can_tossing.settings import (
     VALIDATE,
     CanTossingConfig,
 )
+from effect_networks.experiments.can_tossing.surprise import (
+    auc_or_none,
+    network_tables,
+    operating_points,
+    surprise_bound,
+    surprise_under,
+    validated_sigma,
+)
 from effect_networks.experiments.cans import (
     CanModel,
+    Replays,
     can_dataset,
     choose,
     fit_can_network,
+    replays,
 )
-from effect_networks.experiments.evaluation import (
-    accuracy_histogram,
-    aim_pooled,
-    roc_auc,
-    tail_surprise,
-)
+from effect_networks.experiments.evaluation import accuracy_histogram
 from effect_networks.experiments.harness.config import Result, check_choice
 from effect_networks.inference import imitation_check
-from effect_networks.models.can_pyramid import config_index, n_cans
+from effect_networks.models.can_pyramid import n_cans
 from effect_networks.sim2d import field_throws, geometry, materials
 from effect_networks.sim2d.clock import simulation
 from effect_networks.sim2d.executors import open_executor
@@ -50,18 +54,17 @@ from tqdm.auto import tqdm
 __all__ = [
     "CanTossingResult",
     "PAPER",
-    "auc_or_none",
     "ball_ends",
     "demonstrations",
     "emulation",
     "field_throw_ends",
     "fresh_seeds",
     "imitation",
+    "network_surprise",
     "perturbed_aims",
     "perturbed_throws",
     "play",
     "play_table_one",
-    "pooled_surprise",
     "run_can_tossing",
     "start_evidence",
     "summarise",
@@ -328,34 +331,23 @@ def perturbed_throws(
     }
 
 
-def pooled_surprise(model: CanModel, throws: dict, sigma: float, tables: dict) -> np.ndarray:
-    """``(n,)`` surprise of each observed end configuration under the intended field's predictive.
+def network_surprise(model: CanModel, throws: dict) -> np.ndarray:
+    """``(n,)`` surprise of each observed end state under the intended field, exact.
 
-    The predictive is pooled over an aim error of ``sigma`` fields; an end configuration the network
-    has no state for was never seen: 1. ``tables`` caches ``model.end_config_probs`` per start
-    configuration.
+    :func:`inference.imitation_check` on the observed end configuration and count; an end
+    configuration the network has no state for was never seen: 1.
     """
-    start, observed = throws["start"], throws["observed"]
-    surprise = np.ones(len(start))
+    start, field, observed = throws["start"], throws["field"], throws["observed"]
     known = np.isin(observed, model.states)
-    for s in np.unique(start[known]):
-        rows = known & (start == s)
-        if s not in tables:
-            tables[s] = model.end_config_probs(int(s))
-        pooled = aim_pooled(
-            tables[s],
-            (geometry.N_ROWS, geometry.N_COLUMNS),
-            throws["field"][rows],
-            allowed=model.throwable,
-            sigma=sigma,
-        )
-        surprise[rows] = tail_surprise(pooled, config_index(model.net, observed[rows])).numpy()
+    surprise = np.ones(len(start))
+    if known.any():
+        ev = start_evidence(model, start[known]) | {
+            "action": [model.net.actions[f] for f in field[known]],
+            "end.config": observed[known],
+            "end.count": n_cans(observed[known]),
+        }
+        surprise[known] = imitation_check(model.net, model.params, ev).surprise.numpy()
     return surprise
-
-
-def auc_or_none(scores, positive) -> float | None:
-    """ROC AUC, or None where one class is empty."""
-    return roc_auc(scores, positive) if 0 < np.sum(positive) < len(positive) else None
 
 
 def imitation(
@@ -364,49 +356,32 @@ def imitation(
     n: int,
     aim_error: float,
     seed: int,
-    n_ordinary: int = 8,
+    n_ordinary: int,
+    sims: Replays,
     *,
     progress: bool = True,
     executor=None,
 ) -> dict:
-    """Surprise of perturbed throws' effects under the intended field, and its ROC.
+    """Surprise of perturbed throws' effects under the intended field, its ROC and its bound.
 
     Labels: :func:`perturbed_throws`. Scores: the network's surprise
-    (:func:`inference.imitation_check` on the observed end configuration and count), and
-    the pooled surprise (:func:`pooled_surprise`) with the aim error from ``AIM_SIGMAS``
-    that has the best ``failed_ordinary`` AUC on a validation draw (seed purpose
-    ``VALIDATE``; ties to the smaller aim error).
+    (:func:`network_surprise`), and the pooled surprise (:func:`surprise_under` of the
+    network's tables) with the aim error from ``AIM_SIGMAS`` that has the best
+    ``failed_ordinary`` AUC on a validation draw (seed purpose ``VALIDATE``; ties to the
+    smaller aim error). ``threshold``: the surprise's operating point chosen on the
+    validation draw (:func:`operating_points`). ``bound``: :func:`surprise_bound` from the
+    simulator's replays ``sims``.
     """
     run = {"progress": progress, "executor": executor}
     throws = perturbed_throws(data, n, aim_error, seed, PERTURB, n_ordinary, **run)
-    start, field, observed = throws["start"], throws["field"], throws["observed"]
-    failed, failed_ordinary = throws["failed"], throws["failed_ordinary"]
-    # An end configuration the network has no state for was never seen: surprise 1.
-    known = np.isin(observed, model.states)
-    surprise = np.ones(n)
-    if known.any():
-        ev = start_evidence(model, start[known]) | {
-            "action": [model.net.actions[f] for f in field[known]],
-            "end.config": observed[known],
-            "end.count": n_cans(observed[known]),
-        }
-        surprise[known] = imitation_check(model.net, model.params, ev).surprise.numpy()
-
-    tables: dict = {}
     held_out = perturbed_throws(data, n, aim_error, seed, VALIDATE, n_ordinary, **run)
-    validation = []
-    for sigma in AIM_SIGMAS:
-        scores = pooled_surprise(model, held_out, sigma, tables)
-        validation.append(
-            {
-                "sigma": sigma,
-                "auc": auc_or_none(scores, held_out["failed"]),
-                "auc_ordinary": auc_or_none(scores, held_out["failed_ordinary"]),
-            }
-        )
-    scored = [v for v in validation if v["auc_ordinary"] is not None]
-    sigma = max(scored, key=lambda v: v["auc_ordinary"])["sigma"] if scored else AIM_SIGMAS[0]
-    pooled = pooled_surprise(model, throws, sigma, tables)
+    failed, failed_ordinary = throws["failed"], throws["failed_ordinary"]
+    known = np.isin(throws["observed"], model.states)
+    surprise = network_surprise(model, throws)
+    table_of = network_tables(model)
+    sigma, validation = validated_sigma(table_of, held_out, model.throwable)
+    pooled = surprise_under(table_of, throws, sigma, model.throwable)
+    held_surprise = network_surprise(model, held_out)
     return {
         "n_throws": n,
         "aim_error_m": aim_error,
@@ -424,6 +399,8 @@ def imitation(
             "n_failed_ordinary": int(held_out["failed_ordinary"].sum()),
             "by_sigma": validation,
         },
+        "threshold": operating_points(held_surprise, held_out, surprise, throws),
+        "bound": surprise_bound(sims, throws, held_out, model.throwable),
         "surprise": surprise.tolist(),
         "pooled_surprise": pooled.tolist(),
         "failed": failed.tolist(),
@@ -480,8 +457,16 @@ def run_can_tossing(config: CanTossingConfig) -> CanTossingResult:
         run = {"progress": progress, "executor": executor}
         tables = {mode: table_one(model, data, mode, config.seed, **run) for mode in PROTOCOLS}
         emulated = emulation(model, data, config.n_demos, config.seed, config.rule, **run)
+        sims = replays(config.data_dir, config.scale, config.bound_repeats, angle=ANGLE, **run)
         imitated = imitation(
-            model, data, config.n_demos, config.aim_error, config.seed, config.n_ordinary, **run
+            model,
+            data,
+            config.n_demos,
+            config.aim_error,
+            config.seed,
+            config.n_ordinary,
+            sims,
+            **run,
         )
     return CanTossingResult(
         scale=config.scale,

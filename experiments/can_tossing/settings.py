@@ -18,6 +18,7 @@ __all__ = [
     "CHUNK",
     "CanTossingConfig",
     "DEMO",
+    "FAILURE_LABELS",
     "MAX_AIM_ERROR",
     "PAPER_CASES",
     "PAPER_PERCENT",
@@ -62,6 +63,10 @@ class CanTossingConfig(CanDataSettings):
     n_ordinary : int
         Imitation: ordinary (jittered) throws of the intended field that tell its usual
         outcomes.
+    bound_repeats : int
+        Imitation's physics bound: replays of every field from every start (>= 2), the
+        physics bounds' Table I replays when the numbers agree
+        (:func:`experiments.cans.replays`).
     progress : bool
         Progress bars.
     """
@@ -72,6 +77,7 @@ class CanTossingConfig(CanDataSettings):
     n_demos: int = 300
     aim_error: float = 0.03
     n_ordinary: int = 8
+    bound_repeats: int = 16
     progress: bool = True
 
     def __post_init__(self):
@@ -82,6 +88,7 @@ class CanTossingConfig(CanDataSettings):
         check_int("n_demos", self.n_demos, 1)
         check_float("aim_error", self.aim_error, 0.0, MAX_AIM_ERROR, low_open=True, unit="m")
         check_int("n_ordinary", self.n_ordinary, 1)
+        check_int("bound_repeats", self.bound_repeats, 2)
 
 
 ANGLE = 0  # the paper trains and evaluates at 0°
@@ -94,6 +101,10 @@ TABLE_I, DEMO, REPLAY, PERTURB, PICK, VALIDATE = 1, 2, 3, 4, 5, 6
 CHUNK = 100  # throws per executor task
 #: Aim errors (in fields) the pooled imitation surprise chooses among; 0: no pooling.
 AIM_SIGMAS = (0.0, 0.25, 0.5, 0.75, 1.0, 1.5)
+
+#: Imitation's failure labels (:func:`experiments.can_tossing.run.perturbed_throws`): not the
+#: unperturbed throw's outcome; none of the intended throw's usual outcomes.
+FAILURE_LABELS = ("failed", "failed_ordinary")
 
 #: Table I's protocols (:data:`PROTOCOLS`) in the results table's words.
 TABLE_I_PROTOCOLS = {

@@ -11,8 +11,11 @@ from effect_networks.experiments.evaluation import (
     accuracy_histogram,
     aim_pooled,
     aim_robust_best,
+    best_threshold,
+    rates_at,
     roc_auc,
     roc_curve,
+    sample_frequencies,
     tail_surprise,
 )
 from effect_networks.inference.queries import imitation_check, predict
@@ -76,6 +79,58 @@ def test_roc_auc_extremes_and_one_class():
     assert roc_auc([0.5, 0.5, 0.5], [True, False, False]) == 0.5
     with pytest.raises(ValueError, match="both classes"):
         roc_auc([0.1, 0.2], [True, True])
+
+
+def test_best_threshold_by_hand():
+    scores, positive = [0.1, 0.4, 0.35, 0.8], [False, False, True, True]
+    # >= 0.8: TPR 1/2, FPR 0; >= 0.35: TPR 1, FPR 1/2 -- tied at J = 1/2: the higher one
+    assert best_threshold(scores, positive) == 0.8
+    assert rates_at(scores, positive, 0.8) == (0.0, 0.5)
+    assert rates_at(scores, positive, 0.35) == (0.5, 1.0)
+    with pytest.raises(ValueError, match="both classes"):
+        best_threshold([0.1, 0.2], [True, True])
+
+
+@settings(max_examples=40, deadline=None)
+@given(
+    st.lists(
+        st.tuples(st.integers(0, 6).map(float), st.booleans()), min_size=2, max_size=30
+    ).filter(lambda rows: 0 < sum(p for _, p in rows) < len(rows))
+)
+def test_best_threshold_is_the_roc_point_farthest_above_the_diagonal(rows):
+    scores, positive = zip(*rows, strict=True)
+    fpr, tpr = roc_curve(scores, positive)
+    chosen = best_threshold(scores, positive)
+    f, t = rates_at(scores, positive, chosen)
+    assert t - f == pytest.approx(np.max(tpr - fpr))
+    assert any(f == a and t == b for a, b in zip(fpr, tpr, strict=True))  # a point of the curve
+
+
+def test_sample_frequencies_by_hand():
+    freq = sample_frequencies([[0, 0, 0, 1], [2, 2, 2, 2]], 3)
+    assert freq.tolist() == [[0.75, 0.25, 0.0], [0.0, 0.0, 1.0]]
+    # the surprise under them: 0 for the most frequent outcome, 1 for one never drawn
+    surprise = tail_surprise(freq, torch.tensor([1, 0]))
+    assert surprise.tolist() == [0.75, 1.0]
+
+
+@settings(max_examples=40, deadline=None)
+@given(st.integers(1, 5), st.integers(1, 9), st.integers(1, 4), st.integers(0, 2**32 - 1))
+def test_sample_frequencies_are_the_counts_over_the_draws(k, repeats, rows, seed):
+    samples = np.random.default_rng(seed).integers(0, k, (rows, repeats))
+    freq = sample_frequencies(samples, k)
+    expected = [np.bincount(row, minlength=k) / repeats for row in samples]
+    assert np.allclose(freq.numpy(), expected)
+    assert np.allclose(freq.sum(-1).numpy(), 1.0)
+
+
+def test_sample_frequencies_bad_inputs():
+    with pytest.raises(ValueError, match="R >= 1"):
+        sample_frequencies(np.zeros((2, 0), np.int64), 3)
+    with pytest.raises(ValueError, match="integer"):
+        sample_frequencies([[0.5]], 3)
+    with pytest.raises(ValueError, match=r"lie in 0\.\.2"):
+        sample_frequencies([[3]], 3)
 
 
 def test_aim_robust_best_prefers_the_interior_of_a_tied_region():

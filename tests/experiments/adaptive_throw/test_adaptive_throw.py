@@ -7,15 +7,17 @@ import re
 import numpy as np
 import pytest
 import torch
+from effect_networks.experiments.adaptive_throw import aiming
+from effect_networks.experiments.adaptive_throw.active_curves import near_edge
+from effect_networks.experiments.adaptive_throw.aiming import error_causes, error_tail
 from effect_networks.experiments.adaptive_throw.report import summary_rows
 from effect_networks.experiments.adaptive_throw.run import (
     AdaptiveThrowResult,
-    _near_edge,
     local_inverse,
     plane_residuals,
     run_adaptive_throw,
 )
-from effect_networks.experiments.adaptive_throw.settings import AdaptiveThrowConfig
+from effect_networks.experiments.adaptive_throw.settings import CAUSES, AdaptiveThrowConfig
 from effect_networks.experiments.harness.config import ConfigError
 from effect_networks.experiments.harness.registry import experiment
 from effect_networks.inference import infer_parameter
@@ -80,6 +82,19 @@ def test_runs_and_writes_its_results(tmp_path):
     assert "least-squares plane per equidistant cell" in text
     assert "the expected reduction of the predictive variance summed over the target area" in text
     assert "times the error of the same grid fitted on all 400 training throws" in text
+    # where the inverse model's error lies: the causes' shares add up to the whole
+    for row in saved["layouts"]:
+        if row["query"] != "effect":
+            continue
+        tail = row["tail"]
+        for axis in "yz":
+            shares = [tail[f"share_{axis}_{c}"] for c in CAUSES]
+            if shares[0] is not None:
+                assert sum(shares) == pytest.approx(1.0)
+                assert 0 <= tail[f"worst_share_{axis}"] <= 1 + 1e-12
+        lengths = [np.hypot(h["error_y_m"], h["error_z_m"]) for h in tail["worst_hits"]]
+        assert lengths == sorted(lengths, reverse=True)
+    assert "Where the inverse model's squared re-throw error lies" in text
 
 
 def test_near_edge_marks_the_outer_tenth_of_each_cell():
@@ -87,9 +102,38 @@ def test_near_edge_marks_the_outer_tenth_of_each_cell():
     width = (high - low) / 4
     centre = low + 1.5 * width
     points = np.stack([centre, centre + [0.45, 0.0] * width, centre + [0.0, -0.41] * width])
-    assert _near_edge(points, 4).tolist() == [False, True, True]
+    assert near_edge(points, 4).tolist() == [False, True, True]
     uniform = np.random.default_rng(0).uniform(low, high, (200_000, 2))
-    assert _near_edge(uniform, 4).mean() == pytest.approx(1 - 0.8**2, abs=0.005)
+    assert near_edge(uniform, 4).mean() == pytest.approx(1 - 0.8**2, abs=0.005)
+
+
+def test_error_causes_in_their_order_of_precedence():
+    error = np.array([[0.0, 4.0], [0.0, 4.0], [0.0, 4.0], [0.0, 4.0], [3.0, 0.0]])
+    best = np.array([[0.0, 1.0], [0.0, 3.0], [0.0, 1.0], [0.0, 1.0], [0.0, 0.0]])
+    outside = np.array([False, False, False, True, False])
+    clamped = np.array([False, False, True, True, False])
+    cause = error_causes(error, best, outside, clamped)
+    # a better candidate (1 < 4 / 2); no much better one; clamped first; clipped before all
+    assert [CAUSES[c] for c in cause] == ["choice", "curvature", "clamped", "clipped", "choice"]
+
+
+def test_error_tail_by_hand():
+    # squares on z: 16, 1, 1, 1, 1 (total 20); on y only the last hit, 9
+    error = np.array([[0.0, 4.0], [0.0, 1.0], [0.0, -1.0], [0.0, 1.0], [3.0, 1.0]])
+    desired = np.arange(10.0).reshape(5, 2)
+    cause = np.array([CAUSES.index(c) for c in ("clamped", *["curvature"] * 3, "choice")])
+    tail = error_tail(error, cause, desired, worst=0.2, shown=2)
+    assert tail["n_worst"] == 1  # a fifth of five hits
+    # the worst hit: the first, length 4 against the last's sqrt(10)
+    assert tail["worst_share_z"] == pytest.approx(16 / 20) and tail["worst_share_y"] == 0.0
+    assert tail["share_z_clamped"] == pytest.approx(16 / 20)
+    assert tail["share_z_curvature"] == pytest.approx(3 / 20)
+    assert tail["share_y_choice"] == 1.0 and tail["share_z_clipped"] == 0.0
+    assert [h["cause"] for h in tail["worst_hits"]] == ["clamped", "choice"]
+    assert tail["worst_hits"][1]["desired_y_m"] == 8.0
+    # an axis without error (rounding only) has no shares
+    flat = error_tail(error * [1e-9, 1.0], cause, desired)
+    assert flat["share_y_choice"] is None and flat["worst_share_y"] is None
 
 
 def test_plane_residuals_vanish_on_planes_and_match_a_parabola():
@@ -230,15 +274,13 @@ def test_each_posterior_answer_is_computed_once(monkeypatch):
     """The local fit starts from the largest grid's posterior answers of its row: one
     posterior query per posterior row of the tables and per point of the active curves,
     none repeated."""
-    from effect_networks.experiments.adaptive_throw import run as adaptive_run
-
     calls = []
 
     def counted(*args, **kwargs):
         calls.append(args[0])
         return infer_parameter(*args, **kwargs)
 
-    monkeypatch.setattr(adaptive_run, "infer_parameter", counted)
+    monkeypatch.setattr(aiming, "infer_parameter", counted)
     result = run_adaptive_throw(AdaptiveThrowConfig(**TINY, seed=2))
     rows = [r for r in result.layouts + result.noisy if r["query"] == "posterior"]
     points = TINY["active_seeds"] * sum(len(curve) for curve in result.active.values())

@@ -132,7 +132,9 @@ def test_best_field_of_a_deterministic_case(tiny):
 
 
 def test_run_at_tiny_scale(tiny_data_dir, tmp_path):
-    config = cts.CanTossingConfig(scale="tiny", data_dir=tiny_data_dir, n_demos=30, progress=False)
+    config = cts.CanTossingConfig(
+        scale="tiny", data_dir=tiny_data_dir, n_demos=30, bound_repeats=2, progress=False
+    )
     result = ct.run_can_tossing(config)
     assert result.n_cases > 0
     assert tuple(result.histogram) == ACCURACY_BINS
@@ -160,6 +162,18 @@ def test_run_at_tiny_scale(tiny_data_dir, tmp_path):
             assert imitation[key] == pytest.approx(roc_auc(pooled, positive))
         else:
             assert imitation[key] is None
+    # the physics bound: the simulator's replays' surprise on the same throws and labels
+    bound = imitation["bound"]
+    assert bound["repeats"] == 2 and bound["half_repeats"]["repeats"] == 1
+    replayed = np.array(bound["surprise"])
+    assert len(replayed) == 30 and np.all((replayed >= 0) & (replayed <= 1 + 1e-12))
+    for key, label in (("auc", "failed"), ("auc_ordinary", "failed_ordinary")):
+        positive = np.array(imitation[label])
+        if 0 < positive.sum() < len(positive):
+            assert bound[key] == pytest.approx(roc_auc(replayed, positive))
+        else:
+            assert bound[key] is None
+    assert set(imitation["threshold"]) == {"failed", "failed_ordinary"}
 
     files = experiment("can_tossing").save(result, tmp_path)
     assert {f.name for f in files} >= {"can_tossing.json", "can_tossing.md"}
@@ -167,7 +181,23 @@ def test_run_at_tiny_scale(tiny_data_dir, tmp_path):
     assert again.to_json() == result.to_json()
     report = (tmp_path / "can_tossing.md").read_text()
     assert "pooled surprise" in report and report.count("\n| ") >= 9
+    assert "physics bound" in report and "fraction of the bound" in report
     assert (tmp_path / "can_tossing_table1.png").stat().st_size > 10_000
+
+
+@pytest.mark.slow
+def test_quick_scale_imitation_has_its_physics_bound(tmp_path):
+    """The quick-scale experiment (as ``./reproduce --quick`` runs it) measures the bound for
+    both failure labels, and its summary row shows it beside ours."""
+    exp = experiment("can_tossing")
+    result = ct.run_can_tossing(exp.config(**exp.quick, progress=False))
+    imitation, bound = result.imitation, result.imitation["bound"]
+    for key in ("auc", "auc_ordinary", "auc_pooled", "auc_ordinary_pooled"):
+        assert imitation[key] is not None and 0.5 < bound[key] <= 1.0
+    assert bound["repeats"] == 8
+    row = exp.rows(result, {})[-1]
+    assert "simulator's own outcome frequencies" in row and "of it" in row
+    assert {f.name for f in exp.save(result, tmp_path)} >= {"can_tossing_roc.png"}
 
 
 @pytest.mark.parametrize(
@@ -179,6 +209,7 @@ def test_run_at_tiny_scale(tiny_data_dir, tmp_path):
         ("aim_error", float("nan"), "out of range"),
         ("seed", -1, "expected an integer >= 0"),
         ("n_ordinary", 2.5, "not an integer"),
+        ("bound_repeats", 1, "expected an integer >= 2"),
         ("scale", "huge", "not one of 'full', 'quick', 'tiny'"),
         ("cases", "rows", "not one of 'counts', 'actions'"),
         ("executor", "threads:4", "not an executor"),

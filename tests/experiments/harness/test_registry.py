@@ -23,7 +23,7 @@ HAND_WRITTEN_QUICK = {
         *["--em-steps", "2", "5", "--budgets", "120", "240", "480", "--batch", "40"],
         *["--pool", "400", "--noise-repeats", "3"],
     ],
-    "can_tossing": ["--scale", "quick", "--n-demos", "100"],
+    "can_tossing": ["--scale", "quick", "--n-demos", "100", "--bound-repeats", "8"],
     "combined": ["--scale", "quick", "--n-throws", "5000", "--episodes", "10"],
     "physics_bounds": [
         *["--scale", "quick", "--repeats", "8", "--step", "0.01", "--combined-repeats", "4"],
@@ -48,6 +48,18 @@ def test_every_experiment_in_the_paper_s_order():
     for name, exp in experiments().items():
         assert exp.name == name and issubclass(exp.result, Result)
         assert (ROOT / "examples" / f"{name}.py").exists(), name
+
+
+def test_imitation_s_bound_and_table_one_s_share_their_replays():
+    """At every scale the can-tossing bound asks for as many replays as the physics bounds,
+    so the two read one simulation."""
+    tossing, bounds = experiment("can_tossing"), experiment("physics_bounds")
+    for settings in ("tiny", "quick"):
+        assert (
+            tossing.config(**getattr(tossing, settings)).bound_repeats
+            == bounds.config(**getattr(bounds, settings)).repeats
+        )
+    assert tossing.config().bound_repeats == bounds.config().repeats
 
 
 @pytest.mark.parametrize("name", list(HAND_WRITTEN_QUICK))

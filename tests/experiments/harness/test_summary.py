@@ -66,6 +66,13 @@ def fake_results(folder):
                 "auc_pooled": 0.952,
                 "auc_ordinary_pooled": None,
                 "n_throws": 300,
+                "bound": {
+                    "auc": 0.913,
+                    "auc_ordinary": 1.0,
+                    "auc_pooled": 0.911,
+                    "auc_ordinary_pooled": 1.0,
+                    "repeats": 16,
+                },
             },
         },
         "physics_bounds.json": {
@@ -124,6 +131,8 @@ def test_summary_from_fake_results(tmp_path):
     assert "95.73 % of 13,129" in actions and "96.12 % held out" in actions
     assert "90.43 % of 8,603" in actions
     assert "0.952 / n/a" in text  # a missing AUC is said so
+    # imitation beside its physics bound, ours as a fraction of it
+    assert "0.913 / 1.000; aim-pooled 0.911 / 1.000" in text and "102.8 % / 97.4 % of it" in text
     top = next(line for line in text.splitlines() if "Table II" in line)
     assert "20.00 % (paper planner); 90.0 % (exact planner) | 50.0 % held out" in top
     assert "| throwing | 6.2 | - | - | - |" in text and "| total | 106.2 | - | - | - |" in text
