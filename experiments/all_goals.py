@@ -27,6 +27,16 @@ Goals are the stable sub-configurations of the full pyramid. For each table heig
 
 Reported per goal: the bound, the exact planner's measured and predicted success, the
 paper planner's success; overall, the mean of success / bound over reachable goals.
+
+**Calibration.** The exact planner's predicted success is the value of its policy under
+the learned transition. Beside it, the same policy's value under the learned transition
+with sharp bins (no boundary spread: the spread steers the choice among near-ties, and
+blurs the probability) and under the physics' own transition (the bound's throws, both
+halves: what the world gives that policy, measured on throws neither the learned system
+nor the plays used). Each is compared with the measured success over the goals
+(:func:`experiments.calibration.reliability`: the reliability diagram and its expected
+calibration error), so that the gap between prediction and measurement is split into what
+the learned transition gets wrong and what the plays' own scatter leaves.
 """
 
 from __future__ import annotations
@@ -39,8 +49,15 @@ from typing import ClassVar
 
 import numpy as np
 import torch
+from effect_networks.experiments.aimed_heights import (
+    can_model,
+    impact_angle,
+    learned_transition,
+    train_robot,
+)
+from effect_networks.experiments.calibration import plot_reliability, reliability
 from effect_networks.experiments.cans import SimulationSettings
-from effect_networks.experiments.combined import Robot, hit_gaussians
+from effect_networks.experiments.combined import Robot
 from effect_networks.experiments.harness.config import (
     ConfigError,
     Result,
@@ -57,17 +74,12 @@ from effect_networks.experiments.physics_bounds import (
     robot_throws,
 )
 from effect_networks.experiments.round_planner import paper_planner
-from effect_networks.experiments.throwing import MAX_BINS, fit_throws, get_data
-from effect_networks.inference import compile as compile_queries
-from effect_networks.inference import fit, predict
-from effect_networks.inference.sequences.chaining import BoxPartition, chain, link_probabilities
-from effect_networks.inference.sequences.dynamic_programming import exact_plan
-from effect_networks.models.can_pyramid import can_network, can_rows
+from effect_networks.experiments.throwing import MAX_BINS
+from effect_networks.inference.sequences.dynamic_programming import exact_plan, policy_value
 from effect_networks.sim2d import geometry
 from effect_networks.sim2d.analytic_throw import TARGET_AREA, ReleaseNoise, throw
 from effect_networks.sim2d.clock import simulating
 from effect_networks.sim2d.combined import (
-    CAN_BAND,
     TABLE_TOP_Z,
     exact_throws,
     play_policy,
@@ -87,6 +99,12 @@ TRAIN_SEED = 2  # the robot's experience; the physics bound's uses seed 1, the c
 PLAY_SEED = 3
 #: the goal: the exact planner's success over the bound, averaged over goals
 GOAL_RATIO = 0.90
+#: The exact planner's success predictions compared with the measured one, by their key per goal.
+PREDICTIONS = {
+    "learned model": "exact_predicted",
+    "learned model, sharp bins": "exact_predicted_sharp",
+    "physics' own transitions": "exact_physics",
+}
 MAX_STEP = 0.1  # m between aim heights: coarser says little about a 6.4 cm can
 MAX_HORIZON = 20  # throws
 MAX_JITTER = 0.05  # m
@@ -189,8 +207,12 @@ class AllGoalsResult(Result):
     planner's measured success over the held-out bound), ``exact_over_bound_in_sample``,
     ``exact_total_over_bound_total`` and ``seconds``; and ``goals``, one dict per
     reachable goal: ``goal`` (mask), ``removed`` (cans), ``bound`` (held out),
-    ``bound_in_sample``, ``exact_measured``, ``exact_predicted``, ``exact_throws`` (mean
-    throws used), ``paper_measured``, ``paper_plays``. Success figures are fractions.
+    ``bound_in_sample``, ``exact_measured``, ``exact_predicted``, ``exact_predicted_sharp``
+    and ``exact_physics`` (the policy's value with sharp bins and under the physics' own
+    transitions), ``exact_throws`` (mean throws used), ``paper_measured``, ``paper_plays``;
+    and ``calibration``, per prediction of ``PREDICTIONS`` its
+    :func:`~experiments.calibration.reliability` against the measured success. Success
+    figures are fractions.
     """
 
     experiment_name: ClassVar[str] = "all_goals"
@@ -238,12 +260,51 @@ class AllGoalsResult(Result):
                     f"| {100 * g['exact_measured']:.1f} ({100 * g['exact_predicted']:.1f}) "
                     f"| {g['exact_throws']:.2f} | {100 * g['paper_measured']:.1f} |"
                 )
+        lines += self._calibration_lines()
         return "\n".join(lines) + "\n"
 
+    def _calibration_lines(self) -> list[str]:
+        """Per table height, each success prediction against the measured success."""
+        tables = [t for t in self.tables if t.get("calibration")]
+        if not tables:
+            return []
+        lines = [
+            "",
+            "**Calibration**: the exact planner's success predicted for its own policy, against "
+            "the success measured by playing it, over the reachable goals (ECE: the expected "
+            "calibration error over 10 bins of the prediction; reliability diagram "
+            "`all_goals_reliability.png`). Beside the learned model's prediction, the same "
+            "policy's value with sharp bins (no boundary spread) and under the physics' own "
+            "transitions (the bound's throws): what is left between the last and the "
+            "measurement is the plays' own scatter; between the first and the last, the "
+            "learned transitions' error.",
+            "",
+            "| table top (m) | prediction | ECE (points) | mean gap per goal (points) "
+            "| goals within 5 points | mean predicted | mean measured |",
+            "|---|---|---:|---:|---:|---:|---:|",
+        ]
+        for t in tables:
+            for name, r in t["calibration"].items():
+                if not r["n"]:
+                    continue
+                lines.append(
+                    f"| {t['table_z']} | {name} | {100 * r['ece']:.1f} | {100 * r['mean_abs']:.1f} "
+                    f"| {100 * r['within']:.0f} % | {100 * r['mean_predicted']:.1f} % "
+                    f"| {100 * r['mean_measured']:.1f} % |"
+                )
+        return lines
+
     def figures(self, out: Path) -> list[Path]:
-        """Draw the goals' figure, ``all_goals.png``, into the folder ``out``; its path."""
+        """Draw the goals' figure, ``all_goals.png``, and the reliability diagrams into ``out``."""
         plot(self, out / "all_goals.png")
-        return [out / "all_goals.png"]
+        panels = [
+            (f"table top {t['table_z']} m, {t['reachable']} goals", t["calibration"])
+            for t in self.tables
+            if t.get("calibration")
+        ]
+        if not panels:
+            return [out / "all_goals.png"]
+        return [out / "all_goals.png", plot_reliability(panels, out / "all_goals_reliability.png")]
 
     def summary_rows(self, results) -> list[str]:
         """Per table height, every goal the bound reaches: both planners beside the bound."""
@@ -264,72 +325,6 @@ class AllGoalsResult(Result):
                 f"{percent(mean('bound_in_sample'), 1)} in sample |"
             )
         return rows
-
-
-# --- the learned side --------------------------------------------------------------------
-
-
-def train_robot(n_throws: int, bins: int, seed: int, noise: ReleaseNoise | None) -> Robot:
-    """The throw network fitted on ``n_throws`` random throws, as the robot that aims."""
-    rng = np.random.default_rng(seed)
-    targets, hits = get_data(n_throws, rng, noise)
-    net, params, _ = fit_throws((bins, bins), targets, hits)
-    return Robot(compile_queries(net, params), net, params, noise, rng)
-
-
-def can_model(states: list[int], heights: np.ndarray, outcomes: dict[int, np.ndarray]):
-    """The can network with aim heights as actions, fitted on the robot's experience.
-
-    Returns ``P[s, b, s']``: the predicted next state for each state and height bin.
-    """
-    net = can_network(states, len(heights))
-    starts, actions, ends = [], [], []
-    for s, nxt in outcomes.items():
-        starts.append(np.full(nxt.size, s))
-        actions.append(np.repeat(np.arange(nxt.shape[0]), nxt.shape[1]))
-        ends.append(nxt.reshape(-1))
-    rows = can_rows(net, np.concatenate(starts), np.concatenate(actions), np.concatenate(ends))
-    params = fit(net, rows).params
-    n_a = len(heights)
-    probs = torch.zeros(len(states), n_a, len(states), dtype=torch.float64)
-    for i, s in enumerate(states):
-        ev = {
-            "initial.config": np.full(n_a, s),
-            "initial.count": np.full(n_a, bin(s).count("1")),
-            "action": list(net.actions),
-        }
-        probs[i] = predict(net, params, ev).discrete["config"].double()
-    return probs
-
-
-def learned_transition(
-    can_probs: torch.Tensor,
-    robot: Robot,
-    heights: np.ndarray,
-    table_z: float,
-    boundary_sd: float = 0.0,
-) -> tuple[torch.Tensor, np.ndarray]:
-    """``T[s, a, s']`` of aiming at ``heights[a]``, and the robot's aims ``(A, 2)``.
-
-    The networks chained (:func:`inference.sequences.chaining.chain`): the throw network's
-    predicted hit (:func:`experiments.combined.hit_gaussians`, its height widened by the
-    bins' boundary sd ``boundary_sd``, m) read as the height bin it falls in (each height
-    owns the half step either side of it) within the can band; a hit beside the band or
-    off the face changes nothing.
-    """
-    desired = np.stack([np.zeros_like(heights), heights + table_z], -1)
-    aims = robot.aim(desired)
-    half = np.diff(heights).mean() / 2 if len(heights) > 1 else 0.01
-    edges = np.concatenate([heights - half, [heights[-1] + half]])
-    across = np.tile([-CAN_BAND, CAN_BAND], (len(heights), 1))
-    link = BoxPartition(
-        np.stack([across[:, 0], edges[:-1]], -1),
-        np.stack([across[:, 1], edges[1:]], -1),
-        labels=range(len(heights)),
-        actions=range(len(heights)),
-    )
-    hits = link_probabilities(link, hit_gaussians(robot, aims, table_z, boundary_sd))
-    return chain(hits, can_probs), aims
 
 
 def _paper_task(start, goal, most_probable, states, aims, table_z, jitter, noise, seed):
@@ -357,13 +352,6 @@ def _paper_task(start, goal, most_probable, states, aims, table_z, jitter, noise
     return {"rate": float(rate), "plays": sum(len(r.actions) for r in rounds)}
 
 
-def impact_angle(robot: Robot, heights: np.ndarray, table_z: float) -> float:
-    """Mean descent angle (degrees, negative: downwards) of the robot's ball at the face."""
-    aims = robot.aim(np.stack([np.zeros_like(heights), heights + table_z], -1))
-    v = throw(aims).velocity_at_plane
-    return float(np.degrees(np.arctan2(v[:, 2], v[:, 0])).mean())
-
-
 def run_table(config: AllGoalsConfig, table_z: float, robot: Robot, executor) -> dict:
     """One table height's entry of ``AllGoalsResult.tables``."""
     started = time.perf_counter()
@@ -384,6 +372,8 @@ def run_table(config: AllGoalsConfig, table_z: float, robot: Robot, executor) ->
     spread = config.jitter if config.boundary_spread == "jitter" else 0.0
     can = can_model(states, heights, train)
     t_learned, aims = learned_transition(can, robot, heights, table_z, spread)
+    t_sharp = learned_transition(can, robot, heights, table_z)[0] if spread else t_learned
+    t_physics = (halves[0] + halves[1]) / 2
     most_probable = t_learned.argmax(-1).numpy()
     index = {s: i for i, s in enumerate(states)}
     h = config.horizon
@@ -394,10 +384,16 @@ def run_table(config: AllGoalsConfig, table_z: float, robot: Robot, executor) ->
         if held <= 0:
             continue
         learned = exact_plan(t_learned, index[g], h)
+
+        def value_under(transition, policy=learned.policy, goal=index[g]):
+            return float(policy_value(transition, policy, goal, h)[h, index[full]])
+
         rows[g] = dict(
             bound=held,
             bound_in_sample=in_sample,
             exact_predicted=float(learned.value[h, index[full]]),
+            exact_predicted_sharp=value_under(t_sharp),
+            exact_physics=value_under(t_physics),
         )
         play = dict(
             episodes=config.episodes, table_z=table_z, jitter=config.jitter,
@@ -450,6 +446,10 @@ def run_table(config: AllGoalsConfig, table_z: float, robot: Robot, executor) ->
         ),
         seconds=time.perf_counter() - started,
         goals=results,
+        calibration={
+            name: reliability([r[key] for r in results], [r["exact_measured"] for r in results])
+            for name, key in PREDICTIONS.items()
+        },
     )
 
 

@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 import torch
-from effect_networks.experiments import all_goals
+from effect_networks.experiments import aimed_heights, all_goals
 from effect_networks.experiments import physics_bounds as pb
 from effect_networks.experiments.all_goals import AllGoalsConfig, AllGoalsResult
 from effect_networks.experiments.harness.config import ConfigError
@@ -16,7 +16,7 @@ from scipy import stats
 
 @pytest.fixture(scope="module")
 def robot():
-    return all_goals.train_robot(2000, 3, seed=0, noise=None)
+    return aimed_heights.train_robot(2000, 3, seed=0, noise=None)
 
 
 def test_empirical_transition_counts_the_chosen_repeats():
@@ -38,12 +38,12 @@ def test_learned_transition_is_a_distribution_and_keeps_a_quiet_world(robot):
     n_s = 4
     rng = np.random.default_rng(0)
     can = torch.as_tensor(rng.dirichlet(np.ones(n_s), size=(n_s, len(heights))))
-    t, aims = all_goals.learned_transition(can, robot, heights, TABLE_TOP_Z)
+    t, aims = aimed_heights.learned_transition(can, robot, heights, TABLE_TOP_Z)
     assert t.shape == (n_s, len(heights), n_s) and aims.shape == (len(heights), 2)
     assert torch.allclose(t.sum(-1), torch.ones(n_s, len(heights), dtype=torch.float64))
     # when no hit changes anything, no aim does
     still = torch.eye(n_s, dtype=torch.float64)[:, None, :].expand(n_s, len(heights), n_s)
-    quiet, _ = all_goals.learned_transition(still, robot, heights, TABLE_TOP_Z)
+    quiet, _ = aimed_heights.learned_transition(still, robot, heights, TABLE_TOP_Z)
     assert torch.allclose(quiet, still)
 
 
@@ -55,7 +55,7 @@ def test_learned_transition_is_the_chained_sum_written_out(robot, boundary_sd):
     heights = exact_throws(0.05)[0]
     n_s, n_a = 3, len(heights)
     can = torch.as_tensor(np.random.default_rng(1).dirichlet(np.ones(n_s), size=(n_s, n_a)))
-    t, aims = all_goals.learned_transition(can, robot, heights, TABLE_TOP_Z, boundary_sd)
+    t, aims = aimed_heights.learned_transition(can, robot, heights, TABLE_TOP_Z, boundary_sd)
     mean, cov = robot.hit_distribution(aims)
     half = np.diff(heights).mean() / 2
     want = np.zeros((n_s, n_a, n_s))
@@ -74,7 +74,7 @@ def test_can_model_learns_a_deterministic_world():
     states = [0, 1, 3]
     heights = np.array([0.1, 0.2])
     outcomes = {3: np.array([[1, 1, 1], [3, 3, 3]]), 1: np.array([[0, 0, 0], [1, 1, 1]])}
-    p = all_goals.can_model(states, heights, outcomes)
+    p = aimed_heights.can_model(states, heights, outcomes)
     assert p.shape == (3, 2, 3)
     assert p[2, 0].argmax() == 1 and p[2, 1].argmax() == 2 and p[1, 0].argmax() == 0
     assert p[2, 0, 1] > 0.7
@@ -113,12 +113,20 @@ def test_tiny_run_end_to_end(tmp_path):
         assert 0 < g["bound"] <= 1 and 0 < g["bound_in_sample"] <= 1
         assert 0 <= g["exact_measured"] <= 1 and 0 <= g["paper_measured"] <= 1
         assert 0 <= g["exact_predicted"] <= 1 + 1e-9 and 0 <= g["exact_throws"] <= 2
+        # with the default spread the sharp prediction is another model's value of the policy
+        assert 0 <= g["exact_predicted_sharp"] <= 1 + 1e-9 and 0 <= g["exact_physics"] <= 1 + 1e-9
+    for name, key in all_goals.PREDICTIONS.items():
+        r = table["calibration"][name]
+        assert r["n"] == table["reachable"]
+        assert r["mean_predicted"] == pytest.approx(np.mean([g[key] for g in table["goals"]]))
     files = result.save(tmp_path / "out")
     again = AllGoalsResult.load(files[0])
     assert json.loads(again.to_json()) == json.loads(result.to_json())
     text = result.to_markdown()
     assert "exact planner / bound" in text and text.count("\n| ") >= 2 + table["reachable"]
     assert files[2].stat().st_size > 10_000
+    assert "**Calibration**" in text and "physics' own transitions" in text
+    assert (tmp_path / "out" / "all_goals_reliability.png").stat().st_size > 10_000
 
 
 def test_cross_fitted_bound_scores_each_half_s_plan_on_the_other():
