@@ -37,6 +37,7 @@ def test_tiny_run_end_to_end(tiny_data_dir, tmp_path):
     for s in result.scenarios.values():
         assert 0.0 <= s["success_rate"] <= 1.0 and 0.0 <= s["success_rate_exact_planner"] <= 1.0
         assert 0.0 <= s["exact_planner_predicted"] <= 1.0 + 1e-9
+        assert 0.0 <= s["exact_planner_predicted_sharp"] <= 1.0 + 1e-9
         first = s["rounds"][0]
         assert first["actions"] == first["success"] + first["fail_too_many"] + first[
             "fail_no_hit"
@@ -47,6 +48,7 @@ def test_tiny_run_end_to_end(tiny_data_dir, tmp_path):
     assert result.angle_choice["boundary_sd"] == face_height_spread(data, angle) > 0
     result.save(tmp_path)
     assert (tmp_path / "combined.md").read_text().count("success rate") == 3
+    assert (tmp_path / "combined.md").read_text().count("with sharp field boundaries") == 3
     assert CombinedResult.load(tmp_path / "combined.json").to_json() == result.to_json()
 
 
