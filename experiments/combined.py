@@ -268,6 +268,7 @@ def build_world(config: CombinedConfig, data) -> tuple[World, dict]:
         "robot_impact_deg_mean": impact_deg,
         "angle_deg": dict(zip(geometry.ANGLE_NAMES, angle_deg, strict=True)),
         "chosen_angle": geometry.ANGLE_NAMES[angle],
+        "training_speed": float(np.hypot(*geometry.ANGLES[angle])),
     }
     jitter = data.metadata["jitter"] if config.jitter is None else config.jitter
     spread = face_height_spread(data, angle) if config.boundary_spread == "measured" else 0.0
@@ -437,6 +438,11 @@ def run_scenario(world: World, name: str, config: CombinedConfig) -> dict:
     # among near-ties and blurs the probability it reports
     sharp = transition_model(replace(world, boundary_sd=0.0), states) if world.boundary_sd else t
     value = policy_value(sharp, plan.policy, states.index(goal), config.horizon)
+    # how sure the first throw is: the fields as good under the models, the robot's arrival
+    first, here = int(plan.policy[config.horizon, states.index(start)]), states.index(start)
+    q = t[here] @ plan.value[config.horizon - 1]
+    desired = np.array([[0.0, world.heights(start)[first] + world.table_z]])
+    v = throw(world.robot.aim(desired)).velocity_at_plane[0]
     return {
         "success_rate": rate,
         "paper_success_rate": PAPER_RATES[name],
@@ -444,7 +450,10 @@ def run_scenario(world: World, name: str, config: CombinedConfig) -> dict:
         "success_rate_exact_planner": successes / config.episodes,
         "exact_planner_predicted": float(plan.value[config.horizon, states.index(start)]),
         "exact_planner_predicted_sharp": float(value[config.horizon, states.index(start)]),
-        "exact_planner_first_field": int(plan.policy[config.horizon, states.index(start)]),
+        "exact_planner_first_field": first,
+        "first_field_ties": int((q >= q.max() * (1 - 1e-9)).sum()),
+        "first_throw_deg": float(np.degrees(np.arctan2(v[2], v[0]))),
+        "first_throw_speed": float(np.hypot(v[0], v[2])),
     }
 
 
@@ -481,6 +490,13 @@ def table_markdown(name: str, s: dict) -> str:
             else ")."
         )
     )
+    if "first_field_ties" in s:
+        ties = s["first_field_ties"] - 1
+        lines.append(
+            f"Its first field, {s['exact_planner_first_field']}, rated equal with {ties} other "
+            f"field(s) by the models; the robot's throw there arrives at "
+            f"{s['first_throw_deg']:.1f} deg, {s['first_throw_speed']:.2f} m/s."
+        )
     return "\n".join(lines)
 
 
@@ -522,7 +538,9 @@ class CombinedResult(Result):
         head = (
             f"Robot impact direction {why['robot_impact_deg_mean']:.1f} deg; can network trained "
             f"on {why['chosen_angle']} ({why['angle_deg'][why['chosen_angle']]:.1f} deg), the "
-            f"closest; table top {why['table_z']} m, aim jitter {1000 * why['jitter']:.1f} mm; "
+            f"closest"
+            + (f", at {why['training_speed']:.2f} m/s" if "training_speed" in why else "")
+            + f"; table top {why['table_z']} m, aim jitter {1000 * why['jitter']:.1f} mm; "
             f"fields' boundaries read with sd {1000 * why.get('boundary_sd', 0.0):.2f} mm."
         )
         return "\n\n".join([head, *tables, "\n".join(lines)]) + "\n"

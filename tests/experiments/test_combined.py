@@ -38,6 +38,8 @@ def test_tiny_run_end_to_end(tiny_data_dir, tmp_path):
         assert 0.0 <= s["success_rate"] <= 1.0 and 0.0 <= s["success_rate_exact_planner"] <= 1.0
         assert 0.0 <= s["exact_planner_predicted"] <= 1.0 + 1e-9
         assert 0.0 <= s["exact_planner_predicted_sharp"] <= 1.0 + 1e-9
+        assert s["first_field_ties"] >= 1 and s["first_throw_speed"] > 0
+        assert -90 < s["first_throw_deg"] < 0  # the ball descends onto the pyramid
         first = s["rounds"][0]
         assert first["actions"] == first["success"] + first["fail_too_many"] + first[
             "fail_no_hit"
@@ -49,6 +51,7 @@ def test_tiny_run_end_to_end(tiny_data_dir, tmp_path):
     result.save(tmp_path)
     assert (tmp_path / "combined.md").read_text().count("success rate") == 3
     assert (tmp_path / "combined.md").read_text().count("with sharp field boundaries") == 3
+    assert (tmp_path / "combined.md").read_text().count("the robot's throw there arrives") == 3
     assert CombinedResult.load(tmp_path / "combined.json").to_json() == result.to_json()
 
 
