@@ -18,7 +18,11 @@ from __future__ import annotations
 from collections.abc import Mapping
 
 import torch
-from effect_networks.inference.exact.enumeration import over_row_chunks
+from effect_networks.inference.exact.enumeration import (
+    enumeration_size,
+    one_thread_below,
+    over_row_chunks,
+)
 from effect_networks.inference.exact.traced import Enumerated
 from effect_networks.inference.queries.batching import (
     allowed_actions,
@@ -94,12 +98,16 @@ def infer_action(
                 implausible_below=below,
             )
         )
+    # small work on one torch thread throughout (the sums, the masses, the check), so that a
+    # busy other core cannot stall it
+    work = enumeration_size(net, enc, set(), contracted=True) * enc.n_rows
     if enc.n_rows <= FEW_ROWS:
         tables = tables_for(net, params)
         if tables is not None:
-            return tables.infer_action(
-                enc, allowed=allowed, avoid_unseen=avoid_unseen, implausible_below=below
-            )
+            with one_thread_below(work):
+                return tables.infer_action(
+                    enc, allowed=allowed, avoid_unseen=avoid_unseen, implausible_below=below
+                )
     observed_end = [end_site(f.name) for f in net.features if end_site(f.name) in enc]
 
     def fn(e: Enumerated, *_):
@@ -127,15 +135,16 @@ def infer_action(
         per_action = joint.sum(others).T if others else joint.T
         return probs, per_action / probs.clamp_min(1e-300), e.log_evidence
 
-    probs, unseen, log_evidence = over_row_chunks(net, params, enc, set(), fn, contracted=True)
-    unseen = unseen.clamp(0, 1)
-    score = probs.clone()
-    if allowed is not None:
-        score = torch.where(allowed.expand_as(score), score, -1.0)
-    if avoid_unseen:
-        seen_score = torch.where(unseen < 0.5, score, -1.0)
-        score = torch.where((seen_score.max(-1, keepdim=True).values >= 0), seen_score, score)
-    best = first_best(score)
-    names = tuple(net.actions[i] for i in best.tolist())
-    flag = plausibility(net, params, enc, log_evidence=log_evidence).implausible(below)
+    with one_thread_below(work):
+        probs, unseen, log_evidence = over_row_chunks(net, params, enc, set(), fn, contracted=True)
+        unseen = unseen.clamp(0, 1)
+        score = probs.clone()
+        if allowed is not None:
+            score = torch.where(allowed.expand_as(score), score, -1.0)
+        if avoid_unseen:
+            seen_score = torch.where(unseen < 0.5, score, -1.0)
+            score = torch.where((seen_score.max(-1, keepdim=True).values >= 0), seen_score, score)
+        best = first_best(score)
+        names = tuple(net.actions[i] for i in best.tolist())
+        flag = plausibility(net, params, enc, log_evidence=log_evidence).implausible(below)
     return ActionPosterior(probs, best, names, log_evidence, unseen, net.actions, flag)
