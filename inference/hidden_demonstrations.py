@@ -31,24 +31,35 @@ a labelled step's other actions ruled out), and its forward and backward message
 posterior over (configuration at ``t``, action, configuration at ``t + 1``) given the whole
 demonstration, exactly.
 
+**Continuous features.** A continuous value shown at both ends of a step is part of the
+step's observation: the step table holds its linear Gaussian's density (at the start
+under the initial tables, at the end under the end tables), so the messages weigh every
+configuration by it. ``x_t`` above holds them.
+
 **M-step.** Each step is completed once per entry of that posterior's support (the
-configuration pair read as full states, the action), weighted by the entry, and the
-toolkit's closed forms fit the weighted rows
+configuration pair read as full states, the action, the continuous values as shown),
+weighted by the entry, and the toolkit's closed forms fit the weighted rows
 (:func:`~inference.fitting.sufficient_statistics.statistics`,
 :func:`~inference.fitting.sufficient_statistics.params_from_statistics`, with the
-pseudo-count). EM on ``L`` then never lowers it.
+pseudo-count): the tables on the expected counts, the linear Gaussians on the weighted
+moments. Ordinary training rows (``rows``) join it: each completed over what it misses
+(:func:`~inference.fitting.completion.completed_rows`), its expected statistics added to
+the steps', its log-likelihood to ``L``. EM on ``L`` then never lowers it.
 
-Scope: networks whose features are all discrete and that have no action parameter. An
-outcome feature (``initial=False``) that a step does not show is summed inside the step's
-table, and the M-step completes it too: each completed row once per value of it, weighted
-by its posterior given the row (the step's states and action separate it from the other
-steps, so that posterior is exact).
+Scope: networks whose sites all have a closed form (tables and linear Gaussians) and
+that have no action parameter; a continuous feature with an initial node is shown at
+every time (hidden, it would be a Gaussian carried from step to step). An outcome feature
+(``initial=False``) that a step does not show is summed inside the step's table, and the
+M-step completes it too: each completed row once per value of a discrete one, a
+continuous one at its conditional mean with its conditional covariance added to the sums,
+weighted by its posterior given the row (the step's states and action separate it from
+the other steps, so that posterior is exact).
 
 **Cost.** A step's table spans (configurations of its start) x actions x (configurations
 of its end): ``A`` entries where both ends show every state feature, ``2^(h + h')`` times
 as many where they hide ``h`` and ``h'`` binary ones, read once per distinct
-(observation, start, end) per EM step; the messages and the completed rows are linear in
-those entries. A step past
+(observation, start, end) per EM step (a step whose continuous values are its own reads
+its table alone); the messages and the completed rows are linear in those entries. A step past
 :data:`~inference.sequences.hidden_steps.MAX_STEP_TABLE` entries is refused, naming it.
 """
 

@@ -38,9 +38,12 @@ demonstration hides a state value, EM runs by forward-backward over each time's 
 configurations instead (:mod:`inference.hidden_demonstrations`): exact for the model in
 which every step is a row of the network (every step's start drawn from the initial
 tables, as the per-step fit counts them), the log-likelihood never falling; with every
-state shown it is the per-step fit above. That route covers networks of discrete
-features; with continuous features, or with ``rows=``, a hidden state value is refused,
-naming the demonstration, the time and the feature.
+state shown it is the per-step fit above. Continuous features join that route where
+their values are shown (a continuous outcome may be hidden: its step's table integrates
+it), and so do training rows (``rows=``): their expected statistics join the M-step's,
+their log-likelihood the objective. A hidden *continuous* state value, a network with
+action parameters and a site without a closed form (a softmax) are refused there, naming
+the demonstration, the time and the feature.
 
 **Action parameters.** A step may record its action's parameter (``parameters=``) or not.
 A recorded value says the action uses the parameter, as a training row's does; an
@@ -149,10 +152,10 @@ def fit_demonstrations(
         Demonstrations, each a sequence of ``T + 1 >= 2`` states ``{feature: value}``;
         every continuous feature with an initial node is given at every time; an outcome
         feature (``initial=False``) or a continuous end value may be missing (absent,
-        None, NaN). A state feature (discrete, with an initial node) may be hidden
-        (absent, None) at some times where every feature of the network is discrete and
-        ``rows`` is not given: EM then sums the hidden states carried from step to step
-        exactly (the module's notes).
+        None, NaN). A discrete state feature (one with an initial node) may be hidden
+        (absent, None) at some times where the network has no action parameter and every
+        site a closed form: EM then sums the hidden states carried from step to step
+        exactly, beside the continuous values and ``rows`` (the module's notes).
     actions
         Per demonstration, ``T`` labels: an action's name where the step was labelled,
         None where not (default: none labelled).
