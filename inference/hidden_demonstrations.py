@@ -31,40 +31,52 @@ a labelled step's other actions ruled out), and its forward and backward message
 posterior over (configuration at ``t``, action, configuration at ``t + 1``) given the whole
 demonstration, exactly.
 
+**Continuous features.** A continuous value shown at both ends of a step is part of the
+step's observation: the step table holds its linear Gaussian's density (at the start
+under the initial tables, at the end under the end tables), so the messages weigh every
+configuration by it. ``x_t`` above holds them.
+
 **M-step.** Each step is completed once per entry of that posterior's support (the
-configuration pair read as full states, the action), weighted by the entry, and the
-toolkit's closed forms fit the weighted rows
+configuration pair read as full states, the action, the continuous values as shown),
+weighted by the entry, and the toolkit's closed forms fit the weighted rows
 (:func:`~inference.fitting.sufficient_statistics.statistics`,
 :func:`~inference.fitting.sufficient_statistics.params_from_statistics`, with the
-pseudo-count). EM on ``L`` then never lowers it.
+pseudo-count): the tables on the expected counts, the linear Gaussians on the weighted
+moments. Ordinary training rows (``rows``) join it: each completed over what it misses
+(:func:`~inference.fitting.completion.completed_rows`), its expected statistics added to
+the steps', its log-likelihood to ``L``. EM on ``L`` then never lowers it.
 
-Scope: networks whose features are all discrete and that have no action parameter. An
-outcome feature (``initial=False``) that a step does not show is summed inside the step's
-table, and the M-step completes it too: each completed row once per value of it, weighted
-by its posterior given the row (the step's states and action separate it from the other
-steps, so that posterior is exact).
+Scope: networks whose sites all have a closed form (tables and linear Gaussians) and
+that have no action parameter; a continuous feature with an initial node is shown at
+every time (hidden, it would be a Gaussian carried from step to step). An outcome feature
+(``initial=False``) that a step does not show is summed inside the step's table, and the
+M-step completes it too: each completed row once per value of a discrete one, a
+continuous one at its conditional mean with its conditional covariance added to the sums,
+weighted by its posterior given the row (the step's states and action separate it from
+the other steps, so that posterior is exact).
 
 **Cost.** A step's table spans (configurations of its start) x actions x (configurations
 of its end): ``A`` entries where both ends show every state feature, ``2^(h + h')`` times
 as many where they hide ``h`` and ``h'`` binary ones, read once per distinct
-(observation, start, end) per EM step; the messages and the completed rows are linear in
-those entries. A step past
+(observation, start, end) per EM step (a step whose continuous values are its own reads
+its table alone); the messages and the completed rows are linear in those entries. A step past
 :data:`~inference.sequences.hidden_steps.MAX_STEP_TABLE` entries is refused, naming it.
 """
 
 from __future__ import annotations
 
-import math
 import warnings
-from collections.abc import Sequence
-from dataclasses import dataclass
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 
 import numpy as np
 import torch
-from effect_networks.inference.exact.enumeration import enumerate_model, row_chunks
+from effect_networks.inference.exact.gaussian_gaps import continuous_gaps
+from effect_networks.inference.fitting.completion import completed_rows
 from effect_networks.inference.fitting.result import ConvergenceWarning, FitResult
-from effect_networks.inference.fitting.rows import check_settings
+from effect_networks.inference.fitting.rows import check_settings, missing_masks
 from effect_networks.inference.fitting.sufficient_statistics import (
+    Statistics,
     params_from_statistics,
     statistics,
 )
@@ -82,10 +94,10 @@ from effect_networks.models.evidence import Evidence
 from effect_networks.models.params import NetworkParams
 from effect_networks.models.sites import end_site, initial_site
 
-__all__ = ["CompletedSteps", "completed_steps", "fit_hidden_states"]
+__all__ = ["MIN_VARIANCE", "CompletedSteps", "completed_steps", "fit_hidden_states"]
 
-#: The covariance floor the closed forms take (no linear Gaussian here: a formality).
-_MIN_VARIANCE = 1e-6
+#: The linear Gaussians' covariance floor (:func:`~inference.fitting.missing.fit_missing`'s).
+MIN_VARIANCE = 1e-6
 
 
 @dataclass(frozen=True)
@@ -93,20 +105,27 @@ class CompletedSteps:
     """An E-step's result (:func:`completed_steps`).
 
     ``rows``: every step completed once per entry of its posterior's support (states,
-    action, hidden outcomes); ``weights`` ``(m,)`` the entries' posterior probabilities
-    (each step's sum to 1); ``log_likelihoods`` ``(n,)`` each demonstration's log-likelihood
-    (the model of the module: every step a row, hidden values and unlabelled actions
-    summed out).
+    action, hidden outcomes; a hidden continuous outcome at its conditional mean);
+    ``weights`` ``(m,)`` the entries' posterior probabilities (each step's sum to 1);
+    ``log_likelihoods`` ``(n,)`` each demonstration's log-likelihood (the model of the
+    module: every step a row, hidden values and unlabelled actions summed out);
+    ``moments``: per linear Gaussian, the sums of the hidden continuous outcomes'
+    conditional covariances (empty where every continuous value is shown).
     """
 
     rows: Evidence
     weights: torch.Tensor
     log_likelihoods: torch.Tensor
+    moments: dict = field(default_factory=dict)
 
     @property
     def log_likelihood(self) -> float:
         """The demonstrations' summed log-likelihood."""
         return float(self.log_likelihoods.sum())
+
+    def statistics(self, net: EffectNetwork) -> Statistics:
+        """The expected sufficient statistics: the weighted rows' sums and the covariances'."""
+        return _with_moments(statistics(net, self.rows, self.weights), self.moments)
 
 
 def fit_hidden_states(
@@ -115,6 +134,8 @@ def fit_hidden_states(
     labels: Sequence[Sequence[int | None]],
     *,
     init: NetworkParams,
+    rows: Evidence | None = None,
+    masks: Mapping[str, torch.Tensor] | None = None,
     pseudo_count: float = 0.01,
     steps: int = 500,
     tol: float = 1e-6,
@@ -124,12 +145,19 @@ def fit_hidden_states(
     Parameters
     ----------
     net
-        A network of discrete features only, without action parameters.
+        A network whose sites all have a closed form, without action parameters.
     demonstrations
-        Demonstrations, each ``T + 1 >= 2`` states ``{feature: label or None}`` (None or
-        absent: hidden).
+        Demonstrations, each ``T + 1 >= 2`` states ``{feature: value}``: a discrete label
+        or None (or absent: hidden); a continuous feature's ``(d,)`` numbers, shown at every
+        time where it has an initial node (an outcome's may be None or NaN).
     labels
         Per demonstration ``T`` action indices, None where the step is not labelled.
+    rows, masks
+        Ordinary training rows fitted beside the demonstrations (checked and encoded, as
+        :func:`~inference.fitting.reading.read_rows` gives them; NaN where a continuous
+        value is missing), and per discrete site ``(m,)`` bool, False where a row misses
+        its value. Their expected statistics join the M-step's, their log-likelihood the
+        objective.
     init, pseudo_count, steps, tol
         EM's start, the closed forms' pseudo-count, the most EM steps, and the tolerance:
         the fit has converged when a step raises the per-step log-likelihood by less than
@@ -139,26 +167,28 @@ def fit_hidden_states(
     Returns
     -------
     FitResult
-        ``log_likelihoods``: the summed log-likelihood at the start and after each step
-        taken (never falling); ``losses``: minus the same per step.
+        ``log_likelihoods``: the summed log-likelihood (the demonstrations' and the rows')
+        at the start and after each step taken (never falling); ``losses``: minus the same
+        per step or row.
     """
     _check_scope(net)
     check_settings(pseudo_count=pseudo_count, steps=steps, tol=tol)
-    n_steps = sum(len(d) - 1 for d in demonstrations)
+    if rows is not None:
+        masks = missing_masks(net, masks or {}, rows.n_rows)
+    n_steps = sum(len(d) - 1 for d in demonstrations) + (0 if rows is None else rows.n_rows)
     params = init
-    completed = completed_steps(net, params, demonstrations, labels)
-    log_liks = [completed.log_likelihood]
+    expected, log_lik = _expected(net, params, demonstrations, labels, rows, masks)
+    log_liks = [log_lik]
     converged = False
     for _ in range(steps):
-        stats = statistics(net, completed.rows, completed.weights)
-        cpds = params_from_statistics(net, stats, pseudo_count, _MIN_VARIANCE)
+        cpds = params_from_statistics(net, expected, pseudo_count, MIN_VARIANCE)
         proposal = NetworkParams(cpds, params.pseudo_count, net)
-        step = completed_steps(net, proposal, demonstrations, labels)
-        if not step.log_likelihood >= log_liks[-1]:  # a pseudo-count's pull, or NaN
+        stats, log_lik = _expected(net, proposal, demonstrations, labels, rows, masks)
+        if not log_lik >= log_liks[-1]:  # a pseudo-count's pull, or NaN
             converged = True
             break
-        params, completed = proposal, step
-        log_liks.append(step.log_likelihood)
+        params, expected = proposal, stats
+        log_liks.append(log_lik)
         gain = (log_liks[-1] - log_liks[-2]) / n_steps
         if gain <= tol * max(1.0, abs(log_liks[-1] / n_steps)):
             converged = True
@@ -172,6 +202,25 @@ def fit_hidden_states(
         )
     losses = tuple(-x / n_steps for x in log_liks)
     return FitResult(params, losses, converged, tuple(log_liks), tol, steps)
+
+
+def _expected(net, params, demonstrations, labels, rows, masks) -> tuple[Statistics, float]:
+    """The E-step over the demonstrations and the training rows: statistics, log-likelihood."""
+    completed = completed_steps(net, params, demonstrations, labels)
+    stats, log_lik = completed.statistics(net), completed.log_likelihood
+    if rows is not None:
+        done = completed_rows(net, params, rows, masks)
+        stats = stats + _with_moments(statistics(net, done.rows, done.weights), done.moments)
+        log_lik += done.log_lik
+    return stats, log_lik
+
+
+def _with_moments(stats: Statistics, moments: dict) -> Statistics:
+    """``stats`` with the conditional covariances' sums added to their linear Gaussians."""
+    sites = dict(stats.sites)
+    for site, extra in moments.items():
+        sites[site] = sites[site] + extra
+    return Statistics(sites, stats.rows, stats.gradient)
 
 
 def completed_steps(
@@ -189,10 +238,10 @@ def completed_steps(
     by_length: dict[int, list[int]] = {}
     for i, demo in enumerate(demonstrations):
         by_length.setdefault(len(demo), []).append(i)
-    parts, weights = [], []
+    parts, weights, moments = [], [], {}
     log_liks = torch.empty(len(demonstrations), dtype=DTYPE)
     for which in by_length.values():
-        rows, w, lls = _completed_batch(
+        rows, w, extra, lls = _completed_batch(
             net, params, [demonstrations[i] for i in which], [labels[i] for i in which]
         )
         bad = (lls == -torch.inf).nonzero()
@@ -205,38 +254,56 @@ def completed_steps(
         log_liks[which] = lls
         parts.append(rows)
         weights.append(w)
+        for site, value in extra.items():
+            moments[site] = moments[site] + value if site in moments else value
     rows = {site: torch.cat([p[site] for p in parts]) for site in parts[0]}
     n = sum(p.n_rows for p in parts)
-    return CompletedSteps(Evidence(net, rows, n), torch.cat(weights), log_liks)
+    return CompletedSteps(Evidence(net, rows, n), torch.cat(weights), log_liks, moments)
 
 
 def _check_scope(net: EffectNetwork) -> None:
-    continuous = [f.name for f in net.features if not isinstance(f, Discrete)]
-    if continuous or net.mixtures:
+    open_forms = [s.name for s in net.sites if not net.cpd(s.name).closed_form]
+    if net.mixtures or open_forms:
         raise ValueError(
-            "EM over hidden state values covers networks of discrete features without action "
-            f"parameters; this one has continuous features {continuous} and parameters "
-            f"{[p.name for p in net.parameters]}: show every state feature at every time"
+            "EM over hidden state values covers networks whose sites all have a closed form, "
+            f"without action parameters; this one has parameters "
+            f"{[p.name for p in net.parameters]} and sites without a closed form {open_forms}: "
+            "show every state feature at every time"
         )
 
 
-def _completed_batch(net, params, demonstrations, labels):
-    """:func:`completed_steps` for demonstrations of one length: rows, weights, ``(n,)`` sums."""
-    n, steps = len(demonstrations), len(demonstrations[0]) - 1
-    a = len(net.actions)
+def _batch(net, demonstrations) -> dict[str, np.ndarray]:
+    """The demonstrations of one length in explain's batch form (an outcome hidden at time 0)."""
+    n, times = len(demonstrations), len(demonstrations[0])
     batch = {}
     for f in net.features:
-        column = np.empty((n, steps + 1), dtype=object)
+        if isinstance(f, Discrete):
+            column = np.empty((n, times), dtype=object)
+        else:
+            column = np.full((n, times, f.dim), np.nan)
         for i, demo in enumerate(demonstrations):
             for t, state in enumerate(demo):
-                # an outcome feature has no value before the first step
-                column[i, t] = state.get(f.name) if (f.initial or t) else None
+                value = state.get(f.name) if (f.initial or t) else None
+                if isinstance(f, Discrete):
+                    column[i, t] = value
+                elif value is not None:
+                    column[i, t] = np.asarray(value, dtype=np.float64).reshape(f.dim)
         batch[f.name] = column
-    demo = Demonstrations.read(net, None, batch)
+    return batch
+
+
+def _completed_batch(net, params, demonstrations, labels):
+    """:func:`completed_steps` for demonstrations of one length.
+
+    The completed rows, their weights, the covariances' sums, ``(n,)`` log-likelihoods.
+    """
+    n, steps = len(demonstrations), len(demonstrations[0]) - 1
+    a = len(net.actions)
+    demo = Demonstrations.read(net, None, _batch(net, demonstrations))
     codes = StateCodes.of(state_features(net), None)
     configs = hidden_configurations(demo, codes)
     pairs = step_pairs(configs, (n, steps), a)
-    tables = read_step_tables(net, params, codes, demo, configs, pairs)
+    tables = read_step_tables(net, params, codes, demo, configs, pairs, tails=False)
     # every step's start drawn from the initial tables: the pair's whole row
     factor = tables.log_step + tables.log_start[:, None]  # (P, A)
     label = torch.tensor(
@@ -248,7 +315,7 @@ def _completed_batch(net, params, demonstrations, labels):
     first = torch.zeros(len(configs.state), dtype=DTYPE)
     alpha, beta, log_liks = forward_backward(configs, pairs, summed, first, (n, steps))
     if bool((log_liks == -torch.inf).any()):
-        return None, None, log_liks
+        return None, None, {}, log_liks
     z = log_liks[pairs.step // steps]
     joint = alpha[pairs.start, None] + factor + beta[pairs.end, None] - z[:, None]
     weight = joint.exp()
@@ -260,41 +327,25 @@ def _completed_batch(net, params, demonstrations, labels):
         values[initial_site(f.name)] = start[:, j]
         values[end_site(f.name)] = end[:, j]
     step = pairs.step[pair]
+    for name, x in demo.continuous.items():  # shown at both ends, or an outcome's NaN
+        if net.feature(name).initial:
+            values[initial_site(name)] = torch.from_numpy(x[:, :-1].reshape(n * steps, -1))[step]
+        values[end_site(name)] = torch.from_numpy(x[:, 1:].reshape(n * steps, -1))[step]
     masks = {}
     for name, index in demo.outcomes.items():
         outcome = torch.from_numpy(index[:, 1:].reshape(-1))[step]
         values[end_site(name)] = outcome.clamp(min=0)
         if bool((outcome < 0).any()):
             masks[end_site(name)] = outcome >= 0
-    rows = net.encode_indices(values)
-    return *_outcomes_completed(net, params, rows, weight[pair, action], masks), log_liks
-
-
-def _outcomes_completed(net, params, rows: Evidence, weights, masks):
-    """Each row once per value of its hidden outcomes, its weight times their posterior.
-
-    The row's states and action given, its outcomes depend on no other step: the model
-    enumerated over them alone gives their exact posterior.
-    """
-    if not masks:
-        return rows, weights
-    size = math.prod(net.site(site).size for site in masks)
-    parts, out = [], []
-    for chunk in row_chunks(rows.n_rows, size):
-        some = rows.rows(chunk)
-        enumerated = enumerate_model(
-            net, params, some, masks={s: m[chunk] for s, m in masks.items()}
-        )
-        assert set(enumerated.dims) == set(masks), (enumerated.dims, list(masks))
-        posterior = enumerated.posterior()  # (K_k, ..., K_1, m)
-        flat = posterior.reshape(-1, some.n_rows)
-        assignment, row = flat.nonzero(as_tuple=True)
-        values = {}
-        for site, dim in enumerated.dims.items():
-            k = net.site(site).size
-            states = torch.arange(k).reshape(k, *([1] * (-dim - 2)))
-            values[site] = states.expand(posterior.shape[:-1]).reshape(-1)[assignment]
-        parts.append(some.rows(row) | net.encode_indices(values))
-        out.append(weights[chunk][row] * flat[assignment, row])
-    completed = {site: torch.cat([p[site] for p in parts]) for site in parts[0]}
-    return Evidence(net, completed, sum(p.n_rows for p in parts)), torch.cat(out)
+    # a hidden continuous outcome stays NaN (what the completion integrates), past the
+    # encoding's check for finite values
+    shown = {s: v.nan_to_num() if v.is_floating_point() else v for s, v in values.items()}
+    numbers = {s: v.to(DTYPE) for s, v in values.items() if v.is_floating_point()}
+    rows = Evidence(net, dict(net.encode_indices(shown)) | numbers, len(action))
+    weights = weight[pair, action]
+    if not masks and not continuous_gaps(net, rows):
+        return rows, weights, {}, log_liks
+    # the row's states and action given, its hidden outcomes depend on no other step: their
+    # posterior given the row alone is exact
+    done = completed_rows(net, params, rows, masks, row_weights=weights)
+    return done.rows, done.weights, done.moments, log_liks

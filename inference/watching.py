@@ -38,9 +38,12 @@ demonstration hides a state value, EM runs by forward-backward over each time's 
 configurations instead (:mod:`inference.hidden_demonstrations`): exact for the model in
 which every step is a row of the network (every step's start drawn from the initial
 tables, as the per-step fit counts them), the log-likelihood never falling; with every
-state shown it is the per-step fit above. That route covers networks of discrete
-features; with continuous features, or with ``rows=``, a hidden state value is refused,
-naming the demonstration, the time and the feature.
+state shown it is the per-step fit above. Continuous features join that route where
+their values are shown (a continuous outcome may be hidden: its step's table integrates
+it), and so do training rows (``rows=``): their expected statistics join the M-step's,
+their log-likelihood the objective. A hidden *continuous* state value, a network with
+action parameters and a site without a closed form (a softmax) are refused there, naming
+the demonstration, the time and the feature.
 
 **Action parameters.** A step may record its action's parameter (``parameters=``) or not.
 A recorded value says the action uses the parameter, as a training row's does; an
@@ -149,10 +152,10 @@ def fit_demonstrations(
         Demonstrations, each a sequence of ``T + 1 >= 2`` states ``{feature: value}``;
         every continuous feature with an initial node is given at every time; an outcome
         feature (``initial=False``) or a continuous end value may be missing (absent,
-        None, NaN). A state feature (discrete, with an initial node) may be hidden
-        (absent, None) at some times where every feature of the network is discrete and
-        ``rows`` is not given: EM then sums the hidden states carried from step to step
-        exactly (the module's notes).
+        None, NaN). A discrete state feature (one with an initial node) may be hidden
+        (absent, None) at some times where the network has no action parameter and every
+        site a closed form: EM then sums the hidden states carried from step to step
+        exactly, beside the continuous values and ``rows`` (the module's notes).
     actions
         Per demonstration, ``T`` labels: an action's name where the step was labelled,
         None where not (default: none labelled).
@@ -198,7 +201,7 @@ def fit_demonstrations(
     unrecorded = parameter_columns(net, demonstrations, steps_rows, parameters)
     hidden = _hidden_state(net, demonstrations)
     if hidden is not None:
-        _refuse_beside_hidden_states(net, rows, hidden)
+        _refuse_beside_hidden_states(net, demonstrations, hidden)
     data = _joined(net, steps_rows, rows)
     unrecorded = {s: _padded(u, len(data[ACTION])) for s, u in unrecorded.items()}
     read = read_rows(net, placeholders(net, data, unrecorded))
@@ -230,6 +233,9 @@ def fit_demonstrations(
     settings = {"pseudo_count": pseudo_count, "steps": steps, "tol": tol}
     if hidden is not None:
         marks = _label_indices(net, steps_rows[ACTION], demonstrations)
+        n_steps = len(steps_rows[ACTION])
+        training = None if rows is None else enc.rows(slice(n_steps, None))
+        masks = {s: m[n_steps:] for s, m in gaps.items()}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
         for init in inits:
@@ -248,7 +254,17 @@ def fit_demonstrations(
                     )
                 )
             else:
-                runs.append(fit_hidden_states(net, demonstrations, marks, init=init, **settings))
+                runs.append(
+                    fit_hidden_states(
+                        net,
+                        demonstrations,
+                        marks,
+                        init=init,
+                        rows=training,
+                        masks=masks,
+                        **settings,
+                    )
+                )
     finals = tuple(r.log_likelihoods[-1] if r.log_likelihoods else -math.inf for r in runs)
     best = runs[int(np.argmax(finals))]
     params = best.params
@@ -337,27 +353,25 @@ def _hidden_state(net, demonstrations) -> tuple[int, int, str] | None:
     return None
 
 
-def _refuse_beside_hidden_states(net, rows, hidden) -> None:
-    """What EM over hidden states does not cover: continuous features, training rows."""
+def _refuse_beside_hidden_states(net, demonstrations, hidden) -> None:
+    """What EM over hidden states does not cover: action parameters, a hidden continuous state."""
     i, t, name = hidden
-    where = f"demonstration {i}, time {t} hides {name!r}: a hidden state carried over time"
     if net.mixtures:
         raise ValueError(
-            f"{where}, which fit_demonstrations sums over networks without action parameters; "
-            f"this one has {[p.name for p in net.parameters]}: give {name!r} at every time"
+            f"demonstration {i}, time {t} hides {name!r}: a hidden state carried over time, "
+            "which fit_demonstrations sums over networks without action parameters; this one "
+            f"has {[p.name for p in net.parameters]}: give {name!r} at every time"
         )
-    continuous = [f.name for f in net.features if isinstance(f, Continuous)]
-    if continuous:
-        raise ValueError(
-            f"{where}, which fit_demonstrations sums over networks of discrete features only; "
-            f"this one has continuous features {continuous}: give {name!r} at every time (or "
-            "drop the demonstration's steps around it)"
-        )
-    if rows is not None:
-        raise ValueError(
-            f"{where}; fit_demonstrations does not join training rows (rows=) to that fit: "
-            "give each row as a demonstration of one step instead"
-        )
+    for i, demo in enumerate(demonstrations):
+        for t, state in enumerate(demo):
+            for f in net.features:
+                if isinstance(f, Continuous) and f.initial and _missing(state.get(f.name)):
+                    raise ValueError(
+                        f"demonstration {i}, time {t} hides continuous {f.name!r}: a hidden "
+                        "continuous state value carried over time, which fit_demonstrations "
+                        f"does not integrate (hidden discrete state values it sums): give "
+                        f"{f.name!r} at every time (or drop the demonstration's steps around it)"
+                    )
 
 
 def _label_indices(net, labels, demonstrations) -> list[list[int | None]]:

@@ -44,7 +44,9 @@ from effect_networks.models.evidence import DTYPE, Evidence
 __all__ = ["Completed", "completed_gaussian", "completed_rows", "open_parameters"]
 
 
-def completed_rows(net, params, enc, masks, allowed=None, unrecorded=None) -> Completed:
+def completed_rows(
+    net, params, enc, masks, allowed=None, unrecorded=None, row_weights=None
+) -> Completed:
     """The E-step: every row once per assignment of its missing values, with its weight.
 
     Every assignment that has posterior weight, with that weight, and the summed log-likelihood
@@ -53,17 +55,20 @@ def completed_rows(net, params, enc, masks, allowed=None, unrecorded=None) -> Co
     0). Rows go through the model in chunks whose joint posterior stays below
     :data:`inference.exact.enumeration.CHUNK_ELEMENTS`. Where a continuous value is missing (NaN),
     or a parameter's value is ``unrecorded`` (:func:`open_parameters`), :func:`completed_gaussian`
-    serves instead.
+    serves instead. ``row_weights`` ``(n,)`` (default 1): each row's own weight (a row that is
+    itself one completion of something larger), multiplying its completions' weights and its
+    conditional covariances' share of the sums; the log-likelihood stays unweighted.
     """
     gaps = continuous_gaps(net, enc)
     if gaps or open_parameters(unrecorded):
-        return completed_gaussian(net, params, enc, masks, allowed, unrecorded)
+        return completed_gaussian(net, params, enc, masks, allowed, unrecorded, row_weights)
+    outer = torch.ones(enc.n_rows, dtype=DTYPE) if row_weights is None else row_weights
     if not masks:  # nothing missing: the rows' log-likelihood alone
         log_lik = sum(
             float(enumerate_model(net, params, enc.rows(chunk)).log_evidence.sum())
             for chunk in row_chunks(enc.n_rows, 1)
         )
-        return Completed(enc, torch.ones(enc.n_rows, dtype=DTYPE), log_lik)
+        return Completed(enc, outer.clone(), log_lik)
     size = math.prod(net.site(site).size for site in masks)
     model_rows = enc
     if allowed is not None:  # the clusters follow the action: the model derives them
@@ -89,7 +94,7 @@ def completed_rows(net, params, enc, masks, allowed=None, unrecorded=None) -> Co
         if allowed is not None:
             completed = _with_cells(net, completed)
         parts.append(completed)
-        weights.append(flat[assignment, row])
+        weights.append(flat[assignment, row] * outer[chunk][row])
     return Completed(_joined(net, parts), torch.cat(weights), log_lik)
 
 
@@ -113,7 +118,7 @@ class Completed:
 
 
 def completed_gaussian(
-    net, params, enc, masks, allowed, unrecorded=None, posterior=True
+    net, params, enc, masks, allowed, unrecorded=None, row_weights=None, posterior=True
 ) -> Completed:
     """The E-step where continuous values are missing.
 
@@ -141,6 +146,7 @@ def completed_gaussian(
     if follow:
         model_rows = filled.without(*(m.cluster.site for m in net.mixtures))
         size *= math.prod(m.cluster.size for m in net.mixtures)
+    outer = torch.ones(enc.n_rows, dtype=DTYPE) if row_weights is None else row_weights
     parts, weights, covs, per_row, log_lik = [], [], [], [], 0.0
     for chunk in row_chunks(enc.n_rows, size):
         rows = model_rows.rows(chunk)
@@ -191,7 +197,7 @@ def completed_gaussian(
                 "completion of its missing values: no posterior exists"
             )
         log_lik += float(per_row[-1].sum())
-        w = (joint[assignment, row] - log_norm[row]).exp()
+        w = (joint[assignment, row] - log_norm[row]).exp() * outer[chunk][row]
         keep = w > 0
         means = post_mean[inverse[keep]]
         parts.append(completed.rows(keep) | {s: means[:, own] for s, own in layout.items()})

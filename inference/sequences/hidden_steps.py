@@ -298,11 +298,15 @@ def read_step_tables(
     demo: Demonstrations,
     configs: HiddenConfigurations,
     pairs: StepPairs,
+    *,
+    tails: bool = True,
 ) -> StepTables:
     """Each pair's step entries, read off the traced model once per distinct row.
 
     A row is (the step's observation, start state, end state): the continuous values at
     both ends and the outcomes observed set the observation (:meth:`Demonstrations.step_keys`).
+    Without ``tails`` the plausibility tails are not read (``tail`` 1, ``initial`` empty):
+    what a fit needs is the entries alone.
     """
     a = len(net.actions)
     key, keys = demo.step_keys()
@@ -332,7 +336,7 @@ def read_step_tables(
             ev = _pair_evidence(net, codes, keys, columns, triples[rows])
             step, discrete, start = _read_rows(net, params, triples[rows], ev, a, size)
             log_step[rows], log_discrete[rows], log_start[rows] = step, discrete, start
-            if continuous:
+            if continuous and tails:
                 told = plausibility(net, params, net.encode_indices(ev))
                 tail[rows] = told.tail
                 for site, value in told.initial.items():
