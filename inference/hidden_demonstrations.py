@@ -46,8 +46,22 @@ moments. Ordinary training rows (``rows``) join it: each completed over what it 
 (:func:`~inference.fitting.completion.completed_rows`), its expected statistics added to
 the steps', its log-likelihood to ``L``. EM on ``L`` then never lowers it.
 
-Scope: networks whose sites all have a closed form (tables and linear Gaussians) and
-that have no action parameter; a continuous feature with an initial node is shown at
+**Action parameters.** A step's parameter value (recorded, or not) and its cluster
+belong to that step alone: given the step's two configurations and its action they
+depend on no other step. So a network with parameters reads each (pair, action) entry of
+a step's table as the step's whole row's likelihood, its cluster summed and an unrecorded
+value integrated in closed form through it (the collapsed model, or the joint Gaussian
+of :func:`~inference.fitting.completion.completed_gaussian` where a continuous value is
+also hidden); a recorded value is read with its cell as cluster (the grid layout's
+reading of a row) and rules out the actions that do not use it. The forward-backward is
+then exact as above, and the M-step completes each weighted (pair, action) row once more
+over its cluster and unrecorded value
+(:func:`~inference.fitting.completion.completed_rows`, the weights multiplied): each
+cluster's Gaussian refitted on the value's conditional moments. Parameters of the
+adaptive layout are refused (no cell reads a recorded value's cluster).
+
+Scope: networks whose sites all have a closed form (tables and linear Gaussians), their
+parameters of the grid layout; a continuous feature with an initial node is shown at
 every time (hidden, it would be a Gaussian carried from step to step). An outcome feature
 (``initial=False``) that a step does not show is summed inside the step's table, and the
 M-step completes it too: each completed row once per value of a discrete one, a
@@ -59,7 +73,7 @@ the other steps, so that posterior is exact).
 of its end): ``A`` entries where both ends show every state feature, ``2^(h + h')`` times
 as many where they hide ``h`` and ``h'`` binary ones, read once per distinct
 (observation, start, end) per EM step (a step whose continuous values are its own reads
-its table alone); the messages and the completed rows are linear in those entries. A step past
+its table alone; with action parameters once per pair and action); the messages and the completed rows are linear in those entries. A step past
 :data:`~inference.sequences.hidden_steps.MAX_STEP_TABLE` entries is refused, naming it.
 """
 

@@ -41,18 +41,21 @@ tables, as the per-step fit counts them), the log-likelihood never falling; with
 state shown it is the per-step fit above. Continuous features join that route where
 their values are shown (a continuous outcome may be hidden: its step's table integrates
 it), and so do training rows (``rows=``): their expected statistics join the M-step's,
-their log-likelihood the objective. A hidden *continuous* state value, a network with
-action parameters and a site without a closed form (a softmax) are refused there, naming
-the demonstration, the time and the feature.
+their log-likelihood the objective, and so do action parameters, recorded or not (a
+step's value and cluster touch that step alone, so its table sums them). A hidden
+*continuous* state value is refused there, naming the demonstration, the time and the
+feature: its posterior is a mixture of Gaussians whose components multiply with every
+hidden step (a switching linear-Gaussian system), which no finite sum holds exactly; so
+is a site without a closed form (a softmax).
 
 **Action parameters.** A step may record its action's parameter (``parameters=``) or not.
 A recorded value says the action uses the parameter, as a training row's does; an
 unrecorded one is a hidden value of its step: the E-step's posterior is over the action
 and the parameter's cluster with the value integrated out exactly, jointly Gaussian with
 the continuous features it acts on (:mod:`inference.fitting.completion`), and the M-step
-refits the clusters' table and Gaussians from the expected sums. EM's starts read an
-unrecorded value as drawn uniformly over the parameter's range
-(:mod:`inference.unrecorded_parameters`).
+refits the clusters' table and Gaussians from the expected sums, beside hidden state
+values as well. EM's starts read an unrecorded value as drawn uniformly over the
+parameter's range (:mod:`inference.unrecorded_parameters`).
 """
 
 from __future__ import annotations
@@ -153,9 +156,9 @@ def fit_demonstrations(
         every continuous feature with an initial node is given at every time; an outcome
         feature (``initial=False``) or a continuous end value may be missing (absent,
         None, NaN). A discrete state feature (one with an initial node) may be hidden
-        (absent, None) at some times where the network has no action parameter and every
-        site a closed form: EM then sums the hidden states carried from step to step
-        exactly, beside the continuous values and ``rows`` (the module's notes).
+        (absent, None) at some times where every site has a closed form: EM then sums the
+        hidden states carried from step to step exactly, beside the continuous values,
+        the action parameters and ``rows`` (the module's notes).
     actions
         Per demonstration, ``T`` labels: an action's name where the step was labelled,
         None where not (default: none labelled).
