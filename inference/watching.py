@@ -41,18 +41,21 @@ tables, as the per-step fit counts them), the log-likelihood never falling; with
 state shown it is the per-step fit above. Continuous features join that route where
 their values are shown (a continuous outcome may be hidden: its step's table integrates
 it), and so do training rows (``rows=``): their expected statistics join the M-step's,
-their log-likelihood the objective. A hidden *continuous* state value, a network with
-action parameters and a site without a closed form (a softmax) are refused there, naming
-the demonstration, the time and the feature.
+their log-likelihood the objective, and so do action parameters, recorded or not (a
+step's value and cluster touch that step alone, so its table sums them). A hidden
+*continuous* state value is refused there, naming the demonstration, the time and the
+feature: its posterior is a mixture of Gaussians whose components multiply with every
+hidden step (a switching linear-Gaussian system), which no finite sum holds exactly; so
+is a site without a closed form (a softmax).
 
 **Action parameters.** A step may record its action's parameter (``parameters=``) or not.
 A recorded value says the action uses the parameter, as a training row's does; an
 unrecorded one is a hidden value of its step: the E-step's posterior is over the action
 and the parameter's cluster with the value integrated out exactly, jointly Gaussian with
 the continuous features it acts on (:mod:`inference.fitting.completion`), and the M-step
-refits the clusters' table and Gaussians from the expected sums. EM's starts read an
-unrecorded value as drawn uniformly over the parameter's range
-(:mod:`inference.unrecorded_parameters`).
+refits the clusters' table and Gaussians from the expected sums, beside hidden state
+values as well. EM's starts read an unrecorded value as drawn uniformly over the
+parameter's range (:mod:`inference.unrecorded_parameters`).
 """
 
 from __future__ import annotations
@@ -153,9 +156,9 @@ def fit_demonstrations(
         every continuous feature with an initial node is given at every time; an outcome
         feature (``initial=False``) or a continuous end value may be missing (absent,
         None, NaN). A discrete state feature (one with an initial node) may be hidden
-        (absent, None) at some times where the network has no action parameter and every
-        site a closed form: EM then sums the hidden states carried from step to step
-        exactly, beside the continuous values and ``rows`` (the module's notes).
+        (absent, None) at some times where every site has a closed form: EM then sums the
+        hidden states carried from step to step exactly, beside the continuous values,
+        the action parameters and ``rows`` (the module's notes).
     actions
         Per demonstration, ``T`` labels: an action's name where the step was labelled,
         None where not (default: none labelled).
@@ -201,7 +204,7 @@ def fit_demonstrations(
     unrecorded = parameter_columns(net, demonstrations, steps_rows, parameters)
     hidden = _hidden_state(net, demonstrations)
     if hidden is not None:
-        _refuse_beside_hidden_states(net, demonstrations, hidden)
+        _refuse_beside_hidden_states(net, demonstrations)
     data = _joined(net, steps_rows, rows)
     unrecorded = {s: _padded(u, len(data[ACTION])) for s, u in unrecorded.items()}
     read = read_rows(net, placeholders(net, data, unrecorded))
@@ -236,6 +239,7 @@ def fit_demonstrations(
         n_steps = len(steps_rows[ACTION])
         training = None if rows is None else enc.rows(slice(n_steps, None))
         masks = {s: m[n_steps:] for s, m in gaps.items()}
+        recorded = _by_demonstration(net, steps_rows, demonstrations)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
         for init in inits:
@@ -262,6 +266,7 @@ def fit_demonstrations(
                         init=init,
                         rows=training,
                         masks=masks,
+                        parameters=recorded,
                         **settings,
                     )
                 )
@@ -353,25 +358,35 @@ def _hidden_state(net, demonstrations) -> tuple[int, int, str] | None:
     return None
 
 
-def _refuse_beside_hidden_states(net, demonstrations, hidden) -> None:
-    """What EM over hidden states does not cover: action parameters, a hidden continuous state."""
-    i, t, name = hidden
-    if net.mixtures:
-        raise ValueError(
-            f"demonstration {i}, time {t} hides {name!r}: a hidden state carried over time, "
-            "which fit_demonstrations sums over networks without action parameters; this one "
-            f"has {[p.name for p in net.parameters]}: give {name!r} at every time"
-        )
+def _refuse_beside_hidden_states(net, demonstrations) -> None:
+    """What EM over hidden states does not cover: a hidden continuous state value.
+
+    Its posterior given the demonstration so far is a mixture of Gaussians whose number of
+    components multiplies with every step that hides an action or a discrete value (a
+    switching linear-Gaussian system): no finite exact sum.
+    """
     for i, demo in enumerate(demonstrations):
         for t, state in enumerate(demo):
             for f in net.features:
                 if isinstance(f, Continuous) and f.initial and _missing(state.get(f.name)):
                     raise ValueError(
                         f"demonstration {i}, time {t} hides continuous {f.name!r}: a hidden "
-                        "continuous state value carried over time, which fit_demonstrations "
-                        f"does not integrate (hidden discrete state values it sums): give "
-                        f"{f.name!r} at every time (or drop the demonstration's steps around it)"
+                        "continuous state value carried over time, whose posterior is a "
+                        "Gaussian mixture growing with every hidden step (a switching "
+                        "linear-Gaussian system), which fit_demonstrations does not integrate "
+                        f"(hidden discrete state values it sums): give {f.name!r} at every "
+                        "time (or drop the demonstration's steps around it)"
                     )
+
+
+def _by_demonstration(net, steps_rows, demonstrations) -> list[dict[str, np.ndarray]]:
+    """Per demonstration, each parameter's ``(T, d)`` recorded values (NaN where not)."""
+    out, at = [], 0
+    for demo in demonstrations:
+        steps = len(demo) - 1
+        out.append({m.value.site: steps_rows[m.value.site][at : at + steps] for m in net.mixtures})
+        at += steps
+    return out
 
 
 def _label_indices(net, labels, demonstrations) -> list[list[int | None]]:

@@ -154,6 +154,3 @@ def test_what_stays_refused_is_named():
         fit_demonstrations(net, [step], parameters=[[{"speed": [3.0]}]])
     with pytest.raises(ValueError, match="adaptive layout"):
         fit_demonstrations(tap_net(), [step])
-    hidden = [{"visible": None}, {"visible": 0, "pos": [0.1]}, {"visible": 0, "pos": [0.1]}]
-    with pytest.raises(ValueError, match="without action parameters"):
-        fit_demonstrations(net, [hidden])

@@ -19,7 +19,7 @@ from effect_networks.models import Continuous, Discrete, EffectNetwork, random_p
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from tests.networks import NET, declared_networks, tap_net
+from tests.networks import declared_networks, tap_net
 
 
 @pytest.fixture(scope="module")
@@ -115,8 +115,6 @@ def test_hidden_state_values_beside_what_their_em_does_not_cover_are_refused():
         fit_demonstrations(net, [hidden])
     with pytest.raises(ValueError, match=r"time 1 hides continuous 'x'"):
         fit_demonstrations(net, [[hidden[0], {"door": "open", "x": None}]])
-    with pytest.raises(ValueError, match=r"time 0 hides 'visible'.*without action parameters"):
-        fit_demonstrations(NET, [[{"visible": None, "pos": [0.0, 0.0]}, {"visible": 1}]])
     with pytest.raises(ValueError, match="not one of"):
         fit_demonstrations(world.net, [demo[:1] * 2], [["jump"]])
     with pytest.raises(ValueError, match="adaptive layout"):
