@@ -53,7 +53,7 @@ def completed_rows(
     (missing values summed out). ``allowed`` (:func:`actions_allowed`) restricts a missing action;
     the parameters' clusters then follow each assignment's action (the cell of the value, or cell
     0). Rows go through the model in chunks whose joint posterior stays below
-    :data:`inference.exact.enumeration.CHUNK_ELEMENTS`. Where a continuous value is missing (NaN),
+    ``inference.exact.enumeration.CHUNK_ELEMENTS``. Where a continuous value is missing (NaN),
     or a parameter's value is ``unrecorded`` (:func:`open_parameters`), :func:`completed_gaussian`
     serves instead. ``row_weights`` ``(n,)`` (default 1): each row's own weight (a row that is
     itself one completion of something larger), multiplying its completions' weights and its
