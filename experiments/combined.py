@@ -43,6 +43,7 @@ from effect_networks.experiments.harness.config import (
 )
 from effect_networks.experiments.harness.registry import Experiment
 from effect_networks.experiments.round_planner import paper_planner
+from effect_networks.experiments.scenario_tables import TABLES, table_markdown
 from effect_networks.experiments.throwing import MAX_BINS, fit_throws, get_data
 from effect_networks.inference import GaussianMixture, predict
 from effect_networks.inference import compile as compile_queries
@@ -151,7 +152,6 @@ SCENARIOS = {
     "far_flank": geometry.FAR_FLANK,
 }
 PAPER_RATES = {"top_three": 0.5713, "near_flank": 0.6857, "far_flank": 0.5771}
-TABLES = {"top_three": "Table II", "near_flank": "Table III", "far_flank": "Table IV"}
 
 
 @dataclass
@@ -434,13 +434,15 @@ def run_scenario(world: World, name: str, config: CombinedConfig) -> dict:
             if state == goal or state & goal != goal:
                 break
         successes += state == goal
-    # the same policy's probability with sharp field boundaries: the spread steers the choice
-    # among near-ties and blurs the probability it reports
-    sharp = transition_model(replace(world, boundary_sd=0.0), states) if world.boundary_sd else t
-    value = policy_value(sharp, plan.policy, states.index(goal), config.horizon)
     # how sure the first throw is: the fields as good under the models, the robot's arrival
     first, here = int(plan.policy[config.horizon, states.index(start)]), states.index(start)
     q = t[here] @ plan.value[config.horizon - 1]
+    # the policy's probability with sharp field boundaries (the spread steers the choice among
+    # near-ties and blurs the probability); one (S, F, S) table held at a time
+    if world.boundary_sd:
+        t = None
+        t = transition_model(replace(world, boundary_sd=0.0), states)
+    value = policy_value(t, plan.policy, states.index(goal), config.horizon)
     desired = np.array([[0.0, world.heights(start)[first] + world.table_z]])
     v = throw(world.robot.aim(desired)).velocity_at_plane[0]
     return {
@@ -455,49 +457,6 @@ def run_scenario(world: World, name: str, config: CombinedConfig) -> dict:
         "first_throw_deg": float(np.degrees(np.arctan2(v[2], v[0]))),
         "first_throw_speed": float(np.hypot(v[0], v[2])),
     }
-
-
-def table_markdown(name: str, s: dict) -> str:
-    """Scenario ``name``'s rounds in the paper's table format, and the exact planner."""
-    rows = s["rounds"]
-    head = "| round | " + " | ".join(str(i + 1) for i in range(len(rows))) + " |"
-    lines = [
-        f"**{TABLES[name]}: {name.replace('_', ' ')}** (paper: {100 * s['paper_success_rate']:.2f} %)",
-        "",
-        head,
-        "|---" * (len(rows) + 1) + "|",
-    ]
-    for key, label in (
-        ("cans_to_throw", "cans to throw"),
-        ("actions", "actions"),
-        ("success", "success (i)"),
-        ("fail_too_many", "fail (ii)"),
-        ("fail_no_hit", "fail (iii)"),
-    ):
-        lines.append(f"| {label} | " + " | ".join(str(r[key]) for r in rows) + " |")
-    inter = [", ".join(f"{k} ({t})" for t, k in r["intermediate"].items()) or "-" for r in rows]
-    lines.append("| interm. (iv) | " + " | ".join(inter) + " |")
-    lines.append(
-        "| success rate | " + " | ".join(f"{100 * r['success_rate']:.2f} %" for r in rows) + " |"
-    )
-    lines.append("")
-    lines.append(
-        f"Exact planner: {100 * s['success_rate_exact_planner']:.1f} % measured "
-        f"({100 * s['exact_planner_predicted']:.1f} % predicted by the models"
-        + (
-            f"; {100 * s['exact_planner_predicted_sharp']:.1f} % with sharp field boundaries)."
-            if "exact_planner_predicted_sharp" in s
-            else ")."
-        )
-    )
-    if "first_field_ties" in s:
-        ties = s["first_field_ties"] - 1
-        lines.append(
-            f"Its first field, {s['exact_planner_first_field']}, rated equal with {ties} other "
-            f"field(s) by the models; the robot's throw there arrives at "
-            f"{s['first_throw_deg']:.1f} deg, {s['first_throw_speed']:.2f} m/s."
-        )
-    return "\n".join(lines)
 
 
 @dataclass
