@@ -10,7 +10,7 @@ a fraction of the throws by active exploration (:mod:`experiments.active`). The 
 set is generated once under ``--data-dir`` (resumable; default: the cache folder, see
 docs/data.md) and reused. Each step runs as its own process and is measured; then
 ``run.json`` and ``summary.md`` are written, and a full-scale run of every step refreshes
-the results block of README.md (:mod:`experiments.harness.reproduce`).
+the results table of docs/results.md (:mod:`experiments.harness.reproduce`).
 
     ./reproduce              # full scale
     ./reproduce --quick      # a first look in a few minutes

@@ -6,7 +6,7 @@ each step's wall time, simulation time and peak memory, and the total).
 :func:`summary_markdown` reads them back and states, beside the paper's figures, ours
 and the physics' own bound (the best action found by simulation,
 :mod:`experiments.physics_bounds`), and each step's measures beside the main job's goals
-(:func:`step_table`); :func:`refresh_readme` puts
+(:func:`step_table`); :func:`refresh_results` puts
 that text between the markers ``<!-- results:begin -->`` and ``<!-- results:end -->`` of
 README.md.
 
@@ -37,7 +37,7 @@ __all__ = [
     "RunRecord",
     "load_results",
     "machine_description",
-    "refresh_readme",
+    "refresh_results",
     "run_record",
     "summary_markdown",
     "write_summary",
@@ -268,19 +268,19 @@ def write_summary(folder) -> Path:
     return path
 
 
-def refresh_readme(readme, text: str) -> bool:
-    """Replace what lies between ``BEGIN`` and ``END`` in the file ``readme`` with ``text``.
+def refresh_results(page, text: str) -> bool:
+    """Replace what lies between ``BEGIN`` and ``END`` in the file ``page`` with ``text``.
 
     Returns whether the file changed. Raises a ``ValueError`` when the markers are not
     there once each, in order.
     """
-    readme = Path(readme)
-    old = readme.read_text()
+    page = Path(page)
+    old = page.read_text()
     if old.count(BEGIN) != 1 or old.count(END) != 1 or old.index(BEGIN) > old.index(END):
-        raise ValueError(f"{readme} needs one {BEGIN} line followed by one {END} line")
+        raise ValueError(f"{page} needs one {BEGIN} line followed by one {END} line")
     before, rest = old.split(BEGIN)
     after = rest.split(END)[1]
     new = f"{before}{BEGIN}\n{text.rstrip()}\n{END}{after}"
     if new != old:
-        readme.write_text(new)
+        page.write_text(new)
     return new != old

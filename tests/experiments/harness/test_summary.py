@@ -1,5 +1,5 @@
 """experiments.harness.summary builds the results table from small fake results, and refreshes
-the README block between its markers only."""
+the results table between its markers only."""
 
 import dataclasses
 import json
@@ -148,15 +148,15 @@ def test_summary_of_missing_results_says_so(tmp_path):
     assert text.count("\n| ") == 1  # the table's head only
 
 
-def test_refresh_readme_replaces_only_the_block(tmp_path):
+def test_refresh_results_replaces_only_the_block(tmp_path):
     readme = tmp_path / "README.md"
     readme.write_text(f"intro\n{summary.BEGIN}\nold\n{summary.END}\noutro\n")
-    assert summary.refresh_readme(readme, "new table\n")
+    assert summary.refresh_results(readme, "new table\n")
     assert readme.read_text() == f"intro\n{summary.BEGIN}\nnew table\n{summary.END}\noutro\n"
-    assert not summary.refresh_readme(readme, "new table")
+    assert not summary.refresh_results(readme, "new table")
     readme.write_text("no markers\n")
     with pytest.raises(ValueError, match="needs one"):
-        summary.refresh_readme(readme, "x")
+        summary.refresh_results(readme, "x")
 
 
 def test_run_record(tmp_path):
