@@ -519,3 +519,35 @@ def pgmpy_marginal(ve, site, evidence):
 
 def counts_of(params):
     return {site: cpd.n for site, cpd in params.cpds.items()}
+
+
+def drawn_demonstrations(
+    net: EffectNetwork, g: np.random.Generator, data, n: int = 2, times: int = 3
+):
+    """Demonstrations of ``net`` with values and labels hidden at random, and their labels.
+
+    Per time, each feature the time can show (an initial feature at every time, an end-only
+    one after the first): a discrete one shown at a random state or hidden; a continuous one
+    shown at a random value, hidden only where it is an end-only outcome. Each step's label is
+    an action index or None. ``g`` draws the values, ``data`` (hypothesis) what is hidden.
+    """
+    demos, labels = [], []
+    for _ in range(n):
+        demo = []
+        for t in range(times):
+            state = {}
+            for f in net.features:
+                if not (f.initial or t):
+                    continue
+                if isinstance(f, Continuous):
+                    hide = not f.initial and data.draw(st.booleans())
+                    state[f.name] = None if hide else [float(g.normal(0.0, 2.0))]
+                else:
+                    hide = data.draw(st.booleans())
+                    state[f.name] = None if hide else f.states[g.integers(f.cardinality)]
+            demo.append(state)
+        demos.append(demo)
+        labels.append(
+            [data.draw(st.sampled_from([None, *range(len(net.actions))])) for _ in demo[1:]]
+        )
+    return demos, labels

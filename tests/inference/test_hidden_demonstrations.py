@@ -23,7 +23,7 @@ from effect_networks.models import Discrete, EffectNetwork, random_params
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from tests.networks import declared_networks
+from tests.networks import declared_networks, drawn_demonstrations
 
 ALPHA = 0.01  # fit_demonstrations' pseudo-count
 
@@ -78,26 +78,6 @@ def _normalised(counts):
     return {s: (c + ALPHA) / (c + ALPHA).sum(-1, keepdim=True) for s, c in counts.items()}
 
 
-def _drawn_demos(net, g, data, n=2, times=3):
-    """Demonstrations with state values, outcomes and labels hidden at random."""
-    demos, labels = [], []
-    for _ in range(n):
-        demo = []
-        for t in range(times):
-            state = {}
-            for f in net.features:
-                if not (f.initial or t):
-                    continue
-                hide = data.draw(st.booleans())
-                state[f.name] = None if hide else f.states[g.integers(f.cardinality)]
-            demo.append(state)
-        demos.append(demo)
-        labels.append(
-            [data.draw(st.sampled_from([None, *range(len(net.actions))])) for _ in demo[1:]]
-        )
-    return demos, labels
-
-
 @pytest.mark.filterwarnings("ignore::effect_networks.inference.fitting.result.ConvergenceWarning")
 @settings(max_examples=15, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(declared_networks(), st.integers(0, 2**16), st.data())
@@ -106,7 +86,7 @@ def test_one_em_step_is_the_brute_force_over_every_hidden_value_and_action(net, 
     demonstration (hidden state values carried from step to step, hidden outcomes,
     unlabelled actions), weighted by its posterior; the log-likelihood too."""
     init = random_params(net, seed)
-    demos, labels = _drawn_demos(net, np.random.default_rng(seed), data)
+    demos, labels = drawn_demonstrations(net, np.random.default_rng(seed), data)
     counts, log_lik = _brute_force(net, init, demos, labels)
     got = fit_hidden_states(net, demos, labels, init=init, steps=1, tol=1e-300, pseudo_count=ALPHA)
     assert got.log_likelihoods[0] == pytest.approx(log_lik, rel=1e-10, abs=1e-10)

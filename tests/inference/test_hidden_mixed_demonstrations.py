@@ -31,6 +31,8 @@ from effect_networks.models.cpds import Counts, Moments
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
+from tests.networks import drawn_demonstrations
+
 ALPHA = 0.01  # fit_demonstrations' pseudo-count
 STATES = ("off", "on")
 
@@ -196,29 +198,6 @@ def _assert_statistics(net, got, want):
                 )
 
 
-def _drawn_demos(net, g, data, n=2, times=3):
-    """Demonstrations with discrete state values, outcomes and labels hidden at random;
-    ``x`` shown at every time, ``y`` shown or not."""
-    demos, labels = [], []
-    for _ in range(n):
-        demo = []
-        for t in range(times):
-            state = {}
-            for f in net.features:
-                if not (f.initial or t):
-                    continue
-                if isinstance(f, Continuous):
-                    hide = not f.initial and data.draw(st.booleans())
-                    state[f.name] = None if hide else [float(g.normal(0.0, 2.0))]
-                else:
-                    hide = data.draw(st.booleans())
-                    state[f.name] = None if hide else STATES[g.integers(2)]
-            demo.append(state)
-        demos.append(demo)
-        labels.append([data.draw(st.sampled_from([None, 0, 1, 2])) for _ in demo[1:]])
-    return demos, labels
-
-
 @settings(max_examples=12, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(st.booleans(), st.integers(0, 2**16), st.data())
 def test_one_e_step_is_the_brute_force_counts_and_moments(outcome, seed, data):
@@ -227,7 +206,7 @@ def test_one_e_step_is_the_brute_force_counts_and_moments(outcome, seed, data):
     continuous outcomes), and the log-likelihood with the continuous densities."""
     net = _mixed(outcome)
     init = random_params(net, seed)
-    demos, labels = _drawn_demos(net, np.random.default_rng(seed), data)
+    demos, labels = drawn_demonstrations(net, np.random.default_rng(seed), data)
     want, log_lik = _brute_force(net, init, demos, labels)
     got = completed_steps(net, init, demos, labels)
     assert got.log_likelihood == pytest.approx(log_lik, rel=1e-10, abs=1e-10)
@@ -275,7 +254,7 @@ def test_rows_beside_hidden_states_are_the_brute_force_objective_and_step(seed, 
     net = _mixed()
     init = random_params(net, seed)
     g = np.random.default_rng(seed)
-    demos, labels = _drawn_demos(net, g, data)
+    demos, labels = drawn_demonstrations(net, g, data)
     demos[0][1]["a"] = None  # a hidden state value: the forward-backward's route
     rows = _training_rows(net, g)
     want, log_lik = _brute_force(net, init, demos, labels, rows)
