@@ -40,6 +40,7 @@ __all__ = [
     "choose",
     "default_data_dir",
     "fit_can_network",
+    "fit_on_replays",
     "replays",
     "start_configurations",
 ]
@@ -252,10 +253,31 @@ def fit_can_network(data: CanDataset, angle: int) -> CanModel:
         raise ValueError(
             f"the data set has no throwable throws at angle {angle} ({geometry.ANGLE_NAMES[angle]})"
         )
-    states = sorted(set(data.start_config.tolist()) | set(data.end_config[sel].tolist()))
+    starts = set(data.start_config.tolist())
+    return _fit_throws(starts, data.start_config[sel], data.field[sel], data.end_config[sel], angle)
+
+
+def fit_on_replays(sims: Replays, angle: int = 0) -> CanModel:
+    """Fit Fig. 2's network on replays (:func:`replays`) thrown at ``angle``, as on a data set.
+
+    Every throwable field's replays from every start are training throws: a network that
+    saw ``sims.repeats`` throws per aim where the data set has a few.
+    """
+    throwable = np.array([field_throws.is_throwable(f, angle) for f in range(geometry.N_FIELDS)])
+    if not throwable.any():
+        raise ValueError(f"no field is throwable at angle {angle}")
+    shape = sims.end_config.shape
+    start = np.broadcast_to(np.asarray(sims.configs, np.int64)[:, None, None], shape)
+    field = np.broadcast_to(np.arange(geometry.N_FIELDS)[None, :, None], shape)
+    sel = np.broadcast_to(throwable[None, :, None], shape)
+    return _fit_throws(set(sims.configs), start[sel], field[sel], sims.end_config[sel], angle)
+
+
+def _fit_throws(starts: set, start, field, end, angle: int) -> CanModel:
+    """Fig. 2's network over the ``starts`` and every end seen, fitted on the throws given."""
+    states = sorted(set(starts) | set(np.asarray(end).tolist()))
     net = can_network(states)
-    rows = can_rows(net, data.start_config[sel], data.field[sel], data.end_config[sel])
-    params = fit(net, rows).params
+    params = fit(net, can_rows(net, start, field, end)).params
     throwable = torch.tensor(
         [field_throws.is_throwable(f, angle) for f in range(geometry.N_FIELDS)]
     )

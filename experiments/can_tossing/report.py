@@ -26,6 +26,7 @@ __all__ = [
     "can_rows",
     "figures",
     "markdown",
+    "plot_bound_curve",
     "plot_roc",
     "plot_table_one",
     "summary_rows",
@@ -150,18 +151,82 @@ def _bound_lines(i: dict) -> list[str]:
         f"{_of_bound(i['auc'], b['auc'])} / {_of_bound(i['auc_ordinary'], b['auc_ordinary'])}; "
         f"aim-pooled {_of_bound(i['auc_pooled'], b['auc_pooled'])} / "
         f"{_of_bound(i['auc_ordinary_pooled'], b['auc_ordinary_pooled'])}",
+        *_curve_lines(i),
+    ]
+
+
+def _curve_lines(i: dict) -> list[str]:
+    """The bound as its replays grow, ours beside its end, and ours with more throws per aim."""
+    if "bound_curve" not in i:  # results written before the curve was measured have none
+        return []
+    curve, more = i["bound_curve"], i["more_data"]
+    last = curve[-1]
+    return [
+        "- imitation's bound as fresh replays of each scored throw's own aim grow (replays: "
+        "AUC / AUC against the usual outcomes): "
+        + ", ".join(
+            f"{c['repeats']}: {_auc_text(c['auc'])} / {_auc_text(c['auc_ordinary'])}" for c in curve
+        ),
+        f"- imitation, ours as a fraction of the bound from {last['repeats']} replays: surprise "
+        f"{_of_bound(i['auc'], last['auc'])} / "
+        f"{_of_bound(i['auc_ordinary'], last['auc_ordinary'])}; aim-pooled "
+        f"{_of_bound(i['auc_pooled'], last['auc'])} / "
+        f"{_of_bound(i['auc_ordinary_pooled'], last['auc_ordinary'])}",
+        f"- imitation, ours fitted on {more['throws_per_aim']} throws per aim (the bound's "
+        f"replays) instead of the data set: surprise {_auc_text(more['auc'])} / "
+        f"{_auc_text(more['auc_ordinary'])} ({_of_bound(more['auc'], last['auc'])} / "
+        f"{_of_bound(more['auc_ordinary'], last['auc_ordinary'])} of the bound from "
+        f"{last['repeats']} replays); aim-pooled {_auc_text(more['auc_pooled'])} / "
+        f"{_auc_text(more['auc_ordinary_pooled'])}",
     ]
 
 
 def figures(result: CanTossingResult, out: Path) -> list[Path]:
-    """``can_tossing_table1.png`` and ``can_tossing_roc.png``, drawn into the folder ``out``.
+    """``can_tossing_table1.png``, ``can_tossing_roc.png`` and ``can_tossing_bound_curve.png``.
 
-    The second when the imitation has both classes.
+    Drawn into the folder ``out``; the second and third when the imitation has both classes.
     """
     files = [plot_table_one(result, out / "can_tossing_table1.png")]
     if result.imitation["auc"] is not None:
         files.append(plot_roc(result.imitation, out / "can_tossing_roc.png"))
+    if any(c["auc"] is not None for c in result.imitation.get("bound_curve", [])):
+        files.append(plot_bound_curve(result.imitation, out / "can_tossing_bound_curve.png"))
     return files
+
+
+def plot_bound_curve(result: dict, path) -> Path:
+    """The imitation bound against replays per aim, ours beside it (``result``: :func:`imitation`'s).
+
+    Saved to ``path``. Solid: the bound from the first ``R`` fresh replays of each scored
+    throw's aim; dashed: ours from the data set; dotted: ours fitted on the bound's replays.
+    """
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(6.0, 4.2))
+    ax = fig.subplots()
+    curve, more = result["bound_curve"], result["more_data"]
+    repeats = [c["repeats"] for c in curve]
+    for (key, label), colour in zip(FAILURE_WORDS.items(), ("C0", "C1"), strict=True):
+        suffix = "" if key == "failed" else "_ordinary"
+        points = [(c["repeats"], c[f"auc{suffix}"]) for c in curve if c[f"auc{suffix}"] is not None]
+        if not points:
+            continue
+        ax.plot(*zip(*points, strict=True), "o-", color=colour, label=f"bound; failed: {label}")
+        for value, style, name in (
+            (result[f"auc{suffix}"], "--", "ours, data set"),
+            (more[f"auc{suffix}"], ":", f"ours, {more['throws_per_aim']} throws per aim"),
+        ):
+            if value is not None:
+                ax.axhline(value, linestyle=style, color=colour, label=f"{name} ({value:.3f})")
+    ax.set_xscale("log", base=2)
+    ax.set_xticks(repeats, [str(r) for r in repeats])
+    ax.set_xlabel("replays per aim the bound is estimated from")
+    ax.set_ylabel("ROC AUC of the surprise")
+    ax.set_title("Imitation: the physics bound as its replays grow", fontsize=10)
+    ax.legend(fontsize=7, loc="lower right")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    return Path(path)
 
 
 def plot_table_one(result: CanTossingResult, path) -> Path:
@@ -274,6 +339,18 @@ def can_rows(c: CanTossingResult) -> list[str]:
             f"{b['repeats']} replays per aim); ours {_of_bound(i['auc'], b['auc'])} / "
             f"{_of_bound(i['auc_ordinary'], b['auc_ordinary'])} of it"
         )
+        if "bound_curve" in i:
+            last, more = i["bound_curve"][-1], i["more_data"]
+            bound += (
+                f"; from {last['repeats']} fresh replays of each scored aim "
+                f"{auc(last['auc'])} / {auc(last['auc_ordinary'])}, ours "
+                f"{_of_bound(i['auc'], last['auc'])} / "
+                f"{_of_bound(i['auc_ordinary'], last['auc_ordinary'])} of it (aim-pooled "
+                f"{_of_bound(i['auc_pooled'], last['auc'])} / "
+                f"{_of_bound(i['auc_ordinary_pooled'], last['auc_ordinary'])}; fitted on "
+                f"{more['throws_per_aim']} throws per aim {_of_bound(more['auc'], last['auc'])} / "
+                f"{_of_bound(more['auc_ordinary'], last['auc_ordinary'])})"
+            )
     return [
         f"| cans: emulation, same end configuration | - | "
         f"{percent(e['same_end_config'], 1)} of {e['n_demonstrations']} demonstrations "

@@ -13,6 +13,7 @@ import torch
 from effect_networks.experiments.can_tossing.settings import (
     ANGLE,
     CHUNK,
+    CONVERGE,
     DEMO,
     PAPER_CASES,
     PAPER_PERCENT,
@@ -28,6 +29,7 @@ from effect_networks.experiments.can_tossing.settings import (
 )
 from effect_networks.experiments.can_tossing.surprise import (
     auc_or_none,
+    bound_curve,
     network_tables,
     operating_points,
     surprise_bound,
@@ -40,6 +42,7 @@ from effect_networks.experiments.cans import (
     can_dataset,
     choose,
     fit_can_network,
+    fit_on_replays,
     replays,
 )
 from effect_networks.experiments.evaluation import accuracy_histogram
@@ -358,6 +361,7 @@ def imitation(
     seed: int,
     n_ordinary: int,
     sims: Replays,
+    curve_repeats: int = 2,
     *,
     progress: bool = True,
     executor=None,
@@ -370,7 +374,12 @@ def imitation(
     ``failed_ordinary`` AUC on a validation draw (seed purpose ``VALIDATE``; ties to the
     smaller aim error). ``threshold``: the surprise's operating point chosen on the
     validation draw (:func:`operating_points`). ``bound``: :func:`surprise_bound` from the
-    simulator's replays ``sims``.
+    simulator's replays ``sims``. ``bound_curve``: :func:`bound_curve` from
+    ``curve_repeats`` fresh replays of each scored throw's intended throw (seed purpose
+    ``CONVERGE``), to show where the bound settles. ``more_data``: the surprise of a network
+    fitted on the replays ``sims`` (:func:`experiments.cans.fit_on_replays`; ``sims.repeats``
+    throws per aim where the data set has a few), to show how much of the gap to the bound
+    is the data set's size.
     """
     run = {"progress": progress, "executor": executor}
     throws = perturbed_throws(data, n, aim_error, seed, PERTURB, n_ordinary, **run)
@@ -382,6 +391,18 @@ def imitation(
     sigma, validation = validated_sigma(table_of, held_out, model.throwable)
     pooled = surprise_under(table_of, throws, sigma, model.throwable)
     held_surprise = network_surprise(model, held_out)
+    n = len(throws["start"])
+    ends = play(
+        np.repeat(throws["start"], curve_repeats),
+        np.repeat(throws["field"], curve_repeats),
+        data.metadata["jitter"],
+        fresh_seeds(seed, CONVERGE, n * curve_repeats),
+        "bound's convergence replays",
+        **run,
+    ).reshape(n, curve_repeats)
+    more = fit_on_replays(sims, model.angle)
+    more_surprise = network_surprise(more, throws)
+    more_pooled = surprise_under(network_tables(more), throws, sigma, more.throwable)
     return {
         "n_throws": n,
         "aim_error_m": aim_error,
@@ -401,6 +422,14 @@ def imitation(
         },
         "threshold": operating_points(held_surprise, held_out, surprise, throws),
         "bound": surprise_bound(sims, throws, held_out, model.throwable),
+        "bound_curve": bound_curve(ends, throws),
+        "more_data": {
+            "throws_per_aim": sims.repeats,
+            "auc": auc_or_none(more_surprise, failed),
+            "auc_ordinary": auc_or_none(more_surprise, failed_ordinary),
+            "auc_pooled": auc_or_none(more_pooled, failed),
+            "auc_ordinary_pooled": auc_or_none(more_pooled, failed_ordinary),
+        },
         "surprise": surprise.tolist(),
         "pooled_surprise": pooled.tolist(),
         "failed": failed.tolist(),
@@ -466,6 +495,7 @@ def run_can_tossing(config: CanTossingConfig) -> CanTossingResult:
             config.seed,
             config.n_ordinary,
             sims,
+            config.curve_repeats,
             **run,
         )
     return CanTossingResult(

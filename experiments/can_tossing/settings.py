@@ -16,6 +16,7 @@ __all__ = [
     "AIM_SIGMAS",
     "ANGLE",
     "CHUNK",
+    "CONVERGE",
     "CanTossingConfig",
     "DEMO",
     "FAILURE_LABELS",
@@ -67,6 +68,10 @@ class CanTossingConfig(CanDataSettings):
         Imitation's physics bound: replays of every field from every start (>= 2), the
         physics bounds' Table I replays when the numbers agree
         (:func:`experiments.cans.replays`).
+    curve_repeats : int
+        Imitation's bound as the replays grow: fresh replays of each scored throw's own
+        start and field (>= 2); the bound is measured from the first 2, 4, 8, ... of them
+        and from all (:func:`experiments.can_tossing.surprise.bound_curve`).
     progress : bool
         Progress bars.
     """
@@ -78,6 +83,7 @@ class CanTossingConfig(CanDataSettings):
     aim_error: float = 0.03
     n_ordinary: int = 8
     bound_repeats: int = 16
+    curve_repeats: int = 256
     progress: bool = True
 
     def __post_init__(self):
@@ -89,6 +95,7 @@ class CanTossingConfig(CanDataSettings):
         check_float("aim_error", self.aim_error, 0.0, MAX_AIM_ERROR, low_open=True, unit="m")
         check_int("n_ordinary", self.n_ordinary, 1)
         check_int("bound_repeats", self.bound_repeats, 2)
+        check_int("curve_repeats", self.curve_repeats, 2)
 
 
 ANGLE = 0  # the paper trains and evaluates at 0°
@@ -97,7 +104,7 @@ PAPER_PERCENT = dict(zip(ACCURACY_BINS, (0.41, 0.73, 3.59, 90.43, 3.12, 1.31, 0.
 PAPER_CASES = 8603
 # Seed purposes: every evaluation throw draws its aim jitter from SeedSequence([seed,
 # purpose]), never from the data set's per-throw seeds (SeedSequence of five numbers).
-TABLE_I, DEMO, REPLAY, PERTURB, PICK, VALIDATE = 1, 2, 3, 4, 5, 6
+TABLE_I, DEMO, REPLAY, PERTURB, PICK, VALIDATE, CONVERGE = 1, 2, 3, 4, 5, 6, 7
 CHUNK = 100  # throws per executor task
 #: Aim errors (in fields) the pooled imitation surprise chooses among; 0: no pooling.
 AIM_SIGMAS = (0.0, 0.25, 0.5, 0.75, 1.0, 1.5)

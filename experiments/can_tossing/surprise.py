@@ -6,7 +6,9 @@ tables (:func:`network_tables`) or the simulator's own outcome frequencies over 
 jittered throws of every field (:func:`replay_tables`). The second gives the physics
 bound (:func:`surprise_bound`): the ROC AUC the surprise reaches when the predictive is
 the world's own, estimated from replays that the scored throws and their labels are not
-part of. The experiment is described in :mod:`experiments.can_tossing`.
+part of. An estimate from a few replays per aim is not the world's own predictive yet, so
+:func:`bound_curve` measures how the bound moves as fresh replays of each scored throw's
+own aim grow. The experiment is described in :mod:`experiments.can_tossing`.
 """
 
 from __future__ import annotations
@@ -26,6 +28,9 @@ from effect_networks.sim2d import geometry
 
 __all__ = [
     "auc_or_none",
+    "bound_curve",
+    "curve_counts",
+    "own_replay_surprise",
     "network_tables",
     "operating_points",
     "replay_tables",
@@ -160,3 +165,60 @@ def operating_points(held_surprise, held_out: dict, surprise, throws: dict) -> d
             rates = rates_at(surprise, throws[label], t)
         points[label] = {"threshold": t, "fpr": rates[0], "tpr": rates[1]}
     return points
+
+
+def own_replay_surprise(ends, observed) -> np.ndarray:
+    """``(n,)`` surprise of each observed end configuration under its own replays' frequencies.
+
+    ``ends``: ``(n, R)`` end configurations of ``R`` replays of row ``i``'s intended throw;
+    ``observed``: ``(n,)`` what row ``i``'s throw did. The surprise is
+    :func:`experiments.evaluation.tail_surprise` of the replays' outcome frequencies: the
+    share of replays whose outcome was strictly more frequent than the observed one; an
+    outcome none of the replays gave has surprise 1.
+    """
+    ends, observed = np.asarray(ends), np.asarray(observed)
+    if ends.ndim != 2 or ends.shape[1] < 1 or observed.shape != ends.shape[:1]:
+        raise ValueError(
+            f"ends must be (n, R) with R >= 1 and observed (n,), got {ends.shape} and "
+            f"{observed.shape}"
+        )
+    surprise = np.ones(len(observed))
+    for i, (row, seen) in enumerate(zip(ends, observed, strict=True)):
+        states = np.unique(row)
+        if seen in states:
+            freq = sample_frequencies(np.searchsorted(states, row)[None], len(states))
+            surprise[i] = float(tail_surprise(freq, np.searchsorted(states, [seen]))[0])
+    return surprise
+
+
+def curve_counts(repeats: int) -> list[int]:
+    """The replay counts :func:`bound_curve` measures at: 2, 4, 8, ... below ``repeats``, and it."""
+    if repeats < 2:
+        raise ValueError(f"repeats must be at least 2, got {repeats}")
+    counts = [2**k for k in range(1, repeats.bit_length()) if 2**k < repeats]
+    return [*counts, repeats]
+
+
+def bound_curve(ends, throws: dict) -> list[dict]:
+    """The surprise's physics bound from the first ``R`` replays of each scored throw's own aim.
+
+    ``ends``: ``(n, repeats)`` end configurations of fresh replays of each of the ``n`` scored
+    throws' intended (start, field), seeds disjoint from the data set's, the throws' and
+    their labels'. For each ``R`` of :func:`curve_counts`, ``{repeats, auc,
+    auc_ordinary}``: the ROC AUCs of :func:`own_replay_surprise` from the first ``R``
+    replays against the throws' two failure labels. Where the AUCs stop moving as ``R``
+    doubles, the estimate has reached the bound a detector that knew the world's outcome
+    distribution per aim would reach.
+    """
+    ends = np.asarray(ends)
+    curve = []
+    for r in curve_counts(ends.shape[1]):
+        scores = own_replay_surprise(ends[:, :r], throws["observed"])
+        curve.append(
+            {
+                "repeats": r,
+                "auc": auc_or_none(scores, throws["failed"]),
+                "auc_ordinary": auc_or_none(scores, throws["failed_ordinary"]),
+            }
+        )
+    return curve

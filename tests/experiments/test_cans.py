@@ -46,3 +46,44 @@ def test_choose_of_no_rows_is_empty(tiny_data_dir):
     none = np.zeros(0, dtype=np.int64)
     evidence = start_evidence(model, none) | {"end.count": torch.as_tensor(none)}
     assert cans.choose(model, evidence, "aim").shape == (0,)
+
+
+def test_fit_on_replays_is_the_fit_on_the_same_throws_as_a_data_set():
+    from effect_networks.sim2d import field_throws, geometry
+    from effect_networks.sim2d.can_dataset import CanDataset
+
+    rng = np.random.default_rng(3)
+    configs, repeats = (7, 63), 3
+    shape = (geometry.N_FIELDS, repeats)
+    # each start's ends keep no can it lacked
+    ends = np.stack([rng.choice([1, 3, 7], size=shape), rng.choice([1, 3, 7, 15, 63], size=shape)])
+    sims = cans.Replays(configs, ends, np.vectorize(lambda m: bin(m).count("1"))(ends))
+    throwable = np.array([field_throws.is_throwable(f, 0) for f in range(geometry.N_FIELDS)])
+    grid = np.meshgrid(np.arange(len(configs)), np.arange(geometry.N_FIELDS), np.arange(repeats))
+    c, f, r = (g.ravel() for g in grid)
+    keep = throwable[f]
+    n = int(keep.sum())
+    zeros = np.zeros(n, np.int64)
+    data = CanDataset(
+        start_config=np.asarray(configs)[c[keep]],
+        field=f[keep],
+        angle=zeros,
+        repeat=r[keep],
+        seed=zeros,
+        end_config=ends[c[keep], f[keep], r[keep]],
+        thrown_off=zeros,
+        count_before=zeros,
+        count_after=zeros,
+        hit_any_can=np.zeros(n, bool),
+        touched=zeros,
+        throwable=np.ones(n, bool),
+        timed_out=np.zeros(n, bool),
+        sim_time=np.zeros(n),
+    )
+    ours, direct = cans.fit_on_replays(sims), cans.fit_can_network(data, 0)
+    assert ours.states == direct.states
+    assert torch.equal(ours.throwable, direct.throwable)
+    for start in configs:
+        torch.testing.assert_close(ours.end_config_probs(start), direct.end_config_probs(start))
+    # a replay of an unthrowable field is its start, not a training throw
+    assert not throwable.all()

@@ -133,7 +133,12 @@ def test_best_field_of_a_deterministic_case(tiny):
 
 def test_run_at_tiny_scale(tiny_data_dir, tmp_path):
     config = cts.CanTossingConfig(
-        scale="tiny", data_dir=tiny_data_dir, n_demos=30, bound_repeats=2, progress=False
+        scale="tiny",
+        data_dir=tiny_data_dir,
+        n_demos=30,
+        bound_repeats=2,
+        curve_repeats=3,
+        progress=False,
     )
     result = ct.run_can_tossing(config)
     assert result.n_cases > 0
@@ -174,6 +179,18 @@ def test_run_at_tiny_scale(tiny_data_dir, tmp_path):
         else:
             assert bound[key] is None
     assert set(imitation["threshold"]) == {"failed", "failed_ordinary"}
+    # the bound as its fresh replays grow: from 2 and 3 replays of each scored throw's aim
+    curve = imitation["bound_curve"]
+    assert [c["repeats"] for c in curve] == [2, 3]
+    for c in curve:
+        for key, label in (("auc", "failed"), ("auc_ordinary", "failed_ordinary")):
+            positive = np.array(imitation[label])
+            assert (c[key] is None) == (not 0 < positive.sum() < len(positive))
+            assert c[key] is None or 0.0 <= c[key] <= 1.0
+    # ours fitted on the bound's replays: the same labels, its own AUCs
+    more = imitation["more_data"]
+    assert more["throws_per_aim"] == 2
+    assert (more["auc"] is None) == (imitation["auc"] is None)
 
     files = experiment("can_tossing").save(result, tmp_path)
     assert {f.name for f in files} >= {"can_tossing.json", "can_tossing.md"}
@@ -182,6 +199,7 @@ def test_run_at_tiny_scale(tiny_data_dir, tmp_path):
     report = (tmp_path / "can_tossing.md").read_text()
     assert "pooled surprise" in report and report.count("\n| ") >= 9
     assert "physics bound" in report and "fraction of the bound" in report
+    assert "bound as fresh replays" in report and "throws per aim (the bound's" in report
     assert (tmp_path / "can_tossing_table1.png").stat().st_size > 10_000
 
 
@@ -195,9 +213,14 @@ def test_quick_scale_imitation_has_its_physics_bound(tmp_path):
     for key in ("auc", "auc_ordinary", "auc_pooled", "auc_ordinary_pooled"):
         assert imitation[key] is not None and 0.5 < bound[key] <= 1.0
     assert bound["repeats"] == 8
+    assert [c["repeats"] for c in imitation["bound_curve"]] == [2, 4, 8, 16, 32]
+    assert all(0.5 < c["auc"] <= 1.0 for c in imitation["bound_curve"])
     row = exp.rows(result, {})[-1]
     assert "simulator's own outcome frequencies" in row and "of it" in row
-    assert {f.name for f in exp.save(result, tmp_path)} >= {"can_tossing_roc.png"}
+    assert {f.name for f in exp.save(result, tmp_path)} >= {
+        "can_tossing_roc.png",
+        "can_tossing_bound_curve.png",
+    }
 
 
 @pytest.mark.parametrize(

@@ -76,3 +76,39 @@ def test_operating_points_are_chosen_on_the_held_out_draw():
     # one class on the scored draw: the threshold without its rates
     assert points["failed_ordinary"] == {"threshold": 0.8, "fpr": None, "tpr": None}
     assert roc_auc([0.2, 0.5, 0.9], scored["failed"]) == 1.0
+
+
+def test_own_replay_surprise_by_hand_and_against_the_tail_surprise():
+    # row 0: replays A A A B, observed B -> A is more frequent: 3/4; row 1: observed C never
+    # replayed -> 1; row 2: observed A, the most frequent -> 0; row 3: A B tie -> 0
+    ends = np.array([[A, A, A, B], [A, A, B, B], [A, B, A, A], [A, B, A, B]])
+    surprise = cs.own_replay_surprise(ends, np.array([B, C, A, B]))
+    assert surprise.tolist() == [0.75, 1.0, 0.0, 0.0]
+    # the same as the bound's tables where each row is its own aim
+    sims = hand_replays([A, A, A, B], [A, A, A, B])
+    throws = hand_throws([A, B, C], [0, 1, 1], [0, 0, 1])
+    by_table = cs.surprise_under(cs.replay_tables(sims), throws, 0.0, THROWABLE)
+    own = cs.own_replay_surprise(np.tile([A, A, A, B], (3, 1)), throws["observed"])
+    assert own.tolist() == by_table.tolist()
+    with pytest.raises(ValueError, match="ends must be"):
+        cs.own_replay_surprise(np.array([A, B]), np.array([A, B]))
+
+
+def test_bound_curve_doubles_its_replays_and_scores_both_labels():
+    assert cs.curve_counts(2) == [2]
+    assert cs.curve_counts(16) == [2, 4, 8, 16]
+    assert cs.curve_counts(24) == [2, 4, 8, 16, 24]
+    with pytest.raises(ValueError, match="at least 2"):
+        cs.curve_counts(1)
+    # four throws, replays A A B B C C C C for each: from 2 replays (A A) a B or a C is never
+    # seen (surprise 1); from 4, B ties A (0) and C is unseen; from 8, C is the most
+    # frequent: A and B both 1/2
+    ends = np.tile([A, A, B, B, C, C, C, C], (4, 1))
+    throws = hand_throws([A, B, C, B], [0, 0, 1, 1], [0, 0, 1, 0])
+    curve = cs.bound_curve(ends, throws)
+    assert [c["repeats"] for c in curve] == [2, 4, 8]
+    # failed = (C, B) against (A, B): from 2, both failures score 1 above A's 0 and tie B's 1
+    assert curve[0]["auc"] == pytest.approx((1 + 0.5 + 1 + 0.5) / 4)
+    assert curve[1]["auc"] == pytest.approx((1 + 1 + 0.5 + 0.5) / 4)  # C 1; B 0 ties A, B
+    assert curve[2]["auc"] == pytest.approx((0 + 0 + 0.5 + 0.5) / 4)  # C 0 below A, B (1/2)
+    assert curve[1]["auc_ordinary"] == 1.0  # C alone above A, B, B (all 0)
