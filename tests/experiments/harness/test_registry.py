@@ -23,7 +23,10 @@ HAND_WRITTEN_QUICK = {
         *["--em-steps", "2", "5", "--budgets", "120", "240", "480", "--batch", "40"],
         *["--pool", "400", "--noise-repeats", "3"],
     ],
-    "can_tossing": ["--scale", "quick", "--n-demos", "100", "--bound-repeats", "8"],
+    "can_tossing": [
+        *["--scale", "quick", "--n-demos", "100", "--bound-repeats", "8"],
+        *["--curve-repeats", "32"],
+    ],
     "combined": ["--scale", "quick", "--n-throws", "5000", "--episodes", "10"],
     "physics_bounds": [
         *["--scale", "quick", "--repeats", "8", "--step", "0.01", "--combined-repeats", "4"],
