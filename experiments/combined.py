@@ -33,6 +33,7 @@ from typing import ClassVar
 
 import numpy as np
 import torch
+from effect_networks.experiments.arrival_transfer import arrival_transfer
 from effect_networks.experiments.cans import CanDataSettings, CanModel, can_dataset, fit_can_network
 from effect_networks.experiments.harness.config import (
     Result,
@@ -113,6 +114,9 @@ class CombinedConfig(CanDataSettings):
         the chosen angle were spread about their fields' heights
         (:func:`face_height_spread`, measured on the training throws); ``"none"``, sharp
         at the midpoints between the fields' heights.
+    transfer_repeats : int
+        Throws per physics way in the first throw's transfer check
+        (:func:`experiments.arrival_transfer.arrival_transfer`), >= 1.
     seed : int
         Seeds the throw network's data and every play (>= 0).
     progress : bool
@@ -128,6 +132,7 @@ class CombinedConfig(CanDataSettings):
     table_z: float = TABLE_TOP_Z
     jitter: float | None = None
     boundary_spread: str = "measured"
+    transfer_repeats: int = 24
     seed: int = 0
     progress: bool = True
 
@@ -143,6 +148,7 @@ class CombinedConfig(CanDataSettings):
         if self.jitter is not None:
             check_float("jitter", self.jitter, 0.0, MAX_JITTER, unit="m")
         check_choice("boundary_spread", self.boundary_spread, BOUNDARY_SPREADS)
+        check_int("transfer_repeats", self.transfer_repeats, 1)
         check_int("seed", self.seed, 0)
 
 
@@ -437,6 +443,11 @@ def run_scenario(world: World, name: str, config: CombinedConfig) -> dict:
     # how sure the first throw is: the fields as good under the models, the robot's arrival
     first, here = int(plan.policy[config.horizon, states.index(start)]), states.index(start)
     q = t[here] @ plan.value[config.horizon - 1]
+    # the first throw's next state as the models predict and as the physics plays it
+    transfer = arrival_transfer(
+        world, start, first, states, t, plan.value[config.horizon - 1],
+        repeats=config.transfer_repeats, seed=config.seed,
+    )  # fmt: skip
     # the policy's probability with sharp field boundaries (the spread steers the choice among
     # near-ties and blurs the probability); one (S, F, S) table held at a time
     if world.boundary_sd:
@@ -456,6 +467,7 @@ def run_scenario(world: World, name: str, config: CombinedConfig) -> dict:
         "first_field_ties": int((q >= q.max() * (1 - 1e-9)).sum()),
         "first_throw_deg": float(np.degrees(np.arctan2(v[2], v[0]))),
         "first_throw_speed": float(np.hypot(v[0], v[2])),
+        "transfer": transfer.as_dict(),
     }
 
 
@@ -553,7 +565,14 @@ EXPERIMENTS = (
         run_combined,
         CombinedResult,
         order=70,
-        tiny={"scale": "tiny", "n_throws": 300, "bins": 2, "episodes": 1, "horizon": 1},
+        tiny={
+            "scale": "tiny",
+            "n_throws": 300,
+            "bins": 2,
+            "episodes": 1,
+            "horizon": 1,
+            "transfer_repeats": 2,
+        },
         quick={"scale": "quick", "n_throws": 5000, "episodes": 10},
     ),
 )
