@@ -21,7 +21,9 @@ of reaching the goal within ``horizon`` throws under the learned models, with th
 throw's uncertainty (the throw network's predicted hit Gaussian) included and the hit
 read among fields whose boundaries are as uncertain as the can data's throws were spread
 about them (:func:`hit_gaussians`); its success rate is measured by playing its policy
-``episodes`` times.
+``episodes`` times. Its first throw from the full pyramid is checked for transfer
+(:mod:`experiments.arrival_transfer`): the next state as the models predict it, as the data
+set's own throw through that field gives it and as the robot's throw gives it.
 """
 
 from __future__ import annotations
@@ -479,9 +481,12 @@ class CombinedResult(Result):
     and ``rounds`` (the paper's table), the paper's ``paper_success_rate``, and the exact
     planner's measured ``success_rate_exact_planner``, its ``exact_planner_predicted``
     success under the models, ``exact_planner_predicted_sharp`` (the same policy's under the
-    models with sharp field boundaries) and its first field. ``angle_choice``: the robot's impact
-    direction, the angle the can network was trained on, the table height, the jitter and
-    the fields' boundary sd (``boundary_sd``, m).
+    models with sharp field boundaries) and its first field, and ``transfer``, that first
+    throw's next state four ways (:meth:`experiments.arrival_transfer.ArrivalTransfer.as_dict`:
+    frequencies, total-variation distances, the plan's value one throw later; the data
+    set's and the robot's throw replayed ``transfer_repeats`` times). ``angle_choice``: the
+    robot's impact direction, the angle the can network was trained on, the table height,
+    the jitter and the fields' boundary sd (``boundary_sd``, m).
     """
 
     experiment_name: ClassVar[str] = "combined"
