@@ -3,7 +3,7 @@ r"""Whether a field's learned outcome transfers to the robot's throw at it.
 The can network learned what a field does from the can data set's throws through it, which
 all arrive with the velocity of one angle (``sim2d.geometry.ANGLES``); the robot's ball is
 aimed to meet the cans where that throw first does (:meth:`experiments.combined.World.heights`)
-but arrives with its own velocity. :func:`arrival_transfer` measures, for one start state and
+but arrives with its own velocity. :func:`measure_transfer` measures, for one start state and
 one field, the next state four ways::
 
     planner        the chained models' row T[s, f, :] (experiments.combined.transition_model)
@@ -50,7 +50,7 @@ __all__ = [
     "TRANSFER_SEED_BASE",
     "WAYS",
     "ArrivalTransfer",
-    "arrival_transfer",
+    "measure_transfer",
     "transfer_markdown",
 ]
 
@@ -64,7 +64,7 @@ MODELS = ("planner", "can_network")
 
 @dataclass(frozen=True)
 class ArrivalTransfer:
-    """One field's next state from one state, four ways (:func:`arrival_transfer`).
+    """One field's next state from one state, four ways (:func:`measure_transfer`).
 
     Attributes
     ----------
@@ -134,7 +134,7 @@ def dataset_arrival(field: int, angle: int) -> tuple[float, float]:
     return float(np.degrees(np.arctan2(vz, vx))), float(np.hypot(vx, vz))
 
 
-def arrival_transfer(
+def measure_transfer(
     world,
     state: int,
     field: int,

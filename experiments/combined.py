@@ -35,7 +35,7 @@ from typing import ClassVar
 
 import numpy as np
 import torch
-from effect_networks.experiments.arrival_transfer import arrival_transfer
+from effect_networks.experiments.arrival_transfer import measure_transfer
 from effect_networks.experiments.cans import CanDataSettings, CanModel, can_dataset, fit_can_network
 from effect_networks.experiments.harness.config import (
     Result,
@@ -118,7 +118,7 @@ class CombinedConfig(CanDataSettings):
         at the midpoints between the fields' heights.
     transfer_repeats : int
         Throws per physics way in the first throw's transfer check
-        (:func:`experiments.arrival_transfer.arrival_transfer`), >= 1.
+        (:func:`experiments.arrival_transfer.measure_transfer`), >= 1.
     seed : int
         Seeds the throw network's data and every play (>= 0).
     progress : bool
@@ -446,7 +446,7 @@ def run_scenario(world: World, name: str, config: CombinedConfig) -> dict:
     first, here = int(plan.policy[config.horizon, states.index(start)]), states.index(start)
     q = t[here] @ plan.value[config.horizon - 1]
     # the first throw's next state as the models predict and as the physics plays it
-    transfer = arrival_transfer(
+    transfer = measure_transfer(
         world, start, first, states, t, plan.value[config.horizon - 1],
         repeats=config.transfer_repeats, seed=config.seed,
     )  # fmt: skip

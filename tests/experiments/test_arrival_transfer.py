@@ -9,7 +9,7 @@ from effect_networks.experiments.arrival_transfer import (
     OTHER,
     TRANSFER_SEED_BASE,
     WAYS,
-    arrival_transfer,
+    measure_transfer,
 )
 from effect_networks.experiments.cans import can_dataset
 from effect_networks.experiments.combined import CombinedConfig, build_world, transition_model
@@ -40,7 +40,7 @@ def measure(planned, field=None, **kwargs):
     world, _, start, states, t, plan, first = planned
     kwargs = {"repeats": 3, "seed": 0} | kwargs
     field = first if field is None else field
-    return arrival_transfer(world, start, field, states, t, plan.value[HORIZON - 1], **kwargs)
+    return measure_transfer(world, start, field, states, t, plan.value[HORIZON - 1], **kwargs)
 
 
 def test_every_way_is_a_distribution_and_the_distances_lie_in_0_1(planned):
@@ -91,7 +91,7 @@ def test_the_can_network_row_is_the_chained_model_of_a_robot_that_hits_exactly(p
     field = int(fields[gaps.min(-1).argmax()])  # the field farthest from its neighbours' heights
     assert gaps.min(-1).max() > 1e-4
     t = transition_model(exact, states)
-    got = arrival_transfer(
+    got = measure_transfer(
         exact, start, field, states, t, torch.zeros(len(states)), repeats=1, seed=0
     )
     row = t[states.index(start), field]
@@ -102,7 +102,7 @@ def test_the_can_network_row_is_the_chained_model_of_a_robot_that_hits_exactly(p
 def test_without_jitter_the_data_sets_replays_are_its_deterministic_throw(planned):
     world, _, start, states, t, plan, first = planned
     still = replace(world, jitter=0.0)
-    got = arrival_transfer(still, start, first, states, t, plan.value[HORIZON - 1], repeats=3)
+    got = measure_transfer(still, start, first, states, t, plan.value[HORIZON - 1], repeats=3)
     end = settle(throw_at_field(start, first, world.can.angle).end_config, world.stable)
     assert got.frequencies["dataset_throw"] == {end if end in states else OTHER: 1.0}
     assert len(got.frequencies["robot_throw"]) == 1  # noise-free robot, no jitter
@@ -138,4 +138,4 @@ def test_bad_input_names_the_argument(planned, change, match):
 def test_a_state_outside_the_plan_is_refused(planned):
     world, _, start, states, t, plan, first = planned
     with pytest.raises(ValueError, match="plan's states"):
-        arrival_transfer(world, 0, first, states, t, plan.value[HORIZON - 1], repeats=1)
+        measure_transfer(world, 0, first, states, t, plan.value[HORIZON - 1], repeats=1)
