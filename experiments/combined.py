@@ -21,7 +21,9 @@ of reaching the goal within ``horizon`` throws under the learned models, with th
 throw's uncertainty (the throw network's predicted hit Gaussian) included and the hit
 read among fields whose boundaries are as uncertain as the can data's throws were spread
 about them (:func:`hit_gaussians`); its success rate is measured by playing its policy
-``episodes`` times.
+``episodes`` times. Its first throw from the full pyramid is checked for transfer
+(:mod:`experiments.arrival_transfer`): the next state as the models predict it, as the data
+set's own throw through that field gives it and as the robot's throw gives it.
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ from typing import ClassVar
 
 import numpy as np
 import torch
+from effect_networks.experiments.arrival_transfer import measure_transfer
 from effect_networks.experiments.cans import CanDataSettings, CanModel, can_dataset, fit_can_network
 from effect_networks.experiments.harness.config import (
     Result,
@@ -113,6 +116,9 @@ class CombinedConfig(CanDataSettings):
         the chosen angle were spread about their fields' heights
         (:func:`face_height_spread`, measured on the training throws); ``"none"``, sharp
         at the midpoints between the fields' heights.
+    transfer_repeats : int
+        Throws per physics way in the first throw's transfer check
+        (:func:`experiments.arrival_transfer.measure_transfer`), >= 1.
     seed : int
         Seeds the throw network's data and every play (>= 0).
     progress : bool
@@ -128,6 +134,7 @@ class CombinedConfig(CanDataSettings):
     table_z: float = TABLE_TOP_Z
     jitter: float | None = None
     boundary_spread: str = "measured"
+    transfer_repeats: int = 24
     seed: int = 0
     progress: bool = True
 
@@ -143,6 +150,7 @@ class CombinedConfig(CanDataSettings):
         if self.jitter is not None:
             check_float("jitter", self.jitter, 0.0, MAX_JITTER, unit="m")
         check_choice("boundary_spread", self.boundary_spread, BOUNDARY_SPREADS)
+        check_int("transfer_repeats", self.transfer_repeats, 1)
         check_int("seed", self.seed, 0)
 
 
@@ -437,6 +445,11 @@ def run_scenario(world: World, name: str, config: CombinedConfig) -> dict:
     # how sure the first throw is: the fields as good under the models, the robot's arrival
     first, here = int(plan.policy[config.horizon, states.index(start)]), states.index(start)
     q = t[here] @ plan.value[config.horizon - 1]
+    # the first throw's next state as the models predict and as the physics plays it
+    transfer = measure_transfer(
+        world, start, first, states, t, plan.value[config.horizon - 1],
+        repeats=config.transfer_repeats, seed=config.seed,
+    )  # fmt: skip
     # the policy's probability with sharp field boundaries (the spread steers the choice among
     # near-ties and blurs the probability); one (S, F, S) table held at a time
     if world.boundary_sd:
@@ -456,6 +469,7 @@ def run_scenario(world: World, name: str, config: CombinedConfig) -> dict:
         "first_field_ties": int((q >= q.max() * (1 - 1e-9)).sum()),
         "first_throw_deg": float(np.degrees(np.arctan2(v[2], v[0]))),
         "first_throw_speed": float(np.hypot(v[0], v[2])),
+        "transfer": transfer.as_dict(),
     }
 
 
@@ -467,9 +481,12 @@ class CombinedResult(Result):
     and ``rounds`` (the paper's table), the paper's ``paper_success_rate``, and the exact
     planner's measured ``success_rate_exact_planner``, its ``exact_planner_predicted``
     success under the models, ``exact_planner_predicted_sharp`` (the same policy's under the
-    models with sharp field boundaries) and its first field. ``angle_choice``: the robot's impact
-    direction, the angle the can network was trained on, the table height, the jitter and
-    the fields' boundary sd (``boundary_sd``, m).
+    models with sharp field boundaries) and its first field, and ``transfer``, that first
+    throw's next state four ways (:meth:`experiments.arrival_transfer.ArrivalTransfer.as_dict`:
+    frequencies, total-variation distances, the plan's value one throw later; the data
+    set's and the robot's throw replayed ``transfer_repeats`` times). ``angle_choice``: the
+    robot's impact direction, the angle the can network was trained on, the table height,
+    the jitter and the fields' boundary sd (``boundary_sd``, m).
     """
 
     experiment_name: ClassVar[str] = "combined"
@@ -553,7 +570,14 @@ EXPERIMENTS = (
         run_combined,
         CombinedResult,
         order=70,
-        tiny={"scale": "tiny", "n_throws": 300, "bins": 2, "episodes": 1, "horizon": 1},
+        tiny={
+            "scale": "tiny",
+            "n_throws": 300,
+            "bins": 2,
+            "episodes": 1,
+            "horizon": 1,
+            "transfer_repeats": 2,
+        },
         quick={"scale": "quick", "n_throws": 5000, "episodes": 10},
     ),
 )

@@ -3,10 +3,13 @@
 One scenario's result (:func:`experiments.combined.run_scenario`) as the paper's round
 table (cans to throw, actions, successes, the three failures and the intermediate goals
 per round), then the exact planner: measured beside predicted success, and its first
-throw's equally rated fields and arrival.
+throw's equally rated fields and arrival, and that throw's next state as the models predict
+and as the physics plays it (:func:`experiments.arrival_transfer.transfer_markdown`).
 """
 
 from __future__ import annotations
+
+from effect_networks.experiments.arrival_transfer import transfer_markdown
 
 __all__ = ["TABLES", "table_markdown"]
 
@@ -54,4 +57,7 @@ def table_markdown(name: str, s: dict) -> str:
             f"field(s) by the models; the robot's throw there arrives at "
             f"{s['first_throw_deg']:.1f} deg, {s['first_throw_speed']:.2f} m/s."
         )
+    if "transfer" in s:
+        arrival = (s["first_throw_deg"], s["first_throw_speed"])
+        lines += ["", transfer_markdown(s["transfer"], arrival)]
     return "\n".join(lines)

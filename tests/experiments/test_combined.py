@@ -40,6 +40,11 @@ def test_tiny_run_end_to_end(tiny_data_dir, tmp_path):
         assert 0.0 <= s["exact_planner_predicted_sharp"] <= 1.0 + 1e-9
         assert s["first_field_ties"] >= 1 and s["first_throw_speed"] > 0
         assert -90 < s["first_throw_deg"] < 0  # the ball descends onto the pyramid
+        transfer = s["transfer"]
+        assert transfer["field"] == s["exact_planner_first_field"] and transfer["repeats"] == 24
+        assert transfer["values"]["planner"] == pytest.approx(
+            s["exact_planner_predicted"], abs=1e-12
+        )
         first = s["rounds"][0]
         assert first["actions"] == first["success"] + first["fail_too_many"] + first[
             "fail_no_hit"
@@ -52,6 +57,7 @@ def test_tiny_run_end_to_end(tiny_data_dir, tmp_path):
     assert (tmp_path / "combined.md").read_text().count("success rate") == 3
     assert (tmp_path / "combined.md").read_text().count("with sharp field boundaries") == 3
     assert (tmp_path / "combined.md").read_text().count("the robot's throw there arrives") == 3
+    assert (tmp_path / "combined.md").read_text().count("| the robot's throw does") == 3
     assert CombinedResult.load(tmp_path / "combined.json").to_json() == result.to_json()
 
 
@@ -68,6 +74,7 @@ def test_tiny_run_end_to_end(tiny_data_dir, tmp_path):
         ("jitter", 1.0),
         ("proposals", "all"),
         ("boundary_spread", "wide"),
+        ("transfer_repeats", 0),
         ("seed", -3),
     ],
 )
