@@ -534,11 +534,13 @@ class CombinedResult(Result):
                     f"{percent(bounds[name]['success_bound'], 1)} held out, "
                     f"{percent(bounds[name]['success_in_sample'], 1)} in sample"
                 )
+            predicted = s.get("exact_planner_predicted")  # older results have none
+            predicted = "" if predicted is None else f", predicted {percent(predicted, 1)}"
             rows.append(
                 f"| §IV-C combined, {table}, {name.replace('_', ' ')} (table {table_z} m) | "
                 f"{percent(s['paper_success_rate'])} | {percent(s['success_rate'])} (paper "
-                f"planner); {percent(s['success_rate_exact_planner'], 1)} (exact planner) | "
-                f"{bound} |"
+                f"planner); {percent(s['success_rate_exact_planner'], 1)} (exact planner"
+                f"{predicted}) | {bound} |"
             )
         return rows
 

@@ -102,6 +102,7 @@ def fake_results(folder):
                     "paper_success_rate": 0.5713,
                     "success_rate": 0.2,
                     "success_rate_exact_planner": 0.9,
+                    "exact_planner_predicted": 0.45,
                 }
                 for name in ("top_three", "near_flank", "far_flank")
             },
@@ -134,7 +135,7 @@ def test_summary_from_fake_results(tmp_path):
     # imitation beside its physics bound, ours as a fraction of it
     assert "0.913 / 1.000; aim-pooled 0.911 / 1.000" in text and "102.8 % / 97.4 % of it" in text
     top = next(line for line in text.splitlines() if "Table II" in line)
-    assert "20.00 % (paper planner); 90.0 % (exact planner) | 50.0 % held out" in top
+    assert "20.00 % (paper planner); 90.0 % (exact planner, predicted 45.0 %) | 50.0 % held" in top
     assert "| throwing | 6.2 | - | - | - |" in text and "| total | 106.2 | - | - | - |" in text
     assert "Goals:" not in text  # a record without the measures states none
     assert summary.write_summary(tmp_path).read_text() == text
