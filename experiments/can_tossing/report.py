@@ -176,7 +176,8 @@ def _curve_lines(i: dict) -> list[str]:
         f"replays) instead of the data set: surprise {_auc_text(more['auc'])} / "
         f"{_auc_text(more['auc_ordinary'])} ({_of_bound(more['auc'], last['auc'])} / "
         f"{_of_bound(more['auc_ordinary'], last['auc_ordinary'])} of the bound from "
-        f"{last['repeats']} replays); aim-pooled {_auc_text(more['auc_pooled'])} / "
+        f"{last['repeats']} replays); aim-pooled ({more.get('aim_sigma', i['aim_sigma']):g} "
+        f"fields) {_auc_text(more['auc_pooled'])} / "
         f"{_auc_text(more['auc_ordinary_pooled'])}",
     ]
 

@@ -67,7 +67,9 @@ __all__ = [
     "perturbed_aims",
     "perturbed_throws",
     "play",
+    "imitation_draws",
     "play_table_one",
+    "replay_network",
     "run_can_tossing",
     "start_evidence",
     "summarise",
@@ -353,6 +355,43 @@ def network_surprise(model: CanModel, throws: dict) -> np.ndarray:
     return surprise
 
 
+def imitation_draws(
+    data, n: int, aim_error: float, seed: int, n_ordinary: int, *, progress=True, executor=None
+) -> tuple[dict, dict]:
+    """Imitation's two draws of :func:`perturbed_throws`: the scored one and the validation one."""
+    run = {"progress": progress, "executor": executor}
+    return (
+        perturbed_throws(data, n, aim_error, seed, PERTURB, n_ordinary, **run),
+        perturbed_throws(data, n, aim_error, seed, VALIDATE, n_ordinary, **run),
+    )
+
+
+def replay_network(sims: Replays, draws: tuple[dict, dict], angle: int = ANGLE) -> dict:
+    """Imitation's AUCs under a network fitted on the replays ``sims`` instead of the data set.
+
+    The network is :func:`experiments.cans.fit_on_replays`'s (every replay a training
+    throw: ``sims.repeats`` throws per aim); its surprise, and its pooled surprise with the
+    aim error chosen on the validation draw as the data set's network's is
+    (:func:`validated_sigma`), scored on ``draws`` (:func:`imitation_draws`). Only numbers
+    are returned, so the network is freed on return.
+    """
+    throws, held_out = draws
+    more = fit_on_replays(sims, angle)
+    table_of = network_tables(more)
+    sigma, _ = validated_sigma(table_of, held_out, more.throwable)
+    surprise = network_surprise(more, throws)
+    pooled = surprise_under(table_of, throws, sigma, more.throwable)
+    failed, failed_ordinary = throws["failed"], throws["failed_ordinary"]
+    return {
+        "throws_per_aim": sims.repeats,
+        "aim_sigma": sigma,
+        "auc": auc_or_none(surprise, failed),
+        "auc_ordinary": auc_or_none(surprise, failed_ordinary),
+        "auc_pooled": auc_or_none(pooled, failed),
+        "auc_ordinary_pooled": auc_or_none(pooled, failed_ordinary),
+    }
+
+
 def imitation(
     model: CanModel,
     data,
@@ -363,6 +402,8 @@ def imitation(
     sims: Replays,
     curve_repeats: int = 2,
     *,
+    draws: tuple[dict, dict] | None = None,
+    more_data: dict | None = None,
     progress: bool = True,
     executor=None,
 ) -> dict:
@@ -378,12 +419,17 @@ def imitation(
     ``curve_repeats`` fresh replays of each scored throw's intended throw (seed purpose
     ``CONVERGE``), to show where the bound settles. ``more_data``: the surprise of a network
     fitted on the replays ``sims`` (:func:`experiments.cans.fit_on_replays`; ``sims.repeats``
-    throws per aim where the data set has a few), to show how much of the gap to the bound
-    is the data set's size.
+    throws per aim where the data set has a few; :func:`replay_network`), to show how much
+    of the gap to the bound is the data set's size. ``draws`` and ``more_data``, when given,
+    are :func:`imitation_draws`' and :func:`replay_network`'s for these settings, computed
+    before ``model`` was fitted so that two networks are never in memory together.
     """
     run = {"progress": progress, "executor": executor}
-    throws = perturbed_throws(data, n, aim_error, seed, PERTURB, n_ordinary, **run)
-    held_out = perturbed_throws(data, n, aim_error, seed, VALIDATE, n_ordinary, **run)
+    if draws is None:
+        draws = imitation_draws(data, n, aim_error, seed, n_ordinary, **run)
+    if more_data is None:
+        more_data = replay_network(sims, draws, model.angle)
+    throws, held_out = draws
     failed, failed_ordinary = throws["failed"], throws["failed_ordinary"]
     known = np.isin(throws["observed"], model.states)
     surprise = network_surprise(model, throws)
@@ -400,9 +446,6 @@ def imitation(
         "bound's convergence replays",
         **run,
     ).reshape(n, curve_repeats)
-    more = fit_on_replays(sims, model.angle)
-    more_surprise = network_surprise(more, throws)
-    more_pooled = surprise_under(network_tables(more), throws, sigma, more.throwable)
     return {
         "n_throws": n,
         "aim_error_m": aim_error,
@@ -423,13 +466,7 @@ def imitation(
         "threshold": operating_points(held_surprise, held_out, surprise, throws),
         "bound": surprise_bound(sims, throws, held_out, model.throwable),
         "bound_curve": bound_curve(ends, throws),
-        "more_data": {
-            "throws_per_aim": sims.repeats,
-            "auc": auc_or_none(more_surprise, failed),
-            "auc_ordinary": auc_or_none(more_surprise, failed_ordinary),
-            "auc_pooled": auc_or_none(more_pooled, failed),
-            "auc_ordinary_pooled": auc_or_none(more_pooled, failed_ordinary),
-        },
+        "more_data": more_data,
         "surprise": surprise.tolist(),
         "pooled_surprise": pooled.tolist(),
         "failed": failed.tolist(),
@@ -482,20 +519,27 @@ def run_can_tossing(config: CanTossingConfig) -> CanTossingResult:
     progress = config.progress
     with open_executor(config.executor) as executor:
         data = can_dataset(config.data_dir, config.scale, executor=executor, progress=progress)
-        model = fit_can_network(data, ANGLE)
         run = {"progress": progress, "executor": executor}
+        sims = replays(config.data_dir, config.scale, config.bound_repeats, angle=ANGLE, **run)
+        settings = (config.n_demos, config.aim_error, config.seed, config.n_ordinary)
+        draws = imitation_draws(data, *settings, **run)
+        # the replays' network on a worker, or here before the data set's and freed: the two
+        # networks' tables are never in one process together
+        if executor is None:
+            more_data = replay_network(sims, draws)
+        else:
+            more_data = executor.submit(replay_network, sims, draws).result()
+        model = fit_can_network(data, ANGLE)
         tables = {mode: table_one(model, data, mode, config.seed, **run) for mode in PROTOCOLS}
         emulated = emulation(model, data, config.n_demos, config.seed, config.rule, **run)
-        sims = replays(config.data_dir, config.scale, config.bound_repeats, angle=ANGLE, **run)
         imitated = imitation(
             model,
             data,
-            config.n_demos,
-            config.aim_error,
-            config.seed,
-            config.n_ordinary,
+            *settings,
             sims,
             config.curve_repeats,
+            draws=draws,
+            more_data=more_data,
             **run,
         )
     return CanTossingResult(

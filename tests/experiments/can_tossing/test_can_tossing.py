@@ -189,7 +189,7 @@ def test_run_at_tiny_scale(tiny_data_dir, tmp_path):
             assert c[key] is None or 0.0 <= c[key] <= 1.0
     # ours fitted on the bound's replays: the same labels, its own AUCs
     more = imitation["more_data"]
-    assert more["throws_per_aim"] == 2
+    assert more["throws_per_aim"] == 2 and more["aim_sigma"] in cts.AIM_SIGMAS
     assert (more["auc"] is None) == (imitation["auc"] is None)
 
     files = experiment("can_tossing").save(result, tmp_path)
