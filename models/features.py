@@ -149,6 +149,8 @@ class Parameter:
         object.__setattr__(self, "high", _numbers(self.name, "high", self.high, float))
         object.__setattr__(self, "bins", _numbers(self.name, "bins", self.bins, int))
         actions = (self.actions,) if isinstance(self.actions, str) else tuple(self.actions)
+        what = f"parameter {self.name!r}: action"
+        actions = tuple(json_label(a, what, "action names") for a in actions)
         object.__setattr__(self, "actions", actions)
         d = len(self.low)
         if d == 0 or len(self.high) != d or len(self.bins) != d:

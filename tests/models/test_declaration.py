@@ -213,8 +213,14 @@ def test_names_keep_their_old_import_path_without_a_warning(module, name):
 
 def test_action_names_are_normalised_and_saved_like_states(tmp_path):
     """numpy action names become Python ones, so save writes them; composite ones are refused."""
-    net = EffectNetwork((Discrete("lid", (0, 1)),), tuple(np.arange(2)) + (np.str_("lift"),))
+    lift = Parameter("height", 0.0, 1.0, 2, actions=(np.int64(1),), affects="arm")
+    net = EffectNetwork(
+        (Discrete("lid", (0, 1)), Continuous("arm", 1)),
+        tuple(np.arange(2)) + (np.str_("lift"),),
+        (lift,),
+    )
     assert net.actions == (0, 1, "lift") and [type(a) for a in net.actions] == [int, int, str]
+    assert type(net.parameters[0].actions[0]) is int
     params = random_params(net, seed=0)
     for back, _ in (
         load(save(tmp_path / "n.pt", net, params)),
