@@ -328,8 +328,22 @@ def _refuse(spec: SiteSpec, states: tuple, v: object, row: int) -> None:
     hint = ""
     if isinstance(v, int) and not isinstance(v, bool) and 0 <= v < len(states):
         hint = " (values are state labels; to give state indices use net.encode_indices({...}))"
+    elif _marks_missing(v):
+        hint = (
+            " (a missing value: evidence gives a discrete site in every row or leaves it out; "
+            "ask the rows without it apart, leaving the site out. fit reads gaps by EM)"
+        )
     raise ValueError(
         f"site {spec.name!r}: value {v!r} is not one of its states {shown} (row {row}){hint}"
+    )
+
+
+def _marks_missing(v: object) -> bool:
+    """Whether ``v`` is one of the marks training rows read as missing (None, NaN, ``pd.NA``)."""
+    return (
+        v is None
+        or (isinstance(v, float) and v != v)
+        or type(v).__name__ == "NAType"  # pandas' missing value, pandas not imported
     )
 
 

@@ -47,7 +47,8 @@ class Discrete:
                 f"feature {self.name!r}: states must be an ordered sequence (a tuple or a "
                 f"list), got the set {self.states!r}, whose order may change between runs"
             )
-        object.__setattr__(self, "states", tuple(_state_label(self.name, s) for s in self.states))
+        states = (json_label(s, f"feature {self.name!r}: state") for s in self.states)
+        object.__setattr__(self, "states", tuple(states))
         if len(self.states) < 2:
             raise ValueError(f"feature {self.name!r} needs at least two states, got {self.states}")
         if len(set(self.states)) != len(self.states):
@@ -148,6 +149,8 @@ class Parameter:
         object.__setattr__(self, "high", _numbers(self.name, "high", self.high, float))
         object.__setattr__(self, "bins", _numbers(self.name, "bins", self.bins, int))
         actions = (self.actions,) if isinstance(self.actions, str) else tuple(self.actions)
+        what = f"parameter {self.name!r}: action"
+        actions = tuple(json_label(a, what, "action names") for a in actions)
         object.__setattr__(self, "actions", actions)
         d = len(self.low)
         if d == 0 or len(self.high) != d or len(self.bins) != d:
@@ -220,19 +223,23 @@ class Parameter:
         return torch.stack([g.reshape(-1) for g in grid], dim=-1)
 
 
-def _state_label(feature: str, state: object) -> Hashable:
-    """A state as a plain JSON scalar (numpy and 0-d torch scalars become Python ones)."""
-    if isinstance(state, np.generic) or isinstance(state, torch.Tensor) and state.dim() == 0:
-        state = state.item()
-    if state is not None and not isinstance(state, str | bool | int | float):
+def json_label(label: object, what: str, kinds: str = "states") -> Hashable:
+    """A label as a plain JSON scalar (numpy and 0-d torch scalars become Python ones).
+
+    ``what`` names the label in the error (``"feature 'door': state"``, ``"action"``),
+    ``kinds`` what such labels are (``"states"``, ``"action names"``).
+    """
+    if isinstance(label, np.generic) or isinstance(label, torch.Tensor) and label.dim() == 0:
+        label = label.item()
+    if label is not None and not isinstance(label, str | bool | int | float):
         raise ValueError(
-            f"feature {feature!r}: state {state!r} is a {type(state).__name__}; states must be "
-            "str, int, float, bool or None (they are saved as JSON). Name a composite state "
-            "with a string, e.g. 'a-b' for ('a', 'b')"
+            f"{what} {label!r} is a {type(label).__name__}; {kinds} must be str, int, float, "
+            "bool or None (they are saved as JSON). Name a composite one with a string, e.g. "
+            "'a-b' for ('a', 'b')"
         )
-    if isinstance(state, float) and not math.isfinite(state):
-        raise ValueError(f"feature {feature!r}: state {state!r} is not a finite number")
-    return state
+    if isinstance(label, float) and not math.isfinite(label):
+        raise ValueError(f"{what} {label!r} is not a finite number")
+    return label
 
 
 def _numbers(parameter: str, attr: str, value: object, kind: type) -> tuple:

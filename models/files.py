@@ -60,7 +60,7 @@ def write_atomically(path: Path, content: bytes | memoryview) -> Path:
 
 
 def stored_members(path: Path, what: str) -> list[zipfile.ZipInfo]:
-    """The members of the zip archive ``path``, refused unread if any is compressed.
+    """The members of the zip archive ``path``, refused unread if any is compressed or encrypted.
 
     A small compressed file can inflate to gigabytes; the toolkit's saves compress
     nothing, so a stored member's size is its size on disk. ``what`` names the format
@@ -71,7 +71,7 @@ def stored_members(path: Path, what: str) -> list[zipfile.ZipInfo]:
     FileNotFoundError
         If there is no file.
     ValueError
-        If it is not a zip archive, or a member is compressed.
+        If it is not a zip archive, or a member is compressed or encrypted.
     """
     try:
         with zipfile.ZipFile(path) as archive:
@@ -81,6 +81,11 @@ def stored_members(path: Path, what: str) -> list[zipfile.ZipInfo]:
     except (zipfile.BadZipFile, OSError, ValueError, EOFError, NotImplementedError) as exc:
         raise ValueError(f"{path} is not a readable {what} ({type(exc).__name__}: {exc})") from exc
     for m in members:
+        if m.flag_bits & 0x1:  # the toolkit's saves encrypt nothing either
+            raise ValueError(
+                f"{path} is not a {what} as the toolkit writes it: its member "
+                f"{m.filename!r} is marked encrypted (a changed byte?); refused unread"
+            )
         if m.compress_type != zipfile.ZIP_STORED:
             raise ValueError(
                 f"{path} is not a {what} as the toolkit writes it: its member "

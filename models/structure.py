@@ -26,7 +26,7 @@ from effect_networks.models.cpds import (
     TableCPD,
     default_kind,
 )
-from effect_networks.models.features import Continuous, Discrete, Feature, Parameter
+from effect_networks.models.features import Continuous, Discrete, Feature, Parameter, json_label
 from effect_networks.models.sites import (
     ACTION,
     SiteSpec,
@@ -62,7 +62,8 @@ def check_declaration(
             f"actions must be an ordered sequence (a tuple or a list), got the set "
             f"{actions!r}, whose order may change between runs"
         )
-    features, actions, parameters = tuple(features), tuple(actions), tuple(parameters)
+    features, parameters = tuple(features), tuple(parameters)
+    actions = tuple(json_label(a, "action", "action names") for a in actions)
     if not features:
         raise ValueError("an effect network needs at least one feature")
     if not actions or len(set(actions)) != len(actions):

@@ -67,7 +67,7 @@ from effect_networks.inference.fitting.sufficient_statistics import (
 )
 from effect_networks.models.declaration import EffectNetwork
 from effect_networks.models.evidence import Evidence
-from effect_networks.models.frames import as_data
+from effect_networks.models.frames import as_data, is_frame
 from effect_networks.models.model import effect_model
 from effect_networks.models.params import NetworkParams, check_params, initial_params
 from pyro.infer import TraceEnum_ELBO
@@ -263,7 +263,8 @@ def fit_statistics(
     net
         The network whose CPDs the statistics are for.
     chunks
-        An iterable of row chunks, each as :func:`fit` reads training rows; read once.
+        An iterable of row chunks, each as :func:`fit` reads training rows; read once. One
+        mapping of rows or one ``DataFrame`` is one chunk.
     progress
         Show a progress bar over the chunks.
 
@@ -273,6 +274,8 @@ def fit_statistics(
         Every closed-form site's sufficient statistics, summed over the chunks.
     """
     refuse_adaptive(net, "fit_statistics")
+    if isinstance(chunks, Mapping | TrainingRows) or is_frame(chunks):
+        chunks = [chunks]  # one partition's rows, not an iterable of chunks
     total, empty = None, 0
     for i, chunk in enumerate(
         tqdm(chunks, desc="fit (chunks)", unit="chunk", disable=not progress)

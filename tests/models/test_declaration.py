@@ -3,10 +3,20 @@
 import importlib
 import warnings
 
+import numpy as np
 import pytest
 import torch
 from effect_networks.inference import fit, infer_action
-from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter, load, save
+from effect_networks.models import (
+    Continuous,
+    Discrete,
+    EffectNetwork,
+    Parameter,
+    load,
+    load_npz,
+    save,
+    save_npz,
+)
 from effect_networks.models.params import FORMAT_VERSION, _checksum
 
 from tests.helpers import random_params
@@ -199,3 +209,25 @@ def test_names_keep_their_old_import_path_without_a_warning(module, name):
         warnings.simplefilter("error")
         value = getattr(importlib.import_module(module), name)
     assert value is getattr(importlib.import_module(MOVED[module][name]), name)
+
+
+def test_action_names_are_normalised_and_saved_like_states(tmp_path):
+    """numpy action names become Python ones, so save writes them; composite ones are refused."""
+    lift = Parameter("height", 0.0, 1.0, 2, actions=(np.int64(1),), affects="arm")
+    net = EffectNetwork(
+        (Discrete("lid", (0, 1)), Continuous("arm", 1)),
+        tuple(np.arange(2)) + (np.str_("lift"),),
+        (lift,),
+    )
+    assert net.actions == (0, 1, "lift") and [type(a) for a in net.actions] == [int, int, str]
+    assert type(net.parameters[0].actions[0]) is int
+    params = random_params(net, seed=0)
+    for back, _ in (
+        load(save(tmp_path / "n.pt", net, params)),
+        load_npz(save_npz(tmp_path / "n.npz", net, params)),
+    ):
+        assert back.identity() == net.identity()
+    with pytest.raises(ValueError, match=r"action \('a', 'b'\) is a tuple; action names must be"):
+        EffectNetwork((Discrete("lid", (0, 1)),), (("a", "b"), "c"))
+    with pytest.raises(ValueError, match="action nan is not a finite number"):
+        EffectNetwork((Discrete("lid", (0, 1)),), (float("nan"), "c"))

@@ -61,6 +61,18 @@ def test_labels_for_every_site_kind():
         NET.encode({"action": torch.tensor([0])})
 
 
+@pytest.mark.parametrize("gap", [None, float("nan"), "pandas NA"])
+def test_a_missing_label_in_query_evidence_is_named_as_missing(gap):
+    if gap == "pandas NA":
+        gap = pytest.importorskip("pandas").NA
+    values = np.array(["calm", gap], dtype=object)
+    with pytest.raises(ValueError, match=r"site 'initial.mood'.*\(row 1\) \(a missing value"):
+        NET.encode({"initial.mood": values})
+    # None as a declared state is a label, not a gap
+    with_none = EffectNetwork((Discrete("lid", (None, "on")),), ("a", "b"))
+    assert with_none.encode({"initial.lid": [None, "on"]})["initial.lid"].tolist() == [0, 1]
+
+
 def test_indices_only_through_the_named_path():
     enc = NET.encode_indices({"initial.level": torch.tensor([1]), "action": np.array([1])})
     assert isinstance(enc, Evidence)

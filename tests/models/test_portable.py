@@ -17,8 +17,10 @@ from effect_networks.models import (
     EffectNetwork,
     NetworkParams,
     TableCPD,
+    load,
     load_npz,
     random_params,
+    save,
     save_npz,
 )
 from effect_networks.models.portable import HEADER_KEYS, content_sha256
@@ -253,6 +255,22 @@ def test_a_compressed_member_is_refused_unread(saved, tmp_path):
     crafted = reseal(members, tmp_path / "deflated.npz", zipfile.ZIP_DEFLATED)
     with pytest.raises(ValueError, match="is compressed"):
         load_npz(crafted)
+
+
+@pytest.mark.parametrize("fmt", ["npz", "pt"])
+def test_a_member_marked_encrypted_is_refused_unread(saved, tmp_path, fmt):
+    """Every entry's encryption flag set in turn: a ValueError (zipfile raised RuntimeError)."""
+    path = saved[0] if fmt == "npz" else save(tmp_path / "net.pt", NET, saved[1])
+    read = load_npz if fmt == "npz" else load
+    good = path.read_bytes()
+    entries = [i for i in range(len(good)) if good.startswith(b"PK\x01\x02", i)]
+    assert entries
+    for entry in entries:
+        flagged = bytearray(good)
+        flagged[entry + 8] |= 0x1  # the central directory's general-purpose flag: encrypted
+        (tmp_path / f"flagged.{fmt}").write_bytes(bytes(flagged))
+        with pytest.raises(ValueError, match="marked encrypted"):
+            read(tmp_path / f"flagged.{fmt}")
 
 
 def test_not_a_zip_and_a_truncated_file_are_refused(saved, tmp_path):

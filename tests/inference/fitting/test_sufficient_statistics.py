@@ -4,7 +4,14 @@ import numpy as np
 import pytest
 import torch
 from effect_networks.inference import fit, fit_statistics, params_from_statistics, simulate
-from effect_networks.models import Continuous, Discrete, EffectNetwork, Parameter, random_params
+from effect_networks.models import (
+    Continuous,
+    Discrete,
+    EffectNetwork,
+    Parameter,
+    random_params,
+    to_frame,
+)
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
@@ -81,6 +88,19 @@ def test_partitions_merge_in_any_grouping():
                 torch.testing.assert_close(getattr(y.sites[site], name), value, rtol=1e-12, atol=0)
     params = params_from_statistics(THROW, left, 0.01, 1e-6)
     torch.testing.assert_close(params["end.hit"].bias, fit(THROW, rows).params["end.hit"].bias)
+
+
+def test_one_partition_given_whole_is_one_chunk():
+    """A mapping or a DataFrame is one partition's rows, not an iterable of chunks."""
+    rows = simulate(THROW, random_params(THROW, 1), 300, seed=2)
+    listed = fit_statistics(THROW, [rows])
+    pytest.importorskip("pandas")
+    for whole in (rows, to_frame(THROW, rows)):
+        got = fit_statistics(THROW, whole)
+        assert got.rows == listed.rows == 300
+        for site in listed.sites:
+            for name, value in vars(listed.sites[site]).items():
+                torch.testing.assert_close(getattr(got.sites[site], name), value, rtol=0, atol=0)
 
 
 def test_chunk_limits_are_named():
