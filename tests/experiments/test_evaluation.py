@@ -33,6 +33,13 @@ def brute_force_auc(scores, positive):
     return wins / (len(pos) * len(neg))
 
 
+def scored_rows(top: int):
+    """2-30 (score, positive) rows, scores integers 0..top (ties), both classes present."""
+    return st.lists(
+        st.tuples(st.integers(0, top).map(float), st.booleans()), min_size=2, max_size=30
+    ).filter(lambda rows: 0 < sum(p for _, p in rows) < len(rows))
+
+
 def test_accuracy_histogram_bins():
     desired = np.array([5, 5, 5, 5, 5, 5, 5, 5, 5, 0])
     achieved = np.array([10, 8, 7, 6, 5, 4, 3, 2, 0, 0])  # diffs -5 -3 -2 -1 0 1 2 3 5 0
@@ -48,22 +55,14 @@ def test_accuracy_histogram_rejects_mismatched_lengths():
 
 
 @settings(max_examples=60, deadline=None)
-@given(
-    st.lists(
-        st.tuples(st.integers(0, 5).map(float), st.booleans()), min_size=2, max_size=30
-    ).filter(lambda rows: 0 < sum(p for _, p in rows) < len(rows))
-)
+@given(scored_rows(5))
 def test_roc_auc_equals_pair_counting(rows):
     scores, positive = zip(*rows, strict=True)
     assert roc_auc(scores, positive) == pytest.approx(brute_force_auc(scores, positive))
 
 
 @settings(max_examples=40, deadline=None)
-@given(
-    st.lists(
-        st.tuples(st.integers(0, 4).map(float), st.booleans()), min_size=2, max_size=30
-    ).filter(lambda rows: 0 < sum(p for _, p in rows) < len(rows))
-)
+@given(scored_rows(4))
 def test_roc_curve_area_is_the_auc(rows):
     scores, positive = zip(*rows, strict=True)
     fpr, tpr = roc_curve(scores, positive)
@@ -92,11 +91,7 @@ def test_best_threshold_by_hand():
 
 
 @settings(max_examples=40, deadline=None)
-@given(
-    st.lists(
-        st.tuples(st.integers(0, 6).map(float), st.booleans()), min_size=2, max_size=30
-    ).filter(lambda rows: 0 < sum(p for _, p in rows) < len(rows))
-)
+@given(scored_rows(6))
 def test_best_threshold_is_the_roc_point_farthest_above_the_diagonal(rows):
     scores, positive = zip(*rows, strict=True)
     fpr, tpr = roc_curve(scores, positive)
