@@ -130,21 +130,37 @@ def select_by_information(
     Chosen by :func:`regression_information`; each pick's row is added to its configuration's
     statistics before the next (see the module).
     """
+    _check_k(k)
+    gain, zz, group, z, d = _information(net, parameter, data, candidates, prior_precision)
+
+    def add(i: int, g: int, same: torch.Tensor) -> torch.Tensor:
+        zz[g] += z[i, :, None] * z[i, None, :]
+        return _gain(zz, group[same], z[same], d)
+
+    return _greedy(gain.clone(), group, k, add)
+
+
+def _check_k(k) -> None:
     if isinstance(k, bool) or not isinstance(k, int) or k < 1:
         raise ValueError(f"k must be a positive int, got {k!r}")
-    gain, zz, group, z, d = _information(net, parameter, data, candidates, prior_precision)
-    if k > len(gain):
-        raise ValueError(f"k = {k} exceeds the {len(gain)} candidates")
-    chosen = []
-    gain = gain.clone()
+
+
+def _greedy(score: torch.Tensor, group: torch.Tensor, k: int, add) -> torch.Tensor:
+    """``k`` distinct indices, each the best ``score`` left; a pick rescores its own cluster.
+
+    ``add(i, g, same)`` adds candidate ``i``'s row to cluster ``g`` and returns the new scores
+    of the candidates ``same`` in that cluster (a bool mask); ``score`` is overwritten.
+    """
+    if k > len(score):
+        raise ValueError(f"k = {k} exceeds the {len(score)} candidates")
+    chosen: list[int] = []
     for _ in range(k):
-        i = int(gain.argmax())
+        i = int(score.argmax())
         chosen.append(i)
         g = int(group[i])
-        zz[g] += z[i, :, None] * z[i, None, :]
         same = group == g
-        gain[same] = _gain(zz, group[same], z[same], d)
-        gain[chosen] = -torch.inf
+        score[same] = add(i, g, same)
+        score[chosen] = -torch.inf
     return torch.tensor(chosen, dtype=torch.long)
 
 
@@ -222,8 +238,7 @@ def select_by_variance(
     asked). Each pick's row is added to its cluster's ``A`` before the next; the residual
     variances stay those of ``data`` (a pick's outcome is not known yet).
     """
-    if isinstance(k, bool) or not isinstance(k, int) or k < 1:
-        raise ValueError(f"k must be a positive int, got {k!r}")
+    _check_k(k)
     inverse, variance, group, z, ref_group, ref_z = _variance_setup(
         net,
         parameter,
@@ -232,17 +247,11 @@ def select_by_variance(
         candidates if reference is None else reference,
         prior_precision,
     )
-    if k > len(z):
-        raise ValueError(f"k = {k} exceeds the {len(z)} candidates")
-    score = _reduction(inverse, variance, group, z, ref_group, ref_z)
-    chosen: list[int] = []
-    for _ in range(k):
-        i = int(score.argmax())
-        chosen.append(i)
-        g = int(group[i])
-        u = inverse[g] @ z[i]
+
+    def add(i: int, g: int, same: torch.Tensor) -> torch.Tensor:
+        u = inverse[g] @ z[i]  # Sherman-Morrison: A^-1 after the row z_i
         inverse[g] -= torch.outer(u, u) / (1 + z[i] @ u)
-        same = group == g
-        score[same] = _reduction(inverse, variance, group[same], z[same], ref_group, ref_z)
-        score[chosen] = -torch.inf
-    return torch.tensor(chosen, dtype=torch.long)
+        return _reduction(inverse, variance, group[same], z[same], ref_group, ref_z)
+
+    score = _reduction(inverse, variance, group, z, ref_group, ref_z)
+    return _greedy(score, group, k, add)
