@@ -257,9 +257,6 @@ def fit_can_network(data: CanDataset, angle: int) -> CanModel:
     return _fit_throws(starts, data.start_config[sel], data.field[sel], data.end_config[sel], angle)
 
 
-REPLAY_CHUNK = 20_000  # throws per chunk of fit_on_replays' fit
-
-
 def fit_on_replays(sims: Replays, angle: int = 0) -> CanModel:
     """Fit Fig. 2's network on replays (:func:`replays`) thrown at ``angle``, as on a data set.
 
@@ -273,27 +270,14 @@ def fit_on_replays(sims: Replays, angle: int = 0) -> CanModel:
     start = np.broadcast_to(np.asarray(sims.configs, np.int64)[:, None, None], shape)
     field = np.broadcast_to(np.arange(geometry.N_FIELDS)[None, :, None], shape)
     sel = np.broadcast_to(throwable[None, :, None], shape)
-    return _fit_throws(
-        set(sims.configs), start[sel], field[sel], sims.end_config[sel], angle, chunk=REPLAY_CHUNK
-    )
+    return _fit_throws(set(sims.configs), start[sel], field[sel], sims.end_config[sel], angle)
 
 
-def _fit_throws(starts: set, start, field, end, angle: int, chunk: int | None = None) -> CanModel:
-    """Fig. 2's network over the ``starts`` and every end seen, fitted on the throws given.
-
-    ``chunk``: fit from the sufficient statistics of that many throws at a time
-    (:func:`inference.fit` on an iterable of chunks), the same tables in less memory.
-    """
+def _fit_throws(starts: set, start, field, end, angle: int) -> CanModel:
+    """Fig. 2's network over the ``starts`` and every end seen, fitted on the throws given."""
     states = sorted(set(starts) | set(np.asarray(end).tolist()))
     net = can_network(states)
-    if chunk is None:
-        params = fit(net, can_rows(net, start, field, end)).params
-    else:
-        parts = (
-            can_rows(net, start[i : i + chunk], field[i : i + chunk], end[i : i + chunk])
-            for i in range(0, len(start), chunk)
-        )
-        params = fit(net, parts).params
+    params = fit(net, can_rows(net, start, field, end)).params
     throwable = torch.tensor(
         [field_throws.is_throwable(f, angle) for f in range(geometry.N_FIELDS)]
     )
